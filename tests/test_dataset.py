@@ -1,0 +1,142 @@
+"""Tests of twin.dataset: the dataset folder's reader and writer, and JOINTS.csv."""
+
+import numpy as np
+import pytest
+
+from twin.dataset import (
+    DatasetError,
+    DatasetWriter,
+    Joints,
+    PoseRow,
+    default_plate,
+    read_dataset,
+    read_joints_csv,
+    write_dataset,
+    write_dataset_toml,
+    write_joints_csv,
+)
+from twin.transforms import pose6_to_transform
+
+
+def _write_small(folder, rng, n=6, missing=()):
+    write_dataset_toml(folder, "irb1200", default_plate(), noise_position=5e-6, provenance="test")
+    q = rng.uniform(-1, 1, (n, 6))
+    sph = rng.normal(0, 0.2, (n, 3, 3))
+    with DatasetWriter(folder, optional=["set", "status", "temp_c"], extra=["operator"]) as w:
+        for k in range(n):
+            spheres = [None if (k, s) in missing else sph[k, s] for s in range(3)]
+            status = ";".join(f"p{s}:occluded" for s in range(3) if (k, s) in missing)
+            w.write(PoseRow(k, q[k], spheres, set="calibration" if k % 2 else "validation", status=status,
+                            temp_c=20.5 + k, extra={"operator": "ann"}))
+    return q, sph
+
+
+def test_round_trip_keeps_values_masks_and_unknown_columns(tmp_path):
+    """Write then read: joints to 1e-12 rad, spheres to 1 nm, missing spheres masked, extra columns kept."""
+    rng = np.random.default_rng(0)
+    q, sph = _write_small(tmp_path, rng, missing={(2, 1)})
+    ds = read_dataset(tmp_path)
+    assert ds.n == 6 and ds.robot.name == "irb1200"
+    assert np.abs(ds.q - q).max() < 1e-12
+    ok = ds.sphere_seen
+    assert not ok[2, 1] and ok.sum() == 17
+    assert np.abs(ds.spheres[ok] - sph[ok]).max() < 1e-9
+    assert ds.extra["operator"].tolist() == ["ann"] * 6
+    assert ds.status[2] == "p1:occluded"
+    assert ds.noise_position == pytest.approx(5e-6)
+    assert np.allclose(ds.plate.spheres_flange, default_plate().spheres_flange)
+    out = tmp_path / "copy"
+    write_dataset(out, ds)
+    assert (out / "poses.csv").read_text() == (tmp_path / "poses.csv").read_text()
+
+
+def test_pose_columns_round_trip(tmp_path):
+    """A 6-DOF pose dataset (the TM-MDH paper's kind) round-trips position to 1 nm and rotation to 1e-12 rad."""
+    write_dataset_toml(tmp_path, "brtirus0707a", default_plate())
+    rng = np.random.default_rng(1)
+    poses = pose6_to_transform(np.concatenate([rng.normal(0, 0.5, (4, 3)), rng.normal(0, 1, (4, 3))], axis=1))
+    with DatasetWriter(tmp_path, spheres=False, pose=True) as w:
+        for k in range(4):
+            w.write(PoseRow(k, np.zeros(6), pose=poses[k]))
+    ds = read_dataset(tmp_path)
+    assert ds.has_poses and not ds.has_spheres
+    assert np.abs(ds.pose[:, :3, 3] - poses[:, :3, 3]).max() < 1e-9
+    assert np.abs(ds.pose[:, :3, :3] - poses[:, :3, :3]).max() < 1e-11
+
+
+def _edit_csv(folder, old, new):
+    p = folder / "poses.csv"
+    p.write_text(p.read_text().replace(old, new, 1))
+
+
+def test_non_numeric_joint_names_file_row_and_column(tmp_path):
+    """A non-numeric joint value is refused with the file, the row, the pose_id and the column."""
+    _write_small(tmp_path, np.random.default_rng(2))
+    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[2] = "abc"
+    lines[3] = ",".join(cells)
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"poses.csv: row 3 \(pose_id 2\), column 'q2': not a number: 'abc'"):
+        read_dataset(tmp_path)
+
+
+def test_missing_column_and_unknown_robot_are_refused(tmp_path):
+    """A missing q column and an unknown robot name each give an error naming them."""
+    _write_small(tmp_path, np.random.default_rng(3))
+    _edit_csv(tmp_path, "q5,", "qq5,")
+    with pytest.raises(DatasetError, match=r"missing required columns \['q5'\]"):
+        read_dataset(tmp_path)
+    _edit_csv(tmp_path, "qq5,", "q5,")
+    toml = tmp_path / "dataset.toml"
+    toml.write_text(toml.read_text().replace('robot = "irb1200"', 'robot = "irb9999"'))
+    with pytest.raises(DatasetError, match="unknown robot name 'irb9999'"):
+        read_dataset(tmp_path)
+
+
+def test_too_many_rows_without_three_spheres_is_an_error(tmp_path):
+    """When most rows lack a sphere the dataset is refused, pointing at the status column."""
+    missing = {(k, 0) for k in range(5)}
+    _write_small(tmp_path, np.random.default_rng(4), missing=missing)
+    with pytest.raises(DatasetError, match="fewer than three spheres"):
+        read_dataset(tmp_path)
+
+
+def test_bad_set_value_is_refused(tmp_path):
+    """A 'set' value outside {calibration, validation} names the row and the value."""
+    _write_small(tmp_path, np.random.default_rng(5))
+    _edit_csv(tmp_path, "validation", "holdout")
+    with pytest.raises(DatasetError, match=r"row 1 \(pose_id 0\), column 'set': 'holdout'"):
+        read_dataset(tmp_path)
+
+
+def test_writer_refuses_nan_sphere_instead_of_writing_it(tmp_path):
+    """A NaN centre is never written: the caller must pass None and a status."""
+    with DatasetWriter(tmp_path) as w:
+        with pytest.raises(ValueError, match="not finite"):
+            w.write(PoseRow(0, np.zeros(6), [np.array([np.nan, 0, 0]), None, None]))
+
+
+def test_inline_robot_table(tmp_path):
+    """An inline robot table in dataset.toml builds the same model as the named irb1200."""
+    spec = {
+        "name": "irb_inline", "convention": "mdh", "beta_joints": [2],
+        "theta_deg": [0, -90, 0, 0, 0, 0], "d_mm": [399.1, 0, 0, 351, 0, 82],
+        "a_mm": [0, 0, 350, 42, 0, 0], "alpha_deg": [0, -90, 0, -90, 90, -90], "beta_deg": [0.0],
+    }
+    write_dataset_toml(tmp_path, spec, default_plate())
+    with DatasetWriter(tmp_path) as w:
+        w.write(PoseRow(0, np.zeros(6), [np.zeros(3)] * 3))
+    from twin.robots import irb1200
+
+    ds = read_dataset(tmp_path)
+    assert np.allclose(ds.robot.params, irb1200().params)
+
+
+def test_joints_csv_round_trip(tmp_path):
+    """JOINTS.csv keeps ids, joints and the temperature channel in order."""
+    j = Joints(np.array([3, 1, 2]), np.deg2rad([[1, 2, 3, 4, 5, 6], [0] * 6, [-10] * 6]), temp_c=np.array([20.0, 21, 22]))
+    write_joints_csv(tmp_path / "J.csv", j)
+    r = read_joints_csv(tmp_path / "J.csv")
+    assert r.pose_id.tolist() == [3, 1, 2]
+    assert np.allclose(r.q, j.q) and np.allclose(r.temp_c, j.temp_c)

@@ -1,0 +1,70 @@
+"""Tests of twin.transforms (rotation vectors, SE(3), Euler angles)."""
+
+import numpy as np
+
+from twin.transforms import (
+    euler_zyx_from_matrix,
+    invert_transform,
+    left_jacobian_so3,
+    matrix_from_euler_zyx,
+    matrix_to_quat_wxyz,
+    matrix_to_rotvec,
+    pose6_to_transform,
+    quat_wxyz_to_matrix,
+    rotvec_to_matrix,
+    transform_to_pose6,
+)
+
+
+def _random_rotvecs(rng, n):
+    axis = rng.normal(size=(n, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    return axis * rng.uniform(0, np.pi, (n, 1))
+
+
+def test_rotvec_round_trip_including_near_pi():
+    """matrix_to_rotvec inverts rotvec_to_matrix for angles in [0, pi], also within 1e-9 of pi."""
+    rng = np.random.default_rng(0)
+    r = _random_rotvecs(rng, 500)
+    r[:5] *= np.pi / np.linalg.norm(r[:5], axis=1, keepdims=True) * (1 - 1e-10)
+    r[5] = 0.0
+    R = rotvec_to_matrix(r)
+    assert np.allclose(np.swapaxes(R, 1, 2) @ R, np.eye(3), atol=1e-12)
+    R2 = rotvec_to_matrix(matrix_to_rotvec(R))
+    assert np.abs(R2 - R).max() < 1e-9
+
+
+def test_left_jacobian_matches_finite_differences():
+    """exp(r + dr) = exp([J_l(r) dr]x) exp(r) to first order, checked by central differences."""
+    rng = np.random.default_rng(1)
+    for r in _random_rotvecs(rng, 20):
+        J = left_jacobian_so3(r)
+        h = 1e-6
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = h
+            w = matrix_to_rotvec(rotvec_to_matrix(r + e) @ rotvec_to_matrix(r - e).T) / (2 * h)
+            assert np.allclose(w, J[:, k], atol=1e-8)
+
+
+def test_transform_inverse_and_pose6_round_trip():
+    """invert_transform gives the identity product; pose6 <-> transform round-trips."""
+    rng = np.random.default_rng(2)
+    p6 = np.concatenate([rng.normal(size=(50, 3)), _random_rotvecs(rng, 50)], axis=1)
+    T = pose6_to_transform(p6)
+    assert np.allclose(T @ invert_transform(T), np.eye(4), atol=1e-12)
+    assert np.allclose(pose6_to_transform(transform_to_pose6(T)), T, atol=1e-12)
+
+
+def test_euler_zyx_round_trip_matches_paper_eq43():
+    """euler_zyx_from_matrix (eq. 43 of the separation paper) inverts Rz Ry Rx."""
+    rng = np.random.default_rng(3)
+    e = np.stack([rng.uniform(-3, 3, 100), rng.uniform(-1.5, 1.5, 100), rng.uniform(-3, 3, 100)], axis=1)
+    assert np.allclose(euler_zyx_from_matrix(matrix_from_euler_zyx(e)), e, atol=1e-12)
+
+
+def test_quaternion_round_trip():
+    """wxyz quaternions round-trip through rotation matrices (w >= 0)."""
+    rng = np.random.default_rng(4)
+    R = rotvec_to_matrix(_random_rotvecs(rng, 100))
+    assert np.allclose(quat_wxyz_to_matrix(matrix_to_quat_wxyz(R)), R, atol=1e-12)

@@ -1,0 +1,147 @@
+"""Pinhole camera model shared by the world (rendering, truth) and the instrument (estimation).
+
+Pure numpy and no truth: the world uses it to place MuJoCo cameras and to distort rendered images;
+the instrument estimates its own parameters with OpenCV and uses the same formulas.
+
+Frames (see ``docs/conventions.md``):
+
+* OpenCV camera frame: +x right, +y down, +z forward (optical axis).
+* MuJoCo camera frame: +x right, +y up, -z forward.
+* :func:`mujoco_to_opencv_cam2world` is the one function that flips between them:
+  ``R_cv = R_mj @ diag(1, -1, -1)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "FLIP_MUJOCO_OPENCV",
+    "CameraIntrinsics",
+    "mujoco_to_opencv_cam2world",
+    "opencv_to_mujoco_cam2world",
+    "focal_px_from_fovy",
+    "fovy_deg_from_focal_px",
+    "project_points",
+    "distort_normalized",
+    "undistort_normalized",
+]
+
+# diag(1, -1, -1): MuJoCo camera axes (x right, y up, looking along -z) <-> OpenCV (x right, y down, +z).
+FLIP_MUJOCO_OPENCV = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics [px] with OpenCV's 5-term distortion ``(k1, k2, p1, p2, k3)``.
+
+    The principal point follows OpenCV's pixel-centre convention: pixel ``(u, v)`` covers
+    ``[u - 0.5, u + 0.5]``; for an ideal centred sensor ``cx = width/2 - 0.5``.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive focal length [px], got {v!r}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"width/height must be positive [px], got {self.width}x{self.height}")
+        if len(self.dist) != 5:
+            raise ValueError(f"dist must have 5 coefficients (k1, k2, p1, p2, k3), got {self.dist!r}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """Camera matrix ``(3, 3)``."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def dist_array(self) -> np.ndarray:
+        return np.asarray(self.dist, dtype=float)
+
+    @classmethod
+    def ideal(cls, width: int, height: int, fovy_deg: float, dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> "CameraIntrinsics":
+        """Square pixels, centred principal point, focal length from the vertical field of view."""
+        f = focal_px_from_fovy(fovy_deg, height)
+        return cls(f, f, width / 2 - 0.5, height / 2 - 0.5, int(width), int(height), tuple(float(x) for x in dist))
+
+    def scaled(self, factor: float) -> "CameraIntrinsics":
+        """Intrinsics of the same camera at ``factor`` times the resolution."""
+        w, h = int(round(self.width * factor)), int(round(self.height * factor))
+        return CameraIntrinsics(
+            self.fx * factor, self.fy * factor, (self.cx + 0.5) * factor - 0.5, (self.cy + 0.5) * factor - 0.5, w, h, self.dist
+        )
+
+
+def mujoco_to_opencv_cam2world(cam_xpos: np.ndarray, cam_xmat: np.ndarray) -> np.ndarray:
+    """OpenCV ``cam2world`` ``(4, 4)`` from MuJoCo's ``data.cam_xpos`` ``(3,)`` and ``data.cam_xmat`` ``(9,)``.
+
+    The MuJoCo camera looks along its -z with +y up; OpenCV's looks along +z with +y down, so the
+    axes differ by ``diag(1, -1, -1)``. The OpenCV extrinsics (``world2cam``) are the inverse:
+    ``R = diag(1, -1, -1) @ xmat.T``, ``t = -R @ xpos``.
+    """
+    R_mj = np.asarray(cam_xmat, dtype=float).reshape(3, 3)
+    T = np.eye(4)
+    T[:3, :3] = R_mj @ FLIP_MUJOCO_OPENCV
+    T[:3, 3] = np.asarray(cam_xpos, dtype=float).reshape(3)
+    return T
+
+
+def opencv_to_mujoco_cam2world(cam2world_cv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`mujoco_to_opencv_cam2world`: ``(pos (3,), xmat (3, 3))`` of the MuJoCo camera."""
+    T = np.asarray(cam2world_cv, dtype=float)
+    return T[:3, 3].copy(), T[:3, :3] @ FLIP_MUJOCO_OPENCV
+
+
+def focal_px_from_fovy(fovy_deg: float, height: int) -> float:
+    """``f = 0.5 * height / tan(0.5 * fovy)`` [px]."""
+    return 0.5 * height / np.tan(0.5 * np.deg2rad(fovy_deg))
+
+
+def fovy_deg_from_focal_px(f_px: float, height: int) -> float:
+    """Vertical field of view [deg] of a focal length [px] on ``height`` rows."""
+    return float(np.rad2deg(2.0 * np.arctan(0.5 * height / f_px)))
+
+
+def distort_normalized(xy: np.ndarray, dist) -> np.ndarray:
+    """OpenCV's distortion of normalized image points ``(n, 2)`` (``x = X/Z``, ``y = Y/Z``)."""
+    k1, k2, p1, p2, k3 = np.asarray(dist, dtype=float)
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(xy_d: np.ndarray, dist, iterations: int = 20) -> np.ndarray:
+    """Invert :func:`distort_normalized` by fixed-point iteration (as OpenCV's ``undistortPoints``)."""
+    k1, k2, p1, p2, k3 = np.asarray(dist, dtype=float)
+    xy = np.array(xy_d, dtype=float)
+    for _ in range(iterations):
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xy = np.stack([(xy_d[..., 0] - dx) / radial, (xy_d[..., 1] - dy) / radial], axis=-1)
+    return xy
+
+
+def project_points(points_world: np.ndarray, world2cam: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    """Pixel coordinates ``(n, 2)`` [px] of world points ``(n, 3)`` [m] (OpenCV camera frame, distortion)."""
+    P = np.asarray(points_world, dtype=float).reshape(-1, 3)
+    Pc = P @ world2cam[:3, :3].T + world2cam[:3, 3]
+    if np.any(Pc[:, 2] <= 0):
+        raise ValueError("points_world: some points are behind the camera (z <= 0 in the camera frame)")
+    xy = distort_normalized(Pc[:, :2] / Pc[:, 2:3], intr.dist)
+    return np.stack([intr.fx * xy[:, 0] + intr.cx, intr.fy * xy[:, 1] + intr.cy], axis=-1)

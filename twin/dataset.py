@@ -1,0 +1,758 @@
+"""The measured dataset: the seam between the instrument and the estimator (``docs/formats.md``).
+
+The one reader (:func:`read_dataset`) and the one writer (:func:`write_dataset`, :class:`DatasetWriter`)
+of the dataset folder (``poses.csv`` + ``dataset.toml``), and of ``JOINTS.csv``
+(:func:`read_joints_csv` / :func:`write_joints_csv`). Everything here could come from a real robot:
+nothing reads truth. Inside, units are SI; the files hold millimetres and degrees.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .kinematics import RobotModel
+from .robots import ROBOTS, get_robot
+from .transforms import pose6_to_transform, transform_to_pose6
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "SPHERE_COLUMNS",
+    "POSE_COLUMNS",
+    "JOINT_COLUMNS",
+    "Plate",
+    "Dataset",
+    "DatasetError",
+    "DatasetWriter",
+    "PoseRow",
+    "default_plate",
+    "read_dataset",
+    "write_dataset",
+    "write_dataset_toml",
+    "read_joints_csv",
+    "write_joints_csv",
+    "robot_from_spec",
+]
+
+SCHEMA_VERSION = 1
+JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
+SPHERE_COLUMNS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
+POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz")
+OPTIONAL_COLUMNS = ("set", "station", "pair", "temp_c", "t_s", "status")
+SETS = ("calibration", "validation")
+_MM = 1e-3
+_DEG = math.pi / 180.0
+
+
+class DatasetError(ValueError):
+    """A dataset that cannot be used as it is; the message names the file, row and column."""
+
+
+@dataclass(frozen=True)
+class Plate:
+    """The three-sphere plate: diameter [m] and nominal sphere centres in the flange frame ``(3, 3)`` [m]."""
+
+    sphere_diameter: float
+    spheres_flange: np.ndarray
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.spheres_flange, dtype=float)
+        if s.shape != (3, 3) or not np.all(np.isfinite(s)):
+            raise ValueError(f"spheres_flange must be a finite (3, 3) array [m], got shape {s.shape}")
+        if not (np.isfinite(self.sphere_diameter) and self.sphere_diameter > 0):
+            raise ValueError(f"sphere_diameter must be positive [m], got {self.sphere_diameter!r}")
+        s.setflags(write=False)
+        object.__setattr__(self, "spheres_flange", s)
+
+    @property
+    def pairwise_distances(self) -> np.ndarray:
+        """Distances ``(3,)`` [m] between spheres (0-1, 0-2, 1-2)."""
+        s = self.spheres_flange
+        return np.array([np.linalg.norm(s[0] - s[1]), np.linalg.norm(s[0] - s[2]), np.linalg.norm(s[1] - s[2])])
+
+
+def default_plate() -> Plate:
+    """The twin's plate (separation paper section 2.2.2): 25.4 mm spheres on a 60 mm circle at z = 50 mm,
+    at 0, 180 and 110 deg (unequal spacing so that the three can be labelled by their distances)."""
+    ang = np.deg2rad([0.0, 180.0, 110.0])
+    s = np.stack([60.0 * np.cos(ang), 60.0 * np.sin(ang), np.full(3, 50.0)], axis=1) * _MM
+    return Plate(25.4 * _MM, s)
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """A measured dataset in SI units. ``n`` rows in measurement order.
+
+    ``spheres`` ``(n, 3, 3)`` [m] and ``pose`` ``(n, 4, 4)`` hold measurements only where ``sphere_seen``
+    ``(n, 3)`` / ``pose_seen`` ``(n,)`` say so; elsewhere they are NaN and must not be used (every
+    consumer selects with the masks). ``q`` ``(n, 6)`` [rad] are the commanded joints.
+    """
+
+    robot: RobotModel
+    robot_spec: Any
+    plate: Plate
+    pose_id: np.ndarray
+    q: np.ndarray
+    spheres: np.ndarray
+    sphere_seen: np.ndarray
+    pose: np.ndarray
+    pose_seen: np.ndarray
+    set: np.ndarray | None = None
+    station: np.ndarray | None = None
+    pair: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
+    t_s: np.ndarray | None = None
+    status: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    noise_position: float | None = None
+    noise_orientation: float | None = None
+    stations_base2meas: dict[str, np.ndarray] = field(default_factory=dict)
+    provenance: str = ""
+    path: Path | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def has_spheres(self) -> bool:
+        return bool(self.sphere_seen.any())
+
+    @property
+    def has_poses(self) -> bool:
+        return bool(self.pose_seen.any())
+
+    @property
+    def station_ids(self) -> np.ndarray:
+        """Station of every row ``(n,)`` as strings (``"0"`` when the dataset has no station column)."""
+        return self.station if self.station is not None else np.full(self.n, "0", dtype=object)
+
+    def subset(self, mask_or_index: np.ndarray) -> "Dataset":
+        """Rows selected by a boolean mask ``(n,)`` or an index array, order kept."""
+        idx = np.asarray(mask_or_index)
+        if idx.dtype == bool:
+            if idx.shape != (self.n,):
+                raise ValueError(f"mask must have shape ({self.n},), got {idx.shape}")
+            idx = np.flatnonzero(idx)
+
+        def take(a):
+            return None if a is None else a[idx]
+
+        return replace(
+            self,
+            pose_id=self.pose_id[idx],
+            q=self.q[idx],
+            spheres=self.spheres[idx],
+            sphere_seen=self.sphere_seen[idx],
+            pose=self.pose[idx],
+            pose_seen=self.pose_seen[idx],
+            set=take(self.set),
+            station=take(self.station),
+            pair=take(self.pair),
+            temp_c=take(self.temp_c),
+            t_s=take(self.t_s),
+            status=take(self.status),
+            extra={k: v[idx] for k, v in self.extra.items()},
+        )
+
+
+# ------------------------------------------------------------------------------------------------
+# Robot specs (dataset.toml "robot")
+# ------------------------------------------------------------------------------------------------
+
+def robot_from_spec(spec: Any, where: str = "dataset.toml") -> RobotModel:
+    """A nominal :class:`RobotModel` from a robot name or an inline table (``docs/formats.md``)."""
+    if isinstance(spec, str):
+        if spec not in ROBOTS:
+            raise DatasetError(f"{where}: field 'robot': unknown robot name {spec!r}; known: {', '.join(sorted(ROBOTS))}")
+        return get_robot(spec)
+    if not isinstance(spec, dict):
+        raise DatasetError(f"{where}: field 'robot' must be a robot name or a table, got {type(spec).__name__}")
+    need = ("convention", "theta_deg", "d_mm", "a_mm", "alpha_deg")
+    for k in need:
+        if k not in spec:
+            raise DatasetError(f"{where}: table 'robot' lacks field {k!r}")
+    try:
+        beta_joints = [int(j) for j in spec.get("beta_joints", [])]
+        beta_deg = [float(b) for b in spec.get("beta_deg", [0.0] * len(beta_joints))]
+        if len(beta_deg) != len(beta_joints):
+            raise DatasetError(f"{where}: robot.beta_deg has {len(beta_deg)} values for {len(beta_joints)} beta_joints")
+        arrays = {}
+        for k in ("theta_deg", "d_mm", "a_mm", "alpha_deg"):
+            v = np.asarray(spec[k], dtype=float)
+            if v.shape != (6,) or not np.all(np.isfinite(v)):
+                raise DatasetError(f"{where}: robot.{k} must be 6 finite numbers, got {spec[k]!r}")
+            arrays[k] = v
+        kw = {}
+        for k in ("q_min_deg", "q_max_deg"):
+            if k in spec:
+                kw[k[:5]] = np.asarray(spec[k], dtype=float) * _DEG
+        return RobotModel.from_tables(
+            str(spec.get("name", "custom")),
+            spec["convention"],
+            theta=arrays["theta_deg"] * _DEG,
+            d=arrays["d_mm"] * _MM,
+            a=arrays["a_mm"] * _MM,
+            alpha=arrays["alpha_deg"] * _DEG,
+            beta={j: b * _DEG for j, b in zip(beta_joints, beta_deg)},
+            **kw,
+        )
+    except DatasetError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"{where}: table 'robot': {exc}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# Reading
+# ------------------------------------------------------------------------------------------------
+
+def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a finite number: {text!r}")
+    return v
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with open(path, "rb") as f:
+            meta = tomllib.load(f)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: missing (a dataset folder holds poses.csv and dataset.toml)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DatasetError(f"{path}: not valid TOML: {exc}") from None
+    version = meta.get("schema_version", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise DatasetError(f"{path}: schema_version {version!r} is not supported (this library reads {SCHEMA_VERSION})")
+    return meta
+
+
+def _plate_from_meta(meta: dict, where: str) -> Plate:
+    plate = meta.get("plate")
+    if not isinstance(plate, dict):
+        raise DatasetError(f"{where}: missing table [plate] (sphere_diameter_mm, spheres_mm)")
+    try:
+        diam = float(plate["sphere_diameter_mm"]) * _MM
+    except KeyError:
+        raise DatasetError(f"{where}: [plate] lacks field 'sphere_diameter_mm'") from None
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: [plate] sphere_diameter_mm is not a number: {plate['sphere_diameter_mm']!r}") from None
+    if "spheres_mm" not in plate:
+        raise DatasetError(f"{where}: [plate] lacks field 'spheres_mm' (nominal sphere centres in the flange frame)")
+    try:
+        s = np.asarray(plate["spheres_mm"], dtype=float)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: [plate] spheres_mm must be 3 triples of numbers, got {plate['spheres_mm']!r}") from None
+    if s.shape != (3, 3) or not np.all(np.isfinite(s)):
+        raise DatasetError(f"{where}: [plate] spheres_mm must be 3 triples of finite numbers, got {plate['spheres_mm']!r}")
+    if not (math.isfinite(diam) and diam > 0):
+        raise DatasetError(f"{where}: [plate] sphere_diameter_mm must be positive, got {plate['sphere_diameter_mm']!r}")
+    return Plate(diam, s * _MM)
+
+
+def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
+    try:
+        v = np.array(
+            [d["x_mm"] * _MM, d["y_mm"] * _MM, d["z_mm"] * _MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], dtype=float
+        )
+    except (KeyError, TypeError) as exc:
+        raise DatasetError(f"{where}: needs x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad ({exc})") from None
+    return pose6_to_transform(v)
+
+
+def _transform_to_pose6_mm(T: np.ndarray) -> dict:
+    v = transform_to_pose6(T)
+    return {
+        "x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+        "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5]),
+    }
+
+
+def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float = 0.5) -> Dataset:
+    """Read and validate a dataset folder. Errors are :class:`DatasetError` naming file, row and column.
+
+    ``max_rows_without_spheres``: largest fraction of rows that may lack one or more spheres (and a pose)
+    before the dataset is refused as unusable.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a dataset folder (expected poses.csv and dataset.toml inside)")
+    toml_path = folder / "dataset.toml"
+    csv_path = folder / "poses.csv"
+    meta = _read_toml(toml_path)
+    if "robot" not in meta:
+        raise DatasetError(f"{toml_path}: missing field 'robot' (a robot name or an inline table)")
+    robot = robot_from_spec(meta["robot"], str(toml_path))
+    plate = _plate_from_meta(meta, str(toml_path))
+    noise = meta.get("noise", {}) or {}
+    stations_b2m = {}
+    for sid, st in (meta.get("stations") or {}).items():
+        if isinstance(st, dict) and "base2meas" in st:
+            stations_b2m[str(sid)] = _pose6_mm_to_transform(st["base2meas"], f"{toml_path}: [stations.{sid}].base2meas")
+
+    if not csv_path.exists():
+        raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
+    with open(csv_path, newline="") as f:
+        reader = csv.reader(f)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise DatasetError(f"{csv_path}: empty file (no header row)") from None
+        rows = [r for r in reader if any(c.strip() for c in r)]
+    file = str(csv_path)
+    col = {h: i for i, h in enumerate(header)}
+    if len(col) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise DatasetError(f"{file}: duplicate columns {dup}")
+    missing = [c for c in ("pose_id",) + JOINT_COLUMNS if c not in col]
+    if missing:
+        raise DatasetError(f"{file}: missing required columns {missing}")
+    has_sph_cols = all(c in col for c in SPHERE_COLUMNS)
+    has_pose_cols = all(c in col for c in POSE_COLUMNS)
+    part_sph = [c for c in SPHERE_COLUMNS if c in col]
+    if part_sph and not has_sph_cols:
+        raise DatasetError(f"{file}: sphere columns incomplete, missing {[c for c in SPHERE_COLUMNS if c not in col]}")
+    part_pose = [c for c in POSE_COLUMNS if c in col]
+    if part_pose and not has_pose_cols:
+        raise DatasetError(f"{file}: pose columns incomplete, missing {[c for c in POSE_COLUMNS if c not in col]}")
+    if not (has_sph_cols or has_pose_cols):
+        raise DatasetError(f"{file}: no measurement columns: need p0_x..p2_z (spheres) or x y z rx ry rz (pose)")
+    n = len(rows)
+    if n == 0:
+        raise DatasetError(f"{file}: no data rows")
+
+    pose_id = np.zeros(n, dtype=np.int64)
+    q = np.zeros((n, 6))
+    spheres = np.full((n, 3, 3), np.nan)
+    seen = np.zeros((n, 3), dtype=bool)
+    pose = np.full((n, 4, 4), np.nan)
+    pose_seen = np.zeros(n, dtype=bool)
+    opt: dict[str, list] = {c: [] for c in OPTIONAL_COLUMNS if c in col}
+    known = set(("pose_id",) + JOINT_COLUMNS + SPHERE_COLUMNS + POSE_COLUMNS + OPTIONAL_COLUMNS)
+    extra_cols = [h for h in header if h not in known]
+    extra: dict[str, list] = {c: [] for c in extra_cols}
+    seen_ids: dict[int, int] = {}
+
+    def cell(r: list[str], c: str) -> str:
+        i = col[c]
+        return r[i].strip() if i < len(r) else ""
+
+    for k, r in enumerate(rows):
+        rown = k + 1
+        pid_txt = cell(r, "pose_id")
+        try:
+            pid = int(pid_txt)
+        except ValueError:
+            raise DatasetError(f"{file}: row {rown}, column 'pose_id': not an integer: {pid_txt!r}") from None
+        if pid in seen_ids:
+            raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
+        seen_ids[pid] = rown
+        pose_id[k] = pid
+        for j, c in enumerate(JOINT_COLUMNS):
+            t = cell(r, c)
+            if t == "":
+                raise DatasetError(f"{file}: row {rown} (pose_id {pid}), column {c!r}: empty (commanded joints are required)")
+            q[k, j] = _parse_float(t, file, rown, str(pid), c) * _DEG
+        if has_sph_cols:
+            for s in range(3):
+                cs = SPHERE_COLUMNS[3 * s:3 * s + 3]
+                texts = [cell(r, c) for c in cs]
+                if all(t == "" for t in texts):
+                    continue
+                if any(t == "" for t in texts):
+                    empty = [c for c, t in zip(cs, texts) if t == ""]
+                    raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: sphere p{s} is partly empty")
+                spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * _MM for t, c in zip(texts, cs)]
+                seen[k, s] = True
+        if has_pose_cols:
+            texts = [cell(r, c) for c in POSE_COLUMNS]
+            if any(t != "" for t in texts):
+                if any(t == "" for t in texts):
+                    empty = [c for c, t in zip(POSE_COLUMNS, texts) if t == ""]
+                    raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: pose is partly empty")
+                v = [_parse_float(t, file, rown, str(pid), c) for t, c in zip(texts, POSE_COLUMNS)]
+                pose[k] = pose6_to_transform(np.array([v[0] * _MM, v[1] * _MM, v[2] * _MM, v[3], v[4], v[5]]))
+                pose_seen[k] = True
+        for c in opt:
+            opt[c].append(cell(r, c))
+        for c in extra:
+            extra[c].append(cell(r, c))
+        if not seen[k].any() and not pose_seen[k] and (not opt.get("status") or opt["status"][-1] == ""):
+            raise DatasetError(
+                f"{file}: row {rown} (pose_id {pid}): no measurement and no 'status' saying why"
+            )
+
+    incomplete = ~(seen.all(axis=1) | pose_seen)
+    if has_sph_cols and incomplete.mean() > max_rows_without_spheres:
+        raise DatasetError(
+            f"{file}: {int(incomplete.sum())} of {n} rows have fewer than three spheres and no pose "
+            f"(more than {max_rows_without_spheres:.0%}); check the instrument's 'status' column"
+        )
+
+    def floats(c: str) -> np.ndarray | None:
+        if c not in opt:
+            return None
+        out = np.full(n, np.nan)
+        for k, t in enumerate(opt[c]):
+            if t == "":
+                raise DatasetError(f"{file}: row {k + 1} (pose_id {pose_id[k]}), column {c!r}: empty")
+            out[k] = _parse_float(t, file, k + 1, str(pose_id[k]), c)
+        return out
+
+    set_arr = None
+    if "set" in opt:
+        for k, t in enumerate(opt["set"]):
+            if t not in SETS:
+                raise DatasetError(
+                    f"{file}: row {k + 1} (pose_id {pose_id[k]}), column 'set': {t!r} is not one of {list(SETS)}"
+                )
+        set_arr = np.array(opt["set"], dtype=object)
+    pair = None
+    if "pair" in opt:
+        pair = np.full(n, -1, dtype=np.int64)
+        for k, t in enumerate(opt["pair"]):
+            if t == "":
+                continue
+            try:
+                pair[k] = int(t)
+            except ValueError:
+                raise DatasetError(f"{file}: row {k + 1} (pose_id {pose_id[k]}), column 'pair': not an integer: {t!r}") from None
+    station = None
+    if "station" in opt:
+        station = np.array([t if t != "" else "0" for t in opt["station"]], dtype=object)
+    return Dataset(
+        robot=robot,
+        robot_spec=meta["robot"],
+        plate=plate,
+        pose_id=pose_id,
+        q=q,
+        spheres=spheres,
+        sphere_seen=seen,
+        pose=pose,
+        pose_seen=pose_seen,
+        set=set_arr,
+        station=station,
+        pair=pair,
+        temp_c=floats("temp_c"),
+        t_s=floats("t_s"),
+        status=np.array(opt["status"], dtype=object) if "status" in opt else None,
+        extra={c: np.array(v, dtype=object) for c, v in extra.items()},
+        noise_position=float(noise["position_mm"]) * _MM if "position_mm" in noise else None,
+        noise_orientation=float(noise["orientation_rad"]) if "orientation_rad" in noise else None,
+        stations_base2meas=stations_b2m,
+        provenance=str(meta.get("provenance", "")),
+        path=folder,
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Writing
+# ------------------------------------------------------------------------------------------------
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        x = float(v)
+        if not math.isfinite(x):
+            raise ValueError(f"cannot write non-finite number {x!r} to TOML")
+        return repr(x)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def write_dataset_toml(
+    folder: str | os.PathLike,
+    robot_spec: Any,
+    plate: Plate,
+    *,
+    noise_position: float | None = None,
+    noise_orientation: float | None = None,
+    stations_base2meas: dict[str, np.ndarray] | None = None,
+    provenance: str = "",
+) -> Path:
+    """Write ``dataset.toml`` (SI in, mm/deg out)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = [f"schema_version = {SCHEMA_VERSION}"]
+    if isinstance(robot_spec, str):
+        lines.append(f"robot = {_toml_value(robot_spec)}")
+    lines.append(f"provenance = {_toml_value(provenance)}")
+    if isinstance(robot_spec, dict):
+        lines += ["", "[robot]"] + [f"{k} = {_toml_value(v)}" for k, v in robot_spec.items()]
+    lines += [
+        "",
+        "[plate]",
+        f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
+        f"spheres_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+    ]
+    if noise_position is not None or noise_orientation is not None:
+        lines += ["", "[noise]"]
+        if noise_position is not None:
+            lines.append(f"position_mm = {_toml_value(noise_position / _MM)}")
+        if noise_orientation is not None:
+            lines.append(f"orientation_rad = {_toml_value(noise_orientation)}")
+    for sid, T in (stations_base2meas or {}).items():
+        lines += ["", f"[stations.{_toml_key(sid)}]", f"base2meas = {_toml_value(_transform_to_pose6_mm(T))}"]
+    path = folder / "dataset.toml"
+    tmp = path.with_suffix(".toml.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _toml_key(k: str) -> str:
+    k = str(k)
+    return k if k.replace("_", "").replace("-", "").isalnum() else _toml_value(k)
+
+
+@dataclass
+class PoseRow:
+    """One measured row, SI units. ``spheres`` ``(3, 3)`` [m] with rows of NaN where not seen is NOT allowed:
+    pass ``None`` for a sphere that was not measured (and say why in ``status``)."""
+
+    pose_id: int
+    q: np.ndarray  # (6,) [rad] commanded
+    spheres: Sequence[np.ndarray | None] | None = None  # 3 entries, each (3,) [m] or None
+    pose: np.ndarray | None = None  # (4, 4) tool2meas
+    set: str | None = None
+    station: str | int | None = None
+    pair: int | None = None
+    temp_c: float | None = None
+    t_s: float | None = None
+    status: str = ""
+    extra: dict[str, str] = field(default_factory=dict)
+
+
+def _fmt_deg(x: float) -> str:
+    """Degrees with 1e-10 deg resolution (2e-12 rad: far below any effect the library models)."""
+    return f"{float(x) / _DEG:.10f}"
+
+
+def _fmt_mm(x: float) -> str:
+    return f"{float(x) / _MM:.6f}"
+
+
+class DatasetWriter:
+    """Streams rows into ``poses.csv`` (header first, one flushed line per row), so that a long campaign
+    loses nothing already measured when it stops. Columns are fixed at construction."""
+
+    def __init__(
+        self,
+        folder: str | os.PathLike,
+        *,
+        spheres: bool = True,
+        pose: bool = False,
+        optional: Iterable[str] = (),
+        extra: Iterable[str] = (),
+        append: bool = False,
+    ) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        opt = [c for c in OPTIONAL_COLUMNS if c in set(optional)]
+        unknown = set(optional) - set(OPTIONAL_COLUMNS)
+        if unknown:
+            raise ValueError(f"optional: unknown columns {sorted(unknown)}; known: {list(OPTIONAL_COLUMNS)}")
+        self.columns = ["pose_id", *JOINT_COLUMNS]
+        if spheres:
+            self.columns += SPHERE_COLUMNS
+        if pose:
+            self.columns += POSE_COLUMNS
+        self.columns += opt + [c for c in extra]
+        self._spheres, self._pose, self._opt, self._extra = spheres, pose, opt, list(extra)
+        self.path = self.folder / "poses.csv"
+        if append and self.path.exists():
+            with open(self.path, newline="") as f:
+                header = next(csv.reader(f), None)
+            if header != self.columns:
+                raise ValueError(f"{self.path}: existing header {header} differs from {self.columns}")
+            self._f = open(self.path, "a", newline="")
+        else:
+            self._f = open(self.path, "w", newline="")
+            self._f.write(",".join(self.columns) + "\n")
+            self._f.flush()
+
+    def write(self, row: PoseRow) -> None:
+        q = np.asarray(row.q, dtype=float).reshape(6)
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"pose_id {row.pose_id}: q must be finite, got {q}")
+        cells = [str(int(row.pose_id))] + [_fmt_deg(x) for x in q]
+        if self._spheres:
+            sph = list(row.spheres) if row.spheres is not None else [None, None, None]
+            if len(sph) != 3:
+                raise ValueError(f"pose_id {row.pose_id}: spheres must have 3 entries (None where not seen)")
+            for s in sph:
+                if s is None:
+                    cells += ["", "", ""]
+                    continue
+                s = np.asarray(s, dtype=float).reshape(3)
+                if not np.all(np.isfinite(s)):
+                    raise ValueError(f"pose_id {row.pose_id}: a sphere centre is not finite ({s}); pass None and a status")
+                cells += [_fmt_mm(x) for x in s]
+        if self._pose:
+            if row.pose is None:
+                cells += [""] * 6
+            else:
+                v = transform_to_pose6(np.asarray(row.pose, dtype=float))
+                cells += [_fmt_mm(x) for x in v[:3]] + [f"{x:.12f}" for x in v[3:]]
+        for c in self._opt:
+            v = getattr(row, c)
+            if v is None:
+                cells.append("")
+            elif c in ("temp_c", "t_s"):
+                cells.append(f"{float(v):.6f}")
+            else:
+                cells.append(str(v))
+        cells += [str(row.extra.get(c, "")) for c in self._extra]
+        buf = io.StringIO()
+        csv.writer(buf, lineterminator="\n").writerow(cells)
+        self._f.write(buf.getvalue())
+        self._f.flush()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    def __enter__(self) -> "DatasetWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_dataset(folder: str | os.PathLike, ds: Dataset) -> Path:
+    """Write a whole :class:`Dataset` (``poses.csv`` + ``dataset.toml``)."""
+    folder = Path(folder)
+    write_dataset_toml(
+        folder,
+        ds.robot_spec,
+        ds.plate,
+        noise_position=ds.noise_position,
+        noise_orientation=ds.noise_orientation,
+        stations_base2meas=ds.stations_base2meas,
+        provenance=ds.provenance,
+    )
+    optional = [c for c in OPTIONAL_COLUMNS if getattr(ds, c) is not None]
+    with DatasetWriter(
+        folder, spheres=ds.has_spheres or not ds.has_poses, pose=ds.has_poses, optional=optional, extra=list(ds.extra)
+    ) as w:
+        for k in range(ds.n):
+            w.write(
+                PoseRow(
+                    pose_id=int(ds.pose_id[k]),
+                    q=ds.q[k],
+                    spheres=[ds.spheres[k, s] if ds.sphere_seen[k, s] else None for s in range(3)],
+                    pose=ds.pose[k] if ds.pose_seen[k] else None,
+                    set=None if ds.set is None else ds.set[k],
+                    station=None if ds.station is None else ds.station[k],
+                    pair=None if ds.pair is None or ds.pair[k] < 0 else int(ds.pair[k]),
+                    temp_c=None if ds.temp_c is None else ds.temp_c[k],
+                    t_s=None if ds.t_s is None else ds.t_s[k],
+                    status="" if ds.status is None else ds.status[k],
+                    extra={c: v[k] for c, v in ds.extra.items()},
+                )
+            )
+    return folder
+
+
+# ------------------------------------------------------------------------------------------------
+# JOINTS.csv
+# ------------------------------------------------------------------------------------------------
+
+JOINTS_OPTIONAL = ("temp_c", "t_s", "station", "set")
+
+
+@dataclass(frozen=True)
+class Joints:
+    """Rows of ``JOINTS.csv``: ``pose_id`` ``(n,)``, ``q`` ``(n, 6)`` [rad], optional channels."""
+
+    pose_id: np.ndarray
+    q: np.ndarray
+    temp_c: np.ndarray | None = None
+    t_s: np.ndarray | None = None
+    station: np.ndarray | None = None
+    set: np.ndarray | None = None
+
+
+__all__.append("Joints")
+
+
+def read_joints_csv(path: str | os.PathLike) -> Joints:
+    """Read ``JOINTS.csv`` (``pose_id, q1..q6`` [deg], optional ``temp_c, t_s, station, set``)."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: missing")
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        rows = list(reader)
+    missing = [c for c in ("pose_id",) + JOINT_COLUMNS if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: missing required columns {missing}")
+    if not rows:
+        raise DatasetError(f"{path}: no data rows")
+    n = len(rows)
+    pid = np.zeros(n, dtype=np.int64)
+    q = np.zeros((n, 6))
+    chans: dict[str, list] = {c: [] for c in JOINTS_OPTIONAL if c in header}
+    for k, r in enumerate(rows):
+        try:
+            pid[k] = int(r["pose_id"])
+        except (TypeError, ValueError):
+            raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': not an integer: {r['pose_id']!r}") from None
+        for j, c in enumerate(JOINT_COLUMNS):
+            q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * _DEG
+        for c in chans:
+            chans[c].append((r[c] or "").strip())
+    if len(set(pid.tolist())) != n:
+        raise DatasetError(f"{path}: column 'pose_id' has duplicate ids")
+
+    def fl(c):
+        if c not in chans:
+            return None
+        return np.array([_parse_float(t, str(path), k + 1, str(pid[k]), c) for k, t in enumerate(chans[c])])
+
+    return Joints(
+        pose_id=pid,
+        q=q,
+        temp_c=fl("temp_c"),
+        t_s=fl("t_s"),
+        station=np.array(chans["station"], dtype=object) if "station" in chans else None,
+        set=np.array(chans["set"], dtype=object) if "set" in chans else None,
+    )
+
+
+def write_joints_csv(path: str | os.PathLike, joints: Joints) -> Path:
+    """Write ``JOINTS.csv`` from :class:`Joints` (SI in, degrees out)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cols = ["pose_id", *JOINT_COLUMNS] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(cols)
+        for k in range(len(joints.pose_id)):
+            row = [str(int(joints.pose_id[k]))] + [_fmt_deg(x) for x in joints.q[k]]
+            for c in cols[7:]:
+                v = getattr(joints, c)[k]
+                row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
+            w.writerow(row)
+    return path
