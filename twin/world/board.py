@@ -15,7 +15,10 @@ from ..camera import CameraIntrinsics, project_points
 from ..transforms import invert_transform, rotvec_to_matrix
 from .config import BoardConfig
 
-__all__ = ["charuco_board", "board_texture", "board_extent", "interior_corners", "sample_board_poses"]
+__all__ = [
+    "charuco_board", "board_texture", "board_extent", "interior_corners", "marker_corners", "corner_markers",
+    "detectable_corners", "sample_board_poses",
+]
 
 
 def charuco_board(cfg: BoardConfig) -> "cv2.aruco.CharucoBoard":
@@ -53,6 +56,35 @@ def interior_corners(cfg: BoardConfig) -> np.ndarray:
     return np.asarray(charuco_board(cfg).getChessboardCorners(), dtype=float)
 
 
+def marker_corners(cfg: BoardConfig) -> np.ndarray:
+    """Corners of every marker ``(M, 4, 3)`` [m] in the board frame."""
+    return np.asarray(charuco_board(cfg).getObjPoints(), dtype=float).reshape(-1, 4, 3)
+
+
+def corner_markers(cfg: BoardConfig) -> np.ndarray:
+    """For each interior corner, the indices ``(N, 2)`` of the two markers that touch it diagonally."""
+    corners = interior_corners(cfg)
+    centres = marker_corners(cfg).mean(axis=1)
+    d = np.linalg.norm(corners[:, None, :2] - centres[None, :, :2], axis=-1)
+    idx = np.argsort(d, axis=1)[:, :2]
+    if not np.allclose(np.take_along_axis(d, idx, axis=1), cfg.square / np.sqrt(2), rtol=1e-6):
+        raise RuntimeError("unexpected ChArUco layout: a corner without two diagonal markers")
+    return idx
+
+
+def detectable_corners(cfg: BoardConfig, board2cam: np.ndarray, intr: CameraIntrinsics, margin_px: float = 4.0) -> np.ndarray:
+    """Mask ``(N,)`` of interior corners whose two neighbouring markers lie wholly inside the image.
+
+    OpenCV finds a ChArUco corner by interpolating from detected markers next to it, so a corner counts
+    only when those markers are in view.
+    """
+    mk = marker_corners(cfg)
+    uv = project_points(mk.reshape(-1, 3), board2cam, intr).reshape(mk.shape[0], 4, 2)
+    inside = np.all((uv[..., 0] > margin_px) & (uv[..., 0] < intr.width - 1 - margin_px)
+                    & (uv[..., 1] > margin_px) & (uv[..., 1] < intr.height - 1 - margin_px), axis=1)
+    return np.all(inside[corner_markers(cfg)], axis=1)
+
+
 def sample_board_poses(
     cfg: BoardConfig,
     n: int,
@@ -69,7 +101,8 @@ def sample_board_poses(
     drawn point of the left image (so views cover the whole image, corners included); tilted about a random
     in-plane axis by up to ``cfg.max_tilt`` and turned in-plane by up to ``cfg.max_roll``. A pose is kept
     when at least ``cfg.min_corners`` interior corners project inside both images (2 px margin) and the board
-    faces each camera at less than 70 deg incidence; partial views are normal (ChArUco identifies corners).
+    faces each camera at less than 60 deg incidence; partial views are normal (ChArUco identifies corners). A
+    corner counts when both markers next to it lie wholly inside the image (:func:`detectable_corners`).
     """
     if n < 1:
         raise ValueError(f"n must be a positive number of board views, got {n}")
@@ -112,7 +145,7 @@ def sample_board_poses(
                 ok = False
                 break
             view = pc.mean(axis=1) / np.linalg.norm(pc.mean(axis=1))
-            if np.dot(n_cam, view) < np.cos(np.deg2rad(70)):
+            if np.dot(n_cam, view) < np.cos(np.deg2rad(60)):
                 ok = False
                 break
             # whole face in front of the camera
@@ -120,9 +153,7 @@ def sample_board_poses(
             if np.any((b2c[:3, :3] @ face.T + b2c[:3, 3:4])[2] <= 0.05):
                 ok = False
                 break
-            uvp = project_points(corners, b2c, K)
-            inside = (uvp[:, 0] > 2) & (uvp[:, 0] < K.width - 3) & (uvp[:, 1] > 2) & (uvp[:, 1] < K.height - 3)
-            if inside.sum() < cfg.min_corners:
+            if detectable_corners(cfg, b2c, K).sum() < cfg.min_corners:
                 ok = False
                 break
         if ok:

@@ -394,7 +394,7 @@ class ComposeOptions:
     offwidth: int
     offheight: int
     probe_texture_file: str | None = None
-    probe_half_size: float = 0.004
+    probe_half_size: float = 0.008
 
 
 def compose_twin_xml(robot: tuple[ET.Element, list[ET.Element]], opts: ComposeOptions, model_name: str = "twin") -> str:

@@ -69,33 +69,33 @@ def true_intrinsics(rig: RigConfig, render: RenderConfig) -> tuple[CameraIntrins
     return out[0], out[1]
 
 
-def _border_pixels(intr: CameraIntrinsics, n: int = 200) -> np.ndarray:
+def _border_pixels(intr: CameraIntrinsics, n: int = 400) -> np.ndarray:
+    """Centres of the outermost pixels ``(4n, 2)``."""
     w, h = intr.width, intr.height
-    u = np.linspace(-0.5, w - 0.5, n)
-    v = np.linspace(-0.5, h - 0.5, n)
+    u = np.linspace(0.0, w - 1.0, n)
+    v = np.linspace(0.0, h - 1.0, n)
     return np.concatenate([
-        np.stack([u, np.full(n, -0.5)], 1), np.stack([u, np.full(n, h - 0.5)], 1),
-        np.stack([np.full(n, -0.5), v], 1), np.stack([np.full(n, w - 0.5), v], 1),
+        np.stack([u, np.zeros(n)], 1), np.stack([u, np.full(n, h - 1.0)], 1),
+        np.stack([np.zeros(n), v], 1), np.stack([np.full(n, w - 1.0), v], 1),
     ])
 
 
-def render_focal_px(intr: CameraIntrinsics, margin_px: float = 2.0) -> float:
+def render_focal_px(intr: CameraIntrinsics, margin_px: float = 1.0) -> float:
     """Focal length [px] of the ideal (pinhole, centred) render from which the true image is resampled.
 
-    Every pixel of the true image must come from inside the ideal one: the ideal camera keeps the true
-    focal length unless the distortion or the principal-point offset pulls the border outwards, in which
-    case its field of view widens just enough (plus ``margin_px``).
+    Every pixel of the true image must come from inside the ideal one. The ideal camera keeps the true
+    focal length when that holds (then an undistorted, centred camera needs no resampling at all);
+    otherwise its field of view widens just enough, with ``margin_px`` to spare.
     """
     uv = _border_pixels(intr)
     xy_d = np.stack([(uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy], axis=1)
     xy = undistort_normalized(xy_d, intr.dist)
     ccx, ccy = intr.width / 2 - 0.5, intr.height / 2 - 0.5
-    # |f_r x + cc - cc| <= cc - margin  for every border point
-    lim = min(
-        (ccx - margin_px) / np.max(np.abs(xy[:, 0])),
-        (ccy - margin_px) / np.max(np.abs(xy[:, 1])),
-    )
-    return float(min(intr.fx, intr.fy, lim))
+    f = min(intr.fx, intr.fy)
+    ax, ay = np.max(np.abs(xy[:, 0])), np.max(np.abs(xy[:, 1]))
+    if f * ax <= ccx * (1 + 1e-12) and f * ay <= ccy * (1 + 1e-12):
+        return float(f)
+    return float(min(f, (ccx - margin_px) / ax, (ccy - margin_px) / ay))
 
 
 def distortion_maps(intr: CameraIntrinsics, f_render: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -80,7 +80,7 @@ def _png_bytes(img: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def _probe_texture(size: int = 256, sigma: float = 32.0, peak: float = 160.0) -> np.ndarray:
+def _probe_texture(size: int = 64, sigma: float = 8.0, peak: float = 225.0) -> np.ndarray:
     c = (size - 1) / 2.0
     u = np.arange(size) - c
     g = np.exp(-0.5 * (u[None, :] ** 2 + u[:, None] ** 2) / sigma**2) * peak
@@ -362,7 +362,8 @@ class World:
         self._image_counter += 1
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
-    def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True):
+    def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
+                   analog: bool = False):
         former = self._get_former()
         images = []
         for cam_name, cam_id, pipe in zip(("left", "right"), self._cam_ids, self._pipes):
@@ -373,7 +374,7 @@ class World:
                     for e in self.effects if getattr(e, "changes_image", True)
                 )
             sigma = self.config.render.noise_sigma if noise else 0.0
-            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(), fx))
+            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(), fx, analog=analog))
         return images[0], images[1]
 
     def capture(
@@ -460,12 +461,14 @@ class World:
         return out
 
     def render_probe(self, point_meas: np.ndarray, station: int = 0, camera: str = "left", *,
-                     noise: bool = False) -> np.ndarray:
+                     noise: bool = False, analog: bool = False) -> np.ndarray:
         """Image of a fronto-parallel Gaussian spot centred at ``point_meas`` ``(3,)`` [m] (measurement frame).
 
         A diagnostic: the spot is parallel to ``camera``'s image plane, so its ideal image is a similarity
         of the texture and its intensity centroid is the projection of the point; distortion moves that by
         far less than 0.001 px. Only the probe is drawn (black elsewhere), without noise unless asked.
+        ``analog`` returns the float32 image before noise and 8-bit rounding (whose rounding, without the
+        noise that dithers it in real images, would hide shifts below ~0.03 px).
         """
         station = self._check_station(station)
         if camera not in ("left", "right"):
@@ -479,7 +482,7 @@ class World:
         self.data.mocap_quat[k] = matrix_to_quat_wxyz(cam[:3, :3])
         try:
             self._place(self.data.qpos[self._qadr].copy(), station)
-            pair = self._form_pair(self._opt_probe, None, noise=noise)
+            pair = self._form_pair(self._opt_probe, None, noise=noise, analog=analog)
         finally:
             self._hide("probe")
         return pair[0] if camera == "left" else pair[1]
