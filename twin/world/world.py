@@ -254,8 +254,11 @@ class World:
     def true_cam2world(self, station: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right camera poses ``(4, 4)`` in the lab frame, OpenCV camera axes."""
         R = self._rig2world[self._check_station(station)]
-        flip = make_transform(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
-        return R @ self._cam2rig[0] @ flip, R @ self._cam2rig[1] @ flip
+        out = []
+        for c2r in self._cam2rig:
+            T = R @ c2r  # MuJoCo camera axes; the one flip function turns them into OpenCV's
+            out.append(mujoco_to_opencv_cam2world(T[:3, 3], T[:3, :3].reshape(9)))
+        return out[0], out[1]
 
     def true_base2world(self) -> np.ndarray:
         """True robot base pose ``(4, 4)`` in the lab (MuJoCo world) frame."""
