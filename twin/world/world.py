@@ -30,7 +30,7 @@ from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, 
 from . import mjcf
 from .board import board_extent, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
-from .effects import BaseEffect, EffectContext, Effect, apply_joint_effects, as_effect, effect_from_spec
+from .effects import EffectContext, apply_joint_effects, as_effect, effect_from_spec
 from .render import CameraPipeline, ImageFormer, scene_option
 from .rig import camera2rig, station_rig2world, true_intrinsics
 
