@@ -193,6 +193,8 @@ def test_board_views_record_their_truth(world):
     n0 = len(world.truth_board_views)
     views = world.render_board_views(2, seed=9)
     assert [k for k, _ in world.truth_board_views[n0:]] == [v.index for v in views]
+    left, right = views[0]  # a view unpacks as its image pair
+    assert left is views[0].left and right is views[0].right
 
 
 def test_occlusion_check_sees_a_hidden_sphere(world):

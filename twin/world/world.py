@@ -65,12 +65,16 @@ class Capture:
 
 @dataclass(frozen=True)
 class BoardView:
-    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes)."""
+    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes; truth)."""
 
     index: int
     left: np.ndarray
     right: np.ndarray
     board2meas: np.ndarray
+
+    def __iter__(self):
+        """Unpacks as the image pair: ``for left, right in world.render_board_views(n)``."""
+        return iter((self.left, self.right))
 
 
 def _png_bytes(img: np.ndarray) -> bytes:
