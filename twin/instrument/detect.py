@@ -313,14 +313,28 @@ def detect_spheres(
         if len(acc) >= cfg.max_candidates:
             break
     out: list[SphereImage] = []
+    neighbours: list[list[int]] = []
     for n, (x, y, v) in enumerate(acc):
         c_px = np.array([(x + 0.5) * ds - 0.5, (y + 0.5) * ds - 0.5])
         r_px = float((v + 0.5) * ds)
-        touching = any(
-            m != n and r2 >= 0.6 * v and np.hypot(x - a, y - b) < v + r2 + 2.0 for m, (a, b, r2) in enumerate(acc)
+        neighbours.append(
+            [m for m, (a, b, r2) in enumerate(acc) if m != n and r2 >= 0.5 * v and np.hypot(x - a, y - b) < v + r2 + 2.0]
         )
-        out.append(_measure_candidate(gray, intr, c_px, r_px, sigma, sphere_radius, cfg, touching, r_min))
+        out.append(_measure_candidate(gray, intr, c_px, r_px, sigma, sphere_radius, cfg, False, r_min))
+    # merged: the blob touches another blob that is itself sphere-like (an outline that fits a cone);
+    # touching something else (an arm, a bracket) leaves the candidate to its own outline checks
+    merged = [any(_sphere_like(out[m], cfg) for m in nb) for nb in neighbours]
+    for n, s in enumerate(out):
+        if merged[n] and s.reason in ("", "occluded", "not_round", "no_edge", "low_contrast"):
+            object.__setattr__(s, "ok", False)
+            object.__setattr__(s, "reason", "merged")
+        s.notes["touching"] = [int(m) for m in neighbours[n]]
     return out
+
+
+def _sphere_like(s: SphereImage, cfg: DetectorConfig) -> bool:
+    """An outline that mostly fits a cone (accepted, or rejected only for a partial outline)."""
+    return s.cone is not None and s.inlier_fraction >= 0.5 and s.rms_px <= 2 * cfg.max_rms_px
 
 
 def _measure_candidate(gray, intr, c_px, r_px, sigma, sphere_radius, cfg, touching, r_min) -> SphereImage:
