@@ -7,6 +7,15 @@ image-folder reader and the dataset writer around it. See ``docs/instrument.md``
 
 from .calibration import BoardSpec, BoardView, StereoCalibration, ViewReport, calibrate_stereo, detect_board
 from .detect import DetectorConfig, SphereImage, detect_spheres
+from .folder import (
+    MeasureSummary,
+    RigSpec,
+    calibrate_folder,
+    measure_folder,
+    measure_to_dataset,
+    read_plate_toml,
+    read_rig_toml,
+)
 from .geometry import ConeFit, Ellipse, fit_cone, fit_cone_robust, pixels_to_rays, triangulate_rays
 from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair
 from .plate import PlateFit, label_by_distances, paper_euler_zyx_deg, paper_frame_from_spheres, plate_pose_from_spheres
@@ -21,6 +30,13 @@ __all__ = [
     "DetectorConfig",
     "SphereImage",
     "detect_spheres",
+    "MeasureSummary",
+    "RigSpec",
+    "calibrate_folder",
+    "measure_folder",
+    "measure_to_dataset",
+    "read_plate_toml",
+    "read_rig_toml",
     "ConeFit",
     "Ellipse",
     "fit_cone",
