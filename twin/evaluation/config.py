@@ -322,7 +322,11 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     margin = r.number("margin_px", None, nonneg=True)
     branch = r.string("branch", None, choices=("random", "home"))
     attempts = r.integer("max_attempts", None, minimum=1)
+    pitch = r.number("max_euler_pitch_deg", None, positive=True)
+    roll = r.number("max_roll_deg", None, nonneg=True)
     kw: dict[str, Any] = {}
+    kw["max_roll"] = roll * _DEG if roll is not None else defaults.max_roll
+    kw["max_euler_pitch"] = pitch * _DEG if pitch is not None else defaults.max_euler_pitch
     if depth is not None:
         kw["depth_min"], kw["depth_max"] = float(depth[0]) * _MM, float(depth[1]) * _MM
     else:

@@ -89,8 +89,15 @@ def run_tasks(
     campaign writes every finished pose at once. The first exception cancels what has not started and is
     re-raised; results already handed to ``on_done`` are kept by the caller.
     """
-    futures = {executor.submit(fn, *args, item): k for k, item in enumerate(items)}
     out: list[Any] = [None] * len(items)
+    if isinstance(executor, SerialExecutor):
+        # In-process: hand each result over before the next call, so an interruption loses nothing finished.
+        for k, item in enumerate(items):
+            out[k] = fn(*args, item)
+            if on_done is not None:
+                on_done(item, out[k])
+        return out
+    futures = {executor.submit(fn, *args, item): k for k, item in enumerate(items)}
     try:
         for fut in cf.as_completed(futures):
             k = futures[fut]

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..dataset import read_joints_csv
 from .config import CampaignConfig, PoseGroup
-from .sampling import sample_configurations, sample_distance_moves
+from .sampling import sample_configurations, sample_distance_moves, sample_motion_pairs
 
 __all__ = ["CampaignPlan", "make_plan", "pose_seed"]
 
@@ -85,9 +85,9 @@ def _group_rows(cfg: CampaignConfig, g: PoseGroup, k: int, stations: dict) -> li
             q = sample_configurations(model, station, cfg.plate, 1, rng, g.sampling)[0]
             rows.append((q, name, None, np.nan))
         elif g.kind == "motion_pairs":
-            q = sample_configurations(model, station, cfg.plate, 2, rng, g.sampling)
-            rows.append((q[0], name, "start", np.nan))
-            rows.append((q[1], name, "end", np.nan))
+            a, b = sample_motion_pairs(model, station, cfg.plate, 1, rng, g.sampling)
+            rows.append((a[0], name, "start", np.nan))
+            rows.append((b[0], name, "end", np.nan))
         elif g.kind == "distance_moves":
             d = g.distances[i]
             a, b = sample_distance_moves(model, station, cfg.plate, np.array([d]), rng, g.sampling)

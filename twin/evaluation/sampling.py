@@ -127,10 +127,19 @@ class SamplingOptions:
     branch: str = "random"  # 'random' among the in-limit branches, or 'home' (nearest q_home)
     min_q5: float = np.deg2rad(5.0)  # keep away from the wrist singularity (q5 = 0)
     min_link_height: float = 0.1  # [m] every joint origin from frame 2 on stays this far above the base plane
+    # |pitch| of the plate's ZYX Euler angles (eq. 43) in the base frame stays below this [rad]: at +-90 deg
+    # the paper's Euler-angle-change statistic is singular (roll and yaw are undefined there)
+    max_euler_pitch: float = np.deg2rad(60.0)
+    # roll of the plate about its normal, from 'level' (plate x axis horizontal): uniform in [-max_roll, max_roll]
+    max_roll: float = np.pi
 
     def __post_init__(self) -> None:
         if not (0 < self.depth_min <= self.depth_max):
             raise ValueError(f"depth_min/depth_max must satisfy 0 < min <= max [m], got {self.depth_min}, {self.depth_max}")
+        if not (0 <= self.max_roll <= np.pi):
+            raise ValueError(f"max_roll must be in [0, pi] [rad], got {self.max_roll}")
+        if not (0 < self.max_euler_pitch <= np.pi / 2):
+            raise ValueError(f"max_euler_pitch must be in (0, pi/2] [rad], got {self.max_euler_pitch}")
         if not (0 <= self.max_tilt < np.pi / 2):
             raise ValueError(f"max_tilt must be in [0, pi/2) [rad], got {self.max_tilt}")
         if self.branch not in ("random", "home"):
@@ -184,20 +193,28 @@ def plate_in_view(
     return ok
 
 
+def _euler_pitch_ok(model: RobotModel, q: np.ndarray, plate: Plate, opt: SamplingOptions) -> np.ndarray:
+    """Mask ``(n,)``: the plate frame's ZYX pitch ``|ry| = |asin(-R[2, 0])|`` in the base frame is at most
+    ``max_euler_pitch``."""
+    F = flange2base(model.with_frames(base2meas=np.eye(4)), np.atleast_2d(q)) @ model.tool2flange @ _plate_centre_flange(plate)
+    return np.abs(F[:, 2, 0]) <= np.sin(opt.max_euler_pitch) + 1e-12
+
+
 def _random_unit(rng: np.random.Generator, n: int) -> np.ndarray:
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _frame_with_z(z: np.ndarray, roll: float) -> np.ndarray:
-    """Rotation ``(3, 3)`` whose third column is ``z``, rolled by ``roll`` [rad] about it."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(a, z)
-    x /= np.linalg.norm(x)
+def _frames_with_z(z: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """Rotations ``(n, 3, 3)`` whose third column is ``z`` ``(n, 3)``, rolled by ``roll`` ``(n,)`` [rad] about it
+    from 'level' (x axis horizontal, i.e. perpendicular to the base z axis; any x when ``z`` is vertical)."""
+    x = np.stack([-z[:, 1], z[:, 0], np.zeros(len(z))], axis=1)  # e_z x z
+    vertical = np.linalg.norm(x, axis=1) < 1e-6
+    x[vertical] = np.stack([np.zeros(vertical.sum()), -z[vertical, 2], z[vertical, 1]], axis=1)  # e_x x z
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
     y = np.cross(z, x)
-    R = np.stack([x, y, z], axis=1)
-    c, s = np.cos(roll), np.sin(roll)
-    return R @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    c, s_ = np.cos(roll)[:, None], np.sin(roll)[:, None]
+    return np.stack([c * x + s_ * y, -s_ * x + c * y, z], axis=2)
 
 
 def _pick_branches(
@@ -240,8 +257,8 @@ def _candidate_targets(
     axis = np.cross(normal, _random_unit(rng, m))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     z = np.einsum("nij,nj->ni", rotvec_to_matrix(axis * np.arccos(cos_t)[:, None]), normal)
-    roll = rng.uniform(0.0, 2 * np.pi, m)
-    R = np.stack([_frame_with_z(z[i], roll[i]) for i in range(m)])
+    roll = rng.uniform(-opt.max_roll, opt.max_roll, m)
+    R = _frames_with_z(z, roll)
     plate2base = make_transform(R, centre)
     plate2flange = model.tool2flange @ _plate_centre_flange(plate)
     return plate2base @ invert_transform(plate2flange)
@@ -254,9 +271,13 @@ def sample_configurations(
     n: int,
     rng: np.random.Generator,
     options: SamplingOptions | None = None,
-    batch: int = 64,
+    batch: int | None = None,
+    q_ref: np.ndarray | None = None,
 ) -> np.ndarray:
     """``n`` commanded configurations ``(n, 6)`` [rad] in the joint limits with the plate in view of ``station``.
+
+    With ``q_ref`` ``(6,)`` the inverse-kinematics branch nearest ``q_ref`` is taken (a motion that stays on
+    the arm's current branch); otherwise per ``options.branch``.
 
     Candidates are drawn ``batch`` at a time (:func:`_candidate_targets`), solved with the closed-form inverse
     of the nominal model and kept in order when :func:`plate_in_view`. Raises :class:`SamplingError` when
@@ -274,11 +295,11 @@ def sample_configurations(
                 f"found only {len(out)} of {n} configurations for station {station.name!r} in {opt.max_attempts} "
                 "attempts: check the station placement, depth range and joint limits"
             )
-        m = min(batch, opt.max_attempts - attempts)
+        m = min(batch or max(16, min(64, 4 * (n - len(out)))), opt.max_attempts - attempts)
         attempts += m
         targets = _candidate_targets(model, station, plate, m, rng, opt)
-        q, found = _pick_branches(inverse_kinematics_closed_form(fm, targets), rng, opt, None)
-        good = found & plate_in_view(model, q, station, plate, opt)
+        q, found = _pick_branches(inverse_kinematics_closed_form(fm, targets), rng, opt, q_ref)
+        good = found & plate_in_view(model, q, station, plate, opt) & _euler_pitch_ok(model, q, plate, opt)
         out.extend(q[good][: n - len(out)])
     return np.array(out).reshape(n, 6)
 
@@ -291,9 +312,12 @@ def sample_motion_pairs(
     rng: np.random.Generator,
     options: SamplingOptions | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(q_start, q_end)``, each ``(n_pairs, 6)`` [rad]: two independent in-view configurations per pair."""
-    q = sample_configurations(model, station, plate, 2 * n_pairs, rng, options)
-    return q[0::2], q[1::2]
+    """``(q_start, q_end)``, each ``(n_pairs, 6)`` [rad]: a random in-view start and a random in-view end
+    reached on the start's inverse-kinematics branch (the arm moves to another posture without flipping its
+    shoulder, elbow or wrist)."""
+    starts = sample_configurations(model, station, plate, n_pairs, rng, options)
+    ends = np.array([sample_configurations(model, station, plate, 1, rng, options, q_ref=q0)[0] for q0 in starts])
+    return starts, ends.reshape(n_pairs, 6)
 
 
 def sample_distance_moves(
