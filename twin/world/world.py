@@ -221,8 +221,8 @@ class World:
                 "type": "charuco",
                 "squares_x": b.squares_x,
                 "squares_y": b.squares_y,
-                "square_mm": b.square * 1e3,
-                "marker_mm": b.marker * 1e3,
+                "square_mm": round(b.square * 1e3, 9),
+                "marker_mm": round(b.marker * 1e3, 9),
                 "dictionary": b.dictionary,
             },
         }
@@ -570,6 +570,79 @@ class World:
         return np.array(out)
 
     # --- files ---------------------------------------------------------------------------------------
+    def station_index(self, station: Any) -> int:
+        """Index of a station given by index (int or digit string) or by name."""
+        if isinstance(station, (int, np.integer)):
+            return self._check_station(int(station))
+        s = str(station).strip()
+        if s in self.station_names:
+            return self.station_names.index(s)
+        if s.lstrip("-").isdigit():
+            return self._check_station(int(s))
+        raise ValueError(f"unknown station {station!r}; stations: {self.station_names}")
+
+    def write_image_folder(
+        self,
+        folder: str | os.PathLike,
+        q_cmd: np.ndarray | None = None,
+        stations: Sequence[Any] | None = None,
+        *,
+        pose_ids: Sequence[int] | None = None,
+        contexts: Sequence[EffectContext] | None = None,
+        per_station: int = 0,
+        board_views: int | None = None,
+        seed: int = 0,
+        callback: Any = None,
+    ) -> dict:
+        """Render into an image folder (``docs/formats.md``): board views, then one pair per configuration.
+
+        Configurations are ``q_cmd`` ``(n, 6)`` [rad] with their ``stations`` (index or name; default 0), or,
+        when ``q_cmd`` is ``None``, ``per_station`` visible configurations at every station
+        (:meth:`visible_configurations`). ``board_views`` defaults to ``config.board.views``. Each capture's
+        truth is recorded for :meth:`write_truth`. ``callback(kind, index, total)`` reports progress.
+        Returns a summary (counts and the folder).
+        """
+        from .images import ImageFolderWriter
+
+        if q_cmd is None:
+            if per_station < 1:
+                raise ValueError(f"per_station must be >= 1 when no q_cmd is given, got {per_station}")
+            qs, st = [], []
+            for s in range(self.n_stations):
+                q = self.visible_configurations(s, per_station, seed=seed)
+                qs.append(q)
+                st += [s] * len(q)
+            q_cmd = np.concatenate(qs)
+            stations = st
+        q_cmd = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+        if q_cmd.ndim != 2 or q_cmd.shape[1] != N_JOINTS:
+            raise ValueError(f"q_cmd must have shape (n, {N_JOINTS}) [rad], got {q_cmd.shape}")
+        n = q_cmd.shape[0]
+        st_idx = [0] * n if stations is None else [self.station_index(s) for s in stations]
+        if len(st_idx) != n:
+            raise ValueError(f"stations has {len(st_idx)} entries for {n} configurations")
+        ids = list(range(n)) if pose_ids is None else [int(i) for i in pose_ids]
+        if len(ids) != n or len(set(ids)) != n:
+            raise ValueError("pose_ids must be unique, one per configuration")
+        if contexts is not None and len(contexts) != n:
+            raise ValueError(f"contexts has {len(contexts)} entries for {n} configurations")
+        writer = ImageFolderWriter(folder, self.rig_info())
+        nb = self.config.board.views if board_views is None else int(board_views)
+        for k, view in enumerate(self.render_board_views(nb, seed=seed) if nb > 0 else []):
+            writer.add_board_view(view.left, view.right)
+            if callback is not None:
+                callback("board", k, nb)
+        for k in range(n):
+            ctx = contexts[k] if contexts is not None else None
+            cap = self.capture(q_cmd[k], st_idx[k], ctx, pose_id=ids[k])
+            extra = {}
+            if ctx is not None:
+                extra = {"t_s": cap.t_s, "temp_c": cap.temp_c}
+            writer.add_pair(cap.pose_id, cap.q_cmd, cap.left, cap.right, station=str(cap.station), **extra)
+            if callback is not None:
+                callback("pair", k, n)
+        return {"folder": str(folder), "pairs": writer.n_pairs, "board_views": writer.n_board_views}
+
     def truth_dict(self, captures: Iterable[Capture] | None = None) -> dict:
         """Everything :func:`twin.world.truth.write_truth` writes (SI, JSON-ready)."""
         from .truth import truth_dict
