@@ -1,0 +1,1 @@
+"""Diagnosis: residual structure -> candidate effects -> extended model -> before/after (reads only datasets)."""
