@@ -107,3 +107,26 @@ def test_render_command_reports_a_bad_config(tmp_path, capsys):
     cfg.write_text("[world]\nrobot = 'r2d2'\n")
     assert main(["render", str(cfg), "--out", str(tmp_path / "o")]) == 2
     assert "r2d2" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_command_with_given_joints(world, tmp_path):
+    """`twin render --joints` renders the given configurations at the named stations, with their t_s/temp_c."""
+    from twin.cli import main
+    from twin.dataset import Joints, write_joints_csv
+
+    q = np.concatenate([world.visible_configurations(0, 1, seed=3), world.visible_configurations(3, 1, seed=3)])
+    write_joints_csv(tmp_path / "J.csv", Joints(pose_id=np.array([5, 6]), q=q, temp_c=np.array([21.0, 22.5]),
+                                                t_s=np.array([0.0, 60.0]), station=np.array(["front", "3"], dtype=object)))
+    cfg = tmp_path / "w.toml"
+    cfg.write_text('[world]\nseed = 4\npreset = "separation_tables_2_4"\n[world.render]\nscale = 0.25\n'
+                   '[world.board]\ntexture_px_per_square = 64\n')
+    rc = main(["render", str(cfg), "--out", str(tmp_path / "out"), "--joints", str(tmp_path / "J.csv"),
+               "--board-views", "0", "--quiet"])
+    assert rc == 0
+    t = json.loads((tmp_path / "out" / "truth.json").read_text())
+    assert [p["pose_id"] for p in t["poses"]] == [5, 6]
+    assert [p["station"] for p in t["poses"]] == [0, 3]
+    assert [p["temp_c"] for p in t["poses"]] == [21.0, 22.5] and t["poses"][1]["t_s"] == 60.0
+    j = read_joints_csv(tmp_path / "out" / "images" / "joints.csv")
+    assert j.t_s is not None and j.station.tolist() == ["0", "3"]

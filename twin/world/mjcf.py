@@ -272,7 +272,7 @@ def robot_body_element(
         if g is not None:
             g["material"] = "robot"
             geoms[owner].append(g)
-    for i in range(N_JOINTS):
+    for i in range(N_JOINTS - 1):  # joint 6's drive sits in the wrist; a housing there would poke through the plate
         r, h = visual.housing[i]
         g = _cylinder_along(jg[i].anchor, jg[i].axis, r, h)
         g["material"] = "robot_dark" if i in (1, 2) else "robot"

@@ -254,8 +254,11 @@ class World:
     def true_cam2world(self, station: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right camera poses ``(4, 4)`` in the lab frame, OpenCV camera axes."""
         R = self._rig2world[self._check_station(station)]
-        flip = make_transform(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
-        return R @ self._cam2rig[0] @ flip, R @ self._cam2rig[1] @ flip
+        out = []
+        for c2r in self._cam2rig:
+            T = R @ c2r  # MuJoCo camera axes; the one flip function turns them into OpenCV's
+            out.append(mujoco_to_opencv_cam2world(T[:3, 3], T[:3, :3].reshape(9)))
+        return out[0], out[1]
 
     def true_base2world(self) -> np.ndarray:
         """True robot base pose ``(4, 4)`` in the lab (MuJoCo world) frame."""
@@ -565,9 +568,41 @@ class World:
                     ok = False
                 if np.any(uv[:, 1] < margin + r_px) or np.any(uv[:, 1] > h - 1 - margin - r_px):
                     ok = False
-            if ok:
+            if ok and not self.spheres_occluded(q, station):
                 out.append(q)
         return np.array(out)
+
+    def spheres_occluded(self, q_actual: np.ndarray, station: int, n_rim: int = 12) -> bool:
+        """Whether any part of a sphere's outline is hidden from either camera (by the arm, plate or posts).
+
+        Casts MuJoCo rays (``mj_ray``) from each camera centre to points just inside each sphere's outline and
+        to its centre; the first geom hit must be that sphere.
+        """
+        station = self._check_station(station)
+        self._place(q_actual, station)
+        groups = np.zeros(6, dtype=np.uint8)
+        groups[[mjcf.GROUP_ROBOT, mjcf.GROUP_PLATE]] = 1
+        geomid = np.zeros(1, dtype=np.int32)
+        r = 0.5 * self.nominal_plate.sphere_diameter
+        for cam in self.true_cam2world(station):
+            c = cam[:3, 3]
+            for k, site in enumerate(self._sphere_sites):
+                p = self.data.site_xpos[site]
+                view = (p - c) / np.linalg.norm(p - c)
+                a = np.cross(view, [0.0, 0.0, 1.0])
+                if np.linalg.norm(a) < 1e-6:
+                    a = np.cross(view, [1.0, 0.0, 0.0])
+                a /= np.linalg.norm(a)
+                b = np.cross(view, a)
+                ang = np.linspace(0, 2 * np.pi, n_rim, endpoint=False)
+                targets = [p] + [p + 0.97 * r * (np.cos(t) * a + np.sin(t) * b) for t in ang]
+                sphere_geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"sphere{k}")
+                for tgt in targets:
+                    vec = tgt - c
+                    mujoco.mj_ray(self.model, self.data, c, vec, groups, 1, -1, geomid)
+                    if geomid[0] != sphere_geom:
+                        return True
+        return False
 
     # --- files ---------------------------------------------------------------------------------------
     def station_index(self, station: Any) -> int:
