@@ -475,20 +475,28 @@ def absolute_residuals(
 def make_pairs(obs: Observations) -> tuple[np.ndarray, str]:
     """Motion pairs ``(k, 2)`` of row indices and how they were formed.
 
-    With a ``pair`` column: rows sharing an id, in measurement order (start, end); a pair id on more
-    than two rows links consecutive rows of that id. Without it: consecutive rows of the same station.
+    With a ``pair`` column: rows sharing an id, in measurement order (start, end); an id on more than two
+    rows links consecutive rows of that id. Without it: consecutive rows of the same station. A pair whose
+    ends were measured by different stations is skipped (its distance would mix two measurement frames).
     """
     pairs = []
+    skipped = 0
     if obs.pair is not None and np.any(obs.pair >= 0):
         for pid in np.unique(obs.pair[obs.pair >= 0]):
             idx = np.flatnonzero(obs.pair == pid)
-            pairs += [(idx[k], idx[k + 1]) for k in range(len(idx) - 1)]
+            for k in range(len(idx) - 1):
+                if obs.station[idx[k]] == obs.station[idx[k + 1]]:
+                    pairs.append((idx[k], idx[k + 1]))
+                else:
+                    skipped += 1
         how = "the dataset's 'pair' column"
     else:
         for s in np.unique(obs.station):
             idx = np.flatnonzero(obs.station == s)
             pairs += [(idx[k], idx[k + 1]) for k in range(len(idx) - 1)]
         how = "consecutive rows of each station (the dataset has no 'pair' column)"
+    if skipped:
+        how += f"; {skipped} pair(s) across two stations skipped"
     return np.array(pairs, dtype=int).reshape(-1, 2), how
 
 
