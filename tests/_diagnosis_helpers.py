@@ -82,3 +82,57 @@ def _replace(ds: Dataset, **kw) -> Dataset:
     from dataclasses import replace
 
     return replace(ds, **kw)
+
+
+# ---- effects (test formulas) -------------------------------------------------------------------------
+from twin.diagnosis.candidates import approach_signs, gravity_torque_regressor  # noqa: E402
+
+# plausible IRB-1200 link masses [kg] and centres of mass in the link frames [m]
+MASSES = np.array([12.0, 10.0, 8.0, 3.0, 1.5, 0.8])
+COMS = np.array([[0, 0, -0.1], [0.17, 0, 0.0], [0.05, 0, 0.0], [0, 0, -0.15], [0, 0, 0.0], [0, 0, 0.05]])
+
+
+def compliance(scale=1.0):
+    """dtheta_i = c_i tau_i(q) with stiffness of a 7 kg arm (c in rad per N m)."""
+    c = scale * np.array([0, 2.0e-6, 3.0e-6, 5e-6, 8e-6, 1e-5])
+    theta = np.concatenate([MASSES[:, None], MASSES[:, None] * COMS], axis=1)
+
+    def f(q, model):
+        tau = np.einsum("nikc,kc->ni", gravity_torque_regressor(model, q), theta)
+        return q - c * tau  # a servo yields to the gravity torque
+
+    return f
+
+
+def backlash(b_deg=(0, 0.008, 0.008, 0, 0.01, 0)):
+    b = np.deg2rad(b_deg)
+    return lambda q, model: q + approach_signs(q) * b
+
+
+def cyclic(amp_deg=0.01, joint=2, k=2, phase=0.3):
+    def f(q, model):
+        out = q.copy()
+        out[:, joint - 1] += np.deg2rad(amp_deg) * np.sin(k * q[:, joint - 1] + phase)
+        return out
+    return f
+
+
+def gear_ratio(k_err=(0, 2e-4, -2e-4, 0, 3e-4, 0)):
+    return lambda q, model: q + np.asarray(k_err) * q
+
+
+def coupling(c=3e-4):
+    def f(q, model):
+        out = q.copy()
+        out[:, 5] += c * q[:, 4]
+        return out
+    return f
+
+
+def outside(amp_deg=0.01):
+    """Not in the catalogue: a cross-joint high-frequency error."""
+    def f(q, model):
+        out = q.copy()
+        out[:, 1] += np.deg2rad(amp_deg) * np.sin(7 * q[:, 2] + 3 * q[:, 3])
+        return out
+    return f
