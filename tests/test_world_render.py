@@ -193,3 +193,17 @@ def test_board_views_record_their_truth(world):
     n0 = len(world.truth_board_views)
     views = world.render_board_views(2, seed=9)
     assert [k for k, _ in world.truth_board_views[n0:]] == [v.index for v in views]
+    left, right = views[0]  # a view unpacks as its image pair
+    assert left is views[0].left and right is views[0].right
+
+
+def test_occlusion_check_sees_a_hidden_sphere(world):
+    """A visible configuration (also with the plate spun about its normal) is clear; turned away, it is occluded."""
+    q = world.visible_configurations(0, 1, seed=5)[0]
+    assert not world.spheres_occluded(q, 0)
+    turned = q.copy()
+    turned[5] += np.pi  # spin the plate: still facing the rig, spheres still visible
+    assert not world.spheres_occluded(turned, 0)
+    behind = q.copy()
+    behind[0] += np.pi  # the robot turns its back to the rig: the spheres are behind the arm
+    assert world.spheres_occluded(behind, 0)

@@ -20,6 +20,7 @@ from .calibration import CALIBRATION_SCHEMA_VERSION, Calibration, Prediction, pa
 from .compensation import CompensationResult, compensate, compensation
 from .identifiability import Combination, Identifiability, analyse_jacobian, preference_order
 from .methods import METHODS, calibrate, identifiability, identify_best
+from . import paper_methods  # noqa: E402,F401  (registers the papers' methods in METHODS)
 from .simulate import random_configurations, simulate_dataset
 
 __all__ = [

@@ -79,6 +79,7 @@ class Calibration:
     effects: tuple[dict, ...] = ()
     trace: tuple = ()
     dataset: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
 
     # --- structure -------------------------------------------------------------------------------
     @property
@@ -270,6 +271,7 @@ class Calibration:
             "options": self.options,
             "notes": list(self.notes),
             "effects": list(self.effects),
+            "details": self.details,
         }
 
     def save(self, path: str | os.PathLike) -> Path:
@@ -367,6 +369,7 @@ class Calibration:
             notes=tuple(d.get("notes", [])),
             effects=tuple(d.get("effects", [])),
             dataset=str(d.get("dataset", "")),
+            details=d.get("details", {}),
         )
 
 

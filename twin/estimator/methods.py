@@ -228,7 +228,9 @@ def build_calibration(prep: Prepared, ident: Identified, method: str, options: d
     if ida is not None:
         idd = ida.summary()
         combos = ida.combinations
-        # which couplings are structural (any design) and which come from these configurations
+    if ida is not None and method in ("best", "fullpose", "lm", "clm"):
+        # which couplings are structural (any design) and which come from these configurations (only for
+        # methods whose analysis is of the absolute residuals, which a generic design is analysed with)
         try:
             qg = generic_configurations(prep.nominal)
             og = Observations(
@@ -280,6 +282,7 @@ def build_calibration(prep: Prepared, ident: Identified, method: str, options: d
         notes=tuple(notes),
         trace=ident.trace,
         dataset=str(ds.path) if ds.path else "",
+        details={k: v for k, v in ident.extra.items() if isinstance(v, (str, int, float, bool, dict, list))},
     )
 
 

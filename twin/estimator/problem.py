@@ -15,8 +15,9 @@ noise gives unit-variance residuals):
 * ``rotation_change`` (pairs): ``log(Q_meas Q_pred^T)`` with ``Q = R_i^T R_j`` (the rotation of the motion
   seen in the tool frame at its start), ``sigma = sqrt(2) sigma_orientation``; invariant to the base.
 * ``euler_change`` (pairs, the separation paper's eq. 23-27, 43): difference of the ZYX Euler angles of
-  the tool in the *base* frame between the pair's end and start, measured minus predicted; needs the
-  base rotation (from ``dataset.toml`` or a registration) and is kept for faithful reproduction only.
+  the tool in the *base* frame between the pair's end and start, measured minus predicted. The measured
+  orientations are brought into the base frame with a given base rotation (from ``dataset.toml`` or a
+  registration: the paper's ``R_bc``); kept for faithful reproduction.
 
 Jacobians are derivatives of the *predicted* quantity (so ``r(x + dx) ~ r(x) - J dx / sigma``; the
 returned ``J`` is already divided by sigma).
@@ -324,6 +325,9 @@ def observations_from_dataset(
     spheres_tool = s_fl @ Tinv[:3, :3].T + Tinv[:3, 3]
     sp = sigma_position if sigma_position is not None else ds.noise_position
     so = sigma_orientation if sigma_orientation is not None else ds.noise_orientation
+    for name, v in (("noise position", sp), ("noise orientation", so)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a positive number (dataset.toml [noise] or the argument), got {v!r}")
     obs = Observations(
         kind=kind,
         q=ds.q[rows],
@@ -471,20 +475,28 @@ def absolute_residuals(
 def make_pairs(obs: Observations) -> tuple[np.ndarray, str]:
     """Motion pairs ``(k, 2)`` of row indices and how they were formed.
 
-    With a ``pair`` column: rows sharing an id, in measurement order (start, end); a pair id on more
-    than two rows links consecutive rows of that id. Without it: consecutive rows of the same station.
+    With a ``pair`` column: rows sharing an id, in measurement order (start, end); an id on more than two
+    rows links consecutive rows of that id. Without it: consecutive rows of the same station. A pair whose
+    ends were measured by different stations is skipped (its distance would mix two measurement frames).
     """
     pairs = []
+    skipped = 0
     if obs.pair is not None and np.any(obs.pair >= 0):
         for pid in np.unique(obs.pair[obs.pair >= 0]):
             idx = np.flatnonzero(obs.pair == pid)
-            pairs += [(idx[k], idx[k + 1]) for k in range(len(idx) - 1)]
+            for k in range(len(idx) - 1):
+                if obs.station[idx[k]] == obs.station[idx[k + 1]]:
+                    pairs.append((idx[k], idx[k + 1]))
+                else:
+                    skipped += 1
         how = "the dataset's 'pair' column"
     else:
         for s in np.unique(obs.station):
             idx = np.flatnonzero(obs.station == s)
             pairs += [(idx[k], idx[k + 1]) for k in range(len(idx) - 1)]
         how = "consecutive rows of each station (the dataset has no 'pair' column)"
+    if skipped:
+        how += f"; {skipped} pair(s) across two stations skipped"
     return np.array(pairs, dtype=int).reshape(-1, 2), how
 
 
@@ -546,9 +558,9 @@ def pair_residuals(
         return Residuals(r=r, J=J, row=rows, block=np.zeros(r.size, dtype=int))
     if obs.kind != "pose":
         raise ValueError(f"{kind} residuals need pose observations: pass obs.as_poses() and pairs of its rows")
-    R, p, Jp = _station_eval(space, x, obs.q, obs.station, jacobian)
     sig = np.sqrt(2.0) * obs.sigma_orientation
     if kind == "rotation_change":
+        R, p, Jp = _station_eval(space, x, obs.q, obs.station, jacobian)
         Qm = np.swapaxes(obs.pose_R[i], -1, -2) @ obs.pose_R[j]
         Qp = np.swapaxes(R[i], -1, -2) @ R[j]
         e = matrix_to_rotvec(Qm @ np.swapaxes(Qp, -1, -2)) / sig  # (k, 3)
@@ -562,9 +574,12 @@ def pair_residuals(
     if kind == "euler_change":
         if base2meas is None:
             raise ValueError("euler_change needs base2meas per station (the base rotation)")
+        # measured orientations brought into the base frame with the given base rotation; the model's
+        # orientations are evaluated in the base frame directly (its base parameters play no part)
         Rb = np.stack([np.asarray(base2meas[int(s)], dtype=float)[:3, :3] for s in obs.station])  # (n, 3, 3)
         Rm_base = np.swapaxes(Rb, -1, -2) @ obs.pose_R
-        Rp_base = np.swapaxes(Rb, -1, -2) @ R
+        ev = space.chain.evaluate(x[: space.n_rt], obs.q, jacobian=jacobian)
+        Rp_base = ev.R[0]
         Em = euler_zyx_from_matrix(Rm_base)
         Ep = euler_zyx_from_matrix(Rp_base)
         dEm = _wrap(Em[j] - Em[i])
@@ -572,9 +587,9 @@ def pair_residuals(
         e = _wrap(dEm - dEp) / sig
         J = None
         if jacobian:
-            Wb = np.einsum("nba,pbn->pan", Rb, Jp[:, 3:])  # spatial rates in the base frame
             Minv = _euler_rate_inverse(Ep)  # (n, 3, 3)
-            dE = np.einsum("nab,pbn->pan", Minv, Wb)  # (P, 3, n)
+            dE = np.zeros((space.size, 3, obs.n))
+            dE[: space.n_rt] = np.einsum("nab,pbn->pan", Minv, ev.J[0, :, 3:])  # (P_rt, 3, n)
             J = ((dE[:, :, j] - dE[:, :, i]) / sig).reshape(space.size, -1).T
         return Residuals(r=e.T.reshape(-1), J=J, row=np.tile(i, 3), block=np.ones(3 * k, dtype=int))
     raise ValueError(f"kind must be 'distance', 'rotation_change' or 'euler_change', got {kind!r}")

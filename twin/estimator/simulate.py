@@ -48,7 +48,8 @@ def simulate_dataset(
     applied on the left) or ``"both"``. Each row is measured in the frame of its ``station`` (default
     ``"0"``) through ``base2meas[station]`` (default: the model's). The plate geometry is given in the flange
     frame of the *nominal* ``tool2flange`` (``nominal``, default ``model``'s structure with identity tool),
-    as ``dataset.toml`` states it. Returns the dataset and the noise-free truth (``spheres`` ``(n, 3, 3)``,
+    as ``dataset.toml`` states it. The noise is declared in the dataset (``[noise]``) when ``declare_noise``
+    and positive. Returns the dataset and the noise-free truth (``spheres`` ``(n, 3, 3)``,
     ``pose`` ``(n, 4, 4)``) for evaluation.
     """
     q = np.asarray(q, dtype=float)
@@ -92,8 +93,8 @@ def simulate_dataset(
         set=None if set_ is None else np.asarray(set_, dtype=object),
         station=None if station is None else st,
         pair=None if pair is None else np.asarray(pair, dtype=np.int64),
-        noise_position=noise_position if declare_noise else None,
-        noise_orientation=(noise_orientation if kind != "spheres" else None) if declare_noise else None,
+        noise_position=noise_position if declare_noise and noise_position > 0 else None,
+        noise_orientation=noise_orientation if declare_noise and kind != "spheres" and noise_orientation > 0 else None,
         provenance="simulated by twin.estimator.simulate from a given model",
     )
     return ds, {"spheres": true_sph, "pose": T}
