@@ -13,7 +13,6 @@ inertia, actuation and constraint stages that nothing here needs.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -32,49 +31,15 @@ from .board import board_extent, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
 from .effects import EffectContext, apply_joint_effects, as_effect, effect_from_spec
 from .render import CameraPipeline, ImageFormer, scene_option
+from .records import BoardView, Capture
 from .rig import camera2rig, station_rig2world, true_intrinsics
+from .truth import truth_dict as _truth_dict
+from .truth import write_truth as _write_truth
 
 __all__ = ["World", "Capture", "BoardView"]
 
 _BOARD_TEXTURE = "board_texture.png"
 _PROBE_TEXTURE = "probe_texture.png"
-
-
-@dataclass(frozen=True)
-class Capture:
-    """One measurement: the images and the truth behind them (SI; frames as in ``docs/conventions.md``).
-
-    ``left``/``right`` ``(H, W)`` uint8; ``q_cmd``/``q_actual`` ``(6,)`` [rad]; ``spheres_meas`` ``(3, 3)`` [m]
-    true sphere centres in the station's measurement frame (left camera, OpenCV axes); ``tool2meas``
-    ``(4, 4)`` true plate pose there; ``params`` the actual parameter vector when an effect changed the
-    geometry for this measurement (else ``None``: the world's true parameters apply).
-    """
-
-    pose_id: int
-    station: int
-    q_cmd: np.ndarray
-    q_actual: np.ndarray
-    left: np.ndarray
-    right: np.ndarray
-    spheres_meas: np.ndarray
-    tool2meas: np.ndarray
-    t_s: float
-    temp_c: float
-    params: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class BoardView:
-    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes; truth)."""
-
-    index: int
-    left: np.ndarray
-    right: np.ndarray
-    board2meas: np.ndarray
-
-    def __iter__(self):
-        """Unpacks as the image pair: ``for left, right in world.render_board_views(n)``."""
-        return iter((self.left, self.right))
 
 
 def _png_bytes(img: np.ndarray) -> bytes:
@@ -690,15 +655,11 @@ class World:
 
     def truth_dict(self, captures: Iterable[Capture] | None = None) -> dict:
         """Everything :func:`twin.world.truth.write_truth` writes (SI, JSON-ready)."""
-        from .truth import truth_dict
-
-        return truth_dict(self, self.truth_poses if captures is None else list(captures))
+        return _truth_dict(self, self.truth_poses if captures is None else list(captures))
 
     def write_truth(self, path: str | os.PathLike, captures: Iterable[Capture] | None = None) -> Path:
         """Write ``truth.json`` (``docs/formats.md``) for the recorded (or the given) captures."""
-        from .truth import write_truth
-
-        return write_truth(path, self.truth_dict(captures))
+        return _write_truth(path, self.truth_dict(captures))
 
     def close(self) -> None:
         """Free the renderer (its GL context); the world can still compute truth afterwards."""
