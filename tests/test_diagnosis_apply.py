@@ -53,3 +53,26 @@ def test_compensation_with_effects_reaches_targets_through_the_true_robot(backla
     q_act = eff(res.q, true)  # the true backlash, following the commands' own order
     err = np.linalg.norm(tool2meas(true, q_act)[:, :3, 3] - T_meas[:, :3, 3], axis=1)
     assert err.max() < 0.02e-3
+
+
+@pytest.mark.slow
+def test_predict_command_applies_the_effects(backlash_case, tmp_path):
+    """twin predict with an extended calibration.json gives the extended predictions (not the geometric ones)."""
+    from twin.cli import main
+    from twin.dataset import Joints, write_joints_csv
+    from twin.estimator.files import write_pred_csv  # noqa: F401  (the format's writer, read back below)
+
+    ds, _, _, cal, _ = backlash_case
+    import json
+
+    p = tmp_path / "cal.json"
+    cal.save(p)
+    write_joints_csv(tmp_path / "J.csv", Joints(pose_id=ds.pose_id, q=ds.q, station=ds.station_ids))
+    assert main(["predict", str(p), str(tmp_path / "J.csv"), "--out", str(tmp_path / "P.csv")]) == 0
+    import csv
+
+    rows = list(csv.DictReader(open(tmp_path / "P.csv")))
+    got = np.array([[float(r[f"p{s}_{c}"]) for s in range(3) for c in "xyz"] for r in rows]).reshape(-1, 3, 3) * 1e-3
+    want = predict_extended(cal, row_context(ds), ds.station_ids).spheres
+    assert np.abs(got - want).max() < 1e-8
+    assert json.loads(p.read_text())["effects"][0]["name"] == "backlash"
