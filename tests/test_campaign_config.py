@@ -53,7 +53,7 @@ def test_extra_errors_add_to_the_preset_in_si():
     assert dev["theta2"] == pytest.approx(np.deg2rad(-0.2))
     assert dev["d4"] == pytest.approx(-0.1e-3 + 0.5e-3)
     raw["world"]["errors"] = {"theta2": 0.1}
-    with pytest.raises(ValueError, match="must end in _deg"):
+    with pytest.raises(ValueError, match=r"world\.errors\.theta2: a deviation needs a unit suffix"):
         parse_campaign_config(raw)
 
 

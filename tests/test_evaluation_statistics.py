@@ -8,7 +8,6 @@ from twin.evaluation.statistics import (
     euler_change_error,
     improvement_percent,
     moved_distance_error,
-    plate_frame_from_spheres,
     summarize,
 )
 from twin.transforms import make_transform, matrix_from_euler_zyx, rot_z, rotvec_to_matrix
@@ -105,15 +104,3 @@ def test_absolute_pose_errors():
     pos, rot = absolute_pose_errors(A, np.eye(4))
     assert pos[0] == pytest.approx(0.005)
     assert rot[0] == pytest.approx(0.2)
-
-
-def test_plate_frame_from_spheres_recovers_a_known_frame():
-    """Spheres at 0/180/110 deg on a circle give back the frame they were placed in (eq. 38-40)."""
-    ang = np.deg2rad([0.0, 180.0, 110.0])
-    local = np.stack([0.06 * np.cos(ang), 0.06 * np.sin(ang), np.zeros(3)], axis=1)
-    rng = np.random.default_rng(3)
-    T = make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3))
-    pts = local @ T[:3, :3].T + T[:3, 3]
-    np.testing.assert_allclose(plate_frame_from_spheres(pts[None])[0], T, atol=1e-12)
-    with pytest.raises(ValueError, match="collinear"):
-        plate_frame_from_spheres(np.array([[[0, 0, 0], [1, 0, 0], [2, 0, 0]]], float))

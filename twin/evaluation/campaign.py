@@ -38,6 +38,7 @@ import numpy as np
 from ..dataset import DatasetWriter, Joints, PoseRow, read_dataset, write_dataset_toml, write_joints_csv
 from ..kinematics import link_frames
 from ..transforms import invert_transform
+from ..world.truth import write_truth
 from .config import CampaignConfig
 from .evaluate import evaluate_campaign, paper_orderings, parameter_comparison
 from .executor import SerialExecutor, aggregate, open_executor, run_tasks, worker_identity
@@ -45,7 +46,7 @@ from .methods import Identify, MethodUnavailable, compensate, identify, load_met
 from .pipeline import PoseTask, backend_spec_for, get_backend, measure_pose
 from .plan import CampaignPlan, make_plan, pose_seed
 from .report import comparison_rows, plot_figure10, plot_figure11, render_table, write_results
-from .statistics import plate_frame_from_spheres
+from ..instrument.plate import paper_frame_from_spheres
 from .store import PoseResult, PoseStore, atomic_write_text
 from .targets import read_targets
 
@@ -123,19 +124,6 @@ def _evaluated_groups(cfg: CampaignConfig) -> dict[str, tuple[str, ...]]:
     return {g.name: g.evaluate for g in cfg.groups if g.evaluate}
 
 
-def _truth_json(backend, plan: CampaignPlan, before: Mapping[int, PoseResult]) -> dict[str, Any]:
-    rec = dict(backend.truth_record())
-    rec["poses"] = [
-        {
-            "pose_id": int(pid),
-            "q_actual_deg": np.rad2deg(np.asarray(before[int(pid)].truth.get("q_actual"), dtype=float)).tolist(),
-            "spheres_meas_mm": (np.asarray(before[int(pid)].truth.get("spheres_meas"), dtype=float) * 1e3).tolist(),
-        }
-        for pid in plan.pose_id
-    ]
-    return rec
-
-
 def run_campaign(
     cfg: CampaignConfig,
     out_dir: str | os.PathLike,
@@ -183,7 +171,8 @@ def run_campaign(
     ex_ctx = (open_executor("process", cfg.workers) if cfg.workers > 1 else nullcontext(SerialExecutor())) if own_ex else nullcontext(executor)
     with ex_ctx as ex:
         # --- 1. the campaign's own poses -----------------------------------------------------------
-        tasks = [PoseTask(f"m/{pid:05d}", int(pid), plan.q[i], str(plan.station[i]), pose_seed(cfg.seed, f"m/{pid:05d}"))
+        tasks = [PoseTask(f"m/{pid:05d}", int(pid), plan.q[i], str(plan.station[i]), pose_seed(cfg.seed, f"m/{pid:05d}"),
+                          plan.q[i - 1] if i > 0 else None)
                  for i, pid in enumerate(plan.pose_id)]
         t = time.perf_counter()
         n_new = _measure(ex, spec, tasks, store, "measuring", progress)
@@ -194,7 +183,7 @@ def run_campaign(
         noise = backend.noise_position()
         _write_dataset(out / "dataset", plan, rows, before, cfg, stations_nominal, noise,
                        f"twin campaign {cfg.name}, seed {cfg.seed}{' (quick)' if cfg.quick else ''}")
-        atomic_write_text(out / "truth.json", json.dumps(_truth_json(backend, plan, before)))
+        write_truth(out / "truth.json", backend.truth_record([before[int(p)] for p in plan.pose_id]))
         dataset = read_dataset(out / "dataset")
 
         # --- 2. identification per method ------------------------------------------------------------
@@ -229,7 +218,8 @@ def run_campaign(
             q_comp[m] = qc
             for k, i in enumerate(val_rows):
                 key = f"c/{m}/{int(plan.pose_id[i]):05d}"
-                comp_tasks.append(PoseTask(key, int(plan.pose_id[i]), qc[k], str(plan.station[i]), pose_seed(cfg.seed, key)))
+                comp_tasks.append(PoseTask(key, int(plan.pose_id[i]), qc[k], str(plan.station[i]), pose_seed(cfg.seed, key),
+                                           qc[k - 1] if k > 0 else None))
         timings["compensate_s"] = time.perf_counter() - t
         t = time.perf_counter()
         if comp_tasks:
@@ -384,7 +374,7 @@ def _recording(path: Path, cfg, plan, store, before, after, evals, method_result
             if r.images:
                 rec.log_images(r.images, image_format=r.image_format, overlays=r.overlays)
             s, seen = r.spheres_array()
-            plate = plate_frame_from_spheres(s[None])[0] if seen.all() else None
+            plate = paper_frame_from_spheres(s) if seen.all() else None
             rec.log_measurement(r.station, s, seen, plate)
             q_act = np.asarray(r.truth.get("q_actual", plan.q[i]), dtype=float)
             frames = {name: link_frames(mdl, plan.q[i] if name != "true" else q_act)[0] for name, mdl in models.items()}

@@ -24,11 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, mujoco_to_opencv_cam2world
+from ..camera import FLIP_MUJOCO_OPENCV, CameraIntrinsics
 from ..dataset import Plate, default_plate
 from ..kinematics import RobotModel
-from ..presets import preset_deviation, preset_robot
-from ..robots import get_robot
+from ..transforms import invert_transform, make_transform, pose6_to_transform
+from ..world.config import WorldConfig, nominal_robot_from_spec
+from ..world.rig import camera2rig, station_rig2world
 from .sampling import SamplingOptions, Station, ViewCamera
 
 __all__ = [
@@ -132,70 +133,36 @@ class _Reader:
             raise ValueError(f"{self.path}: unknown key(s) {[self.key(k) for k in sorted(self.t)]}")
 
 
-def _planning_stations_from_world(world: dict, path: str) -> tuple[Station, ...]:
-    """Nominal camera stations (OpenCV ``cam2base``, ideal intrinsics at the render scale) from the ``[world]``
-    table, for the pose samplers.
-
-    Same geometry as the world's rig (``docs/formats.md``, world sub-section): the rig sits at ``standoff``
-    from ``target`` along (azimuth about base z, elevation), looks at the target, lab +z up, turned by
-    ``roll``; its cameras sit at -+baseline/2 on the rig's x axis, toed in so that their axes cross at the
-    standoff (or at ``vergence``).
-    TODO(runner): replace by ``twin.world`` (WorldConfig, station_rig2world, camera2rig) once merged.
-    """
-    rig = world.get("rig", {}) or {}
-    baseline = float(rig.get("baseline_mm", 250.0)) * _MM
-    standoff_default = float(rig.get("standoff_mm", 700.0)) * _MM
-    toe = (0.5 * float(rig["vergence_deg"]) * _DEG) if "vergence_deg" in rig else None
-    w, h = int(rig.get("width_px", 2592)), int(rig.get("height_px", 1944))
-    f = float(rig.get("focal_mm", 16.0)) / float(rig.get("pixel_um", 2.2)) * 1e3
-    scale = float((world.get("render", {}) or {}).get("scale", 1.0))
+def _planning_stations(world: WorldConfig) -> tuple[Station, ...]:
+    """Nominal camera stations (OpenCV ``cam2base``, ideal pinhole intrinsics at the render scale) for the pose
+    samplers: the world's rig geometry (:func:`twin.world.rig.station_rig2world`, :func:`~twin.world.rig.camera2rig`)
+    at the configured placements, expressed in the nominal robot base frame."""
+    rig = world.rig
+    s = world.render.scale
+    w, h = int(round(rig.width_px * s)), int(round(rig.height_px * s))
+    f = rig.focal_px * s
     K = CameraIntrinsics(f, f, w / 2 - 0.5, h / 2 - 0.5, w, h)
-    if scale != 1.0:
-        K = K.scaled(scale)
-    stations_raw = world.get("stations")
-    if not isinstance(stations_raw, list) or not stations_raw:
-        raise ValueError(f"{path}: world.stations must be a non-empty array of tables ([[world.stations]])")
+    world2base = invert_transform(pose6_to_transform(world.mount_pose6))
+    left2rig, right2rig = camera2rig(rig)
+    flip = make_transform(FLIP_MUJOCO_OPENCV, np.zeros(3))
     out = []
-    for k, st in enumerate(stations_raw):
-        try:
-            target = np.asarray(st["target_mm"], dtype=float).reshape(3) * _MM
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"{path}: world.stations[{k}].target_mm must be 3 numbers") from None
-        az = float(st.get("azimuth_deg", 0.0)) * _DEG
-        el = float(st.get("elevation_deg", 0.0)) * _DEG
-        roll = float(st.get("roll_deg", 0.0)) * _DEG
-        d = float(st["standoff_mm"]) * _MM if "standoff_mm" in st else standoff_default
-        u = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        x = np.cross([0.0, 0.0, 1.0], u)
-        x /= np.linalg.norm(x)
-        y = np.cross(u, x)
-        x, y = np.cos(roll) * x + np.sin(roll) * y, -np.sin(roll) * x + np.cos(roll) * y
-        rig2world = np.eye(4)
-        rig2world[:3, :3] = np.stack([x, y, u], axis=1)
-        rig2world[:3, 3] = target + d * u
-        phi = toe if toe is not None else math.atan2(0.5 * baseline, standoff_default)
-        cams = []
-        for xo, yaw in ((-0.5 * baseline, -phi), (0.5 * baseline, phi)):
-            c, s_ = np.cos(yaw), np.sin(yaw)
-            T = np.eye(4)
-            T[:3, :3] = np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
-            T[0, 3] = xo
-            M = rig2world @ T  # MuJoCo camera axes
-            cams.append(ViewCamera(mujoco_to_opencv_cam2world(M[:3, 3], M[:3, :3]), K))
-        out.append(Station(str(st.get("name", k)), tuple(cams)))
-    names = [s.name for s in out]
-    if len(set(names)) != len(names):
-        raise ValueError(f"{path}: world.stations: station names must be unique, got {names}")
+    for st in world.stations:
+        R = world2base @ station_rig2world(st, rig)
+        out.append(Station(st.name, (ViewCamera(R @ left2rig @ flip, K), ViewCamera(R @ right2rig @ flip, K))))
     return tuple(out)
 
 
 @dataclass(frozen=True)
 class MeasurementConfig:
-    """``images``: the world renders, the instrument measures. ``truth_noise``: the separation paper's own
-    simulation (true sphere centres plus N(0, ``noise_position``^2) per coordinate, no images)."""
+    """``images``: the world renders, the instrument measures (stereo calibration from ``board_views`` rendered
+    board views). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
+    N(0, ``noise_position``^2) per coordinate, no images). ``seconds_per_pose`` [s]: the time stamp of pose
+    ``k`` is ``k * seconds_per_pose`` (time-dependent effects such as thermal drift)."""
 
     mode: str
     noise_position: float
+    board_views: int = 12
+    seconds_per_pose: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -248,24 +215,22 @@ class CampaignConfig:
         return default_plate()
 
     @property
-    def robot(self) -> str:
-        return str(self.world.get("robot", "irb1200"))
+    def robot(self) -> Any:
+        """The robot spec of the world (a name twin.robots knows, or an inline table)."""
+        return self.world_config().robot
+
+    def world_config(self) -> WorldConfig:
+        """The world's config (``[world]``; its ``seed`` defaults to the campaign seed)."""
+        return _world_config(self.world, self.seed, str(self.source) if self.source else "<config>")
 
     def nominal_model(self) -> RobotModel:
-        return get_robot(self.robot)
+        return nominal_robot_from_spec(self.world_config().robot)
 
     def true_deviation(self) -> dict[str, float]:
-        """Injected kinematic deviation (SI): ``world.preset`` plus ``world.errors``, summed by name.
-        TODO(runner): take it from twin.world once merged (random errors, mount)."""
-        dev = dict(preset_deviation(self.world["preset"])) if self.world.get("preset") else {}
-        layout = self.nominal_model().layout
-        for k, v in _errors(_Reader(self.world.get("errors", {}) or {}, "world.errors", "<config>"), layout.names).items():
-            dev[k] = dev.get(k, 0.0) + v
-        return dev
-
-    def true_model(self) -> RobotModel:
-        """The twin's true kinematics (nominal + injected errors). Evaluation and world only."""
-        return self.nominal_model().perturbed(self.true_deviation(), name=f"{self.robot}-true")
+        """Injected kinematic deviation (SI) by parameter name: preset + explicit + seeded random errors."""
+        nominal = self.nominal_model()
+        dev = self.world_config().deviation(nominal)
+        return {n: float(v) for n, v in zip(nominal.layout.names, dev) if v != 0.0}
 
     def stations(self) -> tuple[Station, ...]:
         """Nominal stations the planner uses (at the render scale)."""
@@ -300,22 +265,6 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _errors(r: _Reader, layout_names: tuple[str, ...]) -> dict[str, float]:
-    out: dict[str, float] = {}
-    for key in list(r.t):
-        v = r.number(key, required=True)
-        if key.endswith("_deg"):
-            name, scale = key[:-4], _DEG
-        elif key.endswith("_mm"):
-            name, scale = key[:-3], _MM
-        else:
-            raise r.err(key, "must end in _deg or _mm (e.g. theta2_deg = 0.1)")
-        if name not in layout_names:
-            raise r.err(key, f"unknown parameter {name!r}; known: {', '.join(layout_names)}")
-        out[name] = out.get(name, 0.0) + v * scale
-    return out
-
-
 def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     depth = r.vector("depth_mm", 2)
     tilt = r.number("max_tilt_deg", None)
@@ -341,24 +290,15 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
         raise ValueError(f"{r.path}: [{r.where}]: {exc}") from None
 
 
-def _world_table(world: Any, path: str) -> dict[str, Any]:
+def _world_config(world: Any, seed: int, path: str) -> WorldConfig:
     if not isinstance(world, dict):
         raise ValueError(f"{path}: [world] must be a table")
-    robot = world.get("robot", "irb1200")
+    table = dict(world)
+    table.setdefault("seed", seed)
     try:
-        nominal = get_robot(robot)
+        return WorldConfig.from_dict(table)
     except ValueError as exc:
-        raise ValueError(f"{path}: world.robot: {exc}") from None
-    preset = world.get("preset")
-    if preset is not None:
-        try:
-            other = preset_robot(preset)
-        except ValueError as exc:
-            raise ValueError(f"{path}: world.preset: {exc}") from None
-        if other != robot:
-            raise ValueError(f"{path}: world.preset: {preset!r} applies to robot {other!r}, not {robot!r}")
-    _errors(_Reader(world.get("errors", {}) or {}, "world.errors", path), nominal.layout.names)
-    return world
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def parse_campaign_config(
@@ -382,14 +322,16 @@ def parse_campaign_config(
     name = r.string("name", required=True)
     description = r.string("description", "")
     seed = r.integer("seed", required=True, minimum=0)
-    world = _world_table(r.get("world", {}), path)
-    stations = _planning_stations_from_world(world, path)
+    world = r.get("world", {})
+    stations = _planning_stations(_world_config(world, seed, path))
     station_names = tuple(s.name for s in stations)
 
     mr = r.table("measurement")
     measurement = MeasurementConfig(
         mode=mr.string("mode", "images", choices=MEASUREMENT_MODES),
         noise_position=mr.number("noise_mm", 0.01, nonneg=True) * _MM,
+        board_views=mr.integer("board_views", 12, minimum=6),
+        seconds_per_pose=mr.number("seconds_per_pose", 10.0, nonneg=True),
     )
     mr.done()
 

@@ -26,6 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..dataset import Plate
+from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, make_transform, rotation_angle_between
 from .plan import CampaignPlan
@@ -35,7 +36,6 @@ from .statistics import (
     euler_change_error,
     improvement_percent,
     moved_distance_error,
-    plate_frame_from_spheres,
     summarize,
 )
 from .store import PoseResult
@@ -70,7 +70,7 @@ class MethodEvaluation:
 
 
 def _plate_in_flange(plate: Plate) -> np.ndarray:
-    return plate_frame_from_spheres(plate.spheres_flange[None])[0]
+    return paper_frame_from_spheres(plate.spheres_flange)
 
 
 def commanded_plate2base(nominal: RobotModel, plate: Plate, q: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ def _frames_from(results: Mapping[int, PoseResult], pose_ids: np.ndarray, meas2b
             s, seen = r.spheres_array()
             if not seen.all():
                 continue
-        out[k] = meas2base[r.station] @ plate_frame_from_spheres(s[None])[0]
+        out[k] = meas2base[r.station] @ paper_frame_from_spheres(s)
         ok[k] = True
     return out, ok
 
@@ -276,5 +276,3 @@ def paper_orderings(summaries: Mapping[str, Mapping[str, Any]], source: str = "m
     return checks
 
 
-def summary_to_table_values(s: Summary) -> tuple[float, float, float]:  # pragma: no cover - helper for reports
-    return s.max, s.mean, s.std

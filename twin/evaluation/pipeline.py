@@ -24,15 +24,15 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Protocol
 
 import numpy as np
 
-from ..kinematics import flange2base
 from ..transforms import invert_transform
 from .config import CampaignConfig, parse_campaign_config
 from .executor import worker_identity
-from .store import PoseResult
+from .store import PoseResult, encode_image
 
 __all__ = [
     "PoseTask",
@@ -50,13 +50,14 @@ __all__ = [
 class PoseTask:
     """One pose to measure: a unique ``key`` (``m/<pose_id>`` for the campaign's own poses,
     ``c/<method>/<pose_id>`` for compensated ones), the commanded joints ``q`` ``(6,)`` [rad], the station,
-    and the per-pose seed."""
+    the per-pose seed, and the previous command in measurement order (``None`` for the first)."""
 
     key: str
     pose_id: int
     q: np.ndarray
     station: str
     seed: int
+    q_prev: np.ndarray | None = None  # the command measured just before this one (effects with history)
 
 
 @dataclass(frozen=True)
@@ -101,8 +102,8 @@ class MeasurementBackend(Protocol):
     def stations_truth(self) -> dict[str, StationTruth]:
         """True station geometry (evaluation only)."""
 
-    def truth_record(self) -> dict[str, Any]:
-        """Campaign-level truth for ``truth.json`` (evaluation only)."""
+    def truth_record(self, results: list[PoseResult]) -> dict[str, Any]:
+        """``truth.json`` content for the measured poses (evaluation only)."""
 
     def noise_position(self) -> float | None:
         """The instrument's 1-sigma noise per coordinate [m] for ``dataset.toml``, when known."""
@@ -119,94 +120,218 @@ def _log_render(work_dir: str, key: str, what: str) -> None:
         os.close(fd)
 
 
-class TruthNoiseBackend:
-    """The separation paper's simulation: true sphere centres + N(0, sigma^2) per coordinate (no images).
-
-    The true model is the campaign's nominal robot plus its injected errors; the stations are the nominal
-    placements (the measurement frame of a station is its left camera's OpenCV frame). A sphere whose true
-    centre is outside either camera image is reported as not seen (``p<k>:out_of_frame``).
-    """
+class _WorldBackend:
+    """Shared part of the backends: the world (true robot, effects, stations), per-pose effect context and
+    truth. Building a :class:`twin.world.World` compiles the MJCF but creates no renderer until an image is
+    asked for."""
 
     def __init__(self, spec: BackendSpec) -> None:
+        from ..world import World  # the world is only built where measurements are made
+
         self.spec = spec
         self.cfg = spec.config()
-        self.true_model = self.cfg.true_model().with_frames(base2meas=np.eye(4), tool2flange=np.eye(4))
+        self.world = World.from_config(self.cfg.world_config())
+        self.station_index = {name: k for k, name in enumerate(self.world.station_names)}
         self.plate = self.cfg.plate
-        self.stations = {s.name: s for s in self.cfg.stations()}
-        self.sigma = self.cfg.measurement.noise_position
+        self.seconds_per_pose = self.cfg.measurement.seconds_per_pose
 
     def prepare(self) -> None:
         Path(self.spec.work_dir).mkdir(parents=True, exist_ok=True)
 
     def stations_truth(self) -> dict[str, StationTruth]:
-        out = {}
-        for name, st in self.stations.items():
-            meas2base = st.cameras[0].cam2base
-            cams = {
-                cam_name: (invert_transform(meas2base) @ cam.cam2base, cam.intrinsics)
-                for cam_name, cam in zip(("left", "right"), st.cameras)
-            }
-            out[name] = StationTruth(name, invert_transform(meas2base), cams)
-        return out
-
-    def truth_record(self) -> dict[str, Any]:
-        m = self.cfg.true_model()
+        il, ir = self.world.true_intrinsics()
+        right2left = invert_transform(self.world.true_left2right())
         return {
-            "backend": "truth_noise",
-            "robot": {"name": m.name, "convention": m.convention, "names": list(m.layout.names), "params": m.params.tolist()},
-            "deviation": self.cfg.true_deviation(),
-            "stations": {k: {"base2meas": v.base2meas.tolist()} for k, v in self.stations_truth().items()},
-            "tool2flange": np.eye(4).tolist(),
-            "spheres_flange": self.plate.spheres_flange.tolist(),
-            "noise_position": self.sigma,
+            name: StationTruth(name, self.world.true_base2meas(k), {"left": (np.eye(4), il), "right": (right2left, ir)})
+            for name, k in self.station_index.items()
         }
+
+    def truth_record(self, results: list[PoseResult]) -> dict[str, Any]:
+        """The world's truth.json content for the measured poses (``twin.world.truth``)."""
+        from ..world import Capture
+
+        empty = np.empty((0, 0), np.uint8)
+        caps = []
+        for r in results:
+            t = r.truth
+            caps.append(Capture(
+                pose_id=int(r.pose_id), station=self.station_index[r.station], q_cmd=np.asarray(r.q, dtype=float),
+                q_actual=np.asarray(t["q_actual"], dtype=float), left=empty, right=empty,
+                spheres_meas=np.asarray(t["spheres_meas"], dtype=float), tool2meas=np.asarray(t["tool2meas"], dtype=float),
+                t_s=float(t.get("t_s", 0.0)), temp_c=float(t.get("temp_c", 20.0)),
+                params=None if t.get("params") is None else np.asarray(t["params"], dtype=float),
+            ))
+        return self.world.truth_dict(caps)
+
+    def noise_position(self) -> float | None:
+        return None
+
+    def _context(self, task: PoseTask):
+        """Effect context of a pose, from the plan alone (so any process gives the same): its index in the
+        measurement order, station, time stamp ``pose_id * seconds_per_pose`` and the previous command."""
+        from ..world.effects import EffectContext
+
+        k = self.station_index[task.station]
+        prev = None if task.q_prev is None else np.asarray(task.q_prev, dtype=float)
+        prev_actual = None
+        if prev is not None:
+            # the previous pose's actual joints, from its own command (its history is not carried further)
+            ctx_prev = EffectContext(t_s=(task.pose_id - 1) * self.seconds_per_pose, pose_index=max(task.pose_id - 1, 0),
+                                     station=k, q_cmd_prev=prev, q_actual_prev=prev, world=self.world)
+            prev_actual = self.world.actual_joints(prev, ctx_prev)
+        return EffectContext(t_s=task.pose_id * self.seconds_per_pose, pose_index=task.pose_id, station=k,
+                             q_cmd_prev=prev if prev is not None else np.asarray(task.q, dtype=float),
+                             q_actual_prev=prev_actual, world=self.world)
+
+    def _truth(self, cap) -> dict[str, Any]:
+        return {
+            "q_actual": np.asarray(cap.q_actual, dtype=float),
+            "spheres_meas": np.asarray(cap.spheres_meas, dtype=float),
+            "tool2meas": np.asarray(cap.tool2meas, dtype=float),
+            "t_s": float(cap.t_s),
+            "temp_c": float(cap.temp_c),
+            "params": None if cap.params is None else np.asarray(cap.params, dtype=float),
+        }
+
+
+class TruthNoiseBackend(_WorldBackend):
+    """The separation paper's simulation: the world's true sphere centres + N(0, sigma^2) per coordinate.
+
+    No images are rendered. A sphere whose true centre projects outside either camera image is reported as
+    not seen (``p<k>:out_of_frame``).
+    """
+
+    def __init__(self, spec: BackendSpec) -> None:
+        super().__init__(spec)
+        self.sigma = self.cfg.measurement.noise_position
 
     def noise_position(self) -> float | None:
         return self.sigma
 
     def measure(self, task: PoseTask) -> PoseResult:
         t0 = time.perf_counter()
-        st = self.stations[task.station]
-        base2meas = invert_transform(st.cameras[0].cam2base)
-        F = flange2base(self.true_model, task.q)[0]
-        s_base = self.plate.spheres_flange @ F[:3, :3].T + F[:3, 3]
-        s_meas = s_base @ base2meas[:3, :3].T + base2meas[:3, 3]
+        k = self.station_index[task.station]
+        ctx = self._context(task)
+        q_act = self.world.actual_joints(np.asarray(task.q, dtype=float), ctx)
+        spheres_true = self.world.true_spheres_meas(q_act, k)
+        cap = SimpleNamespace(q_actual=q_act, spheres_meas=spheres_true, tool2meas=self.world.true_tool2meas(q_act, k),
+                              t_s=ctx.t_s, temp_c=ctx.temp_c, params=None)
         rng = np.random.default_rng(task.seed)
-        noisy = s_meas + rng.normal(scale=self.sigma, size=(3, 3))
+        noisy = spheres_true + rng.normal(scale=self.sigma, size=(3, 3))
+        w, h = self.world.image_size
         spheres: list = []
         status = []
-        for k in range(3):
-            seen = True
-            for cam in st.cameras:
-                pc = cam.base2cam[:3, :3] @ s_base[k] + cam.base2cam[:3, 3]
-                if pc[2] <= 0:
-                    seen = False
-                    break
-                u = cam.intrinsics.fx * pc[0] / pc[2] + cam.intrinsics.cx
-                v = cam.intrinsics.fy * pc[1] / pc[2] + cam.intrinsics.cy
-                if not (0 <= u < cam.intrinsics.width and 0 <= v < cam.intrinsics.height):
-                    seen = False
-                    break
-            spheres.append(noisy[k] if seen else None)
-            if not seen:
-                status.append(f"p{k}:out_of_frame")
+        uvl, uvr = self.world.project_spheres(spheres_true, k)
+        for j in range(3):
+            inside = all(0 <= uv[j, 0] < w and 0 <= uv[j, 1] < h for uv in (uvl, uvr))
+            spheres.append(noisy[j] if inside else None)
+            if not inside:
+                status.append(f"p{j}:out_of_frame")
         _log_render(self.spec.work_dir, task.key, "measure")
         return PoseResult(
-            key=task.key,
-            pose_id=task.pose_id,
-            q=np.asarray(task.q, dtype=float),
-            station=task.station,
-            spheres=spheres,
-            status=";".join(status),
-            truth={"q_actual": np.asarray(task.q, dtype=float), "spheres_meas": s_meas, "flange2base": F},
+            key=task.key, pose_id=task.pose_id, q=np.asarray(task.q, dtype=float), station=task.station,
+            spheres=spheres, status=";".join(status), truth=self._truth(cap),
             timings={"measure_s": time.perf_counter() - t0},
             worker=f"{worker_identity()['host']}:{os.getpid()}",
         )
 
 
+class ImageBackend(_WorldBackend):
+    """World renders the stereo pair, the instrument measures it (``images`` mode).
+
+    :meth:`prepare` renders the board views and runs the instrument's stereo calibration once per campaign
+    (cached as ``<work>/stereo_calibration.json``; the instrument never sees the world's camera parameters).
+    Image noise is seeded per pose, so a pose rendered again (resume, another worker) is the same image.
+    """
+
+    def __init__(self, spec: BackendSpec) -> None:
+        super().__init__(spec)
+        self.calib_path = Path(spec.work_dir) / "stereo_calibration.json"
+        self._calib = None
+        out = self.cfg.outputs
+        self.keep_images = out.recording and out.recording_images != "none"
+        self.keep_after = out.recording and out.recording_images == "all"
+
+    def prepare(self) -> None:
+        from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
+        from .store import atomic_write_text
+
+        super().prepare()
+        if self.calib_path.exists():
+            self._calib = StereoCalibration.load(self.calib_path)
+            return
+        views = self.world.render_board_views(n=self.cfg.measurement.board_views, seed=self.cfg.seed)
+        board = BoardSpec.from_table(self.world.rig_info()["board"])
+        calib = calibrate_stereo([(v.left, v.right) for v in views], board)
+        tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")
+        calib.save(tmp)
+        os.replace(tmp, self.calib_path)
+        self._calib = calib
+
+    @property
+    def calibration(self):
+        if self._calib is None:
+            from ..instrument import StereoCalibration
+
+            if not self.calib_path.exists():
+                raise ValueError(f"{self.calib_path}: no stereo calibration yet (the campaign runs prepare() first)")
+            self._calib = StereoCalibration.load(self.calib_path)
+        return self._calib
+
+    def measure(self, task: PoseTask) -> PoseResult:
+        from ..instrument import measure_pair
+
+        t0 = time.perf_counter()
+        k = self.station_index[task.station]
+        # Image noise per pose: the world draws each image's noise from (its seed, an image counter); starting
+        # the counter from the pose's seed makes the pair independent of what this process rendered before.
+        self.world._image_counter = int(task.seed % (1 << 40)) * 2
+        cap = self.world.capture(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id, record=False)
+        t1 = time.perf_counter()
+        m = measure_pair(cap.left, cap.right, self.calibration, self.plate)
+        t2 = time.perf_counter()
+        overlays = {}
+        for cam, obs in (("left", m.left), ("right", m.right)):
+            centres, outlines = [], []
+            for s in obs:
+                if s is None:
+                    continue
+                if s.centre_px is not None:
+                    centres.append(np.asarray(s.centre_px, dtype=float))
+                if s.ellipse is not None:
+                    e = s.ellipse
+                    pts = cv2_ellipse_points(e.cx, e.cy, e.width, e.height, e.angle_deg)
+                    outlines.append(pts)
+            overlays[cam] = {"centres_px": np.array(centres).reshape(-1, 2), "outlines_px": outlines}
+        images: dict[str, bytes] = {}
+        fmt = ""
+        if (self.keep_images and task.key.startswith("m/")) or self.keep_after:
+            lossless = self.cfg.outputs.recording_lossless
+            for cam, img in (("left", cap.left), ("right", cap.right)):
+                images[cam], media = encode_image(img, lossless=lossless, jpeg_quality=self.cfg.outputs.jpeg_quality)
+            fmt = "png" if lossless else "jpg"
+        _log_render(self.spec.work_dir, task.key, "render")
+        return PoseResult(
+            key=task.key, pose_id=task.pose_id, q=np.asarray(task.q, dtype=float), station=task.station,
+            spheres=list(m.centres), status=m.status, truth=self._truth(cap), overlays=overlays, images=images,
+            image_format=fmt,
+            timings={"render_s": t1 - t0, "measure_s": t2 - t1, "encode_s": time.perf_counter() - t2},
+            worker=f"{worker_identity()['host']}:{os.getpid()}",
+        )
+
+
+def cv2_ellipse_points(cx: float, cy: float, width: float, height: float, angle_deg: float, n: int = 48) -> np.ndarray:
+    """``n`` points ``(n, 2)`` [px] on an ellipse in OpenCV's RotatedRect convention (full axes, angle)."""
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    a, b = 0.5 * width, 0.5 * height
+    c, s = np.cos(np.deg2rad(angle_deg)), np.sin(np.deg2rad(angle_deg))
+    x, y = a * np.cos(t), b * np.sin(t)
+    return np.stack([cx + c * x - s * y, cy + s * x + c * y], axis=1)
+
+
 BACKENDS = {
     "truth_noise": "twin.evaluation.pipeline:TruthNoiseBackend",
-    "images": "twin.evaluation.imaging:ImageBackend",
+    "images": "twin.evaluation.pipeline:ImageBackend",
 }
 
 _CACHE: dict[str, Any] = {}

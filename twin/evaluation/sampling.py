@@ -36,7 +36,7 @@ from ..kinematics import (
     wrap_angle,
 )
 from ..transforms import invert_transform, make_transform, rotvec_to_matrix
-from .statistics import plate_frame_from_spheres
+from ..instrument.plate import paper_frame_from_spheres
 
 __all__ = [
     "ViewCamera",
@@ -150,7 +150,7 @@ class SamplingOptions:
 
 def _plate_centre_flange(plate: Plate) -> np.ndarray:
     """Plate frame (eq. 38-40) in the flange frame ``(4, 4)``, from the nominal sphere centres."""
-    return plate_frame_from_spheres(plate.spheres_flange[None])[0]
+    return paper_frame_from_spheres(plate.spheres_flange)
 
 
 def plate_in_view(

@@ -35,7 +35,6 @@ __all__ = [
     "euler_change",
     "euler_change_error",
     "absolute_pose_errors",
-    "plate_frame_from_spheres",
 ]
 
 
@@ -160,37 +159,3 @@ def absolute_pose_errors(T_actual, T_target) -> tuple[np.ndarray, np.ndarray]:
     pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
     rot = rotation_angle_between(A[:, :3, :3], B[:, :3, :3])
     return pos, rot
-
-
-def plate_frame_from_spheres(spheres) -> np.ndarray:
-    """The plate frame of the separation paper's eq. 38-40 from three sphere centres ``(n, 3, 3)`` [m].
-
-    ``X = p0 - p1``, ``Z = X x (p2 - p1)``, ``Y = Z x X`` (normalised); origin at the centre of the circle
-    through the three centres. Returns ``plate2frame`` ``(n, 4, 4)`` in the frame of the input points.
-    """
-    s = np.asarray(spheres, dtype=float)
-    if s.ndim == 2:
-        s = s[None]
-    if s.ndim != 3 or s.shape[1:] != (3, 3):
-        raise ValueError(f"spheres must have shape (n, 3, 3) [m], got {s.shape}")
-    if not np.all(np.isfinite(s)):
-        raise ValueError("spheres contains non-finite values")
-    p0, p1, p2 = s[:, 0], s[:, 1], s[:, 2]
-    X = p0 - p1
-    Z = np.cross(X, p2 - p1)
-    nz = np.linalg.norm(Z, axis=1)
-    if np.any(nz < 1e-12):
-        raise ValueError(f"spheres: the three centres are collinear in rows {np.flatnonzero(nz < 1e-12)[:10].tolist()}")
-    Y = np.cross(Z, X)
-    R = np.stack([X / np.linalg.norm(X, axis=1, keepdims=True), Y / np.linalg.norm(Y, axis=1, keepdims=True),
-                  Z / nz[:, None]], axis=2)
-    # circumcentre of the triangle p0 p1 p2
-    a, b = p0 - p2, p1 - p2
-    axb = np.cross(a, b)
-    num = np.cross(np.sum(a * a, 1)[:, None] * b - np.sum(b * b, 1)[:, None] * a, axb)
-    centre = p2 + num / (2.0 * np.sum(axb * axb, 1))[:, None]
-    T = np.zeros((s.shape[0], 4, 4))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = centre
-    T[:, 3, 3] = 1.0
-    return T
