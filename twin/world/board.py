@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..camera import CameraIntrinsics, project_points
+from ..camera import FLIP_MUJOCO_OPENCV, CameraIntrinsics, project_points
 from ..transforms import invert_transform, rotvec_to_matrix
 from .config import BoardConfig
 
@@ -112,7 +112,7 @@ def sample_board_poses(
     left_cam2world = invert_transform(world2cam_cv[0])
     # Facing the rig: board z (into the board) along the rig's viewing direction (-z of the rig frame),
     # board x along rig x, board y along -rig y.
-    R_face = rig2world[:3, :3] @ np.diag([1.0, -1.0, -1.0])
+    R_face = rig2world[:3, :3] @ FLIP_MUJOCO_OPENCV  # the rig's OpenCV-style axes
     out: list[np.ndarray] = []
     tries = 0
     while len(out) < n:

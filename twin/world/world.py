@@ -30,7 +30,7 @@ from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, 
 from . import mjcf
 from .board import board_extent, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
-from .effects import BaseEffect, EffectContext, Effect, apply_joint_effects, as_effect, effect_from_spec
+from .effects import EffectContext, apply_joint_effects, as_effect, effect_from_spec
 from .render import CameraPipeline, ImageFormer, scene_option
 from .rig import camera2rig, station_rig2world, true_intrinsics
 
@@ -65,12 +65,16 @@ class Capture:
 
 @dataclass(frozen=True)
 class BoardView:
-    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes)."""
+    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes; truth)."""
 
     index: int
     left: np.ndarray
     right: np.ndarray
     board2meas: np.ndarray
+
+    def __iter__(self):
+        """Unpacks as the image pair: ``for left, right in world.render_board_views(n)``."""
+        return iter((self.left, self.right))
 
 
 def _png_bytes(img: np.ndarray) -> bytes:
@@ -221,8 +225,8 @@ class World:
                 "type": "charuco",
                 "squares_x": b.squares_x,
                 "squares_y": b.squares_y,
-                "square_mm": b.square * 1e3,
-                "marker_mm": b.marker * 1e3,
+                "square_mm": round(b.square * 1e3, 9),
+                "marker_mm": round(b.marker * 1e3, 9),
                 "dictionary": b.dictionary,
             },
         }
@@ -254,8 +258,11 @@ class World:
     def true_cam2world(self, station: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right camera poses ``(4, 4)`` in the lab frame, OpenCV camera axes."""
         R = self._rig2world[self._check_station(station)]
-        flip = make_transform(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
-        return R @ self._cam2rig[0] @ flip, R @ self._cam2rig[1] @ flip
+        out = []
+        for c2r in self._cam2rig:
+            T = R @ c2r  # MuJoCo camera axes; the one flip function turns them into OpenCV's
+            out.append(mujoco_to_opencv_cam2world(T[:3, 3], T[:3, :3].reshape(9)))
+        return out[0], out[1]
 
     def true_base2world(self) -> np.ndarray:
         """True robot base pose ``(4, 4)`` in the lab (MuJoCo world) frame."""
@@ -358,15 +365,17 @@ class World:
             self._former = ImageFormer(self.model, w, h)
         return self._former
 
-    def _noise_seed(self) -> int:
+    def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
+        if pair_seed is not None:
+            return int(np.random.SeedSequence([self.config.seed, 5, int(pair_seed), camera]).generate_state(1)[0])
         self._image_counter += 1
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
-                   analog: bool = False):
+                   analog: bool = False, pair_seed: int | None = None):
         former = self._get_former()
         images = []
-        for cam_name, cam_id, pipe in zip(("left", "right"), self._cam_ids, self._pipes):
+        for c, (cam_name, cam_id, pipe) in enumerate(zip(("left", "right"), self._cam_ids, self._pipes)):
             fx = ()
             if ctx is not None:
                 fx = tuple(
@@ -374,7 +383,8 @@ class World:
                     for e in self.effects if getattr(e, "changes_image", True)
                 )
             sigma = self.config.render.noise_sigma if noise else 0.0
-            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(), fx, analog=analog))
+            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(pair_seed, c), fx,
+                                      analog=analog))
         return images[0], images[1]
 
     def capture(
@@ -385,12 +395,15 @@ class World:
         pose_id: int | None = None,
         *,
         record: bool = True,
+        noise_seed: int | None = None,
     ) -> Capture:
         """Command ``q_cmd`` ``(6,)`` [rad], render the stereo pair at ``station``, keep the truth.
 
         Effects run in order on the context (the world fills the previous configuration when the context
         leaves it ``None``). With ``record`` the truth (without images) joins :attr:`truth_poses` for
-        :meth:`write_truth`.
+        :meth:`write_truth`. ``noise_seed`` makes this pair's sensor noise a function of (world seed,
+        ``noise_seed``) alone, whatever was rendered before (for campaigns spread over processes); by default
+        it follows the world's own image counter.
         """
         station = self._check_station(station)
         q_cmd = np.asarray(q_cmd, dtype=float).reshape(-1)
@@ -408,7 +421,7 @@ class World:
                 robot = e.geometry(robot, ctx)
         self._apply_geometry(robot)
         self._place(q_act, station)
-        left, right = self._form_pair(self._opt_pairs, ctx)
+        left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed)
         spheres = self.true_spheres_meas(q_act, station)
         tool = self.true_tool2meas(q_act, station)
         cap = Capture(
@@ -426,9 +439,9 @@ class World:
         return cap
 
     def render_pair(self, q_cmd: np.ndarray, station: int = 0, context: EffectContext | None = None,
-                    pose_id: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    pose_id: int | None = None, *, noise_seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Left and right images ``(H, W)`` uint8 for commanded ``q_cmd`` [rad] (see :meth:`capture`)."""
-        cap = self.capture(q_cmd, station, context, pose_id)
+        cap = self.capture(q_cmd, station, context, pose_id, noise_seed=noise_seed)
         return cap.left, cap.right
 
     def render_board_views(self, n: int | None = None, seed: int | None = None, station: int = 0) -> list[BoardView]:
@@ -565,11 +578,116 @@ class World:
                     ok = False
                 if np.any(uv[:, 1] < margin + r_px) or np.any(uv[:, 1] > h - 1 - margin - r_px):
                     ok = False
-            if ok:
+            if ok and not self.spheres_occluded(q, station):
                 out.append(q)
         return np.array(out)
 
+    def spheres_occluded(self, q_actual: np.ndarray, station: int, n_rim: int = 12) -> bool:
+        """Whether any part of a sphere's outline is hidden from either camera (by the arm, plate or posts).
+
+        Casts MuJoCo rays (``mj_ray``) from each camera centre to points just inside each sphere's outline and
+        to its centre; the first geom hit must be that sphere.
+        """
+        station = self._check_station(station)
+        self._place(q_actual, station)
+        groups = np.zeros(6, dtype=np.uint8)
+        groups[[mjcf.GROUP_ROBOT, mjcf.GROUP_PLATE]] = 1
+        geomid = np.zeros(1, dtype=np.int32)
+        r = 0.5 * self.nominal_plate.sphere_diameter
+        for cam in self.true_cam2world(station):
+            c = cam[:3, 3]
+            for k, site in enumerate(self._sphere_sites):
+                p = self.data.site_xpos[site]
+                view = (p - c) / np.linalg.norm(p - c)
+                a = np.cross(view, [0.0, 0.0, 1.0])
+                if np.linalg.norm(a) < 1e-6:
+                    a = np.cross(view, [1.0, 0.0, 0.0])
+                a /= np.linalg.norm(a)
+                b = np.cross(view, a)
+                ang = np.linspace(0, 2 * np.pi, n_rim, endpoint=False)
+                targets = [p] + [p + 0.97 * r * (np.cos(t) * a + np.sin(t) * b) for t in ang]
+                sphere_geom = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, f"sphere{k}")
+                for tgt in targets:
+                    vec = tgt - c
+                    mujoco.mj_ray(self.model, self.data, c, vec, groups, 1, -1, geomid)
+                    if geomid[0] != sphere_geom:
+                        return True
+        return False
+
     # --- files ---------------------------------------------------------------------------------------
+    def station_index(self, station: Any) -> int:
+        """Index of a station given by index (int or digit string) or by name."""
+        if isinstance(station, (int, np.integer)):
+            return self._check_station(int(station))
+        s = str(station).strip()
+        if s in self.station_names:
+            return self.station_names.index(s)
+        if s.lstrip("-").isdigit():
+            return self._check_station(int(s))
+        raise ValueError(f"unknown station {station!r}; stations: {self.station_names}")
+
+    def write_image_folder(
+        self,
+        folder: str | os.PathLike,
+        q_cmd: np.ndarray | None = None,
+        stations: Sequence[Any] | None = None,
+        *,
+        pose_ids: Sequence[int] | None = None,
+        contexts: Sequence[EffectContext] | None = None,
+        per_station: int = 0,
+        board_views: int | None = None,
+        seed: int = 0,
+        callback: Any = None,
+    ) -> dict:
+        """Render into an image folder (``docs/formats.md``): board views, then one pair per configuration.
+
+        Configurations are ``q_cmd`` ``(n, 6)`` [rad] with their ``stations`` (index or name; default 0), or,
+        when ``q_cmd`` is ``None``, ``per_station`` visible configurations at every station
+        (:meth:`visible_configurations`). ``board_views`` defaults to ``config.board.views``. Each capture's
+        truth is recorded for :meth:`write_truth`. ``callback(kind, index, total)`` reports progress.
+        Returns a summary (counts and the folder).
+        """
+        from .images import ImageFolderWriter
+
+        if q_cmd is None:
+            if per_station < 1:
+                raise ValueError(f"per_station must be >= 1 when no q_cmd is given, got {per_station}")
+            qs, st = [], []
+            for s in range(self.n_stations):
+                q = self.visible_configurations(s, per_station, seed=seed)
+                qs.append(q)
+                st += [s] * len(q)
+            q_cmd = np.concatenate(qs)
+            stations = st
+        q_cmd = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+        if q_cmd.ndim != 2 or q_cmd.shape[1] != N_JOINTS:
+            raise ValueError(f"q_cmd must have shape (n, {N_JOINTS}) [rad], got {q_cmd.shape}")
+        n = q_cmd.shape[0]
+        st_idx = [0] * n if stations is None else [self.station_index(s) for s in stations]
+        if len(st_idx) != n:
+            raise ValueError(f"stations has {len(st_idx)} entries for {n} configurations")
+        ids = list(range(n)) if pose_ids is None else [int(i) for i in pose_ids]
+        if len(ids) != n or len(set(ids)) != n:
+            raise ValueError("pose_ids must be unique, one per configuration")
+        if contexts is not None and len(contexts) != n:
+            raise ValueError(f"contexts has {len(contexts)} entries for {n} configurations")
+        writer = ImageFolderWriter(folder, self.rig_info())
+        nb = self.config.board.views if board_views is None else int(board_views)
+        for k, view in enumerate(self.render_board_views(nb, seed=seed) if nb > 0 else []):
+            writer.add_board_view(view.left, view.right)
+            if callback is not None:
+                callback("board", k, nb)
+        for k in range(n):
+            ctx = contexts[k] if contexts is not None else None
+            cap = self.capture(q_cmd[k], st_idx[k], ctx, pose_id=ids[k])
+            extra = {}
+            if ctx is not None:
+                extra = {"t_s": cap.t_s, "temp_c": cap.temp_c}
+            writer.add_pair(cap.pose_id, cap.q_cmd, cap.left, cap.right, station=str(cap.station), **extra)
+            if callback is not None:
+                callback("pair", k, n)
+        return {"folder": str(folder), "pairs": writer.n_pairs, "board_views": writer.n_board_views}
+
     def truth_dict(self, captures: Iterable[Capture] | None = None) -> dict:
         """Everything :func:`twin.world.truth.write_truth` writes (SI, JSON-ready)."""
         from .truth import truth_dict
