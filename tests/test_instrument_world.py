@@ -90,3 +90,18 @@ def test_cli_measure_render(tmp_path, capsys):
     assert ds.n == 2 and ds.sphere_seen.all()
     assert (tmp_path / "truth.json").exists() and (tmp_path / "images" / "rig.toml").exists()
     assert len(list((tmp_path / "images" / "pairs").glob("*.png"))) == 4
+
+
+@pytest.mark.slow
+def test_world_image_folder_measured(tmp_path, capsys):
+    """The folder `twin render` writes (the world's own writer) is measured by `twin measure IMAGES`."""
+    cfg = tmp_path / "world.toml"
+    cfg.write_text("[world]\nseed = 3\n[world.render]\nscale = 0.5\n[world.board]\nviews = 8\n")
+    assert main(["render", str(cfg), "--out", str(tmp_path / "r"), "--per-station", "1", "--quiet"]) == 0
+    rc = main(["measure", str(tmp_path / "r" / "images"), "--out", str(tmp_path / "ds"), "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    ds = read_dataset(tmp_path / "ds")
+    summary = json.loads(out[out.index("{"):])
+    assert ds.n == summary["rows"] >= 4 and summary["complete_rows"] >= ds.n - 1
+    assert ds.station is not None

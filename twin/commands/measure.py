@@ -93,36 +93,28 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_render(args: argparse.Namespace) -> int:
     """Render with the twin (world layer; allowed here: commands sit outside the layers) and measure."""
-    import cv2
     import numpy as np
 
-    from ..dataset import Joints, read_joints_csv, write_joints_csv
+    from ..dataset import Joints, read_joints_csv
     from ..instrument.calibration import BoardSpec, StereoCalibration, calibrate_stereo
     from ..instrument.folder import CALIBRATION_FILE, measure_to_dataset, read_plate_toml
     from ..world import World, WorldConfig, load_world_config
+    from ..world.effects import EffectContext
+    from ..world.images import ImageFolderWriter
 
     cfg = load_world_config(args.world) if args.world else WorldConfig.from_dict({})
     world = World(cfg)
     plate = read_plate_toml(args.plate) if args.plate else world.nominal_plate
     keep = args.keep_images
-    if keep is not None:
-        (keep / "board").mkdir(parents=True, exist_ok=True)
-        (keep / "pairs").mkdir(parents=True, exist_ok=True)
-        info = world.rig_info()
-        b = info["board"]
-        (keep / "rig.toml").write_text(
-            f"schema_version = 1\nimage_width = {info['image_width']}\nimage_height = {info['image_height']}\n"
-            f"[board]\ntype = \"charuco\"\nsquares_x = {b['squares_x']}\nsquares_y = {b['squares_y']}\n"
-            f"square_mm = {b['square_mm']!r}\nmarker_mm = {b['marker_mm']!r}\ndictionary = \"{b['dictionary']}\"\n"
-        )
+    # the world's own image-folder writer: the kept folder is exactly what `twin render` writes
+    writer = ImageFolderWriter(keep, world.rig_info()) if keep is not None else None
     if args.calib:
         calib = StereoCalibration.load(args.calib)
     else:
         views = world.render_board_views(args.board_views)
-        if keep is not None:
+        if writer is not None:
             for v in views:
-                cv2.imwrite(str(keep / "board" / f"{v.index:03d}_left.png"), v.left)
-                cv2.imwrite(str(keep / "board" / f"{v.index:03d}_right.png"), v.right)
+                writer.add_board_view(v.left, v.right)
         board = BoardSpec.from_table(world.rig_info()["board"])
         calib = calibrate_stereo([(v.left, v.right) for v in views], board, names=[f"{v.index:03d}" for v in views])
     if args.joints:
@@ -130,16 +122,28 @@ def _run_render(args: argparse.Namespace) -> int:
     else:
         q = world.visible_configurations(args.station, args.poses, seed=args.seed)
         joints = Joints(np.arange(len(q)), q, station=np.array([str(args.station)] * len(q), dtype=object))
-    if keep is not None:
-        write_joints_csv(keep / "joints.csv", joints)
-    stations = joints.station if joints.station is not None else np.array(["0"] * len(joints.pose_id), dtype=object)
+    stations = [world.station_index(s) for s in joints.station] if joints.station is not None else [0] * len(joints.pose_id)
+
+    def context(k):
+        # time and temperature of the row drive the world's history-dependent effects (as `twin render`)
+        if joints.t_s is None and joints.temp_c is None:
+            return None
+        return EffectContext(
+            t_s=float(joints.t_s[k]) if joints.t_s is not None else 0.0,
+            temp_c=float(joints.temp_c[k]) if joints.temp_c is not None else 20.0,
+            pose_index=k, station=stations[k],
+        )
 
     def pairs():
         for k, pid in enumerate(joints.pose_id):
-            cap = world.capture(joints.q[k], station=int(stations[k]), pose_id=int(pid))
-            if keep is not None:
-                cv2.imwrite(str(keep / "pairs" / f"{int(pid)}_left.png"), cap.left)
-                cv2.imwrite(str(keep / "pairs" / f"{int(pid)}_right.png"), cap.right)
+            cap = world.capture(joints.q[k], station=stations[k], context=context(k), pose_id=int(pid))
+            if writer is not None:
+                writer.add_pair(
+                    int(pid), joints.q[k], cap.left, cap.right, station=joints.station[k] if joints.station is not None else None,
+                    set=joints.set[k] if joints.set is not None else None,
+                    temp_c=float(joints.temp_c[k]) if joints.temp_c is not None else None,
+                    t_s=float(joints.t_s[k]) if joints.t_s is not None else None,
+                )
             yield cap.left, cap.right
 
     robot = args.robot or (cfg.robot if isinstance(cfg.robot, str) else "irb1200")
