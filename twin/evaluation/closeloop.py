@@ -48,7 +48,9 @@ def plan_poses(world, per_station: int, *, repeats_every: int = 4, seed: int = 0
     q_rows, st_rows, set_rows, rep_rows = [], [], [], []
     k = 0
     for s in st_list:
-        qs = world.visible_configurations(s, per_station, seed=seed * 1000 + s)
+        qs = _one_arm_branch(world.visible_configurations(s, 3 * per_station, seed=seed * 1000 + s))[:per_station]
+        if len(qs) < per_station:
+            raise RuntimeError(f"station {s}: only {len(qs)} visible configurations on one arm branch")
         for i, q in enumerate(qs):
             tag = "calibration" if k % 2 == 0 else "validation"
             reps = 2 if (repeats_every and i % repeats_every == 0) else 1
@@ -66,6 +68,15 @@ def plan_poses(world, per_station: int, *, repeats_every: int = 4, seed: int = 0
         t_s=np.arange(n) * float(seconds_per_pose),
         repeat=np.asarray(rep_rows, dtype=bool),
     )
+
+
+def _one_arm_branch(q: np.ndarray, tol_deg: float = 60.0) -> np.ndarray:
+    """Keep the configurations whose arm joints (1-3) lie within ``tol_deg`` of their median: an operator
+    jogging a robot in front of a camera stays on one shoulder/elbow branch (the world's sampler mixes
+    branches; a far branch is an extrapolation no calibration campaign would test on)."""
+    med = np.median(q[:, :3], axis=0)
+    d = np.abs((q[:, :3] - med + np.pi) % (2 * np.pi) - np.pi)
+    return q[np.all(d <= np.deg2rad(tol_deg), axis=1)]
 
 
 def synthetic_dataset(world, plan: Plan, *, sigma: float, seed: int = 0, record_temp: bool = False,
