@@ -38,13 +38,27 @@ def test_no_effect_no_alarm_on_visible_configurations(world):
     assert not res.structured and res.effects == ()
 
 
+# Sizes >= 3x the noise after a perfect geometric calibration at these poses. The world's defaults are
+# realistic and partly below that: default compliance leaves only ~1.3x (the geometry absorbs most of a
+# gravity sag), default cyclic and thermal ~2.6x; those are scaled up here (the sweep in
+# results/close_loop_sensitivity.json covers the sizes below 3x).
+SPECS = {
+    "compliance": {"name": "compliance", "stiffness_nm_per_rad": [5e4, 6.25e4, 3e4, 5e3, 5e3, 2.5e3]},
+    "backlash": {"name": "backlash"},
+    "cyclic": {"name": "cyclic", "amplitude_deg": 0.008},
+    "gear_ratio": {"name": "gear_ratio"},
+    "coupling": {"name": "coupling"},
+    "thermal": {"name": "thermal", "temp_rise_k": 12},
+}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal"])
+@pytest.mark.parametrize("name", sorted(SPECS))
 def test_world_effect_is_detected_named_and_removed(world, name):
-    """Each world effect at its default size (>= 3x the noise after a perfect geometric calibration) is found
-    and named, and the extended model's validation error is within 1.2x of the oracle's (geometry + the true
-    effect shape, identified on the same rows)."""
-    spec = {"name": name}
+    """Each world effect at >= 3x the noise (after a perfect geometric calibration) is found and named, and
+    the extended model's validation error is within 1.2x of the oracle's (geometry + the true effect shape,
+    identified on the same rows)."""
+    spec = SPECS[name]
     plan, ds, caps = _case(world, spec, record_temp=(name == "thermal"))
     assert effect_size(world, plan, SIGMA, record_temp=(name == "thermal")) >= 3.0
     res = diagnose(ds)
