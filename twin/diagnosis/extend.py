@@ -146,13 +146,16 @@ class ExtendedModel:
         return E / obs.sigma_position
 
 
-def reduced_basis(E: np.ndarray, A: np.ndarray, *, rel_tol: float = 1e-6, max_rank: int = 40) -> np.ndarray:
+def reduced_basis(E: np.ndarray, A: np.ndarray, *, rel_tol: float = 1e-2, max_rank: int = 40) -> np.ndarray:
     """Basis ``(K, r)`` of the candidate directions the data can see beyond the geometry.
 
     ``E`` ``(m, K)``: whitened effect columns; ``A`` ``(m, p)``: whitened columns of the free geometric
     parameters. Columns are scaled to unit norm, the part in the span of ``A`` is projected out (what the
     geometry absorbs is not evidence of the effect), and the right singular vectors of the remainder with
-    singular values above ``rel_tol`` of the largest are kept (at most ``max_rank``).
+    singular values above ``rel_tol`` of the largest are kept (at most ``max_rank``). A direction of which
+    less than 1 % survives the projection is the geometry's business: fitting it only adds variance to the
+    predictions (measured with camera-limited poses: ``rel_tol`` 1e-6 instead of 1e-2 gave an extended model
+    up to 2x the validation error).
     """
     nrm = np.linalg.norm(E, axis=0)
     keep = nrm > 1e-12 * max(float(nrm.max(initial=0.0)), 1e-300)

@@ -1,0 +1,177 @@
+"""Close-the-loop evaluation: datasets from the world's effects, effect sizes, truth beside diagnosis.
+
+Evaluation code (it reads the world's truth). Two ways to make a dataset with an undeclared effect:
+
+* :func:`synthetic_dataset` — the world's true sphere centres (effects applied by the world: compliance by
+  MuJoCo statics, backlash from the command history, thermal from the campaign's time, ...) plus Gaussian
+  noise at the instrument's measured level; no images. For tests and the detection-rate sweep.
+* the rendered path — a campaign through images and the instrument (``experiments/close_loop.py``).
+
+Plans (:func:`plan_poses`) follow what a real campaign can do: configurations the cameras see at each
+station, measured station by station, every ``repeats_every``-th pose measured twice in a row (the noise
+floor), calibration and validation rows alternating.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..dataset import Dataset, default_plate, robot_from_spec
+
+__all__ = ["Plan", "plan_poses", "synthetic_dataset", "effect_size", "true_model_error", "truth_effects",
+           "oracle_candidate", "oracle_fit"]
+
+_MM = 1e-3
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Commanded joints ``q`` ``(n, 6)`` [rad] in measurement order, station index per row, set per row, time
+    stamps ``t_s`` ``(n,)`` [s] (a fixed cadence), and which rows repeat the previous one."""
+
+    q: np.ndarray
+    stations: np.ndarray
+    sets: np.ndarray
+    t_s: np.ndarray
+    repeat: np.ndarray
+
+
+def plan_poses(world, per_station: int, *, repeats_every: int = 4, seed: int = 0, seconds_per_pose: float = 12.0,
+               stations: Sequence[int] | None = None) -> Plan:
+    """Visible configurations, station by station; calibration/validation alternate by configuration."""
+    if per_station < 2:
+        raise ValueError(f"per_station must be at least 2, got {per_station}")
+    st_list = list(range(world.n_stations)) if stations is None else [int(s) for s in stations]
+    q_rows, st_rows, set_rows, rep_rows = [], [], [], []
+    k = 0
+    for s in st_list:
+        qs = _one_arm_branch(world.visible_configurations(s, 3 * per_station, seed=seed * 1000 + s))[:per_station]
+        if len(qs) < per_station:
+            raise RuntimeError(f"station {s}: only {len(qs)} visible configurations on one arm branch")
+        for i, q in enumerate(qs):
+            tag = "calibration" if k % 2 == 0 else "validation"
+            reps = 2 if (repeats_every and i % repeats_every == 0) else 1
+            for r in range(reps):
+                q_rows.append(q)
+                st_rows.append(s)
+                set_rows.append(tag)
+                rep_rows.append(r > 0)
+            k += 1
+    n = len(q_rows)
+    return Plan(
+        q=np.asarray(q_rows),
+        stations=np.asarray(st_rows, dtype=int),
+        sets=np.asarray(set_rows, dtype=object),
+        t_s=np.arange(n) * float(seconds_per_pose),
+        repeat=np.asarray(rep_rows, dtype=bool),
+    )
+
+
+def _one_arm_branch(q: np.ndarray, tol_deg: float = 60.0) -> np.ndarray:
+    """Keep the configurations whose arm joints (1-3) lie within ``tol_deg`` of their median: an operator
+    jogging a robot in front of a camera stays on one shoulder/elbow branch (the world's sampler mixes
+    branches; a far branch is an extrapolation no calibration campaign would test on)."""
+    med = np.median(q[:, :3], axis=0)
+    d = np.abs((q[:, :3] - med + np.pi) % (2 * np.pi) - np.pi)
+    return q[np.all(d <= np.deg2rad(tol_deg), axis=1)]
+
+
+def synthetic_dataset(world, plan: Plan, *, sigma: float, seed: int = 0, record_temp: bool = False,
+                      record_time: bool = True, robot: str = "irb1200") -> tuple[Dataset, list]:
+    """The world's true sphere centres for ``plan`` plus N(0, sigma^2) per coordinate [m].
+
+    Nothing about the effects reaches the dataset: commanded joints, station, set, and, as a real instrument
+    would, ``t_s`` (``record_time``) and ``temp_c`` (``record_temp``, the world's true temperature). The noise
+    is not declared (the diagnosis takes its floor from the repeats). Returns the dataset and the captures
+    (truth, for evaluation only).
+    """
+    caps = world.true_sequence(plan.q, list(plan.stations), t_s=plan.t_s)
+    rng = np.random.default_rng(seed)
+    n = len(caps)
+    spheres = np.stack([c.spheres_meas for c in caps]) + rng.normal(0.0, sigma, (n, 3, 3))
+    names = np.array([world.station_names[s] for s in plan.stations], dtype=object)
+    temp = np.array([c.temp_c for c in caps], dtype=float) if record_temp else None
+    ds = Dataset(
+        robot=robot_from_spec(robot),
+        robot_spec=robot,
+        plate=default_plate(),
+        pose_id=np.arange(n, dtype=np.int64),
+        q=plan.q.copy(),
+        spheres=spheres,
+        sphere_seen=np.ones((n, 3), dtype=bool),
+        pose=np.full((n, 4, 4), np.nan),
+        pose_seen=np.zeros(n, dtype=bool),
+        set=plan.sets.copy(),
+        station=names,
+        t_s=plan.t_s.copy() if record_time else None,
+        temp_c=temp,
+        provenance=f"twin.evaluation.closeloop.synthetic_dataset: world truth + N(0, {sigma / _MM:g} mm^2), seed {seed}",
+    )
+    return ds, caps
+
+
+def effect_size(world_with_effect, plan: Plan, sigma: float, **kw) -> float:
+    """What an effect leaves after a perfect geometric-only calibration, in noise sigmas per coordinate:
+    the validation RMS per coordinate of the default estimator fitted to noise-free data with the effect."""
+    from ..estimator import calibrate
+
+    ds, _ = synthetic_dataset(world_with_effect, plan, sigma=0.0, **kw)
+    ds = replace(ds, noise_position=1e-9)
+    cal = calibrate(ds)
+    return float(cal.residuals["validation"]["position_mm"]["rms"] * _MM / np.sqrt(3) / sigma)
+
+
+def true_model_error(ds: Dataset, caps: list) -> dict[str, Any]:
+    """Validation error of the true model (geometry + effects): its predictions are the true centres, so
+    this is the measurement noise seen through the same statistics as ``diagnosis.json``'s ``before``/``after``."""
+    val = np.flatnonzero(ds.set == "validation")
+    true = np.stack([caps[i].spheres_meas for i in val])
+    e = np.linalg.norm(ds.spheres[val] - true, axis=-1)[ds.sphere_seen[val]] / _MM
+    return {"n_rows": int(val.size), "position_mm": {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))),
+                                                      "max": float(e.max())}}
+
+
+def truth_effects(world) -> list[dict]:
+    """The world's effects and their true parameters (for the evaluation table beside the identified ones)."""
+    out = []
+    for e in getattr(world, "effects", []):
+        name = getattr(e, "name", type(e).__name__)
+        params = e.params() if hasattr(e, "params") else {}
+        out.append({"name": name, "params": params})
+    return out
+
+
+def oracle_candidate(ds: Dataset, caps: list):
+    """The *true* effect's shape as a one-parameter candidate (scale ``s``, 1 for the truth): the per-row joint
+    offsets ``q_actual - q_cmd`` the world applied, or, when the world changed the geometry (thermal), the
+    per-row relative growth of the link lengths. Evaluation only: it reads the world's truth."""
+    from ..diagnosis.candidates import Candidate
+
+    dq = np.stack([c.q_actual - c.q_cmd for c in caps])  # (n, 6) [rad]
+    L0 = np.stack([c.params for c in caps])
+    if len(caps) != ds.n:
+        raise ValueError(f"caps must align with the dataset rows ({ds.n}), got {len(caps)}")
+    names = ("scale",)
+    if np.abs(dq).max() > 0:
+        return Candidate("oracle_joints", "joint", lambda ref: names,
+                         lambda ctx, ref: dq[:, :, None] if len(ctx.q) == len(dq) else _bad(len(ctx.q), len(dq)),
+                         "the world's own joint offsets, scaled")
+    ref_len = np.median(L0, axis=0)
+    rel = np.where(np.abs(ref_len) > 1e-9, L0 / np.where(np.abs(ref_len) > 1e-9, ref_len, 1.0) - 1.0, 0.0)
+    growth = np.max(np.abs(rel), axis=1) * np.sign(rel.sum(axis=1))
+    return Candidate("oracle_lengths", "length", lambda ref: names, lambda ctx, ref: growth[:, None],
+                     "the world's own length growth per row, scaled")
+
+
+def _bad(a, b):
+    raise ValueError(f"oracle candidate built for {b} rows, asked for {a}")
+
+
+def oracle_fit(ds: Dataset, caps: list):
+    """What the true model achieves when identified on the same rows: geometry + the true effect shape."""
+    from ..diagnosis import fit_with_effects
+
+    return fit_with_effects(ds, [oracle_candidate(ds, caps)])
