@@ -30,7 +30,7 @@ from ..dataset import Plate, default_plate
 from ..kinematics import N_JOINTS, RobotModel, UnreachableError, closest_branch, inverse_kinematics_closed_form
 from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, pose6_to_transform, rotvec_to_matrix
 from . import mjcf
-from .board import board_extent, board_texture, sample_board_poses
+from .board import board_extent, board_texcoords, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
 from .effects import (
     EffectContext,
@@ -127,6 +127,7 @@ class World:
             board_extent=board_extent(cfg.board),
             board_thickness=cfg.board.thickness,
             board_texture_file=_BOARD_TEXTURE,
+            board_texcoords=board_texcoords(cfg.board),
             offwidth=max(il.width, 64),
             offheight=max(il.height, 64),
             probe_texture_file=_PROBE_TEXTURE,
@@ -591,21 +592,35 @@ class World:
         c2w = self.true_cam2world(station)
         w2c = (invert_transform(c2w[0]), invert_transform(c2w[1]))
         poses = sample_board_poses(self.config.board, n, rng, w2c, self.true_intrinsics(), self._rig2world[station])
-        out = []
+        return [self.render_board(w2c[0] @ T, station) for T in poses]
+
+    def render_board(self, board2meas: np.ndarray, station: int = 0, *, noise: bool = True,
+                     record: bool = True) -> BoardView:
+        """Both cameras' images of the board at ``board2meas`` ``(4, 4)`` (board frame -> the station's
+        measurement frame, i.e. the left camera, OpenCV axes), arm and plate hidden.
+
+        Any pose is drawn, seen or not (:meth:`render_board_views` samples poses both cameras see). With
+        ``record`` the pose joins :attr:`truth_board_views` (the view's ``index`` is its position there; -1
+        otherwise); ``noise=False`` leaves out the sensor noise.
+        """
+        station = self._check_station(station)
+        T = np.asarray(board2meas, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"board2meas must be a finite (4, 4) transform, got {board2meas!r}")
+        board2world = self.true_cam2world(station)[0] @ T
         k = self._mocap["board"]
-        start = len(self.truth_board_views)
         try:
-            for i, T in enumerate(poses):
-                self.data.mocap_pos[k] = T[:3, 3]
-                self.data.mocap_quat[k] = matrix_to_quat_wxyz(T[:3, :3])
-                self._place(self.data.qpos[self._qadr].copy(), station)
-                left, right = self._form_pair(self._opt_board, None)
-                b2m = w2c[0] @ T
-                out.append(BoardView(start + i, left, right, b2m))
-                self.truth_board_views.append((start + i, b2m))
+            self.data.mocap_pos[k] = board2world[:3, 3]
+            self.data.mocap_quat[k] = matrix_to_quat_wxyz(board2world[:3, :3])
+            self._place(self.data.qpos[self._qadr].copy(), station)
+            left, right = self._form_pair(self._opt_board, None, noise=noise)
         finally:
             self._hide("board")
-        return out
+        index = -1
+        if record:
+            index = len(self.truth_board_views)
+            self.truth_board_views.append((index, T.copy()))
+        return BoardView(index, left, right, T.copy())
 
     def render_probe(self, point_meas: np.ndarray, station: int = 0, camera: str = "left", *,
                      noise: bool = False, analog: bool = False) -> np.ndarray:
