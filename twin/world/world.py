@@ -98,7 +98,8 @@ class World:
 
         # --- cameras -----------------------------------------------------------------------------------
         il, ir = true_intrinsics(cfg.rig, cfg.render)
-        self._pipes = (CameraPipeline.build("left", il), CameraPipeline.build("right", ir))
+        ss = cfg.render.supersample
+        self._pipes = (CameraPipeline.build("left", il, ss), CameraPipeline.build("right", ir, ss))
         self._cam2rig = camera2rig(cfg.rig)
         self._rig2world = [station_rig2world(s, cfg.rig) for s in cfg.stations]
 
@@ -128,8 +129,9 @@ class World:
             board_thickness=cfg.board.thickness,
             board_texture_file=_BOARD_TEXTURE,
             board_texcoords=board_texcoords(cfg.board),
-            offwidth=max(il.width, 64),
-            offheight=max(il.height, 64),
+            # the offscreen buffer holds the supersampled render (s times the image along each axis)
+            offwidth=max(il.width * cfg.render.supersample, 64),
+            offheight=max(il.height * cfg.render.supersample, 64),
             probe_texture_file=_PROBE_TEXTURE,
         )
         robot_el = mjcf.robot_body_element(self.true_robot, self.true_spheres_tool, self.nominal_plate.sphere_diameter)
@@ -457,7 +459,7 @@ class World:
     def _get_former(self) -> ImageFormer:
         if self._former is None:
             w, h = self.image_size
-            self._former = ImageFormer(self.model, w, h)
+            self._former = ImageFormer(self.model, w, h, self.config.render.supersample)
         return self._former
 
     def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
@@ -467,10 +469,16 @@ class World:
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
-                   analog: bool = False, pair_seed: int | None = None):
+                   analog: bool = False, pair_seed: int | None = None, cameras: tuple[int, ...] = (0, 1)):
+        """Both images (``cameras`` selects which are rendered; the other comes back ``None``, its noise seed
+        is drawn all the same so that later images do not depend on the selection)."""
         former = self._get_former()
         images = []
         for c, (cam_name, cam_id, pipe) in enumerate(zip(("left", "right"), self._cam_ids, self._pipes)):
+            if c not in cameras:
+                self._noise_seed(pair_seed, c)
+                images.append(None)
+                continue
             fx = ()
             if ctx is not None:
                 fx = tuple(
@@ -644,7 +652,8 @@ class World:
         self.data.mocap_quat[k] = matrix_to_quat_wxyz(cam[:3, :3])
         try:
             self._place(self.data.qpos[self._qadr].copy(), station)
-            pair = self._form_pair(self._opt_probe, None, noise=noise, analog=analog)
+            c = 0 if camera == "left" else 1
+            pair = self._form_pair(self._opt_probe, None, noise=noise, analog=analog, cameras=(c,))
         finally:
             self._hide("probe")
         return pair[0] if camera == "left" else pair[1]
