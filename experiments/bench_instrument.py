@@ -19,7 +19,10 @@ averaged like a real sensor's pixel integrates light, then the same noise) and `
 and board views drawn by the analytic ray tracer of ``twin.instrument.synthetic``: exact, anti-aliased
 sphere outlines).
 
-Usage: ``python experiments/bench_instrument.py [--per-station 15] [--no-msaa] [--no-analytic]``
+``--render-supersample N`` renders the main ``world`` row with the twin's own ``render.supersample = N``
+(N x N samples per pixel, distortion on the sampling grid, block means, then noise).
+
+Usage: ``python experiments/bench_instrument.py [--per-station 15] [--render-supersample 2] [--no-msaa] [--no-analytic]``
 """
 
 from __future__ import annotations
@@ -170,7 +173,8 @@ def _scaled_back(c: CameraIntrinsics, s: int) -> CameraIntrinsics:
     return CameraIntrinsics(c.fx / s, c.fy / s, (c.cx + 0.5) / s - 0.5, (c.cy + 0.5) / s - 0.5, c.width // s, c.height // s, c.dist)
 
 
-def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, depth_range=(0.5, 1.0)) -> tuple[dict, dict]:
+def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, depth_range=(0.5, 1.0),
+              render_supersample: int = 1) -> tuple[dict, dict]:
     """Render with the twin, calibrate from its board views, measure; returns (figures, scene for reuse).
 
     ``supersample`` > 1 is a what-if: the twin renders a sensor with ``supersample`` times the pixels (same
@@ -178,6 +182,8 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
     ``supersample**2`` samples, like a real sensor integrates light) and then gets the 2 grey levels of
     noise and 8-bit rounding."""
     cfg: dict = {"seed": seed}
+    if render_supersample > 1:
+        cfg["render"] = {"supersample": render_supersample}  # the twin's own supersampling
     if supersample > 1:
         rig = World.from_config({"seed": seed}).config.rig
         cfg["rig"] = {"width_px": rig.width_px * supersample, "height_px": rig.height_px * supersample,
@@ -230,7 +236,8 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
         "depth_mm": {"min": min(depths) * 1e3, "median": float(np.median(depths)) * 1e3, "max": max(depths) * 1e3},
         "image_size": [il.width, il.height],
         "noise_sigma_grey": 2.0,
-        "samples_per_pixel": supersample**2,
+        "samples_per_pixel": supersample**2 * render_supersample**2,
+        "render_supersample": render_supersample,
         "board_views": len(views),
         "offsamples": msaa,
     }
@@ -270,6 +277,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--per-station", type=int, default=15, help="plate poses per station (4 stations)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--render-supersample", type=int, default=1,
+                    help="the twin's render.supersample for the main world row (samples per pixel along each axis)")
     ap.add_argument("--no-msaa", action="store_true", help="skip the 4x multisampling what-if")
     ap.add_argument("--no-supersample", action="store_true", help="skip the 2x2 supersampled-rendering what-if")
     ap.add_argument("--no-analytic", action="store_true", help="skip the analytic-renderer row")
@@ -278,7 +287,7 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    world, scene = run_world(args.per_station, args.seed)
+    world, scene = run_world(args.per_station, args.seed, render_supersample=args.render_supersample)
     section = {"protocol": __doc__.split("\n\n")[1].replace("\n", " "), "targets": TARGETS, "world": world}
     if not args.no_msaa:
         section["what_if_msaa4"], _ = run_world(args.per_station, args.seed, msaa=4)

@@ -1,9 +1,12 @@
 """Benchmark of the world's image formation: seconds per full-resolution stereo pair with sensor noise,
-next to MuJoCo's bare ``Renderer.update_scene`` + ``Renderer.render()`` for the same scene and cameras.
+next to MuJoCo's bare ``Renderer.update_scene`` + ``Renderer.render()`` for the same scene and cameras, with
+one sample per pixel and with ``render.supersample = 2`` (2 x 2 samples per pixel).
 
 Writes the ``world`` section of ``results/benchmark.json``. Bare and full renders are interleaved so that
 load from other processes on the machine hits both alike; figures are medians (and minima, the least
-disturbed runs), with the 1-minute load average recorded.
+disturbed runs), with the 1-minute load average recorded. Ratios are to the bare render of the output size
+(what one sample per pixel costs MuJoCo); for supersampling the bare render of the sampling grid (2x the
+width and height) is timed as well.
 
     .venv/bin/python experiments/bench_world.py [--repeats 10]
 """
@@ -22,63 +25,95 @@ from twin.benchio import update_benchmark_section
 from twin.world import World
 
 
-def _bench(world: World, q: np.ndarray, repeats: int) -> dict:
+def _stats(x: list[float]) -> dict:
+    return {"median": round(float(np.median(x)), 4), "min": round(float(np.min(x)), 4), "all": [round(v, 4) for v in x]}
+
+
+def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ...] = (1,)) -> dict:
+    """World.render_pair against MuJoCo's bare renderer at ``bare_scales`` times the image size, interleaved."""
     world.capture(q, 0, record=False)  # warm-up: creates the world's renderer, uploads textures
     w, h = world.image_size
-    r = mujoco.Renderer(world.model, h, w)  # MuJoCo's own renderer on the same model and data
+    renderers = {s: mujoco.Renderer(world.model, s * h, s * w) for s in bare_scales}  # MuJoCo's own renderer
     world._place(q, 0)
-    r.update_scene(world.data, camera=world._cam_ids[0], scene_option=world._opt_pairs)
-    r.render()  # warm-up
-    bare, full = [], []
+    for r in renderers.values():
+        r.update_scene(world.data, camera=world._cam_ids[0], scene_option=world._opt_pairs)
+        r.render()  # warm-up
+    bare: dict[int, list[float]] = {s: [] for s in bare_scales}
+    full = []
     for _ in range(repeats):
-        t = time.perf_counter()
-        for cam in world._cam_ids:
-            r.update_scene(world.data, camera=cam, scene_option=world._opt_pairs)
-            r.render()
-        bare.append(time.perf_counter() - t)
+        for s, r in renderers.items():
+            t = time.perf_counter()
+            for cam in world._cam_ids:
+                r.update_scene(world.data, camera=cam, scene_option=world._opt_pairs)
+                r.render()
+            bare[s].append(time.perf_counter() - t)
         t = time.perf_counter()
         world.render_pair(q, 0)
         full.append(time.perf_counter() - t)
     world.truth_poses.clear()
-    r.close()
-    b, f = float(np.median(bare)), float(np.median(full))
-    bm, fm = float(np.min(bare)), float(np.min(full))
-    return {"bare_pair_s": round(b, 4), "pair_s": round(f, 4), "ratio": round(f / b, 3),
-            "bare_pair_s_min": round(bm, 4), "pair_s_min": round(fm, 4), "ratio_of_min": round(fm / bm, 3),
-            "bare_pair_s_all": [round(x, 4) for x in bare], "pair_s_all": [round(x, 4) for x in full]}
+    for r in renderers.values():
+        r.close()
+    out = {"supersample": world.config.render.supersample, "pair_s": _stats(full)}
+    for s in bare_scales:
+        out[f"bare_pair_s_{s}x"] = _stats(bare[s])
+    b1 = bare[1]
+    out["ratio_to_bare_1x"] = round(float(np.median(full) / np.median(b1)), 3)
+    out["ratio_of_min_to_bare_1x"] = round(float(np.min(full) / np.min(b1)), 3)
+    return out
+
+
+def _board_pair_s(world: World, n: int) -> float:
+    t = time.perf_counter()
+    views = world.render_board_views(n, seed=0)
+    return round((time.perf_counter() - t) / len(views), 4)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--board-views", type=int, default=6)
     args = ap.parse_args()
     base = {"preset": "separation_tables_2_4", "seed": 1}
     out: dict = {"image_size_px": [2592, 1944], "target_ratio": 1.5, "repeats": args.repeats,
                  "load_average_1min_at_start": round(os.getloadavg()[0], 2)}
+
     t = time.perf_counter()
     w = World.from_config({**base, "render": {"noise_sigma": 2.0, "distortion": [0, 0, 0, 0, 0], "principal_offset_px": [0, 0]}})
     out["build_world_s_ideal_camera"] = round(time.perf_counter() - t, 3)
     q = w.visible_configurations(0, 1, seed=0)[0]
     out["noise_only"] = _bench(w, q, args.repeats)
     w.close()
+
     t = time.perf_counter()
     w = World.from_config(base)  # default: noise + lens distortion + principal-point offsets (float remap)
     out["build_world_s_default"] = round(time.perf_counter() - t, 3)
     out["noise_and_distortion"] = _bench(w, q, args.repeats)
-    t = time.perf_counter()
-    views = w.render_board_views(6, seed=0)
-    out["board_view_pair_s"] = round((time.perf_counter() - t) / len(views), 4)
+    out["board_view_pair_s"] = _board_pair_s(w, args.board_views)
     w.close()
+
+    t = time.perf_counter()
+    w = World.from_config({**base, "render": {"supersample": 2}})  # the default camera, 2 x 2 samples per pixel
+    out["build_world_s_supersample_2"] = round(time.perf_counter() - t, 3)
+    out["supersample_2"] = _bench(w, q, args.repeats, bare_scales=(1, 2))
+    out["board_view_pair_s_supersample_2"] = _board_pair_s(w, args.board_views)
+    w.close()
+
+    d1, d2 = out["noise_and_distortion"], out["supersample_2"]
+    out["supersample_2_over_1"] = {"median": round(d2["pair_s"]["median"] / d1["pair_s"]["median"], 3),
+                                   "min": round(d2["pair_s"]["min"] / d1["pair_s"]["min"], 3)}
     out["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     out["note"] = ("pair_s: World.render_pair (kinematics, render both cameras, grey, distortion remap in float32, "
-                   "Gaussian noise, 8-bit rounding, truth of the pose); bare_pair_s: Renderer.update_scene + "
-                   "Renderer.render() for both cameras of the same scene")
+                   "with supersampling 2x2 block means, Gaussian noise, 8-bit rounding, truth of the pose); "
+                   "bare_pair_s_Nx: Renderer.update_scene + Renderer.render() for both cameras of the same scene at N "
+                   "times the image width and height; ratio_to_bare_1x: pair_s over the bare render of the output size")
     path = update_benchmark_section("world", out)
-    for k in ("noise_only", "noise_and_distortion"):
+    for k in ("noise_only", "noise_and_distortion", "supersample_2"):
         d = out[k]
-        print(f"{k}: {d['pair_s']:.3f} s/pair vs bare {d['bare_pair_s']:.3f} s/pair (ratio {d['ratio']:.2f}; "
-              f"minima {d['pair_s_min']:.3f} vs {d['bare_pair_s_min']:.3f}, ratio {d['ratio_of_min']:.2f})")
-    print(f"board view pair: {out['board_view_pair_s']:.3f} s; written to {path}")
+        extra = f", bare 2x {d['bare_pair_s_2x']['median']:.3f} s" if "bare_pair_s_2x" in d else ""
+        print(f"{k}: {d['pair_s']['median']:.3f} s/pair vs bare {d['bare_pair_s_1x']['median']:.3f} s/pair "
+              f"(ratio {d['ratio_to_bare_1x']:.2f}; of minima {d['ratio_of_min_to_bare_1x']:.2f}){extra}")
+    print(f"supersample 2 / 1: {out['supersample_2_over_1']}; board view pair {out['board_view_pair_s']:.3f} s "
+          f"(supersample 2: {out['board_view_pair_s_supersample_2']:.3f} s); written to {path}")
     return 0
 
 
