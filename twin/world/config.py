@@ -35,8 +35,8 @@ __all__ = [
 
 _MM = 1e-3
 _DEG = math.pi / 180.0
-# Largest render.supersample: 4 x 2592 = 10368 px a side is inside GL's 16384 (llvmpipe here), and the render
-# buffers then take ~1 GB per world; the GL limit itself is checked when the renderer is built.
+# Largest render.supersample: 4 x 2592 = 10368 px a side is inside GL's 16384 (llvmpipe here); the sampling-grid
+# buffers grow with s^2 (0.55 GB at s = 2). The GL limit itself is checked when the renderer is built.
 MAX_SUPERSAMPLE = 4
 
 
