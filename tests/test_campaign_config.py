@@ -1,0 +1,97 @@
+"""Tests of twin.evaluation.config and twin.evaluation.plan: campaign configs and pose plans."""
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twin.evaluation.config import load_campaign_config, parse_campaign_config
+from twin.evaluation.plan import make_plan, pose_seed
+from twin.kinematics import flange2base
+
+ROOT = Path(__file__).resolve().parent.parent
+SEPARATION = ROOT / "experiments" / "separation.toml"
+
+
+def _raw():
+    return tomllib.loads(SEPARATION.read_text())
+
+
+def test_separation_config_matches_the_paper_protocol():
+    """The shipped config has 25 + 25 motion pairs, 40 distance tests of 50/60/80/100 mm, and four methods."""
+    c = load_campaign_config(SEPARATION)
+    g = {x.name: x for x in c.groups}
+    assert (g["calibration"].count, g["compensation"].count, g["distance"].count) == (25, 25, 40)
+    assert sorted(set(np.round(np.array(g["distance"].distances) * 1e3, 6))) == [50, 60, 80, 100]
+    assert c.methods == ("distance", "full_pose", "separation", "default")
+    assert c.true_deviation()["theta2"] == pytest.approx(np.deg2rad(-0.3))
+
+
+def test_unknown_key_is_named():
+    """A misspelt key is refused with its dotted name, not ignored."""
+    raw = _raw()
+    raw["measurement"]["noise_mn"] = 0.01
+    with pytest.raises(ValueError, match=r"measurement\.noise_mn"):
+        parse_campaign_config(raw)
+
+
+def test_preset_of_another_robot_is_refused():
+    """A preset for another robot is refused, naming the key."""
+    raw = _raw()
+    raw["world"]["preset"] = "tmmdh_tables_4_5"
+    with pytest.raises(ValueError, match="world.preset"):
+        parse_campaign_config(raw)
+
+
+def test_extra_errors_add_to_the_preset_in_si():
+    """[world.errors] values in deg / mm are added to the preset, converted to rad / m."""
+    raw = _raw()
+    raw["world"]["errors"] = {"theta2_deg": 0.1, "d4_mm": 0.5}
+    c = parse_campaign_config(raw)
+    dev = c.true_deviation()
+    assert dev["theta2"] == pytest.approx(np.deg2rad(-0.2))
+    assert dev["d4"] == pytest.approx(-0.1e-3 + 0.5e-3)
+    raw["world"]["errors"] = {"theta2": 0.1}
+    with pytest.raises(ValueError, match=r"world\.errors\.theta2: a deviation needs a unit suffix"):
+        parse_campaign_config(raw)
+
+
+def test_quick_merges_its_table():
+    """--quick applies [quick]: half resolution and fewer poses, and changes the fingerprint."""
+    full = load_campaign_config(SEPARATION)
+    quick = load_campaign_config(SEPARATION, quick=True)
+    assert quick.world["render"]["scale"] == 0.5
+    assert quick.stations()[0].cameras[0].intrinsics.width == 1296
+    assert sum(g.count for g in quick.groups) < sum(g.count for g in full.groups)
+    assert quick.fingerprint() != full.fingerprint()
+    assert quick.with_seed(5).quick and quick.with_seed(5).seed == 5
+
+
+def test_plan_is_reproducible_and_ordered():
+    """The plan depends only on the config: pose ids count up, pairs are consecutive start/end rows."""
+    c = load_campaign_config(SEPARATION, quick=True)
+    a, b = make_plan(c), make_plan(c)
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.pose_id, np.arange(a.n))
+    s, e = a.pairs("calibration")
+    np.testing.assert_array_equal(e, s + 1)
+    assert list(a.group[: 2 * 15]) == ["calibration"] * 30
+    other = make_plan(c.with_seed(c.seed + 1))
+    assert not np.allclose(other.q, a.q)
+
+
+def test_plan_distance_moves_have_the_commanded_distance():
+    """Distance-move rows carry their distance and the nominal flange moves by it."""
+    c = load_campaign_config(SEPARATION, quick=True)
+    p = make_plan(c)
+    s, e = p.pairs("distance")
+    m = c.nominal_model()
+    moved = np.linalg.norm(flange2base(m, p.q[e])[:, :3, 3] - flange2base(m, p.q[s])[:, :3, 3], axis=1)
+    np.testing.assert_allclose(moved, p.distance[s], atol=1e-9)
+
+
+def test_pose_seed_depends_on_seed_and_key():
+    """Per-pose seeds are stable and differ between keys and campaigns."""
+    assert pose_seed(1, "before/3") == pose_seed(1, "before/3")
+    assert len({pose_seed(1, "before/3"), pose_seed(1, "before/4"), pose_seed(2, "before/3")}) == 3

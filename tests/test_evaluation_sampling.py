@@ -1,0 +1,96 @@
+"""Tests of twin.evaluation.sampling: configurations the station sees, motion pairs, fixed-distance moves."""
+
+import numpy as np
+import pytest
+
+from twin.camera import CameraIntrinsics, project_points
+from twin.dataset import default_plate
+from twin.evaluation.sampling import (
+    SamplingError,
+    SamplingOptions,
+    look_at_cam2base,
+    plate_in_view,
+    sample_configurations,
+    sample_distance_moves,
+    sample_motion_pairs,
+    stereo_station,
+)
+from twin.kinematics import flange2base
+from twin.robots import irb1200
+from twin.transforms import rotation_angle_between
+
+K = CameraIntrinsics.ideal(2592, 1944, 15.225)
+MODEL = irb1200()
+PLATE = default_plate()
+STATION = stereo_station("front", np.array([1.25, 0.0, 0.75]), np.array([0.55, 0.0, 0.55]), 0.25, K)
+
+
+def _spheres_base(q):
+    F = flange2base(MODEL, q)
+    return np.einsum("nij,mj->nmi", F[:, :3, :3], PLATE.spheres_flange) + F[:, None, :3, 3]
+
+
+def test_look_at_camera_looks_at_target():
+    """The OpenCV z axis of a look-at camera points at the target and its image 'down' points down in the world."""
+    T = look_at_cam2base([1.0, 0.0, 1.0], [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(T[:3, 2], [-1.0, 0.0, 0.0], atol=1e-12)
+    assert T[2, 1] < 0  # y (down in the image) points to -z of the world
+    assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
+
+
+def test_sampled_configurations_are_in_limits_and_in_view():
+    """Every sampled configuration is inside the joint limits and projects all spheres into both images."""
+    q = sample_configurations(MODEL, STATION, PLATE, 20, np.random.default_rng(0))
+    assert q.shape == (20, 6)
+    assert MODEL.within_limits(q).all()
+    pts = _spheres_base(q).reshape(-1, 3)
+    for cam in STATION.cameras:
+        uv = project_points(pts, cam.base2cam, cam.intrinsics)
+        assert (uv >= 0).all() and (uv[:, 0] < K.width).all() and (uv[:, 1] < K.height).all()
+    assert plate_in_view(MODEL, q, STATION, PLATE).all()
+
+
+def test_sampling_is_reproducible_from_the_seed():
+    """The same seed gives the same configurations; another seed gives others."""
+    a = sample_configurations(MODEL, STATION, PLATE, 5, np.random.default_rng(3))
+    b = sample_configurations(MODEL, STATION, PLATE, 5, np.random.default_rng(3))
+    c = sample_configurations(MODEL, STATION, PLATE, 5, np.random.default_rng(4))
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+
+
+def test_plate_in_view_rejects_a_plate_outside_the_image():
+    """A station aimed away from the robot sees none of the sampled poses."""
+    away = stereo_station("away", np.array([0.0, 3.0, 0.8]), np.array([0.0, 5.0, 0.8]), 0.25, K)
+    q = sample_configurations(MODEL, STATION, PLATE, 5, np.random.default_rng(1))
+    assert not plate_in_view(MODEL, q, away, PLATE).any()
+
+
+def test_impossible_station_raises_naming_it():
+    """A station whose field of view the robot cannot reach raises SamplingError, not an endless loop."""
+    far = stereo_station("far", np.array([4.0, 0.0, 0.8]), np.array([3.3, 0.0, 0.8]), 0.25, K)
+    with pytest.raises(SamplingError, match="'far'"):
+        sample_configurations(MODEL, far, PLATE, 1, np.random.default_rng(0), SamplingOptions(max_attempts=256))
+
+
+def test_motion_pairs_have_distinct_orientations():
+    """Motion pairs are two different in-view configurations of the same station."""
+    a, b = sample_motion_pairs(MODEL, STATION, PLATE, 6, np.random.default_rng(2))
+    Fa, Fb = flange2base(MODEL, a), flange2base(MODEL, b)
+    assert (rotation_angle_between(Fa[:, :3, :3], Fb[:, :3, :3]) > np.deg2rad(1)).all()
+
+
+def test_distance_moves_translate_by_exactly_the_distance():
+    """On the nominal model the flange moves by exactly the requested distance and does not turn."""
+    d = np.array([0.05, 0.06, 0.08, 0.1])
+    a, b = sample_distance_moves(MODEL, STATION, PLATE, d, np.random.default_rng(5))
+    Fa, Fb = flange2base(MODEL, a), flange2base(MODEL, b)
+    np.testing.assert_allclose(np.linalg.norm(Fb[:, :3, 3] - Fa[:, :3, 3], axis=1), d, atol=1e-9)
+    np.testing.assert_allclose(rotation_angle_between(Fa[:, :3, :3], Fb[:, :3, :3]), 0.0, atol=1e-9)
+    assert plate_in_view(MODEL, b, STATION, PLATE).all()
+
+
+def test_distance_moves_refuse_nonpositive_distance():
+    """A zero or negative distance is refused, naming the argument."""
+    with pytest.raises(ValueError, match="distances must be positive"):
+        sample_distance_moves(MODEL, STATION, PLATE, np.array([0.05, 0.0]), np.random.default_rng(0))

@@ -1,0 +1,133 @@
+"""``twin calibrate DATASET --method M --out DIR``: identify the robot of a dataset, write calibration.json."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..dataset import read_dataset
+from ..estimator import Calibration, calibrate
+
+HELP = "identify the robot of a measured dataset (writes DIR/calibration.json)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml)")
+    p.add_argument("--method", default="best", choices=["best", "distance", "fullpose", "separation", "lm", "clm"],
+                   help="identification method (default: best, ours)")
+    p.add_argument("--out", required=True, help="output folder for calibration.json")
+    p.add_argument("--error-model", choices=["tmmdh", "structural"], default=None,
+                   help="tmmdh: robot + tool + base per station (default); structural: robot only, frames held")
+    p.add_argument("--gauge", choices=["frames", "structure"], default=None,
+                   help="which member of a coupled set is kept (best only; default frames)")
+    p.add_argument("--measurement", choices=["auto", "spheres", "pose"], default="auto")
+    p.add_argument("--solver", choices=["spectral", "scaled"], default=None,
+                   help="distance/fullpose/separation: the paper's spectral correction (default) or scaled GN")
+    p.add_argument("--angle-residual", choices=["relative", "euler"], default=None, help="separation only")
+    p.add_argument("--no-robust", action="store_true", help="best: plain least squares (no outlier rule)")
+    p.add_argument("--noise-position-mm", type=float, default=None, help="override dataset.toml [noise]")
+    p.add_argument("--noise-orientation-rad", type=float, default=None, help="override dataset.toml [noise]")
+    p.add_argument("--validation-fraction", type=float, default=0.2,
+                   help="held-out fraction when the dataset has no 'set' column (seeded)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--use-given-bases", action="store_true",
+                   help="start from dataset.toml's station base2meas instead of registering them")
+    p.add_argument("--quiet", action="store_true")
+
+
+def _options(args) -> dict:
+    opts = {}
+    if args.error_model is not None:
+        if args.method not in ("best", "lm", "clm"):
+            raise ValueError(f"--error-model applies to best, lm and clm, not {args.method!r}")
+        opts["error_model"] = args.error_model
+    if args.gauge is not None:
+        if args.method != "best":
+            raise ValueError("--gauge applies to --method best only")
+        opts["gauge"] = args.gauge
+    if args.solver is not None:
+        if args.method not in ("distance", "fullpose", "separation"):
+            raise ValueError(f"--solver applies to distance, fullpose and separation, not {args.method!r}")
+        opts["solver"] = args.solver
+    if args.angle_residual is not None:
+        if args.method != "separation":
+            raise ValueError("--angle-residual applies to --method separation only")
+        opts["angle_residual"] = args.angle_residual
+    if args.no_robust:
+        if args.method != "best":
+            raise ValueError("--no-robust applies to --method best only")
+        opts["robust"] = False
+    return opts
+
+
+def report(cal: Calibration, path: Path) -> str:
+    """A short text report of a calibration."""
+    r = cal.rows
+    ida = cal.identifiability
+    res = cal.residuals
+    lines = [
+        f"method {cal.method} on {cal.measurement} data; {len(cal.stations)} station(s); "
+        f"{len(r.get('calibration_used', []))} calibration rows used, {len(r.get('calibration_rejected', []))} rejected, "
+        f"{len(r.get('validation', []))} validation rows",
+    ]
+    if ida:
+        lines.append(
+            f"identifiable: {ida['rank']} of {ida['n_parameters']} parameters; condition number {ida['condition_number']:.3g}, "
+            f"O1 {ida['O1']:.3g}, O3 {ida['O3']:.3g}, O4 {ida['O4']:.3g} (column-scaled Jacobian)"
+        )
+        for c in ida.get("combinations", []):
+            lines.append(f"  not identifiable: {c['text']}  ({c['dropped']} {'held at nominal' if c['dropped'] in set(n for n, s in zip(cal.names, cal.status) if s == 'fixed') else 'estimated only in combination'})")
+        if ida.get("data_dependent_dropped"):
+            lines.append(f"  WARNING: rank deficiency from these configurations: {', '.join(ida['data_dependent_dropped'])}")
+    for rej in r.get("calibration_rejected", [])[:10]:
+        lines.append(f"  rejected pose_id {rej['pose_id']}: {rej['reason']}")
+    nz = cal.noise
+    if "position_mm" in nz:
+        s = f"noise: position {nz['position_mm']:.4g} mm ({nz.get('position_source', '')})"
+        if "orientation_rad" in nz:
+            s += f", orientation {nz['orientation_rad']:.4g} rad ({nz.get('orientation_source', '')})"
+        if "residual_scale" in nz:
+            s += f"; residual scale {nz['residual_scale']:.3f}"
+        lines.append(s)
+
+    def fmt(d, key="position_mm", unit="mm"):
+        v = d.get(key)
+        return "-" if not v else f"mean {v['mean']:.4g} / rms {v['rms']:.4g} / max {v['max']:.4g} {unit}"
+
+    if res.get("validation", {}).get("n_rows"):
+        lines.append(f"validation before: {fmt(res['before_calibration']['validation'])}")
+        lines.append(f"validation after:  {fmt(res['validation'])}")
+        if "orientation_deg" in res["validation"]:
+            lines.append(f"  orientation before: {fmt(res['before_calibration']['validation'], 'orientation_deg', 'deg')}")
+            lines.append(f"  orientation after:  {fmt(res['validation'], 'orientation_deg', 'deg')}")
+        pv = res.get("predicted_validation")
+        if pv:
+            lines.append(
+                f"  expected rms {pv['expected_residual_rms']['position_mm']:.4g} mm (noise + Cramer-Rao floor; model error "
+                f"floor {pv['model_error_rms']['position_mm']:.4g} mm)"
+            )
+    for n in cal.notes:
+        lines.append(f"note: {n}")
+    lines.append(f"wrote {path}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    ds = read_dataset(args.dataset)
+    cal = calibrate(
+        ds,
+        method=args.method,
+        measurement=args.measurement,
+        noise_position=None if args.noise_position_mm is None else args.noise_position_mm * 1e-3,
+        noise_orientation=args.noise_orientation_rad,
+        validation_fraction=args.validation_fraction,
+        seed=args.seed,
+        use_given_bases=args.use_given_bases,
+        **_options(args),
+    )
+    out = Path(args.out)
+    path = cal.save(out / "calibration.json")
+    if not args.quiet:
+        print(report(cal, path))
+    return 0
+

@@ -1,0 +1,137 @@
+"""``twin campaign CONFIG --out DIR``: world -> instrument -> dataset -> estimator -> evaluation.
+
+Thin: parses the arguments, runs :func:`twin.evaluation.campaign.run_campaign` (or ``run_repeats`` with
+``--repeats``), shows progress bars and the comparison table, writes results. See ``docs/runner.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+HELP = "run a calibration campaign from a TOML config (experiments/*.toml): measure, identify, compensate, evaluate"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="campaign config (TOML), e.g. experiments/separation.toml")
+    p.add_argument("--out", required=True, help="output folder (created; an interrupted run there resumes)")
+    p.add_argument("--quick", action="store_true", help="apply the config's [quick] table (half resolution, fewer poses)")
+    p.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: [execution] workers)")
+    p.add_argument("--repeats", type=int, default=None, metavar="N",
+                   help="Monte-Carlo: run N seeds (seed, seed+1, ...) in parallel and aggregate mean and spread")
+    p.add_argument("--dask", default=None, metavar="ADDRESS",
+                   help="run on a Dask cluster (scheduler address, e.g. tcp://10.0.0.5:8786) instead of local processes")
+    p.add_argument("--mode", choices=("images", "truth_noise"), default=None,
+                   help="override [measurement] mode (truth_noise: the paper's own simulation, no images)")
+    p.add_argument("--no-recording", action="store_true", help="do not write the Rerun recording")
+
+
+def _progress_factory(console):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    prog = Progress(TextColumn("{task.description:<30}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TimeRemainingColumn(), console=console, transient=False)
+    tasks: dict[str, int] = {}
+
+    def update(phase: str, done: int, total: int) -> None:
+        if phase not in tasks:
+            tasks[phase] = prog.add_task(phase, total=total)
+        prog.update(tasks[phase], completed=done, total=total)
+
+    return prog, update
+
+
+def _rich_table(results: dict):
+    from rich.table import Table
+
+    from twin.evaluation.report import comparison_rows
+
+    rows = comparison_rows(results["methods"], results.get("paper_targets"))
+    t = Table(title=f"{results['campaign']} (seed {results['seed']}): measured, before -> after compensation",
+              caption="std = sample standard deviation (the paper's 'mean square error'); improvement of the mean. "
+                      "'paper' rows are the paper's published numbers (targets), not results.")
+    t.add_column("method")
+    for unit in ("angle [deg]", "position [mm]"):
+        for stat in ("max", "mean", "std"):
+            t.add_column(f"{unit} {stat}", justify="right")
+        t.add_column("impr.", justify="right")
+
+    def cell(blk, stat):
+        if not blk or not blk.get("before") or not blk.get("after"):
+            return "-"
+        return f"{blk['before'][stat]:.4f} -> {blk['after'][stat]:.4f}"
+
+    for r in rows:
+        vals = []
+        for unit in ("angle_deg", "position_mm"):
+            blk = r.get(unit)
+            vals += [cell(blk, s) for s in ("max", "mean", "std")]
+            imp = blk.get("improvement_percent") if blk else None
+            vals.append("-" if imp is None else f"{imp:.1f}%")
+        style = "dim italic" if r["kind"] == "paper" else None
+        t.add_row(r["label"], *vals, style=style)
+    return t
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from twin.evaluation.campaign import run_campaign, run_repeats
+    from twin.evaluation.config import load_campaign_config, parse_campaign_config
+    from twin.evaluation.executor import open_executor
+    from twin.evaluation.report import write_results
+
+    console = Console()
+    cfg = load_campaign_config(args.config, quick=args.quick)
+    if args.mode or args.seed is not None or args.workers:
+        raw = dict(cfg.raw)
+        if args.mode:
+            raw["measurement"] = {**raw.get("measurement", {}), "mode": args.mode}
+        if args.seed is not None:
+            raw["seed"] = args.seed
+        if args.workers:
+            raw["execution"] = {**raw.get("execution", {}), "workers": args.workers}
+        cfg = parse_campaign_config(raw, source=cfg.source, _quick_applied=cfg.quick)
+    command = "twin campaign " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    prog, update = _progress_factory(console)
+    if args.repeats:
+        if args.repeats < 1:
+            raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+        seeds = [cfg.seed + k for k in range(args.repeats)]
+        kind, addr = ("dask", args.dask) if args.dask else ("process", None)
+        with prog, open_executor(kind, cfg.workers, addr) as ex:
+            agg = run_repeats(cfg, out, seeds, ex, progress=update)
+        agg["command"] = command
+        agg["config"] = cfg.raw
+        write_results(out / "repeats.json", agg)
+        console.print(f"{len(seeds)} seeds -> {out / 'repeats.json'}")
+        for claim, e in agg["orderings"].items():
+            console.print(f"  {claim}: holds in {e['holds']}/{e['n']} seeds")
+        console.print(f"total {time.perf_counter() - t0:.1f} s")
+        return 0
+    if args.dask:
+        with prog, open_executor("dask", cfg.workers, args.dask) as ex:
+            run_ = run_campaign(cfg, out, executor=ex, progress=update, log=console.log, command=command,
+                                recording=False if args.no_recording else None)
+    else:
+        with prog:
+            run_ = run_campaign(cfg, out, progress=update, log=console.log, command=command,
+                                recording=False if args.no_recording else None)
+    console.print(_rich_table(run_.results))
+    for c in run_.results["orderings"]:
+        console.print(f"  paper's claim: {c['claim']}: {'holds' if c['holds'] else 'DOES NOT HOLD'} here")
+    if run_.results["methods_unavailable"]:
+        for m, why in run_.results["methods_unavailable"].items():
+            console.print(f"  [yellow]method {m} not run[/yellow]: {why}")
+    tm = run_.results["timings_s"]
+    console.print("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in tm.items() if v >= 0.05))
+    console.print(f"results: {out / 'results.json'}; table: {out / 'table.txt'}"
+                  + (f"; recording: {run_.files['recording']} (open: rerun {run_.files['recording']})" if "recording" in run_.files else ""))
+    return 0

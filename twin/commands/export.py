@@ -1,0 +1,57 @@
+"""``twin export CALIBRATION.json --out DIR``: the parameter table (CSV, markdown) and an MJCF of the
+calibrated robot.
+
+The MJCF comes from the world's generator (``twin.world.mjcf.robot_mjcf_xml``; a command is glue and may
+call any layer): bodies on the kinematic chain of the *identified* robot and tool, the robot base at the MJCF
+world origin, MuJoCo joint angles equal to the commanded joints, sites ``plate`` (tool frame) and
+``sphere0..2``. Station frames are in calibration.json, not in the MJCF.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+from pathlib import Path
+
+from ..estimator import Calibration
+
+HELP = "write the calibrated robot as a parameter table (CSV, markdown) and an MJCF model"
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("calibration", help="calibration.json")
+    p.add_argument("--out", required=True, help="output folder (parameters.csv, parameters.md, robot.xml)")
+
+
+def mjcf(cal: Calibration) -> str:
+    """MJCF text of the calibrated robot (robot base frame = MJCF world; lengths [m], angles [rad]), made by
+    the world's generator so that it looks like the twin."""
+    from ..world.mjcf import robot_mjcf_xml
+
+    return robot_mjcf_xml(cal.robot, cal.spheres_tool, cal.plate.sphere_diameter,
+                          model_name=f"{cal.nominal.name}_calibrated_{cal.method}")
+
+
+def run(args) -> int:
+    cal = Calibration.load(args.calibration)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = cal.table()
+    cols = ["name", "unit", "nominal", "identified", "deviation", "sd", "status"]
+    with open(out / "parameters.csv", "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([r["name"], r["unit"]] + [("" if not math.isfinite(r[c]) else f"{r[c]:.9g}") for c in cols[2:6]] + [r["status"]])
+    md = [f"# Calibrated {cal.nominal.name} ({cal.nominal.convention}), method `{cal.method}`", "",
+          "| parameter | unit | nominal | identified | deviation | sd | status |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        sd = "" if not math.isfinite(r["sd"]) else f"{r['sd']:.3g}"
+        md.append(f"| {r['name']} | {r['unit']} | {r['nominal']:.6f} | {r['identified']:.6f} | {r['deviation']:+.6f} | {sd} | {r['status']} |")
+    if cal.combinations:
+        md += ["", "Not identifiable from these data (held at nominal or estimated only in combination):", ""]
+        md += [f"* {c.describe()}" for c in cal.combinations]
+    (out / "parameters.md").write_text("\n".join(md) + "\n")
+    (out / "robot.xml").write_text(mjcf(cal))
+    print(f"wrote {out / 'parameters.csv'}, {out / 'parameters.md'}, {out / 'robot.xml'}")
+    return 0

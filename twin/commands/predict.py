@@ -1,0 +1,27 @@
+"""``twin predict CALIBRATION.json JOINTS.csv --out PRED.csv``: predicted sphere centres and plate poses."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..dataset import read_joints_csv
+from ..estimator import Calibration
+from ..estimator.files import write_pred_csv
+
+HELP = "predict sphere centres and plate poses (with standard deviations) for joint rows"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("calibration", help="calibration.json")
+    p.add_argument("joints", help="JOINTS.csv (pose_id, q1..q6 [deg], optional station)")
+    p.add_argument("--out", required=True, help="PRED.csv to write")
+
+
+def run(args) -> int:
+    cal = Calibration.load(args.calibration)
+    j = read_joints_csv(args.joints)
+    pred = cal.predict(j.q, j.station)
+    write_pred_csv(args.out, j.pose_id, pred, station=j.station)
+    frames = sorted(set(pred.frame.tolist()))
+    print(f"predicted {len(j.pose_id)} rows in the {' and '.join(frames)} frame(s); wrote {args.out}")
+    return 0

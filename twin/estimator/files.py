@@ -1,0 +1,133 @@
+"""Readers and writers of the estimator's CSV files (``docs/formats.md``): ``PRED.csv`` (output of
+``twin predict``) and ``TARGETS.csv`` (input of ``twin compensate``). Millimetres, radians for rotation
+vectors, a unit quaternion (w first) for targets; SI inside."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..dataset import DatasetError
+from ..transforms import make_transform, matrix_to_quat_wxyz, quat_wxyz_to_matrix, transform_to_pose6
+from .calibration import Prediction
+
+__all__ = ["PRED_COLUMNS", "TARGET_COLUMNS", "write_pred_csv", "read_pred_csv", "read_targets_csv", "write_targets_csv"]
+
+_MM = 1e-3
+SPHERE_COLS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
+POSE_COLS = ("x", "y", "z", "rx", "ry", "rz")
+PRED_COLUMNS = ("pose_id",) + SPHERE_COLS + POSE_COLS + ("frame",)
+TARGET_COLUMNS = ("pose_id", "x", "y", "z", "qw", "qx", "qy", "qz")
+
+
+def write_pred_csv(path: str | os.PathLike, pose_id: np.ndarray, pred: Prediction, station: np.ndarray | None = None) -> Path:
+    """Write ``PRED.csv``: ``pose_id, p0_x..p2_z`` [mm], ``x y z`` [mm], ``rx ry rz`` [rad], ``frame``,
+    (``station`` when given), and ``sd_p0_x..sd_p2_z``, ``sd_x..sd_rz`` when the prediction has them."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = len(pose_id)
+    cols = list(PRED_COLUMNS) + (["station"] if station is not None else [])
+    has_sd = pred.sd_spheres is not None
+    if has_sd:
+        cols += [f"sd_{c}" for c in SPHERE_COLS] + [f"sd_{c}" for c in POSE_COLS]
+    pose6 = transform_to_pose6(pred.pose)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(cols)
+        for i in range(n):
+            row = [str(int(pose_id[i]))]
+            row += [f"{v / _MM:.6f}" for v in pred.spheres[i].reshape(-1)]
+            row += [f"{v / _MM:.6f}" for v in pose6[i, :3]] + [f"{v:.12f}" for v in pose6[i, 3:]]
+            row.append(str(pred.frame[i]))
+            if station is not None:
+                row.append(str(station[i]))
+            if has_sd:
+                row += [f"{v / _MM:.6g}" for v in pred.sd_spheres[i].reshape(-1)]
+                row += [f"{v / _MM:.6g}" for v in pred.sd_pose[i, :3]] + [f"{v:.6g}" for v in pred.sd_pose[i, 3:]]
+            w.writerow(row)
+    return path
+
+
+def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read ``PRED.csv`` back: ``pose_id`` ``(n,)``, ``spheres`` ``(n, 3, 3)`` [m], ``pose6`` ``(n, 6)``
+    (translation [m], rotation vector [rad]), ``frame`` ``(n,)``, and ``sd_spheres`` when present."""
+    path = Path(path)
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise DatasetError(f"{path}: no data rows")
+    out = {
+        "pose_id": np.array([int(r["pose_id"]) for r in rows]),
+        "spheres": np.array([[float(r[c]) for c in SPHERE_COLS] for r in rows]).reshape(-1, 3, 3) * _MM,
+        "pose6": np.array([[float(r[c]) * (_MM if c in "xyz" else 1.0) for c in POSE_COLS] for r in rows]),
+        "frame": np.array([r["frame"] for r in rows], dtype=object),
+    }
+    if "sd_p0_x" in rows[0]:
+        out["sd_spheres"] = np.array([[float(r[f"sd_{c}"]) for c in SPHERE_COLS] for r in rows]).reshape(-1, 3, 3) * _MM
+    return out
+
+
+def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``TARGETS.csv`` (``pose_id, x, y, z`` [mm], ``qw, qx, qy, qz``): ``(pose_id (n,), tool2base (n, 4, 4))``.
+
+    Errors (:class:`~twin.dataset.DatasetError`) name the file, row and column: missing columns, duplicate
+    ids, non-numeric or non-finite values, quaternions whose norm is not 1 within 1e-6 (they are not
+    silently renormalised: a wrong target must not become a plausible one)."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: missing")
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        rows = list(reader)
+    missing = [c for c in TARGET_COLUMNS if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: missing required columns {missing}")
+    if not rows:
+        raise DatasetError(f"{path}: no data rows")
+    n = len(rows)
+    pid = np.zeros(n, dtype=np.int64)
+    T = np.zeros((n, 4, 4))
+    seen: dict[int, int] = {}
+    for k, r in enumerate(rows):
+        try:
+            pid[k] = int(r["pose_id"])
+        except (TypeError, ValueError):
+            raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': not an integer: {r['pose_id']!r}") from None
+        if pid[k] in seen:
+            raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': duplicate id {pid[k]} (first in row {seen[pid[k]]})")
+        seen[int(pid[k])] = k + 1
+        vals = {}
+        for c in TARGET_COLUMNS[1:]:
+            t = (r[c] or "").strip()
+            try:
+                v = float(t)
+            except ValueError:
+                raise DatasetError(f"{path}: row {k + 1} (pose_id {pid[k]}), column {c!r}: not a number: {t!r}") from None
+            if not math.isfinite(v):
+                raise DatasetError(f"{path}: row {k + 1} (pose_id {pid[k]}), column {c!r}: not finite: {t!r}")
+            vals[c] = v
+        qv = np.array([vals["qw"], vals["qx"], vals["qy"], vals["qz"]])
+        if abs(np.linalg.norm(qv) - 1.0) > 1e-6:
+            raise DatasetError(
+                f"{path}: row {k + 1} (pose_id {pid[k]}), columns qw..qz: not a unit quaternion (norm {np.linalg.norm(qv):.9g})"
+            )
+        T[k] = make_transform(quat_wxyz_to_matrix(qv), np.array([vals["x"], vals["y"], vals["z"]]) * _MM)
+    return pid, T
+
+
+def write_targets_csv(path: str | os.PathLike, pose_id: np.ndarray, tool2base: np.ndarray) -> Path:
+    """Write ``TARGETS.csv`` from plate poses in the base frame ``(n, 4, 4)``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    q = matrix_to_quat_wxyz(tool2base[:, :3, :3])
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(TARGET_COLUMNS)
+        for i in range(len(pose_id)):
+            w.writerow([str(int(pose_id[i]))] + [f"{v / _MM:.6f}" for v in tool2base[i, :3, 3]] + [f"{v:.12f}" for v in q[i]])
+    return path

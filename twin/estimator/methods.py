@@ -1,0 +1,374 @@
+"""Identification methods and the :func:`calibrate` entry point.
+
+``best`` (the default, ours) is here; the papers' methods (``distance``, ``fullpose``, ``separation``,
+``lm``, ``clm``) are in :mod:`twin.estimator.paper_methods`. Every method works on a
+:class:`~twin.dataset.Dataset` (sphere centres or 6-DOF poses, any number of camera stations) and returns
+a :class:`~twin.estimator.calibration.Calibration`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Literal
+
+import numpy as np
+
+from ..dataset import Dataset
+from .calibration import Calibration
+from .core import (
+    ErrorModel,
+    Identified,
+    Prepared,
+    analyse,
+    check_design,
+    full_covariance,
+    generic_configurations,
+    predicted_error,
+    prepare,
+    residual_stats,
+)
+from .problem import Observations, ParamSpace, absolute_residuals
+from .solvers import TraceEntry, gauss_newton, robust_fit
+
+__all__ = ["calibrate", "identify_best", "identifiability", "METHODS", "candidates", "build_calibration"]
+
+_MM = 1e-3
+
+
+def candidates(space: ParamSpace, error_model: ErrorModel) -> np.ndarray:
+    """Mask of the parameters an error model estimates: ``"tmmdh"`` all (robot structure, tool, a base per
+    station: the TM-MDH paper's model, 37 for one station); ``"structural"`` the robot structure only (the
+    separation paper's MDH+beta / the TM-MDH paper's DH+beta: base and tool held at their given values)."""
+    if error_model == "tmmdh":
+        return np.ones(space.size, dtype=bool)
+    if error_model == "structural":
+        m = np.zeros(space.size, dtype=bool)
+        m[: space.n_robot] = True
+        return m
+    raise ValueError(f"error_model must be 'tmmdh' or 'structural', got {error_model!r}")
+
+
+def _variance_components(res, J_w: np.ndarray, inl_rows: np.ndarray) -> dict[int, tuple[float, float]]:
+    """Per residual block: (sum of squared whitened residuals, redundancy ``m_b - sum_b h_ii``) on inlier
+    rows, with ``h`` the diagonal of the hat matrix of the whitened Jacobian."""
+    sel = inl_rows[res.row]
+    Q, _ = np.linalg.qr(J_w[sel])
+    h = np.sum(Q**2, axis=1)
+    out = {}
+    for b in np.unique(res.block[sel]):
+        mb = res.block[sel] == b
+        out[int(b)] = (float(np.sum(res.r[sel][mb] ** 2)), float(np.sum(mb) - np.sum(h[mb])))
+    return out
+
+
+def identify_best(
+    prep: Prepared,
+    *,
+    error_model: ErrorModel = "tmmdh",
+    gauge: Literal["frames", "structure"] = "frames",
+    robust: bool = True,
+    alpha: float = 1e-3,
+    callback: Callable[[TraceEntry], None] | None = None,
+) -> Identified:
+    """Our estimator: statistically weighted, column-scaled, robust, start-independent.
+
+    1. Start: the nominal robot and tool, each station's ``base2meas`` from closed-form registration
+       (:func:`~twin.estimator.core.register_bases`): no user start value is involved.
+    2. Identifiability at the start (exact couplings at the nominal geometry): the unidentifiable
+       parameters of each coupled set are fixed at nominal (``gauge`` says which member survives).
+    3. Whitened residuals (sphere centres with the instrument's noise, or pose position / orientation
+       with theirs), column-scaled Gauss-Newton with LM safeguarding, then the outlier rule and IRLS of
+       :func:`~twin.estimator.solvers.robust_fit` (Cauchy weights, chi-square rule per row, final plain
+       least squares on the inliers).
+    4. Noise not stated in the dataset: estimated per residual block (position, orientation) by variance
+       components ``sigma_b^2 <- sigma_b^2 * sum_b r^2 / (m_b - sum_b h_ii)`` (hat-matrix redundancy), refitting
+       until the ratio settles (it changes the fit only when there are two blocks).
+    5. Covariance ``(J^T W J)^-1`` of the whitened Jacobian on the inliers.
+    """
+    space = prep.space
+    obs = prep.obs_cal
+    cand = candidates(space, error_model)
+    check_design(obs, int(cand.sum()))
+    x0 = prep.x_nominal.copy()
+    ida = analyse(space, x0, obs, cand, gauge=gauge)
+    free = ida.mask(space.names)
+    free_full = np.zeros(space.size, dtype=bool)
+    free_full[[space.index(n) for n in ida.identifiable]] = True
+    free_idx = np.flatnonzero(free_full)
+    check_design(obs, int(free_idx.size))
+    given_p = prep.noise_given["position"]
+    given_o = prep.noise_given["orientation"] or obs.kind == "spheres"
+    sig_p, sig_o = obs.sigma_position, obs.sigma_orientation
+    trace: list[TraceEntry] = []
+
+    def cb(e):
+        trace.append(e)
+        if callback:
+            callback(e)
+
+    x = x0
+    notes = []
+    for round_ in range(6):
+        o = obs.with_sigma(sig_p, sig_o)
+
+        def fun(xx, o=o):
+            return absolute_residuals(space, xx, o)
+
+        if robust:
+            rr = robust_fit(fun, x, free_idx, o.n, alpha=alpha, scale_known=given_p and given_o, callback=cb)
+            x, inlier, final = rr.x, rr.inlier, rr.final
+            row_stat, thr = rr.row_stat, rr.threshold
+        else:
+            final = gauss_newton(fun, x, free_idx, callback=cb)
+            x = final.x
+            inlier = np.ones(o.n, dtype=bool)
+            row_stat = thr = None
+        res = final.residuals
+        Jw = res.J[:, free_idx]
+        if given_p and given_o:
+            break
+        vc = _variance_components(res, Jw, inlier)
+        new_p, new_o = sig_p, sig_o
+        if not given_p and 0 in vc and vc[0][1] > 0:
+            new_p = sig_p * np.sqrt(vc[0][0] / vc[0][1])
+        if not prep.noise_given["orientation"] and 1 in vc and vc[1][1] > 0:
+            new_o = sig_o * np.sqrt(vc[1][0] / vc[1][1])
+        ratio_change = abs(np.log((new_p / new_o) / (sig_p / sig_o))) if obs.kind == "pose" else 0.0
+        sig_p, sig_o = new_p, new_o
+        if ratio_change < 1e-3:
+            # the solution does not depend on a common scale: only the covariance is rescaled below
+            o = obs.with_sigma(sig_p, sig_o)
+            res = absolute_residuals(space, x, o)
+            Jw = res.J[:, free_idx]
+            break
+    else:
+        notes.append("noise estimation did not settle in 6 rounds")
+    w_rows = inlier.astype(float)[res.row]
+    C = full_covariance(space, Jw, free_idx, w_rows)
+    rejected = []
+    if robust and row_stat is not None:
+        for i in np.flatnonzero(~inlier):
+            rejected.append(
+                (int(i), f"outlier: sum of squared normalised residuals {row_stat[i]:.4g} > threshold {thr[i]:.4g} "
+                         f"(chi-square rule, alpha={alpha:g} over {int(np.sum(row_stat >= 0))} rows)")
+            )
+    status = []
+    for k, n in enumerate(space.names):
+        if free_full[k]:
+            status.append("identified")
+        elif cand[k]:
+            status.append("fixed")
+        else:
+            status.append("given")
+    noise = {
+        "position_mm": sig_p / _MM,
+        "position_source": "given" if given_p else "estimated from residuals",
+    }
+    if obs.kind == "pose":
+        noise["orientation_rad"] = sig_o
+        noise["orientation_source"] = "given" if prep.noise_given["orientation"] else "estimated from residuals"
+    # residual scale check: with stated noise, how do the inlier residuals compare?
+    m_in = float(np.sum(w_rows))
+    chi2 = float(np.sum(res.r**2 * w_rows))
+    noise["residual_scale"] = float(np.sqrt(chi2 / max(m_in - free_idx.size, 1)))
+    return Identified(
+        x=x,
+        status=tuple(status),
+        covariance=C,
+        identifiability=ida,
+        inlier=inlier,
+        rejected=tuple(rejected),
+        noise=noise,
+        trace=tuple(trace),
+        notes=tuple(notes),
+        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge},
+    )
+
+
+def build_calibration(prep: Prepared, ident: Identified, method: str, options: dict[str, Any]) -> Calibration:
+    """Assemble the :class:`Calibration`: parameters, covariance, rows used/rejected, residual statistics on
+    the calibration inliers and the validation rows, and the predicted validation error (Cramer-Rao floor)."""
+    space = prep.space
+    ds = prep.dataset
+    sig_p = ident.extra.get("sigma_position", prep.obs.sigma_position)
+    sig_o = ident.extra.get("sigma_orientation", prep.obs.sigma_orientation)
+    obs_cal = prep.obs_cal.with_sigma(sig_p, sig_o)
+    obs_val = prep.obs_val.with_sigma(sig_p, sig_o)
+    pid = prep.obs.pose_id
+    cal_pid = pid[prep.cal]
+    rejected = [{"pose_id": int(cal_pid[i]), "reason": why} for i, why in ident.rejected]
+    skipped = [{"pose_id": int(ds.pose_id[i]), "reason": why} for i, why in prep.skipped]
+    inl = ident.inlier
+    residuals: dict[str, Any] = {
+        "calibration": residual_stats(space, ident.x, obs_cal.subset(inl)),
+        "calibration_all": residual_stats(space, ident.x, obs_cal),
+        "validation": residual_stats(space, ident.x, obs_val),
+        "before_calibration": {
+            "validation": residual_stats(space, prep.x_nominal, obs_val),
+            "note": "nominal robot and tool with the registered station frames",
+        },
+    }
+    if ident.covariance is not None and prep.val.size:
+        floor = predicted_error(space, ident.x, ident.covariance, obs_val)
+        exp = {}
+        if obs_val.kind == "spheres":
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
+        else:
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
+            exp["orientation_deg"] = float(np.sqrt(3 * np.rad2deg(sig_o) ** 2 + floor["orientation_deg"] ** 2))
+        residuals["predicted_validation"] = {
+            "model_error_rms": floor,
+            "expected_residual_rms": exp,
+            "note": "model_error_rms: RMS error of the predictions against the noise-free truth implied by the "
+                    "parameter covariance (the Cramer-Rao floor of a correctly specified model); "
+                    "expected_residual_rms adds the measurement noise, to compare with validation.rms",
+        }
+    ida = ident.identifiability
+    idd: dict[str, Any] = {}
+    combos = ()
+    if ida is not None:
+        idd = ida.summary()
+        combos = ida.combinations
+    if ida is not None and method in ("best", "fullpose", "lm", "clm"):
+        # which couplings are structural (any design) and which come from these configurations (only for
+        # methods whose analysis is of the absolute residuals, which a generic design is analysed with)
+        try:
+            qg = generic_configurations(prep.nominal)
+            og = Observations(
+                kind=prep.obs.kind, q=qg, station=np.zeros(len(qg), int), station_names=prep.obs.station_names,
+                pose_id=np.arange(len(qg)), spheres_tool=prep.obs.spheres_tool,
+                sigma_position=sig_p, sigma_orientation=sig_o,
+            )
+            og = _synthetic_like(space, prep.x_nominal, og)
+            cand = np.array([n in set(ida.names) for n in space.names])
+            gen = analyse(space, prep.x_nominal, og, cand, gauge=ident.extra.get("gauge", "frames"))
+            data_dep = [d for d in ida.dropped if d not in set(gen.dropped)]
+            idd["structural_dropped"] = list(gen.dropped)
+            idd["data_dependent_dropped"] = data_dep
+        except ValueError:
+            pass
+    st_map = {k: s for k, s in enumerate(prep.obs.station_names)}
+    rows = {
+        "split": prep.split,
+        "calibration_used": [int(p) for p, ok in zip(cal_pid, inl) if ok],
+        "calibration_rejected": rejected,
+        "validation": [int(p) for p in pid[prep.val]],
+        "skipped": skipped,
+        "stations": {st_map[k]: int(np.sum(prep.obs.station == k)) for k in st_map},
+    }
+    notes = list(prep.notes) + list(ident.notes)
+    if idd.get("data_dependent_dropped"):
+        notes.append(
+            "rank deficiency from these configurations (not structural): "
+            + ", ".join(idd["data_dependent_dropped"])
+            + " fixed at nominal; measure more varied configurations"
+        )
+    return Calibration(
+        method=method,
+        nominal=prep.nominal,
+        stations=prep.obs.station_names,
+        x=ident.x,
+        x_nominal=prep.x_nominal,
+        status=ident.status,
+        covariance=ident.covariance,
+        plate=ds.plate,
+        spheres_tool=prep.obs.spheres_tool,
+        measurement=prep.obs.kind,
+        noise=ident.noise,
+        combinations=combos,
+        identifiability=idd,
+        rows=rows,
+        residuals=residuals,
+        options=options,
+        notes=tuple(notes),
+        trace=ident.trace,
+        dataset=str(ds.path) if ds.path else "",
+        details={k: v for k, v in ident.extra.items() if isinstance(v, (str, int, float, bool, dict, list))},
+    )
+
+
+def _synthetic_like(space: ParamSpace, x: np.ndarray, obs: Observations) -> Observations:
+    """Observations of the same kind as ``obs`` predicted by ``x`` (only the Jacobian is used)."""
+    from dataclasses import replace
+
+    from .problem import _station_eval, predict_points
+
+    if obs.kind == "spheres":
+        pts, _ = predict_points(space, x, obs.q, obs.station, obs.spheres_tool)
+        return replace(obs, spheres=pts, seen=np.ones((obs.n, 3), bool))
+    R, p, _ = _station_eval(space, x, obs.q, obs.station, False)
+    return replace(obs, pose_R=R, pose_p=p)
+
+
+def _method_best(prep: Prepared, **kw) -> Identified:
+    return identify_best(prep, **kw)
+
+
+METHODS: dict[str, Callable[..., Identified]] = {"best": _method_best}
+
+
+def calibrate(
+    dataset: Dataset,
+    method: str = "best",
+    *,
+    measurement: Literal["auto", "spheres", "pose"] = "auto",
+    noise_position: float | None = None,
+    noise_orientation: float | None = None,
+    validation_fraction: float = 0.2,
+    seed: int = 0,
+    use_given_bases: bool = False,
+    callback: Callable[[TraceEntry], None] | None = None,
+    **options: Any,
+) -> Calibration:
+    """Identify the robot of ``dataset`` with ``method`` and return a :class:`Calibration`.
+
+    Methods: ``best`` (default; :func:`identify_best`), and the papers' ``distance``, ``fullpose``,
+    ``separation``, ``lm``, ``clm`` (:mod:`twin.estimator.paper_methods`). Fits on the rows with
+    ``set = calibration`` and reports on ``validation`` rows (without a ``set`` column a seeded random
+    ``validation_fraction`` is held out). ``options`` go to the method (e.g. ``error_model``, ``gauge``,
+    ``robust``, ``solver``). ``noise_*`` [m] / [rad] override ``dataset.toml``'s ``[noise]``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    prep = prepare(
+        dataset,
+        measurement=measurement,
+        noise_position=noise_position,
+        noise_orientation=noise_orientation,
+        validation_fraction=validation_fraction,
+        seed=seed,
+        use_given_bases=use_given_bases,
+    )
+    ident = METHODS[method](prep, callback=callback, **options)
+    opts = {
+        "measurement": prep.obs.kind,
+        "validation_fraction": validation_fraction,
+        "seed": seed,
+        "use_given_bases": use_given_bases,
+        **{k: v for k, v in options.items() if isinstance(v, (str, int, float, bool, type(None)))},
+    }
+    return build_calibration(prep, ident, method, opts)
+
+
+def identifiability(
+    dataset: Dataset,
+    *,
+    part: Literal["full", "position", "orientation"] = "full",
+    error_model: ErrorModel = "tmmdh",
+    gauge: Literal["frames", "structure"] = "frames",
+    measurement: Literal["auto", "spheres", "pose"] = "auto",
+    rows: Literal["calibration", "all"] = "calibration",
+    tol: float = 1e-6,
+):
+    """Identifiability analysis of ``dataset``'s configurations at the nominal model (stations registered).
+
+    ``part="orientation"`` analyses the orientations alone (sphere data: the plate orientation from its
+    three spheres), ``"position"`` the positions alone. Returns an
+    :class:`~twin.estimator.identifiability.Identifiability`: identifiable parameters, unidentifiable
+    combinations by name, condition number, O1, O3, O4 on the column-scaled Jacobian.
+    """
+    prep = prepare(dataset, measurement=measurement, validation_fraction=0.0 if rows == "all" else 0.2)
+    obs = prep.obs if rows == "all" else prep.obs_cal
+    if part != "full" and obs.kind == "spheres":
+        obs = obs.as_poses()
+    cand = candidates(prep.space, error_model)
+    return analyse(prep.space, prep.x_nominal, obs, cand, gauge=gauge, part=part, tol=tol)

@@ -1,0 +1,160 @@
+"""The campaign's adapter to the estimator: identification methods and compensation behind one small API.
+
+Campaign method names map to the estimator's (``twin.estimator.calibrate``):
+
+=============  ==============  ====================================================================
+campaign       estimator       what
+=============  ==============  ====================================================================
+``distance``   ``distance``    distance constraints only (separation paper, Figure 11)
+``full_pose``  ``fullpose``    full-pose constraint (separation paper, Figure 11)
+``separation`` ``separation``  angles from orientation changes, then lengths from distances (eq. 21-36)
+``default``    ``best``        our default estimator
+=============  ==============  ====================================================================
+
+:func:`identify` returns a :class:`MethodResult` whose ``robot`` is the identified model with its base frame
+at the identity (what compensation inverts); :func:`compensate` turns commanded joints into the joints that
+make the identified model reach the nominal model's pose (the paper's section 2.4 iterative inverse). Tests
+and experiments may pass their own implementations (``Identify`` callables) instead of the estimator's.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..dataset import Dataset
+from ..kinematics import RobotModel, inverse_kinematics_iterative, tool2base
+
+__all__ = [
+    "ESTIMATOR_METHODS",
+    "MethodUnavailable",
+    "MethodResult",
+    "Identify",
+    "identify",
+    "compensate",
+    "save_method_result",
+    "load_method_result",
+]
+
+ESTIMATOR_METHODS = {"distance": "distance", "full_pose": "fullpose", "separation": "separation", "default": "best"}
+
+
+class MethodUnavailable(ValueError):
+    """The estimator (or one of its methods) is not available in this installation."""
+
+
+@dataclass(frozen=True, eq=False)
+class MethodResult:
+    """An identification: ``robot`` (identified, base frame = identity), ``base2meas`` per station when the
+    method estimates them, the names of the identified parameters, free-form ``info`` (iterations, time,
+    residuals) and the estimator's calibration object when there is one (saved as ``calibration.json``)."""
+
+    method: str
+    robot: RobotModel
+    base2meas: dict[str, np.ndarray] = field(default_factory=dict)
+    identified: tuple[str, ...] = ()
+    info: dict[str, Any] = field(default_factory=dict)
+    calibration: Any = None
+
+
+Identify = Callable[[Dataset, int], MethodResult]
+
+
+def _estimator_identify(method: str) -> Identify:
+    try:
+        from ..estimator import calibrate  # type: ignore[attr-defined]
+    except ImportError as exc:
+        raise MethodUnavailable(f"method {method!r} needs twin.estimator, which is not available here ({exc})") from None
+
+    est_name = ESTIMATOR_METHODS[method]
+
+    def run(dataset: Dataset, seed: int) -> MethodResult:
+        try:
+            cal = calibrate(dataset, est_name, seed=seed)
+        except ValueError as exc:
+            if f"{est_name!r}" in str(exc) and "method must be one of" in str(exc):
+                raise MethodUnavailable(f"the estimator has no method {est_name!r} yet: {exc}") from None
+            raise
+        robot = cal.robot
+        identified = tuple(n for n, s in zip(cal.names, cal.status) if s == "identified")
+        info = {"residuals": getattr(cal, "residuals", {}), "notes": list(getattr(cal, "notes", ()))}
+        return MethodResult(method, robot, dict(cal.base2meas), identified, info, cal)
+
+    return run
+
+
+def identify(method: str, dataset: Dataset, seed: int = 0, implementations: dict[str, Identify] | None = None) -> MethodResult:
+    """Identify ``dataset`` (its calibration rows) with the campaign ``method``."""
+    if method not in ESTIMATOR_METHODS and not (implementations and method in implementations):
+        raise ValueError(f"method must be one of {sorted(ESTIMATOR_METHODS)}, got {method!r}")
+    fn = (implementations or {}).get(method) or _estimator_identify(method)
+    return fn(dataset, seed)
+
+
+def compensate(
+    result: MethodResult, nominal: RobotModel, q_cmd: np.ndarray, *, max_iter: int = 60
+) -> tuple[np.ndarray, np.ndarray]:
+    """Compensated joints ``(n, 6)`` [rad] and a convergence mask ``(n,)``.
+
+    Target: the nominal model's tool pose at the commanded joints, in the robot base frame. The identified
+    model (base frame at the identity) is inverted by Newton iteration from ``q_cmd``
+    (:func:`twin.kinematics.inverse_kinematics_iterative`, the separation paper's section 2.4).
+    """
+    q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+    nominal_b = nominal.with_frames(base2meas=np.eye(4))
+    target = tool2base(nominal_b, q)
+    robot = result.robot.with_frames(base2meas=np.eye(4))
+    res = inverse_kinematics_iterative(robot, target, q, frame="tool", tol_position=1e-10, tol_rotation=1e-10, max_iter=max_iter)
+    return res.q, res.converged
+
+
+def save_method_result(folder: str | os.PathLike, result: MethodResult) -> Path:
+    """``<folder>/<method>.json``: the identified parameter vector (and the estimator's calibration.json)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if result.calibration is not None and hasattr(result.calibration, "save"):
+        result.calibration.save(folder / f"{result.method}.calibration.json")
+    d = {
+        "method": result.method,
+        "robot": {
+            "name": result.robot.name,
+            "convention": result.robot.convention,
+            "beta_joints": list(result.robot.beta_joints),
+            "params": [float(x) for x in result.robot.params],
+            "q_min": [float(x) for x in result.robot.q_min],
+            "q_max": [float(x) for x in result.robot.q_max],
+        },
+        "base2meas": {k: np.asarray(v, dtype=float).tolist() for k, v in result.base2meas.items()},
+        "identified": list(result.identified),
+        "info": json.loads(json.dumps(result.info, default=str)),
+    }
+    path = folder / f"{result.method}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(d, indent=1))
+    os.replace(tmp, path)
+    return path
+
+
+def load_method_result(folder: str | os.PathLike, method: str) -> MethodResult | None:
+    """The saved result of ``method`` in ``folder``, or ``None`` when there is none."""
+    path = Path(folder) / f"{method}.json"
+    if not path.exists():
+        return None
+    d = json.loads(path.read_text())
+    r = d["robot"]
+    robot = RobotModel(
+        name=r["name"], convention=r["convention"], params=np.array(r["params"]), beta_joints=tuple(r["beta_joints"]),
+        q_min=np.array(r["q_min"]), q_max=np.array(r["q_max"]),
+    )
+    return MethodResult(
+        method=d["method"],
+        robot=robot,
+        base2meas={k: np.array(v) for k, v in d["base2meas"].items()},
+        identified=tuple(d["identified"]),
+        info=d["info"],
+    )

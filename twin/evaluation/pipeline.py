@@ -1,0 +1,373 @@
+"""Measurement backends: how a campaign turns a commanded configuration into a measured pose.
+
+A backend is built once per worker process from a picklable :class:`BackendSpec` (:func:`get_backend`
+caches it), then measures :class:`PoseTask` s one by one (:func:`measure_pose`, the function the executor
+runs). Two backends:
+
+* ``images`` (:class:`ImageBackend`): the world renders the stereo pair, the instrument measures it (stereo
+  calibration from rendered board views, once per campaign and cached on disk).
+* ``truth_noise`` (:class:`TruthNoiseBackend`): the separation paper's own simulation (section 3.1): the true
+  model's sphere centres in the station's measurement frame plus N(0, sigma^2) per coordinate. No images.
+
+Both return a :class:`~twin.evaluation.store.PoseResult` with the measured spheres (what goes into the
+dataset) and, apart, the world's truth for the pose (what only evaluation reads). Per-pose noise is
+seeded from the campaign seed and the pose key (:func:`twin.evaluation.plan.pose_seed`), so a pose measured
+again after a resume, or in another process, gives the same numbers.
+
+Every measurement appends one line to ``<work>/renders.log`` (the resume test counts them).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..transforms import invert_transform
+from .config import CampaignConfig, parse_campaign_config
+from .executor import worker_identity
+from .store import PoseResult, encode_image
+
+__all__ = [
+    "PoseTask",
+    "BackendSpec",
+    "MeasurementBackend",
+    "TruthNoiseBackend",
+    "get_backend",
+    "measure_pose",
+    "backend_spec_for",
+    "StationTruth",
+]
+
+
+@dataclass(frozen=True)
+class PoseTask:
+    """One pose to measure: a unique ``key`` (``m/<pose_id>`` for the campaign's own poses,
+    ``c/<method>/<pose_id>`` for compensated ones), the commanded joints ``q`` ``(6,)`` [rad], the station,
+    the per-pose seed, and the previous command in measurement order (``None`` for the first)."""
+
+    key: str
+    pose_id: int
+    q: np.ndarray
+    station: str
+    seed: int
+    q_prev: np.ndarray | None = None  # the command measured just before this one (effects with history)
+
+
+@dataclass(frozen=True)
+class BackendSpec:
+    """Everything a worker needs to build the backend: its factory (``module:callable``), the campaign config
+    (as its TOML dict), the campaign's work folder, and free options."""
+
+    factory: str
+    config_raw: dict
+    config_source: str | None
+    quick: bool
+    work_dir: str
+    options: dict = field(default_factory=dict)
+
+    def config(self) -> CampaignConfig:
+        return parse_campaign_config(
+            self.config_raw, source=Path(self.config_source) if self.config_source else None, _quick_applied=self.quick
+        )
+
+    @property
+    def cache_key(self) -> str:
+        return f"{self.factory}|{self.work_dir}|{self.config().fingerprint()}|{sorted(self.options.items())}"
+
+
+@dataclass(frozen=True)
+class StationTruth:
+    """What evaluation needs to know of a station: true ``base2meas`` ``(4, 4)`` and the true cameras
+    (``name -> (cam2meas (4, 4), CameraIntrinsics)``) for the recording."""
+
+    name: str
+    base2meas: np.ndarray
+    cameras: dict
+
+
+class MeasurementBackend(Protocol):
+    def prepare(self) -> None:
+        """One-off work per campaign, in the main process (e.g. stereo calibration); cached on disk."""
+
+    def measure(self, task: PoseTask) -> PoseResult:
+        """Measure one pose."""
+
+    def stations_truth(self) -> dict[str, StationTruth]:
+        """True station geometry (evaluation only)."""
+
+    def truth_record(self, results: list[PoseResult]) -> dict[str, Any]:
+        """``truth.json`` content for the measured poses (evaluation only)."""
+
+    def noise_position(self) -> float | None:
+        """The instrument's 1-sigma noise per coordinate [m] for ``dataset.toml``, when known."""
+
+
+def _log_render(work_dir: str, key: str, what: str) -> None:
+    """One line per measurement in ``renders.log`` (an O_APPEND write of one short line is atomic)."""
+    path = Path(work_dir) / "renders.log"
+    line = f"{what} {key} {os.getpid()}\n".encode()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
+        os.write(fd, line)
+    finally:
+        os.close(fd)
+
+
+class _WorldBackend:
+    """Shared part of the backends: the world (true robot, effects, stations), per-pose effect context and
+    truth. Building a :class:`twin.world.World` compiles the MJCF but creates no renderer until an image is
+    asked for."""
+
+    def __init__(self, spec: BackendSpec) -> None:
+        from ..world import World  # the world is only built where measurements are made
+
+        self.spec = spec
+        self.cfg = spec.config()
+        self.world = World.from_config(self.cfg.world_config())
+        self.station_index = {name: k for k, name in enumerate(self.world.station_names)}
+        self.plate = self.cfg.plate
+        self.seconds_per_pose = self.cfg.measurement.seconds_per_pose
+
+    def prepare(self) -> None:
+        Path(self.spec.work_dir).mkdir(parents=True, exist_ok=True)
+
+    def stations_truth(self) -> dict[str, StationTruth]:
+        il, ir = self.world.true_intrinsics()
+        right2left = invert_transform(self.world.true_left2right())
+        return {
+            name: StationTruth(name, self.world.true_base2meas(k), {"left": (np.eye(4), il), "right": (right2left, ir)})
+            for name, k in self.station_index.items()
+        }
+
+    def truth_record(self, results: list[PoseResult]) -> dict[str, Any]:
+        """The world's truth.json content for the measured poses (``twin.world.truth``)."""
+        from ..world import Capture
+
+        empty = np.empty((0, 0), np.uint8)
+        caps = []
+        for r in results:
+            t = r.truth
+            caps.append(Capture(
+                pose_id=int(r.pose_id), station=self.station_index[r.station], q_cmd=np.asarray(r.q, dtype=float),
+                q_actual=np.asarray(t["q_actual"], dtype=float), left=empty, right=empty,
+                spheres_meas=np.asarray(t["spheres_meas"], dtype=float), tool2meas=np.asarray(t["tool2meas"], dtype=float),
+                t_s=float(t.get("t_s", 0.0)), temp_c=float(t.get("temp_c", 20.0)),
+                params=None if t.get("params") is None else np.asarray(t["params"], dtype=float),
+            ))
+        return self.world.truth_dict(caps)
+
+    def noise_position(self) -> float | None:
+        return None
+
+    def _context(self, task: PoseTask):
+        """Effect context of a pose, from the plan alone (so any process gives the same): its index in the
+        measurement order, station, time stamp ``pose_id * seconds_per_pose`` and the previous command."""
+        from ..world.effects import EffectContext
+
+        k = self.station_index[task.station]
+        prev = None if task.q_prev is None else np.asarray(task.q_prev, dtype=float)
+        prev_actual = None
+        if prev is not None:
+            # the previous pose's actual joints, from its own command (its history is not carried further)
+            ctx_prev = EffectContext(t_s=(task.pose_id - 1) * self.seconds_per_pose, pose_index=max(task.pose_id - 1, 0),
+                                     station=k, q_cmd_prev=prev, q_actual_prev=prev, world=self.world)
+            prev_actual = self.world.actual_joints(prev, ctx_prev)
+        return EffectContext(t_s=task.pose_id * self.seconds_per_pose, pose_index=task.pose_id, station=k,
+                             q_cmd_prev=prev if prev is not None else np.asarray(task.q, dtype=float),
+                             q_actual_prev=prev_actual, world=self.world)
+
+    def _truth(self, cap) -> dict[str, Any]:
+        return {
+            "q_actual": np.asarray(cap.q_actual, dtype=float),
+            "spheres_meas": np.asarray(cap.spheres_meas, dtype=float),
+            "tool2meas": np.asarray(cap.tool2meas, dtype=float),
+            "t_s": float(cap.t_s),
+            "temp_c": float(cap.temp_c),
+            "params": None if cap.params is None else np.asarray(cap.params, dtype=float),
+        }
+
+
+class TruthNoiseBackend(_WorldBackend):
+    """The separation paper's simulation: the world's true sphere centres + N(0, sigma^2) per coordinate.
+
+    No images are rendered. A sphere whose true centre projects outside either camera image is reported as
+    not seen (``p<k>:out_of_frame``).
+    """
+
+    def __init__(self, spec: BackendSpec) -> None:
+        super().__init__(spec)
+        self.sigma = self.cfg.measurement.noise_position
+
+    def noise_position(self) -> float | None:
+        return self.sigma
+
+    def measure(self, task: PoseTask) -> PoseResult:
+        t0 = time.perf_counter()
+        k = self.station_index[task.station]
+        ctx = self._context(task)
+        q_act = self.world.actual_joints(np.asarray(task.q, dtype=float), ctx)
+        spheres_true = self.world.true_spheres_meas(q_act, k)
+        cap = SimpleNamespace(q_actual=q_act, spheres_meas=spheres_true, tool2meas=self.world.true_tool2meas(q_act, k),
+                              t_s=ctx.t_s, temp_c=ctx.temp_c, params=None)
+        rng = np.random.default_rng(task.seed)
+        noisy = spheres_true + rng.normal(scale=self.sigma, size=(3, 3))
+        w, h = self.world.image_size
+        spheres: list = []
+        status = []
+        uvl, uvr = self.world.project_spheres(spheres_true, k)
+        for j in range(3):
+            inside = all(0 <= uv[j, 0] < w and 0 <= uv[j, 1] < h for uv in (uvl, uvr))
+            spheres.append(noisy[j] if inside else None)
+            if not inside:
+                status.append(f"p{j}:out_of_frame")
+        _log_render(self.spec.work_dir, task.key, "measure")
+        return PoseResult(
+            key=task.key, pose_id=task.pose_id, q=np.asarray(task.q, dtype=float), station=task.station,
+            spheres=spheres, status=";".join(status), truth=self._truth(cap),
+            timings={"measure_s": time.perf_counter() - t0},
+            worker=f"{worker_identity()['host']}:{os.getpid()}",
+        )
+
+
+class ImageBackend(_WorldBackend):
+    """World renders the stereo pair, the instrument measures it (``images`` mode).
+
+    :meth:`prepare` renders the board views and runs the instrument's stereo calibration once per campaign
+    (cached as ``<work>/stereo_calibration.json``; the instrument never sees the world's camera parameters).
+    Image noise is seeded per pose, so a pose rendered again (resume, another worker) is the same image.
+    """
+
+    def __init__(self, spec: BackendSpec) -> None:
+        super().__init__(spec)
+        self.calib_path = Path(spec.work_dir) / "stereo_calibration.json"
+        self._calib = None
+        out = self.cfg.outputs
+        self.keep_images = out.recording and out.recording_images != "none"
+        self.keep_after = out.recording and out.recording_images == "all"
+
+    def prepare(self) -> None:
+        from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
+        from .store import atomic_write_text
+
+        super().prepare()
+        if self.calib_path.exists():
+            self._calib = StereoCalibration.load(self.calib_path)
+            return
+        views = self.world.render_board_views(n=self.cfg.measurement.board_views, seed=self.cfg.seed)
+        board = BoardSpec.from_table(self.world.rig_info()["board"])
+        calib = calibrate_stereo([(v.left, v.right) for v in views], board)
+        tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")
+        calib.save(tmp)
+        os.replace(tmp, self.calib_path)
+        self._calib = calib
+
+    @property
+    def calibration(self):
+        if self._calib is None:
+            from ..instrument import StereoCalibration
+
+            if not self.calib_path.exists():
+                raise ValueError(f"{self.calib_path}: no stereo calibration yet (the campaign runs prepare() first)")
+            self._calib = StereoCalibration.load(self.calib_path)
+        return self._calib
+
+    def measure(self, task: PoseTask) -> PoseResult:
+        from ..instrument import measure_pair
+
+        t0 = time.perf_counter()
+        k = self.station_index[task.station]
+        # Image noise per pose: the world draws each image's noise from (its seed, an image counter); starting
+        # the counter from the pose's seed makes the pair independent of what this process rendered before.
+        self.world._image_counter = int(task.seed % (1 << 40)) * 2
+        cap = self.world.capture(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id, record=False)
+        t1 = time.perf_counter()
+        m = measure_pair(cap.left, cap.right, self.calibration, self.plate)
+        t2 = time.perf_counter()
+        overlays = {}
+        for cam, obs in (("left", m.left), ("right", m.right)):
+            centres, outlines = [], []
+            for s in obs:
+                if s is None:
+                    continue
+                if s.centre_px is not None:
+                    centres.append(np.asarray(s.centre_px, dtype=float))
+                if s.ellipse is not None:
+                    e = s.ellipse
+                    pts = cv2_ellipse_points(e.cx, e.cy, e.width, e.height, e.angle_deg)
+                    outlines.append(pts)
+            overlays[cam] = {"centres_px": np.array(centres).reshape(-1, 2), "outlines_px": outlines}
+        images: dict[str, bytes] = {}
+        fmt = ""
+        if (self.keep_images and task.key.startswith("m/")) or self.keep_after:
+            lossless = self.cfg.outputs.recording_lossless
+            for cam, img in (("left", cap.left), ("right", cap.right)):
+                images[cam], media = encode_image(img, lossless=lossless, jpeg_quality=self.cfg.outputs.jpeg_quality)
+            fmt = "png" if lossless else "jpg"
+        _log_render(self.spec.work_dir, task.key, "render")
+        return PoseResult(
+            key=task.key, pose_id=task.pose_id, q=np.asarray(task.q, dtype=float), station=task.station,
+            spheres=list(m.centres), status=m.status, truth=self._truth(cap), overlays=overlays, images=images,
+            image_format=fmt,
+            timings={"render_s": t1 - t0, "measure_s": t2 - t1, "encode_s": time.perf_counter() - t2},
+            worker=f"{worker_identity()['host']}:{os.getpid()}",
+        )
+
+
+def cv2_ellipse_points(cx: float, cy: float, width: float, height: float, angle_deg: float, n: int = 48) -> np.ndarray:
+    """``n`` points ``(n, 2)`` [px] on an ellipse in OpenCV's RotatedRect convention (full axes, angle)."""
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    a, b = 0.5 * width, 0.5 * height
+    c, s = np.cos(np.deg2rad(angle_deg)), np.sin(np.deg2rad(angle_deg))
+    x, y = a * np.cos(t), b * np.sin(t)
+    return np.stack([cx + c * x - s * y, cy + s * x + c * y], axis=1)
+
+
+BACKENDS = {
+    "truth_noise": "twin.evaluation.pipeline:TruthNoiseBackend",
+    "images": "twin.evaluation.pipeline:ImageBackend",
+}
+
+_CACHE: dict[str, Any] = {}
+
+
+def _load_factory(path: str):
+    mod, _, attr = path.partition(":")
+    if not mod or not attr:
+        raise ValueError(f"backend factory must be 'module:callable', got {path!r}")
+    return getattr(importlib.import_module(mod), attr)
+
+
+def get_backend(spec: BackendSpec):
+    """The backend of ``spec``, built once per process (a renderer costs ~0.6 s to start)."""
+    key = spec.cache_key
+    b = _CACHE.get(key)
+    if b is None:
+        b = _load_factory(spec.factory)(spec)
+        _CACHE.clear()  # one campaign per process at a time: free the previous renderer
+        _CACHE[key] = b
+    return b
+
+
+def measure_pose(spec: BackendSpec, task: PoseTask) -> PoseResult:
+    """Worker entry point: measure one pose with the (cached) backend of ``spec``."""
+    return get_backend(spec).measure(task)
+
+
+def backend_spec_for(cfg: CampaignConfig, work_dir: str | os.PathLike, factory: str | None = None, **options) -> BackendSpec:
+    """The spec of the campaign's backend (``cfg.measurement.mode``) or of an explicit ``factory``."""
+    f = factory or BACKENDS[cfg.measurement.mode]
+    return BackendSpec(
+        factory=f,
+        config_raw=cfg.raw,
+        config_source=str(cfg.source) if cfg.source else None,
+        quick=cfg.quick,
+        work_dir=str(work_dir),
+        options=dict(options),
+    )

@@ -1,0 +1,251 @@
+"""The Rerun recording of a campaign (rerun-sdk 0.41). THE ONLY MODULE OF THE PROJECT THAT IMPORTS ``rerun``.
+
+Layout of the recording (entity paths), all 3D in the robot base frame ("world", right-handed, z up, metres):
+
+* ``world`` -- view coordinates, logged once.
+* ``world/stations/<s>`` -- the measurement frame of station ``<s>`` (its left camera's OpenCV frame), static;
+  ``.../left`` and ``.../right`` -- camera frustums (``Pinhole``), static;
+  ``.../measured/spheres`` -- triangulated sphere centres of the pose; ``.../measured/plate`` -- the plate frame
+  measured from them (eq. 38-40), as a transform with axes.
+* ``world/robot/<model>`` -- link frames of the ``nominal``, ``true`` and each ``calibrated/<method>`` model at
+  the pose's commanded joints: ``links`` (a line through the frame origins) and ``axes`` (x/y/z arrows).
+* ``images/left``, ``images/right`` -- the camera images (JPEG by default; PNG, lossless and full resolution,
+  on request), with ``centres`` (detected sphere centres) and ``outlines`` (detected outlines) as 2D overlays.
+* ``residuals/<method>/<name>`` -- per-pose residuals as time series.
+* ``log`` -- text log (rejected measurements, warnings).
+
+Everything per pose is on the ``pose`` sequence timeline (the pose index in measurement order). A default
+blueprint (3D view, both images, residual plots, log) is stored in the file so it opens in a useful layout.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import cv2
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from ..camera import CameraIntrinsics
+from ..transforms import matrix_to_quat_wxyz
+from .store import encode_image
+
+__all__ = ["CameraView", "StationView", "CampaignRecording", "encode_image", "default_blueprint"]
+
+_AXIS_COLOURS = np.array([[230, 40, 40], [40, 200, 40], [50, 90, 240]], dtype=np.uint8)
+MODEL_COLOURS = {
+    "nominal": (160, 160, 160),
+    "true": (255, 170, 0),
+    "distance": (200, 60, 200),
+    "full_pose": (60, 160, 230),
+    "separation": (40, 200, 120),
+    "default": (240, 60, 60),
+}
+
+
+def _media_type(fmt: str) -> str:
+    f = fmt.lower().lstrip(".")
+    if f in ("jpg", "jpeg"):
+        return "image/jpeg"
+    if f == "png":
+        return "image/png"
+    raise ValueError(f"image format must be 'jpg' or 'png', got {fmt!r}")
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """A camera of a station for the recording: name, pose in the station's measurement frame (OpenCV axes)
+    and intrinsics."""
+
+    name: str
+    cam2meas: np.ndarray
+    intrinsics: CameraIntrinsics
+
+
+@dataclass(frozen=True)
+class StationView:
+    """A station: its measurement frame in the base frame (``meas2base`` ``(4, 4)``) and its cameras."""
+
+    name: str
+    meas2base: np.ndarray
+    cameras: tuple[CameraView, ...]
+
+
+def _transform(T: np.ndarray) -> rr.Transform3D:
+    T = np.asarray(T, dtype=float)
+    q = matrix_to_quat_wxyz(T[:3, :3])
+    return rr.Transform3D(translation=T[:3, 3], quaternion=rr.Quaternion(xyzw=[q[1], q[2], q[3], q[0]]))
+
+
+def default_blueprint(methods: Sequence[str] = ()) -> rrb.Blueprint:
+    """3D view of the cell on the left, the two images on the right, residuals and the log below."""
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="world", name="cell (robot base frame)"),
+                rrb.Vertical(
+                    rrb.Spatial2DView(origin="images/left", name="left camera"),
+                    rrb.Spatial2DView(origin="images/right", name="right camera"),
+                ),
+                column_shares=[3, 2],
+            ),
+            rrb.Horizontal(
+                rrb.TimeSeriesView(origin="residuals", name="residuals per pose"),
+                rrb.TextLogView(origin="log", name="log"),
+                column_shares=[3, 2],
+            ),
+            row_shares=[3, 1],
+        ),
+        rrb.TimePanel(state="collapsed"),
+        collapse_panels=False,
+    )
+
+
+class CampaignRecording:
+    """Writes one ``.rrd`` file (no viewer needed). Use as a context manager or call :meth:`close`."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        application_id: str = "twin-campaign",
+        recording_id: str | None = None,
+        methods: Sequence[str] = (),
+        lossless: bool = False,
+        jpeg_quality: int = 85,
+    ) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.lossless = lossless
+        self.jpeg_quality = jpeg_quality
+        self._rec = rr.RecordingStream(application_id, recording_id=recording_id or self.path.stem)
+        self._rec.save(str(self.path), default_blueprint=default_blueprint(methods))
+        self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._stations: dict[str, StationView] = {}
+        self._closed = False
+
+    # --- static --------------------------------------------------------------------------------
+    def log_stations(self, stations: Sequence[StationView]) -> None:
+        """Measurement frames and camera frustums, once (static)."""
+        for st in stations:
+            self._stations[st.name] = st
+            base = f"world/stations/{st.name}"
+            self._rec.log(base, _transform(st.meas2base), static=True)
+            for cam in st.cameras:
+                K = cam.intrinsics
+                self._rec.log(f"{base}/{cam.name}", _transform(cam.cam2meas), static=True)
+                self._rec.log(
+                    f"{base}/{cam.name}",
+                    rr.Pinhole(
+                        image_from_camera=K.K,
+                        resolution=[K.width, K.height],
+                        camera_xyz=rr.ViewCoordinates.RDF,
+                        image_plane_distance=0.15,
+                    ),
+                    static=True,
+                )
+
+    # --- per pose ------------------------------------------------------------------------------
+    def set_pose(self, index: int) -> None:
+        """Select the ``pose`` timeline position for what follows."""
+        if index < 0:
+            raise ValueError(f"index must be >= 0, got {index}")
+        self._rec.set_time("pose", sequence=int(index))
+
+    def log_images(
+        self,
+        images: Mapping[str, np.ndarray | bytes],
+        *,
+        image_format: str | None = None,
+        overlays: Mapping[str, Mapping[str, object]] | None = None,
+    ) -> None:
+        """Camera images (arrays are encoded here; bytes are logged as they are, in ``image_format``) and
+        their 2D overlays: ``overlays[camera] = {"centres_px": (k, 2), "outlines_px": [(m, 2), ...]}``."""
+        for cam, img in images.items():
+            if isinstance(img, (bytes, bytearray)):
+                if image_format is None:
+                    raise ValueError("image_format is required when images are given as encoded bytes")
+                data, media = bytes(img), _media_type(image_format)
+            else:
+                data, media = encode_image(np.asarray(img), lossless=self.lossless, jpeg_quality=self.jpeg_quality)
+            self._rec.log(f"images/{cam}", rr.EncodedImage(contents=data, media_type=media))
+        for cam, ov in (overlays or {}).items():
+            centres = np.asarray(ov.get("centres_px", np.zeros((0, 2))), dtype=float).reshape(-1, 2)
+            self._rec.log(f"images/{cam}/centres", rr.Points2D(centres, radii=4.0, colors=[255, 60, 60]))
+            outlines = [np.asarray(o, dtype=float).reshape(-1, 2) for o in ov.get("outlines_px", [])]
+            outlines = [np.vstack([o, o[:1]]) for o in outlines if len(o)]
+            self._rec.log(f"images/{cam}/outlines", rr.LineStrips2D(outlines, radii=1.5, colors=[60, 220, 60]))
+
+    def log_measurement(self, station: str, spheres_meas: np.ndarray, seen: np.ndarray, plate2meas: np.ndarray | None) -> None:
+        """Triangulated centres ``(3, 3)`` [m] (rows where ``seen``) and the measured plate frame, in the
+        station's measurement frame; clears the other stations' measurements."""
+        if station not in self._stations:
+            raise ValueError(f"station {station!r} was not logged with log_stations (known: {sorted(self._stations)})")
+        for other in self._stations:
+            if other != station:
+                self._rec.log(f"world/stations/{other}/measured", rr.Clear(recursive=True))
+        base = f"world/stations/{station}/measured"
+        pts = np.asarray(spheres_meas, dtype=float)[np.asarray(seen, dtype=bool)]
+        self._rec.log(f"{base}/spheres", rr.Points3D(pts, radii=0.0127, colors=[230, 230, 230]))
+        if plate2meas is not None:
+            self._rec.log(f"{base}/plate", _transform(plate2meas))
+            self._rec.log(f"{base}/plate", rr.TransformAxes3D(0.05))
+        else:
+            self._rec.log(f"{base}/plate", rr.Clear(recursive=False))
+
+    def log_robot(self, frames: Mapping[str, np.ndarray]) -> None:
+        """Link frames ``(7, 4, 4)`` (base frame) per model name (``nominal``, ``true``, ``calibrated/<m>``)."""
+        for name, F in frames.items():
+            F = np.asarray(F, dtype=float)
+            if F.ndim != 3 or F.shape[1:] != (4, 4):
+                raise ValueError(f"frames[{name!r}] must have shape (k, 4, 4), got {F.shape}")
+            colour = MODEL_COLOURS.get(name.split("/")[-1], (200, 200, 200))
+            path = f"world/robot/{name}"
+            self._rec.log(f"{path}/links", rr.LineStrips3D([F[:, :3, 3]], radii=0.004, colors=[colour]))
+            origins = np.repeat(F[:, :3, 3], 3, axis=0)
+            vectors = np.concatenate([F[k, :3, :3].T * 0.05 for k in range(F.shape[0])])
+            self._rec.log(
+                f"{path}/axes", rr.Arrows3D(origins=origins, vectors=vectors, colors=np.tile(_AXIS_COLOURS, (F.shape[0], 1)))
+            )
+
+    def log_scalars(self, values: Mapping[str, float]) -> None:
+        """Scalars at the current pose, e.g. ``{"residuals/separation/angle_deg": 0.02}``."""
+        for path, v in values.items():
+            if not np.isfinite(v):
+                continue
+            self._rec.log(path, rr.Scalars(float(v)))
+
+    def log_text(self, text: str, level: str = "INFO") -> None:
+        """A line of the text log (``level`` one of TRACE, DEBUG, INFO, WARN, ERROR, CRITICAL)."""
+        self._rec.log("log", rr.TextLog(text, level=getattr(rr.TextLogLevel, level.upper())))
+
+    # --- end -----------------------------------------------------------------------------------
+    def close(self) -> Path:
+        if not self._closed:
+            self._rec.flush(timeout_sec=60.0)
+            self._rec.disconnect()
+            self._closed = True
+        return self.path
+
+    def __enter__(self) -> "CampaignRecording":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_recording(path: str | os.PathLike) -> dict[str, list]:
+    """Chunks of a recording grouped by entity path: ``{entity_path: [pyarrow.RecordBatch, ...]}`` (tests, tools)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list] = {}
+    for chunk in RrdReader(str(path)).stream():
+        out.setdefault(str(chunk.entity_path), []).append(chunk.to_record_batch())
+    return out
+
+
+__all__.append("read_recording")

@@ -1,0 +1,205 @@
+"""Reports of a campaign: the comparison table (ours beside the paper's targets), figures, results.json.
+
+The paper's numbers come only from the targets file (:mod:`twin.evaluation.targets`) and are printed in
+their own rows marked ``paper``; nothing here copies them into a result.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .store import atomic_write_text
+
+__all__ = [
+    "RESULTS_SCHEMA_VERSION",
+    "write_results",
+    "comparison_rows",
+    "render_table",
+    "plot_figure10",
+    "plot_figure11",
+]
+
+RESULTS_SCHEMA_VERSION = 1
+METHOD_LABELS = {
+    "distance": "distance constraint",
+    "full_pose": "full-pose constraint",
+    "separation": "separation (paper's method)",
+    "default": "our default estimator",
+}
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe: numpy to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.bool_,)):
+        return bool(x)
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def write_results(path: str | os.PathLike, results: Mapping[str, Any]) -> Path:
+    """Write ``results.json`` atomically (``schema_version`` first; ``docs/formats.md``)."""
+    p = Path(path)
+    body = {"schema_version": RESULTS_SCHEMA_VERSION, **_clean(dict(results))}
+    atomic_write_text(p, json.dumps(body, indent=1, sort_keys=False) + "\n")
+    return p
+
+
+def _g(d: Any, *keys: str) -> Any:
+    for k in keys:
+        if not isinstance(d, Mapping) or k not in d or d[k] is None:
+            return None
+        d = d[k]
+    return d
+
+
+def comparison_rows(summaries: Mapping[str, Mapping[str, Any]], targets: Mapping[str, Any] | None,
+                    *, paper_key: tuple[str, str, str] = ("simulation", "figure10", "figure10"),
+                    source: str = "measured") -> list[dict[str, Any]]:
+    """Rows of the comparison table: one per method (ours) and the paper's row under the separation method.
+
+    Each row: ``label``, then for ``angle_deg`` and ``position_mm``: before/after max, mean, std and the
+    improvement of the mean [%]. ``paper_key`` = (section, angle figure, position figure) of the targets file.
+    """
+    rows = []
+    for m, s in summaries.items():
+        row: dict[str, Any] = {"label": METHOD_LABELS.get(m, m), "method": m, "kind": "ours"}
+        for unit in ("angle_deg", "position_mm"):
+            blk = _g(s, source, unit)
+            row[unit] = None if blk is None else {
+                "before": blk.get("before"), "after": blk.get("after"), "improvement_percent": blk.get("improvement_percent")
+            }
+        rows.append(row)
+        if m == "separation" and targets is not None:
+            sec, fa, fp = paper_key
+            pa, pp = _g(targets, sec, fa, "angle_deg"), _g(targets, sec, fp, "position_mm")
+            if pa is not None or pp is not None:
+                prow = {"label": f"  paper (Fig. {fa[6:]}/{fp[6:]})" if fa != fp else f"  paper (Fig. {fa[6:]})",
+                        "method": "paper", "kind": "paper"}
+                for unit, blk in (("angle_deg", pa), ("position_mm", pp)):
+                    prow[unit] = None if blk is None else {
+                        "before": blk.get("before"), "after": blk.get("after"), "improvement_percent": blk.get("improvement_percent")
+                    }
+                rows.append(prow)
+    return rows
+
+
+def _fmt(x: Any, nd: int = 4) -> str:
+    return "-" if x is None else f"{x:.{nd}f}"
+
+
+def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
+    """Plain-text table (also what the CLI prints through rich): max / mean / std before -> after, improvement."""
+    head = (f"{'method':<30} | {'angle [deg] max':>17} {'mean':>17} {'std':>17} {'impr.':>6} | "
+            f"{'position [mm] max':>17} {'mean':>17} {'std':>17} {'impr.':>6}")
+    lines = [title, head, "-" * len(head)] if title else [head, "-" * len(head)]
+    for r in rows:
+        cells = [f"{r['label']:<30}"]
+        for unit in ("angle_deg", "position_mm"):
+            blk = r.get(unit)
+            parts = []
+            for stat in ("max", "mean", "std"):
+                b = _g(blk, "before", stat)
+                a = _g(blk, "after", stat)
+                parts.append(f"{_fmt(b):>7} -> {_fmt(a):<7}")
+            imp = _g(blk, "improvement_percent")
+            parts.append(f"{'-' if imp is None else f'{imp:5.1f}%':>6}")
+            cells.append(" ".join(parts))
+        lines.append(" | ".join(cells))
+    lines.append("std: sample standard deviation, the paper's 'mean square error' (smaller than its mean, so not an RMS); "
+                 "improvement: of the mean.")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------
+# Figures (matplotlib, Agg, PNG)
+# ------------------------------------------------------------------------------------------------
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before, pos_after, distances,
+                  *, method_label: str = "separation", title: str = "") -> Path:
+    """The paper's Figure 10 in style: (a) angle error per compensation pair before/after [deg]; (b) position
+    error per distance test before/after [mm], tests grouped by commanded distance."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    ax = axes[0]
+    x = np.arange(1, len(angle_before) + 1)
+    ax.plot(x, angle_before, "o-", color="tab:red", label="before compensation")
+    ax.plot(x, angle_after, "s-", color="tab:blue", label=f"after ({method_label})")
+    ax.set_xlabel("compensation pair")
+    ax.set_ylabel("angle error [deg]")
+    ax.set_title("(a) angle error")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    x = np.arange(1, len(pos_before) + 1)
+    ax.plot(x, pos_before, "o-", color="tab:red", label="before compensation")
+    ax.plot(x, pos_after, "s-", color="tab:blue", label=f"after ({method_label})")
+    d = np.asarray(distances, dtype=float)
+    for k, dv in enumerate(np.unique(d[np.isfinite(d)])):
+        idx = np.flatnonzero(d == dv) + 1
+        if k % 2 == 0:
+            ax.axvspan(idx.min() - 0.5, idx.max() + 0.5, color="0.92", zorder=0)
+        ax.text(idx.mean(), 1.0, f"{dv * 1e3:g} mm", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+    ax.set_xlabel("distance test")
+    ax.set_ylabel("position error [mm]")
+    ax.set_title("(b) position (moved-distance) error", pad=14)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray], pos_after: Mapping[str, np.ndarray],
+                  *, title: str = "") -> Path:
+    """The paper's Figure 11 in style: per method, (a) angle error and (b) position error after compensation."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    markers = {"distance": "^-", "full_pose": "s-", "separation": "o-", "default": "d--"}
+    for ax, data, ylabel, name in ((axes[0], angle_after, "angle error [deg]", "(a) angle error after compensation"),
+                                   (axes[1], pos_after, "position error [mm]", "(b) position error after compensation")):
+        for m, v in data.items():
+            ax.plot(np.arange(1, len(v) + 1), v, markers.get(m, "x-"), label=METHOD_LABELS.get(m, m), markersize=4)
+        ax.set_ylabel(ylabel)
+        ax.set_xlabel("compensation pair" if ax is axes[0] else "distance test")
+        ax.set_title(name)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
