@@ -10,8 +10,14 @@ left alone) and ``results/benchmark_table.md``. See ``docs/benchmark.md``.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
+
+# One BLAS thread for every method (set before NumPy loads): on a 2-core machine shared with other jobs,
+# multi-threaded BLAS made our 0.04 s fit take 0.1-0.6 s, and the peers are Python-bound either way.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))

@@ -105,3 +105,16 @@ def test_validation_errors_measure_distance_and_angle():
     assert e.orientation_rms_deg == pytest.approx(0.1)
     with pytest.raises(ValueError, match="positions"):
         validation_errors(T, np.zeros((4, 3)))
+
+
+def test_growth_campaign_config_has_the_asked_number_of_poses():
+    """The resized separation campaign of the growth figures plans exactly the asked number of poses."""
+    from experiments.peers.growth import campaign_raw
+    from twin.evaluation.config import parse_campaign_config
+    from twin.evaluation.plan import make_plan
+
+    cfg = parse_campaign_config(campaign_raw(16))
+    assert cfg.measurement.mode == "truth_noise" and cfg.methods == ("default",)
+    assert make_plan(cfg).n == 16
+    with pytest.raises(ValueError, match="multiple of 4"):
+        campaign_raw(10)

@@ -143,6 +143,7 @@ def summarise(methods: list[Method], per_seed: list[dict], timing: dict[str, lis
         "floor_pose": {"position_rms_mm": floor_pose, "orientation_rms_deg": floor_ori},
         "floor_position": {"position_rms_mm": floor_pos},
         "nominal": {"position_rms_mm": _pooled([r["nominal"]["position_mm"]["rms"] for r in per_seed])},
+        "order": [m.name for m in methods],
         "methods": {},
     }
     ours_time = float(np.median(timing[OURS_DEFAULT])) if timing.get(OURS_DEFAULT) else None

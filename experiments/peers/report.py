@@ -32,7 +32,13 @@ def peers_table(peers: dict) -> str:
             head + f"| *floor (position data only)* | - | {_f(s['floor_position']['position_rms_mm'])} | - | - "
             f"| {_ratio(s['floor_position']['position_rms_mm'] / fp['position_rms_mm'])} | - | - | - |"
         )
-        for name, m in s["methods"].items():
+        nom = s["nominal"]["position_rms_mm"]
+        lines.append(
+            head + f"| *before calibration (nominal joints, frames registered)* | - | {_f(nom)} | - | - "
+            f"| {_ratio(nom / fp['position_rms_mm'])} | - | - | - |"
+        )
+        for name in s.get("order", list(s["methods"])):
+            m = s["methods"][name]
             if "position_rms_mm" not in m:
                 err = m["failures"][0]["error"] if m["failures"] else "no prediction"
                 lines.append(head + f"| {name} | failed: {err} | | | | | | | |")
@@ -52,20 +58,59 @@ def peers_table(peers: dict) -> str:
 
 
 def pipeline_table(pipeline: dict) -> str:
-    """Markdown table of the ``pipeline`` section (seconds per stereo pair)."""
-    rows = pipeline.get("per_pair_seconds", {})
-    lines = ["| stage | seconds per stereo pair |", "|---|---|"]
-    for k, v in rows.items():
-        lines.append(f"| {k} | {_f(v, '{:.4f}')} |")
-    if "ratio_to_bare_render" in pipeline:
-        lines.append(f"| **whole pose / bare render** | **{pipeline['ratio_to_bare_render']:.2f}x** |")
+    """Markdown table of the ``pipeline`` section (median seconds per stereo pair)."""
+    bare = pipeline["stages"][0]["seconds"]
+    lines = ["| stage | seconds per stereo pair | / bare render |", "|---|---|---|"]
+    for row in pipeline["stages"]:
+        lines.append(f"| {row['stage']} | {row['seconds']:.4f} | {row['seconds'] / bare:.2f}x |")
+    lines.append(
+        f"\n{pipeline['poses']} poses of `{pipeline['config']}` at {pipeline['image_size_px'][0]}x"
+        f"{pipeline['image_size_px'][1]} px; one-off campaign preparation (world, board views, stereo calibration) "
+        f"{pipeline['one_off_prepare_s']:.1f} s. Target: whole pose <= {pipeline['target_ratio']:.1f}x the bare render."
+    )
     return "\n".join(lines) + "\n"
 
 
 def growth_table(growth: dict) -> str:
-    """Markdown table of the identification part of the ``growth`` section."""
-    ident = growth.get("identification", {})
-    lines = ["| poses | identification time [s] | peak memory [MiB] |", "|---|---|---|"]
-    for row in ident.get("rows", []):
-        lines.append(f"| {row['poses']} | {_f(row['seconds_median'], '{:.4f}')} | {_f(row['peak_mib'], '{:.1f}')} |")
+    """Markdown tables of the ``growth`` section."""
+    ident = growth["identification"]
+    lines = [
+        "Identification (our default estimator, 6-DOF poses):",
+        "",
+        "| poses | time [s] (median) | time per pose [ms] | peak traced memory [MiB] |",
+        "|---|---|---|---|",
+    ]
+    for row in ident["rows"]:
+        lines.append(
+            f"| {row['poses']} | {row['seconds_median']:.4f} | {row['ms_per_pose']:.3f} | {row['peak_mib']:.1f} |"
+        )
+    if ident.get("loglog_slope") is not None:
+        lines.append(f"\nlog-log slope of time against poses: {ident['loglog_slope']:.2f} (1 = linear).")
+    camp = growth["campaign"]
+    lines += [
+        "",
+        f"Campaign ({camp['backend']}, {camp['config']}, methods {camp['methods']}):",
+        "",
+        "| poses | wall time [s] | of which measuring [s] | peak RSS main [MiB] | peak RSS worker [MiB] "
+        "| RSS after imports [MiB] |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in camp["rows"]:
+        meas = row["timings_s"].get("measure_before_s", float("nan")) + row["timings_s"].get("measure_after_s", 0.0)
+        lines.append(
+            f"| {row['poses']} | {row['seconds']:.1f} | {meas:.1f} | {row['peak_rss_mib']:.0f} "
+            f"| {row['peak_rss_largest_worker_mib']:.0f} | {row['rss_after_imports_mib']:.0f} |"
+        )
+    mc = growth["monte_carlo"]
+    lines += [
+        "",
+        f"Monte-Carlo ({len(mc['seeds'])} campaigns of {mc['poses_per_campaign']} poses, {mc['backend']}):",
+        "",
+        "| executor | wall time [s] | campaigns per minute | distinct workers used |",
+        "|---|---|---|---|",
+    ]
+    for row in mc["rows"]:
+        lines.append(
+            f"| {row['executor']} | {row['seconds']:.1f} | {row['campaigns_per_minute']:.2f} | {row['distinct_workers']} |"
+        )
     return "\n".join(lines) + "\n"
