@@ -91,7 +91,7 @@ def growth_table(growth: dict) -> str:
         "",
         f"Campaign ({camp['backend']}, {camp['config']}, methods {camp['methods']}):",
         "",
-        "| poses | wall time [s] | of which measuring [s] | peak RSS main [MiB] | peak RSS worker [MiB] "
+        "| poses | wall time [s] | of which measuring [s] | peak RSS main [MiB] | peak RSS worker, upper bound [MiB] "
         "| RSS after imports [MiB] |",
         "|---|---|---|---|---|---|",
     ]
@@ -106,11 +106,12 @@ def growth_table(growth: dict) -> str:
         "",
         f"Monte-Carlo ({len(mc['seeds'])} campaigns of {mc['poses_per_campaign']} poses, {mc['backend']}):",
         "",
-        "| executor | wall time [s] | campaigns per minute | distinct workers used |",
-        "|---|---|---|---|",
+        "| executor | wall time [s] | campaigns per minute | distinct workers used | concurrency | load average |",
+        "|---|---|---|---|---|---|",
     ]
     for row in mc["rows"]:
         lines.append(
-            f"| {row['executor']} | {row['seconds']:.1f} | {row['campaigns_per_minute']:.2f} | {row['distinct_workers']} |"
+            f"| {row['executor']} | {row['seconds']:.1f} | {row['campaigns_per_minute']:.2f} | {row['distinct_workers']} "
+            f"| {row.get('concurrency', float('nan')):.2f} | {row.get('load_average_1min_at_start', float('nan')):.1f} |"
         )
     return "\n".join(lines) + "\n"

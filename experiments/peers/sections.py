@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -44,6 +45,8 @@ def peers_section(seeds: int, repeats: int, quick: bool) -> dict:
             "calibration_poses": n_cals,
             "seeds": seed_list,
             "timed_runs_per_method": 1 if quick else repeats,
+            "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
+            "load_average_1min_at_start": os.getloadavg()[0],
             "scored_against": "noise-free true tool poses of the validation joints",
             "floor": "weighted Gauss-Newton from the truth on every identifiable direction of the generating "
             "model, same calibration rows (experiments/peers/floor.py)",
