@@ -26,10 +26,11 @@ def configurations(rng, n, model):
     return q
 
 
-def make_dataset(seed=0, n=200, effect=None, repeats_every=4, temp=None, t_s=None, sigma=SIGMA):
+def make_dataset(seed=0, n=200, effect=None, repeats_every=4, temp=None, t_s=None, sigma=SIGMA, plate_offset=None):
     """Calibration/validation alternating by row; every ``repeats_every``-th pose measured twice in a row.
 
     ``effect(q_cmd (n,6), model) -> q_actual`` or ``("lengths", scale (n,))`` for thermal growth.
+    ``plate_offset`` ``(3, 3)`` [m]: the true spheres sit off the nominal plate (dataset.toml keeps nominal).
     Returns (dataset, truth dict with actual joints).
     """
     rng = np.random.default_rng(seed)
@@ -68,7 +69,13 @@ def make_dataset(seed=0, n=200, effect=None, repeats_every=4, temp=None, t_s=Non
         ds, _ = simulate_dataset(true, q, robot_spec="irb1200", nominal=nominal, noise_position=sigma, rng=rng)
         ds = _replace(ds, spheres=sph)
     else:
-        ds, _ = simulate_dataset(true, q_act, robot_spec="irb1200", nominal=nominal, noise_position=sigma, rng=rng)
+        from twin.dataset import Plate, default_plate
+
+        plate = default_plate()
+        true_plate = plate if plate_offset is None else Plate(plate.sphere_diameter, plate.spheres_flange + plate_offset)
+        ds, _ = simulate_dataset(true, q_act, robot_spec="irb1200", nominal=nominal, noise_position=sigma, rng=rng,
+                                 plate=true_plate)
+        ds = _replace(ds, plate=plate)
     # the controller was commanded q; the robot was at q_act
     ds = _replace(ds, q=q, set=sets, pose_id=np.arange(m))
     if temp is not None:

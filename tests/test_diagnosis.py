@@ -96,6 +96,36 @@ def test_thermal_growth_against_recorded_temperature():
 
 
 @pytest.mark.slow
+def test_thermal_drift_in_time_without_temperature():
+    """Without temp_c, a warm-up drift of the link lengths in time (t_s) is still found as 'thermal'."""
+    n = 200
+    t_s = np.linspace(0.0, 3600.0, n)
+    scale = 23e-6 * 10.0 * (1.0 - np.exp(-t_s / 1200.0))
+    ds, _ = H.make_dataset(seed=9, n=n, effect=("lengths", scale), t_s=t_s)
+    res = diagnose(ds)
+    assert res.structured and res.effects == ("thermal",)
+
+
+@pytest.mark.slow
+def test_sphere_off_its_nominal_plate_position_is_plate_geometry():
+    """One sphere 46 um off its nominal place (not a rigid motion of the plate) is named plate_geometry."""
+    off = np.zeros((3, 3))
+    off[2] = [30e-6, -30e-6, 20e-6]
+    ds, _ = H.make_dataset(seed=8, plate_offset=off)
+    res = diagnose(ds)
+    assert res.structured and res.effects == ("plate_geometry",)
+    d = np.array(res.effect_parameters["plate_geometry"]["values"]).reshape(3, 3)
+    # only the non-rigid part is identifiable: the distances between spheres must match the truth
+    from twin.dataset import default_plate
+
+    s0 = default_plate().spheres_flange
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        true_d = np.linalg.norm((s0[i] + off[i]) - (s0[j] + off[j]))
+        est_d = np.linalg.norm((s0[i] + d[i]) - (s0[j] + d[j]))
+        assert abs(est_d - true_d) < 5e-6
+
+
+@pytest.mark.slow
 def test_outside_catalogue_effect_is_structured_but_unnamed(tmp_path):
     """An effect none of the candidates can express: structured, effects empty, plots written."""
     ds, _ = H.make_dataset(seed=5, effect=H.outside())

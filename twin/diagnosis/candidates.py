@@ -18,7 +18,7 @@ The vocabulary (names used in ``diagnosis.json``, ``docs/formats.md``):
 ``gear_ratio``      ``dtheta_i = (k_i - 1) q_i``
 ``coupling``        wrist coupling ``dtheta_6 = c q_5``
 ``thermal``         all link lengths grow by ``kappa (T - T_ref)`` (``temp_c``), or a drift in time
-                    (``t_s``: linear and quadratic) when no temperature is recorded
+                    (``t_s``: a cubic in time) when no temperature is recorded
 ``plate_geometry``  the spheres sit off their nominal plate positions (not a rigid motion of the plate)
 ==================  =====================================================================================
 
@@ -204,11 +204,13 @@ def candidate_catalogue(model: RobotModel, *, harmonic_orders: tuple[int, ...] =
             return (ctx.temp_c - ref["temp_ref_c"])[:, None]
         if ctx.t_s is None:
             raise ValueError("thermal effect identified against t_s: the rows need a t_s column")
+        # an unknown smooth drift in time: a cubic in normalised time (a warm-up 1 - exp(-t/tau) over the
+        # campaign is matched to ~0.3 % of its range)
         t = (ctx.t_s - ref["t0_s"]) / ref["t_scale_s"]
-        return np.stack([t, t * t], axis=1)
+        return np.stack([t, t * t, t * t * t], axis=1)
 
     def thermal_names(ref: dict) -> tuple[str, ...]:
-        return ("kappa_per_K",) if ref.get("channel") == "temp_c" else ("drift_lin", "drift_quad")
+        return ("kappa_per_K",) if ref.get("channel") == "temp_c" else ("drift_t", "drift_t2", "drift_t3")
 
     def cyclic_names(ref: dict) -> tuple[str, ...]:
         return tuple(f"{ab}{i}_k{k}" for k in ref["harmonic_orders"] for i in range(1, 7) for ab in ("A", "B"))

@@ -267,7 +267,8 @@ def _fit(prep: Prepared, obs_cal: Observations, obs_val: Observations, x0: np.nd
     z0 = np.concatenate([x0] + [np.zeros(t.r) for t in terms_cal])
     free = np.concatenate([free_geo, np.arange(prep.space.size, mc.size)]).astype(int)
     w = None if inlier is None else inlier.astype(float)
-    gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=w, max_iter=30, stage="extended")
+    # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
+    gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=w, max_iter=30, xtol=1e-11, stage="extended")
     res = mc.residuals(gn.x, jacobian=False)
     rr = res.r if inlier is None else res.r[inlier[res.row]]
     return _Fit(terms_cal, gn.x, free, float(rr @ rr), mc, mv)
