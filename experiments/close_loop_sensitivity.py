@@ -93,17 +93,20 @@ def main() -> int:
             actual = effect_size(world, plan0, sigma, record_temp=rec)
             det = named = 0
             ratios = []
+            found = []
             for seed in range(args.seeds):
                 plan = plans[seed + 1]
                 ds, caps = synthetic_dataset(world, plan, sigma=sigma, seed=100 + seed, record_temp=rec)
                 res = diagnose(ds)
                 det += bool(res.structured)
                 named += res.effects == (name,)
+                found.append(list(res.effects))
                 if res.effects == (name,):
                     ratios.append(res.after["position_mm"]["rms"] / oracle_fit(ds, caps).after["position_mm"]["rms"])
             cell = {
                 "target_size": target, "size": actual, "magnitude_factor": m, "spec": spec,
                 "seeds": args.seeds, "detected": det / args.seeds, "named": named / args.seeds,
+                "effects_per_seed": found,
                 "ratio_to_oracle": {"median": float(np.median(ratios)) if ratios else None,
                                     "max": float(np.max(ratios)) if ratios else None},
             }
