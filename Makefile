@@ -50,8 +50,11 @@ test: install sysdeps-browser
 test-fast: install
 	$(PY) -m pytest -q -m "not slow and not browser"
 
-bench: sysdeps
+# pybotics and robotkinecal pin numpy<2 in their metadata (rerun-sdk needs numpy>=2); they run on numpy 2, so
+# they are installed without their metadata's dependencies, which the `peers` extra brings instead.
+bench: install
 	$(PY) -m pip install -q -e ".[test,peers]"
+	$(PY) -m pip install -q --no-deps "pybotics>=3.1.2,<4" "robotkinecal>=0.1.0,<0.2"
 	$(PY) experiments/benchmark.py
 
 clean:

@@ -160,3 +160,12 @@ def test_cli_writes_diagnosis_files(tmp_path, capsys):
     for k in ("mean", "rms", "max"):
         assert d["after"]["position_mm"][k] < d["before"]["position_mm"][k]
     assert "structured: True" in capsys.readouterr().out
+
+
+def test_stated_noise_larger_than_repeats_becomes_the_floor():
+    """Repeats show sensor noise only; an instrument that states a larger error sets the floor (and says why)."""
+    ds, _ = H.make_dataset(seed=0)
+    nf = noise_floor(H._replace(ds, noise_position=3 * H.SIGMA))
+    assert nf.sigma == pytest.approx(3 * H.SIGMA) and "not visible in repeats" in nf.source
+    nf2 = noise_floor(H._replace(ds, noise_position=0.5 * H.SIGMA))
+    assert nf2.sigma == pytest.approx(H.SIGMA, rel=0.1) and "repeats" in nf2.source

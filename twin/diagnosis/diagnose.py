@@ -5,8 +5,10 @@ Reads only a dataset (and optionally an existing geometric calibration). The pro
 1. **Noise floor.** From repeated measurements of the same configuration taken one after the other (rows
    with identical commanded joints and station, consecutive in measurement order): the pooled variance of
    the sphere coordinates about their group means, with ``nu = sum (n_g - 1) * coordinates`` degrees of
-   freedom. Without repeats, the instrument's stated noise (``dataset.toml [noise] position_mm``), taken as
-   exact. Without either, diagnosis refuses (it cannot tell structure from noise).
+   freedom. The instrument's stated noise (``dataset.toml [noise] position_mm``, taken as exact) is used
+   instead when there are no repeats, or when it is larger than the repeats' spread (repeats see the sensor
+   noise only, not what the instrument gets wrong from pose to pose). Without either, diagnosis refuses
+   (it cannot tell structure from noise).
 2. **Geometric fit** on the calibration rows (the estimator's default, with the noise fixed to the floor so
    that the effect cannot hide in an inflated noise estimate; gross outliers still rejected).
 3. **Test** on the validation rows: ``T = r^T (I + J C J^T)^-1 r`` with ``r`` the whitened validation residuals
@@ -155,11 +157,19 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
                     dof += 3 * (int(rows.sum()) - 1)
             groups += 1
         k = j
+    stated = ds.noise_position if stated_ok else None
     if dof >= 30:
-        return NoiseFloor(float(np.sqrt(ss / dof)), float(dof), f"{groups} groups of consecutive repeats", groups)
-    if ds.noise_position is not None and stated_ok:
+        sigma_rep = float(np.sqrt(ss / dof))
+        if stated is not None and stated > 1.1 * sigma_rep:
+            # Repeats of one configuration see only the sensor noise; the instrument's stated error also
+            # holds what varies from pose to pose (calibration, outline sampling). The larger one is the floor.
+            return NoiseFloor(stated, float("inf"), (
+                f"dataset.toml [noise] position_mm (stated; {groups} groups of consecutive repeats show only "
+                f"{sigma_rep / _MM:.5f} mm: the instrument's pose-to-pose error is not visible in repeats)"), groups)
+        return NoiseFloor(sigma_rep, float(dof), f"{groups} groups of consecutive repeats", groups)
+    if stated is not None:
         note = f" ({groups} repeat groups were too few)" if groups else ""
-        return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)" + note, groups)
+        return NoiseFloor(stated, float("inf"), "dataset.toml [noise] position_mm (stated)" + note, groups)
     raise DiagnosisError(
         "diagnosis needs the measurement noise floor: repeat some configurations (measure the same commanded "
         "joints twice in a row, at least ~10 repeats) or state the instrument's noise in dataset.toml "

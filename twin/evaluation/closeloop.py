@@ -125,11 +125,23 @@ def effect_size(world_with_effect, plan: Plan, sigma: float, **kw) -> float:
 
 
 def true_model_error(ds: Dataset, caps: list) -> dict[str, Any]:
-    """Validation error of the true model (geometry + effects): its predictions are the true centres, so
-    this is the measurement noise seen through the same statistics as ``diagnosis.json``'s ``before``/``after``."""
+    """Validation error of the true model (geometry + effects): its predictions are the true centres. The
+    true centres are in the true camera frame; a measured dataset is in the instrument's estimated frame, so
+    each station's true centres are first brought over by the rigid fit of the calibration rows (the frame
+    difference is what every calibration absorbs in ``base2meas``). What is left is the instrument's error."""
+    from ..estimator.problem import kabsch
+
+    true = np.stack([c.spheres_meas for c in caps])
+    aligned = true.copy()
+    st = ds.station_ids
+    for s in np.unique(st):
+        cal = (st == s) & (ds.set == "calibration")
+        seen = ds.sphere_seen[cal]
+        R, t = kabsch(true[cal][seen], ds.spheres[cal][seen])
+        rows = st == s
+        aligned[rows] = true[rows] @ R.T + t
     val = np.flatnonzero(ds.set == "validation")
-    true = np.stack([caps[i].spheres_meas for i in val])
-    e = np.linalg.norm(ds.spheres[val] - true, axis=-1)[ds.sphere_seen[val]] / _MM
+    e = np.linalg.norm(ds.spheres[val] - aligned[val], axis=-1)[ds.sphere_seen[val]] / _MM
     return {"n_rows": int(val.size), "position_mm": {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))),
                                                       "max": float(e.max())}}
 
