@@ -75,3 +75,16 @@ def test_missing_file_is_a_value_error(tmp_path):
     """A missing config file is reported as such."""
     with pytest.raises(ValueError, match="not found"):
         load_world_config(tmp_path / "nope.toml")
+
+
+def test_supersample_defaults_to_one_and_reads_an_integer():
+    """render.supersample is 1 unless given; an integer from the TOML is kept."""
+    assert WorldConfig.from_dict({}).render.supersample == 1
+    assert WorldConfig.from_dict({"render": {"supersample": 2}}).render.supersample == 2
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, 2.0, True, "2", 5])
+def test_supersample_that_is_not_a_small_positive_integer_is_refused(bad):
+    """Zero, negative, fractional, boolean, string and too-large supersampling factors name the key."""
+    with pytest.raises(ValueError, match="render.supersample"):
+        WorldConfig.from_dict({"render": {"supersample": bad}})

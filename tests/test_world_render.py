@@ -22,6 +22,17 @@ def world():
     w.close()
 
 
+@pytest.fixture(scope="module")
+def world_ss2():
+    """The same world rendering 2 x 2 samples per pixel (render.supersample = 2)."""
+    w = World.from_config({"world": {"preset": "separation_tables_2_4", "seed": 3, "render": {"supersample": 2}}})
+    yield w
+    w.close()
+
+
+BOTH = pytest.mark.parametrize("which", ["world", "world_ss2"])
+
+
 def _sphere_pixels_ok(img, uv, r_px, plate_level_max=60):
     """Bright at every projected centre, dark on the plate just outside each sphere's outline."""
     for u, v in uv:
@@ -119,8 +130,10 @@ def _probe_error(world, p_meas, cam, K, T, intr_model=None):
     return np.mean(errs, axis=0)
 
 
-def test_projection_of_a_known_point_matches_the_camera_model(world):
+@BOTH
+def test_projection_of_a_known_point_matches_the_camera_model(which, request):
     """The image of a known point (fronto-parallel probe) sits where the true camera model projects it, to 0.01 px."""
+    world = request.getfixturevalue(which)
     il, ir = world.true_intrinsics()
     l2r = world.true_left2right()
     rng = np.random.default_rng(0)
@@ -136,10 +149,12 @@ def test_projection_of_a_known_point_matches_the_camera_model(world):
     assert max(errors) < 0.01, errors
 
 
-def test_projection_check_detects_a_wrong_principal_point(world):
+@BOTH
+def test_projection_check_detects_a_wrong_principal_point(which, request):
     """The same check against a model with cx off by 0.03 px fails (so the test above can fail)."""
     from dataclasses import replace
 
+    world = request.getfixturevalue(which)
     il, _ = world.true_intrinsics()
     wrong = replace(il, cx=il.cx + 0.03)
     err = _probe_error(world, np.array([0.02, -0.01, 0.7]), "left", il, np.eye(4), intr_model=wrong)
@@ -165,8 +180,10 @@ def test_noise_has_the_configured_sigma(world):
     assert abs(sigma - world.config.render.noise_sigma) < 0.1 * world.config.render.noise_sigma
 
 
-def test_board_views_give_sub_tenth_pixel_corners(world):
+@BOTH
+def test_board_views_give_sub_tenth_pixel_corners(which, request):
     """ChArUco corners detected by OpenCV in rendered board views lie within 0.1 px RMS of their true projections."""
+    world = request.getfixturevalue(which)
     views = world.render_board_views(4, seed=1)
     assert len(views) == 4
     board = charuco_board(world.config.board)
@@ -219,3 +236,141 @@ def test_noise_seed_makes_a_pair_independent_of_history(world):
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
     assert not np.array_equal(a.left, c.left)
     assert not np.array_equal(a.left, a.right)
+
+
+def _sphere_centre_errors_px(world, qs):
+    """Image-centre errors ``(n, 2)`` [px] of the instrument's sphere centres (true cameras) vs the true projections."""
+    from twin.instrument import StereoCalibration, measure_pair
+
+    il, ir = world.true_intrinsics()
+    l2r = world.true_left2right()
+    exact = StereoCalibration(il, ir, l2r, 0.0, 0.0, 0.0)
+    out = []
+    for q in qs:
+        cap = world.capture(q, 0, record=False, noise_seed=1)
+        m = measure_pair(cap.left, cap.right, exact, world.nominal_plate)
+        uvl, uvr = world.project_spheres(cap.spheres_meas, 0)
+        for k in range(3):
+            for img, uv in ((m.left[k], uvl), (m.right[k], uvr)):
+                if img is not None:
+                    out.append(img.centre_px - uv[k])
+    return np.array(out)
+
+
+def test_supersampling_smooths_sphere_outlines(world, world_ss2):
+    """With 2 x 2 samples per pixel the measured sphere centres sit less than half as far from truth (< 0.02 px RMS)."""
+    qs = world.visible_configurations(0, 4, seed=5)
+    e1 = _sphere_centre_errors_px(world, qs)
+    e2 = _sphere_centre_errors_px(world_ss2, qs)
+    assert len(e1) >= 20 and len(e2) >= 20
+    rms1, rms2 = (float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) for e in (e1, e2))
+    assert rms2 < 0.5 * rms1 and rms2 < 0.02, (rms1, rms2)
+
+
+def test_supersampled_pair_keeps_size_noise_and_truth(world, world_ss2):
+    """A supersampled pair is (H, W) uint8 with the configured noise, and its truth equals the one-sample world's."""
+    q = world.visible_configurations(0, 1, seed=5)[0]
+    a = world_ss2.capture(q, 0, record=False)
+    b = world_ss2.capture(q, 0, record=False)
+    assert a.left.shape == (1944, 2592) and a.left.dtype == np.uint8
+    assert np.array_equal(a.spheres_meas, world.capture(q, 0, record=False, render=False).spheres_meas)
+    x, y = a.left.astype(float), b.left.astype(float)
+    ok = (x > 20) & (x < 235) & (y > 20) & (y < 235)
+    sigma = np.std((x - y)[ok]) / np.sqrt(2)
+    assert abs(sigma - world_ss2.config.render.noise_sigma) < 0.1 * world_ss2.config.render.noise_sigma
+
+
+class _MarkSamples:
+    """An image effect that records what it is given and paints a bright block of 8 x 8 samples."""
+
+    name = "mark_samples"
+    changes_image = True
+
+    def __init__(self):
+        self.seen = []
+
+    def joints(self, q, ctx):
+        return q
+
+    def geometry(self, robot, ctx):
+        return robot
+
+    def image(self, img, ctx, camera):
+        self.seen.append((img.shape, img.dtype))
+        out = img.copy()
+        r0, c0 = self.corner(img.shape)
+        out[r0:r0 + 8, c0:c0 + 8] = 250
+        return out
+
+    @staticmethod
+    def corner(shape):
+        """Top-left sample of the block: in the upper middle of the image, on the dark backdrop."""
+        return int(0.2 * shape[0]), int(0.5 * shape[1])
+
+    def params(self):
+        return {}
+
+
+@pytest.mark.parametrize("ss", [1, 2])
+def test_image_effects_see_the_ideal_render_on_the_sampling_grid(ss):
+    """An image effect gets the uint8 ideal render at s times the image size, and what it paints reaches the image."""
+    fx = _MarkSamples()
+    cfg = {"seed": 3, "render": {"scale": 0.25, "supersample": ss, "noise_sigma": 0.0}}
+    with World.from_config(cfg, effects=[fx]) as w:
+        W, H = w.image_size
+        q = w.visible_configurations(0, 1, seed=5)[0]
+        marked, _ = w.render_pair(q, 0)
+        w.effects.clear()
+        plain, _ = w.render_pair(q, 0)
+        il, _ = w.true_intrinsics()
+    assert fx.seen == [((ss * H, ss * W), np.dtype(np.uint8))] * 2
+    assert marked.shape == (H, W)
+    # the block lands where the lens puts its rays: its centre on the sampling grid, back to an output pixel of
+    # the ideal render (pixel centres s*u + (s-1)/2), as a ray, through the true camera model
+    from twin.world.rig import render_focal_px
+
+    r0, c0 = _MarkSamples.corner((ss * H, ss * W))
+    ideal_uv = (np.array([c0, r0]) + 3.5 - 0.5 * (ss - 1)) / ss
+    ray = np.append((ideal_uv - [W / 2 - 0.5, H / 2 - 0.5]) / render_focal_px(il), 1.0)
+    expect = project_points(ray[None], np.eye(4), il)[0]
+    diff = np.clip(marked.astype(float) - plain.astype(float), 0, None)
+    v, u = np.mgrid[0:H, 0:W]
+    centre = np.array([(diff * u).sum(), (diff * v).sum()]) / diff.sum()
+    assert np.linalg.norm(centre - expect) < 0.05, (centre, expect)  # measured 0.003 px (s = 1), 0.001 px (s = 2)
+    assert diff.sum() > 0.5 * 64 / ss**2 * 100  # the block's area in output pixels, at least 100 levels brighter
+
+
+def test_render_larger_than_the_gl_limit_is_refused():
+    """A supersampled render beyond the GL's largest offscreen buffer is a ValueError naming supersample."""
+    import mujoco
+
+    from twin.world.render import ImageFormer, gl_max_renderbuffer_px
+
+    ctx = mujoco.GLContext(64, 64)
+    ctx.make_current()
+    limit = gl_max_renderbuffer_px()
+    ctx.free()
+    assert limit is not None and limit >= 4096
+    w = limit // 2 + 1
+    model = mujoco.MjModel.from_xml_string(
+        f'<mujoco><visual><global offwidth="{2 * w}" offheight="64"/></visual><worldbody/></mujoco>')
+    with pytest.raises(ValueError, match="supersample"):
+        ImageFormer(model, w, 32, supersample=2)
+
+
+def test_render_board_at_a_given_pose(world):
+    """render_board draws the board where asked (corners within 0.2 px of their projections); record=False leaves no truth."""
+    from twin.instrument import BoardSpec, detect_board
+
+    il, _ = world.true_intrinsics()
+    T = np.eye(4)
+    T[:3, 3] = [-0.099, -0.072, 0.7]  # board centre on the optical axis, fronto-parallel, 700 mm away
+    n0 = len(world.truth_board_views)
+    view = world.render_board(T, 0, record=False)
+    assert view.index == -1 and len(world.truth_board_views) == n0
+    bv = detect_board(view.left, BoardSpec.from_table(world.rig_info()["board"]))
+    assert len(bv.ids) >= 40
+    err = np.linalg.norm(bv.corners_px - project_points(bv.object_points, T, il), axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.2
+    with pytest.raises(ValueError, match="board2meas"):
+        world.render_board(np.eye(3), 0)

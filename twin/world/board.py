@@ -4,6 +4,16 @@ Board frame (OpenCV's, as in ``CharucoBoard.getChessboardCorners``): origin at t
 of the chessboard, x along ``squares_x``, y along ``squares_y`` (down on the printed face), z into the
 board. The texture covers the pattern plus a white margin; square edges fall on texel edges so the
 geometry is exact up to texture filtering.
+
+Mipmaps: MuJoCo samples 2-D textures with ``GL_LINEAR_MIPMAP_LINEAR`` from levels made by
+``glGenerateMipmap``. A level whose parent has an odd side is a resampling, not a 2x2 average, and it moves
+the pattern by a fraction of its (coarse) texels: with the bare 3158 x 2390 texture (odd sides from level 2
+on) the stereo calibration from the twin's board views came out with both focal lengths ~0.6 px short. So
+the texture is padded (white, right and below, outside the face's texture coordinates) to sides that are
+multiples of :func:`mip_block` texels: every level down to 4 texels per square is then an exact 2x2 average.
+(Padding on all sides so that square edges also fall on the texel edges of every level was tried: it
+sharpens the coarse levels, and the corners' reprojection RMS rose from 0.047 to 0.051 px with no gain in
+the focal lengths.)
 """
 
 from __future__ import annotations
@@ -16,7 +26,7 @@ from ..transforms import invert_transform, rotvec_to_matrix
 from .config import BoardConfig
 
 __all__ = [
-    "charuco_board", "board_texture", "board_extent", "interior_corners", "marker_corners", "corner_markers",
+    "charuco_board", "board_texture", "board_texture_layout", "board_texcoords", "mip_block", "board_extent", "interior_corners", "marker_corners", "corner_markers",
     "detectable_corners", "sample_board_poses",
 ]
 
@@ -40,15 +50,41 @@ def board_extent(cfg: BoardConfig) -> tuple[float, float, float, float]:
     return (-m, -m, cfg.squares_x * cfg.square + m, cfg.squares_y * cfg.square + m)
 
 
+def mip_block(cfg: BoardConfig) -> int:
+    """Texels ``2**L`` such that mip levels ``1..L`` halve the texture exactly: down to 4 texels per square
+    (coarser levels have lost the pattern and are not sampled at working distances)."""
+    return 2 ** max(0, int(np.floor(np.log2(cfg.texture_px_per_square))) - 2)
+
+
+def board_texture_layout(cfg: BoardConfig) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]:
+    """``((W, H), (x0, y0), (w, h))`` [texels]: padded texture size, offset and size of the face's content
+    (pattern plus margin). ``W`` and ``H`` are multiples of :func:`mip_block`; the content sits at the
+    texture's origin (``x0 = y0 = 0``), the padding right and below it."""
+    p, m, b = cfg.texture_px_per_square, _margin_px(cfg), mip_block(cfg)
+    w, h = cfg.squares_x * p + 2 * m, cfg.squares_y * p + 2 * m
+    return (-(-w // b) * b, -(-h // b) * b), (0, 0), (w, h)
+
+
+def board_texcoords(cfg: BoardConfig) -> tuple[float, float, float, float]:
+    """``(u0, v0, u1, v1)``: texture coordinates of the face's corners ``(x0, y0)`` and ``(x1, y1)`` of
+    :func:`board_extent` (``v = 0`` is the texture's first row, the board's -y edge)."""
+    (W, H), (ox, oy), (w, h) = board_texture_layout(cfg)
+    return (ox / W, oy / H, (ox + w) / W, (oy + h) / H)
+
+
 def board_texture(cfg: BoardConfig) -> np.ndarray:
-    """Greyscale texture ``(H, W)`` uint8 of the board face: ``texture_px_per_square`` texels per square."""
+    """Greyscale texture ``(H, W)`` uint8 of the board face: ``texture_px_per_square`` texels per square,
+    padded with white to the mip-friendly layout of :func:`board_texture_layout`."""
     p = cfg.texture_px_per_square
     m = _margin_px(cfg)
     size = (cfg.squares_x * p + 2 * m, cfg.squares_y * p + 2 * m)
     img = charuco_board(cfg).generateImage(size, marginSize=m, borderBits=1)
     if img.shape != (size[1], size[0]):
         raise RuntimeError(f"cv2.aruco produced a {img.shape} texture, expected {(size[1], size[0])}")
-    return img
+    (W, H), (ox, oy), _ = board_texture_layout(cfg)
+    out = np.full((H, W), 255, dtype=np.uint8)
+    out[oy:oy + size[1], ox:ox + size[0]] = img
+    return out
 
 
 def interior_corners(cfg: BoardConfig) -> np.ndarray:

@@ -30,10 +30,14 @@ __all__ = [
     "load_world_config",
     "default_stations",
     "errors_from_edge_units",
+    "MAX_SUPERSAMPLE",
 ]
 
 _MM = 1e-3
 _DEG = math.pi / 180.0
+# Largest render.supersample: 4 x 2592 = 10368 px a side is inside GL's 16384 (llvmpipe here), and the render
+# buffers then take ~1 GB per world; the GL limit itself is checked when the renderer is built.
+MAX_SUPERSAMPLE = 4
 
 
 def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -172,12 +176,14 @@ _DEFAULT_PP_RIGHT = (-3.0, 5.5)
 
 @dataclass(frozen=True)
 class RenderConfig:
-    """Image formation: resolution ``scale``, sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens
-    distortion per camera (OpenCV ``k1 k2 p1 p2 k3``), principal-point offsets from the sensor centre
-    [px at full resolution], lighting (key light direction relative to the rig's viewing axis, strengths
-    in MuJoCo's 0..1 light units)."""
+    """Image formation: resolution ``scale``, samples per pixel (``supersample`` x ``supersample``: MuJoCo
+    renders that many times the pixels with the same field of view and each output pixel is the mean of its
+    block), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
+    ``k1 k2 p1 p2 k3``), principal-point offsets from the sensor centre [px at full resolution], lighting
+    (key light direction relative to the rig's viewing axis, strengths in MuJoCo's 0..1 light units)."""
 
     scale: float = 1.0
+    supersample: int = 1
     noise_sigma: float = 2.0
     distortion_left: tuple[float, ...] = _DEFAULT_DIST_LEFT
     distortion_right: tuple[float, ...] = _DEFAULT_DIST_RIGHT
@@ -193,13 +199,17 @@ class RenderConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderConfig":
         where = "world.render"
-        _check_keys(d, {"scale", "noise_sigma", "distortion", "distortion_left", "distortion_right",
+        _check_keys(d, {"scale", "supersample", "noise_sigma", "distortion", "distortion_left", "distortion_right",
                         "principal_offset_px", "principal_offset_left_px", "principal_offset_right_px",
                         "key_light_azimuth_deg", "key_light_elevation_deg", "key_light", "key_ambient",
                         "headlight", "ambient"}, where)
         scale = _num(d, "scale", 1.0, where, positive=True)
         if scale > 1.0:
             raise ValueError(f"{where}.scale must be in (0, 1] (a fraction of the sensor resolution), got {scale!r}")
+        ss = d.get("supersample", 1)
+        if isinstance(ss, bool) or not isinstance(ss, (int, np.integer)) or not 1 <= ss <= MAX_SUPERSAMPLE:
+            raise ValueError(f"{where}.supersample must be an integer 1..{MAX_SUPERSAMPLE} (samples per pixel along "
+                             f"each axis), got {ss!r}")
         dl = dr = None
         if "distortion" in d:
             dl = dr = tuple(_vector(d["distortion"], 5, f"{where}.distortion"))
@@ -219,6 +229,7 @@ class RenderConfig:
                 raise ValueError(f"{where}.{name}_px must be within +-100 px, got {v!r}")
         return cls(
             scale=scale,
+            supersample=int(ss),
             noise_sigma=_num(d, "noise_sigma", 2.0, where, nonneg=True),
             distortion_left=dl if dl is not None else _DEFAULT_DIST_LEFT,
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,

@@ -392,6 +392,7 @@ class ComposeOptions:
     offheight: int
     probe_texture_file: str | None = None
     probe_half_size: float = 0.008
+    board_texcoords: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)  # u0, v0, u1, v1 of the face
 
 
 def compose_twin_xml(robot: tuple[ET.Element, list[ET.Element]], opts: ComposeOptions, model_name: str = "twin") -> str:
@@ -436,8 +437,10 @@ def compose_twin_xml(robot: tuple[ET.Element, list[ET.Element]], opts: ComposeOp
     mesh = asset.find("./mesh[@name='board_face']")
     mesh.set("vertex", _vec(verts))
     mesh.set("face", " ".join(str(i) for i in _box_mesh_faces(verts)))
-    # texcoord (u, v): v = 0 is the first row of the PNG, which is the board's -y (top) edge.
-    mesh.set("texcoord", "0 0  1 0  1 1  0 1  0 0  1 0  1 1  0 1")
+    # texcoord (u, v): v = 0 is the first row of the PNG, which is the board's -y (top) edge; the face may
+    # use a sub-rectangle of a padded texture (see twin.world.board.board_texture_layout)
+    u0, v0, u1, v1 = opts.board_texcoords
+    mesh.set("texcoord", _vec([u0, v0, u1, v0, u1, v1, u0, v1] * 2))
     if opts.board_texture_file is not None:
         tex = asset.find("./texture[@name='board']")
         for k in list(tex.attrib):

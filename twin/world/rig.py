@@ -124,7 +124,10 @@ def distortion_maps(intr: CameraIntrinsics, f_render: float) -> tuple[np.ndarray
     maps = []
     for c, cc in ((0, ccx), (1, ccy)):
         spline = RectBivariateSpline(vs, us, xy[..., c], kx=3, ky=3)
-        maps.append(f_render * spline(v_full, u_full) + cc)
+        m = spline(v_full, u_full)  # (H, W) float64; scaled in place (supersampled grids are 20 Mpx)
+        m *= f_render
+        m += cc
+        maps.append(m)
     # Check: distorting the ray of each sampled pixel lands back on that pixel.
     rng = np.random.default_rng(0)
     su = rng.integers(0, intr.width, 20000)

@@ -91,6 +91,7 @@ def truth_dict(world: Any, captures: Sequence[Capture]) -> dict[str, Any]:
             "right": _intr(ir),
             "left2right": _m(world.true_left2right()),
             "render_scale": world.config.render.scale,
+            "render_supersample": world.config.render.supersample,
             "noise_sigma_grey": world.config.render.noise_sigma,
         },
         "stations": stations,

@@ -30,7 +30,7 @@ from ..dataset import Plate, default_plate
 from ..kinematics import N_JOINTS, RobotModel, UnreachableError, closest_branch, inverse_kinematics_closed_form
 from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, pose6_to_transform, rotvec_to_matrix
 from . import mjcf
-from .board import board_extent, board_texture, sample_board_poses
+from .board import board_extent, board_texcoords, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
 from .effects import (
     EffectContext,
@@ -98,7 +98,8 @@ class World:
 
         # --- cameras -----------------------------------------------------------------------------------
         il, ir = true_intrinsics(cfg.rig, cfg.render)
-        self._pipes = (CameraPipeline.build("left", il), CameraPipeline.build("right", ir))
+        ss = cfg.render.supersample
+        self._pipes = (CameraPipeline.build("left", il, ss), CameraPipeline.build("right", ir, ss))
         self._cam2rig = camera2rig(cfg.rig)
         self._rig2world = [station_rig2world(s, cfg.rig) for s in cfg.stations]
 
@@ -127,8 +128,10 @@ class World:
             board_extent=board_extent(cfg.board),
             board_thickness=cfg.board.thickness,
             board_texture_file=_BOARD_TEXTURE,
-            offwidth=max(il.width, 64),
-            offheight=max(il.height, 64),
+            board_texcoords=board_texcoords(cfg.board),
+            # the offscreen buffer holds the supersampled render (s times the image along each axis)
+            offwidth=max(il.width * cfg.render.supersample, 64),
+            offheight=max(il.height * cfg.render.supersample, 64),
             probe_texture_file=_PROBE_TEXTURE,
         )
         robot_el = mjcf.robot_body_element(self.true_robot, self.true_spheres_tool, self.nominal_plate.sphere_diameter)
@@ -456,7 +459,7 @@ class World:
     def _get_former(self) -> ImageFormer:
         if self._former is None:
             w, h = self.image_size
-            self._former = ImageFormer(self.model, w, h)
+            self._former = ImageFormer(self.model, w, h, self.config.render.supersample)
         return self._former
 
     def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
@@ -466,10 +469,16 @@ class World:
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
-                   analog: bool = False, pair_seed: int | None = None):
+                   analog: bool = False, pair_seed: int | None = None, cameras: tuple[int, ...] = (0, 1)):
+        """Both images (``cameras`` selects which are rendered; the other comes back ``None``, its noise seed
+        is drawn all the same so that later images do not depend on the selection)."""
         former = self._get_former()
         images = []
         for c, (cam_name, cam_id, pipe) in enumerate(zip(("left", "right"), self._cam_ids, self._pipes)):
+            if c not in cameras:
+                self._noise_seed(pair_seed, c)
+                images.append(None)
+                continue
             fx = ()
             if ctx is not None:
                 fx = tuple(
@@ -591,21 +600,35 @@ class World:
         c2w = self.true_cam2world(station)
         w2c = (invert_transform(c2w[0]), invert_transform(c2w[1]))
         poses = sample_board_poses(self.config.board, n, rng, w2c, self.true_intrinsics(), self._rig2world[station])
-        out = []
+        return [self.render_board(w2c[0] @ T, station) for T in poses]
+
+    def render_board(self, board2meas: np.ndarray, station: int = 0, *, noise: bool = True,
+                     record: bool = True) -> BoardView:
+        """Both cameras' images of the board at ``board2meas`` ``(4, 4)`` (board frame -> the station's
+        measurement frame, i.e. the left camera, OpenCV axes), arm and plate hidden.
+
+        Any pose is drawn, seen or not (:meth:`render_board_views` samples poses both cameras see). With
+        ``record`` the pose joins :attr:`truth_board_views` (the view's ``index`` is its position there; -1
+        otherwise); ``noise=False`` leaves out the sensor noise.
+        """
+        station = self._check_station(station)
+        T = np.asarray(board2meas, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"board2meas must be a finite (4, 4) transform, got {board2meas!r}")
+        board2world = self.true_cam2world(station)[0] @ T
         k = self._mocap["board"]
-        start = len(self.truth_board_views)
         try:
-            for i, T in enumerate(poses):
-                self.data.mocap_pos[k] = T[:3, 3]
-                self.data.mocap_quat[k] = matrix_to_quat_wxyz(T[:3, :3])
-                self._place(self.data.qpos[self._qadr].copy(), station)
-                left, right = self._form_pair(self._opt_board, None)
-                b2m = w2c[0] @ T
-                out.append(BoardView(start + i, left, right, b2m))
-                self.truth_board_views.append((start + i, b2m))
+            self.data.mocap_pos[k] = board2world[:3, 3]
+            self.data.mocap_quat[k] = matrix_to_quat_wxyz(board2world[:3, :3])
+            self._place(self.data.qpos[self._qadr].copy(), station)
+            left, right = self._form_pair(self._opt_board, None, noise=noise)
         finally:
             self._hide("board")
-        return out
+        index = -1
+        if record:
+            index = len(self.truth_board_views)
+            self.truth_board_views.append((index, T.copy()))
+        return BoardView(index, left, right, T.copy())
 
     def render_probe(self, point_meas: np.ndarray, station: int = 0, camera: str = "left", *,
                      noise: bool = False, analog: bool = False) -> np.ndarray:
@@ -629,7 +652,8 @@ class World:
         self.data.mocap_quat[k] = matrix_to_quat_wxyz(cam[:3, :3])
         try:
             self._place(self.data.qpos[self._qadr].copy(), station)
-            pair = self._form_pair(self._opt_probe, None, noise=noise, analog=analog)
+            c = 0 if camera == "left" else 1
+            pair = self._form_pair(self._opt_probe, None, noise=noise, analog=analog, cameras=(c,))
         finally:
             self._hide("probe")
         return pair[0] if camera == "left" else pair[1]
