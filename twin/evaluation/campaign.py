@@ -244,7 +244,8 @@ def run_campaign(
     true_dev = cfg.true_deviation()
     params = {m: parameter_comparison(nominal, true_dev, r.robot, r.identified) for m, r in method_results.items()}
     orderings = paper_orderings(summaries) if method_results else []
-    rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets)
+    paper_key = ("simulation", "figure10", "figure10") if cfg.outputs.paper == "simulation" else ("real", "figure13", "figure15")
+    rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets, paper_key=paper_key)
     title = f"{cfg.name} (seed {cfg.seed}{', quick' if cfg.quick else ''}): measured after compensation"
     table = render_table(rows_tab, title)
     rows_truth = comparison_rows({m: s for m, s in summaries.items()}, None, source="truth")
@@ -291,6 +292,7 @@ def run_campaign(
         "parameters": params,
         "orderings": orderings,
         "paper_targets": targets,
+        "paper_key": list(paper_key),
         "timings_s": timings,
         "worker_time_sums_s": sums,
         "config": cfg.raw,
@@ -345,7 +347,7 @@ def _recording(path: Path, cfg, plan, store, before, after, evals, method_result
         cams = tuple(rec_mod.CameraView(cn, T, K) for cn, (T, K) in st.cameras.items())
         views.append(rec_mod.StationView(name, invert_transform(st.base2meas), cams))
     nominal = cfg.nominal_model().with_frames(base2meas=np.eye(4))
-    true_model = cfg.true_model().with_frames(base2meas=np.eye(4))
+    true_model = backend.true_robot().with_frames(base2meas=np.eye(4))
     models = {"nominal": nominal, "true": true_model}
     models.update({f"calibrated/{m}": r.robot.with_frames(base2meas=np.eye(4)) for m, r in method_results.items()})
     # residual series at the end pose of every evaluated pair

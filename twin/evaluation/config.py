@@ -154,14 +154,13 @@ def _planning_stations(world: WorldConfig) -> tuple[Station, ...]:
 
 @dataclass(frozen=True)
 class MeasurementConfig:
-    """``images``: the world renders, the instrument measures (stereo calibration from ``board_views`` rendered
-    board views). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
+    """``images``: the world renders, the instrument measures (stereo calibration from the world's rendered
+    board views, ``[world.board] views``). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
     N(0, ``noise_position``^2) per coordinate, no images). ``seconds_per_pose`` [s]: the time stamp of pose
     ``k`` is ``k * seconds_per_pose`` (time-dependent effects such as thermal drift)."""
 
     mode: str
     noise_position: float
-    board_views: int = 12
     seconds_per_pose: float = 10.0
 
 
@@ -187,6 +186,7 @@ class OutputConfig:
     recording_lossless: bool = False
     jpeg_quality: int = 85
     figures: bool = True
+    paper: str = "simulation"  # which of the paper's experiments to print beside ours: 'simulation' or 'real'
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,7 +330,6 @@ def parse_campaign_config(
     measurement = MeasurementConfig(
         mode=mr.string("mode", "images", choices=MEASUREMENT_MODES),
         noise_position=mr.number("noise_mm", 0.01, nonneg=True) * _MM,
-        board_views=mr.integer("board_views", 12, minimum=6),
         seconds_per_pose=mr.number("seconds_per_pose", 10.0, nonneg=True),
     )
     mr.done()
@@ -399,6 +398,7 @@ def parse_campaign_config(
         recording_lossless=orr.boolean("recording_lossless", False),
         jpeg_quality=orr.integer("jpeg_quality", 85, minimum=1),
         figures=orr.boolean("figures", True),
+        paper=orr.string("paper", "simulation", choices=("simulation", "real")),
     )
     orr.done()
     er = r.table("execution")
