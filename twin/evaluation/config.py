@@ -177,6 +177,7 @@ class PoseGroup:
     sampling: SamplingOptions
     evaluate: tuple[str, ...]
     path: Path | None = None
+    pairing: str = "none"  # joints_csv: 'consecutive' makes rows (0, 1), (2, 3), ... motion pairs
 
 
 @dataclass(frozen=True)
@@ -364,6 +365,9 @@ def parse_campaign_config(
             gpath = Path(p) if Path(p).is_absolute() or source is None else (Path(source).parent / p)
         elif count < 1:
             raise gr.err("count", f"must be >= 1 for kind {kind!r}")
+        pairing = gr.string("pairing", "none", choices=("none", "consecutive"))
+        if pairing != "none" and kind != "joints_csv":
+            raise gr.err("pairing", "only a joints_csv group takes a pairing")
         gst = gr.get("stations", list(station_names))
         if isinstance(gst, str):
             gst = [gst]
@@ -373,15 +377,16 @@ def parse_campaign_config(
         ev = gr.get("evaluate", default_eval if gset == "validation" else [])
         if not isinstance(ev, list) or any(e not in ("angle", "position") for e in ev):
             raise gr.err("evaluate", f"must be a list of 'angle' / 'position', got {ev!r}")
-        if ev and kind == "configurations":
-            raise gr.err("evaluate", "single configurations carry no motion to evaluate; use motion_pairs")
+        if ev and (kind == "configurations" or (kind == "joints_csv" and pairing == "none")):
+            raise gr.err("evaluate", "single configurations carry no motion to evaluate; use motion pairs")
         if ev and gset != "validation":
             raise gr.err("evaluate", "only validation groups are evaluated")
         samp_r = gr.table("sampling")
         samp = _sampling(samp_r, default_sampling)
         samp_r.done()
         gr.done()
-        groups.append(PoseGroup(gname, gset, kind, count, distances, tuple(str(x) for x in gst), samp, tuple(ev), gpath))
+        groups.append(PoseGroup(gname, gset, kind, count, distances, tuple(str(x) for x in gst), samp, tuple(ev), gpath,
+                                pairing))
     if len({g.name for g in groups}) != len(groups):
         raise ValueError(f"{path}: poses: group names must be unique")
     if not any(g.set == "calibration" for g in groups):
