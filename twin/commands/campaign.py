@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("images", "truth_noise"), default=None,
                    help="override [measurement] mode (truth_noise: the paper's own simulation, no images)")
     p.add_argument("--no-recording", action="store_true", help="do not write the Rerun recording")
+    p.add_argument("--restart", action="store_true",
+                   help="discard DIR's measured poses and identifications and start again (default: resume)")
 
 
 def _progress_factory(console):
@@ -99,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
         cfg = parse_campaign_config(raw, source=cfg.source, _quick_applied=cfg.quick)
     command = "twin campaign " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
     out = Path(args.out)
+    if args.restart:
+        import shutil
+
+        for sub in ("work", "calibrations", "after"):
+            if (out / sub).exists():
+                shutil.rmtree(out / sub)
     t0 = time.perf_counter()
     prog, update = _progress_factory(console)
     if args.repeats:

@@ -65,6 +65,21 @@ class CampaignRun:
     files: dict[str, Path] = field(default_factory=dict)
 
 
+def _code_version() -> dict[str, Any]:
+    """The git commit of the library (and whether the tree had changes), when it runs from a checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                                timeout=10).stdout.strip()
+        dirty = bool(subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "twin"],
+                                    capture_output=True, text=True, timeout=10).stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        return {}
+    return {"git_commit": commit, "twin_modified": dirty} if commit else {}
+
+
 def _check_fingerprint(work: Path, cfg: CampaignConfig) -> None:
     work.mkdir(parents=True, exist_ok=True)
     marker = work / "campaign.json"
@@ -161,6 +176,8 @@ def run_campaign(
     spec = backend_spec_for(cfg, work, backend_factory)
     t = time.perf_counter()
     backend = get_backend(spec)
+    if cfg.measurement.mode == "images" and not (work / "stereo_calibration.json").exists():
+        say("rendering the board views and calibrating the stereo rig (once per campaign)")
     backend.prepare()
     timings["prepare_s"] = time.perf_counter() - t
     stations_truth = backend.stations_truth()
@@ -296,7 +313,10 @@ def run_campaign(
         "timings_s": timings,
         "worker_time_sums_s": sums,
         "config": cfg.raw,
+        "code": _code_version(),
     }
+    if "recording" in files and files["recording"].exists():
+        results["recording_mb"] = files["recording"].stat().st_size / 1e6
     files["results"] = write_results(out / "results.json", results)
     atomic_write_text(out / "table.txt", table + "\n\n" + table_truth + "\n")
     files["table"] = out / "table.txt"
