@@ -136,6 +136,13 @@ def run(args: argparse.Namespace) -> int:
         console.print(t)
     console.print("std = sample standard deviation (the paper's 'mean square error'); improvement of the mean; "
                   "'paper' rows are the paper's published numbers (targets printed beside ours), not results.")
+    from twin.evaluation.report import render_parameter_table
+
+    res = run_.results
+    if res["parameters"]:
+        console.print(render_parameter_table(res["parameters"], res["paper_targets"] if res["paper_key"][0] == "simulation" else None,
+                                             "identified parameter deviations (Tables 3 and 5 style)"), markup=False,
+                      highlight=False)
     for c in run_.results["orderings"]:
         console.print(f"  paper's claim: {c['claim']}: {'holds' if c['holds'] else 'DOES NOT HOLD'} here")
     if run_.results["methods_unavailable"]:

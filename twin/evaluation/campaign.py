@@ -45,7 +45,7 @@ from .executor import SerialExecutor, aggregate, open_executor, run_tasks, worke
 from .methods import Identify, MethodUnavailable, compensate, identify, load_method_result, save_method_result
 from .pipeline import PoseTask, backend_spec_for, get_backend, measure_pose
 from .plan import CampaignPlan, make_plan, pose_seed
-from .report import comparison_rows, plot_figure10, plot_figure11, render_table, write_results
+from .report import comparison_rows, plot_figure10, plot_figure11, render_parameter_table, render_table, write_results
 from ..instrument.plate import paper_frame_from_spheres
 from .store import PoseResult, PoseStore, atomic_write_text
 from .targets import read_targets
@@ -267,6 +267,8 @@ def run_campaign(
     table = render_table(rows_tab, title)
     rows_truth = comparison_rows({m: s for m, s in summaries.items()}, None, source="truth")
     table_truth = render_table(rows_truth, "same statistics on the world's truth (no measurement noise)")
+    table_params = render_parameter_table(params, targets if cfg.outputs.paper == "simulation" else None,
+                                          "identified parameter deviations (Tables 3 and 5 style)")
     timings["evaluate_s"] = time.perf_counter() - t
 
     files: dict[str, Path] = {}
@@ -318,9 +320,9 @@ def run_campaign(
     if "recording" in files and files["recording"].exists():
         results["recording_mb"] = files["recording"].stat().st_size / 1e6
     files["results"] = write_results(out / "results.json", results)
-    atomic_write_text(out / "table.txt", table + "\n\n" + table_truth + "\n")
+    atomic_write_text(out / "table.txt", table + "\n\n" + table_truth + "\n\n" + table_params + "\n")
     files["table"] = out / "table.txt"
-    return CampaignRun(out, results, table + "\n\n" + table_truth, files)
+    return CampaignRun(out, results, table + "\n\n" + table_truth + "\n\n" + table_params, files)
 
 
 def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
