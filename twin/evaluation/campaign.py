@@ -228,10 +228,16 @@ def run_campaign(
         not_converged: dict[str, list[int]] = {}
         t = time.perf_counter()
         for m, r in method_results.items():
-            qc, conv = compensate(r, cfg.nominal_model(), plan.q[val_rows])
-            within = r.robot.within_limits(qc)
-            qc = np.where((conv & within)[:, None], qc, plan.q[val_rows])  # never command an unconverged pose
-            not_converged[m] = [int(plan.pose_id[i]) for i, c in zip(val_rows, conv & within) if not c]
+            qc, ok = compensate(r, cfg.nominal_model(), plan.q[val_rows])
+            # A motion is compensated as a whole: if either end failed, both keep their nominal command.
+            pair_ok = {}
+            for k, i in enumerate(val_rows):
+                if plan.pair[i] >= 0:
+                    pair_ok[int(plan.pair[i])] = pair_ok.get(int(plan.pair[i]), True) and bool(ok[k])
+            ok = np.array([pair_ok.get(int(plan.pair[i]), bool(ok[k])) if plan.pair[i] >= 0 else bool(ok[k])
+                           for k, i in enumerate(val_rows)])
+            qc = np.where(ok[:, None], qc, plan.q[val_rows])
+            not_converged[m] = [int(plan.pose_id[i]) for i, c in zip(val_rows, ok) if not c]
             q_comp[m] = qc
             for k, i in enumerate(val_rows):
                 key = f"c/{m}/{int(plan.pose_id[i]):05d}"
@@ -307,7 +313,7 @@ def run_campaign(
         },
         "methods": summaries,
         "methods_unavailable": unavailable,
-        "compensation_not_converged": not_converged,
+        "compensation_failed": not_converged,
         "parameters": params,
         "orderings": orderings,
         "paper_targets": targets,
@@ -390,7 +396,8 @@ def _recording(path: Path, cfg, plan, store, before, after, evals, method_result
         rec.log_stations(views)
         for m, ids in not_converged.items():
             if ids:
-                rec.log_text(f"{m}: compensation did not converge for poses {ids}; their commanded joints were kept", "WARN")
+                rec.log_text(f"{m}: no compensated command for poses {ids} (did not converge or left the joint limits); "
+                             "their motions kept the nominal commands", "WARN")
         for i, pid in enumerate(plan.pose_id):
             pid = int(pid)
             r = store.read(f"m/{pid:05d}", with_images=images_mode != "none")
