@@ -7,6 +7,9 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 export MUJOCO_GL ?= egl
+# many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/__init__.py)
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
 
 .PHONY: run run-quick test test-fast bench install sysdeps sysdeps-browser clean
 

@@ -111,9 +111,9 @@ def test_export_mjcf_reproduces_the_calibrated_kinematics(written, tmp_path):
     T = tool2base(cal.robot, q)
     sph = cal.predict(q, np.array(["none"] * 5, dtype=object)).spheres
     for k in range(5):
-        data.qpos[:] = q[k]
+        data.qpos[:6] = q[k]
         mujoco.mj_kinematics(m, data)  # positions of bodies and sites only: no dynamics needed
-        sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tool")
+        sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "plate")
         assert np.abs(data.site_xpos[sid] - T[k, :3, 3]).max() < 1e-9
         assert np.abs(data.site_xmat[sid].reshape(3, 3) - T[k, :3, :3]).max() < 1e-9
         for s in range(3):

@@ -21,6 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="JOINTS.csv whose rows (by pose_id) pick the inverse-kinematics branch (default: the branch "
                         "nearest --q-ref-deg)")
     p.add_argument("--q-ref-deg", default="0,0,0,0,0,0", help="reference joints [deg] when --reference is not given")
+    p.add_argument("--context", default=None,
+                   help="JOINTS.csv-like file giving temp_c / t_s per pose_id, for an extended calibration with "
+                        "thermal growth")
 
 
 def run(args) -> int:
@@ -44,7 +47,10 @@ def run(args) -> int:
             raise ValueError(f"--q-ref-deg must be six finite numbers, got {args.q_ref_deg!r}")
         q_ref = np.deg2rad(v)
     try:
-        res = compensation(cal, T, q_ref)
+        if cal.effects:
+            res = _compensate_with_effects(cal, T, q_ref, pid, args.context)
+        else:
+            res = compensation(cal, T, q_ref)
     except UnreachableError as exc:
         raise ValueError(f"{args.targets}: {exc} (indices count data rows from 0)") from None
     write_joints_csv(args.out, Joints(pose_id=pid, q=res.q))
@@ -52,3 +58,25 @@ def run(args) -> int:
     print(f"compensated {len(pid)} targets (largest change from the nominal inverse {dq:.4g} deg; residual "
           f"{res.position_error.max() * 1e3:.2g} mm); wrote {args.out}")
     return 0
+
+
+def _compensate_with_effects(cal, T, q_ref, pid, context_path):
+    """An extended calibration (from twin diagnose): commands in file order, effects included."""
+    from ..diagnosis.apply import compensate_extended
+    from ..diagnosis.candidates import RowContext
+
+    temp = t_s = None
+    if context_path:
+        c = read_joints_csv(context_path)
+        by_id = {int(p): k for k, p in enumerate(c.pose_id)}
+        missing = [int(p) for p in pid if int(p) not in by_id]
+        if missing:
+            raise ValueError(f"{context_path}: no row for pose_id {missing[:10]}")
+        sel = [by_id[int(p)] for p in pid]
+        temp = None if c.temp_c is None else c.temp_c[sel]
+        t_s = None if c.t_s is None else c.t_s[sel]
+    if any(e["kind"] == "length" for e in cal.effects) and temp is None and t_s is None:
+        raise ValueError("the calibration models thermal growth: give --context with temp_c or t_s per pose_id")
+    ctx = RowContext(q=np.zeros((len(pid), 6)), q_start=np.zeros(6), temp_c=temp, t_s=t_s)
+    print(f"applied effects: {', '.join(e['name'] for e in cal.effects)} (commands in file order, start at home)")
+    return compensate_extended(cal, T, q_ref, ctx)

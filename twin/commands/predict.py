@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 from ..dataset import read_joints_csv
 from ..estimator import Calibration
 from ..estimator.files import write_pred_csv
@@ -20,7 +22,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     cal = Calibration.load(args.calibration)
     j = read_joints_csv(args.joints)
-    pred = cal.predict(j.q, j.station)
+    if cal.effects:
+        # an extended calibration (from twin diagnose): apply its effects to the rows in this order
+        from ..diagnosis.apply import predict_extended
+        from ..diagnosis.candidates import RowContext
+
+        ctx = RowContext(q=j.q, q_start=np.zeros(6), temp_c=j.temp_c, t_s=j.t_s)
+        pred = predict_extended(cal, ctx, j.station)
+        print(f"applied effects: {', '.join(e['name'] for e in cal.effects)} (rows in file order, start at home)")
+    else:
+        pred = cal.predict(j.q, j.station)
     write_pred_csv(args.out, j.pose_id, pred, station=j.station)
     frames = sorted(set(pred.frame.tolist()))
     print(f"predicted {len(j.pose_id)} rows in the {' and '.join(frames)} frame(s); wrote {args.out}")

@@ -11,8 +11,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 HELP = "Render stereo image pairs and calibration-board views from the MuJoCo twin (world config -> image folder)."
 
 
@@ -31,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from twin.dataset import read_joints_csv
-    from twin.world import World, WorldConfig
+    from twin.world import World
     from twin.world.config import load_world_config
     from twin.world.effects import EffectContext
 

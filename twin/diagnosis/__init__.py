@@ -1,1 +1,42 @@
-"""Diagnosis: residual structure -> candidate effects -> extended model -> before/after (reads only datasets)."""
+"""Diagnosis: residual structure -> candidate effects -> extended model -> before/after.
+
+Reads only datasets (``twin.dataset``) and calibrations (``twin.estimator``); never the world. API::
+
+    res = diagnose(dataset, alpha=0.01)          # -> DiagnosisResult
+    write_diagnosis(res, "out/")                 # diagnosis.json, calibration.json, calibration_geometric.json, PNGs
+    q_eff = apply_joint_effects(effects, q, ctx) # what an extended calibration does to commanded joints
+"""
+
+from .candidates import EFFECT_VOCABULARY, Candidate, RowContext, approach_signs, candidate_catalogue, gravity_torque_regressor
+from .diagnose import (
+    CandidateScore,
+    DiagnosisError,
+    DiagnosisResult,
+    NoiseFloor,
+    StructureTest,
+    diagnose,
+    noise_floor,
+    row_context,
+)
+from .report import DIAGNOSIS_SCHEMA_VERSION, diagnosis_dict, read_diagnosis, write_diagnosis
+
+__all__ = [
+    "EFFECT_VOCABULARY",
+    "Candidate",
+    "CandidateScore",
+    "DIAGNOSIS_SCHEMA_VERSION",
+    "DiagnosisError",
+    "DiagnosisResult",
+    "NoiseFloor",
+    "RowContext",
+    "StructureTest",
+    "approach_signs",
+    "candidate_catalogue",
+    "diagnose",
+    "diagnosis_dict",
+    "gravity_torque_regressor",
+    "noise_floor",
+    "read_diagnosis",
+    "row_context",
+    "write_diagnosis",
+]

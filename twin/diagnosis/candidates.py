@@ -18,7 +18,7 @@ The vocabulary (names used in ``diagnosis.json``, ``docs/formats.md``):
 ``gear_ratio``      ``dtheta_i = (k_i - 1) q_i``
 ``coupling``        wrist coupling ``dtheta_6 = c q_5``
 ``thermal``         all link lengths grow by ``kappa (T - T_ref)`` (``temp_c``), or a drift in time
-                    (``t_s``: linear and quadratic) when no temperature is recorded
+                    (``t_s``: a cubic in time) when no temperature is recorded
 ``plate_geometry``  the spheres sit off their nominal plate positions (not a rigid motion of the plate)
 ==================  =====================================================================================
 
@@ -65,18 +65,27 @@ class RowContext:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One effect model. ``kind`` says how ``regressor(ctx)`` is used:
+    """One effect model. ``kind`` says how ``regressor(ctx, ref)`` is used:
 
     * ``"joint"``: ``(n, 6, K)``, the joint-angle correction per unit of each parameter [rad];
-    * ``"length"``: ``(n, K)``, the relative growth of every nominal length per unit of each parameter;
-    * ``"plate"``: no regressor: the fit adds per-sphere offsets in the tool frame (``3 x 3`` parameters).
+    * ``"length"``: ``(n, K)``, the relative growth of every robot link length (``d_i``, ``a_i``) per unit of
+      each parameter;
+    * ``"plate"``: no regressor: the fit adds per-sphere offsets in the tool frame (``3 x 3`` parameters [m]).
+
+    ``reference(ctx)`` fixes the constants a regressor needs (e.g. the reference temperature) from the data
+    the effect is identified on; they are stored with the identified values so that prediction on new rows
+    uses the same regressor. ``param_names(ref)`` names the ``K`` columns.
     """
 
     name: str
     kind: Literal["joint", "length", "plate"]
-    param_names: tuple[str, ...]
-    regressor: Callable[[RowContext], np.ndarray] | None
+    names: Callable[[dict], tuple[str, ...]]
+    regressor: Callable[[RowContext, dict], np.ndarray] | None
     description: str
+    reference: Callable[[RowContext], dict] = lambda ctx: {}
+
+    def param_names(self, ref: dict) -> tuple[str, ...]:
+        return self.names(ref)
 
 
 def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None) -> np.ndarray:
@@ -127,8 +136,8 @@ def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = G
     return Y
 
 
-def _compliance_regressor(model: RobotModel) -> Callable[[RowContext], np.ndarray]:
-    def G(ctx: RowContext) -> np.ndarray:
+def _compliance_regressor(model: RobotModel) -> Callable[[RowContext, dict], np.ndarray]:
+    def G(ctx: RowContext, ref: dict) -> np.ndarray:
         Y = gravity_torque_regressor(model, ctx.q)  # (n, 6, 6, 4)
         n = Y.shape[0]
         cols = []
@@ -154,16 +163,16 @@ def _compliance_names() -> tuple[str, ...]:
 def candidate_catalogue(model: RobotModel, *, harmonic_orders: tuple[int, ...] = (1, 2, 3)) -> list[Candidate]:
     """The candidates diagnosis tries, built on the nominal ``model``."""
 
-    def backlash(ctx: RowContext) -> np.ndarray:
+    def backlash(ctx: RowContext, ref: dict) -> np.ndarray:
         s = approach_signs(ctx.q, ctx.q_start)
         G = np.zeros((len(ctx.q), N_JOINTS, N_JOINTS))
         G[:, np.arange(6), np.arange(6)] = s
         return G
 
-    def cyclic(ctx: RowContext) -> np.ndarray:
+    def cyclic(ctx: RowContext, ref: dict) -> np.ndarray:
         n = len(ctx.q)
         cols = []
-        for k in harmonic_orders:
+        for k in ref["harmonic_orders"]:
             for i in range(N_JOINTS):
                 for f in (np.sin, np.cos):
                     col = np.zeros((n, N_JOINTS))
@@ -171,39 +180,56 @@ def candidate_catalogue(model: RobotModel, *, harmonic_orders: tuple[int, ...] =
                     cols.append(col)
         return np.stack(cols, axis=-1)
 
-    def gear_ratio(ctx: RowContext) -> np.ndarray:
+    def gear_ratio(ctx: RowContext, ref: dict) -> np.ndarray:
         G = np.zeros((len(ctx.q), N_JOINTS, N_JOINTS))
         G[:, np.arange(6), np.arange(6)] = ctx.q
         return G
 
-    def coupling(ctx: RowContext) -> np.ndarray:
+    def coupling(ctx: RowContext, ref: dict) -> np.ndarray:
         G = np.zeros((len(ctx.q), N_JOINTS, 1))
         G[:, 5, 0] = ctx.q[:, 4]
         return G
 
-    def thermal(ctx: RowContext) -> np.ndarray:
+    def thermal_ref(ctx: RowContext) -> dict:
         if ctx.temp_c is not None:
-            t = ctx.temp_c - np.median(ctx.temp_c)
-            return t[:, None]
+            return {"channel": "temp_c", "temp_ref_c": float(np.median(ctx.temp_c))}
         if ctx.t_s is not None:
-            t = (ctx.t_s - ctx.t_s.mean()) / max(np.ptp(ctx.t_s), 1e-9)
-            return np.stack([t, t * t - np.mean(t * t)], axis=1)
+            return {"channel": "t_s", "t0_s": float(np.min(ctx.t_s)), "t_scale_s": float(max(np.ptp(ctx.t_s), 1.0))}
         raise ValueError("thermal: the dataset has neither temp_c nor t_s")
 
-    cyclic_names = tuple(
-        f"{ab}{i}_k{k}" for k in harmonic_orders for i in range(1, 7) for ab in ("A", "B")
-    )
+    def thermal(ctx: RowContext, ref: dict) -> np.ndarray:
+        if ref["channel"] == "temp_c":
+            if ctx.temp_c is None:
+                raise ValueError("thermal effect identified against temp_c: the rows need a temp_c column")
+            return (ctx.temp_c - ref["temp_ref_c"])[:, None]
+        if ctx.t_s is None:
+            raise ValueError("thermal effect identified against t_s: the rows need a t_s column")
+        # an unknown smooth drift in time: a cubic in normalised time (a warm-up 1 - exp(-t/tau) over the
+        # campaign is matched to ~0.3 % of its range)
+        t = (ctx.t_s - ref["t0_s"]) / ref["t_scale_s"]
+        return np.stack([t, t * t, t * t * t], axis=1)
+
+    def thermal_names(ref: dict) -> tuple[str, ...]:
+        return ("kappa_per_K",) if ref.get("channel") == "temp_c" else ("drift_t", "drift_t2", "drift_t3")
+
+    def cyclic_names(ref: dict) -> tuple[str, ...]:
+        return tuple(f"{ab}{i}_k{k}" for k in ref["harmonic_orders"] for i in range(1, 7) for ab in ("A", "B"))
+
+    def const(names):
+        return lambda ref: tuple(names)
+
     return [
-        Candidate("compliance", "joint", _compliance_names(), _compliance_regressor(model),
+        Candidate("compliance", "joint", const(_compliance_names()), _compliance_regressor(model),
                   "joint compliance under gravity (compliance x mass moments)"),
-        Candidate("backlash", "joint", tuple(f"b{i}" for i in range(1, 7)), backlash,
+        Candidate("backlash", "joint", const(f"b{i}" for i in range(1, 7)), backlash,
                   "backlash: offset b_i signed by the approach direction"),
-        Candidate("cyclic", "joint", cyclic_names, cyclic, "transmission cyclic error per joint"),
-        Candidate("gear_ratio", "joint", tuple(f"k{i}-1" for i in range(1, 7)), gear_ratio,
+        Candidate("cyclic", "joint", cyclic_names, cyclic, "transmission cyclic error per joint",
+                  reference=lambda ctx: {"harmonic_orders": list(harmonic_orders)}),
+        Candidate("gear_ratio", "joint", const(f"k{i}-1" for i in range(1, 7)), gear_ratio,
                   "gear-ratio error: dtheta_i = (k_i - 1) q_i"),
-        Candidate("coupling", "joint", ("c65",), coupling, "wrist coupling: dtheta_6 = c q_5"),
-        Candidate("thermal", "length", ("kappa", "kappa2"), thermal,
-                  "thermal growth of all link lengths vs temp_c (or drift vs t_s)"),
-        Candidate("plate_geometry", "plate", tuple(f"dp{s}_{c}" for s in range(3) for c in "xyz"), None,
+        Candidate("coupling", "joint", const(["c65"]), coupling, "wrist coupling: dtheta_6 = c q_5"),
+        Candidate("thermal", "length", thermal_names, thermal,
+                  "thermal growth of all link lengths vs temp_c (or drift vs t_s)", reference=thermal_ref),
+        Candidate("plate_geometry", "plate", const(f"dp{s}_{c}" for s in range(3) for c in "xyz"), None,
                   "sphere centres off their nominal plate positions"),
     ]

@@ -26,11 +26,10 @@ import copy
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from ..kinematics import N_JOINTS, RobotModel, link_transforms
+from ..kinematics import N_JOINTS, RobotModel, link_frames, link_transforms
 from ..transforms import invert_transform, matrix_to_quat_wxyz, matrix_to_rotvec
 
 __all__ = [
@@ -219,8 +218,6 @@ def _rigid_owner(robot: RobotModel, k: int) -> int:
 
 def robot_frames_base(robot: RobotModel, q: np.ndarray) -> np.ndarray:
     """Frames 0..6 ``(7, 4, 4)`` in the robot base frame (thin wrapper used for the visual layout)."""
-    from ..kinematics import link_frames
-
     return link_frames(robot, np.asarray(q, dtype=float)[None])[0]
 
 
@@ -469,22 +466,6 @@ def compose_twin_xml(robot: tuple[ET.Element, list[ET.Element]], opts: ComposeOp
     wb.append(robot_body)
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="unicode")
-
-
-def camera_pose_in_rig(x: float, yaw: float) -> np.ndarray:
-    """A MuJoCo camera at ``(x, 0, 0)`` of the rig, turned by ``yaw`` [rad] about the rig's y axis."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    T = np.eye(4)
-    T[:3, :3] = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-    T[0, 3] = x
-    return T
-
-
-def sequence_of(x: Sequence[float] | np.ndarray, n: int, name: str) -> np.ndarray:
-    v = np.asarray(x, dtype=float).reshape(-1)
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be {n} finite numbers, got {x!r}")
-    return v
 
 
 def robot_mjcf_xml(robot: RobotModel, spheres_tool: np.ndarray | None = None, sphere_diameter: float | None = None,

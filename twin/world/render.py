@@ -77,24 +77,44 @@ class ImageFormer:
     def __init__(self, model: mujoco.MjModel, width: int, height: int):
         self.model = model
         self.width, self.height = int(width), int(height)
+        if self.width > model.vis.global_.offwidth or self.height > model.vis.global_.offheight:
+            raise ValueError(f"image {self.width}x{self.height} exceeds the model's offscreen buffer "
+                             f"{model.vis.global_.offwidth}x{model.vis.global_.offheight}")
+        # The same pieces mujoco.Renderer assembles (GL context, MjrContext on the offscreen buffer, MjvScene),
+        # kept here so that the pixels can be read without Renderer.render()'s extra flip of the RGB frame:
+        # the flip is done once on the 8-bit grey image instead.
         try:
-            self.renderer = mujoco.Renderer(model, self.height, self.width)
+            self._gl = mujoco.GLContext(self.width, self.height)
+            self._gl.make_current()
+            self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150.value)
         except mujoco.FatalError as exc:
             raise RuntimeError(
                 f"MuJoCo could not open an offscreen GL context ({exc}); rendering needs MUJOCO_GL=egl, which "
                 "twin sets only if it is imported before mujoco: import twin first or export MUJOCO_GL=egl"
             ) from exc
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._con)
+        self._scene = mujoco.MjvScene(model, maxgeom=10000)
+        self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
+        self._cam = mujoco.MjvCamera()
+        self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED.value
         self._rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
+        self._grey_flipped = np.empty((self.height, self.width), dtype=np.uint8)
         self._grey = np.empty((self.height, self.width), dtype=np.uint8)
         self._noise = np.empty((self.height, self.width), dtype=np.int16)
         self._noise_f = np.empty((self.height, self.width), dtype=np.float32)
         self._f32 = np.empty((self.height, self.width), dtype=np.float32)
 
     def ideal_grey(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
-        """The ideal pinhole image ``(H, W)`` uint8 (a view into an internal buffer: copy to keep)."""
-        self.renderer.update_scene(data, camera=camera_id, scene_option=option)
-        self.renderer.render(out=self._rgb)
-        cv2.cvtColor(self._rgb, cv2.COLOR_RGB2GRAY, dst=self._grey)
+        """The ideal pinhole image ``(H, W)`` uint8, row 0 at the top (a view into an internal buffer)."""
+        if self._con is None:
+            raise RuntimeError("the image former was closed")
+        self._gl.make_current()
+        self._cam.fixedcamid = int(camera_id)
+        mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
+        mujoco.mjr_render(self._rect, self._scene, self._con)
+        mujoco.mjr_readPixels(self._rgb, None, self._rect, self._con)  # OpenGL rows: bottom row first
+        cv2.cvtColor(self._rgb, cv2.COLOR_RGB2GRAY, dst=self._grey_flipped)
+        cv2.flip(self._grey_flipped, 0, dst=self._grey)
         return self._grey
 
     def form(
@@ -145,7 +165,12 @@ class ImageFormer:
             cv2.setRNGSeed(int(noise_seed) & 0x7FFFFFFF)
 
     def close(self) -> None:
-        self.renderer.close()
+        """Free the GL resources (the MjrContext first, while its context is current)."""
+        if self._con is not None:
+            self._gl.make_current()
+            self._con.free()
+            self._con = None
+            self._gl.free()
 
 
 __all__.append("ImageFormer")

@@ -30,7 +30,7 @@ from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, 
 from . import mjcf
 from .board import board_extent, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
-from .effects import BaseEffect, EffectContext, Effect, apply_joint_effects, as_effect, effect_from_spec
+from .effects import EffectContext, apply_joint_effects, as_effect, effect_from_spec
 from .render import CameraPipeline, ImageFormer, scene_option
 from .rig import camera2rig, station_rig2world, true_intrinsics
 
@@ -65,12 +65,16 @@ class Capture:
 
 @dataclass(frozen=True)
 class BoardView:
-    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes)."""
+    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes; truth)."""
 
     index: int
     left: np.ndarray
     right: np.ndarray
     board2meas: np.ndarray
+
+    def __iter__(self):
+        """Unpacks as the image pair: ``for left, right in world.render_board_views(n)``."""
+        return iter((self.left, self.right))
 
 
 def _png_bytes(img: np.ndarray) -> bytes:
@@ -361,15 +365,17 @@ class World:
             self._former = ImageFormer(self.model, w, h)
         return self._former
 
-    def _noise_seed(self) -> int:
+    def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
+        if pair_seed is not None:
+            return int(np.random.SeedSequence([self.config.seed, 5, int(pair_seed), camera]).generate_state(1)[0])
         self._image_counter += 1
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
-                   analog: bool = False):
+                   analog: bool = False, pair_seed: int | None = None):
         former = self._get_former()
         images = []
-        for cam_name, cam_id, pipe in zip(("left", "right"), self._cam_ids, self._pipes):
+        for c, (cam_name, cam_id, pipe) in enumerate(zip(("left", "right"), self._cam_ids, self._pipes)):
             fx = ()
             if ctx is not None:
                 fx = tuple(
@@ -377,7 +383,8 @@ class World:
                     for e in self.effects if getattr(e, "changes_image", True)
                 )
             sigma = self.config.render.noise_sigma if noise else 0.0
-            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(), fx, analog=analog))
+            images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(pair_seed, c), fx,
+                                      analog=analog))
         return images[0], images[1]
 
     def capture(
@@ -388,12 +395,15 @@ class World:
         pose_id: int | None = None,
         *,
         record: bool = True,
+        noise_seed: int | None = None,
     ) -> Capture:
         """Command ``q_cmd`` ``(6,)`` [rad], render the stereo pair at ``station``, keep the truth.
 
         Effects run in order on the context (the world fills the previous configuration when the context
         leaves it ``None``). With ``record`` the truth (without images) joins :attr:`truth_poses` for
-        :meth:`write_truth`.
+        :meth:`write_truth`. ``noise_seed`` makes this pair's sensor noise a function of (world seed,
+        ``noise_seed``) alone, whatever was rendered before (for campaigns spread over processes); by default
+        it follows the world's own image counter.
         """
         station = self._check_station(station)
         q_cmd = np.asarray(q_cmd, dtype=float).reshape(-1)
@@ -411,7 +421,7 @@ class World:
                 robot = e.geometry(robot, ctx)
         self._apply_geometry(robot)
         self._place(q_act, station)
-        left, right = self._form_pair(self._opt_pairs, ctx)
+        left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed)
         spheres = self.true_spheres_meas(q_act, station)
         tool = self.true_tool2meas(q_act, station)
         cap = Capture(
@@ -429,9 +439,9 @@ class World:
         return cap
 
     def render_pair(self, q_cmd: np.ndarray, station: int = 0, context: EffectContext | None = None,
-                    pose_id: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    pose_id: int | None = None, *, noise_seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Left and right images ``(H, W)`` uint8 for commanded ``q_cmd`` [rad] (see :meth:`capture`)."""
-        cap = self.capture(q_cmd, station, context, pose_id)
+        cap = self.capture(q_cmd, station, context, pose_id, noise_seed=noise_seed)
         return cap.left, cap.right
 
     def render_board_views(self, n: int | None = None, seed: int | None = None, station: int = 0) -> list[BoardView]:

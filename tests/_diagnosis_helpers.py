@@ -1,0 +1,145 @@
+"""Synthetic sphere-centre datasets with known effects, for diagnosis tests (no rendering).
+
+The effects here are formulas applied to the commanded joints (test data only); the twin's own effects
+live in ``twin.world``. Noise: the instrument's order of magnitude (5 um per coordinate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from twin.dataset import Dataset
+from twin.estimator.simulate import simulate_dataset
+from twin.presets import preset_deviation
+from twin.robots import irb1200
+from twin.transforms import pose6_to_transform
+
+SIGMA = 5e-6  # [m] per coordinate
+
+
+def configurations(rng, n, model):
+    """Random configurations in a plausible measuring region (wrist not singular)."""
+    lo = np.array([-1.2, -0.6, -1.0, -2.0, 0.4, -2.5])
+    hi = np.array([1.2, 1.0, 0.6, 2.0, 1.6, 2.5])
+    q = rng.uniform(lo, hi, (n, 6))
+    q[:, 4] *= rng.choice([-1, 1], n)
+    return q
+
+
+def make_dataset(seed=0, n=200, effect=None, repeats_every=4, temp=None, t_s=None, sigma=SIGMA, plate_offset=None):
+    """Calibration/validation alternating by row; every ``repeats_every``-th pose measured twice in a row.
+
+    ``effect(q_cmd (n,6), model) -> q_actual`` or ``("lengths", scale (n,))`` for thermal growth.
+    ``plate_offset`` ``(3, 3)`` [m]: the true spheres sit off the nominal plate (dataset.toml keeps nominal).
+    Returns (dataset, truth dict with actual joints).
+    """
+    rng = np.random.default_rng(seed)
+    nominal = irb1200()
+    true = nominal.perturbed(preset_deviation("separation_tables_2_4"))
+    true = true.with_frames(
+        base2meas=pose6_to_transform(np.array([0.2, -0.1, 1.1, 2.0, -0.3, 0.4])),
+        tool2flange=pose6_to_transform(np.array([1e-4, -2e-4, 3e-4, 1e-3, -2e-3, 5e-4])),
+    )
+    q = configurations(rng, n, nominal)
+    rep = np.zeros(n, dtype=bool)
+    rep[::repeats_every] = True
+    order = []
+    for k in range(n):
+        order.append(k)
+        if rep[k]:
+            order.append(k)
+    q = q[order]
+    m = len(q)
+    sets = np.array(["calibration" if (order[k] % 2 == 0) else "validation" for k in range(m)], dtype=object)
+    q_act = q.copy()
+    if effect is not None and not isinstance(effect, tuple):
+        q_act = effect(q, nominal)
+    if isinstance(effect, tuple) and effect[0] == "lengths":
+        scale = effect[1][order] if len(effect[1]) == n else effect[1]
+        sph = np.empty((m, 3, 3))
+        L = nominal.layout
+        for k in range(m):
+            p = true.params.copy()
+            for fam in ("d", "a"):
+                idx = L.family(fam)
+                p[idx] *= 1.0 + scale[k]
+            ds1, tr = simulate_dataset(true.with_params(p), q[k:k + 1], robot_spec="irb1200", nominal=nominal,
+                                       noise_position=sigma, rng=rng)
+            sph[k] = ds1.spheres[0]
+        ds, _ = simulate_dataset(true, q, robot_spec="irb1200", nominal=nominal, noise_position=sigma, rng=rng)
+        ds = _replace(ds, spheres=sph)
+    else:
+        from twin.dataset import Plate, default_plate
+
+        plate = default_plate()
+        true_plate = plate if plate_offset is None else Plate(plate.sphere_diameter, plate.spheres_flange + plate_offset)
+        ds, _ = simulate_dataset(true, q_act, robot_spec="irb1200", nominal=nominal, noise_position=sigma, rng=rng,
+                                 plate=true_plate)
+        ds = _replace(ds, plate=plate)
+    # the controller was commanded q; the robot was at q_act
+    ds = _replace(ds, q=q, set=sets, pose_id=np.arange(m))
+    if temp is not None:
+        ds = _replace(ds, temp_c=np.asarray(temp, float)[order] if len(temp) == n else np.asarray(temp, float))
+    if t_s is not None:
+        ds = _replace(ds, t_s=np.asarray(t_s, float)[order] if len(t_s) == n else np.asarray(t_s, float))
+    return ds, {"q_actual": q_act, "true": true}
+
+
+def _replace(ds: Dataset, **kw) -> Dataset:
+    from dataclasses import replace
+
+    return replace(ds, **kw)
+
+
+# ---- effects (test formulas) -------------------------------------------------------------------------
+from twin.diagnosis.candidates import approach_signs, gravity_torque_regressor  # noqa: E402
+
+# plausible IRB-1200 link masses [kg] and centres of mass in the link frames [m]
+MASSES = np.array([12.0, 10.0, 8.0, 3.0, 1.5, 0.8])
+COMS = np.array([[0, 0, -0.1], [0.17, 0, 0.0], [0.05, 0, 0.0], [0, 0, -0.15], [0, 0, 0.0], [0, 0, 0.05]])
+
+
+def compliance(scale=1.0):
+    """dtheta_i = c_i tau_i(q) with stiffness of a 7 kg arm (c in rad per N m)."""
+    c = scale * np.array([0, 2.0e-6, 3.0e-6, 5e-6, 8e-6, 1e-5])
+    theta = np.concatenate([MASSES[:, None], MASSES[:, None] * COMS], axis=1)
+
+    def f(q, model):
+        tau = np.einsum("nikc,kc->ni", gravity_torque_regressor(model, q), theta)
+        return q - c * tau  # a servo yields to the gravity torque
+
+    return f
+
+
+def backlash(b_deg=(0, 0.008, 0.008, 0, 0.01, 0)):
+    b = np.deg2rad(b_deg)
+    return lambda q, model: q + approach_signs(q) * b
+
+
+def cyclic(amp_deg=0.01, joint=2, k=2, phase=0.3):
+    def f(q, model):
+        out = q.copy()
+        out[:, joint - 1] += np.deg2rad(amp_deg) * np.sin(k * q[:, joint - 1] + phase)
+        return out
+    return f
+
+
+def gear_ratio(k_err=(0, 2e-4, -2e-4, 0, 3e-4, 0)):
+    return lambda q, model: q + np.asarray(k_err) * q
+
+
+def coupling(c=3e-4):
+    def f(q, model):
+        out = q.copy()
+        out[:, 5] += c * q[:, 4]
+        return out
+    return f
+
+
+def outside(amp_deg=0.01):
+    """Not in the catalogue: a cross-joint high-frequency error."""
+    def f(q, model):
+        out = q.copy()
+        out[:, 1] += np.deg2rad(amp_deg) * np.sin(7 * q[:, 2] + 3 * q[:, 3])
+        return out
+    return f

@@ -1,0 +1,162 @@
+"""Tests of twin.diagnosis on synthetic sphere-centre data with the instrument's noise (no rendering).
+
+Effects are injected undeclared (nothing about them reaches the dataset but the commanded joints, the row
+order and, for thermal growth, the recorded temperature). Sizes are >= 3x the noise after a perfect
+geometric-only calibration (``effect_size``)."""
+
+import numpy as np
+import pytest
+
+import _diagnosis_helpers as H
+from twin.dataset import read_dataset, write_dataset
+from twin.diagnosis import DiagnosisError, diagnose, noise_floor, read_diagnosis, write_diagnosis
+from twin.estimator import calibrate
+
+
+def effect_size(effect, **kw):
+    """RMS per coordinate left by a perfect (noise-free) geometric-only calibration, in noise sigmas."""
+    ds, _ = H.make_dataset(seed=11, effect=effect, sigma=1e-10, **kw)
+    ds = H._replace(ds, noise_position=1e-10)
+    cal = calibrate(ds)
+    return cal.residuals["validation"]["position_mm"]["rms"] / np.sqrt(3) / (H.SIGMA * 1e3)
+
+
+def test_noise_floor_from_consecutive_repeats():
+    """The pooled spread of consecutive repeats recovers the instrument's sigma within 10 %."""
+    ds, _ = H.make_dataset(seed=0)
+    nf = noise_floor(ds)
+    assert nf.sigma == pytest.approx(H.SIGMA, rel=0.1)
+    assert nf.dof >= 300 and "repeats" in nf.source
+
+
+def test_no_repeats_and_no_stated_noise_is_refused():
+    """Without repeats or a stated noise, diagnosis says what it needs instead of guessing."""
+    ds, _ = H.make_dataset(seed=0, repeats_every=10**9)
+    ds = H._replace(ds, noise_position=None)
+    with pytest.raises(DiagnosisError, match="repeat some configurations"):
+        diagnose(ds)
+
+
+def test_no_held_out_rows_is_refused():
+    """Without a set column (and no --holdout) diagnosis asks for held-out rows."""
+    ds, _ = H.make_dataset(seed=0)
+    with pytest.raises(DiagnosisError, match="needs held-out rows"):
+        diagnose(H._replace(ds, set=None))
+
+
+@pytest.mark.slow
+def test_clean_data_raise_few_false_alarms():
+    """With no effect, 'structured' is false in at least 9 of 10 seeds (the test's rate is 1 %)."""
+    alarms = 0
+    for seed in range(10):
+        ds, _ = H.make_dataset(seed=100 + seed, n=120)
+        res = diagnose(ds)
+        alarms += res.structured
+        if not res.structured:
+            assert res.effects == () and res.after == res.before
+    assert alarms <= 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "name,effect",
+    [
+        ("compliance", H.compliance(1.5)),
+        ("backlash", H.backlash()),
+        ("cyclic", H.cyclic()),
+        ("gear_ratio", H.gear_ratio()),
+        ("coupling", H.coupling(8e-4)),
+    ],
+)
+def test_each_joint_effect_is_detected_named_and_removed(name, effect):
+    """An undeclared joint effect of >= 3x the noise is detected, named, and the extended model's validation
+    error comes within 1.2x of the error of the true model (geometry + effect) on the same rows."""
+    assert effect_size(effect) >= 3.0
+    ds, _ = H.make_dataset(seed=3, effect=effect)
+    res = diagnose(ds)
+    assert res.structured and res.effects == (name,)
+    clean, _ = H.make_dataset(seed=3)  # same noise draw, no effect: what the true model achieves
+    floor = diagnose(clean).before["position_mm"]["rms"]
+    assert res.after["position_mm"]["rms"] <= 1.2 * floor
+    assert res.before["position_mm"]["rms"] > 2.0 * floor
+
+
+@pytest.mark.slow
+def test_thermal_growth_against_recorded_temperature():
+    """Link lengths growing with a recorded temperature drift are found as 'thermal'."""
+    n = 200
+    temp = np.linspace(20.0, 32.0, n)
+    scale = 23e-6 * (temp - 20.0) * 1.0  # aluminium-like expansion of every link
+    eff = ("lengths", scale)
+    ds, _ = H.make_dataset(seed=4, n=n, effect=eff, temp=temp)
+    res = diagnose(ds)
+    assert res.structured and res.effects == ("thermal",)
+    kappa = res.effect_parameters["thermal"]["values"][0]
+    assert kappa == pytest.approx(23e-6, rel=0.2)
+
+
+@pytest.mark.slow
+def test_thermal_drift_in_time_without_temperature():
+    """Without temp_c, a warm-up drift of the link lengths in time (t_s) is still found as 'thermal'."""
+    n = 200
+    t_s = np.linspace(0.0, 3600.0, n)
+    scale = 23e-6 * 10.0 * (1.0 - np.exp(-t_s / 1200.0))
+    ds, _ = H.make_dataset(seed=9, n=n, effect=("lengths", scale), t_s=t_s)
+    res = diagnose(ds)
+    assert res.structured and res.effects == ("thermal",)
+
+
+@pytest.mark.slow
+def test_sphere_off_its_nominal_plate_position_is_plate_geometry():
+    """One sphere 46 um off its nominal place (not a rigid motion of the plate) is named plate_geometry."""
+    off = np.zeros((3, 3))
+    off[2] = [30e-6, -30e-6, 20e-6]
+    ds, _ = H.make_dataset(seed=8, plate_offset=off)
+    res = diagnose(ds)
+    assert res.structured and res.effects == ("plate_geometry",)
+    d = np.array(res.effect_parameters["plate_geometry"]["values"]).reshape(3, 3)
+    # only the non-rigid part is identifiable: the distances between spheres must match the truth
+    from twin.dataset import default_plate
+
+    s0 = default_plate().spheres_flange
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        true_d = np.linalg.norm((s0[i] + off[i]) - (s0[j] + off[j]))
+        est_d = np.linalg.norm((s0[i] + d[i]) - (s0[j] + d[j]))
+        assert abs(est_d - true_d) < 5e-6
+
+
+@pytest.mark.slow
+def test_outside_catalogue_effect_is_structured_but_unnamed(tmp_path):
+    """An effect none of the candidates can express: structured, effects empty, plots written."""
+    ds, _ = H.make_dataset(seed=5, effect=H.outside())
+    res = diagnose(ds)
+    assert res.structured and res.effects == () and not res.explained
+    paths = write_diagnosis(res, tmp_path)
+    d = read_diagnosis(paths["diagnosis"])
+    assert d["structured"] is True and d["effects"] == []
+    assert (tmp_path / "residual_vs_joints.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_compliance_and_backlash_together_are_both_found():
+    """Two effects at once (compliance + backlash) are both named."""
+    both = lambda q, m: H.backlash()(H.compliance(1.5)(q, m), m)  # noqa: E731
+    ds, _ = H.make_dataset(seed=6, effect=both)
+    res = diagnose(ds)
+    assert set(res.effects) == {"compliance", "backlash"}
+
+
+def test_cli_writes_diagnosis_files(tmp_path, capsys):
+    """twin diagnose on a dataset folder writes the three JSON files the design card pins."""
+    from twin.cli import main
+
+    ds, _ = H.make_dataset(seed=7, n=80, effect=H.backlash())
+    write_dataset(tmp_path / "ds", ds)
+    assert read_dataset(tmp_path / "ds").n == ds.n
+    assert main(["diagnose", str(tmp_path / "ds"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    d = read_diagnosis(tmp_path / "out" / "diagnosis.json")
+    assert d["effects"] == ["backlash"]
+    assert (tmp_path / "out" / d["calibration"]).exists() and (tmp_path / "out" / d["calibration_geometric"]).exists()
+    for k in ("mean", "rms", "max"):
+        assert d["after"]["position_mm"][k] < d["before"]["position_mm"][k]
+    assert "structured: True" in capsys.readouterr().out
