@@ -18,7 +18,27 @@ from .config import (  # noqa: E402
     default_stations,
     load_world_config,
 )
-from .effects import BaseEffect, ConstantJointOffset, Effect, EffectContext, as_effect  # noqa: E402
+from .effects import (  # noqa: E402
+    BaseEffect,
+    ConstantJointOffset,
+    Effect,
+    EffectContext,
+    SceneState,
+    as_effect,
+    contexts_for_sequence,
+)
+from .effects_catalogue import (  # noqa: E402
+    EFFECT_TYPES,
+    Backlash,
+    Compliance,
+    Coupling,
+    CyclicError,
+    GearRatio,
+    SphereOutOfRound,
+    ThermalGrowth,
+    effect_from_spec,
+    register_effect,
+)
 from .world import BoardView, Capture, World  # noqa: E402
 
 __all__ = [
@@ -37,5 +57,17 @@ __all__ = [
     "BaseEffect",
     "EffectContext",
     "ConstantJointOffset",
+    "SceneState",
     "as_effect",
+    "contexts_for_sequence",
+    "EFFECT_TYPES",
+    "Backlash",
+    "Compliance",
+    "Coupling",
+    "CyclicError",
+    "GearRatio",
+    "SphereOutOfRound",
+    "ThermalGrowth",
+    "effect_from_spec",
+    "register_effect",
 ]

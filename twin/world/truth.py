@@ -11,12 +11,11 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Sequence
 
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .world import Capture, World
+from .records import Capture
 
 __all__ = ["TRUTH_SCHEMA_VERSION", "truth_dict", "write_truth"]
 
@@ -32,8 +31,12 @@ def _intr(K) -> dict:
             "dist_k1_k2_p1_p2_k3": list(K.dist)}
 
 
-def truth_dict(world: "World", captures: list["Capture"]) -> dict[str, Any]:
-    """The truth of ``world`` and of ``captures`` as a JSON-ready dict (see ``docs/formats.md``)."""
+def truth_dict(world: Any, captures: Sequence[Capture]) -> dict[str, Any]:
+    """The truth of ``world`` and of ``captures`` as a JSON-ready dict (see ``docs/formats.md``).
+
+    ``world`` is a :class:`twin.world.World` (taken by its public ``true_*`` members and attributes, not
+    imported here: the world imports this module, not the other way round).
+    """
     tr = world.true_robot
     nom = world.nominal_robot
     il, ir = world.true_intrinsics()

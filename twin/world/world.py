@@ -7,13 +7,15 @@ instrument (images, :meth:`World.rig_info`) carries camera parameters.
 
 MuJoCo calls: placing bodies and cameras needs only ``mj_kinematics`` (body/site poses from ``qpos`` and
 mocap poses) and ``mj_camlight`` (camera and light poses from the bodies); ``mj_forward`` would also run
-inertia, actuation and constraint stages that nothing here needs.
+inertia, actuation and constraint stages that nothing here needs. Gravity statics (the ``compliance``
+effect) run ``mj_kinematics`` + ``mj_comPos`` + ``mj_comVel`` + ``mj_rne`` on a separate ``MjData``
+(:meth:`World.gravity_torque`).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -30,51 +32,26 @@ from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, 
 from . import mjcf
 from .board import board_extent, board_texture, sample_board_poses
 from .config import WorldConfig, nominal_robot_from_spec
-from .effects import EffectContext, apply_joint_effects, as_effect, effect_from_spec
+from .effects import (
+    EffectContext,
+    SceneState,
+    apply_geometry_effects,
+    apply_joint_effects,
+    apply_scene_effects,
+    as_effect,
+    contexts_for_sequence,
+)
+from .effects_catalogue import effect_from_spec
 from .render import CameraPipeline, ImageFormer, scene_option
+from .records import BoardView, Capture
 from .rig import camera2rig, station_rig2world, true_intrinsics
+from .truth import truth_dict as _truth_dict
+from .truth import write_truth as _write_truth
 
 __all__ = ["World", "Capture", "BoardView"]
 
 _BOARD_TEXTURE = "board_texture.png"
 _PROBE_TEXTURE = "probe_texture.png"
-
-
-@dataclass(frozen=True)
-class Capture:
-    """One measurement: the images and the truth behind them (SI; frames as in ``docs/conventions.md``).
-
-    ``left``/``right`` ``(H, W)`` uint8; ``q_cmd``/``q_actual`` ``(6,)`` [rad]; ``spheres_meas`` ``(3, 3)`` [m]
-    true sphere centres in the station's measurement frame (left camera, OpenCV axes); ``tool2meas``
-    ``(4, 4)`` true plate pose there; ``params`` the actual parameter vector when an effect changed the
-    geometry for this measurement (else ``None``: the world's true parameters apply).
-    """
-
-    pose_id: int
-    station: int
-    q_cmd: np.ndarray
-    q_actual: np.ndarray
-    left: np.ndarray
-    right: np.ndarray
-    spheres_meas: np.ndarray
-    tool2meas: np.ndarray
-    t_s: float
-    temp_c: float
-    params: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class BoardView:
-    """One board view: images and the true ``board2meas`` ``(4, 4)`` (left camera, OpenCV axes; truth)."""
-
-    index: int
-    left: np.ndarray
-    right: np.ndarray
-    board2meas: np.ndarray
-
-    def __iter__(self):
-        """Unpacks as the image pair: ``for left, right in world.render_board_views(n)``."""
-        return iter((self.left, self.right))
 
 
 def _png_bytes(img: np.ndarray) -> bytes:
@@ -174,6 +151,14 @@ class World:
         }
         self._jnt_ids = [oid(mujoco.mjtObj.mjOBJ_JOINT, f"joint{i + 1}") for i in range(N_JOINTS)]
         self._qadr = np.array([m.jnt_qposadr[j] for j in self._jnt_ids])
+        self._dofadr = np.array([m.jnt_dofadr[j] for j in self._jnt_ids])
+        self._plate_body = oid(mujoco.mjtObj.mjOBJ_BODY, "plate")
+        self._sphere_geoms = [oid(mujoco.mjtObj.mjOBJ_GEOM, f"sphere{k}") for k in range(3)]
+        r = 0.5 * self.nominal_plate.sphere_diameter
+        self._default_scene = SceneState(np.full((3, 3), r))
+        self._scene = self._default_scene
+        # statics run on their own MjData so that they never disturb the pose being rendered
+        self._statics = mujoco.MjData(m)
         self._robot_bodies = [oid(mujoco.mjtObj.mjOBJ_BODY, n) for n in
                               ["robot_base"] + [f"link{i + 1}" for i in range(N_JOINTS)] + ["plate"]]
         self._opt_pairs = scene_option((mjcf.GROUP_SCENE, mjcf.GROUP_ROBOT, mjcf.GROUP_PLATE, mjcf.GROUP_BACKDROP))
@@ -185,6 +170,9 @@ class World:
         self._image_counter = 0
         self._next_pose_id = 0
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self._history: list[np.ndarray] = []  # every command executed since reset_history, in order
+        self._q_start: np.ndarray | None = None
+        self._true_jg = mjcf.joint_geometry(self.true_robot)
         self.truth_poses: list[Capture] = []  # truth of every capture (images dropped), for write_truth
         self.truth_board_views: list[tuple[int, np.ndarray]] = []
         self.last_capture: Capture | None = None
@@ -324,30 +312,119 @@ class World:
         return tuple(mujoco_to_opencv_cam2world(self.data.cam_xpos[c], self.data.cam_xmat[c]) for c in self._cam_ids)
 
     # --- commanded -> actual -------------------------------------------------------------------------
-    def _context(self, context: EffectContext | None, station: int, pose_index: int) -> EffectContext:
-        ctx = context if context is not None else EffectContext(pose_index=pose_index, station=station)
+    def temperature_c(self, t_s: float) -> float | None:
+        """The robot's true temperature [°C] at ``t_s`` [s] when an effect defines it (the first effect with a
+        ``temperature_c(t_s)`` that is not ``None``, e.g. ``thermal`` in warm-up mode), else ``None``."""
+        for e in self.effects:
+            f = getattr(e, "temperature_c", None)
+            if callable(f):
+                T = f(t_s)
+                if T is not None:
+                    return float(T)
+        return None
+
+    def reset_history(self, q_start: np.ndarray | None = None) -> None:
+        """Start a new campaign: forget the commands executed so far; the robot starts at ``q_start`` ``(6,)``
+        [rad] (``None``: home, all zeros). History-dependent effects (backlash) take the first approach from it."""
+        self._history = []
+        self._prev = None
+        if q_start is not None:
+            q_start = np.asarray(q_start, dtype=float).reshape(-1)
+            if q_start.shape != (N_JOINTS,) or not np.all(np.isfinite(q_start)):
+                raise ValueError(f"q_start must be {N_JOINTS} finite joint angles [rad], got {q_start!r}")
+        self._q_start = None if q_start is None else q_start.copy()
+
+    @property
+    def command_history(self) -> np.ndarray:
+        """Commands ``(k, 6)`` [rad] executed by :meth:`capture` since :meth:`reset_history`, in order."""
+        return np.array(self._history).reshape(-1, N_JOINTS)
+
+    def _context(self, context: EffectContext | None, station: int, q_cmd: np.ndarray) -> EffectContext:
+        """The context of one measurement, completed from the world's own record where the caller left gaps.
+
+        No context, or one without ``q_cmd_prev`` and ``q_cmd_history``: the history is the commands this
+        world executed since :meth:`reset_history`. A context with ``q_cmd_prev`` but no history is left as is
+        (history-dependent effects refuse it). A world with a temperature profile sets ``temp_c``.
+        """
+        ctx = context if context is not None else EffectContext(pose_index=len(self._history), station=station)
         fill: dict[str, Any] = {}
         if ctx.world is None:
             fill["world"] = self
-        if ctx.q_cmd_prev is None and self._prev is not None:
-            fill["q_cmd_prev"] = self._prev[0].copy()
-        if ctx.q_actual_prev is None and self._prev is not None:
-            fill["q_actual_prev"] = self._prev[1].copy()
+        if ctx.q_cmd is None:
+            fill["q_cmd"] = q_cmd
+        if ctx.q_cmd_prev is None and ctx.q_cmd_history is None:
+            fill["q_cmd_history"] = self.command_history
+            if ctx.q_actual_prev is None and self._prev is not None:
+                fill["q_actual_prev"] = self._prev[1].copy()
+        if ctx.q_start is None and self._q_start is not None:
+            fill["q_start"] = self._q_start
+        T = self.temperature_c(ctx.t_s)
+        if T is not None:
+            fill["temp_c"] = T
         return ctx.with_(**fill) if fill else ctx
 
-    def actual_joints(self, q_cmd: np.ndarray, context: EffectContext | None = None) -> np.ndarray:
-        """Actual joints ``(6,)`` [rad] for commanded ``q_cmd`` ``(6,)`` [rad]: the joint effects in order.
+    def _check_q(self, q_cmd: np.ndarray) -> np.ndarray:
+        q = np.asarray(q_cmd, dtype=float).reshape(-1)
+        if q.shape != (N_JOINTS,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q_cmd must be {N_JOINTS} finite joint angles [rad], got {q_cmd!r}")
+        return q
 
-        Pure given the context (it does not advance the world's history; :meth:`capture` does).
+    def _evaluate(self, q_cmd: np.ndarray, ctx: EffectContext) -> tuple[RobotModel, np.ndarray]:
+        """Geometry effects (applied to the MuJoCo model; the caller restores), then joint effects."""
+        robot = apply_geometry_effects(self.effects, self.true_robot, ctx)
+        self._apply_geometry(robot)
+        return robot, apply_joint_effects(self.effects, q_cmd, ctx)
+
+    def actual_joints(self, q_cmd: np.ndarray, context: EffectContext | None = None) -> np.ndarray:
+        """Actual joints ``(6,)`` [rad] for commanded ``q_cmd`` ``(6,)`` [rad]: the joint effects in order (on the
+        geometry of this measurement). Pure given the context: it does not advance the world's history."""
+        q_cmd = self._check_q(q_cmd)
+        ctx = self._context(context, context.station if context else 0, q_cmd)
+        try:
+            return self._evaluate(q_cmd, ctx)[1]
+        finally:
+            self._apply_geometry(self.true_robot)
+
+    def gravity_torque(self, q_actual: np.ndarray, *, payload_kg: float = 0.0,
+                       payload_com_tool: np.ndarray | None = None) -> np.ndarray:
+        """Torque ``(6,)`` [N m] that gravity exerts on each joint of the robot at rest at ``q_actual`` [rad].
+
+        Computed by MuJoCo from the twin's own bodies (masses, centres of mass: the arm, flange, plate, posts
+        and spheres; gravity ``model.opt.gravity``) on the current geometry: ``-qfrc_bias`` at zero velocity.
+        ``mj_rne`` needs the body poses (``mj_kinematics``), the composite inertias and motion axes
+        (``mj_comPos``) and the body velocities (``mj_comVel``, zero here, so no Coriolis term enters);
+        ``mj_forward`` would add actuation and constraint stages this does not need. An optional point
+        payload ``payload_kg`` [kg] at ``payload_com_tool`` ``(3,)`` [m] (plate frame) adds ``J_p^T m g`` with
+        its point Jacobian from ``mj_jac``.
         """
-        ctx = self._context(context, context.station if context else 0, context.pose_index if context else 0)
-        return apply_joint_effects(self.effects, q_cmd, ctx)
+        q = np.asarray(q_actual, dtype=float).reshape(-1)
+        if q.shape != (N_JOINTS,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q_actual must be {N_JOINTS} finite joint angles [rad], got {q_actual!r}")
+        m, d = self.model, self._statics
+        d.qpos[self._qadr] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        bias = np.zeros(m.nv)
+        mujoco.mj_rne(m, d, 0, bias)
+        tau = -bias[self._dofadr]
+        if payload_kg:
+            if not (np.isfinite(payload_kg) and payload_kg > 0):
+                raise ValueError(f"payload_kg must be a non-negative mass [kg], got {payload_kg!r}")
+            c = np.zeros(3) if payload_com_tool is None else np.asarray(payload_com_tool, dtype=float).reshape(3)
+            R = d.xmat[self._plate_body].reshape(3, 3)
+            point = d.xpos[self._plate_body] + R @ c
+            jacp = np.zeros((3, m.nv))
+            mujoco.mj_jac(m, d, jacp, None, point, self._plate_body)
+            tau = tau + (jacp.T @ (payload_kg * m.opt.gravity))[self._dofadr]
+        return tau
 
     def _apply_geometry(self, robot: RobotModel) -> None:
         """Move the MuJoCo bodies and hinges to ``robot``'s geometry (same structure as the true robot)."""
         if robot is self._geometry_robot:
             return
-        jg = mjcf.joint_geometry(robot)
+        jg = self._true_jg if robot is self.true_robot else mjcf.joint_geometry(robot)
         m = self.model
         frames = [robot.base2meas] + [j.body2parent for j in jg] + [robot.tool2flange]
         for b, T in zip(self._robot_bodies, frames):
@@ -357,6 +434,23 @@ class World:
             m.jnt_pos[j] = g.anchor
             m.jnt_axis[j] = g.axis
         self._geometry_robot = robot
+
+    def _apply_scene(self, state: SceneState) -> None:
+        """Give the sphere geoms ``state``'s shapes: a sphere, or an ellipsoid along the plate axes (the geom's
+        frame is the plate frame). MuJoCo reads ``geom_type``/``geom_size`` when it builds the scene, and
+        ``geom_rbound`` for culling and ray casts."""
+        if state is self._scene:
+            return
+        m = self.model
+        for g, axes in zip(self._sphere_geoms, state.sphere_semi_axes):
+            if np.ptp(axes) == 0.0:
+                m.geom_type[g] = mujoco.mjtGeom.mjGEOM_SPHERE
+                m.geom_size[g] = [axes[0], 0.0, 0.0]
+            else:
+                m.geom_type[g] = mujoco.mjtGeom.mjGEOM_ELLIPSOID
+                m.geom_size[g] = axes
+            m.geom_rbound[g] = float(np.max(axes))
+        self._scene = state
 
     # --- images --------------------------------------------------------------------------------------
     def _get_former(self) -> ImageFormer:
@@ -387,6 +481,27 @@ class World:
                                       analog=analog))
         return images[0], images[1]
 
+    def _truth_of(self, q_cmd: np.ndarray, station: int, ctx: EffectContext, pose_id: int, render: bool,
+                   noise_seed: int | None) -> Capture:
+        """Evaluate the effects for one measurement, place the twin, optionally render; restores the model."""
+        try:
+            robot, q_act = self._evaluate(q_cmd, ctx)
+            self._place(q_act, station)
+            left = right = np.empty((0, 0), np.uint8)
+            if render:
+                self._apply_scene(apply_scene_effects(self.effects, self._default_scene, ctx))
+                left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed)
+            spheres = self.true_spheres_meas(q_act, station)
+            tool = self.true_tool2meas(q_act, station)
+        finally:
+            self._apply_geometry(self.true_robot)
+            self._apply_scene(self._default_scene)
+        return Capture(
+            pose_id=int(pose_id), station=station, q_cmd=q_cmd.copy(), q_actual=q_act, left=left, right=right,
+            spheres_meas=spheres, tool2meas=tool, t_s=float(ctx.t_s), temp_c=float(ctx.temp_c),
+            params=None if robot is self.true_robot else robot.params.copy(),
+        )
+
     def capture(
         self,
         q_cmd: np.ndarray,
@@ -396,47 +511,66 @@ class World:
         *,
         record: bool = True,
         noise_seed: int | None = None,
+        render: bool = True,
     ) -> Capture:
         """Command ``q_cmd`` ``(6,)`` [rad], render the stereo pair at ``station``, keep the truth.
 
-        Effects run in order on the context (the world fills the previous configuration when the context
-        leaves it ``None``). With ``record`` the truth (without images) joins :attr:`truth_poses` for
-        :meth:`write_truth`. ``noise_seed`` makes this pair's sensor noise a function of (world seed,
-        ``noise_seed``) alone, whatever was rendered before (for campaigns spread over processes); by default
-        it follows the world's own image counter.
+        The robot moves there: the command joins the world's history (:attr:`command_history`), which the
+        next measurement's context reads when the caller gives none (:meth:`_context`). Effects run on the
+        context: geometry hooks, then joint hooks, then scene and image hooks while rendering. With ``record``
+        the truth (without images) joins :attr:`truth_poses` for :meth:`write_truth`. ``noise_seed`` makes
+        this pair's sensor noise a function of (world seed, ``noise_seed``) alone, whatever was rendered
+        before (for campaigns spread over processes); by default it follows the world's own image counter.
+        ``render=False`` skips the images (empty arrays) and keeps everything else.
         """
         station = self._check_station(station)
-        q_cmd = np.asarray(q_cmd, dtype=float).reshape(-1)
-        if q_cmd.shape != (N_JOINTS,) or not np.all(np.isfinite(q_cmd)):
-            raise ValueError(f"q_cmd must be {N_JOINTS} finite joint angles [rad], got {q_cmd!r}")
+        q_cmd = self._check_q(q_cmd)
         if pose_id is None:
             pose_id = self._next_pose_id
         self._next_pose_id = max(self._next_pose_id, int(pose_id) + 1)
-        pose_index = len(self.truth_poses)
-        ctx = self._context(context, station, pose_index)
-        q_act = apply_joint_effects(self.effects, q_cmd, ctx)
-        robot = self.true_robot
-        for e in self.effects:
-            if getattr(e, "changes_geometry", True):
-                robot = e.geometry(robot, ctx)
-        self._apply_geometry(robot)
-        self._place(q_act, station)
-        left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed)
-        spheres = self.true_spheres_meas(q_act, station)
-        tool = self.true_tool2meas(q_act, station)
-        cap = Capture(
-            pose_id=int(pose_id), station=station, q_cmd=q_cmd.copy(), q_actual=q_act, left=left, right=right,
-            spheres_meas=spheres, tool2meas=tool, t_s=float(ctx.t_s), temp_c=float(ctx.temp_c),
-            params=None if robot is self.true_robot else robot.params.copy(),
-        )
-        self._prev = (q_cmd.copy(), q_act.copy())
+        ctx = self._context(context, station, q_cmd)
+        cap = self._truth_of(q_cmd, station, ctx, int(pose_id), render, noise_seed)
+        self._history.append(q_cmd.copy())
+        self._prev = (q_cmd.copy(), cap.q_actual.copy())
         self.last_capture = cap
         if record:
-            self.truth_poses.append(
-                Capture(cap.pose_id, station, cap.q_cmd, q_act, np.empty((0, 0), np.uint8), np.empty((0, 0), np.uint8),
-                        spheres, tool, cap.t_s, cap.temp_c, cap.params)
-            )
+            empty = np.empty((0, 0), np.uint8)
+            self.truth_poses.append(replace(cap, left=empty, right=empty))
         return cap
+
+    def true_pose(self, q_cmd: np.ndarray, station: int = 0, context: EffectContext | None = None,
+                  pose_id: int = 0) -> Capture:
+        """The truth of one measurement without rendering and without moving the robot (for evaluation and
+        synthetic tests): a :class:`Capture` with empty images, the actual joints, the true sphere centres and
+        plate pose in ``station``'s measurement frame, ``t_s``/``temp_c`` and the actual parameters (when an
+        effect changed the geometry). Pure: the world's history and records are untouched; a context without
+        history takes the world's current one (as :meth:`capture` would)."""
+        station = self._check_station(station)
+        q_cmd = self._check_q(q_cmd)
+        ctx = self._context(context, station, q_cmd)
+        return self._truth_of(q_cmd, station, ctx, int(pose_id), False, None)
+
+    def true_sequence(self, q_cmd: np.ndarray, stations: Sequence[Any] | None = None, *,
+                      t_s: Sequence[float] | np.ndarray | None = None,
+                      temp_c: Sequence[float] | np.ndarray | None = None,
+                      q_start: np.ndarray | None = None,
+                      pose_ids: Sequence[int] | None = None) -> list[Capture]:
+        """The truth of a whole campaign measured in the order of ``q_cmd`` ``(n, 6)`` [rad], without rendering.
+
+        Contexts come from the plan alone (:func:`twin.world.effects.contexts_for_sequence`: pose ``k`` has the
+        commands ``q_cmd[:k]`` as history, ``q_start`` as start, home when ``None``, time ``t_s[k]`` [s]); so the
+        result is what :meth:`capture` would record for the same plan, in any process. ``stations`` (index or
+        name per pose, default 0); ``temp_c`` [°C] is used only when no effect defines the temperature.
+        """
+        q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+        n = len(q)
+        st = [0] * n if stations is None else [self.station_index(s) for s in stations]
+        ids = list(range(n)) if pose_ids is None else [int(i) for i in pose_ids]
+        if len(st) != n or len(ids) != n:
+            raise ValueError(f"stations and pose_ids must have {n} entries (one per configuration)")
+        ctxs = contexts_for_sequence(q, t_s=t_s, temp_c=temp_c, stations=st, q_start=q_start, world=self)
+        return [self._truth_of(q[k].copy(), st[k], self._context(ctxs[k], st[k], q[k]), ids[k], False, None)
+                for k in range(n)]
 
     def render_pair(self, q_cmd: np.ndarray, station: int = 0, context: EffectContext | None = None,
                     pose_id: int | None = None, *, noise_seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -638,6 +772,7 @@ class World:
         board_views: int | None = None,
         seed: int = 0,
         callback: Any = None,
+        channels: Sequence[str] | None = None,
     ) -> dict:
         """Render into an image folder (``docs/formats.md``): board views, then one pair per configuration.
 
@@ -645,7 +780,10 @@ class World:
         when ``q_cmd`` is ``None``, ``per_station`` visible configurations at every station
         (:meth:`visible_configurations`). ``board_views`` defaults to ``config.board.views``. Each capture's
         truth is recorded for :meth:`write_truth`. ``callback(kind, index, total)`` reports progress.
-        Returns a summary (counts and the folder).
+        ``channels``: the auxiliary channels the instrument records into ``joints.csv`` (and so into the
+        dataset), a subset of ``("t_s", "temp_c")``; default: both when ``contexts`` are given, none otherwise.
+        The values written are the capture's (``temp_c`` is the world's true temperature when an effect
+        defines it). Returns a summary (counts and the folder).
         """
         from .images import ImageFolderWriter
 
@@ -671,6 +809,12 @@ class World:
             raise ValueError("pose_ids must be unique, one per configuration")
         if contexts is not None and len(contexts) != n:
             raise ValueError(f"contexts has {len(contexts)} entries for {n} configurations")
+        if channels is None:
+            channels = ("t_s", "temp_c") if contexts is not None else ()
+        channels = tuple(channels)
+        bad = sorted(set(channels) - {"t_s", "temp_c"})
+        if bad:
+            raise ValueError(f"channels must be a subset of ('t_s', 'temp_c'), got {channels!r}")
         writer = ImageFolderWriter(folder, self.rig_info())
         nb = self.config.board.views if board_views is None else int(board_views)
         for k, view in enumerate(self.render_board_views(nb, seed=seed) if nb > 0 else []):
@@ -680,9 +824,7 @@ class World:
         for k in range(n):
             ctx = contexts[k] if contexts is not None else None
             cap = self.capture(q_cmd[k], st_idx[k], ctx, pose_id=ids[k])
-            extra = {}
-            if ctx is not None:
-                extra = {"t_s": cap.t_s, "temp_c": cap.temp_c}
+            extra = {c: getattr(cap, c) for c in channels}
             writer.add_pair(cap.pose_id, cap.q_cmd, cap.left, cap.right, station=str(cap.station), **extra)
             if callback is not None:
                 callback("pair", k, n)
@@ -690,15 +832,11 @@ class World:
 
     def truth_dict(self, captures: Iterable[Capture] | None = None) -> dict:
         """Everything :func:`twin.world.truth.write_truth` writes (SI, JSON-ready)."""
-        from .truth import truth_dict
-
-        return truth_dict(self, self.truth_poses if captures is None else list(captures))
+        return _truth_dict(self, self.truth_poses if captures is None else list(captures))
 
     def write_truth(self, path: str | os.PathLike, captures: Iterable[Capture] | None = None) -> Path:
         """Write ``truth.json`` (``docs/formats.md``) for the recorded (or the given) captures."""
-        from .truth import write_truth
-
-        return write_truth(path, self.truth_dict(captures))
+        return _write_truth(path, self.truth_dict(captures))
 
     def close(self) -> None:
         """Free the renderer (its GL context); the world can still compute truth afterwards."""
