@@ -89,9 +89,10 @@ def test_blank_image_has_no_candidates():
 
 
 def test_far_sphere_is_too_small():
-    """A sphere far beyond the working range is rejected as too_small."""
-    (s,) = detect_spheres(_img([0.0, 0.0, 5.0]), CAM, R)
+    """A sphere well beyond the working range (2.6 m; the default range ends at 1.5 m) is too_small."""
+    (s,) = detect_spheres(_img([0.0, 0.0, 2.6]), CAM, R)
     assert not s.ok and s.reason == "too_small"
+    assert detect_spheres(_img([0.0, 0.0, 2.6]), CAM, R, DetectorConfig(distance_range=(0.4, 3.0)))[0].ok
 
 
 def test_noise_estimate_matches_added_noise():

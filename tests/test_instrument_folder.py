@@ -10,7 +10,7 @@ from test_instrument_calibration import LEFT, RIGHT, W2L, W2R, _board_pair
 from twin.cli import main
 from twin.dataset import Joints, default_plate, read_dataset, write_joints_csv
 from twin.instrument.calibration import StereoCalibration
-from twin.instrument.folder import CALIBRATION_FILE, measure_folder, read_plate_toml, read_rig_toml
+from twin.instrument.folder import CALIBRATION_FILE, measure_folder, measure_to_dataset, read_plate_toml, read_rig_toml
 from twin.instrument.synthetic import add_sensor_noise, render_spheres
 from twin.transforms import make_transform, rotvec_to_matrix
 
@@ -145,3 +145,22 @@ def test_plate_toml_reader(tmp_path):
     p.write_text("x = 1\n")
     with pytest.raises(ValueError, match="plate"):
         read_plate_toml(p)
+
+
+def test_measure_to_dataset_in_memory_flags_bad_pairs(tmp_path):
+    """In-memory pairs (no image files): a missing and a wrongly sized image leave their rows empty with a
+    status; the good row is measured; every row keeps its commanded joints."""
+    from test_instrument_measure import CAL
+
+    rng = np.random.default_rng(2)
+    il, ir, truth = _sphere_pair([0.0, 0.0, 0.72], [0.1, 0.0, 0.2], rng)
+    joints = Joints(np.array([1, 2, 3]), np.deg2rad(np.arange(18, dtype=float).reshape(3, 6)))
+    pairs = [(il, ir), (il, None), (il, ir[:100])]
+    s = measure_to_dataset(tmp_path / "ds", joints, pairs, CAL, PLATE)
+    ds = read_dataset(tmp_path / "ds", max_rows_without_spheres=1.0)
+    assert s.n_rows == 3 and s.n_complete == 1 and ds.n == 3
+    assert ds.sphere_seen[0].all() and np.max(np.linalg.norm(ds.spheres[0] - truth, axis=1)) < 3e-5
+    assert ds.status[1] == "p0:image_missing(right);p1:image_missing(right);p2:image_missing(right)"
+    assert "image_size(right)" in ds.status[2] and not ds.sphere_seen[1:].any()
+    assert np.allclose(ds.q, joints.q, atol=1e-12)
+    assert "too many" in s.validation_error or "rows have fewer than three" in s.validation_error

@@ -1,4 +1,16 @@
-"""``twin measure``: the instrument on a folder of stereo image pairs + board views -> a dataset folder."""
+"""``twin measure``: the instrument -> a dataset folder.
+
+Two sources of images, one measurement path:
+
+* ``twin measure IMAGES --out DATASET``: a folder of stereo pairs + board views (``docs/formats.md``,
+  "Image folder"), from a real rig or written by the world;
+* ``twin measure --render --out DATASET``: the twin renders the board views and the pairs in memory
+  (``--world CONFIG.toml``, ``--joints JOINTS.csv`` or ``--poses N``); ``--keep-images DIR`` also writes
+  them as an image folder. The truth of the rendered poses goes to a separate file (``--truth``).
+
+Either way the rig is calibrated from the board views (never read from the world) and the dataset is
+written row by row.
+"""
 
 from __future__ import annotations
 
@@ -11,49 +23,135 @@ HELP = "measure sphere centres in stereo image pairs (calibrating the rig from b
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("images", type=Path, help="image folder: rig.toml, joints.csv, board/, pairs/ (docs/formats.md)")
+    p.add_argument("images", type=Path, nargs="?", default=None,
+                   help="image folder: rig.toml, joints.csv, board/, pairs/ (docs/formats.md); omit with --render")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write (poses.csv, dataset.toml)")
     p.add_argument("--calib", type=Path, default=None,
-                   help="reuse this stereo_calibration.json instead of calibrating from IMAGES/board/")
+                   help="reuse this stereo_calibration.json instead of calibrating from board views")
     p.add_argument("--plate", type=Path, default=None,
                    help="TOML file with a [plate] table (sphere_diameter_mm, spheres_mm), e.g. a dataset.toml; "
                         "default: the twin's plate (twin.dataset.default_plate)")
-    p.add_argument("--robot", default="irb1200", help="robot name written to dataset.toml (default: irb1200)")
+    p.add_argument("--robot", default=None, help="robot name for dataset.toml (default: irb1200, or the world's)")
     p.add_argument("--no-bias-correction", action="store_true",
                    help="write ellipse centres instead of cone-corrected centres (to see the perspective bias)")
     p.add_argument("--provenance", default="", help="free text for dataset.toml")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    g = p.add_argument_group("rendering with the twin (--render)")
+    g.add_argument("--render", action="store_true", help="render board views and pairs with the twin instead of reading IMAGES")
+    g.add_argument("--world", type=Path, default=None, help="TOML with a [world] table (default: the built-in twin)")
+    g.add_argument("--joints", type=Path, default=None, help="JOINTS.csv of commanded configurations to measure")
+    g.add_argument("--poses", type=int, default=20,
+                   help="without --joints: this many configurations that show the plate to both cameras (default 20)")
+    g.add_argument("--station", type=int, default=0, help="without --joints: camera station index (default 0)")
+    g.add_argument("--seed", type=int, default=0, help="seed of the generated configurations")
+    g.add_argument("--board-views", type=int, default=None, help="board views to render (default: the world's)")
+    g.add_argument("--keep-images", type=Path, default=None, help="also write the rendered image folder here")
+    g.add_argument("--truth", type=Path, default=None,
+                   help="truth file of the rendered poses (default: truth.json beside DATASET); only evaluation reads it")
+
+
+def _progress(args):
+    def cb(k, row, m):
+        if not args.quiet and (row.status or k % 10 == 0):
+            tail = f"  {row.status}" if row.status else ""
+            print(f"pose {row.pose_id}: {'complete' if not row.status else 'partial'}{tail}", file=sys.stderr)
+
+    return cb
+
+
+def _report(summary) -> int:
+    cal = summary.calibration
+    print(f"stereo calibration: {cal.n_views_used} board views used, RMS {cal.rms_px:.3f} px "
+          f"(left {cal.rms_left_px:.3f}, right {cal.rms_right_px:.3f}), baseline {cal.baseline * 1e3:.2f} mm")
+    for v in cal.views:
+        if not v.used:
+            print(f"  board view {v.name} rejected: {v.reason}")
+    print(json.dumps(summary.to_dict(), indent=2))
+    if summary.validation_error:
+        print(f"twin measure: warning: the dataset does not validate: {summary.validation_error}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
     from ..dataset import default_plate
     from ..instrument.folder import measure_folder, read_plate_toml
 
+    if args.render:
+        if args.images is not None:
+            raise ValueError("images: give either an image folder or --render, not both")
+        return _run_render(args)
+    if args.images is None:
+        raise ValueError("images: an image folder is required (or --render to let the twin render)")
     plate = read_plate_toml(args.plate) if args.plate else default_plate()
-
-    def progress(k, row, m):
-        if not args.quiet and (row.status or k % 10 == 0):
-            tail = f"  {row.status}" if row.status else ""
-            print(f"pose {row.pose_id}: {'complete' if not row.status else 'partial'}{tail}", file=sys.stderr)
-
     summary = measure_folder(
-        args.images,
-        args.out,
-        plate=plate,
-        calib=args.calib,
-        robot=args.robot,
-        bias_correction=not args.no_bias_correction,
-        provenance=args.provenance,
-        on_row=progress,
+        args.images, args.out, plate=plate, calib=args.calib, robot=args.robot or "irb1200",
+        bias_correction=not args.no_bias_correction, provenance=args.provenance, on_row=_progress(args),
     )
-    cal = summary.calibration
-    rejected = [v for v in cal.views if not v.used]
-    print(f"stereo calibration: {cal.n_views_used} board views used, RMS {cal.rms_px:.3f} px "
-          f"(left {cal.rms_left_px:.3f}, right {cal.rms_right_px:.3f}), baseline {cal.baseline * 1e3:.2f} mm")
-    for v in rejected:
-        print(f"  board view {v.name} rejected: {v.reason}")
-    print(json.dumps(summary.to_dict(), indent=2))
-    if summary.validation_error:
-        print(f"twin measure: warning: the dataset does not validate: {summary.validation_error}", file=sys.stderr)
-        return 1
-    return 0
+    return _report(summary)
+
+
+def _run_render(args: argparse.Namespace) -> int:
+    """Render with the twin (world layer; allowed here: commands sit outside the layers) and measure."""
+    import cv2
+    import numpy as np
+
+    from ..dataset import Joints, read_joints_csv, write_joints_csv
+    from ..instrument.calibration import BoardSpec, StereoCalibration, calibrate_stereo
+    from ..instrument.folder import CALIBRATION_FILE, measure_to_dataset, read_plate_toml
+    from ..world import World, WorldConfig, load_world_config
+
+    cfg = load_world_config(args.world) if args.world else WorldConfig.from_dict({})
+    world = World(cfg)
+    plate = read_plate_toml(args.plate) if args.plate else world.nominal_plate
+    keep = args.keep_images
+    if keep is not None:
+        (keep / "board").mkdir(parents=True, exist_ok=True)
+        (keep / "pairs").mkdir(parents=True, exist_ok=True)
+        info = world.rig_info()
+        b = info["board"]
+        (keep / "rig.toml").write_text(
+            f"schema_version = 1\nimage_width = {info['image_width']}\nimage_height = {info['image_height']}\n"
+            f"[board]\ntype = \"charuco\"\nsquares_x = {b['squares_x']}\nsquares_y = {b['squares_y']}\n"
+            f"square_mm = {b['square_mm']!r}\nmarker_mm = {b['marker_mm']!r}\ndictionary = \"{b['dictionary']}\"\n"
+        )
+    if args.calib:
+        calib = StereoCalibration.load(args.calib)
+    else:
+        views = world.render_board_views(args.board_views)
+        if keep is not None:
+            for v in views:
+                cv2.imwrite(str(keep / "board" / f"{v.index:03d}_left.png"), v.left)
+                cv2.imwrite(str(keep / "board" / f"{v.index:03d}_right.png"), v.right)
+        board = BoardSpec.from_table(world.rig_info()["board"])
+        calib = calibrate_stereo([(v.left, v.right) for v in views], board, names=[f"{v.index:03d}" for v in views])
+    if args.joints:
+        joints = read_joints_csv(args.joints)
+    else:
+        q = world.visible_configurations(args.station, args.poses, seed=args.seed)
+        joints = Joints(np.arange(len(q)), q, station=np.array([str(args.station)] * len(q), dtype=object))
+    if keep is not None:
+        write_joints_csv(keep / "joints.csv", joints)
+    stations = joints.station if joints.station is not None else np.array(["0"] * len(joints.pose_id), dtype=object)
+
+    def pairs():
+        for k, pid in enumerate(joints.pose_id):
+            cap = world.capture(joints.q[k], station=int(stations[k]), pose_id=int(pid))
+            if keep is not None:
+                cv2.imwrite(str(keep / "pairs" / f"{int(pid)}_left.png"), cap.left)
+                cv2.imwrite(str(keep / "pairs" / f"{int(pid)}_right.png"), cap.right)
+            yield cap.left, cap.right
+
+    robot = args.robot or (cfg.robot if isinstance(cfg.robot, str) else "irb1200")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    calib.save(out / CALIBRATION_FILE)
+    summary = measure_to_dataset(
+        out, joints, pairs(), calib, plate, robot=robot, bias_correction=not args.no_bias_correction,
+        provenance=args.provenance or f"twin measure --render (world seed {cfg.seed})", on_row=_progress(args),
+    )
+    truth = args.truth or (out.parent / "truth.json")
+    world.write_truth(truth)
+    world.close()
+    print(f"truth of the rendered poses: {truth}", file=sys.stderr)
+    return _report(summary)

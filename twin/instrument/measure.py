@@ -12,7 +12,10 @@ Steps (all pure, arrays in, results out):
    undistorted normalized points), with the cone axes (bias corrected) and, beside them, with the
    ellipse centres (uncorrected), so the perspective bias stays visible.
 4. **Labelling** by pairwise distances against the plate geometry (unequal spacing makes it unique).
-   Rejected candidates with a rough position help only to explain which sphere failed and why.
+   Two accepted spheres alone fit two labellings; under each the third sphere lies on a known circle, and
+   the centre ray of a rejected candidate (reliable even when its outline is not) near one circle and not
+   the other decides; otherwise both stay unlabelled. Rejected candidates never give a centre: they only
+   explain which sphere failed and why.
 5. **Flags, never guesses.** A sphere that is out of frame, occluded, merged, too small, not round, not
    matched, failing the epipolar or size checks, or not labelled uniquely has no centre; its reason goes to
    ``status`` (``p2:out_of_frame(left)``). A centre is only ever the triangulation of two accepted outlines.
