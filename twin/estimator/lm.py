@@ -65,20 +65,31 @@ class PoseBatch:
     def __call__(self, X, part="full", jacobian=True):
         sp, o = self.space, self.obs
         X = np.atleast_2d(X)
+        B = X.shape[0]
         ev = sp.chain.evaluate(X[:, : sp.n_rt], o.q, base6=X[:, sp.n_rt:], jacobian=jacobian)
-        rs, Js = [], []
+        sp_, so = o.sigma_position, o.sigma_orientation
+        rs = []
         if part in ("full", "position"):
-            rs.append(((o.pose_p[None] - ev.p) / o.sigma_position).transpose(0, 2, 1).reshape(X.shape[0], -1))
-            if jacobian:
-                Js.append((ev.J[:, :, :3, :] / o.sigma_position).reshape(X.shape[0], sp.size, -1))
+            rs.append(((o.pose_p[None] - ev.p) / sp_).transpose(0, 2, 1).reshape(B, -1))
         if part in ("full", "orientation"):
-            e = matrix_to_rotvec(o.pose_R[None] @ np.swapaxes(ev.R, -1, -2)) / o.sigma_orientation
-            rs.append(e.transpose(0, 2, 1).reshape(X.shape[0], -1))
-            if jacobian:
-                Js.append((ev.J[:, :, 3:, :] / o.sigma_orientation).reshape(X.shape[0], sp.size, -1))
-        r = np.concatenate(rs, axis=1)
-        J = np.concatenate(Js, axis=2) if jacobian else None
-        return r, J
+            e = matrix_to_rotvec(o.pose_R[None] @ np.swapaxes(ev.R, -1, -2)) / so
+            rs.append(e.transpose(0, 2, 1).reshape(B, -1))
+        r = np.concatenate(rs, axis=1) if len(rs) > 1 else rs[0]
+        if not jacobian:
+            return r, None
+        J = ev.J  # (B, P, 6, n), freshly allocated: scaled in place
+        if part == "full":
+            if sp_ == so:
+                if sp_ != 1.0:
+                    J *= 1.0 / sp_
+            else:
+                J[:, :, :3] *= 1.0 / sp_
+                J[:, :, 3:] *= 1.0 / so
+            # component-major rows (px, py, pz, wx, wy, wz): a view, no copy
+            return r, J.reshape(B, sp.size, -1)
+        blk = J[:, :, :3] if part == "position" else J[:, :, 3:]
+        s = sp_ if part == "position" else so
+        return r, (blk * (1.0 / s)).reshape(B, sp.size, -1)
 
 
 class GenericBatch:
@@ -150,47 +161,58 @@ def levenberg_marquardt(
     X = np.array(np.atleast_2d(X0), dtype=float)
     B, P = X.shape
     fidx = np.flatnonzero(np.asarray(free, dtype=bool))
-    mu = np.full(B, settings.mu0)
+    all_free = fidx.size == P
     its = np.zeros(B, dtype=int)
-    active = np.ones(B, dtype=bool)
-    r, Jt = problem(X, part, True)
-    cost = np.einsum("bm,bm->b", r, r)
+    cost = np.zeros(B)
+    stopped = np.zeros(B, dtype=bool)
     trace: list[LMTrace] = []
     eye = np.eye(fidx.size)
+    # compact state of the active runs only (finished runs are written back and dropped)
+    act = np.arange(B)
+    Xa = X.copy()
+    ra, Ja = problem(Xa, part, True)
+    ca = np.einsum("bm,bm->b", ra, ra)
+    cost[:] = ca
+    mua = np.full(B, settings.mu0)
     for it in range(1, settings.max_iter + 1):
-        a = np.flatnonzero(active)
-        if a.size == 0:
+        if act.size == 0:
             break
-        Jf = Jt[a][:, fidx, :]  # (A, F, m)
+        Jf = Ja if all_free else Ja[:, fidx, :]  # (A, F, m)
         H = Jf @ np.swapaxes(Jf, 1, 2)
-        g = np.einsum("afm,am->af", Jf, r[a])
+        g = np.einsum("afm,am->af", Jf, ra)
+        Hd = H + mua[:, None, None] * eye
         try:
-            d = np.linalg.solve(H + mu[a, None, None] * eye, g[..., None])[..., 0]
+            d = np.linalg.solve(Hd, g[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            d = np.stack([np.linalg.lstsq(H[k] + mu[a[k]] * eye, g[k], rcond=None)[0] for k in range(a.size)])
+            d = np.stack([np.linalg.lstsq(Hd[k], g[k], rcond=None)[0] for k in range(act.size)])
         d = np.where(np.isfinite(d), d, 0.0)
-        Xn = X[a].copy()
+        Xn = Xa.copy()
         Xn[:, fidx] += d
         rn, Jn = problem(Xn, part, True)
         cn = np.einsum("bm,bm->b", rn, rn)
-        better = cn < cost[a]
-        take = np.ones(a.size, dtype=bool) if settings.accept == "always" else better
-        mu[a] = np.where(better, mu[a] / settings.lam, mu[a] * settings.lam)
-        mu[a] = np.clip(mu[a], 1e-300, 1e16)
-        idx = a[take]
-        X[idx] = Xn[take]
-        r[idx] = rn[take]
-        Jt[idx] = Jn[take]
-        cost[idx] = cn[take]
-        its[a] += 1
+        better = cn < ca
+        mua = np.clip(np.where(better, mua / settings.lam, mua * settings.lam), 1e-300, 1e16)
+        if settings.accept == "always":
+            Xa, ra, Ja, ca = Xn, rn, Jn, cn
+        else:
+            Xa = np.where(better[:, None], Xn, Xa)
+            ra = np.where(better[:, None], rn, ra)
+            Ja = np.where(better[:, None, None], Jn, Ja)
+            ca = np.where(better, cn, ca)
+        its[act] += 1
         step = np.max(np.abs(d), axis=1)
         done = (step < settings.tol_step) | ~np.isfinite(cn)
-        active[a[done]] = False
-        e = LMTrace(stage, it, int(a.size), float(np.median(cost[a])))
+        X[act] = Xa
+        cost[act] = ca
+        e = LMTrace(stage, it, int(act.size), float(np.median(ca)))
         trace.append(e)
         if callback:
             callback(e)
-    return LMResult(X=X, cost=cost, iterations=its, cycles=np.zeros(B, int), stopped_early=~active, trace=tuple(trace))
+        if np.any(done):
+            stopped[act[done]] = True
+            keep = ~done
+            act, Xa, ra, Ja, ca, mua = act[keep], Xa[keep], ra[keep], Ja[keep], ca[keep], mua[keep]
+    return LMResult(X=X, cost=cost, iterations=its, cycles=np.zeros(B, int), stopped_early=stopped, trace=tuple(trace))
 
 
 def cross_identification(
@@ -211,7 +233,8 @@ def cross_identification(
 
     Stage 1: LM on ``problem_orientation(X, "orientation")`` over ``free & angle``; stage 2: LM on
     ``problem_full(X, "full")`` over ``free``; repeated ``n_cycles`` times. A run leaves the loop when
-    ``stop(X) -> (B,) bool`` holds or a cycle moves none of its parameters by more than ``tol_cycle``.
+    ``stop(X) -> (B,) bool`` holds, when a cycle moves none of its parameters by more than ``tol_cycle``, or
+    when a cycle does not lower its full-residual cost (it is stuck: further cycles repeat the same moves).
     """
     X = np.array(np.atleast_2d(X0), dtype=float)
     B = X.shape[0]
@@ -221,6 +244,7 @@ def cross_identification(
     its = np.zeros(B, dtype=int)
     cyc = np.zeros(B, dtype=int)
     cost = np.full(B, np.nan)
+    prev_cost = np.full(B, np.inf)
     trace: list[LMTrace] = []
     for c in range(1, n_cycles + 1):
         a = np.flatnonzero(active)
@@ -238,6 +262,9 @@ def cross_identification(
         trace += list(r1.trace) + list(r2.trace)
         moved = np.max(np.abs(r2.X - X_prev), axis=1)
         done = moved < tol_cycle
+        if c > 1:
+            done |= r2.cost >= prev_cost[a] * (1.0 - 1e-9)  # a whole cycle without progress: stuck
+        prev_cost[a] = r2.cost
         if stop is not None:
             done |= np.asarray(stop(X[a]), dtype=bool)
         active[a[done]] = False

@@ -26,6 +26,7 @@ from .core import (
     prepare,
     residual_stats,
 )
+from .identifiability import analyse_jacobian, preference_order
 from .problem import Observations, ParamSpace, absolute_residuals
 from .solvers import TraceEntry, gauss_newton, robust_fit
 
@@ -89,7 +90,9 @@ def identify_best(
     cand = candidates(space, error_model)
     check_design(obs, int(cand.sum()))
     x0 = prep.x_nominal.copy()
-    ida = analyse(space, x0, obs, cand, gauge=gauge)
+    res0 = absolute_residuals(space, x0, obs)
+    cand_names = [n for n, c in zip(space.names, cand) if c]
+    ida = analyse_jacobian(res0.J, space.names, candidates=cand_names, order=preference_order(cand_names, gauge))
     free = ida.mask(space.names)
     free_full = np.zeros(space.size, dtype=bool)
     free_full[[space.index(n) for n in ida.identifiable]] = True
@@ -114,11 +117,12 @@ def identify_best(
             return absolute_residuals(space, xx, o)
 
         if robust:
-            rr = robust_fit(fun, x, free_idx, o.n, alpha=alpha, scale_known=given_p and given_o, callback=cb)
+            rr = robust_fit(fun, x, free_idx, o.n, alpha=alpha, scale_known=given_p and given_o, callback=cb,
+                            res0=res0 if round_ == 0 else None)
             x, inlier, final = rr.x, rr.inlier, rr.final
             row_stat, thr = rr.row_stat, rr.threshold
         else:
-            final = gauss_newton(fun, x, free_idx, callback=cb)
+            final = gauss_newton(fun, x, free_idx, callback=cb, res0=res0 if round_ == 0 else None)
             x = final.x
             inlier = np.ones(o.n, dtype=bool)
             row_stat = thr = None
@@ -232,9 +236,10 @@ def build_calibration(prep: Prepared, ident: Identified, method: str, options: d
         # which couplings are structural (any design) and which come from these configurations (only for
         # methods whose analysis is of the absolute residuals, which a generic design is analysed with)
         try:
-            qg = generic_configurations(prep.nominal)
+            qg = generic_configurations(prep.nominal, n=60 * len(prep.obs.station_names))
+            n_st = len(prep.obs.station_names)
             og = Observations(
-                kind=prep.obs.kind, q=qg, station=np.zeros(len(qg), int), station_names=prep.obs.station_names,
+                kind=prep.obs.kind, q=qg, station=np.arange(len(qg)) % n_st, station_names=prep.obs.station_names,
                 pose_id=np.arange(len(qg)), spheres_tool=prep.obs.spheres_tool,
                 sigma_position=sig_p, sigma_orientation=sig_o,
             )

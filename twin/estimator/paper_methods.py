@@ -84,13 +84,33 @@ def _weighted(obs: Observations, weighting: str) -> Observations:
     raise ValueError(f"weighting must be 'paper' or 'noise', got {weighting!r}")
 
 
+def _frame_fixed(ida) -> set[str]:
+    """Parameters the papers' methods hold at nominal even with their own solver: those with no effect on the
+    residual, and those coupled with a base/tool parameter. The papers have no base/tool unknowns (their base
+    is known, their plate pinned to the flange); ours come from the unknown camera placement and plate
+    mounting, and in a coupling with them the robot parameter is held so that the robot base frame stays the
+    nominal one (the frame in which compensation targets are given). Couplings among robot parameters (d2/d3)
+    are left to the paper's solver."""
+    out = set()
+    for c in ida.combinations:
+        if c.kind == "no_effect" or any(n.startswith(("base_", "tool_")) for n in c.names):
+            out.add(c.dropped)
+    return out
+
+
+def _split_dropped(ida, solver: str) -> tuple[set[str], set[str]]:
+    """(fixed, coupled): what is held at nominal, what the solver estimates although only a combination is seen."""
+    fixed = _frame_fixed(ida)
+    if solver == "scaled":
+        return set(ida.dropped), set()
+    return fixed, set(ida.dropped) - fixed
+
+
 def _solve(fun: Callable[[np.ndarray], Residuals], x0, free, solver: str, stage: str, max_iter: int, cb,
-           space: ParamSpace, drop_names=()) -> tuple[np.ndarray, tuple]:
+           space: ParamSpace, fixed=()) -> tuple[np.ndarray, tuple]:
     if solver not in ("spectral", "scaled"):
         raise ValueError(f"solver must be 'spectral' or 'scaled', got {solver!r}")
-    idx = np.flatnonzero(free)
-    if solver == "scaled" and drop_names:
-        idx = np.array([i for i in idx if space.names[i] not in set(drop_names)], dtype=int)
+    idx = np.array([i for i in np.flatnonzero(free) if space.names[i] not in set(fixed)], dtype=int)
     g = gauss_newton(fun, x0, idx, max_iter=max_iter, stage=stage, linear_solver=solver, callback=cb)
     return g.x, g.trace
 
@@ -153,11 +173,10 @@ def identify_distance(
     ida = _pair_analysis(space, x0, obs, pairs, "distance", free)
     trace: list[TraceEntry] = []
     cb = _collect(trace, callback)
+    fixed, coupled = _split_dropped(ida, solver)
     x, _ = _solve(lambda y: pair_residuals(space, y, obs, pairs, "distance"), x0, free, solver, "distance",
-                  max_iter, cb, space, ida.dropped)
+                  max_iter, cb, space, fixed)
     x = register_bases(space, x, prep.obs_cal)
-    coupled = set() if solver == "scaled" else set(ida.dropped)
-    fixed = set(ida.dropped) if solver == "scaled" else set()
     return Identified(
         x=x, status=_status(space, free, coupled, fixed), covariance=None, identifiability=ida,
         inlier=np.ones(obs.n, bool), rejected=(), noise=_noise_info(prep, weighting), trace=tuple(trace),
@@ -188,10 +207,9 @@ def identify_fullpose(
     x0 = prep.x_nominal.copy()
     ida = analyse(space, x0, obs, free)
     trace: list[TraceEntry] = []
+    fixed, coupled = _split_dropped(ida, solver)
     x, _ = _solve(lambda y: absolute_residuals(space, y, obs), x0, free, solver, "fullpose", max_iter,
-                  _collect(trace, callback), space, ida.dropped)
-    coupled = set() if solver == "scaled" else set(ida.dropped)
-    fixed = set(ida.dropped) if solver == "scaled" else set()
+                  _collect(trace, callback), space, fixed)
     return Identified(
         x=x, status=_status(space, free, coupled, fixed), covariance=None, identifiability=ida,
         inlier=np.ones(obs.n, bool), rejected=(), noise=_noise_info(prep, weighting), trace=tuple(trace),
@@ -238,8 +256,9 @@ def identify_separation(
         src = "dataset.toml" if all(s in given for s in space.stations) else "closed-form registration of the nominal model"
         notes.append(f"euler residual: base rotation from {src}")
     ida1 = _pair_analysis(space, x0, obs_rot, pairs_rot, kind, free1, base2meas=b2m)
+    fixed1, coupled1 = _split_dropped(ida1, solver)
     x1, _ = _solve(lambda y: pair_residuals(space, y, obs_rot, pairs_rot, kind, base2meas=b2m), x0, free1,
-                   solver, "separation-angles", max_iter, cb, space, ida1.dropped)
+                   solver, "separation-angles", max_iter, cb, space, fixed1)
     # --- step 2: lengths and the theta2/theta3 split from distances
     i2, i3 = space.index("theta2"), space.index("theta3")
     len_names = tuple(n for n in EQ22_LENGTHS if n not in ("theta2", "theta3")) + tuple(n for n in tool_names if not n.startswith("tool_r"))
@@ -259,14 +278,14 @@ def identify_separation(
     ida2_res = fun2(x1)
     names2 = [n for n, f in zip(space.names, free2) if f]
     ida2 = analyse_jacobian(ida2_res.J, space.names, candidates=names2, order=preference_order(names2))
-    x2, _ = _solve(fun2, x1, free2, solver, "separation-lengths", max_iter, cb, space, ida2.dropped)
+    fixed2, coupled2 = _split_dropped(ida2, solver)
+    x2, _ = _solve(fun2, x1, free2, solver, "separation-lengths", max_iter, cb, space, fixed2)
     x2[i3] = s23 - x2[i2]
     x2 = register_bases(space, x2, prep.obs_cal)
     free = free1 | free2
     free[i3] = True
-    coupled = set() if solver == "scaled" else set(ida1.dropped) | set(ida2.dropped)
-    fixed = (set(ida1.dropped) | set(ida2.dropped)) if solver == "scaled" else set()
-    fixed.discard("theta3")
+    coupled = coupled1 | coupled2
+    fixed = (fixed1 | fixed2) - {"theta3"}
     notes.append("base2meas registered in closed form after the fit")
     return Identified(
         x=x2, status=_status(space, free, coupled - {"theta3"}, fixed), covariance=None, identifiability=ida1,

@@ -36,7 +36,6 @@ from ..transforms import (
     euler_zyx_from_matrix,
     matrix_to_rotvec,
     pose6_to_transform,
-    rotvec_to_matrix,
     transform_to_pose6,
 )
 from .chain import Chain

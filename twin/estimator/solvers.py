@@ -71,9 +71,11 @@ def gauss_newton(
     row_weights: np.ndarray | None = None,
     max_iter: int = 50,
     xtol: float = 1e-13,
+    rtol: float = 1e-10,
     stage: str = "gauss-newton",
     linear_solver: Literal["scaled", "spectral"] = "scaled",
     spectral_iterations: int = 100_000,
+    res0: Residuals | None = None,
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> GNResult:
     """Minimise ``sum_i w_row(i) r_i(x)^2`` over the parameters ``free`` (bool ``(P,)`` or indices).
@@ -88,7 +90,9 @@ def gauss_newton(
     ``(H^T H) dx = H^T e`` are solved by the spectral-correction iteration
     ``dx_n = (H^T H + I)^-1 (H^T e + dx_{n-1})`` (see :func:`spectral_correction`), every step accepted.
 
-    Converged when every parameter moves by less than ``xtol`` [SI] in a step.
+    Converged when every parameter moves by less than ``xtol`` [SI] in a step, or (scaled solver) when the
+    next Gauss-Newton step would change the residual vector by less than ``rtol * |r| + 1e-15`` (far below
+    the noise: the step is then not taken). ``res0``: residuals already evaluated at ``x0``.
     """
     x = np.array(x0, dtype=float)
     free = np.asarray(free)
@@ -99,7 +103,7 @@ def gauss_newton(
         rr = res.r if sw is None else res.r * sw
         return GNResult(x, float(rr @ rr), True, 0, res, ())
     trace: list[TraceEntry] = []
-    res = fun(x)
+    res = fun(x) if res0 is None else res0
     sw = _row_sqrt_weights(res, row_weights)
     r = res.r if sw is None else res.r * sw
     cost = float(r @ r)
@@ -142,17 +146,29 @@ def gauss_newton(
             except (np.linalg.LinAlgError, ValueError):
                 z, *_ = np.linalg.lstsq(A, r, rcond=None) if lam == 0 else (np.linalg.solve(Hd, g),)
             dx_f = D * z
+            step = float(np.max(np.abs(dx_f)))
+            if lam == 0.0 and (step < xtol or float(np.linalg.norm(A @ z)) <= rtol * np.sqrt(cost) + 1e-15):
+                # the Gauss-Newton step would change the (whitened) residuals by a negligible amount: converged
+                # here, without spending a function evaluation on it
+                cost_new, step = cost, 0.0
+                break
             x_new = x.copy()
             x_new[idx] += dx_f
             res_new = fun(x_new)
             r_new = res_new.r if sw is None else res_new.r * sw
             cost_new = float(r_new @ r_new)
-            step = float(np.max(np.abs(dx_f)))
             if cost_new <= cost * (1 + 1e-12) or step < xtol:
                 break
             lam = max(lam * 10.0, 1e-6 * float(np.max(np.diag(H))))
             if lam > 1e8 * float(np.max(np.diag(H))):
                 break
+        if step == 0.0:
+            e = TraceEntry(stage, it, cost, 0.0, lam)
+            trace.append(e)
+            if callback:
+                callback(e)
+            converged = True
+            break
         accepted = cost_new <= cost * (1 + 1e-12) or step < xtol
         if accepted:
             x, res, r, cost = x_new, res_new, r_new, cost_new
@@ -303,6 +319,7 @@ def robust_fit(
     scale_known: bool = True,
     max_irls: int = 15,
     max_iter: int = 50,
+    res0: Residuals | None = None,
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> RobustResult:
     """Least squares that gross errors cannot spoil, with an explicit outlier rule per row.
@@ -315,7 +332,7 @@ def robust_fit(
     3. If a row is flagged: iteratively reweighted least squares with Cauchy weights (scale re-estimated
        each round) from the plain solution, until the weights settle; then the rule of step 2 again.
     4. Final plain Gauss-Newton on the inliers (unit weights), so the estimate and its covariance are
-       those of ordinary weighted least squares on clean data.
+       those of ordinary weighted least squares on clean data (when no row was flagged, step 1 is it).
     """
     trace: list[TraceEntry] = []
 
@@ -325,7 +342,7 @@ def robust_fit(
             callback(e)
 
     free = np.asarray(free)
-    gn = gauss_newton(fun, x0, free, max_iter=max_iter, stage="gauss-newton", callback=cb)
+    gn = gauss_newton(fun, x0, free, max_iter=max_iter, stage="gauss-newton", res0=res0, callback=cb)
 
     def classify(res: Residuals, base_mask: np.ndarray | None = None):
         t, dof = row_statistics(res, n_rows)
@@ -356,7 +373,10 @@ def robust_fit(
         res = fun(x)
         inlier, t, dof, thr, s = classify(res)
     wfinal = inlier.astype(float)
-    final = gauss_newton(fun, x, free, row_weights=wfinal, max_iter=max_iter, stage="final", callback=cb)
+    if used_irls:
+        final = gauss_newton(fun, x, free, row_weights=wfinal, max_iter=max_iter, stage="final", callback=cb)
+    else:
+        final = gn  # no row flagged: the plain fit is the final one
     t, dof = row_statistics(final.residuals, n_rows)
     s_in = robust_scale(t, dof, inlier)
     return RobustResult(
