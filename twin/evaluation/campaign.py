@@ -162,6 +162,7 @@ def run_campaign(
     """
     say = log or (lambda s: None)
     t_start = time.perf_counter()
+    load_start = os.getloadavg()
     timings: dict[str, float] = {}
     out = Path(out_dir)
     work = out / "work"
@@ -257,7 +258,8 @@ def run_campaign(
     # --- 4. evaluation ---------------------------------------------------------------------------
     t = time.perf_counter()
     nominal = cfg.nominal_model()
-    evals = evaluate_campaign(plan, groups, nominal, cfg.plate, base2meas_true, before, after)
+    evals = evaluate_campaign(plan, groups, nominal, cfg.plate, base2meas_true, before, after,
+                              {m: r.base2meas for m, r in method_results.items()})
     summaries = {m: e.summary for m, e in evals.items()}
     targets = None
     try:
@@ -322,6 +324,8 @@ def run_campaign(
         "worker_time_sums_s": sums,
         "config": cfg.raw,
         "code": _code_version(),
+        "machine": {"cpu_count": os.cpu_count(), "load_average_start": list(load_start),
+                    "load_average_end": list(os.getloadavg())},
     }
     if "recording" in files and files["recording"].exists():
         results["recording_mb"] = files["recording"].stat().st_size / 1e6
