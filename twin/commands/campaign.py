@@ -62,13 +62,13 @@ def _rich_tables(results: dict, source: str = "measured") -> list:
     for unit, title in (("angle_deg", "angle error (deg)"), ("position_mm", "moved-distance error (mm)")):
         t = Table(title=f"{results['campaign']} (seed {results['seed']}): {title}, {what}, before -> after compensation")
         t.add_column("method")
-        for stat in ("max", "mean", "std"):
+        for stat in ("max", "mean", "rms", "std"):
             t.add_column(stat, justify="right")
         t.add_column("improvement", justify="right")
         for r in rows:
             blk = r.get(unit) or {}
             cells = []
-            for stat in ("max", "mean", "std"):
+            for stat in ("max", "mean", "rms", "std"):
                 b, a = (blk.get("before") or {}).get(stat), (blk.get("after") or {}).get(stat)
                 cells.append("-" if b is None or a is None else f"{b:.4f} -> {a:.4f}")
             imp = blk.get("improvement_percent")
@@ -134,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
                                 recording=False if args.no_recording else None)
     for t in _rich_tables(run_.results):
         console.print(t)
-    console.print("std = sample standard deviation (the paper's 'mean square error'); improvement of the mean; "
-                  "'paper' rows are the paper's published numbers (targets printed beside ours), not results.")
+    console.print("std = sample standard deviation: the paper's 'mean square error' is smaller than its mean in most "
+                  "figures, which an RMS never is, so it is compared with our std (the paper gives no RMS); improvement "
+                  "of the mean; 'paper' rows are the paper's published numbers (targets printed beside ours), not results.")
     from twin.evaluation.report import render_parameter_table
 
     res = run_.results

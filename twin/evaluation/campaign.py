@@ -246,8 +246,9 @@ def run_campaign(
                                            qc[k - 1] if k > 0 else None))
         timings["compensate_s"] = time.perf_counter() - t
         t = time.perf_counter()
+        n_new_after = 0
         if comp_tasks:
-            _measure(ex, spec, comp_tasks, store, "measuring after compensation", progress)
+            n_new_after = _measure(ex, spec, comp_tasks, store, "measuring after compensation", progress)
         timings["measure_after_s"] = time.perf_counter() - t
         after = {m: {int(plan.pose_id[i]): store.read(f"c/{m}/{int(plan.pose_id[i]):05d}") for i in val_rows}
                  for m in method_results}
@@ -312,6 +313,7 @@ def run_campaign(
             "validation_poses": int(len(val_rows)),
             "compensated_measurements": int(len(val_rows) * len(method_results)),
             "rejected_before": int(sum(1 for r in before.values() if r.status)),
+            "measured_in_this_run": int(n_new + n_new_after),
         },
         "methods": summaries,
         "methods_unavailable": unavailable,

@@ -107,16 +107,16 @@ def _fmt(x: Any, nd: int = 4) -> str:
 
 
 def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
-    """Plain-text table (also what the CLI prints through rich): max / mean / std before -> after, improvement."""
-    head = (f"{'method':<30} | {'angle [deg] max':>17} {'mean':>17} {'std':>17} {'impr.':>6} | "
-            f"{'position [mm] max':>17} {'mean':>17} {'std':>17} {'impr.':>6}")
+    """Plain-text table: max / mean / rms / std before -> after, improvement of the mean."""
+    head = (f"{'method':<30} | {'angle [deg] max':>17} {'mean':>17} {'rms':>17} {'std':>17} {'impr.':>6} | "
+            f"{'position [mm] max':>17} {'mean':>17} {'rms':>17} {'std':>17} {'impr.':>6}")
     lines = [title, head, "-" * len(head)] if title else [head, "-" * len(head)]
     for r in rows:
         cells = [f"{r['label']:<30}"]
         for unit in ("angle_deg", "position_mm"):
             blk = r.get(unit)
             parts = []
-            for stat in ("max", "mean", "std"):
+            for stat in ("max", "mean", "rms", "std"):
                 b = _g(blk, "before", stat)
                 a = _g(blk, "after", stat)
                 parts.append(f"{_fmt(b):>7} -> {_fmt(a):<7}")
@@ -124,8 +124,8 @@ def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
             parts.append(f"{'-' if imp is None else f'{imp:5.1f}%':>6}")
             cells.append(" ".join(parts))
         lines.append(" | ".join(cells))
-    lines.append("std: sample standard deviation, the paper's 'mean square error' (smaller than its mean, so not an RMS); "
-                 "improvement: of the mean.")
+    lines.append("std: sample standard deviation, compared with the paper's 'mean square error' (smaller than its mean "
+                 "in most figures, so not an RMS; the paper gives no RMS); improvement: of the mean.")
     return "\n".join(lines)
 
 
