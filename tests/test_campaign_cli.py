@@ -28,3 +28,15 @@ def test_twin_campaign_names_a_bad_key(tmp_path, capsys):
     cfg.write_text(SMALL_TOML.replace("[measurement]", "[measurement]\nnoise_mn = 1"))
     assert main(["campaign", str(cfg), "--out", str(tmp_path / "out")]) == 2
     assert "measurement.noise_mn" in capsys.readouterr().err
+
+
+def test_twin_campaign_repeats_writes_mean_and_spread(tmp_path, capsys):
+    """`--repeats 2` runs two seeds and writes repeats.json with every statistic's mean and spread."""
+    cfg = tmp_path / "small.toml"
+    cfg.write_text(SMALL_TOML)
+    assert main(["campaign", str(cfg), "--out", str(tmp_path / "mc"), "--repeats", "2"]) == 0
+    rep = json.loads((tmp_path / "mc" / "repeats.json").read_text())
+    assert rep["seeds"] == [7, 8] and len(rep["per_seed"]) == 2
+    s = rep["statistics"]["methods.full_pose.measured.angle_deg.after.mean"]
+    assert s["n"] == 2 and s["min"] <= s["mean"] <= s["max"]
+    assert "full_pose: angle_deg: mean" in capsys.readouterr().out

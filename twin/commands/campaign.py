@@ -120,6 +120,16 @@ def run(args: argparse.Namespace) -> int:
         agg["config"] = cfg.raw
         write_results(out / "repeats.json", agg)
         console.print(f"{len(seeds)} seeds -> {out / 'repeats.json'}")
+        st = agg["statistics"]
+        for m in cfg.methods:
+            parts = []
+            for unit in ("angle_deg", "position_mm"):
+                b = st.get(f"methods.{m}.measured.{unit}.before.mean")
+                a = st.get(f"methods.{m}.measured.{unit}.after.mean")
+                if a and b:
+                    parts.append(f"{unit}: mean {b['mean']:.4f} -> {a['mean']:.4f} (std over seeds {a['std']:.4f})")
+            if parts:
+                console.print(f"  {m}: " + "; ".join(parts))
         for claim, e in agg["orderings"].items():
             console.print(f"  {claim}: holds in {e['holds']}/{e['n']} seeds")
         console.print(f"total {time.perf_counter() - t0:.1f} s")

@@ -353,9 +353,11 @@ def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
 
     main = "separation" if "separation" in evals else next(iter(evals))
     ev = evals[main]
+    real = cfg.outputs.paper == "real"
+    name10, name11 = ("figure13_15", "methods_after") if real else ("figure10", "figure11")
     if angle_pairs and pos_pairs and main != "before":
-        files["figure10"] = plot_figure10(
-            out / "figure10.png",
+        files[name10] = plot_figure10(
+            out / f"{name10}.png",
             cat(ev, "angle", "measured_before", angle_pairs) * deg, cat(ev, "angle", "measured_after", angle_pairs) * deg,
             cat(ev, "position", "measured_before", pos_pairs) * 1e3, cat(ev, "position", "measured_after", pos_pairs) * 1e3,
             np.concatenate([p.distance for p in pos_pairs]),
@@ -363,8 +365,8 @@ def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
         )
     methods = [m for m in evals if m != "before"]
     if len(methods) > 1 and angle_pairs and pos_pairs:
-        files["figure11"] = plot_figure11(
-            out / "figure11.png",
+        files[name11] = plot_figure11(
+            out / f"{name11}.png",
             {m: cat(evals[m], "angle", "measured_after", angle_pairs) * deg for m in methods},
             {m: cat(evals[m], "position", "measured_after", pos_pairs) * 1e3 for m in methods},
             title=f"{cfg.name}: methods after compensation, measured",
@@ -440,6 +442,7 @@ def _one_seed(raw: dict, source: str | None, quick: bool, seed: int, out_dir: st
     """Worker: one whole campaign for ``seed`` (poses measured in this process), its statistics, and where it ran."""
     from .config import parse_campaign_config
 
+    raw = {**raw, "outputs": {**raw.get("outputs", {}), "recording": False, "figures": False}}  # no images kept
     cfg = parse_campaign_config(raw, source=Path(source) if source else None, _quick_applied=quick).with_seed(seed)
     run = run_campaign(cfg, out_dir, executor=SerialExecutor(), backend_factory=backend_factory,
                        implementations=implementations, recording=False, figures=False)
