@@ -7,7 +7,6 @@ Thin: parses the arguments, runs :func:`twin.evaluation.campaign.run_campaign` (
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 import time

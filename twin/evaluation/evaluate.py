@@ -34,10 +34,9 @@ import numpy as np
 from ..dataset import Plate
 from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import RobotModel, flange2base
-from ..transforms import invert_transform, make_transform, rotation_angle_between
+from ..transforms import invert_transform, make_transform
 from .plan import CampaignPlan
 from .statistics import (
-    Summary,
     absolute_pose_errors,
     euler_change_error,
     improvement_percent,

@@ -258,7 +258,6 @@ class ImageBackend(_WorldBackend):
 
     def prepare(self) -> None:
         from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
-        from .store import atomic_write_text
 
         super().prepare()
         if self.calib_path.exists():
