@@ -274,7 +274,9 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     attempts = r.integer("max_attempts", None, minimum=1)
     pitch = r.number("max_euler_pitch_deg", None, positive=True)
     roll = r.number("max_roll_deg", None, nonneg=True)
+    lim = r.number("limit_margin_deg", None, nonneg=True)
     kw: dict[str, Any] = {}
+    kw["limit_margin"] = lim * _DEG if lim is not None else defaults.limit_margin
     kw["max_roll"] = roll * _DEG if roll is not None else defaults.max_roll
     kw["max_euler_pitch"] = pitch * _DEG if pitch is not None else defaults.max_euler_pitch
     if depth is not None:
