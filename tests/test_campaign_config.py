@@ -95,3 +95,22 @@ def test_pose_seed_depends_on_seed_and_key():
     """Per-pose seeds are stable and differ between keys and campaigns."""
     assert pose_seed(1, "before/3") == pose_seed(1, "before/3")
     assert len({pose_seed(1, "before/3"), pose_seed(1, "before/4"), pose_seed(2, "before/3")}) == 3
+
+
+def test_joints_csv_group_takes_poses_from_a_plan_file(tmp_path):
+    """A joints_csv group (e.g. written by twin plan) is measured as given; consecutive rows can form pairs."""
+    from twin.dataset import Joints, write_joints_csv
+
+    c = load_campaign_config(SEPARATION, quick=True)
+    q = make_plan(c).q[:4]
+    write_joints_csv(tmp_path / "plan.csv", Joints(np.arange(4), q, station=np.array(["front"] * 4, dtype=object)))
+    raw = _raw()
+    raw["poses"] = [{"name": "planned", "set": "calibration", "kind": "joints_csv", "path": str(tmp_path / "plan.csv")},
+                    {"name": "check", "set": "validation", "kind": "joints_csv", "path": str(tmp_path / "plan.csv"),
+                     "pairing": "consecutive", "evaluate": ["angle"]}]
+    p = make_plan(parse_campaign_config(raw))
+    np.testing.assert_allclose(p.q[:4], q, atol=1e-12)
+    assert list(p.role[4:]) == ["start", "end", "start", "end"] and list(p.role[:4]) == ["single"] * 4
+    raw["poses"][1]["pairing"] = "none"
+    with pytest.raises(ValueError, match="no motion to evaluate"):
+        parse_campaign_config(raw)

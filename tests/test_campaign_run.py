@@ -133,3 +133,33 @@ def test_dask_local_cluster_gives_the_same_aggregate_and_runs_on_its_workers(tmp
     assert all(w["dask_worker"] in worker_addresses for w in ran_on)
     assert {w["pid"] for w in ran_on} <= worker_pids and os.getpid() not in {w["pid"] for w in ran_on}
     assert len({w["dask_worker"] for w in ran_on}) == 2  # both workers took seeds
+
+
+def test_a_motion_is_compensated_as_a_whole(tmp_path):
+    """When one end of a motion cannot be compensated (joint limit), both ends keep their nominal commands."""
+    import dataclasses
+
+    from twin.evaluation.plan import make_plan
+    from twin.evaluation.store import PoseStore
+
+    cfg = small_config()
+    plan = make_plan(cfg)
+    val = np.flatnonzero(plan.set == "validation")
+    # joint-3 limit just below one end pose's command: that end (and only it) cannot be compensated
+    end = val[1]
+    limit = plan.q[end, 2] - 1e-4
+
+    def narrow(dataset, seed):
+        r = reference_full_pose(dataset, seed)
+        q_max = r.robot.q_max.copy()
+        q_max[2] = limit
+        return dataclasses.replace(r, robot=dataclasses.replace(r.robot, q_max=q_max))
+
+    run = run_campaign(cfg, tmp_path, implementations={"full_pose": narrow})
+    failed = set(run.results["compensation_failed"]["full_pose"])
+    assert {int(plan.pose_id[val[0]]), int(plan.pose_id[end])} <= failed
+    store = PoseStore(tmp_path / "work" / "poses")
+    for i in (val[0], end):
+        np.testing.assert_array_equal(store.read(f"c/full_pose/{int(plan.pose_id[i]):05d}").q, plan.q[i])
+    ok_rows = [i for i in val if int(plan.pose_id[i]) not in failed]
+    assert ok_rows and not np.allclose(store.read(f"c/full_pose/{int(plan.pose_id[ok_rows[0]]):05d}").q, plan.q[ok_rows[0]])

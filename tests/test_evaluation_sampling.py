@@ -94,3 +94,20 @@ def test_distance_moves_refuse_nonpositive_distance():
     """A zero or negative distance is refused, naming the argument."""
     with pytest.raises(ValueError, match="distances must be positive"):
         sample_distance_moves(MODEL, STATION, PLATE, np.array([0.05, 0.0]), np.random.default_rng(0))
+
+
+def test_sampled_joints_keep_a_margin_inside_the_limits():
+    """Planned joints stay limit_margin inside the joint limits (room for the compensated command)."""
+    opt = SamplingOptions(limit_margin=np.deg2rad(5.0))
+    q = sample_configurations(MODEL, STATION, PLATE, 30, np.random.default_rng(9), opt)
+    assert np.all(q >= MODEL.q_min + np.deg2rad(5.0) - 1e-12) and np.all(q <= MODEL.q_max - np.deg2rad(5.0) + 1e-12)
+
+
+def test_plate_pitch_stays_away_from_the_euler_singularity():
+    """The plate's ZYX pitch in the base frame stays within max_euler_pitch (eq. 43 is singular at 90 deg)."""
+    from twin.transforms import euler_zyx_from_matrix
+
+    opt = SamplingOptions(max_euler_pitch=np.deg2rad(40.0), max_roll=np.pi)
+    q = sample_configurations(MODEL, STATION, PLATE, 30, np.random.default_rng(4), opt)
+    pitch = euler_zyx_from_matrix(flange2base(MODEL, q)[:, :3, :3])[:, 1]
+    assert np.all(np.abs(pitch) <= np.deg2rad(40.0) + 1e-9)

@@ -109,3 +109,28 @@ def test_encode_image_lossless_round_trips():
     assert media == "image/jpeg" and len(jpg) < len(png)
     with pytest.raises(ValueError, match="image must be uint8"):
         encode_image(img.astype(float))
+
+
+def test_campaign_recording_reads_back(tmp_path):
+    """A campaign's own recording holds its stations, models, measured spheres and one residual per evaluated motion."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _campaign_helpers import reference_full_pose, small_config
+
+    from twin.evaluation.campaign import run_campaign
+    from twin.evaluation.store import PoseStore
+
+    run = run_campaign(small_config(outputs={"recording": True, "figures": False}), tmp_path,
+                       implementations={"full_pose": reference_full_pose})
+    ents = read_recording(run.files["recording"])
+    for p in ("/world/stations/front/left", "/world/stations/left/right", "/world/robot/nominal/links",
+              "/world/robot/true/links", "/world/robot/calibrated/full_pose/axes", "/world/stations/front/measured/spheres"):
+        assert p in ents, p
+    n_angle_pairs, n_moves = 4, 4  # the small config's compensation pairs and distance moves
+    assert len(_column(ents["/residuals/before/angle_deg"], "Scalars:scalars")) == n_angle_pairs
+    assert len(_column(ents["/residuals/full_pose/position_mm"], "Scalars:scalars")) == n_moves
+    pos = _column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
+    stored = PoseStore(tmp_path / "work" / "poses").read("m/00000")
+    np.testing.assert_allclose(pos[0], np.array([s for s in stored.spheres if s is not None]), atol=1e-6)

@@ -45,7 +45,7 @@ from .executor import SerialExecutor, aggregate, open_executor, run_tasks, worke
 from .methods import Identify, MethodUnavailable, compensate, identify, load_method_result, save_method_result
 from .pipeline import PoseTask, backend_spec_for, get_backend, measure_pose
 from .plan import CampaignPlan, make_plan, pose_seed
-from .report import comparison_rows, plot_figure10, plot_figure11, render_table, write_results
+from .report import comparison_rows, plot_figure10, plot_figure11, render_parameter_table, render_table, write_results
 from ..instrument.plate import paper_frame_from_spheres
 from .store import PoseResult, PoseStore, atomic_write_text
 from .targets import read_targets
@@ -63,6 +63,21 @@ class CampaignRun:
     results: dict[str, Any]
     table: str
     files: dict[str, Path] = field(default_factory=dict)
+
+
+def _code_version() -> dict[str, Any]:
+    """The git commit of the library (and whether the tree had changes), when it runs from a checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                                timeout=10).stdout.strip()
+        dirty = bool(subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "twin"],
+                                    capture_output=True, text=True, timeout=10).stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        return {}
+    return {"git_commit": commit, "twin_modified": dirty} if commit else {}
 
 
 def _check_fingerprint(work: Path, cfg: CampaignConfig) -> None:
@@ -147,6 +162,7 @@ def run_campaign(
     """
     say = log or (lambda s: None)
     t_start = time.perf_counter()
+    load_start = os.getloadavg()
     timings: dict[str, float] = {}
     out = Path(out_dir)
     work = out / "work"
@@ -161,6 +177,8 @@ def run_campaign(
     spec = backend_spec_for(cfg, work, backend_factory)
     t = time.perf_counter()
     backend = get_backend(spec)
+    if cfg.measurement.mode == "images" and not (work / "stereo_calibration.json").exists():
+        say("rendering the board views and calibrating the stereo rig (once per campaign)")
     backend.prepare()
     timings["prepare_s"] = time.perf_counter() - t
     stations_truth = backend.stations_truth()
@@ -211,10 +229,16 @@ def run_campaign(
         not_converged: dict[str, list[int]] = {}
         t = time.perf_counter()
         for m, r in method_results.items():
-            qc, conv = compensate(r, cfg.nominal_model(), plan.q[val_rows])
-            within = r.robot.within_limits(qc)
-            qc = np.where((conv & within)[:, None], qc, plan.q[val_rows])  # never command an unconverged pose
-            not_converged[m] = [int(plan.pose_id[i]) for i, c in zip(val_rows, conv & within) if not c]
+            qc, ok = compensate(r, cfg.nominal_model(), plan.q[val_rows])
+            # A motion is compensated as a whole: if either end failed, both keep their nominal command.
+            pair_ok = {}
+            for k, i in enumerate(val_rows):
+                if plan.pair[i] >= 0:
+                    pair_ok[int(plan.pair[i])] = pair_ok.get(int(plan.pair[i]), True) and bool(ok[k])
+            ok = np.array([pair_ok.get(int(plan.pair[i]), bool(ok[k])) if plan.pair[i] >= 0 else bool(ok[k])
+                           for k, i in enumerate(val_rows)])
+            qc = np.where(ok[:, None], qc, plan.q[val_rows])
+            not_converged[m] = [int(plan.pose_id[i]) for i, c in zip(val_rows, ok) if not c]
             q_comp[m] = qc
             for k, i in enumerate(val_rows):
                 key = f"c/{m}/{int(plan.pose_id[i]):05d}"
@@ -222,8 +246,9 @@ def run_campaign(
                                            qc[k - 1] if k > 0 else None))
         timings["compensate_s"] = time.perf_counter() - t
         t = time.perf_counter()
+        n_new_after = 0
         if comp_tasks:
-            _measure(ex, spec, comp_tasks, store, "measuring after compensation", progress)
+            n_new_after = _measure(ex, spec, comp_tasks, store, "measuring after compensation", progress)
         timings["measure_after_s"] = time.perf_counter() - t
         after = {m: {int(plan.pose_id[i]): store.read(f"c/{m}/{int(plan.pose_id[i]):05d}") for i in val_rows}
                  for m in method_results}
@@ -234,7 +259,8 @@ def run_campaign(
     # --- 4. evaluation ---------------------------------------------------------------------------
     t = time.perf_counter()
     nominal = cfg.nominal_model()
-    evals = evaluate_campaign(plan, groups, nominal, cfg.plate, base2meas_true, before, after)
+    evals = evaluate_campaign(plan, groups, nominal, cfg.plate, base2meas_true, before, after,
+                              {m: r.base2meas for m, r in method_results.items()})
     summaries = {m: e.summary for m, e in evals.items()}
     targets = None
     try:
@@ -244,11 +270,14 @@ def run_campaign(
     true_dev = cfg.true_deviation()
     params = {m: parameter_comparison(nominal, true_dev, r.robot, r.identified) for m, r in method_results.items()}
     orderings = paper_orderings(summaries) if method_results else []
-    rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets)
+    paper_key = ("simulation", "figure10", "figure10") if cfg.outputs.paper == "simulation" else ("real", "figure13", "figure15")
+    rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets, paper_key=paper_key)
     title = f"{cfg.name} (seed {cfg.seed}{', quick' if cfg.quick else ''}): measured after compensation"
     table = render_table(rows_tab, title)
     rows_truth = comparison_rows({m: s for m, s in summaries.items()}, None, source="truth")
     table_truth = render_table(rows_truth, "same statistics on the world's truth (no measurement noise)")
+    table_params = render_parameter_table(params, targets if cfg.outputs.paper == "simulation" else None,
+                                          "identified parameter deviations (Tables 3 and 5 style)")
     timings["evaluate_s"] = time.perf_counter() - t
 
     files: dict[str, Path] = {}
@@ -284,21 +313,28 @@ def run_campaign(
             "validation_poses": int(len(val_rows)),
             "compensated_measurements": int(len(val_rows) * len(method_results)),
             "rejected_before": int(sum(1 for r in before.values() if r.status)),
+            "measured_in_this_run": int(n_new + n_new_after),
         },
         "methods": summaries,
         "methods_unavailable": unavailable,
-        "compensation_not_converged": not_converged,
+        "compensation_failed": not_converged,
         "parameters": params,
         "orderings": orderings,
         "paper_targets": targets,
+        "paper_key": list(paper_key),
         "timings_s": timings,
         "worker_time_sums_s": sums,
         "config": cfg.raw,
+        "code": _code_version(),
+        "machine": {"cpu_count": os.cpu_count(), "load_average_start": list(load_start),
+                    "load_average_end": list(os.getloadavg())},
     }
+    if "recording" in files and files["recording"].exists():
+        results["recording_mb"] = files["recording"].stat().st_size / 1e6
     files["results"] = write_results(out / "results.json", results)
-    atomic_write_text(out / "table.txt", table + "\n\n" + table_truth + "\n")
+    atomic_write_text(out / "table.txt", table + "\n\n" + table_truth + "\n\n" + table_params + "\n")
     files["table"] = out / "table.txt"
-    return CampaignRun(out, results, table + "\n\n" + table_truth, files)
+    return CampaignRun(out, results, table + "\n\n" + table_truth + "\n\n" + table_params, files)
 
 
 def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
@@ -317,9 +353,11 @@ def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
 
     main = "separation" if "separation" in evals else next(iter(evals))
     ev = evals[main]
+    real = cfg.outputs.paper == "real"
+    name10, name11 = ("figure13_15", "methods_after") if real else ("figure10", "figure11")
     if angle_pairs and pos_pairs and main != "before":
-        files["figure10"] = plot_figure10(
-            out / "figure10.png",
+        files[name10] = plot_figure10(
+            out / f"{name10}.png",
             cat(ev, "angle", "measured_before", angle_pairs) * deg, cat(ev, "angle", "measured_after", angle_pairs) * deg,
             cat(ev, "position", "measured_before", pos_pairs) * 1e3, cat(ev, "position", "measured_after", pos_pairs) * 1e3,
             np.concatenate([p.distance for p in pos_pairs]),
@@ -327,8 +365,8 @@ def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
         )
     methods = [m for m in evals if m != "before"]
     if len(methods) > 1 and angle_pairs and pos_pairs:
-        files["figure11"] = plot_figure11(
-            out / "figure11.png",
+        files[name11] = plot_figure11(
+            out / f"{name11}.png",
             {m: cat(evals[m], "angle", "measured_after", angle_pairs) * deg for m in methods},
             {m: cat(evals[m], "position", "measured_after", pos_pairs) * 1e3 for m in methods},
             title=f"{cfg.name}: methods after compensation, measured",
@@ -345,7 +383,7 @@ def _recording(path: Path, cfg, plan, store, before, after, evals, method_result
         cams = tuple(rec_mod.CameraView(cn, T, K) for cn, (T, K) in st.cameras.items())
         views.append(rec_mod.StationView(name, invert_transform(st.base2meas), cams))
     nominal = cfg.nominal_model().with_frames(base2meas=np.eye(4))
-    true_model = cfg.true_model().with_frames(base2meas=np.eye(4))
+    true_model = backend.true_robot().with_frames(base2meas=np.eye(4))
     models = {"nominal": nominal, "true": true_model}
     models.update({f"calibrated/{m}": r.robot.with_frames(base2meas=np.eye(4)) for m, r in method_results.items()})
     # residual series at the end pose of every evaluated pair
@@ -366,7 +404,8 @@ def _recording(path: Path, cfg, plan, store, before, after, evals, method_result
         rec.log_stations(views)
         for m, ids in not_converged.items():
             if ids:
-                rec.log_text(f"{m}: compensation did not converge for poses {ids}; their commanded joints were kept", "WARN")
+                rec.log_text(f"{m}: no compensated command for poses {ids} (did not converge or left the joint limits); "
+                             "their motions kept the nominal commands", "WARN")
         for i, pid in enumerate(plan.pose_id):
             pid = int(pid)
             r = store.read(f"m/{pid:05d}", with_images=images_mode != "none")
@@ -403,6 +442,7 @@ def _one_seed(raw: dict, source: str | None, quick: bool, seed: int, out_dir: st
     """Worker: one whole campaign for ``seed`` (poses measured in this process), its statistics, and where it ran."""
     from .config import parse_campaign_config
 
+    raw = {**raw, "outputs": {**raw.get("outputs", {}), "recording": False, "figures": False}}  # no images kept
     cfg = parse_campaign_config(raw, source=Path(source) if source else None, _quick_applied=quick).with_seed(seed)
     run = run_campaign(cfg, out_dir, executor=SerialExecutor(), backend_factory=backend_factory,
                        implementations=implementations, recording=False, figures=False)

@@ -154,14 +154,13 @@ def _planning_stations(world: WorldConfig) -> tuple[Station, ...]:
 
 @dataclass(frozen=True)
 class MeasurementConfig:
-    """``images``: the world renders, the instrument measures (stereo calibration from ``board_views`` rendered
-    board views). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
+    """``images``: the world renders, the instrument measures (stereo calibration from the world's rendered
+    board views, ``[world.board] views``). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
     N(0, ``noise_position``^2) per coordinate, no images). ``seconds_per_pose`` [s]: the time stamp of pose
     ``k`` is ``k * seconds_per_pose`` (time-dependent effects such as thermal drift)."""
 
     mode: str
     noise_position: float
-    board_views: int = 12
     seconds_per_pose: float = 10.0
 
 
@@ -178,6 +177,7 @@ class PoseGroup:
     sampling: SamplingOptions
     evaluate: tuple[str, ...]
     path: Path | None = None
+    pairing: str = "none"  # joints_csv: 'consecutive' makes rows (0, 1), (2, 3), ... motion pairs
 
 
 @dataclass(frozen=True)
@@ -187,6 +187,7 @@ class OutputConfig:
     recording_lossless: bool = False
     jpeg_quality: int = 85
     figures: bool = True
+    paper: str = "simulation"  # which of the paper's experiments to print beside ours: 'simulation' or 'real'
 
 
 @dataclass(frozen=True, eq=False)
@@ -273,7 +274,9 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     attempts = r.integer("max_attempts", None, minimum=1)
     pitch = r.number("max_euler_pitch_deg", None, positive=True)
     roll = r.number("max_roll_deg", None, nonneg=True)
+    lim = r.number("limit_margin_deg", None, nonneg=True)
     kw: dict[str, Any] = {}
+    kw["limit_margin"] = lim * _DEG if lim is not None else defaults.limit_margin
     kw["max_roll"] = roll * _DEG if roll is not None else defaults.max_roll
     kw["max_euler_pitch"] = pitch * _DEG if pitch is not None else defaults.max_euler_pitch
     if depth is not None:
@@ -330,7 +333,6 @@ def parse_campaign_config(
     measurement = MeasurementConfig(
         mode=mr.string("mode", "images", choices=MEASUREMENT_MODES),
         noise_position=mr.number("noise_mm", 0.01, nonneg=True) * _MM,
-        board_views=mr.integer("board_views", 12, minimum=6),
         seconds_per_pose=mr.number("seconds_per_pose", 10.0, nonneg=True),
     )
     mr.done()
@@ -365,6 +367,9 @@ def parse_campaign_config(
             gpath = Path(p) if Path(p).is_absolute() or source is None else (Path(source).parent / p)
         elif count < 1:
             raise gr.err("count", f"must be >= 1 for kind {kind!r}")
+        pairing = gr.string("pairing", "none", choices=("none", "consecutive"))
+        if pairing != "none" and kind != "joints_csv":
+            raise gr.err("pairing", "only a joints_csv group takes a pairing")
         gst = gr.get("stations", list(station_names))
         if isinstance(gst, str):
             gst = [gst]
@@ -374,15 +379,16 @@ def parse_campaign_config(
         ev = gr.get("evaluate", default_eval if gset == "validation" else [])
         if not isinstance(ev, list) or any(e not in ("angle", "position") for e in ev):
             raise gr.err("evaluate", f"must be a list of 'angle' / 'position', got {ev!r}")
-        if ev and kind == "configurations":
-            raise gr.err("evaluate", "single configurations carry no motion to evaluate; use motion_pairs")
+        if ev and (kind == "configurations" or (kind == "joints_csv" and pairing == "none")):
+            raise gr.err("evaluate", "single configurations carry no motion to evaluate; use motion pairs")
         if ev and gset != "validation":
             raise gr.err("evaluate", "only validation groups are evaluated")
         samp_r = gr.table("sampling")
         samp = _sampling(samp_r, default_sampling)
         samp_r.done()
         gr.done()
-        groups.append(PoseGroup(gname, gset, kind, count, distances, tuple(str(x) for x in gst), samp, tuple(ev), gpath))
+        groups.append(PoseGroup(gname, gset, kind, count, distances, tuple(str(x) for x in gst), samp, tuple(ev), gpath,
+                                pairing))
     if len({g.name for g in groups}) != len(groups):
         raise ValueError(f"{path}: poses: group names must be unique")
     if not any(g.set == "calibration" for g in groups):
@@ -399,6 +405,7 @@ def parse_campaign_config(
         recording_lossless=orr.boolean("recording_lossless", False),
         jpeg_quality=orr.integer("jpeg_quality", 85, minimum=1),
         figures=orr.boolean("figures", True),
+        paper=orr.string("paper", "simulation", choices=("simulation", "real")),
     )
     orr.done()
     er = r.table("execution")

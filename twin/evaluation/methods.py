@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..dataset import Dataset
-from ..kinematics import RobotModel, inverse_kinematics_iterative, tool2base
+from ..kinematics import RobotModel, UnreachableError, inverse_kinematics_iterative, tool2base
 
 __all__ = [
     "ESTIMATOR_METHODS",
@@ -97,20 +97,40 @@ def identify(method: str, dataset: Dataset, seed: int = 0, implementations: dict
 
 
 def compensate(
-    result: MethodResult, nominal: RobotModel, q_cmd: np.ndarray, *, max_iter: int = 60
+    result: MethodResult, nominal: RobotModel, q_cmd: np.ndarray, *, max_iter: int = 100
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Compensated joints ``(n, 6)`` [rad] and a convergence mask ``(n,)``.
+    """Compensated joints ``(n, 6)`` [rad] and a mask ``(n,)`` of targets that were compensated.
 
-    Target: the nominal model's tool pose at the commanded joints, in the robot base frame. The identified
-    model (base frame at the identity) is inverted by Newton iteration from ``q_cmd``
-    (:func:`twin.kinematics.inverse_kinematics_iterative`, the separation paper's section 2.4).
+    Target: the nominal model's tool pose at the commanded joints, in the robot base frame. With the
+    estimator's calibration, its :func:`twin.estimator.compensation` (the separation paper's section 2.4:
+    nominal closed-form start, Newton iteration on the identified model, joint limits checked) per target;
+    otherwise the same iteration here (:func:`twin.kinematics.inverse_kinematics_iterative`). A target that
+    does not converge or whose command leaves the joint limits is reported in the mask (its row of ``q`` is
+    then the commanded one).
     """
     q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
     nominal_b = nominal.with_frames(base2meas=np.eye(4))
     target = tool2base(nominal_b, q)
+    cal = result.calibration
+    if cal is not None:
+        from ..estimator import compensation
+
+        try:
+            return compensation(cal, target, q, max_iter=max_iter).q, np.ones(len(q), dtype=bool)
+        except UnreachableError:
+            out, ok = q.copy(), np.zeros(len(q), dtype=bool)
+            for k in range(len(q)):
+                try:
+                    out[k] = compensation(cal, target[k:k + 1], q[k:k + 1], max_iter=max_iter).q[0]
+                    ok[k] = True
+                except UnreachableError:
+                    pass
+            return out, ok
     robot = result.robot.with_frames(base2meas=np.eye(4))
-    res = inverse_kinematics_iterative(robot, target, q, frame="tool", tol_position=1e-10, tol_rotation=1e-10, max_iter=max_iter)
-    return res.q, res.converged
+    res = inverse_kinematics_iterative(robot, target, q, frame="tool", tol_position=1e-10, tol_rotation=1e-10,
+                                       max_iter=max_iter)
+    ok = res.converged & robot.within_limits(res.q)
+    return np.where(ok[:, None], res.q, q), ok
 
 
 def save_method_result(folder: str | os.PathLike, result: MethodResult) -> Path:
@@ -151,10 +171,17 @@ def load_method_result(folder: str | os.PathLike, method: str) -> MethodResult |
         name=r["name"], convention=r["convention"], params=np.array(r["params"]), beta_joints=tuple(r["beta_joints"]),
         q_min=np.array(r["q_min"]), q_max=np.array(r["q_max"]),
     )
+    cal = None
+    cal_path = Path(folder) / f"{method}.calibration.json"
+    if cal_path.exists():
+        from ..estimator import Calibration
+
+        cal = Calibration.load(cal_path)
     return MethodResult(
         method=d["method"],
         robot=robot,
         base2meas={k: np.array(v) for k, v in d["base2meas"].items()},
         identified=tuple(d["identified"]),
         info=d["info"],
+        calibration=cal,
     )

@@ -166,6 +166,10 @@ class _WorldBackend:
     def noise_position(self) -> float | None:
         return None
 
+    def true_robot(self):
+        """The world's true robot (evaluation only; its base_* is the robot's mount in the lab)."""
+        return self.world.true_robot
+
     def _context(self, task: PoseTask):
         """Effect context of a pose, from the plan alone (so any process gives the same): its index in the
         measurement order, station, time stamp ``pose_id * seconds_per_pose`` and the previous command."""
@@ -254,13 +258,12 @@ class ImageBackend(_WorldBackend):
 
     def prepare(self) -> None:
         from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
-        from .store import atomic_write_text
 
         super().prepare()
         if self.calib_path.exists():
             self._calib = StereoCalibration.load(self.calib_path)
             return
-        views = self.world.render_board_views(n=self.cfg.measurement.board_views, seed=self.cfg.seed)
+        views = self.world.render_board_views(seed=self.cfg.seed)
         board = BoardSpec.from_table(self.world.rig_info()["board"])
         calib = calibrate_stereo([(v.left, v.right) for v in views], board)
         tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")

@@ -73,10 +73,16 @@ def _group_rows(cfg: CampaignConfig, g: PoseGroup, k: int, stations: dict) -> li
         assert g.path is not None
         j = read_joints_csv(g.path)
         st = j.station if j.station is not None else np.full(len(j.pose_id), g.stations[0], dtype=object)
-        for i in range(len(j.pose_id)):
+        n = len(j.pose_id)
+        if g.pairing == "consecutive" and n % 2:
+            raise ValueError(f"{g.path}: pairing = 'consecutive' needs an even number of rows, got {n}")
+        for i in range(n):
             if str(st[i]) not in stations:
                 raise ValueError(f"{g.path}: row {i + 1}: station {st[i]!r} is not a station of the campaign")
-            rows.append((j.q[i], str(st[i]), None, np.nan))
+            role = None if g.pairing == "none" else ("start" if i % 2 == 0 else "end")
+            if role == "end" and st[i] != st[i - 1]:
+                raise ValueError(f"{g.path}: rows {i} and {i + 1} form a pair but are at different stations")
+            rows.append((j.q[i], str(st[i]), role, np.nan))
         return rows
     for i in range(g.count):
         name = g.stations[i % len(g.stations)]

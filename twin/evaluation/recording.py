@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import cv2
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb

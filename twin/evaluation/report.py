@@ -23,6 +23,8 @@ __all__ = [
     "render_table",
     "plot_figure10",
     "plot_figure11",
+    "paper_parameter_value",
+    "render_parameter_table",
 ]
 
 RESULTS_SCHEMA_VERSION = 1
@@ -105,16 +107,16 @@ def _fmt(x: Any, nd: int = 4) -> str:
 
 
 def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
-    """Plain-text table (also what the CLI prints through rich): max / mean / std before -> after, improvement."""
-    head = (f"{'method':<30} | {'angle [deg] max':>17} {'mean':>17} {'std':>17} {'impr.':>6} | "
-            f"{'position [mm] max':>17} {'mean':>17} {'std':>17} {'impr.':>6}")
+    """Plain-text table: max / mean / rms / std before -> after, improvement of the mean."""
+    head = (f"{'method':<30} | {'angle [deg] max':>17} {'mean':>17} {'rms':>17} {'std':>17} {'impr.':>6} | "
+            f"{'position [mm] max':>17} {'mean':>17} {'rms':>17} {'std':>17} {'impr.':>6}")
     lines = [title, head, "-" * len(head)] if title else [head, "-" * len(head)]
     for r in rows:
         cells = [f"{r['label']:<30}"]
         for unit in ("angle_deg", "position_mm"):
             blk = r.get(unit)
             parts = []
-            for stat in ("max", "mean", "std"):
+            for stat in ("max", "mean", "rms", "std"):
                 b = _g(blk, "before", stat)
                 a = _g(blk, "after", stat)
                 parts.append(f"{_fmt(b):>7} -> {_fmt(a):<7}")
@@ -122,8 +124,48 @@ def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
             parts.append(f"{'-' if imp is None else f'{imp:5.1f}%':>6}")
             cells.append(" ".join(parts))
         lines.append(" | ".join(cells))
-    lines.append("std: sample standard deviation, the paper's 'mean square error' (smaller than its mean, so not an RMS); "
-                 "improvement: of the mean.")
+    lines.append("std: sample standard deviation, compared with the paper's 'mean square error' (smaller than its mean "
+                 "in most figures, so not an RMS; the paper gives no RMS); improvement: of the mean.")
+    return "\n".join(lines)
+
+
+def paper_parameter_value(targets: Mapping[str, Any] | None, key: str) -> float | None:
+    """The separation paper's identified value (its Table 3 or 5) of a ``parameters`` key (``alpha2_deg``,
+    ``d3_mm``, ``theta2_plus_theta3_deg`` ...), or None where the paper gives none."""
+    if not targets:
+        return None
+    t3 = _g(targets, "simulation", "table3_deg") or {}
+    t5 = _g(targets, "simulation", "table5") or {}
+    if key in t5:
+        return float(t5[key])
+    if key.endswith("_deg") and key[:-4] in t3:
+        return float(t3[key[:-4]])
+    return None
+
+
+def render_parameter_table(params: Mapping[str, Mapping[str, Mapping[str, Any]]], targets: Mapping[str, Any] | None,
+                           title: str = "") -> str:
+    """Identified deviations next to the injected ones and the paper's (its Tables 3 and 5), deg / mm.
+
+    ``params``: ``results['parameters']`` (method -> key -> {true, identified, estimated}). A value the method
+    did not identify (unidentifiable in its setting) is marked ``*``."""
+    methods = list(params)
+    if not methods:
+        return ""
+    keys = list(params[methods[0]])
+    head = f"{'parameter':<24} {'injected':>9} {'paper':>9} " + " ".join(f"{m[:11]:>11}" for m in methods)
+    lines = ([title] if title else []) + [head, "-" * len(head)]
+    for k in keys:
+        true = params[methods[0]][k]["true"]
+        paper = paper_parameter_value(targets, k)
+        cells = []
+        for m in methods:
+            e = params[m][k]
+            cells.append(f"{e['identified']:>11.4f}" if e.get("estimated", True) else f"{e['identified']:>10.4f}*")
+        lines.append(f"{k:<24} {true:>9.4f} {'-' if paper is None else f'{paper:.4f}':>9} " + " ".join(cells))
+    lines.append("injected: the world's errors; paper: its identified values (Tables 3 and 5, targets); "
+                 "*: not identified by that method (held, or moved only with a coupled parameter: see "
+                 "calibrations/<method>.calibration.json).")
     return "\n".join(lines)
 
 

@@ -127,6 +127,8 @@ class SamplingOptions:
     branch: str = "random"  # 'random' among the in-limit branches, or 'home' (nearest q_home)
     min_q5: float = np.deg2rad(5.0)  # keep away from the wrist singularity (q5 = 0)
     min_link_height: float = 0.1  # [m] every joint origin from frame 2 on stays this far above the base plane
+    # [rad] planned joints stay this far inside the limits, leaving room for the compensated command
+    limit_margin: float = np.deg2rad(5.0)
     # |pitch| of the plate's ZYX Euler angles (eq. 43) in the base frame stays below this [rad]: at +-90 deg
     # the paper's Euler-angle-change statistic is singular (roll and yaw are undefined there)
     max_euler_pitch: float = np.deg2rad(60.0)
@@ -218,11 +220,12 @@ def _frames_with_z(z: np.ndarray, roll: np.ndarray) -> np.ndarray:
 
 
 def _pick_branches(
-    sol: IKSolutions, rng: np.random.Generator, opt: SamplingOptions, q_ref: np.ndarray | None
+    sol: IKSolutions, rng: np.random.Generator, opt: SamplingOptions, q_ref: np.ndarray | None, model: RobotModel
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per target: a branch inside the limits and away from the wrist singularity, chosen at random, or the
+    """Per target: a branch ``limit_margin`` inside the limits and away from the wrist singularity, chosen at random, or the
     one nearest ``q_ref`` ``(6,)`` (or ``q_home`` when ``branch == 'home'``). Returns ``(q (n, 6), found (n,))``."""
-    ok = sol.within_limits & (np.abs(sol.q[..., 4]) >= opt.min_q5)  # (n, 8)
+    inner = np.all((sol.q >= model.q_min + opt.limit_margin) & (sol.q <= model.q_max - opt.limit_margin), axis=-1)
+    ok = sol.within_limits & inner & (np.abs(sol.q[..., 4]) >= opt.min_q5)  # (n, 8)
     n = ok.shape[0]
     if q_ref is not None or opt.branch == "home":
         ref = q_ref if q_ref is not None else opt.q_home
@@ -298,7 +301,7 @@ def sample_configurations(
         m = min(batch or max(16, min(64, 4 * (n - len(out)))), opt.max_attempts - attempts)
         attempts += m
         targets = _candidate_targets(model, station, plate, m, rng, opt)
-        q, found = _pick_branches(inverse_kinematics_closed_form(fm, targets), rng, opt, q_ref)
+        q, found = _pick_branches(inverse_kinematics_closed_form(fm, targets), rng, opt, q_ref, model)
         good = found & plate_in_view(model, q, station, plate, opt) & _euler_pitch_ok(model, q, plate, opt)
         out.extend(q[good][: n - len(out)])
     return np.array(out).reshape(n, 6)
@@ -348,7 +351,7 @@ def sample_distance_moves(
             F0 = flange2base(fm, q0)[0]
             F1 = np.broadcast_to(F0, (tries_per_start, 4, 4)).copy()
             F1[:, :3, 3] += d * _random_unit(rng, tries_per_start)
-            q1, ok = _pick_branches(inverse_kinematics_closed_form(fm, F1), rng, opt, q0)
+            q1, ok = _pick_branches(inverse_kinematics_closed_form(fm, F1), rng, opt, q0, model)
             ok &= np.max(np.abs(wrap_angle(q1 - q0)), axis=1) <= np.deg2rad(60)
             ok &= plate_in_view(model, q1, station, plate, opt)
             if np.any(ok):

@@ -1,0 +1,53 @@
+"""Regression of the Figure 10/11 statistics: one seed of the CI campaign against the bands over 20 seeds."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from twin.evaluation.campaign import run_campaign
+from twin.evaluation.config import load_campaign_config
+from twin.evaluation.regression import check_against_bands, tracked_statistics
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "experiments" / "separation_ci.toml"
+BANDS = ROOT / "results" / "regression.json"
+
+
+def _bands():
+    data = json.loads(BANDS.read_text())
+    assert "separation_ci" in data, "results/regression.json has no separation_ci section: run the command in docs/runner.md"
+    return data["separation_ci"]
+
+
+def test_regression_file_records_its_command_and_enough_seeds():
+    """The bands say how they were made and come from at least 20 seeds of this very config."""
+    b = _bands()
+    assert "experiments/separation_ci.toml" in b["command"] and "--seeds" in b["command"]
+    assert len(b["seeds"]) >= 20
+    assert all(s["n"] >= 20 for s in b["statistics"].values())
+
+
+def test_band_check_flags_a_shifted_statistic():
+    """The check itself fails a statistic moved far outside its band (so the regression test can fail)."""
+    b = _bands()
+    name, band = next(iter(b["statistics"].items()))
+    method, source, unit, phase, stat = name.split(".")
+    fake = {"methods": {method: {source: {unit: {phase: {stat: band["max"] + 10 * band["std"] + 1.0}}}}}, "orderings": []}
+    res = check_against_bands(fake, b)
+    assert [o["statistic"] for o in res["outside"]] == [name]
+
+
+@pytest.mark.slow
+def test_one_seed_of_the_ci_campaign_stays_in_the_bands(tmp_path):
+    """Seed 1 of experiments/separation_ci.toml (rendered, measured, four methods) falls inside every band, and
+    every ordering claim that held in >= 95 % of the band seeds holds."""
+    b = _bands()
+    cfg = load_campaign_config(CONFIG).with_seed(b["seeds"][0])
+    run = run_campaign(cfg, tmp_path / "ci", recording=False, figures=False)
+    assert run.results["methods_unavailable"] == {}
+    res = check_against_bands(run.results, b)
+    assert res["missing"] == [], f"statistics missing from the run: {res['missing']}"
+    assert res["outside"] == [], f"outside the regression bands: {res['outside']}"
+    assert res["failed_claims"] == [], f"paper orderings that held in >= 95 % of seeds failed: {res['failed_claims']}"
+    assert len(tracked_statistics(run.results["methods"])) == len(b["statistics"])
