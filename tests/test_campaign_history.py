@@ -148,3 +148,24 @@ def test_truth_noise_truth_is_the_worlds_true_pose(tmp_path):
     np.testing.assert_array_equal(np.array([s for s in r.spheres if s is not None]), cap.spheres_meas[seen])
     cold = backend.world.true_spheres_meas(cap.q_actual, k)  # the cold arm: what a hand-built truth gave
     assert np.max(np.abs(cold - cap.spheres_meas)) > 1e-5
+
+
+def test_task_without_context_uses_its_previous_command_and_a_wrong_context_is_refused(tmp_path):
+    """A task without a context (benchmarks measuring single poses) takes q_prev as its one-command history
+    (backlash works); a context of another station or command is refused, naming the task."""
+    cfg = _backlash_config(tmp_path)
+    plan = make_plan(cfg)
+    backend = TruthNoiseBackend(backend_spec_for(cfg, tmp_path / "work"))
+    backend.prepare()
+    world = backend.world
+    k = backend.station_index[str(plan.station[1])]
+    r = backend.measure(PoseTask("m/00001", 1, plan.q[1], str(plan.station[1]), 5, plan.q[0]))
+    ctx = contexts_for_sequence(plan.q[:2], stations=[0, k], t_s=[0.0, 10.0], world=world)[1]
+    np.testing.assert_allclose(r.truth["q_actual"], world.actual_joints(plan.q[1], ctx), rtol=0, atol=1e-12)
+    ctxs = visit_contexts(cfg, plan.q, plan.station)
+    other = next(i for i in range(plan.n) if plan.station[i] != plan.station[1])
+    with pytest.raises(ValueError, match="m/00001.*station"):
+        backend.measure(PoseTask("m/00001", 1, plan.q[1], str(plan.station[1]), 5, context=ctxs[other]))
+    same_station = next(i for i in range(2, plan.n) if plan.station[i] == plan.station[1])
+    with pytest.raises(ValueError, match="m/00001.*q_cmd"):
+        backend.measure(PoseTask("m/00001", 1, plan.q[1], str(plan.station[1]), 5, context=ctxs[same_station]))

@@ -310,6 +310,10 @@ def run_campaign(
     rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets, paper_key=paper_key)
     title = f"{cfg.name} (seed {cfg.seed}{', quick' if cfg.quick else ''}): measured after compensation"
     table = render_table(rows_tab, title)
+    absent_notes = sorted({f"{unit} {phase}: {why}" for s in summaries.values() for unit in ("angle_deg", "position_mm")
+                           for phase, why in ((s.get("measured", {}).get(unit) or {}).get("absent") or {}).items()})
+    if absent_notes:
+        table += "\nnot computed: " + "; ".join(absent_notes)
     rows_truth = comparison_rows({m: s for m, s in summaries.items()}, None, source="truth")
     table_truth = render_table(rows_truth, "same statistics on the world's truth (no measurement noise)")
     table_params = render_parameter_table(params, targets if cfg.outputs.paper == "simulation" else None,
