@@ -138,3 +138,16 @@ class CountingBackend(TruthNoiseBackend):
             raise KeyboardInterrupt("simulated kill")
         path.write_text(str(n + 1))
         return super().measure(task)
+
+
+class BlindAfterBackend(TruthNoiseBackend):
+    """The truth-noise backend whose compensated measurements all fail (no sphere seen), as if the
+    instrument lost the plate after compensation."""
+
+    def measure(self, task):
+        from dataclasses import replace
+
+        r = super().measure(task)
+        if task.key.startswith("c/"):
+            r = replace(r, spheres=[None, None, None], status="p0:not_found;p1:not_found;p2:not_found")
+        return r

@@ -69,7 +69,8 @@ def _rich_tables(results: dict, source: str = "measured") -> list:
             cells = []
             for stat in ("max", "mean", "rms", "std"):
                 b, a = (blk.get("before") or {}).get(stat), (blk.get("after") or {}).get(stat)
-                cells.append("-" if b is None or a is None else f"{b:.4f} -> {a:.4f}")
+                cells.append("-" if b is None and a is None else
+                             f"{'-' if b is None else f'{b:.4f}'} -> {'-' if a is None else f'{a:.4f}'}")
             imp = blk.get("improvement_percent")
             cells.append("-" if imp is None else f"{imp:.1f} %")
             t.add_row(r["label"], *cells, style="dim italic" if r["kind"] == "paper" else None)

@@ -38,6 +38,7 @@ import numpy as np
 from ..dataset import DatasetWriter, Joints, PoseRow, read_dataset, write_dataset_toml, write_joints_csv
 from ..kinematics import link_frames
 from ..transforms import invert_transform
+from ..world.effects import contexts_for_sequence
 from ..world.truth import write_truth
 from .config import CampaignConfig
 from .evaluate import evaluate_campaign, paper_orderings, parameter_comparison
@@ -50,7 +51,7 @@ from ..instrument.plate import paper_frame_from_spheres
 from .store import PoseResult, PoseStore, atomic_write_text
 from .targets import read_targets
 
-__all__ = ["CampaignRun", "run_campaign", "run_repeats", "Progress"]
+__all__ = ["CampaignRun", "run_campaign", "run_repeats", "visit_contexts", "Progress"]
 
 Progress = Callable[[str, int, int], None]  # (phase, done, total)
 
@@ -121,7 +122,9 @@ def _write_dataset(folder: Path, plan: CampaignPlan, rows: np.ndarray, results: 
     """poses.csv + dataset.toml in plan order (commanded joints, measured spheres, set/station/pair/status)."""
     write_dataset_toml(folder, cfg.robot, cfg.plate, noise_position=noise, stations_base2meas=dict(stations_nominal),
                        provenance=provenance)
-    with DatasetWriter(folder, spheres=True, optional=("set", "station", "pair", "status")) as w:
+    rec_T, rec_t = cfg.measurement.record_temp_c, cfg.measurement.record_t_s
+    optional = ("set", "station", "pair", "status") + (("temp_c",) if rec_T else ()) + (("t_s",) if rec_t else ())
+    with DatasetWriter(folder, spheres=True, optional=optional) as w:
         for k, i in enumerate(rows):
             r = results[int(plan.pose_id[i])]
             w.write(PoseRow(
@@ -132,7 +135,27 @@ def _write_dataset(folder: Path, plan: CampaignPlan, rows: np.ndarray, results: 
                 station=str(plan.station[i]),
                 pair=None if plan.pair[i] < 0 else int(plan.pair[i]),
                 status=r.status,
+                temp_c=_recorded(r, "temp_c") if rec_T else None,
+                t_s=_recorded(r, "t_s") if rec_t else None,
             ))
+
+
+def _recorded(r: PoseResult, channel: str) -> float:
+    """What the instrument records of a measurement's ``temp_c`` [°C] / ``t_s`` [s]: the world's value."""
+    v = r.truth.get(channel)
+    if v is None or not np.isfinite(float(v)):
+        raise ValueError(f"pose {r.key}: the backend gave no {channel} to record (measurement.record_{channel})")
+    return float(v)
+
+
+def visit_contexts(cfg: CampaignConfig, q_cmd: np.ndarray, stations: Sequence[str]) -> list:
+    """Effect contexts of the commands ``q_cmd`` ``(n, 6)`` [rad] in the order the robot visits them, at the
+    named ``stations``: :func:`twin.world.effects.contexts_for_sequence` (history = every earlier command,
+    start at home, ``t_s = k * seconds_per_pose``); pure, so any process and any resume build the same."""
+    index = {s.name: k for k, s in enumerate(cfg.stations())}
+    st = [index[str(s)] for s in stations]
+    t_s = np.arange(len(q_cmd), dtype=float) * cfg.measurement.seconds_per_pose
+    return contexts_for_sequence(np.asarray(q_cmd, dtype=float), t_s=t_s, stations=st)
 
 
 def _evaluated_groups(cfg: CampaignConfig) -> dict[str, tuple[str, ...]]:
@@ -189,8 +212,10 @@ def run_campaign(
     ex_ctx = (open_executor("process", cfg.workers) if cfg.workers > 1 else nullcontext(SerialExecutor())) if own_ex else nullcontext(executor)
     with ex_ctx as ex:
         # --- 1. the campaign's own poses -----------------------------------------------------------
+        # Effect contexts in the robot's visit order (docs/runner.md, "Visit order"): the plan's rows first.
+        ctx_before = visit_contexts(cfg, plan.q, plan.station)
         tasks = [PoseTask(f"m/{pid:05d}", int(pid), plan.q[i], str(plan.station[i]), pose_seed(cfg.seed, f"m/{pid:05d}"),
-                          plan.q[i - 1] if i > 0 else None)
+                          context=ctx_before[i])
                  for i, pid in enumerate(plan.pose_id)]
         t = time.perf_counter()
         n_new = _measure(ex, spec, tasks, store, "measuring", progress)
@@ -229,6 +254,9 @@ def run_campaign(
         not_converged: dict[str, list[int]] = {}
         t = time.perf_counter()
         for m, r in method_results.items():
+            if not len(val_rows):  # nothing to compensate (no validation rows): evaluation reports why
+                q_comp[m], not_converged[m] = np.zeros((0, 6)), []
+                continue
             qc, ok = compensate(r, cfg.nominal_model(), plan.q[val_rows])
             # A motion is compensated as a whole: if either end failed, both keep their nominal command.
             pair_ok = {}
@@ -240,10 +268,18 @@ def run_campaign(
             qc = np.where(ok[:, None], qc, plan.q[val_rows])
             not_converged[m] = [int(plan.pose_id[i]) for i, c in zip(val_rows, ok) if not c]
             q_comp[m] = qc
-            for k, i in enumerate(val_rows):
-                key = f"c/{m}/{int(plan.pose_id[i]):05d}"
-                comp_tasks.append(PoseTask(key, int(plan.pose_id[i]), qc[k], str(plan.station[i]), pose_seed(cfg.seed, key),
-                                           qc[k - 1] if k > 0 else None))
+        # The robot visits the compensated commands after the dataset, method after method (in config order),
+        # each method's validation rows in plan order: their contexts continue the dataset's history.
+        comp_methods = [m for m in method_results if len(q_comp[m])]
+        if comp_methods:
+            q_seq = np.vstack([plan.q] + [q_comp[m] for m in comp_methods])
+            st_seq = np.concatenate([plan.station] + [plan.station[val_rows] for _ in comp_methods])
+            ctx_after = visit_contexts(cfg, q_seq, st_seq)[plan.n:]
+            for j, m in enumerate(comp_methods):
+                for k, i in enumerate(val_rows):
+                    key = f"c/{m}/{int(plan.pose_id[i]):05d}"
+                    comp_tasks.append(PoseTask(key, int(plan.pose_id[i]), q_comp[m][k], str(plan.station[i]),
+                                               pose_seed(cfg.seed, key), context=ctx_after[j * len(val_rows) + k]))
         timings["compensate_s"] = time.perf_counter() - t
         t = time.perf_counter()
         n_new_after = 0
@@ -274,6 +310,10 @@ def run_campaign(
     rows_tab = comparison_rows({m: s for m, s in summaries.items()}, targets, paper_key=paper_key)
     title = f"{cfg.name} (seed {cfg.seed}{', quick' if cfg.quick else ''}): measured after compensation"
     table = render_table(rows_tab, title)
+    absent_notes = sorted({f"{unit} {phase}: {why}" for s in summaries.values() for unit in ("angle_deg", "position_mm")
+                           for phase, why in ((s.get("measured", {}).get(unit) or {}).get("absent") or {}).items()})
+    if absent_notes:
+        table += "\nnot computed: " + "; ".join(absent_notes)
     rows_truth = comparison_rows({m: s for m, s in summaries.items()}, None, source="truth")
     table_truth = render_table(rows_truth, "same statistics on the world's truth (no measurement noise)")
     table_params = render_parameter_table(params, targets if cfg.outputs.paper == "simulation" else None,

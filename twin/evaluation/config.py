@@ -156,12 +156,19 @@ def _planning_stations(world: WorldConfig) -> tuple[Station, ...]:
 class MeasurementConfig:
     """``images``: the world renders, the instrument measures (stereo calibration from the world's rendered
     board views, ``[world.board] views``). ``truth_noise``: the separation paper's own simulation (true sphere centres plus
-    N(0, ``noise_position``^2) per coordinate, no images). ``seconds_per_pose`` [s]: the time stamp of pose
-    ``k`` is ``k * seconds_per_pose`` (time-dependent effects such as thermal drift)."""
+    N(0, ``noise_position``^2) per coordinate, no images). ``seconds_per_pose`` [s]: the time stamp of the
+    ``k``-th measurement in the robot's visit order is ``k * seconds_per_pose`` (time-dependent effects such
+    as thermal drift). ``record_temp_c`` / ``record_t_s``: the instrument records the robot's temperature
+    [°C] / the time stamp [s] of each measurement, written as the ``temp_c`` / ``t_s`` columns of poses.csv
+    (off by default: the papers' instruments record neither). ``bias_correction``: the instrument corrects
+    the perspective bias of the sphere outlines (``images`` mode only; on by default)."""
 
     mode: str
     noise_position: float
     seconds_per_pose: float = 10.0
+    record_temp_c: bool = False
+    record_t_s: bool = False
+    bias_correction: bool = True
 
 
 @dataclass(frozen=True)
@@ -334,8 +341,14 @@ def parse_campaign_config(
         mode=mr.string("mode", "images", choices=MEASUREMENT_MODES),
         noise_position=mr.number("noise_mm", 0.01, nonneg=True) * _MM,
         seconds_per_pose=mr.number("seconds_per_pose", 10.0, nonneg=True),
+        record_temp_c=mr.boolean("record_temp_c", False),
+        record_t_s=mr.boolean("record_t_s", False),
+        bias_correction=mr.boolean("bias_correction", True),
     )
     mr.done()
+    if not measurement.bias_correction and measurement.mode != "images":
+        raise ValueError(f"{path}: measurement.bias_correction: only the 'images' mode has an instrument to set; "
+                         f"mode is {measurement.mode!r}")
 
     sr_default = r.table("sampling")
     default_sampling = _sampling(sr_default, SamplingOptions())

@@ -133,11 +133,25 @@ def _summ(values: np.ndarray, scale: float) -> dict | None:
     return summarize(v * scale).to_dict()
 
 
-def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], source: str) -> dict[str, Any]:
+def _absent(before: str | None, after: str | None) -> dict[str, Any]:
+    """A statistic that could not be computed: ``None`` values and, per phase, the reason."""
+    reasons = {k: v for k, v in (("before", before), ("after", after)) if v is not None}
+    return {"before": None, "after": None, "absent": reasons}
+
+
+def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], source: str, *,
+                   identified: bool = True, n_validation: int | None = None) -> dict[str, Any]:
+    """Summaries of one source (``measured``, ``truth``, ``truthbase``). A statistic that cannot be computed
+    (no validation motion evaluates it, no motion was measured, no method was identified) is ``None`` with
+    its reason under ``absent`` (never NaN)."""
     out: dict[str, Any] = {}
+    what = "measured" if source == "measured" else "true"
     for quantity, scale, unit in (("angle", _DEG, "angle_deg"), ("position", _MM, "position_mm")):
         having = [p for p in pairs if f"{source}_before" in getattr(p, quantity)]
         if not having:
+            why = (f"no validation motion evaluates the {quantity} error" if pairs else
+                   "no validation rows: no group is evaluated (every pose is in the calibration set)")
+            out[unit] = _absent(why, why)
             continue
         b = np.concatenate([getattr(p, quantity)[f"{source}_before"] for p in having])
         a = np.concatenate([getattr(p, quantity).get(f"{source}_after", np.full(len(p.pose_id_end), np.nan)) for p in having])
@@ -147,6 +161,15 @@ def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], sou
         if sb is not None and sa is not None and sb["mean"] > 0:
             block["improvement_percent"] = improvement_percent(sb["mean"], sa["mean"])
         block["n_unmeasured"] = {"before": int(np.sum(~np.isfinite(b))), "after": int(np.sum(~np.isfinite(a))) if has_after else None}
+        absent: dict[str, str] = {}
+        if sb is None:
+            absent["before"] = f"none of the {b.size} motions has {what} spheres at both ends before compensation"
+        if sa is None:
+            absent["after"] = ("no method identified: nothing was compensated" if not identified or not has_after else
+                               f"none of the {a.size} compensated motions has {what} spheres at both ends "
+                               "(every compensated measurement failed)")
+        if absent:
+            block["absent"] = absent
         if quantity == "position":
             by_d: dict[str, Any] = {}
             dist = np.concatenate([p.distance for p in having])
@@ -157,13 +180,25 @@ def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], sou
                 block["by_distance_mm"] = by_d
         out[unit] = block
     if source == "truth":
-        for what in ("absolute", "absolute_aligned"):
-            pos_b, pos_a = absolute.get(f"{what}_before_position"), absolute.get(f"{what}_after_position")
-            rot_b, rot_a = absolute.get(f"{what}_before_rotation"), absolute.get(f"{what}_after_rotation")
+        for what_abs in ("absolute", "absolute_aligned"):
+            pos_b, pos_a = absolute.get(f"{what_abs}_before_position"), absolute.get(f"{what_abs}_after_position")
+            rot_b, rot_a = absolute.get(f"{what_abs}_before_rotation"), absolute.get(f"{what_abs}_after_rotation")
+            need = "at least 3 validation poses" if what_abs == "absolute_aligned" else "a validation pose"
             if pos_b is None:
+                why = ("no validation rows: no group is evaluated" if not n_validation else
+                       f"no true plate pose for {need} before compensation")
+                out[f"{what_abs}_position_mm"] = _absent(why, why)
+                out[f"{what_abs}_rotation_deg"] = _absent(why, why)
                 continue
-            out[f"{what}_position_mm"] = {"before": _summ(pos_b, _MM), "after": _summ(pos_a, _MM) if pos_a is not None else None}
-            out[f"{what}_rotation_deg"] = {"before": _summ(rot_b, _DEG), "after": _summ(rot_a, _DEG) if rot_a is not None else None}
+            why_after = None
+            if pos_a is None:
+                why_after = ("no method identified: nothing was compensated" if not identified else
+                             f"no true plate pose for {need} after compensation")
+            for name, vb, va, sc in (("position_mm", pos_b, pos_a, _MM), ("rotation_deg", rot_b, rot_a, _DEG)):
+                blk = {"before": _summ(vb, sc), "after": _summ(va, sc) if va is not None else None}
+                if why_after is not None:
+                    blk["absent"] = {"after": why_after}
+                out[f"{what_abs}_{name}"] = blk
     return out
 
 
@@ -226,8 +261,10 @@ def evaluate_campaign(
                 pa, ra = np.full(len(ok), np.nan), np.full(len(ok), np.nan)
                 pa[ok], ra[ok] = absolute_pose_errors(Pa, C_val[ok])
                 absolute[f"absolute_aligned_{phase}_position"], absolute[f"absolute_aligned_{phase}_rotation"] = pa, ra
-        summary = {"measured": _summary_block(pairs, absolute, "measured"), "truth": _summary_block(pairs, absolute, "truth")}
-        tb = _summary_block(pairs, {}, "truthbase").get("angle_deg")
+        kw = {"identified": method != "before", "n_validation": int(len(val_rows))}
+        summary = {"measured": _summary_block(pairs, absolute, "measured", **kw),
+                   "truth": _summary_block(pairs, absolute, "truth", **kw)}
+        tb = _summary_block(pairs, {}, "truthbase", **kw).get("angle_deg")
         if tb is not None:
             summary["truth"]["angle_deg_true_base"] = tb
         out[method] = MethodEvaluation(method, pairs, absolute, summary)

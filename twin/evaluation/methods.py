@@ -108,7 +108,9 @@ def compensate(
     does not converge or whose command leaves the joint limits is reported in the mask (its row of ``q`` is
     then the commanded one).
     """
-    q = np.atleast_2d(np.asarray(q_cmd, dtype=float))
+    q = np.asarray(q_cmd, dtype=float).reshape(-1, 6)
+    if not len(q):  # no validation rows: nothing to compensate (the solvers refuse an empty batch)
+        return q.copy(), np.zeros(0, dtype=bool)
     nominal_b = nominal.with_frames(base2meas=np.eye(4))
     target = tool2base(nominal_b, q)
     cal = result.calibration

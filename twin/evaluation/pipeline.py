@@ -10,9 +10,12 @@ runs). Two backends:
   model's sphere centres in the station's measurement frame plus N(0, sigma^2) per coordinate. No images.
 
 Both return a :class:`~twin.evaluation.store.PoseResult` with the measured spheres (what goes into the
-dataset) and, apart, the world's truth for the pose (what only evaluation reads). Per-pose noise is
-seeded from the campaign seed and the pose key (:func:`twin.evaluation.plan.pose_seed`), so a pose measured
-again after a resume, or in another process, gives the same numbers.
+dataset) and, apart, the world's truth for the pose (what only evaluation reads, from
+:meth:`twin.world.World.true_pose` / :meth:`~twin.world.World.capture`: one definition of truth). Per-pose
+noise is seeded from the campaign seed and the pose key (:func:`twin.evaluation.plan.pose_seed`), and the
+effect context of a pose (its command history, time stamp, index in the robot's visit order) comes with the
+task, built from the plan by :func:`twin.world.effects.contexts_for_sequence`; so a pose measured again after
+a resume, or in another process, gives the same numbers.
 
 Every measurement appends one line to ``<work>/renders.log`` (the resume test counts them).
 """
@@ -24,7 +27,6 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any, Protocol
 
 import numpy as np
@@ -50,14 +52,23 @@ __all__ = [
 class PoseTask:
     """One pose to measure: a unique ``key`` (``m/<pose_id>`` for the campaign's own poses,
     ``c/<method>/<pose_id>`` for compensated ones), the commanded joints ``q`` ``(6,)`` [rad], the station,
-    the per-pose seed, and the previous command in measurement order (``None`` for the first)."""
+    the per-pose seed, and the pose's effect ``context``.
+
+    ``context``: a :class:`twin.world.effects.EffectContext` from
+    :func:`twin.world.effects.contexts_for_sequence` over the robot's whole visit order (``world`` left
+    ``None``: the backend fills it): ``q_cmd_history``, ``pose_index``, ``t_s`` [s], ``station`` index.
+    :func:`twin.evaluation.campaign.run_campaign` always gives it. Without it (callers that measure single
+    poses, e.g. benchmarks), the history is ``q_prev`` alone (one previous command, ``None`` for the first)
+    and the time stamp ``pose_id * seconds_per_pose``.
+    """
 
     key: str
     pose_id: int
     q: np.ndarray
     station: str
     seed: int
-    q_prev: np.ndarray | None = None  # the command measured just before this one (effects with history)
+    q_prev: np.ndarray | None = None  # used only without a context: the command measured just before
+    context: Any = None  # EffectContext from the plan (world=None)
 
 
 @dataclass(frozen=True)
@@ -171,21 +182,24 @@ class _WorldBackend:
         return self.world.true_robot
 
     def _context(self, task: PoseTask):
-        """Effect context of a pose, from the plan alone (so any process gives the same): its index in the
-        measurement order, station, time stamp ``pose_id * seconds_per_pose`` and the previous command."""
+        """Effect context of a pose: the task's own (from the plan, :func:`contexts_for_sequence`) with the
+        world filled in; without one, a history of ``q_prev`` alone and time ``pose_id * seconds_per_pose``."""
         from ..world.effects import EffectContext
 
         k = self.station_index[task.station]
-        prev = None if task.q_prev is None else np.asarray(task.q_prev, dtype=float)
-        prev_actual = None
-        if prev is not None:
-            # the previous pose's actual joints, from its own command (its history is not carried further)
-            ctx_prev = EffectContext(t_s=(task.pose_id - 1) * self.seconds_per_pose, pose_index=max(task.pose_id - 1, 0),
-                                     station=k, q_cmd_prev=prev, q_actual_prev=prev, world=self.world)
-            prev_actual = self.world.actual_joints(prev, ctx_prev)
+        if task.context is not None:
+            ctx = task.context
+            if not isinstance(ctx, EffectContext):
+                raise ValueError(f"task {task.key}: context must be an EffectContext, got {type(ctx).__name__}")
+            if ctx.station != k:
+                raise ValueError(f"task {task.key}: context station {ctx.station} is not station "
+                                 f"{task.station!r} (index {k})")
+            if ctx.q_cmd is not None and np.max(np.abs(ctx.q_cmd - np.asarray(task.q, dtype=float))) > 1e-12:
+                raise ValueError(f"task {task.key}: context q_cmd differs from the task's command")
+            return ctx.with_(world=self.world)
+        hist = np.zeros((0, 6)) if task.q_prev is None else np.asarray(task.q_prev, dtype=float).reshape(1, 6)
         return EffectContext(t_s=task.pose_id * self.seconds_per_pose, pose_index=task.pose_id, station=k,
-                             q_cmd_prev=prev if prev is not None else np.asarray(task.q, dtype=float),
-                             q_actual_prev=prev_actual, world=self.world)
+                             q_cmd=np.asarray(task.q, dtype=float), q_cmd_history=hist, world=self.world)
 
     def _truth(self, cap) -> dict[str, Any]:
         return {
@@ -215,11 +229,8 @@ class TruthNoiseBackend(_WorldBackend):
     def measure(self, task: PoseTask) -> PoseResult:
         t0 = time.perf_counter()
         k = self.station_index[task.station]
-        ctx = self._context(task)
-        q_act = self.world.actual_joints(np.asarray(task.q, dtype=float), ctx)
-        spheres_true = self.world.true_spheres_meas(q_act, k)
-        cap = SimpleNamespace(q_actual=q_act, spheres_meas=spheres_true, tool2meas=self.world.true_tool2meas(q_act, k),
-                              t_s=ctx.t_s, temp_c=ctx.temp_c, params=None)
+        cap = self.world.true_pose(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id)
+        spheres_true = cap.spheres_meas
         rng = np.random.default_rng(task.seed)
         noisy = spheres_true + rng.normal(scale=self.sigma, size=(3, 3))
         w, h = self.world.image_size
@@ -286,12 +297,13 @@ class ImageBackend(_WorldBackend):
 
         t0 = time.perf_counter()
         k = self.station_index[task.station]
-        # Image noise per pose: the world draws each image's noise from (its seed, an image counter); starting
-        # the counter from the pose's seed makes the pair independent of what this process rendered before.
-        self.world._image_counter = int(task.seed % (1 << 40)) * 2
-        cap = self.world.capture(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id, record=False)
+        # Image noise per pose: noise_seed makes the pair's noise a function of (world seed, pose seed) alone,
+        # independent of what this process rendered before (resume, several workers).
+        cap = self.world.capture(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id, record=False,
+                                 noise_seed=int(task.seed))
         t1 = time.perf_counter()
-        m = measure_pair(cap.left, cap.right, self.calibration, self.plate)
+        m = measure_pair(cap.left, cap.right, self.calibration, self.plate,
+                         bias_correction=self.cfg.measurement.bias_correction)
         t2 = time.perf_counter()
         overlays = {}
         for cam, obs in (("left", m.left), ("right", m.right)):
