@@ -16,6 +16,9 @@ Layout of the recording (entity paths), all 3D in the robot base frame ("world",
 
 Everything per pose is on the ``pose`` sequence timeline (the pose index in measurement order). A default
 blueprint (3D view, both images, residual plots, log) is stored in the file so it opens in a useful layout.
+
+A diagnosis (``twin diagnose``) has its own recording, :func:`record_diagnosis`: ``diagnosis/residual/...``,
+``diagnosis/variables/...``, ``diagnosis/verdict``, ``diagnosis/log`` (layout in ``docs/diagnosis.md``).
 """
 
 from __future__ import annotations
