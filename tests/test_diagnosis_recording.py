@@ -100,7 +100,7 @@ def test_no_recording_flag_skips_the_file(tmp_path):
 
 
 def test_record_diagnosis_rejects_incomplete_input(tmp_path):
-    """Missing series keys, mismatched lengths or a missing floor raise ValueError naming the problem."""
+    """Missing series keys, mismatched lengths, non-finite values or a missing floor raise ValueError naming the problem."""
     s = {"dataset_row": np.arange(3), "residual_rms_mm_before": np.ones(3), "residual_rms_mm_after": np.ones(3),
          "q_deg": np.zeros((3, 6))}
     v = {"structured": False, "p_value": 0.5, "effects": [], "noise_floor": {"position_mm": 0.005}}
@@ -110,4 +110,8 @@ def test_record_diagnosis_rejects_incomplete_input(tmp_path):
         record_diagnosis(tmp_path / "b.rrd", {**s, "residual_rms_mm_before": np.ones(4)}, v)
     with pytest.raises(ValueError, match="noise_floor"):
         record_diagnosis(tmp_path / "c.rrd", s, {**v, "noise_floor": {}})
+    with pytest.raises(ValueError, match=r"series\['q_deg'\] holds non-finite values \(row 1\)"):
+        record_diagnosis(tmp_path / "e.rrd", {**s, "q_deg": np.where(np.arange(3)[:, None] == 1, np.nan, 0.0) * np.ones((3, 6))}, v)
+    with pytest.raises(ValueError, match=r"series\['t_s'\] must have shape"):
+        record_diagnosis(tmp_path / "f.rrd", {**s, "t_s": np.zeros(2)}, v)
     assert record_diagnosis(tmp_path / "d.rrd", s, v).exists()

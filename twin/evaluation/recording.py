@@ -365,8 +365,18 @@ def record_diagnosis(
     if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, 6):
         raise ValueError(f"series shapes disagree: dataset_row {rows.shape}, before {before.shape}, "
                          f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, 6))")
-    floor = (verdict.get("noise_floor") or {}).get("position_mm") if isinstance(verdict.get("noise_floor"), Mapping) else None
-    if floor is None or not np.isfinite(floor) or floor <= 0:
+    extra = {k: np.asarray(series[k], dtype=float) for k in ("temp_c", "t_s") if series.get(k) is not None}
+    sign = None if series.get("approach_sign") is None else np.asarray(series["approach_sign"], dtype=float)
+    for key, a, shape in [("residual_rms_mm_before", before, (n,)), ("residual_rms_mm_after", after, (n,)),
+                          ("q_deg", q_deg, (n, 6))] + [(k, a, (n,)) for k, a in extra.items()] + (
+                          [] if sign is None else [("approach_sign", sign, (n, 6))]):
+        if a.shape != shape:
+            raise ValueError(f"series[{key!r}] must have shape {shape}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"series[{key!r}] holds non-finite values (row {int(np.flatnonzero(~np.isfinite(a).reshape(n, -1).all(axis=1))[0])})")
+    nf = verdict.get("noise_floor")
+    floor = nf.get("position_mm") if isinstance(nf, Mapping) else None
+    if not isinstance(floor, (int, float, np.floating)) or not np.isfinite(floor) or floor <= 0:
         raise ValueError(f"verdict['noise_floor']['position_mm'] must be a positive number, got {floor!r}")
     for key in ("structured", "p_value", "effects"):
         if key not in verdict:
@@ -379,13 +389,13 @@ def record_diagnosis(
         indexes.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[:, j] * 1e3).astype(np.int64)))
         timelines.append(f"q{j + 1}_mdeg")
     channels: list[str] = []
-    if series.get("temp_c") is not None:
-        temp = np.asarray(series["temp_c"], dtype=float)
+    if "temp_c" in extra:
+        temp = extra["temp_c"]
         indexes.append(rr.TimeColumn("temp_mdegC", sequence=np.round(temp * 1e3).astype(np.int64)))
         timelines.append("temp_mdegC")
         channels.append("temp_c")
-    if series.get("t_s") is not None:
-        t_s = np.asarray(series["t_s"], dtype=float)
+    if "t_s" in extra:
+        t_s = extra["t_s"]
         indexes.append(rr.TimeColumn("t_s", duration=t_s))
         timelines.append("t_s")
         channels.append("t_s")
@@ -409,15 +419,13 @@ def record_diagnosis(
         rec.send_columns(f"{root}/residual/noise_floor", indexes, rr.Scalars.columns(scalars=np.full(n, float(floor))))
         for j in range(6):
             rec.send_columns(f"{root}/variables/q_deg/q{j + 1}", indexes, rr.Scalars.columns(scalars=q_deg[:, j]))
-        if series.get("approach_sign") is not None:
-            sign = np.asarray(series["approach_sign"], dtype=float).reshape(n, 6)
+        if sign is not None:
             for j in range(6):
                 rec.log(f"{root}/variables/approach_sign/j{j + 1}", rr.SeriesPoints(marker_sizes=[2.0]), static=True)
                 rec.send_columns(f"{root}/variables/approach_sign/j{j + 1}", indexes,
                                  rr.Scalars.columns(scalars=sign[:, j]))
         for ch in channels:
-            rec.send_columns(f"{root}/variables/{ch}", indexes,
-                             rr.Scalars.columns(scalars=np.asarray(series[ch], dtype=float)))
+            rec.send_columns(f"{root}/variables/{ch}", indexes, rr.Scalars.columns(scalars=extra[ch]))
         rec.log(f"{root}/verdict", rr.TextDocument(_verdict_markdown(verdict, timelines),
                                                    media_type=rr.MediaType.MARKDOWN), static=True)
         # the verdict log at the first held-out row (on every timeline), so that it shows from the start
@@ -432,9 +440,9 @@ def record_diagnosis(
         for j in range(6):
             rec.set_time(f"q{j + 1}_mdeg", sequence=int(np.round(q_deg[:, j].min() * 1e3)))
         if "temp_c" in channels:
-            rec.set_time("temp_mdegC", sequence=int(np.round(np.min(series["temp_c"]) * 1e3)))
+            rec.set_time("temp_mdegC", sequence=int(np.round(np.min(extra["temp_c"]) * 1e3)))
         if "t_s" in channels:
-            rec.set_time("t_s", duration=float(np.min(series["t_s"])))
+            rec.set_time("t_s", duration=float(np.min(extra["t_s"])))
         for text, lvl in texts:
             rec.log(f"{root}/log", rr.TextLog(text, level=lvl))
     finally:
