@@ -269,18 +269,23 @@ def diagnosis_blueprint(channels: Sequence[str] = ()) -> rrb.Blueprint:
     against the timeline chosen in the time panel: ``pose`` (measurement order) or a variable's own timeline
     (``q1_mdeg`` ... ``q6_mdeg``, ``temp_mdegC``, ``t_s``), which turns the residual plot into a scatter plot
     of the residual against that variable."""
+    def plot(origin: str, name: str) -> rrb.TimeSeriesView:
+        # the whole timeline on the x axis: on a variable's timeline the rows are sparse (millidegree steps) and
+        # the default view range shows only the neighbourhood of the time cursor
+        full = rr.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+        return rrb.TimeSeriesView(origin=origin, name=name, axis_x=rrb.archetypes.TimeAxis(view_range=full))
+
     bottom = [
-        rrb.TimeSeriesView(origin=f"{DIAGNOSIS_ROOT}/variables/q_deg", name="commanded joints [deg]"),
-        rrb.TimeSeriesView(origin=f"{DIAGNOSIS_ROOT}/variables/approach_sign", name="approach direction (-1/+1)"),
+        plot(f"{DIAGNOSIS_ROOT}/variables/q_deg", "commanded joints [deg]"),
+        plot(f"{DIAGNOSIS_ROOT}/variables/approach_sign", "approach direction (-1/+1)"),
     ]
     for ch in channels:
-        bottom.append(rrb.TimeSeriesView(origin=f"{DIAGNOSIS_ROOT}/variables/{ch}", name=ch))
+        bottom.append(plot(f"{DIAGNOSIS_ROOT}/variables/{ch}", ch))
     bottom.append(rrb.TextLogView(origin=f"{DIAGNOSIS_ROOT}/log", name="verdict log"))
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
-                rrb.TimeSeriesView(origin=f"{DIAGNOSIS_ROOT}/residual",
-                                   name="validation residual RMS per coordinate [mm]"),
+                plot(f"{DIAGNOSIS_ROOT}/residual", "validation residual RMS per coordinate [mm]"),
                 rrb.TextDocumentView(origin=f"{DIAGNOSIS_ROOT}/verdict", name="verdict"),
                 column_shares=[3, 1],
             ),
@@ -307,24 +312,27 @@ TELLING_TIMELINES = {
 def _verdict_markdown(verdict: Mapping[str, object], timelines: Sequence[str]) -> str:
     eff = list(verdict.get("effects") or [])
     floor = (verdict.get("noise_floor") or {}).get("position_mm")
+    p = verdict.get("p_value")
+    p_txt = f"{p:.3g}" if isinstance(p, (int, float)) else str(p)
+    floor_txt = f"{floor:.5f}" if isinstance(floor, (int, float)) else str(floor)
     lines = [
         "# Diagnosis",
         "",
-        f"* structured: **{verdict.get('structured')}** (p = {verdict.get('p_value')}, alpha = {verdict.get('alpha')})",
+        f"* structured: **{verdict.get('structured')}** (p = {p_txt}, alpha = {verdict.get('alpha')})",
         f"* effects: **{', '.join(eff) if eff else 'none'}** (explained: {verdict.get('explained')})",
-        f"* noise floor: {floor} mm per coordinate",
+        f"* noise floor: {floor_txt} mm per coordinate",
     ]
     for tag in ("before", "after"):
         pos = (verdict.get(tag) or {}).get("position_mm")
         if pos:
             lines.append(f"* validation position error {tag}: mean {pos['mean']:.5f}, rms {pos['rms']:.5f}, "
                          f"max {pos['max']:.5f} mm")
-    lines += ["", "Switch the time panel to a variable's timeline to plot the residual against it:",
-              ", ".join(f"`{t}`" for t in timelines) + "."]
     for e in eff:
         tl = [t for t in TELLING_TIMELINES.get(str(e), ()) if t in timelines]
         if tl:
-            lines.append(f"* `{e}` shows against: " + ", ".join(f"`{t}`" for t in tl))
+            lines.append(f"* `{e}` shows against the timeline " + ", ".join(f"`{t}`" for t in tl))
+    lines += ["", "Switch the time panel to a variable's timeline to plot the residual against it:",
+              ", ".join(f"`{t}`" for t in timelines) + "."]
     notes = list(verdict.get("notes") or [])
     if notes:
         lines += ["", "## Notes", ""] + [f"* {n}" for n in notes]
