@@ -10,7 +10,7 @@ HELP = "find structure beyond the noise in held-out residuals, trace it to an ef
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml) with repeats or a stated noise, and held-out rows")
-    p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots")
+    p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots, diagnosis.rrd")
     p.add_argument("--calibration", help="a geometric calibration.json to start from")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
@@ -18,11 +18,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out draw")
     p.add_argument("--max-effects", type=int, default=3, help="largest number of effects combined (default 3)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-recording", action="store_true",
+                   help="skip the Rerun recording DIR/diagnosis.rrd (open it with: rerun DIR/diagnosis.rrd)")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..dataset import read_dataset
-    from ..diagnosis import diagnose, write_diagnosis
+    from ..diagnosis import diagnose, read_diagnosis, write_diagnosis
     from ..estimator import Calibration
 
     ds = read_dataset(args.dataset)
@@ -30,6 +32,13 @@ def run(args: argparse.Namespace) -> int:
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects)
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
+    if not args.no_recording:
+        # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording
+        # shows exactly what diagnosis.json holds
+        from ..evaluation.recording import record_diagnosis
+
+        paths["recording"] = record_diagnosis(paths["diagnosis"].with_name("diagnosis.rrd"), res.series,
+                                              read_diagnosis(paths["diagnosis"]))
     b, a = res.before, res.after
     out = sys.stdout
     print(f"noise floor: {res.noise.sigma * 1e3:.5f} mm per coordinate ({res.noise.source})", file=out)
@@ -44,4 +53,6 @@ def run(args: argparse.Namespace) -> int:
             for stat in ("mean", "rms", "max"):
                 print(f"  {key.split('_')[0]:<11} {stat:<4} {b[key][stat]:>12.5f} {unit:<3}  {a[key][stat]:>12.5f} {unit}", file=out)
     print(f"wrote {paths['diagnosis']}", file=out)
+    if "recording" in paths:
+        print(f"wrote {paths['recording']} (open with: rerun {paths['recording']})", file=out)
     return 0

@@ -16,6 +16,9 @@ Layout of the recording (entity paths), all 3D in the robot base frame ("world",
 
 Everything per pose is on the ``pose`` sequence timeline (the pose index in measurement order). A default
 blueprint (3D view, both images, residual plots, log) is stored in the file so it opens in a useful layout.
+
+A diagnosis (``twin diagnose``) has its own recording, :func:`record_diagnosis`: ``diagnosis/residual/...``,
+``diagnosis/variables/...``, ``diagnosis/verdict``, ``diagnosis/log`` (layout in ``docs/diagnosis.md``).
 """
 
 from __future__ import annotations
@@ -248,3 +251,212 @@ def read_recording(path: str | os.PathLike) -> dict[str, list]:
 
 
 __all__.append("read_recording")
+
+
+# ------------------------------------------------------------------------------------------------
+# Diagnosis recording
+# ------------------------------------------------------------------------------------------------
+
+DIAGNOSIS_ROOT = "diagnosis"
+_BEFORE_COLOUR = (220, 50, 50)
+_AFTER_COLOUR = (40, 110, 230)
+_FLOOR_COLOUR = (90, 90, 90)
+
+
+def diagnosis_blueprint(channels: Sequence[str] = ()) -> rrb.Blueprint:
+    """Residual per held-out row (geometric only, extended, noise floor) and the verdict on top; the telling
+    variables (joints, approach directions, recorded channels) and the text log below. Every plot is drawn
+    against the timeline chosen in the time panel: ``pose`` (measurement order) or a variable's own timeline
+    (``q1_mdeg`` ... ``q6_mdeg``, ``temp_mdegC``, ``t_s``), which turns the residual plot into a scatter plot
+    of the residual against that variable."""
+    def plot(origin: str, name: str) -> rrb.TimeSeriesView:
+        # the whole timeline on the x axis: on a variable's timeline the rows are sparse (millidegree steps) and
+        # the default view range shows only the neighbourhood of the time cursor
+        full = rr.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+        return rrb.TimeSeriesView(origin=origin, name=name, axis_x=rrb.archetypes.TimeAxis(view_range=full))
+
+    bottom = [
+        plot(f"{DIAGNOSIS_ROOT}/variables/q_deg", "commanded joints [deg]"),
+        plot(f"{DIAGNOSIS_ROOT}/variables/approach_sign", "approach direction (-1/+1)"),
+    ]
+    for ch in channels:
+        bottom.append(plot(f"{DIAGNOSIS_ROOT}/variables/{ch}", ch))
+    bottom.append(rrb.TextLogView(origin=f"{DIAGNOSIS_ROOT}/log", name="verdict log"))
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                plot(f"{DIAGNOSIS_ROOT}/residual", "validation residual RMS per coordinate [mm]"),
+                rrb.TextDocumentView(origin=f"{DIAGNOSIS_ROOT}/verdict", name="verdict"),
+                column_shares=[3, 1],
+            ),
+            rrb.Horizontal(*bottom),
+            row_shares=[3, 2],
+        ),
+        rrb.TimePanel(state="expanded", timeline="pose"),
+        collapse_panels=False,
+    )
+
+
+# Where each candidate effect shows (the variables its regressor is built from), as timelines of the recording.
+TELLING_TIMELINES = {
+    "compliance": ("q2_mdeg", "q3_mdeg"),  # gravity torque: shoulder and elbow angles
+    "backlash": ("pose",),  # approach directions: diagnosis/variables/approach_sign on the pose timeline
+    "cyclic": tuple(f"q{j}_mdeg" for j in range(1, 7)),
+    "gear_ratio": tuple(f"q{j}_mdeg" for j in range(1, 7)),
+    "coupling": ("q5_mdeg",),
+    "thermal": ("temp_mdegC", "t_s"),
+    "plate_geometry": ("q4_mdeg", "q5_mdeg", "q6_mdeg"),  # the wrist turns the plate in front of the camera
+}
+
+
+def _verdict_markdown(verdict: Mapping[str, object], timelines: Sequence[str]) -> str:
+    eff = list(verdict.get("effects") or [])
+    floor = (verdict.get("noise_floor") or {}).get("position_mm")
+    p = verdict.get("p_value")
+    p_txt = f"{p:.3g}" if isinstance(p, (int, float)) else str(p)
+    floor_txt = f"{floor:.5f}" if isinstance(floor, (int, float)) else str(floor)
+    lines = [
+        "# Diagnosis",
+        "",
+        f"* structured: **{verdict.get('structured')}** (p = {p_txt}, alpha = {verdict.get('alpha')})",
+        f"* effects: **{', '.join(eff) if eff else 'none'}** (explained: {verdict.get('explained')})",
+        f"* noise floor: {floor_txt} mm per coordinate",
+    ]
+    for tag in ("before", "after"):
+        pos = (verdict.get(tag) or {}).get("position_mm")
+        if pos:
+            lines.append(f"* validation position error {tag}: mean {pos['mean']:.5f}, rms {pos['rms']:.5f}, "
+                         f"max {pos['max']:.5f} mm")
+    for e in eff:
+        tl = [t for t in TELLING_TIMELINES.get(str(e), ()) if t in timelines]
+        if tl:
+            lines.append(f"* `{e}` shows against the timeline " + ", ".join(f"`{t}`" for t in tl))
+    lines += ["", "Switch the time panel to a variable's timeline to plot the residual against it:",
+              ", ".join(f"`{t}`" for t in timelines) + "."]
+    notes = list(verdict.get("notes") or [])
+    if notes:
+        lines += ["", "## Notes", ""] + [f"* {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def record_diagnosis(
+    path: str | os.PathLike,
+    series: Mapping[str, np.ndarray],
+    verdict: Mapping[str, object],
+    *,
+    application_id: str = "twin-diagnosis",
+) -> Path:
+    """Write a diagnosis as an ``.rrd`` recording (no viewer needed); returns ``path``.
+
+    ``series``: :attr:`twin.diagnosis.DiagnosisResult.series` (per held-out row: ``dataset_row``,
+    ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, 6)``,
+    ``approach_sign`` ``(n, 6)``, optional ``temp_c``/``t_s``); ``verdict``: the content of ``diagnosis.json``
+    (:func:`twin.diagnosis.diagnosis_dict`; ``structured``, ``p_value``, ``effects``, ``noise_floor``, ...).
+
+    Entities (layout in ``docs/diagnosis.md``): ``diagnosis/residual/{before,after,noise_floor}``,
+    ``diagnosis/variables/q_deg/q1..q6``, ``diagnosis/variables/approach_sign/j1..j6``,
+    ``diagnosis/variables/{temp_c,t_s}`` (when recorded), ``diagnosis/verdict`` (markdown) and
+    ``diagnosis/log`` (text log). Every row is on the ``pose`` timeline (its row in the dataset, measurement
+    order) and on one timeline per variable (``q<j>_mdeg`` [millidegree], ``temp_mdegC`` [milli deg C],
+    ``t_s`` [s, duration]) so that the residual plots against any of them.
+    """
+    for key in ("dataset_row", "residual_rms_mm_before", "residual_rms_mm_after", "q_deg"):
+        if key not in series:
+            raise ValueError(f"series lacks {key!r} (has {sorted(series)}): pass DiagnosisResult.series")
+    rows = np.asarray(series["dataset_row"], dtype=np.int64)
+    n = rows.size
+    if n == 0:
+        raise ValueError("series['dataset_row'] is empty: a diagnosis recording needs held-out rows")
+    before = np.asarray(series["residual_rms_mm_before"], dtype=float)
+    after = np.asarray(series["residual_rms_mm_after"], dtype=float)
+    q_deg = np.asarray(series["q_deg"], dtype=float)
+    if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, 6):
+        raise ValueError(f"series shapes disagree: dataset_row {rows.shape}, before {before.shape}, "
+                         f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, 6))")
+    extra = {k: np.asarray(series[k], dtype=float) for k in ("temp_c", "t_s") if series.get(k) is not None}
+    sign = None if series.get("approach_sign") is None else np.asarray(series["approach_sign"], dtype=float)
+    for key, a, shape in [("residual_rms_mm_before", before, (n,)), ("residual_rms_mm_after", after, (n,)),
+                          ("q_deg", q_deg, (n, 6))] + [(k, a, (n,)) for k, a in extra.items()] + (
+                          [] if sign is None else [("approach_sign", sign, (n, 6))]):
+        if a.shape != shape:
+            raise ValueError(f"series[{key!r}] must have shape {shape}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"series[{key!r}] holds non-finite values (row {int(np.flatnonzero(~np.isfinite(a).reshape(n, -1).all(axis=1))[0])})")
+    nf = verdict.get("noise_floor")
+    floor = nf.get("position_mm") if isinstance(nf, Mapping) else None
+    if not isinstance(floor, (int, float, np.floating)) or not np.isfinite(floor) or floor <= 0:
+        raise ValueError(f"verdict['noise_floor']['position_mm'] must be a positive number, got {floor!r}")
+    for key in ("structured", "p_value", "effects"):
+        if key not in verdict:
+            raise ValueError(f"verdict lacks {key!r}: pass the content of diagnosis.json")
+
+    # One time column per timeline, shared by every per-row entity.
+    indexes = [rr.TimeColumn("pose", sequence=rows)]
+    timelines = ["pose"]
+    for j in range(6):
+        indexes.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[:, j] * 1e3).astype(np.int64)))
+        timelines.append(f"q{j + 1}_mdeg")
+    channels: list[str] = []
+    if "temp_c" in extra:
+        temp = extra["temp_c"]
+        indexes.append(rr.TimeColumn("temp_mdegC", sequence=np.round(temp * 1e3).astype(np.int64)))
+        timelines.append("temp_mdegC")
+        channels.append("temp_c")
+    if "t_s" in extra:
+        t_s = extra["t_s"]
+        indexes.append(rr.TimeColumn("t_s", duration=t_s))
+        timelines.append("t_s")
+        channels.append("t_s")
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(application_id, recording_id=f"{path.parent.name}/{path.stem}")
+    rec.save(str(path), default_blueprint=diagnosis_blueprint(channels))
+    root = DIAGNOSIS_ROOT
+    try:
+        # series styles (static): residuals as markers so that they read as a scatter plot on a variable's
+        # timeline; the floor as a line
+        rec.log(f"{root}/residual/before", rr.SeriesPoints(colors=[_BEFORE_COLOUR], names=["geometric only"],
+                                                           marker_sizes=[3.0]), static=True)
+        rec.log(f"{root}/residual/after", rr.SeriesPoints(colors=[_AFTER_COLOUR], names=["extended"],
+                                                          marker_sizes=[3.0]), static=True)
+        rec.log(f"{root}/residual/noise_floor", rr.SeriesLines(colors=[_FLOOR_COLOUR], names=["noise floor"]),
+                static=True)
+        rec.send_columns(f"{root}/residual/before", indexes, rr.Scalars.columns(scalars=before))
+        rec.send_columns(f"{root}/residual/after", indexes, rr.Scalars.columns(scalars=after))
+        rec.send_columns(f"{root}/residual/noise_floor", indexes, rr.Scalars.columns(scalars=np.full(n, float(floor))))
+        for j in range(6):
+            rec.send_columns(f"{root}/variables/q_deg/q{j + 1}", indexes, rr.Scalars.columns(scalars=q_deg[:, j]))
+        if sign is not None:
+            for j in range(6):
+                rec.log(f"{root}/variables/approach_sign/j{j + 1}", rr.SeriesPoints(marker_sizes=[2.0]), static=True)
+                rec.send_columns(f"{root}/variables/approach_sign/j{j + 1}", indexes,
+                                 rr.Scalars.columns(scalars=sign[:, j]))
+        for ch in channels:
+            rec.send_columns(f"{root}/variables/{ch}", indexes, rr.Scalars.columns(scalars=extra[ch]))
+        rec.log(f"{root}/verdict", rr.TextDocument(_verdict_markdown(verdict, timelines),
+                                                   media_type=rr.MediaType.MARKDOWN), static=True)
+        # the verdict log at the first held-out row (on every timeline), so that it shows from the start
+        eff = list(verdict.get("effects") or [])
+        level = rr.TextLogLevel.WARN if verdict.get("structured") else rr.TextLogLevel.INFO
+        texts = [
+            (f"structured={verdict.get('structured')} p_value={verdict.get('p_value')} "
+             f"effects={','.join(eff) if eff else 'none'}", level),
+            (f"noise floor {floor} mm per coordinate", rr.TextLogLevel.INFO),
+        ] + [(str(note), rr.TextLogLevel.INFO) for note in verdict.get("notes") or []]
+        rec.set_time("pose", sequence=int(rows.min()))
+        for j in range(6):
+            rec.set_time(f"q{j + 1}_mdeg", sequence=int(np.round(q_deg[:, j].min() * 1e3)))
+        if "temp_c" in channels:
+            rec.set_time("temp_mdegC", sequence=int(np.round(np.min(extra["temp_c"]) * 1e3)))
+        if "t_s" in channels:
+            rec.set_time("t_s", duration=float(np.min(extra["t_s"])))
+        for text, lvl in texts:
+            rec.log(f"{root}/log", rr.TextLog(text, level=lvl))
+    finally:
+        rec.flush(timeout_sec=60.0)
+        rec.disconnect()
+    return path
+
+
+__all__ += ["record_diagnosis", "diagnosis_blueprint", "TELLING_TIMELINES"]

@@ -1,0 +1,181 @@
+"""Benchmark of the diagnosis -> the ``diagnosis`` section of results/benchmark.json.
+
+Target (issue 7): a dataset of 200 poses is diagnosed in <= 60 s. The dataset: 200 poses of the IRB-1200
+(100 calibration + 100 validation, alternating), every 4th pose measured twice in a row for the noise floor
+(250 rows), 5 um noise per sphere coordinate, a time channel ``t_s`` (so the thermal drift candidate is tried
+too) and an undeclared joint compliance under gravity (the generator of the diagnosis tests,
+``tests/_diagnosis_helpers.py``: no rendering, the instrument's noise level).
+
+Timed, median of ``--runs`` runs each (after one warm-up run of the library call):
+
+* ``library``: ``twin.diagnosis.diagnose(dataset)`` on the dataset in memory, and the writing phases
+  (``write_diagnosis`` with plots, ``record_diagnosis``);
+* ``cli``: ``twin diagnose DATASET --out DIR`` end to end in a fresh process (start-up, imports, reading,
+  diagnosis, JSON, plots, recording), peak resident memory of that process.
+
+    python experiments/bench_diagnosis.py [--runs 5]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small matrices: BLAS threads only contend on 2 shared cores
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import resource  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+import _diagnosis_helpers as H  # noqa: E402  (the synthetic generator of the diagnosis tests)
+
+from twin.benchio import update_benchmark_section  # noqa: E402
+from twin.dataset import read_dataset, write_dataset  # noqa: E402
+from twin.diagnosis import diagnose, diagnosis_dict, write_diagnosis  # noqa: E402
+from twin.evaluation.recording import record_diagnosis  # noqa: E402
+
+TARGET_S = 60.0
+
+
+def _vm_hwm_kb(pid: int) -> int:
+    """Peak resident set of a running process [KiB] (0 when it has already gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except (FileNotFoundError, ProcessLookupError, ValueError):
+        pass
+    return 0
+
+
+def _median_timing(f, runs: int) -> dict:
+    wall, cpu = [], []
+    for _ in range(runs):
+        t, c = time.perf_counter(), time.process_time()
+        f()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return {"median_s": float(np.median(wall)), "min_s": float(np.min(wall)), "max_s": float(np.max(wall)),
+            "cpu_median_s": float(np.median(cpu)), "runs_s": [float(w) for w in wall]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=5, help="timed runs of each measurement (>= 5 for the record)")
+    ap.add_argument("--n-poses", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--no-write", action="store_true", help="print only, do not update results/benchmark.json")
+    args = ap.parse_args()
+    if args.runs < 1:
+        raise ValueError(f"--runs must be >= 1, got {args.runs}")
+    load_start = list(os.getloadavg())
+    n = args.n_poses
+    ds, _ = H.make_dataset(seed=args.seed, n=n, effect=H.compliance(1.5), t_s=np.linspace(0.0, 3600.0, n))
+    work = Path(tempfile.mkdtemp(prefix="bench_diagnosis_"))
+    try:
+        write_dataset(work / "ds", ds)
+        ds = read_dataset(work / "ds")
+        n_val = int(np.sum(ds.set == "validation"))
+
+        res = diagnose(ds)  # warm-up (imports, caches) and the verdict recorded with the figures
+        lib = _median_timing(lambda: diagnose(ds), args.runs)
+        read_t = _median_timing(lambda: read_dataset(work / "ds"), args.runs)
+        write_t = _median_timing(lambda: write_diagnosis(res, work / "lib_out", plots=True), args.runs)
+        verdict = diagnosis_dict(res)
+        rec_t = _median_timing(lambda: record_diagnosis(work / "lib_out" / "diagnosis.rrd", res.series, verdict),
+                               args.runs)
+        tracemalloc.start()
+        diagnose(ds)
+        _, traced_peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rss_self_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+        twin_exe = shutil.which("twin", path=str(Path(sys.executable).parent)) or "twin"
+        cmd = [twin_exe, "diagnose", str(work / "ds"), "--out", str(work / "cli_out")]
+
+        peaks_kb: list[int] = []
+        child_cpu: list[float] = []
+
+        def cli():
+            # The child's own high-water mark: VmHWM of /proc/PID/status (reset by exec, unlike ru_maxrss of
+            # RUSAGE_CHILDREN, which a forked child inherits from this process), polled until it exits.
+            ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+            hwm = 0
+            while proc.poll() is None:
+                hwm = max(hwm, _vm_hwm_kb(proc.pid))
+                time.sleep(0.02)
+            if proc.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}")
+            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            peaks_kb.append(hwm)
+            child_cpu.append((ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime))
+
+        cli_t = _median_timing(cli, args.runs)
+        cli_t["cpu_median_s"] = float(np.median(child_cpu))  # the child's CPU time, not this process's
+        rss_cli_mb = max(peaks_kb) / 1024.0
+        rrd_mb = (work / "cli_out" / "diagnosis.rrd").stat().st_size / 1e6
+        cli_files = sorted(p.name for p in (work / "cli_out").iterdir())
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    data = {
+        "target": f"twin diagnose on a dataset of {n} poses <= {TARGET_S:.0f} s (issue 7)",
+        "target_s": TARGET_S,
+        "meets_target": bool(cli_t["median_s"] <= TARGET_S and lib["median_s"] <= TARGET_S),
+        "dataset": {
+            "generator": "tests/_diagnosis_helpers.make_dataset (synthetic sphere centres, no rendering)",
+            "robot": "irb1200", "seed": args.seed, "poses": n, "rows": int(ds.n),
+            "validation_rows": n_val, "calibration_rows": int(ds.n - n_val),
+            "repeats": "every 4th pose measured twice in a row (noise floor)",
+            "noise_position_mm": H.SIGMA / 1e-3, "channels": ["t_s"],
+            "effect": "joint compliance under gravity (H.compliance(1.5)), undeclared",
+        },
+        "verdict": {"structured": res.structured, "p_value": res.p_value, "effects": list(res.effects),
+                    "before_rms_mm": res.before["position_mm"]["rms"], "after_rms_mm": res.after["position_mm"]["rms"],
+                    "candidates_scored": len(res.scores)},
+        "runs": args.runs,
+        "library": {
+            "diagnose": lib,
+            "read_dataset": read_t,
+            "write_diagnosis_with_plots": write_t,
+            "record_diagnosis": rec_t,
+            "diagnose_traced_peak_mb": traced_peak / 1e6,
+            "process_peak_rss_mb": rss_self_mb,
+            "process_peak_rss_note": "ru_maxrss of the benchmark process (imports, dataset, all library runs)",
+        },
+        "cli": {
+            "command": "twin diagnose DATASET --out DIR (plots and recording on)",
+            "end_to_end": cli_t,
+            "peak_rss_mb": rss_cli_mb,
+            "peak_rss_method": "VmHWM of /proc/PID/status of the twin process, polled every 20 ms; max over runs",
+            "files": cli_files,
+            "recording_mb": rrd_mb,
+        },
+        "load_average_1_5_15": load_start,
+        "load_average_end": list(os.getloadavg()),
+        "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "note": "wall times on a shared 2-core machine (see the load averages); cpu = process time of this process; "
+                "diagnose = noise floor, geometric fit, structure test, forward selection over the catalogue, "
+                "before/after statistics; the CLI figure includes interpreter start-up and imports (~1-2 s).",
+    }
+    print(json.dumps(data, indent=1))
+    if not args.no_write:
+        p = update_benchmark_section("diagnosis", data)
+        print(f"diagnose {lib['median_s']:.2f} s (library, median of {args.runs}); twin diagnose end to end "
+              f"{cli_t['median_s']:.2f} s; target {TARGET_S:.0f} s; wrote {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
