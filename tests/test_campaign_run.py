@@ -163,3 +163,28 @@ def test_a_motion_is_compensated_as_a_whole(tmp_path):
         np.testing.assert_array_equal(store.read(f"c/full_pose/{int(plan.pose_id[i]):05d}").q, plan.q[i])
     ok_rows = [i for i in val if int(plan.pose_id[i]) not in failed]
     assert ok_rows and not np.allclose(store.read(f"c/full_pose/{int(plan.pose_id[ok_rows[0]]):05d}").q, plan.q[ok_rows[0]])
+
+
+def test_identification_is_reused_only_for_the_same_dataset(tmp_path):
+    """Saved identifications are reused on resume, but never paired with a different (re-measured) dataset."""
+    calls = []
+
+    def counted(dataset, seed):
+        calls.append(seed)
+        return reference_full_pose(dataset, seed)
+
+    impl = {"full_pose": counted}
+    run_campaign(small_config(), tmp_path / "a", implementations=impl)
+    assert len(calls) == 1
+    run_campaign(small_config(), tmp_path / "a", implementations=impl)  # resume: same dataset, reused
+    assert len(calls) == 1
+    # a folder holding committed calibrations of another dataset (e.g. a fresh clone re-measuring)
+    (tmp_path / "b").mkdir()
+    import shutil
+
+    shutil.copytree(tmp_path / "a" / "calibrations", tmp_path / "b" / "calibrations")
+    run_campaign(small_config(seed=8), tmp_path / "b", implementations=impl)
+    assert len(calls) == 2
+    a = json.loads((tmp_path / "a" / "calibrations" / "full_pose.json").read_text())
+    b = json.loads((tmp_path / "b" / "calibrations" / "full_pose.json").read_text())
+    assert a["dataset_sha256"] != b["dataset_sha256"] and a["robot"]["params"] != b["robot"]["params"]

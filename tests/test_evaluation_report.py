@@ -112,3 +112,13 @@ def test_regression_check_uses_k_sigma_or_min_max():
     run["methods"]["m"]["measured"]["angle_deg"]["after"]["mean"] = 1.31
     assert len(check_against_bands(run, bands)["outside"]) == 1
     assert list(tracked_statistics(run["methods"])) == ["m.measured.angle_deg.after.mean"]
+
+
+def test_method_result_is_not_reused_for_another_dataset(tmp_path):
+    """A saved identification with another dataset's fingerprint, or none, is not loaded when one is asked for."""
+    r = MethodResult("separation", irb1200().perturbed({"d4": 1e-4}), {"front": np.eye(4)}, ("d4",), {"k": 1})
+    save_method_result(tmp_path, r, dataset_sha256="aa")
+    assert load_method_result(tmp_path, "separation", "aa") is not None
+    assert load_method_result(tmp_path, "separation", "bb") is None
+    save_method_result(tmp_path, r)
+    assert load_method_result(tmp_path, "separation", "aa") is None

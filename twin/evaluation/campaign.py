@@ -43,7 +43,8 @@ from ..world.truth import write_truth
 from .config import CampaignConfig
 from .evaluate import evaluate_campaign, paper_orderings, parameter_comparison
 from .executor import SerialExecutor, aggregate, open_executor, run_tasks, worker_identity
-from .methods import Identify, MethodUnavailable, compensate, identify, load_method_result, save_method_result
+from .methods import (Identify, MethodUnavailable, compensate, dataset_fingerprint, identify, load_method_result,
+                      save_method_result)
 from .pipeline import PoseTask, backend_spec_for, get_backend, measure_pose
 from .plan import CampaignPlan, make_plan, pose_seed
 from .report import comparison_rows, plot_figure10, plot_figure11, render_parameter_table, render_table, write_results
@@ -228,13 +229,14 @@ def run_campaign(
                        f"twin campaign {cfg.name}, seed {cfg.seed}{' (quick)' if cfg.quick else ''}")
         write_truth(out / "truth.json", backend.truth_record([before[int(p)] for p in plan.pose_id]))
         dataset = read_dataset(out / "dataset")
+        dataset_sha256 = dataset_fingerprint(out / "dataset")
 
         # --- 2. identification per method ------------------------------------------------------------
         method_results: dict[str, Any] = {}
         unavailable: dict[str, str] = {}
         for m in cfg.methods:
             t = time.perf_counter()
-            r = load_method_result(out / "calibrations", m)
+            r = load_method_result(out / "calibrations", m, dataset_sha256)  # only for this very dataset
             if r is None:
                 try:
                     r = identify(m, dataset, seed=cfg.seed, implementations=dict(implementations or {}))
@@ -242,7 +244,7 @@ def run_campaign(
                     unavailable[m] = str(exc)
                     say(f"method {m}: unavailable ({exc})")
                     continue
-                save_method_result(out / "calibrations", r)
+                save_method_result(out / "calibrations", r, dataset_sha256)
             method_results[m] = r
             timings[f"identify_{m}_s"] = time.perf_counter() - t
 

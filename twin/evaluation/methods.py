@@ -19,6 +19,7 @@ and experiments may pass their own implementations (``Identify`` callables) inst
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -39,6 +40,7 @@ __all__ = [
     "compensate",
     "save_method_result",
     "load_method_result",
+    "dataset_fingerprint",
 ]
 
 ESTIMATOR_METHODS = {"distance": "distance", "full_pose": "fullpose", "separation": "separation", "default": "best"}
@@ -135,14 +137,29 @@ def compensate(
     return np.where(ok[:, None], res.q, q), ok
 
 
-def save_method_result(folder: str | os.PathLike, result: MethodResult) -> Path:
-    """``<folder>/<method>.json``: the identified parameter vector (and the estimator's calibration.json)."""
+def dataset_fingerprint(folder: str | os.PathLike) -> str:
+    """SHA-256 over a dataset folder's ``poses.csv`` and ``dataset.toml`` (what an identification depends on)."""
+    h = hashlib.sha256()
+    for name in ("poses.csv", "dataset.toml"):
+        path = Path(folder) / name
+        if not path.exists():
+            raise ValueError(f"folder: {folder} has no {name}: not a dataset")
+        h.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def save_method_result(folder: str | os.PathLike, result: MethodResult, dataset_sha256: str | None = None) -> Path:
+    """``<folder>/<method>.json``: the identified parameter vector (and the estimator's calibration.json).
+
+    ``dataset_sha256``: fingerprint of the dataset the method was identified on (:func:`dataset_fingerprint`);
+    :func:`load_method_result` reuses the result only for the same dataset."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     if result.calibration is not None and hasattr(result.calibration, "save"):
         result.calibration.save(folder / f"{result.method}.calibration.json")
     d = {
         "method": result.method,
+        "dataset_sha256": dataset_sha256,
         "robot": {
             "name": result.robot.name,
             "convention": result.robot.convention,
@@ -162,12 +179,18 @@ def save_method_result(folder: str | os.PathLike, result: MethodResult) -> Path:
     return path
 
 
-def load_method_result(folder: str | os.PathLike, method: str) -> MethodResult | None:
-    """The saved result of ``method`` in ``folder``, or ``None`` when there is none."""
+def load_method_result(folder: str | os.PathLike, method: str, dataset_sha256: str | None = None) -> MethodResult | None:
+    """The saved result of ``method`` in ``folder``, or ``None`` when there is none.
+
+    With ``dataset_sha256`` given, a result identified on another dataset (or saved without a fingerprint) is
+    not reused either (``None``): a re-measured dataset must be identified again, never paired with a stale
+    identification."""
     path = Path(folder) / f"{method}.json"
     if not path.exists():
         return None
     d = json.loads(path.read_text())
+    if dataset_sha256 is not None and d.get("dataset_sha256") != dataset_sha256:
+        return None
     r = d["robot"]
     robot = RobotModel(
         name=r["name"], convention=r["convention"], params=np.array(r["params"]), beta_joints=tuple(r["beta_joints"]),
