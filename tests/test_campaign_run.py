@@ -188,3 +188,22 @@ def test_identification_is_reused_only_for_the_same_dataset(tmp_path):
     a = json.loads((tmp_path / "a" / "calibrations" / "full_pose.json").read_text())
     b = json.loads((tmp_path / "b" / "calibrations" / "full_pose.json").read_text())
     assert a["dataset_sha256"] != b["dataset_sha256"] and a["robot"]["params"] != b["robot"]["params"]
+
+
+def test_compensated_pose_is_measured_again_when_its_command_changed(tmp_path):
+    """Resumed with another identification, the compensated poses are re-measured at their new commands."""
+    cfg = small_config()
+    run_campaign(cfg, tmp_path, implementations={"full_pose": lambda ds, seed: reference_full_pose(ds, seed, 8)},
+                 backend_factory=COUNTING)
+    (tmp_path / "calibrations" / "full_pose.json").unlink()  # e.g. identified again by changed code
+    (tmp_path / "work" / "count.txt").write_text("0")
+    run = run_campaign(cfg, tmp_path, implementations={"full_pose": lambda ds, seed: reference_full_pose(ds, seed, 1)},
+                       backend_factory=COUNTING)
+    n_after = len(read_dataset(tmp_path / "after" / "full_pose").q)
+    assert int((tmp_path / "work" / "count.txt").read_text()) == n_after > 0
+    after = read_dataset(tmp_path / "after" / "full_pose")
+    from twin.evaluation.store import PoseStore
+
+    store = PoseStore(tmp_path / "work" / "poses")
+    for pid, q in zip(after.pose_id, after.q):  # the spheres of each row were measured at that row's command
+        np.testing.assert_allclose(store.read(f"c/full_pose/{int(pid):05d}").q, q, atol=1e-8)

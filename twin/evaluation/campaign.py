@@ -97,11 +97,23 @@ def _check_fingerprint(work: Path, cfg: CampaignConfig) -> None:
     atomic_write_text(marker, json.dumps({"fingerprint": fp, "name": cfg.name, "seed": cfg.seed, "quick": cfg.quick}))
 
 
+def _stored_for(store: PoseStore, task: PoseTask) -> bool:
+    """True when the store holds a result of ``task.key`` measured at the task's commanded joints."""
+    if not store.has(task.key):
+        return False
+    q_stored = np.asarray(store.read(task.key).q, dtype=float)
+    return q_stored.shape == np.shape(task.q) and bool(np.all(np.abs(q_stored - np.asarray(task.q, dtype=float)) <= 1e-12))
+
+
 def _measure(
     executor: cf.Executor, spec, tasks: Sequence[PoseTask], store: PoseStore, phase: str, progress: Progress | None
 ) -> int:
-    """Measure the tasks not yet in the store; every result is written as soon as it arrives."""
-    pending = [t for t in tasks if not store.has(t.key)]
+    """Measure the tasks not yet in the store; every result is written as soon as it arrives.
+
+    A stored result is reused only when it was measured at the task's own command: a compensated pose whose
+    command changed (the identification was redone on a re-measured dataset) is measured again, so a command
+    is never paired with spheres measured at another one."""
+    pending = [t for t in tasks if not _stored_for(store, t)]
     done = len(tasks) - len(pending)
     if progress:
         progress(phase, done, len(tasks))
