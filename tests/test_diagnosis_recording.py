@@ -8,22 +8,15 @@ from twin.cli import main
 from twin.dataset import read_dataset, write_dataset
 from twin.diagnosis import read_diagnosis
 from twin.evaluation.recording import read_recording, record_diagnosis
+from _recording_helpers import column  # tests/ is on sys.path under pytest
+
 
 N_POSES = 80
 T_S = np.linspace(0.0, 3600.0, N_POSES)
 
 
-def _column(batches, name):
-    """All non-null values of a column over an entity's chunks, in row order."""
-    vals = []
-    for b in batches:
-        if name in b.schema.names:
-            vals += [v for v in b.column(name).to_pylist() if v is not None]
-    return vals
-
-
 def _scalars(ents, path):
-    return np.ravel(_column(ents[path], "Scalars:scalars")).astype(float)
+    return np.ravel(column(ents[path], "Scalars:scalars")).astype(float)
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +48,7 @@ def test_before_after_series_have_one_value_per_held_out_row(diagnosed):
     assert d["before"]["n_rows"] == val_rows.size
     for name in ("before", "after", "noise_floor"):
         assert _scalars(ents, f"/diagnosis/residual/{name}").size == val_rows.size, name
-    poses = _column(ents["/diagnosis/residual/before"], "pose")
+    poses = column(ents["/diagnosis/residual/before"], "pose")
     np.testing.assert_array_equal(poses, val_rows)
 
 
@@ -76,7 +69,7 @@ def test_variable_timelines_place_each_row_at_its_joint_angle(diagnosed):
     """On the q2_mdeg timeline each residual sits at its row's commanded q2 (the residual-vs-variable plot)."""
     ds, _, ents = diagnosed
     val_rows = np.flatnonzero(ds.set == "validation")
-    q2 = _column(ents["/diagnosis/residual/before"], "q2_mdeg")
+    q2 = column(ents["/diagnosis/residual/before"], "q2_mdeg")
     np.testing.assert_array_equal(q2, np.round(np.rad2deg(ds.q[val_rows, 1]) * 1e3).astype(int))
     np.testing.assert_allclose(_scalars(ents, "/diagnosis/variables/t_s"), ds.t_s[val_rows])
 
@@ -84,9 +77,9 @@ def test_variable_timelines_place_each_row_at_its_joint_angle(diagnosed):
 def test_text_log_and_verdict_hold_structured_p_value_and_effects(diagnosed):
     """The text log's first line and the verdict document state structured, p_value and the effects of diagnosis.json."""
     _, d, ents = diagnosed
-    texts = np.ravel(_column(ents["/diagnosis/log"], "TextLog:text")).tolist()
+    texts = np.ravel(column(ents["/diagnosis/log"], "TextLog:text")).tolist()
     assert texts[0] == f"structured=True p_value={d['p_value']} effects=backlash"
-    doc = np.ravel(_column(ents["/diagnosis/verdict"], "TextDocument:text")).tolist()[0]
+    doc = np.ravel(column(ents["/diagnosis/verdict"], "TextDocument:text")).tolist()[0]
     assert "structured: **True**" in doc and "effects: **backlash**" in doc
 
 

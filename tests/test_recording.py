@@ -6,19 +6,12 @@ import pytest
 
 from twin.camera import CameraIntrinsics
 from twin.evaluation.recording import CameraView, CampaignRecording, StationView, encode_image, read_recording
+
 from twin.transforms import make_transform, rot_x
+from _recording_helpers import column  # tests/ is on sys.path under pytest
 
 K = CameraIntrinsics.ideal(320, 240, 15.225)
 N_POSES = 6
-
-
-def _column(batches, name):
-    """All non-null values of a column over an entity's chunks (each log call is a row)."""
-    vals = []
-    for b in batches:
-        if name in b.schema.names:
-            vals += [v for v in b.column(name).to_pylist() if v is not None]
-    return vals
 
 
 def make_synthetic_recording(path, n_poses=N_POSES, size=(240, 320)):
@@ -68,7 +61,7 @@ def test_recording_has_the_documented_entity_paths(recording):
 def test_recording_image_has_its_size(recording):
     """A logged image decodes to the size it was logged at."""
     _, ents = recording
-    blobs = _column(ents["/images/left"], "EncodedImage:blob")  # one row per log call: [blob bytes as a list]
+    blobs = column(ents["/images/left"], "EncodedImage:blob")  # one row per log call: [blob bytes as a list]
     assert len(blobs) == N_POSES
     img = cv2.imdecode(np.frombuffer(bytes(blobs[0][0]), np.uint8), cv2.IMREAD_UNCHANGED)
     assert img.shape[:2] == (240, 320)
@@ -77,7 +70,7 @@ def test_recording_image_has_its_size(recording):
 def test_recording_triangulated_point_round_trips(recording):
     """The triangulated centre of pose 2 reads back as logged (float32)."""
     _, ents = recording
-    pos = _column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
+    pos = column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
     assert len(pos) == N_POSES
     np.testing.assert_allclose(pos[2][1], [0.062, 0.002, 0.702], atol=1e-6)
 
@@ -85,17 +78,17 @@ def test_recording_triangulated_point_round_trips(recording):
 def test_recording_residual_series_has_one_value_per_pose(recording):
     """The residual series has one scalar per pose, on the pose timeline."""
     _, ents = recording
-    vals = _column(ents["/residuals/separation/angle_deg"], "Scalars:scalars")
+    vals = column(ents["/residuals/separation/angle_deg"], "Scalars:scalars")
     assert len(vals) == N_POSES
     assert np.ravel(vals)[3] == pytest.approx(0.03)
-    poses = _column(ents["/residuals/separation/angle_deg"], "pose")
+    poses = column(ents["/residuals/separation/angle_deg"], "pose")
     assert sorted(poses) == list(range(N_POSES))
 
 
 def test_text_log_holds_the_rejections(recording):
     """Rejected measurements appear in the text log with level WARN."""
     _, ents = recording
-    texts = _column(ents["/log"], "TextLog:text")
+    texts = column(ents["/log"], "TextLog:text")
     assert any("rejected" in t for t in np.ravel(texts).tolist())
 
 
@@ -129,8 +122,8 @@ def test_campaign_recording_reads_back(tmp_path):
               "/world/robot/true/links", "/world/robot/calibrated/full_pose/axes", "/world/stations/front/measured/spheres"):
         assert p in ents, p
     n_angle_pairs, n_moves = 4, 4  # the small config's compensation pairs and distance moves
-    assert len(_column(ents["/residuals/before/angle_deg"], "Scalars:scalars")) == n_angle_pairs
-    assert len(_column(ents["/residuals/full_pose/position_mm"], "Scalars:scalars")) == n_moves
-    pos = _column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
+    assert len(column(ents["/residuals/before/angle_deg"], "Scalars:scalars")) == n_angle_pairs
+    assert len(column(ents["/residuals/full_pose/position_mm"], "Scalars:scalars")) == n_moves
+    pos = column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
     stored = PoseStore(tmp_path / "work" / "poses").read("m/00000")
     np.testing.assert_allclose(pos[0], np.array([s for s in stored.spheres if s is not None]), atol=1e-6)
