@@ -35,3 +35,15 @@ def test_targets_errors_name_the_problem(tmp_path, edit, match):
     (tmp_path / "t.csv").write_text("\n".join(edit(L)) + "\n")
     with pytest.raises(DatasetError, match=match):
         read_targets_csv(tmp_path / "t.csv")
+
+
+def test_pred_csv_without_a_column_names_it(tmp_path):
+    """A PRED.csv lacking a required column gives a DatasetError naming the file and column, not a KeyError."""
+    from twin.estimator.files import read_pred_csv
+
+    p = tmp_path / "PRED.csv"
+    p.write_text("pose_id,p0_x\n1,2.0\n")
+    with pytest.raises(DatasetError, match=r"PRED.csv: missing required columns \['p0_y'"):
+        read_pred_csv(p)
+    with pytest.raises(DatasetError, match="missing"):
+        read_pred_csv(tmp_path / "nothing.csv")

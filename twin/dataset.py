@@ -696,8 +696,10 @@ class Joints:
 __all__.append("Joints")
 
 
-def read_joints_csv(path: str | os.PathLike) -> Joints:
-    """Read ``JOINTS.csv`` (``pose_id, q1..q6`` [deg], optional ``temp_c, t_s, station, set``)."""
+def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[list[str], list[dict[str, str]]]:
+    """The header and rows (dicts) of a CSV file with at least one data row and every ``required`` column.
+
+    Raises :class:`DatasetError` naming the file: missing file, missing required columns, no data rows."""
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: missing")
@@ -705,11 +707,21 @@ def read_joints_csv(path: str | os.PathLike) -> Joints:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = list(reader)
-    missing = [c for c in ("pose_id",) + JOINT_COLUMNS if c not in header]
+    missing = [c for c in required if c not in header]
     if missing:
         raise DatasetError(f"{path}: missing required columns {missing}")
     if not rows:
         raise DatasetError(f"{path}: no data rows")
+    return header, rows
+
+
+__all__.append("read_csv_rows")
+
+
+def read_joints_csv(path: str | os.PathLike) -> Joints:
+    """Read ``JOINTS.csv`` (``pose_id, q1..q6`` [deg], optional ``temp_c, t_s, station, set``)."""
+    path = Path(path)
+    header, rows = read_csv_rows(path, ("pose_id",) + JOINT_COLUMNS)
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
     q = np.zeros((n, 6))

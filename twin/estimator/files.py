@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset import DatasetError
+from ..dataset import DatasetError, read_csv_rows
 from ..transforms import make_transform, matrix_to_quat_wxyz, quat_wxyz_to_matrix, transform_to_pose6
 from .calibration import Prediction
 
@@ -56,10 +56,7 @@ def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read ``PRED.csv`` back: ``pose_id`` ``(n,)``, ``spheres`` ``(n, 3, 3)`` [m], ``pose6`` ``(n, 6)``
     (translation [m], rotation vector [rad]), ``frame`` ``(n,)``, and ``sd_spheres`` when present."""
     path = Path(path)
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        raise DatasetError(f"{path}: no data rows")
+    _, rows = read_csv_rows(path, ("pose_id",) + tuple(SPHERE_COLS) + tuple(POSE_COLS) + ("frame",))
     out = {
         "pose_id": np.array([int(r["pose_id"]) for r in rows]),
         "spheres": np.array([[float(r[c]) for c in SPHERE_COLS] for r in rows]).reshape(-1, 3, 3) * _MM,
@@ -78,17 +75,7 @@ def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     ids, non-numeric or non-finite values, quaternions whose norm is not 1 within 1e-6 (they are not
     silently renormalised: a wrong target must not become a plausible one)."""
     path = Path(path)
-    if not path.exists():
-        raise DatasetError(f"{path}: missing")
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = list(reader)
-    missing = [c for c in TARGET_COLUMNS if c not in header]
-    if missing:
-        raise DatasetError(f"{path}: missing required columns {missing}")
-    if not rows:
-        raise DatasetError(f"{path}: no data rows")
+    _, rows = read_csv_rows(path, TARGET_COLUMNS)
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
     T = np.zeros((n, 4, 4))

@@ -182,6 +182,18 @@ def _plt():
     return plt
 
 
+def _save_figure(plt, fig, path: str | os.PathLike, title: str) -> Path:
+    """Title, tight layout, write the PNG (creating its folder), close the figure; the path written."""
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
 def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before, pos_after, distances,
                   *, method_label: str = "separation", title: str = "") -> Path:
     """The paper's Figure 10 in style: (a) angle error per compensation pair before/after [deg]; (b) position
@@ -212,14 +224,7 @@ def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before
     ax.set_title("(b) position (moved-distance) error", pad=14)
     ax.legend()
     ax.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return _save_figure(plt, fig, path, title)
 
 
 def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray], pos_after: Mapping[str, np.ndarray],
@@ -237,11 +242,4 @@ def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray]
         ax.set_title(name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return _save_figure(plt, fig, path, title)
