@@ -40,6 +40,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel
+from .config import _num  # the one validator of numbers in world TOML tables
 from .effects import BaseEffect, ConstantJointOffset, EffectContext, SceneState, as_effect
 
 __all__ = [
@@ -79,19 +80,6 @@ def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None
     unknown = sorted(set(table) - allowed - {"name", "type"})
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-
-
-def _number(table: Mapping[str, Any], key: str, default: float, where: str, *, positive=False,
-            nonneg=False) -> float:
-    v = table.get(key, default)
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}.{key} must be a number, got {v!r}") from None
-    if not math.isfinite(x) or (positive and x <= 0) or (nonneg and x < 0):
-        what = "positive" if positive else "non-negative" if nonneg else "finite"
-        raise ValueError(f"{where}.{key} must be a {what} number, got {v!r}")
-    return x
 
 
 def _per_joint(v: Any, what: str, *, rows: bool = False, positive=False, nonneg=False) -> np.ndarray:
@@ -230,7 +218,7 @@ class Compliance(BaseEffect):
         return cls(
             _per_joint(t.get("stiffness_nm_per_rad", DEFAULT_STIFFNESS_NM_PER_RAD), f"{where}.stiffness_nm_per_rad",
                        positive=True),
-            _number(t, "payload_kg", 0.0, where, nonneg=True),
+            _num(t, "payload_kg", 0.0, where, nonneg=True),
             com,
         )
 
@@ -458,7 +446,7 @@ class Coupling(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "Coupling":
         where = "world.effects (coupling)"
         _check_keys(t, {"coefficient", "driving_joint", "driven_joint"}, where)
-        return cls(_number(t, "coefficient", 1e-3, where), t.get("driving_joint", 5), t.get("driven_joint", 6))
+        return cls(_num(t, "coefficient", 1e-3, where), t.get("driving_joint", 5), t.get("driven_joint", 6))
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         out = q.copy()
@@ -523,9 +511,9 @@ class ThermalGrowth(BaseEffect):
         if not isinstance(inc, bool):
             raise ValueError(f"{where}.include_tool must be true or false, got {inc!r}")
         return cls(
-            _number(t, "alpha_per_k", 2.3e-5, where), _number(t, "temp_ref_c", 20.0, where),
-            source=str(t.get("source", "profile")), temp_start_c=_number(t, "temp_start_c", 20.0, where),
-            temp_rise_k=_number(t, "temp_rise_k", 8.0, where), tau_s=_number(t, "tau_s", 1800.0, where, positive=True),
+            _num(t, "alpha_per_k", 2.3e-5, where), _num(t, "temp_ref_c", 20.0, where),
+            source=str(t.get("source", "profile")), temp_start_c=_num(t, "temp_start_c", 20.0, where),
+            temp_rise_k=_num(t, "temp_rise_k", 8.0, where), tau_s=_num(t, "tau_s", 1800.0, where, positive=True),
             include_tool=inc,
         )
 
