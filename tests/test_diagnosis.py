@@ -29,12 +29,38 @@ def test_noise_floor_from_consecutive_repeats():
     assert nf.dof >= 300 and "repeats" in nf.source
 
 
-def test_no_repeats_and_no_stated_noise_is_refused():
-    """Without repeats or a stated noise, diagnosis says what it needs instead of guessing."""
+def test_no_repeats_no_full_rows_and_no_stated_noise_is_refused():
+    """Without repeats, rows with all three spheres or a stated noise, diagnosis says what it needs."""
     ds, _ = H.make_dataset(seed=0, repeats_every=10**9)
-    ds = H._replace(ds, noise_position=None)
+    seen = ds.sphere_seen.copy()
+    seen[:, 2] = False  # the third sphere never seen: no plate distances to measure the instrument with
+    ds = H._replace(ds, noise_position=None, sphere_seen=seen)
     with pytest.raises(DiagnosisError, match="repeat some configurations"):
         diagnose(ds)
+
+
+def test_without_repeats_the_plate_geometry_gives_the_floor():
+    """The spread of the three inter-sphere distances over the campaign recovers sigma within 10 %."""
+    ds, _ = H.make_dataset(seed=0, repeats_every=10**9)
+    nf = noise_floor(H._replace(ds, noise_position=None))
+    assert nf.sigma == pytest.approx(H.SIGMA, rel=0.1) and "inter-sphere distances" in nf.source
+
+
+def test_plate_floor_sees_pose_to_pose_error_that_repeats_miss():
+    """An instrument error that changes from pose to pose (but not between repeats) raises the floor to it."""
+    ds, _ = H.make_dataset(seed=0, sigma=1e-6)
+    rng = np.random.default_rng(5)
+    extra = np.zeros_like(ds.spheres)
+    k = 0
+    while k < ds.n:  # the same extra error for consecutive repeats of one configuration
+        j = k + 1
+        while j < ds.n and np.array_equal(ds.q[j], ds.q[k]):
+            j += 1
+        extra[k:j] = rng.normal(0, 4e-6, (1, 3, 3))
+        k = j
+    nf = noise_floor(H._replace(ds, spheres=ds.spheres + extra, noise_position=None))
+    assert nf.components["repeats"]["sigma_mm"] < 1.2e-3
+    assert nf.sigma == pytest.approx(np.hypot(1e-6, 4e-6), rel=0.15) and "inter-sphere" in nf.source
 
 
 def test_no_held_out_rows_is_refused():
@@ -91,8 +117,8 @@ def test_thermal_growth_against_recorded_temperature():
     ds, _ = H.make_dataset(seed=4, n=n, effect=eff, temp=temp)
     res = diagnose(ds)
     assert res.structured and res.effects == ("thermal",)
-    kappa = res.effect_parameters["thermal"]["values"][0]
-    assert kappa == pytest.approx(23e-6, rel=0.2)
+    (atom,) = [a for a in res.atoms if a["family"] == "thermal"]
+    assert atom["target"] == "all_lengths" and atom["values"][0] == pytest.approx(23e-6, rel=0.2)
 
 
 @pytest.mark.slow
@@ -114,7 +140,9 @@ def test_sphere_off_its_nominal_plate_position_is_plate_geometry():
     ds, _ = H.make_dataset(seed=8, plate_offset=off)
     res = diagnose(ds)
     assert res.structured and res.effects == ("plate_geometry",)
-    d = np.array(res.effect_parameters["plate_geometry"]["values"]).reshape(3, 3)
+    d = np.zeros((3, 3))
+    for a in res.atoms:
+        d[int(a["target"][6:])] += a["values"]
     # only the non-rigid part is identifiable: the distances between spheres must match the truth
     from twin.dataset import default_plate
 
@@ -166,6 +194,6 @@ def test_stated_noise_larger_than_repeats_becomes_the_floor():
     """Repeats show sensor noise only; an instrument that states a larger error sets the floor (and says why)."""
     ds, _ = H.make_dataset(seed=0)
     nf = noise_floor(H._replace(ds, noise_position=3 * H.SIGMA))
-    assert nf.sigma == pytest.approx(3 * H.SIGMA) and "not visible in repeats" in nf.source
+    assert nf.sigma == pytest.approx(3 * H.SIGMA) and nf.source.startswith("dataset.toml") and "repeats:" in nf.source
     nf2 = noise_floor(H._replace(ds, noise_position=0.5 * H.SIGMA))
     assert nf2.sigma == pytest.approx(H.SIGMA, rel=0.1) and "repeats" in nf2.source

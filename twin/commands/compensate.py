@@ -75,8 +75,15 @@ def _compensate_with_effects(cal, T, q_ref, pid, context_path):
         sel = [by_id[int(p)] for p in pid]
         temp = None if c.temp_c is None else c.temp_c[sel]
         t_s = None if c.t_s is None else c.t_s[sel]
-    if any(e["kind"] == "length" for e in cal.effects) and temp is None and t_s is None:
-        raise ValueError("the calibration models thermal growth: give --context with temp_c or t_s per pose_id")
+    from ..diagnosis.apply import required_channels
+
+    need = required_channels(cal) & {"temp_c", "t_s"}
+    have = {"temp_c": temp, "t_s": t_s}
+    lacking = sorted(c for c in need if have[c] is None)
+    if lacking:
+        raise ValueError(f"the calibration's effects depend on {', '.join(lacking)}: give --context with "
+                         f"{' and '.join(lacking)} per pose_id")
     ctx = RowContext(q=np.zeros((len(pid), 6)), q_start=np.zeros(6), temp_c=temp, t_s=t_s)
-    print(f"applied effects: {', '.join(e['name'] for e in cal.effects)} (commands in file order, start at home)")
+    print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "
+          "(commands in file order, start at home)")
     return compensate_extended(cal, T, q_ref, ctx)

@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--holdout", type=float, default=None,
                    help="without a 'set' column: hold out this seeded random fraction for validation")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out draw")
-    p.add_argument("--max-effects", type=int, default=3, help="largest number of effects combined (default 3)")
+    p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-recording", action="store_true",
                    help="skip the Rerun recording DIR/diagnosis.rrd (open it with: rerun DIR/diagnosis.rrd)")

@@ -27,9 +27,12 @@ def run(args) -> int:
         from ..diagnosis.apply import predict_extended
         from ..diagnosis.candidates import RowContext
 
-        ctx = RowContext(q=j.q, q_start=np.zeros(6), temp_c=j.temp_c, t_s=j.t_s)
+        # where the robot stood before the first row is not in the file: history-dependent terms (backlash)
+        # read 0 until each joint has moved
+        ctx = RowContext(q=j.q, q_start=None, temp_c=j.temp_c, t_s=j.t_s, station=j.station)
         pred = predict_extended(cal, ctx, j.station)
-        print(f"applied effects: {', '.join(e['name'] for e in cal.effects)} (rows in file order, start at home)")
+        print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "
+              "(rows in file order; approach directions unknown until each joint moves)")
     else:
         pred = cal.predict(j.q, j.station)
     write_pred_csv(args.out, j.pose_id, pred, station=j.station)

@@ -7,6 +7,7 @@ Reads only datasets (``twin.dataset``) and calibrations (``twin.estimator``); ne
     q_eff = apply_joint_effects(effects, q, ctx) # what an extended calibration does to commanded joints
 """
 
+from .atoms import Atom, catalogue_atoms, generic_atoms
 from .candidates import EFFECT_VOCABULARY, Candidate, RowContext, approach_signs, candidate_catalogue, gravity_torque_regressor
 from .diagnose import (
     CandidateScore,
@@ -17,12 +18,17 @@ from .diagnose import (
     EffectFit,
     diagnose,
     fit_with_effects,
+    history_resets,
     noise_floor,
     row_context,
 )
 from .report import DIAGNOSIS_SCHEMA_VERSION, diagnosis_dict, read_diagnosis, write_diagnosis
 
 __all__ = [
+    "Atom",
+    "catalogue_atoms",
+    "generic_atoms",
+    "history_resets",
     "EFFECT_VOCABULARY",
     "Candidate",
     "CandidateScore",

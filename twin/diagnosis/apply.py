@@ -1,10 +1,11 @@
 """Using an extended calibration (``calibration.json`` with ``effects``): prediction and compensation.
 
-The effects stored by diagnosis are linear models on the commanded joints in measurement order and on
-the recorded channels (``temp_c``, ``t_s``): joint effects add ``G(q, ctx) phi`` to the commanded joints,
-thermal growth scales the link lengths per row, plate effects move the sphere centres in the plate frame.
-History-dependent effects (backlash) use the row order of the input and the configuration the robot
-started from (``q_start``, home by default).
+Each stored effect is an atom (:mod:`twin.diagnosis.atoms`) with its features' constants and its values
+``phi``; it is evaluated from the rows of the input in their order (history: approach directions, with the
+first row's approach unknown unless ``q_start`` is given) and their channels (``temp_c``, ``t_s``,
+``station``). Joint atoms change the commanded joints exactly; length, parameter and scale atoms act to
+first order through the parameter Jacobian of the predicted points (as in the fit); plate atoms move the
+sphere centres in the plate frame.
 """
 
 from __future__ import annotations
@@ -15,77 +16,122 @@ import numpy as np
 
 from ..estimator.calibration import Calibration, Prediction
 from ..estimator.compensation import CompensationResult, compensation
-from .candidates import Candidate, RowContext, candidate_catalogue
+from ..estimator.problem import ParamSpace, predict_points
+from ..transforms import matrix_to_rotvec
+from .atoms import Atom, feature_values
+from .candidates import RowContext
+from .extend import param_weights
 
-__all__ = ["effective_joints", "predict_extended", "compensate_extended"]
+__all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended"]
 
 
-def _catalogue(cal: Calibration) -> dict[str, Candidate]:
-    return {c.name: c for c in candidate_catalogue(cal.nominal)}
+def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
+    """The calibration's effects as ``(atom, phi)``; ``ValueError`` naming the entry when one is malformed."""
+    out = []
+    for k, e in enumerate(cal.effects):
+        if not isinstance(e, dict):
+            raise ValueError(f"calibration effects[{k}] is not a table: {e!r}")
+        try:
+            a = Atom.from_spec(e)
+        except ValueError as exc:
+            raise ValueError(f"calibration effects[{k}]: {exc} (written by an older twin diagnose? re-run it)") from None
+        phi = np.asarray(e.get("values", []), dtype=float)
+        if phi.shape != (a.K,) or not np.all(np.isfinite(phi)):
+            raise ValueError(f"calibration effects[{k}] ({e.get('label', a.target)}): values must be {a.K} finite "
+                             f"numbers, got {e.get('values')!r}")
+        out.append((a, phi))
+    return out
 
 
-def _check(cal: Calibration) -> None:
-    known = _catalogue(cal)
-    for e in cal.effects:
-        if e.get("name") not in known:
-            raise ValueError(f"calibration effect {e.get('name')!r} is not in the vocabulary {sorted(known)}")
+def required_channels(cal: Calibration) -> set[str]:
+    """Row channels the effects read (``t_s``, ``temp_c``, ``station``): rows lacking one get an error."""
+    need = set()
+    for a, _ in effect_atoms(cal):
+        for f in a.features:
+            ch = f.get("ch")
+            for c in ch if isinstance(ch, list) else [ch]:
+                if c in ("t_s", "temp_c"):
+                    need.add(c)
+            if f.get("kind") == "station":
+                need.add("station")
+    return need
+
+
+def _check_ctx(cal: Calibration, ctx: RowContext) -> None:
+    for c in sorted(required_channels(cal)):
+        if getattr(ctx, c) is None:
+            raise ValueError(f"the calibration's effects depend on '{c}': the rows need a '{c}' column")
 
 
 def effective_joints(cal: Calibration, ctx: RowContext) -> np.ndarray:
-    """Joints ``(n, 6)`` [rad] the robot is predicted to reach for the commanded ``ctx.q`` (joint effects)."""
-    _check(cal)
-    cat = _catalogue(cal)
+    """Joints ``(n, 6)`` [rad] the robot is predicted to reach for the commanded ``ctx.q`` (joint atoms)."""
+    _check_ctx(cal, ctx)
     q = ctx.q.copy()
-    for e in cal.effects:
-        if e["kind"] == "joint":
-            G = cat[e["name"]].regressor(ctx, e.get("reference", {}))
-            q = q + np.einsum("nik,k->ni", G, np.asarray(e["values"], dtype=float))
+    cache: dict = {}
+    for a, phi in effect_atoms(cal):
+        if a.place == "joint":
+            q[:, int(a.target[5:]) - 1] += feature_values(a.features, ctx, cal.nominal, cache) @ phi
     return q
 
 
-def _length_scale(cal: Calibration, ctx: RowContext) -> np.ndarray | None:
-    cat = _catalogue(cal)
-    s = None
-    for e in cal.effects:
-        if e["kind"] == "length":
-            g = cat[e["name"]].regressor(ctx, e.get("reference", {})) @ np.asarray(e["values"], dtype=float)
-            s = g if s is None else s + g
-    return s
-
-
-def _with_lengths(cal: Calibration, scale: float) -> Calibration:
-    sp = cal.space
-    idx = np.concatenate([sp.family("d"), sp.family("a")])
-    x = cal.x.copy()
-    x[idx] *= 1.0 + scale
-    return replace(cal, x=x)
-
-
-def _with_plate(cal: Calibration) -> Calibration:
+def _plate(cal: Calibration) -> Calibration:
     off = np.zeros((3, 3))
-    for e in cal.effects:
-        if e["kind"] == "plate":
-            off += np.asarray(e["values"], dtype=float).reshape(3, 3)
-    if not off.any():
-        return cal
-    return replace(cal, spheres_tool=cal.spheres_tool + off)
+    for a, phi in effect_atoms(cal):
+        if a.place == "plate":
+            off[int(a.target[6:])] += phi
+    return cal if not off.any() else replace(cal, spheres_tool=cal.spheres_tool + off)
+
+
+def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_station: np.ndarray,
+                 q_eff: np.ndarray, spheres_tool: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Change ``(n, 3, 3)`` [m] of the predicted spheres from length, parameter and scale atoms."""
+    n = len(q_eff)
+    d = np.zeros((n, len(spheres_tool), 3))
+    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale")]
+    if not fo:
+        return d
+    cache: dict = {}
+    x = cal.x
+    pts, Jk = predict_points(space, x, q_eff, rows_station, spheres_tool, jacobian=True)  # Jk (P, 3, 3, n)
+    for a, phi in fo:
+        F = feature_values(a.features, ctx, cal.nominal, cache)  # (n, K_f)
+        if a.place == "scale":
+            d += (F @ phi)[:, None, None] * pts
+            continue
+        W = param_weights(space, x, a)  # (P, c)
+        c = W.shape[1]
+        dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
+        d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)
+    if not np.all(known):
+        # rows in the robot base frame (unknown station): measurement-side atoms do not apply
+        base_only = [a.place == "scale" or (a.place == "param" and a.target == "base") for a, _ in fo]
+        if any(base_only):
+            raise ValueError("the calibration's effects act on the measurement frame: rows need a known station")
+    return d
 
 
 def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | None = None) -> Prediction:
     """Like :meth:`Calibration.predict`, with the calibration's effects applied to the rows of ``ctx``."""
+    _check_ctx(cal, ctx)
     q_eff = effective_joints(cal, ctx)
-    c = _with_plate(cal)
-    scale = _length_scale(cal, ctx)
-    if scale is None:
-        return c.predict(q_eff, station)
-    n = q_eff.shape[0]
-    parts = [
-        _with_lengths(c, float(scale[k])).predict(q_eff[k:k + 1], None if station is None else station[k:k + 1])
-        for k in range(n)
-    ]
-    cat = lambda name: None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
-    return Prediction(spheres=cat("spheres"), pose=cat("pose"), frame=cat("frame"), station=cat("station"),
-                      sd_spheres=cat("sd_spheres"), sd_pose=cat("sd_pose"))
+    c = _plate(cal)
+    pred = c.predict(q_eff, station)
+    if not any(a.place in ("length", "param", "scale") for a, _ in effect_atoms(cal)):
+        return pred
+    known = pred.frame == "measurement"
+    sp = cal.space
+    st_idx = np.array([sp.stations.index(s) if s in sp.stations else 0 for s in pred.station])
+    d = _first_order(c, ctx, sp, st_idx, q_eff, c.spheres_tool, known)
+    spheres = pred.spheres + d
+    # the plate pose follows the moved spheres (rigid fit of the plate to them)
+    from ..estimator.problem import kabsch
+
+    A = np.broadcast_to(c.spheres_tool, spheres.shape)
+    R, t = kabsch(A, spheres)
+    pose = pred.pose.copy()
+    pose[:, :3, :3] = R
+    pose[:, :3, 3] = t
+    return replace(pred, spheres=spheres, pose=pose)
 
 
 def compensate_extended(
@@ -94,44 +140,72 @@ def compensate_extended(
     q_ref: np.ndarray,
     ctx: RowContext,
     *,
-    max_rounds: int = 20,
+    max_rounds: int = 30,
     tol: float = 1e-10,
 ) -> CompensationResult:
     """Commands that put the plate at the targets on the identified robot *with* its effects.
 
-    1. The geometric answer ``q_geo`` (iterative inverse kinematics on the identified model; per row at the
-       row's length scale when thermal growth is modelled).
-    2. Fixed point ``q_cmd <- q_geo - (q_eff(q_cmd) - q_cmd)``: the joint effect evaluated at the commands
-       themselves (so backlash follows the order and directions of the commands), until the commands move by
-       less than ``tol`` [rad].
+    1. The geometric answer ``q_geo`` (iterative inverse kinematics on the identified model).
+    2. Fixed point on the commands: ``q_cmd <- q_cmd + J_q^+ e`` with ``e`` the pose error of the extended
+       model at ``q_cmd`` (joint atoms evaluated at the commands themselves, so backlash follows the order
+       and directions of the commands; robot-side length and parameter atoms to first order), until the
+       commands move by less than ``tol`` [rad]. Measurement-side atoms (base frame, scale) do not change
+       where the robot goes and are ignored here.
     ``ctx`` gives the rows' channels (``temp_c``, ``t_s``) and ``q_start``; its ``q`` is ignored.
     """
     T = np.asarray(targets_tool2base, dtype=float)
     if T.ndim == 2:
         T = T[None]
     n = T.shape[0]
-    scale = _length_scale(cal, replace(ctx, q=np.zeros((n, 6))))
-    if scale is None:
-        base = compensation(_with_plate(cal), T, q_ref)
-        q_geo = base.q
-    else:
-        q_ref_b = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, 6))
-        res = [compensation(_with_lengths(_with_plate(cal), float(scale[k])), T[k:k + 1], q_ref_b[k:k + 1])
-               for k in range(n)]
-        q_geo = np.concatenate([r.q for r in res])
-        base = replace(res[0], q=q_geo, q_nominal=np.concatenate([r.q_nominal for r in res]),
-                       position_error=np.concatenate([r.position_error for r in res]),
-                       rotation_error=np.concatenate([r.rotation_error for r in res]))
-    if not any(e["kind"] == "joint" for e in cal.effects):
+    cp = _plate(cal)
+    base = compensation(cp, T, q_ref)
+    atoms = [(a, phi) for a, phi in effect_atoms(cal)
+             if not (a.place == "scale" or (a.place == "param" and a.target == "base") or a.place == "plate")]
+    if not atoms:
         return base
-    q_cmd = q_geo.copy()
+    sp = ParamSpace(cp.space.chain, ("base",))
+    x = np.concatenate([cp.x[: cp.space.n_rt], np.zeros(6)])
+    origin = np.zeros((1, 3))
+    pts_tool = np.concatenate([origin, np.eye(3)])
+    theta = sp.family("theta")
+    sub = replace(cp, effects=tuple(e for e in cal.effects if Atom.from_spec(e).place in ("joint", "length", "param")
+                                    and Atom.from_spec(e).target != "base"))
+    q_cmd = base.q.copy()
+    step = np.inf
     for _ in range(max_rounds):
-        d = effective_joints(cal, replace(ctx, q=q_cmd)) - q_cmd
-        q_new = q_geo - d
-        step = float(np.max(np.abs(q_new - q_cmd)))
-        q_cmd = q_new
+        # the commands are the rows: their own order is the history (the caller's rows are not)
+        c2 = RowContext(q=q_cmd, q_start=ctx.q_start, temp_c=ctx.temp_c, t_s=ctx.t_s, station=None, history_reset=None)
+        q_eff = effective_joints(sub, c2)
+        P, Jk = predict_points(sp, x, q_eff, np.zeros(n, int), pts_tool, jacobian=True)
+        d = _first_order(sub, c2, sp, np.zeros(n, int), q_eff, pts_tool, np.ones(n, bool))
+        P = P + d
+        o = P[:, 0]
+        R = np.swapaxes(P[:, 1:] - o[:, None, :], 1, 2)
+        U, _, Vt = np.linalg.svd(R)
+        R = U @ Vt
+        e_p = T[:, :3, 3] - o
+        e_r = matrix_to_rotvec(T[:, :3, :3] @ np.swapaxes(R, 1, 2))
+        # joint Jacobian of the tool origin and orientation: the theta columns of the parameter Jacobian
+        Jp = Jk[theta][:, 0]  # (6, 3, n)
+        Jax = Jk[theta][:, 1:] - Jk[theta][:, :1]  # (6, 3 axes, 3, n)
+        dq = np.empty((n, 6))
+        for i in range(n):
+            Jfull = np.concatenate([Jp[:, :, i].T, _angular(Jax[:, :, :, i], R[i])], axis=0)  # (6, 6)
+            dq[i] = np.linalg.lstsq(Jfull, np.concatenate([e_p[i], e_r[i]]), rcond=None)[0]
+        q_cmd = q_cmd + dq
+        step = float(np.max(np.abs(dq)))
         if step < tol:
             break
     else:
         raise ValueError(f"compensation with effects did not settle in {max_rounds} rounds (last step {step:.3g} rad)")
     return replace(base, q=q_cmd)
+
+
+def _angular(Jax: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Angular velocity Jacobian ``(3, 6)`` from the derivatives ``(6, 3 axes, 3)`` of the tool axes
+    ``R e_k``: ``d(R e_k) = w x R e_k``, so ``w = 1/2 sum_k (R e_k) x d(R e_k)``."""
+    w = np.zeros((3, Jax.shape[0]))
+    for k in range(3):
+        w += 0.5 * np.cross(R[:, k][None, :], Jax[:, k, :]).T
+    return w
+

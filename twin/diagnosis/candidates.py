@@ -54,13 +54,17 @@ class RowContext:
 
     ``q`` ``(n, 6)`` [rad] commanded joints of *every* row in the order measured (rows without a
     measurement included: the robot still moved there); ``q_start`` ``(6,)`` [rad] where the campaign
-    started (home, ``0`` unless told); ``temp_c`` ``(n,)`` [deg C] and ``t_s`` ``(n,)`` [s] or None.
+    started (``None``: unknown); ``temp_c`` ``(n,)`` [deg C] and ``t_s`` ``(n,)`` [s] or None; ``station``
+    ``(n,)`` names or None; ``history_reset`` ``(n,)`` bool: rows whose approach is unknown (the first row
+    without a known ``q_start``, a gap in time, a recorded restart), or None.
     """
 
     q: np.ndarray
-    q_start: np.ndarray
+    q_start: np.ndarray | None = None
     temp_c: np.ndarray | None = None
     t_s: np.ndarray | None = None
+    station: np.ndarray | None = None
+    history_reset: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -88,13 +92,32 @@ class Candidate:
         return self.names(ref)
 
 
-def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None) -> np.ndarray:
-    """Direction ``(n, 6)`` in {-1, +1} from which each joint reached each row (the sign of its last motion).
+def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None, unknown: np.ndarray | None = None) -> np.ndarray:
+    """Direction ``(n, 6)`` from which each joint reached each row (the sign of its last motion).
 
-    A joint that did not move keeps the sign of its previous motion; before any motion the sign of the move
-    from ``q_start`` (home) counts, and +1 if the joint has never moved.
+    A joint that did not move keeps the sign of its previous motion. Before any motion: with ``unknown``
+    ``(n,)`` bool given, rows flagged there (and the first row) start an unknown history and a joint's sign
+    is 0 (unknown) until it moves; without it, the move from ``q_start`` (home when None) counts, and +1 if
+    the joint has never moved.
     """
     q = np.asarray(q, dtype=float)
+    n = len(q)
+    if unknown is not None:
+        reset = np.asarray(unknown, dtype=bool).copy()
+        if reset.shape != (n,):
+            raise ValueError(f"unknown must have shape ({n},), got {reset.shape}")
+        if n:
+            reset[0] = True
+        out = np.zeros((n, N_JOINTS))
+        last = np.zeros(N_JOINTS)
+        for k in range(n):
+            if reset[k]:
+                last = np.zeros(N_JOINTS)
+            else:
+                step = np.sign(q[k] - q[k - 1])
+                last = np.where(step != 0, step, last)
+            out[k] = last
+        return out
     start = np.zeros(N_JOINTS) if q_start is None else np.asarray(q_start, dtype=float)
     prev = np.vstack([start[None], q[:-1]])
     step = np.sign(q - prev)

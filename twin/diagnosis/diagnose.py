@@ -1,28 +1,37 @@
-"""Diagnosis: is there structure beyond the noise floor, which effect explains it, how much does adding it help.
+"""Diagnosis: is there structure beyond the noise floor, what explains it, how much does adding it help.
 
-Reads only a dataset (and optionally an existing geometric calibration). The procedure:
+Reads only a dataset (and optionally an existing geometric calibration). The procedure
+(``docs/diagnosis.md`` has the reasoning):
 
-1. **Noise floor.** From repeated measurements of the same configuration taken one after the other (rows
-   with identical commanded joints and station, consecutive in measurement order): the pooled variance of
-   the sphere coordinates about their group means, with ``nu = sum (n_g - 1) * coordinates`` degrees of
-   freedom. The instrument's stated noise (``dataset.toml [noise] position_mm``, taken as exact) is used
-   instead when there are no repeats, or when it is larger than the repeats' spread (repeats see the sensor
-   noise only, not what the instrument gets wrong from pose to pose). Without either, diagnosis refuses
-   (it cannot tell structure from noise).
-2. **Geometric fit** on the calibration rows (the estimator's default, with the noise fixed to the floor so
-   that the effect cannot hide in an inflated noise estimate; gross outliers still rejected).
-3. **Test** on the validation rows: ``T = r^T (I + J C J^T)^-1 r`` with ``r`` the whitened validation residuals
-   and ``C`` the (whitened) parameter covariance, i.e. the residuals' own covariance under a correct model.
-   With the floor known ``T ~ chi2(m)``; with the floor estimated from ``nu`` repeat degrees of freedom
-   ``(T/m) ~ F(m, nu)``. ``structured`` when ``p < alpha`` (default 0.01: a 1 % false-alarm rate).
-4. **Trace** (only when structured): greedy forward selection over the candidates
-   (:mod:`twin.diagnosis.candidates`) on the calibration rows by the Bayesian information criterion with
-   known noise, ``BIC = chi2 + k ln m`` (``k`` the candidate's reduced dimension), requiring
-   ``Delta BIC < -bic_margin``; after each addition the validation test is repeated with the extended model.
-   The effects *explain* the residual when the extended model passes the test; when no combination of up to
-   ``max_effects`` candidates does, ``effects`` is empty (the residual is structured by something outside the
-   catalogue) and the best attempt is still reported.
-5. **Before/after**: validation error statistics of the geometric and of the extended model.
+1. **Noise floor** from what a user can measure: consecutive repeats of one configuration (pooled variance:
+   the sensor noise) *and* the plate's rigid geometry (the three inter-sphere distances are constant, so
+   their spread over the campaign is the instrument's pose-to-pose error: ``var(d) = 2 sigma^2`` for
+   independent isotropic centre errors), optionally a stated figure (``dataset.toml [noise] position_mm``,
+   an artifact measurement). The floor is the largest of them; never the world's truth.
+2. **Geometric fit** on the calibration rows (the estimator's default, noise fixed to the floor).
+3. **Rows.** Rows with unknown history (the first row, a gap in ``t_s``, a recorded restart) start an unknown
+   approach state: history-dependent terms read 0 there. Gross rows (a per-row misfit beyond both the
+   floor's ``1e-6 / n`` quantile and ``median + 8 MAD`` of the rows, at most 2 % of the rows) are
+   down-weighted to zero and listed: no single row vetoes or elects an effect.
+4. **Test** on the validation rows: ``T = r^T (I + J C J^T)^-1 r`` (whitened; ``C`` the parameter covariance),
+   ``chi2(m)`` with a stated floor, ``(T/m) ~ F(m, nu)`` with an estimated one.
+5. **Sparse selection** (only when the test fires): forward selection over *atoms*
+   (:mod:`twin.diagnosis.atoms`; the named catalogue and the unnamed dictionary compete in every round).
+   Each atom is reduced to what the geometry cannot absorb; its calibration evidence is
+   ``Delta chi2 = |P r|^2`` (``P`` the projector on its reduced columns, ``r`` the current residual) with
+   ``p = chi2_sf(Delta chi2, rank)``, Bonferroni-adjusted by the size of its pool (the generic dictionary is
+   ~50x larger than the catalogue, which therefore wins ties). The best atom is kept only if (a)
+   ``p_adj < alpha_select`` and (b) its linearised prediction ``u`` on the held-out rows correlates with their
+   residual: ``z = r_v . u / (|u| rms(r_v)) > z_min`` (self-normalised, so a floor off by a factor does not
+   elect an atom), also without the single most favourable row, and ``|r_v - u| < |r_v|``. Kept atoms are
+   refitted with the geometry (Gauss-Newton); a backward pass drops atoms that became redundant. Atoms the
+   data cannot separate from a chosen one (>= 90 % of its explained residual, evidence within ``e^5``) are
+   reported as alternatives.
+6. **Partial explanations** are kept: every confirmed atom stays in the model whether or not the remainder
+   passes the test; ``explained_fraction`` is ``(T_before - T_after) / (T_before - m)`` on the held-out rows.
+7. ``structured``: the test fires and either an atom is confirmed on held-out rows or the scatter exceeds
+   ``floor_tolerance`` times the floor (an excess without anything predictable is reported as a note: the
+   floor may be underestimated).
 """
 
 from __future__ import annotations
@@ -37,11 +46,12 @@ from ..dataset import Dataset
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare
 from ..estimator.methods import build_calibration, identify_best
-from ..estimator.problem import Observations, absolute_residuals, kabsch, predict_points
+from ..estimator.problem import Observations, kabsch
 from ..estimator.solvers import gauss_newton
 from ..transforms import matrix_to_rotvec
-from .candidates import EFFECT_VOCABULARY, Candidate, RowContext, candidate_catalogue
-from .extend import EffectTerm, ExtendedModel, reduced_basis, term_regressor
+from .atoms import Atom, approach_unknown, catalogue_atoms, feature_values, generic_atoms
+from .candidates import EFFECT_VOCABULARY, RowContext
+from .extend import AtomTerm, ExtendedModel, reduced_basis
 
 __all__ = [
     "NoiseFloor",
@@ -49,7 +59,9 @@ __all__ = [
     "CandidateScore",
     "DiagnosisResult",
     "DiagnosisError",
+    "EffectFit",
     "noise_floor",
+    "history_resets",
     "row_context",
     "diagnose",
     "fit_with_effects",
@@ -65,13 +77,15 @@ class DiagnosisError(ValueError):
 
 @dataclass(frozen=True)
 class NoiseFloor:
-    """Measurement noise per sphere coordinate ``sigma`` [m], its degrees of freedom (``inf`` when stated by
-    the instrument), where it came from, and how many repeat groups gave it."""
+    """Measurement noise per sphere coordinate ``sigma`` [m], its degrees of freedom (``inf`` when stated),
+    where it came from, how many repeat groups there were, and every estimate available
+    (``components``: ``repeats``, ``plate``, ``stated`` -> ``{sigma_mm, dof}``)."""
 
     sigma: float
     dof: float
     source: str
     groups: int
+    components: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -88,24 +102,25 @@ class StructureTest:
 
 @dataclass(frozen=True)
 class CandidateScore:
-    """One candidate tried in a selection round: reduced dimension, calibration chi2 and Delta BIC against
-    the current model, validation test with it added."""
+    """One atom considered in a selection round: reduced dimension, calibration ``Delta chi2``, adjusted
+    p-value, held-out ``z``, and what was decided."""
 
     round: int
     name: str
     dim: int
-    chi2_cal: float
-    delta_bic: float
-    validation: StructureTest | None
-    note: str = ""
+    delta_chi2: float
+    p_adjusted: float
+    z_validation: float
+    decision: str
 
 
 @dataclass(frozen=True, eq=False)
 class DiagnosisResult:
     """What diagnosis found. ``before``/``after``: validation error statistics
-    ``{position_mm: {mean, rms, max}, orientation_deg: {mean, rms, max}}``; ``effect_parameters``: per
-    chosen effect, names, values (SI) and standard deviations; ``series``: per validation row the variables
-    most telling for each candidate and the residual norms before/after (for plots and the recording)."""
+    ``{position_mm: {mean, rms, max}, orientation_deg: {mean, rms, max}}``; ``atoms``: every chosen term
+    (named and unnamed) in words with value and standard deviation; ``effects``: the catalogue families
+    among them; ``unnamed``: the chosen terms outside the catalogue; ``alternatives``: explanations the
+    data cannot tell apart from a chosen one; ``rows``: rows flagged (gross, unknown history)."""
 
     structured: bool
     p_value: float
@@ -123,25 +138,22 @@ class DiagnosisResult:
     calibration: Calibration
     series: dict[str, np.ndarray] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    atoms: tuple[dict, ...] = ()
+    unnamed: tuple[dict, ...] = ()
+    alternatives: tuple[dict, ...] = ()
+    explained_fraction: float = 0.0
+    rows: dict[str, Any] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------------------
 # Noise floor
 # ------------------------------------------------------------------------------------------------
 
-def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
-    """The sphere-coordinate noise from consecutive repeats (see the module docstring)."""
-    if not ds.has_spheres:
-        if ds.noise_position is not None and stated_ok:
-            return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)", 0)
-        raise DiagnosisError("diagnosis of pose data needs [noise] position_mm/orientation_rad in dataset.toml")
+def _repeat_floor(ds: Dataset) -> tuple[float, int, int]:
+    """Pooled variance of consecutive repeats: ``(sum of squares, dof, groups)``."""
     st = ds.station_ids
     qr = np.round(ds.q, 9)
-    ss = 0.0
-    dof = 0
-    groups = 0
-    k = 0
-    n = ds.n
+    ss, dof, groups, k, n = 0.0, 0, 0, 0, ds.n
     while k < n:
         j = k + 1
         while j < n and np.array_equal(qr[j], qr[k]) and st[j] == st[k]:
@@ -157,34 +169,97 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
                     dof += 3 * (int(rows.sum()) - 1)
             groups += 1
         k = j
-    stated = ds.noise_position if stated_ok else None
+    return ss, dof, groups
+
+
+def _plate_floor(ds: Dataset) -> tuple[float, float] | None:
+    """Per-coordinate error from the spread of the three inter-sphere distances over the campaign.
+
+    For independent isotropic centre errors ``sigma``, ``var(|p_a - p_b|) = 2 sigma^2``. Robust spread (MAD)
+    per pair, so that a few gross or mislabelled rows do not set the floor. Returns ``(sigma [m], dof)``.
+    """
+    full = ds.sphere_seen.all(axis=1)
+    if full.sum() < 10:
+        return None
+    P = ds.spheres[full]
+    var = []
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        d = np.linalg.norm(P[:, a] - P[:, b], axis=1)
+        mad = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+        # the MAD's efficiency is ~37 %: combine it with the plain variance of the rows within 5 MAD
+        keep = np.abs(d - np.median(d)) <= 5 * max(mad, 1e-12)
+        var.append(float(np.var(d[keep], ddof=1)) if keep.sum() > 2 else mad**2)
+    sigma = float(np.sqrt(np.mean(var) / 2.0))
+    # three distances of one row share their spheres: about two independent values per row
+    return sigma, float(2 * (full.sum() - 1))
+
+
+def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
+    """The sphere-coordinate noise floor (see the module docstring): the largest of the repeats' spread, the
+    plate-geometry spread and the stated figure, with the degrees of freedom of the one chosen."""
+    if not ds.has_spheres:
+        if ds.noise_position is not None and stated_ok:
+            return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)", 0,
+                              {"stated": {"sigma_mm": ds.noise_position / _MM, "dof": None}})
+        raise DiagnosisError("diagnosis of pose data needs [noise] position_mm/orientation_rad in dataset.toml")
+    comps: dict[str, tuple[float, float, str]] = {}
+    ss, dof, groups = _repeat_floor(ds)
     if dof >= 30:
-        sigma_rep = float(np.sqrt(ss / dof))
-        if stated is not None and stated > 1.1 * sigma_rep:
-            # Repeats of one configuration see only the sensor noise; the instrument's stated error also
-            # holds what varies from pose to pose (calibration, outline sampling). The larger one is the floor.
-            return NoiseFloor(stated, float("inf"), (
-                f"dataset.toml [noise] position_mm (stated; {groups} groups of consecutive repeats show only "
-                f"{sigma_rep / _MM:.5f} mm: the instrument's pose-to-pose error is not visible in repeats)"), groups)
-        return NoiseFloor(sigma_rep, float(dof), f"{groups} groups of consecutive repeats", groups)
-    if stated is not None:
-        note = f" ({groups} repeat groups were too few)" if groups else ""
-        return NoiseFloor(stated, float("inf"), "dataset.toml [noise] position_mm (stated)" + note, groups)
-    raise DiagnosisError(
-        "diagnosis needs the measurement noise floor: repeat some configurations (measure the same commanded "
-        "joints twice in a row, at least ~10 repeats) or state the instrument's noise in dataset.toml "
-        "([noise] position_mm)"
-        + (f"; found only {groups} repeat groups ({dof} degrees of freedom)" if groups else "")
-    )
+        comps["repeats"] = (float(np.sqrt(ss / dof)), float(dof), f"{groups} groups of consecutive repeats")
+    pl = _plate_floor(ds)
+    if pl is not None:
+        comps["plate"] = (pl[0], pl[1], f"spread of the plate's inter-sphere distances over {int(pl[1] / 2 + 1)} rows")
+    if stated_ok and ds.noise_position is not None:
+        comps["stated"] = (float(ds.noise_position), float("inf"), "dataset.toml [noise] position_mm (stated)")
+    if not comps:
+        raise DiagnosisError(
+            "diagnosis needs the measurement noise floor: repeat some configurations (measure the same commanded "
+            "joints twice in a row, at least ~10 repeats), measure rows with all three spheres (their distances "
+            "give the instrument's error), or state the instrument's noise in dataset.toml ([noise] position_mm)"
+            + (f"; found only {groups} repeat groups ({dof} degrees of freedom)" if groups else "")
+        )
+    name = max(comps, key=lambda k: comps[k][0])
+    sigma, nu, src = comps[name]
+    others = "; ".join(f"{k}: {v[0] / _MM:.5f} mm" for k, v in comps.items() if k != name)
+    source = src + (f" (the largest; {others})" if others else "")
+    return NoiseFloor(sigma, nu, source, groups,
+                      {k: {"sigma_mm": v[0] / _MM, "dof": None if np.isinf(v[1]) else v[1], "source": v[2]}
+                       for k, v in comps.items()})
+
+
+def history_resets(ds: Dataset, *, gap_factor: float = 20.0) -> np.ndarray:
+    """Rows ``(n,)`` bool whose approach history is unknown: the first row, a row after a gap in ``t_s``
+    longer than ``gap_factor`` times the median step, and rows whose ``status`` says restart/home/power."""
+    n = ds.n
+    out = np.zeros(n, dtype=bool)
+    if n:
+        out[0] = True
+    if ds.t_s is not None and n > 2:
+        dt = np.diff(ds.t_s)
+        med = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
+        if med > 0:
+            out[1:] |= dt > gap_factor * med
+    if ds.status is not None:
+        st = np.char.lower(np.asarray(ds.status, dtype=str))
+        out |= np.char.find(st, "restart") >= 0
+        out |= np.char.find(st, "power") >= 0
+        out |= np.char.find(st, "homed") >= 0
+    return out
 
 
 def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
-    """Every row of the dataset in measurement order, with its auxiliary channels."""
+    """Every row of the dataset in measurement order, with its auxiliary channels and unknown-history rows
+    (``q_start``: where the robot stood before the first row, when known)."""
+    reset = history_resets(ds)
+    if q_start is not None:
+        reset[0] = False
     return RowContext(
         q=ds.q.copy(),
-        q_start=np.zeros(6) if q_start is None else np.asarray(q_start, dtype=float),
+        q_start=None if q_start is None else np.asarray(q_start, dtype=float),
         temp_c=None if ds.temp_c is None else ds.temp_c.copy(),
         t_s=None if ds.t_s is None else ds.t_s.copy(),
+        station=ds.station_ids.copy() if ds.station is not None else None,
+        history_reset=reset,
     )
 
 
@@ -199,7 +274,7 @@ def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseF
     # Woodbury with C = H^-1: (I + Jv C Jv^T)^-1 = I - Jv (H + Jv^T Jv)^-1 Jv^T
     M = H + Jv.T @ Jv
     y = Jv.T @ r
-    T = float(r @ r - y @ np.linalg.solve(M, y)) if M.size else float(r @ r)
+    T = float(r @ r - y @ np.linalg.lstsq(M, y, rcond=None)[0]) if M.size else float(r @ r)
     if np.isinf(floor.dof):
         p = float(stats.chi2.sf(T, m))
         dist = f"chi2({m})"
@@ -209,16 +284,56 @@ def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseF
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
 
-def _error_stats(model: ExtendedModel, z: np.ndarray) -> dict[str, Any]:
+def _row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    ss = np.bincount(row, weights=r**2, minlength=n)
+    cnt = np.bincount(row, minlength=n)
+    return np.sqrt(ss / np.maximum(cnt, 1)), cnt
+
+
+def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
+    """Rows ``(n,)`` bool whose whitened misfit is beyond both the floor's ``1e-6/n`` quantile and
+    ``median + 8 MAD`` of the rows; none when more than ``max(2, max_fraction n)`` rows are (that is
+    structure, not a few gross rows)."""
+    e, cnt = _row_rms(r, row, n)
+    has = cnt > 0
+    if has.sum() < 5:
+        return np.zeros(n, dtype=bool)
+    k = np.maximum(cnt, 1)
+    thr_floor = np.sqrt(stats.chi2.isf(1e-6 / max(n, 1), k) / k)
+    med = float(np.median(e[has]))
+    mad = 1.4826 * float(np.median(np.abs(e[has] - med)))
+    bad = has & (e > thr_floor) & (e > med + 8 * max(mad, 0.05 * med))
+    if bad.sum() > max(2, int(max_fraction * has.sum())):
+        return np.zeros(n, dtype=bool)
+    return bad
+
+
+def _unmask(r: np.ndarray, obs: Observations) -> np.ndarray:
+    """Whitened sphere residuals back to ``(n, 3, 3)`` [m] (order of ``absolute_residuals``)."""
+    shape = (3, 3, obs.n)
+    mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
+    tmp = np.zeros(shape)
+    tmp[mask] = r * obs.sigma_position
+    return np.transpose(tmp, (2, 0, 1))
+
+
+def _stats(e: np.ndarray) -> dict[str, float]:
+    return {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(e))}
+
+
+def _error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
     """Validation error statistics: 3-D sphere-centre error [mm], and the plate orientation error [deg]
-    between rigid fits of the plate to the measured and to the predicted spheres (rows with all three)."""
+    between rigid fits of the plate to the measured and to the predicted spheres (rows with all three);
+    ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
     _, phis = model.split(z)
     obs = model.effective_obs(phis)
     res = model.residuals(z, jacobian=False)
-    diff = _unmask(res, obs)  # measured - predicted (n, 3, 3) [m], zero where not seen
-    e3 = np.linalg.norm(diff, axis=-1)[obs.seen]
-    out: dict[str, Any] = {"n_rows": int(obs.n), "position_mm": _stats(e3 / _MM)}
-    full = obs.seen.all(axis=1)
+    diff = _unmask(res.r, obs)  # measured - predicted (n, 3, 3) [m], zero where not seen
+    rows = np.ones(obs.n, bool) if keep is None else keep
+    seen = obs.seen & rows[:, None]
+    e3 = np.linalg.norm(diff, axis=-1)[seen]
+    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
+    full = seen.all(axis=1)
     if full.any():
         meas = obs.spheres[full]
         pred = meas - diff[full]
@@ -230,26 +345,13 @@ def _error_stats(model: ExtendedModel, z: np.ndarray) -> dict[str, Any]:
     return out
 
 
-def _unmask(res, obs: Observations) -> np.ndarray:
-    """Whitened sphere residuals back to ``(n, 3, 3)`` [m] (order of ``absolute_residuals``)."""
-    shape = (3, 3, obs.n)
-    mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
-    tmp = np.zeros(shape)
-    tmp[mask] = res.r * obs.sigma_position
-    return np.transpose(tmp, (2, 0, 1))
-
-
-def _stats(e: np.ndarray) -> dict[str, float]:
-    return {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(e))}
-
-
 # ------------------------------------------------------------------------------------------------
-# The procedure
+# Fitting
 # ------------------------------------------------------------------------------------------------
 
 @dataclass
 class _Fit:
-    terms: list[EffectTerm]
+    chosen: list  # [(Atom, basis)]
     z: np.ndarray
     free: np.ndarray
     chi2: float
@@ -257,42 +359,199 @@ class _Fit:
     model_val: ExtendedModel
 
 
-def _build_terms(chosen, prep: Prepared, ctx: RowContext, x: np.ndarray, free_geo: np.ndarray) -> tuple[list, list]:
-    """Effect terms (calibration rows, validation rows) for the chosen candidates with their references."""
-    rows_cal = prep.rows[prep.cal]
-    rows_val = prep.rows[prep.val]
-    terms_cal, terms_val = [], []
-    for cand, ref, basis in chosen:
-        Gc = term_regressor(cand, ref, ctx, rows_cal)
-        Gv = term_regressor(cand, ref, ctx, rows_val)
-        terms_cal.append(EffectTerm(cand, ref, Gc, basis))
-        terms_val.append(EffectTerm(cand, ref, Gv, basis))
-    return terms_cal, terms_val
+class _Problem:
+    """Everything the selection rounds share: observations, rows, features, weights."""
+
+    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray):
+        self.prep = prep
+        self.obs_cal = prep.obs_cal.with_sigma(floor.sigma)
+        self.obs_val = prep.obs_val.with_sigma(floor.sigma)
+        self.rows_cal = prep.rows[prep.cal]
+        self.rows_val = prep.rows[prep.val]
+        self.ctx = ctx
+        self.free_geo = free_geo
+        self.floor = floor
+        self._F: dict[str, np.ndarray] = {}
+        self._cache: dict = {}
+        self.w_cal = np.ones(self.obs_cal.n)
+        self.keep_val = np.ones(self.obs_val.n, dtype=bool)
+
+    def features(self, atom: Atom) -> np.ndarray:
+        key = repr(atom.features)
+        if "regressor" in atom.meta:  # a given regressor (fit_with_effects with a legacy candidate)
+            key = f"regressor:{id(atom)}"
+        F = self._F.get(key)
+        if F is None and "regressor" in atom.meta:
+            G = atom.meta["regressor"](self.ctx)
+            F = G.reshape(len(G), -1)
+            self._F[key] = F
+        elif F is None:
+            F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
+            self._F[key] = F
+        return F
+
+    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> _Fit:
+        tc = [AtomTerm(a, self.features(a)[self.rows_cal], B) for a, B in chosen]
+        tv = [AtomTerm(a, self.features(a)[self.rows_val], B) for a, B in chosen]
+        mc = ExtendedModel(self.prep.space, self.obs_cal, tc)
+        mv = ExtendedModel(self.prep.space, self.obs_val, tv)
+        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in tc] if z_eff is None else z_eff))
+        free = np.concatenate([self.free_geo, np.arange(self.prep.space.size, mc.size)]).astype(int)
+        # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
+        gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=self.w_cal, max_iter=30, xtol=1e-11,
+                          stage="extended")
+        res = mc.residuals(gn.x, jacobian=False)
+        rr = res.r * np.sqrt(self.w_cal[res.row])
+        return _Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+
+    def test(self, fit: _Fit) -> StructureTest:
+        rv = fit.model_val.residuals(fit.z)
+        rc = fit.model_cal.residuals(fit.z)
+        kv = self.keep_val[rv.row]
+        Jc = rc.J[:, fit.free] * np.sqrt(self.w_cal[rc.row])[:, None]
+        return _structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
 
 
-def _fit(prep: Prepared, obs_cal: Observations, obs_val: Observations, x0: np.ndarray, free_geo: np.ndarray,
-         chosen: list, ctx: RowContext, z0_effects: list[np.ndarray] | None = None, inlier=None) -> _Fit:
-    terms_cal, terms_val = _build_terms(chosen, prep, ctx, x0, free_geo)
-    mc = ExtendedModel(prep.space, obs_cal, terms_cal)
-    mv = ExtendedModel(prep.space, obs_val, terms_val)
-    z0 = np.concatenate([x0] + [np.zeros(t.r) for t in terms_cal])
-    free = np.concatenate([free_geo, np.arange(prep.space.size, mc.size)]).astype(int)
-    w = None if inlier is None else inlier.astype(float)
-    # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
-    gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=w, max_iter=30, xtol=1e-11, stage="extended")
-    res = mc.residuals(gn.x, jacobian=False)
-    rr = res.r if inlier is None else res.r[inlier[res.row]]
-    return _Fit(terms_cal, gn.x, free, float(rr @ rr), mc, mv)
+def _chi2_logsf(x: float, k: int) -> float:
+    """``log P(chi2(k) > x)``, finite where scipy's underflows to ``-inf`` (large ``x``: the leading term of
+    the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
+    v = float(stats.chi2.logsf(x, k))
+    if np.isfinite(v):
+        return v
+    from scipy.special import gammaln
+
+    return float(-x / 2 + (k / 2 - 1) * np.log(x / 2) - gammaln(k / 2))
 
 
-def _validation_test(fit: _Fit, floor: NoiseFloor, inlier: np.ndarray | None) -> StructureTest:
-    rv = fit.model_val.residuals(fit.z)
+def _raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
+    x, phis = model.split(z)
+    obs = model.effective_obs(phis)
+    return model.columns(AtomTerm(atom, F, np.eye(F.shape[1])), x, obs, res)
+
+
+@dataclass
+class _Scored:
+    atom: Atom
+    basis: np.ndarray
+    Ep: np.ndarray  # projected reduced columns (m_cal_kept, r)
+    E: np.ndarray  # reduced columns (m_cal_kept, r)
+    psi: np.ndarray
+    dchi2: float
+    logp_adj: float
+    fitted: np.ndarray  # Ep psi
+    r: np.ndarray  # the residual it was scored against (projected off the current model)
+
+
+def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int]) -> list[_Scored]:
+    """Linearised evidence of every atom against the current fit (see the module docstring)."""
     rc = fit.model_cal.residuals(fit.z)
-    Jc = rc.J[:, fit.free]
-    if inlier is not None:
-        Jc = Jc[inlier[rc.row]]
-    return _structure_test(rv.r, rv.J[:, fit.free], Jc, floor)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    keep = sw > 0
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    Q, _ = np.linalg.qr(A)
+    r = (rc.r * sw)[keep]
+    r = r - Q @ (Q.T @ r)
+    out = []
+    for a in atoms:
+        F = prob.features(a)[prob.rows_cal]
+        if not np.any(F):
+            continue
+        E = _raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
+        B = reduced_basis(E, Q=Q, max_rank=12 if a.family == "compliance" else 6)
+        if B.shape[1] == 0:
+            continue
+        EB = E @ B
+        Ep = EB - Q @ (Q.T @ EB)
+        psi, *_ = np.linalg.lstsq(Ep, r, rcond=None)
+        fitted = Ep @ psi
+        d = float(fitted @ fitted)
+        # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
+        logp = _chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        out.append(_Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
+    return out
 
+
+def _order(scored: list[_Scored], broad_dim: int = 3) -> list[_Scored]:
+    """Atoms in the order to try: by pool-adjusted evidence, except that a broad atom (``>= broad_dim``
+    reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
+    explain more within the same number of parameters (a broad atom collects a little of several effects;
+    it must not pre-empt the small atoms that each hold one of them)."""
+    order = sorted(scored, key=lambda s: s.logp_adj)
+    if not order or order[0].basis.shape[1] < broad_dim:
+        return order
+    best = order[0]
+    # a named broad atom (compliance) answers to the named small atoms; an unnamed one to all
+    small = [s for s in order if s.basis.shape[1] < broad_dim
+             and (best.atom.pool != "catalogue" or s.atom.pool == "catalogue")]
+    gain = _omp_gain(small, best.basis.shape[1])
+    if gain >= best.dchi2 and small:
+        return small[:1] + [s for s in order if s is not small[0]]
+    return order
+
+
+def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
+    """Calibration ``Delta chi2`` that small atoms reach together within ``budget`` parameters: greedy
+    orthogonal matching pursuit over their projected columns on the residual they were scored against (the
+    ``pool`` strongest atoms)."""
+    cand = sorted(small, key=lambda s: -s.dchi2)[:pool]
+    if not cand:
+        return 0.0
+    r = cand[0].r
+    Qs = [np.linalg.qr(s.Ep)[0] for s in cand]
+    taken = np.zeros((len(r), 0))
+    used = 0
+    gain = 0.0
+    avail = list(range(len(cand)))
+    while avail:
+        best = None
+        for i in avail:
+            Q = Qs[i] - taken @ (taken.T @ Qs[i])
+            Qo, R = np.linalg.qr(Q)
+            keep = np.abs(np.diag(R)) > 1e-8
+            Qo = Qo[:, keep]
+            g = float(np.sum((Qo.T @ r) ** 2))
+            if best is None or g > best[0]:
+                best = (g, i, Qo)
+        g, i, Qo = best
+        if used + Qo.shape[1] > budget:
+            break
+        gain += g
+        used += Qo.shape[1]
+        r = r - Qo @ (Qo.T @ r)
+        taken = np.concatenate([taken, Qo], axis=1)
+        avail.remove(i)
+    return gain
+
+
+def _confirm(prob: _Problem, fit: _Fit, s: _Scored, z_min: float) -> tuple[float, float, bool]:
+    """Held-out check of a scored atom: ``z``, ``z`` without the most favourable row, and whether the
+    held-out residual norm drops."""
+    rc = fit.model_cal.residuals(fit.z)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    keep = sw > 0
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
+    beta_A = -np.linalg.lstsq(A, s.E @ s.psi, rcond=None)[0]
+    rv = fit.model_val.residuals(fit.z)
+    kv = prob.keep_val[rv.row]
+    Fv = prob.features(s.atom)[prob.rows_val]
+    Ev = _raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
+    u = (Ev @ s.psi + rv.J[:, fit.free] @ beta_A)[kv]
+    r = rv.r[kv]
+    nu = float(np.linalg.norm(u))
+    if nu <= 0:
+        return 0.0, 0.0, False
+    srms = float(np.sqrt(np.mean(r**2)))
+    contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
+    z = float(r @ u) / (nu * srms)
+    z_minus = float(r @ u - contrib.max()) / (nu * srms)
+    better = float(np.sum((r - u) ** 2)) < float(r @ r)
+    return z, z_minus, better
+
+
+# ------------------------------------------------------------------------------------------------
+# The procedure
+# ------------------------------------------------------------------------------------------------
 
 def diagnose(
     dataset: Dataset,
@@ -301,24 +560,35 @@ def diagnose(
     alpha: float = 0.01,
     holdout: float | None = None,
     seed: int = 0,
-    max_effects: int = 3,
-    bic_margin: float = 10.0,
-    candidates: list[Candidate] | None = None,
+    max_effects: int = 16,
+    alpha_select: float = 0.01,
+    z_min: float = 3.0,
+    floor_tolerance: float = 1.5,
+    generic: bool = True,
     q_start: np.ndarray | None = None,
     callback: Callable[[CandidateScore], None] | None = None,
+    bic_margin: float | None = None,
+    candidates: Any = None,
 ) -> DiagnosisResult:
-    """Diagnose ``dataset`` (see the module docstring for the procedure and the test).
+    """Diagnose ``dataset`` (see the module docstring for the procedure and its statistics).
 
-    ``holdout``: without a ``set`` column, hold out this seeded random fraction for validation (without
-    either, diagnosis refuses: it needs held-out rows). ``calibration``: a geometric calibration to start
-    from (its parameters are the start of the fit; the fit is redone on this dataset's calibration rows).
-    ``candidates``: the catalogue to try (default :func:`candidate_catalogue` of the dataset's robot).
-    ``q_start``: where the robot stood before the first row (for approach directions), default home (0).
+    ``holdout``: without a ``set`` column, hold out this seeded random fraction for validation.
+    ``calibration``: a geometric calibration to start from (refitted on this dataset's calibration rows).
+    ``max_effects``: most atoms kept. ``alpha_select``: family-wise false-selection rate per round (each pool
+    Bonferroni-adjusted). ``z_min``: held-out confirmation threshold. ``floor_tolerance``: an excess scatter
+    below this multiple of the floor, with nothing predictable on held-out rows, is not called structure.
+    ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
+    when known (otherwise the first row's approach is unknown). ``bic_margin`` and ``candidates`` are
+    accepted for compatibility and ignored.
     """
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if not (0 < alpha < 0.5):
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha!r}")
+    if not (0 < alpha_select < 0.5):
+        raise ValueError(f"alpha_select must be in (0, 0.5), got {alpha_select!r}")
+    if not (isinstance(max_effects, (int, np.integer)) and max_effects >= 0):
+        raise ValueError(f"max_effects must be a non-negative integer, got {max_effects!r}")
     if not dataset.has_spheres:
         raise DiagnosisError("diagnosis works on sphere-centre datasets (p0_x..p2_z); this one has none")
     if dataset.set is None:
@@ -340,84 +610,120 @@ def diagnose(
     if calibration is not None:
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
     geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM})
-    sig = floor.sigma
-    obs_cal = prep.obs_cal.with_sigma(sig)
-    obs_val = prep.obs_val.with_sigma(sig)
-    inlier = ident.inlier
-    free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     ctx = row_context(dataset, q_start)
+    free_geo = np.flatnonzero(np.array(ident.status) == "identified")
+    prob = _Problem(prep, floor, ctx, free_geo)
 
-    base_fit = _fit(prep, obs_cal, obs_val, ident.x, free_geo, [], ctx, inlier=inlier)
-    test0 = _validation_test(base_fit, floor, inlier)
-    before = _error_stats(base_fit.model_val, base_fit.z)
-    structured = test0.p_value < alpha
+    # gross rows of the geometric fit (calibration: weight 0; validation: left out of test and statistics)
+    fit = prob.fit(ident.x, [])
+    _update_gross(prob, fit)
+    fit = prob.fit(fit.z[: prep.space.size], [])
+    base_fit = fit
+    test0 = prob.test(base_fit)
+    before = _error_stats(base_fit.model_val, base_fit.z, prob.keep_val)
+    excess = test0.p_value < alpha
+
     scores: list[CandidateScore] = []
+    alternatives: list[dict] = []
     chosen: list = []
-    fit = base_fit
     test = test0
-    explained = not structured
-    catalogue = candidates if candidates is not None else candidate_catalogue(prep.nominal)
-    m_cal = int(base_fit.model_cal.residuals(base_fit.z, jacobian=False).r.size)
-    if structured:
-        remaining = [c for c in catalogue if _applicable(c, dataset)]
+    if excess and max_effects > 0:
+        length_names = [n for n in prep.space.names[: prep.space.n_robot]
+                        if n.rstrip("0123456789") in ("d", "a")]
+        cat = catalogue_atoms(prep.nominal, ctx, length_names)
+        pool = list(cat)
+        if generic:
+            pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
+            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat)
+        sizes = {"catalogue": sum(a.pool == "catalogue" for a in pool), "generic": max(1, sum(a.pool == "generic" for a in pool))}
+        rejected: set[str] = set()
         for rnd in range(1, max_effects + 1):
-            best = None
-            rc = fit.model_cal.residuals(fit.z)
-            A = rc.J[:, fit.free]
-            for cand in remaining:
-                try:
-                    ref = cand.reference(ctx)
-                    basis = _candidate_basis(cand, ref, prep, obs_cal, ctx, fit, A)
-                except ValueError as exc:
-                    scores.append(CandidateScore(rnd, cand.name, 0, float("nan"), float("nan"), None, str(exc)))
-                    continue
-                if basis.shape[1] == 0:
-                    scores.append(CandidateScore(rnd, cand.name, 0, fit.chi2, 0.0, None,
-                                                 "no direction beyond what the geometry absorbs"))
-                    continue
-                trial = _fit(prep, obs_cal, obs_val, fit.z[: prep.space.size], free_geo,
-                             chosen + [(cand, ref, basis)], ctx, inlier=inlier)
-                dbic = (trial.chi2 - fit.chi2) + basis.shape[1] * np.log(m_cal)
-                vt = _validation_test(trial, floor, inlier)
-                sc = CandidateScore(rnd, cand.name, int(basis.shape[1]), trial.chi2, float(dbic), vt)
+            remaining = [a for a in pool if a.key not in rejected and a.key not in {c.key for c, _ in chosen}]
+            scored = _score_atoms(prob, fit, remaining, sizes)
+            if not scored:
+                break
+            order = _order(scored)
+            accepted = None
+            for s in order[:3]:
+                logp_adj = s.logp_adj
+                if logp_adj >= np.log(alpha_select):
+                    scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), float("nan"),
+                                                 "not significant on the calibration rows"))
+                    break
+                z, zm, better = _confirm(prob, fit, s, z_min)
+                ok = z > z_min and zm > z_min and better
+                sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), z,
+                                    "kept" if ok else ("not confirmed on held-out rows" if not (z > z_min) else
+                                                       "held-out gain rests on one row" if not (zm > z_min) else
+                                                       "held-out error not reduced"))
                 scores.append(sc)
                 if callback:
                     callback(sc)
-                if dbic < -bic_margin and (best is None or dbic < best[0]):
-                    best = (dbic, cand, ref, basis, trial, vt)
-            if best is None:
+                if ok:
+                    accepted = s
+                    break
+                rejected.add(s.atom.key)
+            if accepted is None:
                 break
-            _, cand, ref, basis, fit, test = best
-            chosen.append((cand, ref, basis))
-            remaining = [c for c in remaining if c.name != cand.name]
-            if test.p_value >= alpha:
-                explained = True
-                break
-    effects = tuple(c.name for c, _, _ in chosen) if explained else ()
-    if structured and not explained:
-        notes.append(
-            "the residual is structured and no combination of the catalogue's effects explains it"
-            + (f" (best attempt: {', '.join(c.name for c, _, _ in chosen)})" if chosen else "")
-        )
-    use_fit = fit if explained else base_fit
-    after = _error_stats(use_fit.model_val, use_fit.z) if effects else before
-    effect_params, effects_json = _effect_parameters(use_fit if effects else base_fit, inlier) if effects else ({}, [])
+            alternatives += _alternatives(accepted, scored)
+            chosen.append((accepted.atom, accepted.basis))
+            z_eff = _psi_init(fit, chosen)
+            fit = prob.fit(fit.z[: prep.space.size], chosen, z_eff)
+            _update_gross(prob, fit)
+        if chosen:
+            fit, dropped = _backward(prob, fit, alpha_select, sizes)
+            for a in dropped:
+                notes.append(f"dropped in the backward pass (redundant once the others are in): {a.label}")
+            alternatives = [d for d in alternatives if d["of"] in {a.label for a, _ in fit.chosen}]
+            _update_gross(prob, fit)
+            fit = prob.fit(fit.z[: prep.space.size], fit.chosen, _psi_init(fit, fit.chosen))
+            test = prob.test(fit)
+        chosen = fit.chosen
+        base_fit = prob.fit(base_fit.z[: prep.space.size], [])
+        test0 = prob.test(base_fit)
+        before = _error_stats(base_fit.model_val, base_fit.z, prob.keep_val)
+
+    confirmed = bool(chosen)
+    structured = bool(excess and (confirmed or test0.whitened_rms > floor_tolerance))
+    if excess and not structured:
+        notes.append(f"the held-out scatter is {test0.whitened_rms:.2f}x the floor (p = {test0.p_value:.2g}) but nothing "
+                     f"in it is predictable on held-out rows: no structure is claimed (the floor may be underestimated)")
+    if structured and not confirmed:
+        notes.append("the residual is structured and no term of the catalogue or the dictionary explains it "
+                     "on held-out rows")
+    explained = bool(structured and confirmed and test.p_value >= alpha)
+    frac = 0.0
+    if confirmed:
+        ex = test0.statistic - test0.dof
+        frac = float(np.clip((test0.statistic - test.statistic) / ex, 0.0, 1.0)) if ex > 0 else 1.0
+        if not explained:
+            notes.append(f"partial explanation: {100 * frac:.0f} % of the held-out excess explained; the remainder is "
+                         f"still structured (p = {test.p_value:.2g})")
+    use = fit if confirmed else base_fit
+    after = _error_stats(use.model_val, use.z, prob.keep_val) if confirmed else before
+    atoms_json, params = _atom_report(prob, use) if confirmed else ([], {})
+    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed"))
+    unnamed = tuple(a for a in atoms_json if a["family"] == "unnamed")
+    rows = _rows_report(prob, prep, dataset)
+    if rows["gross_validation"] or rows["gross_calibration"]:
+        notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
+                     f"validation {rows['gross_validation']}")
     extended = replace(
         geo,
-        method="best+effects" if effects else geo.method,
-        x=use_fit.z[: prep.space.size] if effects else geo.x,
-        effects=tuple(effects_json),
+        method="best+effects" if confirmed else geo.method,
+        x=use.z[: prep.space.size] if confirmed else geo.x,
+        effects=tuple(atoms_json),
     )
-    series = _series(base_fit, use_fit, prep, ctx)
+    series = _series(base_fit, use, prob)
     return DiagnosisResult(
-        structured=bool(structured),
+        structured=structured,
         p_value=float(test0.p_value),
         alpha=alpha,
         test_before=test0,
-        test_after=test if chosen else None,
+        test_after=test if confirmed else None,
         effects=effects,
-        effect_parameters=effect_params,
-        explained=bool(explained),
+        effect_parameters=params,
+        explained=explained,
         before=before,
         after=after,
         noise=floor,
@@ -426,14 +732,205 @@ def diagnose(
         calibration=extended,
         series=series,
         notes=tuple(notes),
+        atoms=tuple(atoms_json),
+        unnamed=unnamed,
+        alternatives=tuple(alternatives),
+        explained_fraction=frac,
+        rows=rows,
     )
 
+
+def _covariance(J: np.ndarray) -> np.ndarray:
+    """``(J^T J)^+`` of whitened columns, column-scaled first (geometric and effect columns differ by many
+    orders of magnitude: an unscaled pseudo-inverse truncates the small ones)."""
+    d = np.linalg.norm(J, axis=0)
+    d = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Js = J * d
+    return d[:, None] * np.linalg.pinv(Js.T @ Js, rcond=1e-12) * d[None, :]
+
+
+def _update_gross(prob: _Problem, fit: _Fit) -> None:
+    rc = fit.model_cal.residuals(fit.z, jacobian=False)
+    prob.w_cal = (~_gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    prob.keep_val = ~_gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
+    """Start values of the reduced coordinates: the current fit's for atoms already in, zero for new ones."""
+    prev = {t.atom.key: fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            for k, t in enumerate(fit.model_cal.terms)}
+    return [prev.get(a.key, np.zeros(B.shape[1])) if prev.get(a.key) is not None and prev[a.key].size == B.shape[1]
+            else np.zeros(B.shape[1]) for a, B in chosen]
+
+
+def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tuple[_Fit, list[Atom]]:
+    """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
+    dropped: list[Atom] = []
+    changed = True
+    while changed and len(fit.chosen) > 1:
+        changed = False
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        C = _covariance(rc.J[:, fit.free] * sw[:, None])
+        pos = {int(f): k for k, f in enumerate(fit.free)}
+        worst = None
+        for k, (a, B) in enumerate(fit.chosen):
+            idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
+            psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            Ck = C[np.ix_(idx, idx)]
+            d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
+            lp = _chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
+                worst = (lp, k)
+        if worst is not None:
+            k = worst[1]
+            dropped.append(fit.chosen[k][0])
+            chosen = [c for i, c in enumerate(fit.chosen) if i != k]
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, _psi_init(fit, chosen))
+            changed = True
+    return fit, dropped
+
+
+def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
+    """Atoms the data cannot tell apart from ``best``: they reproduce >= ``share`` of its fitted residual and
+    their evidence is within ``e^log_evidence`` of it."""
+    f = best.fitted
+    nf = float(f @ f)
+    out = []
+    for s in scored:
+        if s is best or nf <= 0:
+            continue
+        if 0.5 * (best.dchi2 - s.dchi2) > log_evidence:
+            continue
+        Qs, _ = np.linalg.qr(s.Ep)
+        cover = float(np.sum((Qs.T @ f) ** 2)) / nf
+        if cover >= share:
+            out.append({"of": best.atom.label, "alternative": s.atom.label, "family": s.atom.family,
+                        "channel": s.atom.channel, "target": s.atom.target,
+                        "delta_chi2": s.dchi2, "delta_chi2_chosen": best.dchi2, "share_reproduced": cover})
+    out.sort(key=lambda d: -d["delta_chi2"])
+    return out[:3]
+
+
+# ------------------------------------------------------------------------------------------------
+# Reports
+# ------------------------------------------------------------------------------------------------
+
+def _place_unit(a: Atom) -> tuple[str, float]:
+    """Display unit of an atom's effect on its place, and the factor from SI."""
+    if a.place == "joint":
+        return "deg", 1 / _DEG
+    if a.place in ("length", "scale"):
+        return "ppm", 1e6
+    if a.place == "plate":
+        return "mm", 1 / _MM
+    t = a.target
+    if t in ("tool", "base"):
+        return "mm|deg", 1.0
+    if t.rstrip("0123456789") in ("d", "a"):
+        return "mm", 1 / _MM
+    return "deg", 1 / _DEG
+
+
+def _atom_report(prob: _Problem, fit: _Fit) -> tuple[list[dict], dict[str, Any]]:
+    """Every chosen atom: full parameters ``phi = B psi`` with standard deviations, its effect on its place
+    over the calibration rows, and words."""
+    rc = fit.model_cal.residuals(fit.z)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    J = rc.J[:, fit.free] * sw[:, None]
+    C = _covariance(J)
+    pos = {int(f): k for k, f in enumerate(fit.free)}
+    _, phis = fit.model_cal.split(fit.z)
+    out: list[dict] = []
+    params: dict[str, Any] = {}
+    for k, (t, phi) in enumerate(zip(fit.model_cal.terms, phis)):
+        a = t.atom
+        idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
+        Cphi = t.basis @ C[np.ix_(idx, idx)] @ t.basis.T
+        sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
+        unit, fac = _place_unit(a)
+        F = prob.features(a)
+        if a.place == "param" and a.target in ("tool", "base"):
+            eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
+            size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
+                    "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / _DEG).item()}
+            words = f"{size['rms_mm']:.4f} mm / {size['rms_deg']:.5f} deg RMS over the rows"
+        elif a.place == "plate":
+            size = {"offset_mm": (phi / _MM).tolist(), "sd_mm": (sd / _MM).tolist()}
+            words = "offset (" + ", ".join(f"{v / _MM:+.4f} +- {e / _MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
+        elif a.place == "joints":  # a given all-joint regressor (legacy candidate)
+            eff = np.einsum("nik,k->ni", F.reshape(len(F), 6, -1), phi)
+            size = {"rms_deg": (np.sqrt(np.mean(eff**2, axis=0)) / _DEG).tolist()}
+            words = "RMS per joint " + ", ".join(f"{v:.5f}" for v in size["rms_deg"]) + " deg"
+        else:
+            eff = F @ phi
+            g = F.T / max(len(F), 1)
+            # sd of the RMS effect (delta method on the mean square): d rms / d phi = F^T eff / (n rms)
+            rms = float(np.sqrt(np.mean(eff**2)))
+            grad = (g @ eff) / max(rms, 1e-300)
+            sd_rms = float(np.sqrt(max(grad @ Cphi @ grad, 0.0)))
+            size = {"rms": rms * fac, "sd": sd_rms * fac, "unit": unit}
+            if a.family == "cyclic" and len(phi) == 2:
+                amp = float(np.hypot(*phi))
+                gamp = phi / max(amp, 1e-300)
+                sda = float(np.sqrt(max(gamp @ Cphi @ gamp, 0.0)))
+                size.update({"amplitude": amp * fac, "amplitude_sd": sda * fac})
+                words = f"amplitude {amp * fac:.5f} +- {sda * fac:.5f} {unit}"
+            elif len(phi) == 1:
+                words = (f"{phi[0] * fac:.5g} +- {sd[0] * fac:.2g} {unit} per unit of {a.channel} "
+                         f"({rms * fac:.5f} {unit} RMS over the rows)")
+            else:
+                words = f"{rms * fac:.5f} +- {sd_rms * fac:.5f} {unit} RMS over the rows"
+        entry = {**a.spec(), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+                 "size": size, "text": f"{a.label}: {words}",
+                 "unit": "SI per unit of each feature: rad (joint), relative (length, scale), m (plate), m or rad (param)"}
+        out.append(entry)
+        params[a.label] = {"family": a.family, "values": phi.tolist(), "sd": sd.tolist(), "size": size}
+    return out, params
+
+
+def _rows_report(prob: _Problem, prep: Prepared, ds: Dataset) -> dict[str, Any]:
+    pid = ds.pose_id
+    gc = prep.rows[prep.cal][prob.w_cal == 0]
+    gv = prep.rows[prep.val][~prob.keep_val]
+    reset = np.flatnonzero(approach_unknown(prob.ctx))
+    return {"gross_calibration": [int(pid[i]) for i in gc], "gross_validation": [int(pid[i]) for i in gv],
+            "unknown_history": [int(pid[i]) for i in reset],
+            "unknown_history_rule": "rows where a joint that moves has not moved since the start, a gap in t_s or "
+                                    "a recorded restart: history-dependent terms read 0 there",
+            "rule": "per-row misfit beyond the floor's 1e-6/n quantile and median + 8 MAD (at most 2 % of rows)"}
+
+
+def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
+    """Per validation row: residual norms before/after [mm] and the most telling variables."""
+    from .atoms import _signs
+
+    rows_val = prob.rows_val
+    out: dict[str, np.ndarray] = {"dataset_row": rows_val, "pose_id": prob.prep.dataset.pose_id[rows_val]}
+    for tag, f in (("before", base), ("after", ext)):
+        r = f.model_val.residuals(f.z, jacobian=False)
+        e, _ = _row_rms(r.r, r.row, f.model_val.obs.n)
+        out[f"residual_rms_mm_{tag}"] = e * f.model_val.obs.sigma_position / _MM
+    ctx = prob.ctx
+    out["q_deg"] = ctx.q[rows_val] / _DEG
+    out["approach_sign"] = _signs(ctx)[rows_val]
+    if ctx.temp_c is not None:
+        out["temp_c"] = ctx.temp_c[rows_val]
+    if ctx.t_s is not None:
+        out["t_s"] = ctx.t_s[rows_val]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# A given extended model, without selection
+# ------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class EffectFit:
     """A given extended model fitted without selection: validation errors of the geometric-only and of the
     extended model (``{n_rows, position_mm: {...}, orientation_deg: {...}}``), the structure test of each,
-    and the effect parameters."""
+    and the atom parameters."""
 
     before: dict[str, Any]
     after: dict[str, Any]
@@ -443,14 +940,11 @@ class EffectFit:
     noise: NoiseFloor
 
 
-def fit_with_effects(dataset: Dataset, candidates: list[Candidate], *, holdout: float | None = None, seed: int = 0,
+def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = None, seed: int = 0,
                      q_start: np.ndarray | None = None) -> EffectFit:
-    """Fit the geometric model extended by exactly ``candidates`` (no selection, every direction the data
-    separate from the geometry kept) on the calibration rows, and report on the validation rows.
-
-    For a user who knows which effect to model; and for evaluation, which fits the *true* effect's shape
-    (a reference: what the true model achieves when identified on the same rows).
-    """
+    """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
+    from the geometry kept) on the calibration rows, and report on the validation rows. An entry may also be
+    a catalogue family's name (or a legacy ``Candidate``): every atom of that family (per joint, per link)."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:
@@ -458,120 +952,46 @@ def fit_with_effects(dataset: Dataset, candidates: list[Candidate], *, holdout: 
     floor = noise_floor(dataset)
     prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=holdout or 0.0, seed=seed)
     ident = identify_best(prep, alpha=1e-6)
-    obs_cal = prep.obs_cal.with_sigma(floor.sigma)
-    obs_val = prep.obs_val.with_sigma(floor.sigma)
-    inlier = ident.inlier
-    free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     ctx = row_context(dataset, q_start)
-    base = _fit(prep, obs_cal, obs_val, ident.x, free_geo, [], ctx, inlier=inlier)
+    # a legacy Candidate with its own regressor: one term of its full regressor
+    legacy = []
+    for c in atoms:
+        if not isinstance(c, (Atom, str)) and getattr(c, "name", None) not in EFFECT_VOCABULARY and getattr(c, "kind", None) in ("joint", "length"):
+            ref = c.reference(ctx)
+            K = len(c.param_names(ref))
+            place, target = ("joints", "all") if c.kind == "joint" else ("length", "all_lengths")
+            legacy.append(Atom(c.name, place, target, (), c.name, c.description, "given", (),
+                               {"K": K, "regressor": (lambda cx, c=c, ref=ref: c.regressor(cx, ref))}))
+    atoms = [a for a in atoms if not any(a is getattr(l, "_src", None) for l in legacy)]
+    names_legacy = {l.family for l in legacy}
+    atoms = [a for a in atoms if getattr(a, "name", None) not in names_legacy] + legacy
+    # a catalogue family given by name (or as a legacy Candidate) stands for all its atoms
+    fams = {getattr(a, "name", a) for a in atoms if not isinstance(a, Atom)}
+    if fams:
+        unknown = fams - set(EFFECT_VOCABULARY)
+        if unknown:
+            raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
+        lengths = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
+        cat = [a for a in catalogue_atoms(prep.nominal, ctx, lengths) if a.family in fams and a.target != "all_lengths"]
+        atoms = [a for a in atoms if isinstance(a, Atom)] + cat
+    prob = _Problem(prep, floor, ctx, np.flatnonzero(np.array(ident.status) == "identified"))
+    base = prob.fit(ident.x, [])
     rc = base.model_cal.residuals(base.z)
-    A = rc.J[:, base.free]
+    Q, _ = np.linalg.qr(rc.J[:, base.free])
     chosen = []
-    for cand in candidates:
-        ref = cand.reference(ctx)
-        rows_cal = prep.rows[prep.cal]
-        G = term_regressor(cand, ref, ctx, rows_cal)
-        K = len(cand.param_names(ref)) if cand.kind != "plate" else 9
-        probe = EffectTerm(cand, ref, G, np.eye(K))
-        mc = ExtendedModel(prep.space, obs_cal, [probe])
-        E = mc.residuals(np.concatenate([base.z, np.zeros(K)])).J[:, mc.size - K:]
-        chosen.append((cand, ref, reduced_basis(E, A, rel_tol=1e-9)))
-    fit = _fit(prep, obs_cal, obs_val, ident.x, free_geo, chosen, ctx, inlier=inlier)
-    params, _ = _effect_parameters(fit, inlier)
+    for a in atoms:
+        E = _raw_columns(base.model_cal, a, prob.features(a)[prob.rows_cal], base.z, rc)
+        chosen.append((a, reduced_basis(E, Q=Q, rel_tol=1e-6, max_rank=40)))
+    fit = prob.fit(ident.x, chosen)
+    _, params = _atom_report(prob, fit)
     return EffectFit(
         before=_error_stats(base.model_val, base.z),
         after=_error_stats(fit.model_val, fit.z),
-        test_before=_validation_test(base, floor, inlier),
-        test_after=_validation_test(fit, floor, inlier),
+        test_before=prob.test(base),
+        test_after=prob.test(fit),
         effect_parameters=params,
         noise=floor,
     )
-
-
-def _applicable(c: Candidate, ds: Dataset) -> bool:
-    if c.name == "thermal":
-        return ds.temp_c is not None or ds.t_s is not None
-    return True
-
-
-def _candidate_basis(cand, ref, prep, obs_cal, ctx, fit: _Fit, A: np.ndarray) -> np.ndarray:
-    """Whitened columns of the full candidate at the current fit, reduced against the current columns."""
-    rows_cal = prep.rows[prep.cal]
-    G = term_regressor(cand, ref, ctx, rows_cal)
-    K = len(cand.param_names(ref)) if cand.kind != "plate" else 9
-    probe = EffectTerm(cand, ref, G, np.eye(K))
-    mc = ExtendedModel(prep.space, obs_cal, fit.model_cal.terms + [probe])
-    z = np.concatenate([fit.z, np.zeros(K)])
-    J = mc.residuals(z).J
-    E = J[:, fit.model_cal.size:]
-    return reduced_basis(E, A)
-
-
-def _effect_parameters(fit: _Fit, inlier) -> tuple[dict[str, Any], list[dict]]:
-    """Full parameters ``phi = B psi`` of each chosen effect with standard deviations from the covariance."""
-    rc = fit.model_cal.residuals(fit.z)
-    J = rc.J[:, fit.free]
-    if inlier is not None:
-        J = J[inlier[rc.row]]
-    C = np.linalg.pinv(J.T @ J, rcond=1e-12)
-    pos = {int(f): k for k, f in enumerate(fit.free)}
-    _, phis = fit.model_cal.split(fit.z)
-    out: dict[str, Any] = {}
-    js: list[dict] = []
-    for k, (t, phi) in enumerate(zip(fit.terms, phis)):
-        idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
-        Cpsi = C[np.ix_(idx, idx)]
-        Cphi = t.basis @ Cpsi @ t.basis.T
-        sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
-        names = list(t.candidate.param_names(t.reference)) if t.kind != "plate" else [
-            f"dp{s}_{c}" for s in range(3) for c in "xyz"]
-        entry = {
-            "name": t.name,
-            "kind": t.kind,
-            "description": t.candidate.description,
-            "param_names": names,
-            "values": phi.tolist(),
-            "sd": sd.tolist(),
-            "reference": t.reference,
-            "reduced_dimension": int(t.r),
-            "units": _units(t),
-        }
-        if t.kind == "joint":
-            # what the effect does, in words a user reads: the RMS joint deflection it implies on these rows
-            d = np.einsum("nik,k->ni", t.G, phi)
-            entry["joint_rms_deg"] = (np.sqrt(np.mean(d**2, axis=0)) / _DEG).tolist()
-        out[t.name] = {"param_names": names, "values": phi.tolist(), "sd": sd.tolist(),
-                       "reduced_dimension": int(t.r), **({"joint_rms_deg": entry["joint_rms_deg"]} if "joint_rms_deg" in entry else {})}
-        js.append(entry)
-    return out, js
-
-
-def _units(t: EffectTerm) -> str:
-    if t.kind == "joint":
-        return "rad per unit of the regressor (compliance: rad per N m per kg or kg m; backlash, cyclic: rad; gear_ratio, coupling: rad/rad)"
-    if t.kind == "length":
-        return "relative growth per K (temp_c) or per normalised time (t_s)"
-    return "m (sphere offsets in the plate frame)"
-
-
-def _series(base: _Fit, ext: _Fit, prep: Prepared, ctx: RowContext) -> dict[str, np.ndarray]:
-    """Per validation row: residual norms before/after [mm] and the most telling variables."""
-    from .candidates import approach_signs
-
-    rows_val = prep.rows[prep.val]
-    out: dict[str, np.ndarray] = {"dataset_row": rows_val, "pose_id": prep.dataset.pose_id[rows_val]}
-    for tag, f in (("before", base), ("after", ext)):
-        r = f.model_val.residuals(f.z, jacobian=False)
-        e = np.sqrt(np.bincount(r.row, weights=r.r**2, minlength=f.model_val.obs.n))
-        cnt = np.maximum(np.bincount(r.row, minlength=f.model_val.obs.n), 1)
-        out[f"residual_rms_mm_{tag}"] = e / np.sqrt(cnt) * f.model_val.obs.sigma_position / _MM
-    out["q_deg"] = ctx.q[rows_val] / _DEG
-    out["approach_sign"] = approach_signs(ctx.q, ctx.q_start)[rows_val]
-    if ctx.temp_c is not None:
-        out["temp_c"] = ctx.temp_c[rows_val]
-    if ctx.t_s is not None:
-        out["t_s"] = ctx.t_s[rows_val]
-    return out
 
 
 # Vocabulary check at import: every catalogue name is documented.

@@ -16,7 +16,7 @@ from .diagnose import DiagnosisResult, StructureTest
 
 __all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis"]
 
-DIAGNOSIS_SCHEMA_VERSION = 1
+DIAGNOSIS_SCHEMA_VERSION = 2
 
 
 def _test(t: StructureTest | None) -> dict | None:
@@ -66,7 +66,11 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         },
         "effects": list(res.effects),
         "explained": res.explained,
+        "explained_fraction": res.explained_fraction,
         "vocabulary": list(EFFECT_VOCABULARY),
+        "atoms": list(res.atoms),
+        "unnamed": list(res.unnamed),
+        "alternatives": list(res.alternatives),
         "effect_parameters": res.effect_parameters,
         "before": {k: v for k, v in res.before.items() if k in ("position_mm", "orientation_deg", "n_rows")},
         "after": {k: v for k, v in res.after.items() if k in ("position_mm", "orientation_deg", "n_rows")},
@@ -74,16 +78,18 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
             "position_mm": res.noise.sigma / 1e-3,
             "dof": None if math.isinf(res.noise.dof) else res.noise.dof,
             "source": res.noise.source,
+            "components": res.noise.components,
         },
+        "rows": res.rows,
         "candidates": [
             {
                 "round": s.round,
                 "name": s.name,
                 "dimension": s.dim,
-                "chi2_calibration": s.chi2_cal,
-                "delta_bic": s.delta_bic,
-                "validation": _test(s.validation),
-                "note": s.note,
+                "delta_chi2_calibration": s.delta_chi2,
+                "p_adjusted": s.p_adjusted,
+                "z_validation": s.z_validation,
+                "decision": s.decision,
             }
             for s in res.scores
         ],
@@ -147,14 +153,15 @@ def plot_diagnosis(res: DiagnosisResult, out: Path) -> dict[str, Path]:
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), sharey=True)
     for j, ax in enumerate(axes.flat):
         ax.scatter(s["q_deg"][:, j], before, s=9, label="geometric only", color="tab:red", alpha=0.7)
-        if res.effects:
+        if res.atoms:
             ax.scatter(s["q_deg"][:, j], after, s=9, label="extended", color="tab:blue", alpha=0.7)
         ax.axhline(floor, color="k", lw=0.8, ls="--", label="noise floor (per coordinate)")
         ax.set_xlabel(f"q{j + 1} [deg]")
         if j % 3 == 0:
             ax.set_ylabel("validation residual RMS per coordinate [mm]")
     axes.flat[0].legend(fontsize=8)
-    title = f"structured={res.structured} (p={res.p_value:.2g}); effects: {', '.join(res.effects) or 'none'}"
+    names = list(res.effects) + [f"unnamed ({a['channel']} on {a['target']})" for a in res.unnamed]
+    title = f"structured={res.structured} (p={res.p_value:.2g}); terms: {', '.join(names) or 'none'}"
     fig.suptitle(title)
     fig.tight_layout()
     p = out / "residual_vs_joints.png"
@@ -173,13 +180,13 @@ def plot_diagnosis(res: DiagnosisResult, out: Path) -> dict[str, Path]:
     if "temp_c" in s or "t_s" in s:
         key = "temp_c" if "temp_c" in s else "t_s"
         axes[1].scatter(s[key], before, s=9, color="tab:red", label="geometric only")
-        if res.effects:
+        if res.atoms:
             axes[1].scatter(s[key], after, s=9, color="tab:blue", label="extended")
         axes[1].set_xlabel(key)
         axes[1].legend(fontsize=8)
     else:
         axes[1].plot(before, ".", color="tab:red", label="geometric only")
-        if res.effects:
+        if res.atoms:
             axes[1].plot(after, ".", color="tab:blue", label="extended")
         axes[1].set_xlabel("validation row (measurement order)")
         axes[1].legend(fontsize=8)

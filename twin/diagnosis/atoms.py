@@ -1,0 +1,334 @@
+"""Atoms: the smallest effect terms diagnosis selects from, each one channel acting at one place.
+
+An *atom* is ``delta(place) = sum_k phi_k f_k(row)``: a few *features* ``f_k`` (functions of what was
+recorded for the row: commanded joints, their approach directions, ``t_s``, ``temp_c``, the row order, the
+station) acting at one *place* of the model:
+
+==========  =============================================================================================
+``joint``   a joint angle (``target = "theta3"``): the robot reaches ``q_j + delta`` (applied exactly)
+``length``  a link length, relative (``"a2"``, or ``"all_lengths"``): ``L -> L (1 + delta)`` (first order)
+``param``   any parameter of the estimator's vector (``"alpha3"``, ``"tool_rz"``, ``"d4"`` absolute [m]);
+            ``"tool"`` / ``"base"`` name the whole 6-DOF frame (six columns per feature; ``base`` acts on
+            the station of each row) (first order)
+``plate``   the centre of one sphere in the plate frame (``"sphere1"``, three columns, constant) [m]
+``scale``   the measurement frame's scale about its origin (``"meas_scale"``): ``p -> p (1 + delta)``
+==========  =============================================================================================
+
+Atoms come in two pools. The *catalogue* names physical effects (family from :data:`EFFECT_VOCABULARY`),
+split per joint, harmonic order, link and sphere: ``compliance`` of joint ``i`` (the gravity-torque regressor
+of joint ``i``, linear in the unknown mass moments), ``backlash`` of joint ``j`` (the sign of its last move),
+``cyclic`` order ``k`` of joint ``j`` (``sin``/``cos(k q_j)``), ``gear_ratio`` of joint ``j`` (``q_j``),
+``coupling`` (``theta6`` with ``q5``), ``thermal`` growth of each link and of all links together (against
+``temp_c``, or a cubic in ``t_s``), ``plate_geometry`` per sphere. The *generic* pool (family ``unnamed``)
+is the dictionary for what no catalogue holds: every joint angle, link length, twist, the tool and base
+frames and the measurement scale, against low-order polynomials and harmonics of every joint, products of
+two joints, approach signs, the gravity direction in the flange frame, polynomials and change points in
+time (or row order), temperature, and the station.
+
+A feature is a small dict (``{"kind": "pow", "ch": "q3", "p": 2, "c": ..., "h": ...}``) whose constants
+(centres, scales, reference temperature, change-point times) are fixed on the rows the atom is identified
+on, so that ``twin predict`` evaluates the same regressor on new rows. Nothing here reads truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..kinematics import N_JOINTS, RobotModel, link_frames
+from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regressor
+
+__all__ = [
+    "Atom",
+    "feature_values",
+    "atom_features",
+    "catalogue_atoms",
+    "generic_atoms",
+    "HISTORY_KINDS",
+    "approach_unknown",
+]
+
+_DEG = np.pi / 180.0
+HISTORY_KINDS = ("sign",)  # features that depend on the order of the rows (their state can be unknown)
+_ORD = {1: "1st", 2: "2nd", 3: "3rd"}
+
+
+@dataclass(frozen=True, eq=False)
+class Atom:
+    """One candidate term: ``family`` (catalogue name or ``"unnamed"``), ``place`` and ``target`` (where it
+    acts), ``features`` (``K`` feature dicts), ``channel`` (what it depends on, for people), ``label``
+    (words), ``pool`` (``"catalogue"``/``"generic"``), and ``joints`` (1-based joints it involves)."""
+
+    family: str
+    place: str
+    target: str
+    features: tuple[dict, ...]
+    channel: str
+    label: str
+    pool: str
+    joints: tuple[int, ...] = ()
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def K(self) -> int:
+        if "K" in self.meta:
+            return int(self.meta["K"])
+        return 3 if self.place == "plate" else (6 * len(self.features) if self.target in ("tool", "base") and self.place == "param" else len(self.features))
+
+    @property
+    def key(self) -> str:
+        return f"{self.family}:{self.place}:{self.target}:{self.channel}"
+
+    def spec(self) -> dict:
+        """JSON-ready description (values are added by the caller)."""
+        return {"family": self.family, "place": self.place, "target": self.target, "channel": self.channel,
+                "label": self.label, "joints": list(self.joints), "features": [dict(f) for f in self.features]}
+
+    @classmethod
+    def from_spec(cls, d: dict) -> "Atom":
+        for k in ("family", "place", "target", "features"):
+            if k not in d:
+                raise ValueError(f"effect term is missing {k!r}: {d!r}")
+        if d["place"] not in ("joint", "length", "param", "plate", "scale"):
+            raise ValueError(f"effect term place {d['place']!r} is not one of joint, length, param, plate, scale")
+        return cls(family=d["family"], place=d["place"], target=d["target"], features=tuple(d["features"]),
+                   channel=d.get("channel", ""), label=d.get("label", ""), pool=d.get("pool", ""),
+                   joints=tuple(d.get("joints", ())))
+
+
+# ------------------------------------------------------------------------------------------------
+# Features
+# ------------------------------------------------------------------------------------------------
+
+def _channel(ctx: RowContext, name: str) -> np.ndarray:
+    if name.startswith("q") and name[1:].isdigit():
+        j = int(name[1:])
+        if not 1 <= j <= N_JOINTS:
+            raise ValueError(f"feature channel {name!r}: no such joint")
+        return ctx.q[:, j - 1]
+    if name == "t_s":
+        if ctx.t_s is None:
+            raise ValueError("this effect term depends on t_s: the rows need a t_s column")
+        return ctx.t_s
+    if name == "temp_c":
+        if ctx.temp_c is None:
+            raise ValueError("this effect term depends on temp_c: the rows need a temp_c column")
+        return ctx.temp_c
+    if name == "row":
+        return np.arange(len(ctx.q), dtype=float)
+    raise ValueError(f"unknown feature channel {name!r}")
+
+
+def _signs(ctx: RowContext) -> np.ndarray:
+    """Approach signs ``(n, 6)``, 0 where the state is unknown (before a joint's first move after the start
+    or a recorded restart)."""
+    n = len(ctx.q)
+    reset = np.zeros(n, bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool)
+    if ctx.q_start is None:
+        return approach_signs(ctx.q, None, unknown=reset)
+    # a known start: the move from it into the first row counts
+    q = np.vstack([np.asarray(ctx.q_start, float)[None], ctx.q])
+    return approach_signs(q, None, unknown=np.concatenate([[True], reset]))[1:]
+
+
+def approach_unknown(ctx: RowContext) -> np.ndarray:
+    """Rows ``(n,)`` where some joint that moves during the campaign has an unknown approach direction (after
+    the start or a restart, until it moves): history-dependent terms cannot be predicted there."""
+    s = _signs(ctx)
+    moves = np.ptp(ctx.q, axis=0) > 0
+    return np.any((s == 0) & moves[None, :], axis=1)
+
+
+def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | None = None) -> np.ndarray:
+    """Values ``(n, K)`` of ``features`` on the rows of ``ctx`` (``model``: the nominal robot, for gravity)."""
+    cache = {} if cache is None else cache
+    n = len(ctx.q)
+    out = np.empty((n, len(features)))
+    for k, f in enumerate(features):
+        kind = f.get("kind")
+        if kind == "pow":
+            out[:, k] = ((_channel(ctx, f["ch"]) - f["c"]) / f["h"]) ** f["p"]
+        elif kind in ("sin", "cos"):
+            x = f["k"] * _channel(ctx, f["ch"])
+            out[:, k] = np.sin(x) if kind == "sin" else np.cos(x)
+        elif kind == "prod":
+            a, b = f["ch"]
+            out[:, k] = (_channel(ctx, a) - f["c"][0]) / f["h"][0] * (_channel(ctx, b) - f["c"][1]) / f["h"][1]
+        elif kind == "sign":
+            if "signs" not in cache:
+                cache["signs"] = _signs(ctx)
+            out[:, k] = cache["signs"][:, f["j"] - 1]
+        elif kind == "grav":
+            if "grav" not in cache:
+                cache["grav"] = gravity_torque_regressor(model, ctx.q)
+            out[:, k] = cache["grav"][:, f["i"] - 1, f["k"] - 1, f["c"]] / f.get("h", 1.0)
+        elif kind == "gdir":
+            if "gdir" not in cache:
+                fr = link_frames(model, ctx.q)
+                R = fr[:, -1, :3, :3]  # flange (last link frame) in the base frame
+                cache["gdir"] = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
+            out[:, k] = cache["gdir"][:, f["axis"]]
+        elif kind == "step":
+            out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+        elif kind == "station":
+            if ctx.station is None:
+                raise ValueError("this effect term depends on the station: the rows need a station column")
+            out[:, k] = (np.asarray(ctx.station).astype(str) == str(f["name"])).astype(float)
+        elif kind == "const":
+            out[:, k] = 1.0
+        else:
+            raise ValueError(f"unknown feature kind {kind!r} in {f!r}")
+    if not np.all(np.isfinite(out)):
+        bad = np.unique(np.nonzero(~np.isfinite(out))[0])[:10]
+        raise ValueError(f"effect features are not finite in rows {bad.tolist()} (check t_s / temp_c)")
+    return out
+
+
+def atom_features(atom: Atom, ctx: RowContext, model: RobotModel, cache: dict | None = None) -> np.ndarray:
+    return feature_values(atom.features, ctx, model, cache)
+
+
+# ------------------------------------------------------------------------------------------------
+# Pools
+# ------------------------------------------------------------------------------------------------
+
+def _norm(x: np.ndarray) -> tuple[float, float]:
+    c = float(np.mean(x))
+    h = float(max(0.5 * np.ptp(x), 1e-9))
+    return c, h
+
+
+def _time_channel(ctx: RowContext) -> str | None:
+    if ctx.t_s is not None and np.ptp(ctx.t_s) > 0:
+        return "t_s"
+    return None
+
+
+def _time_features(ctx: RowContext, ch: str) -> list[dict]:
+    c, h = _norm(_channel(ctx, ch))
+    return [{"kind": "pow", "ch": ch, "p": p, "c": c, "h": h} for p in (1, 2, 3)]
+
+
+def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
+                    harmonic_orders: tuple[int, ...] = (1, 2, 3)) -> list[Atom]:
+    """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``."""
+    atoms: list[Atom] = []
+    # compliance: dtheta_i = c_i tau_i(q), tau_i linear in the mass moments of links k >= i
+    Y = gravity_torque_regressor(model, ctx.q)
+    for i in range(1, N_JOINTS + 1):
+        feats = []
+        for k in range(i, N_JOINTS + 1):
+            for c in range(4):
+                col = Y[:, i - 1, k - 1, c]
+                h = float(np.sqrt(np.mean(col**2)))
+                if h > 1e-9:
+                    feats.append({"kind": "grav", "i": i, "k": k, "c": c, "h": h})
+        if feats:
+            atoms.append(Atom("compliance", "joint", f"theta{i}", tuple(feats), f"gravity torque of joint {i}",
+                              f"joint {i} compliance under gravity", "catalogue", (i,)))
+    for j in range(1, N_JOINTS + 1):
+        atoms.append(Atom("backlash", "joint", f"theta{j}", ({"kind": "sign", "j": j},), f"approach_sign_j{j}",
+                          f"joint {j} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        for k in harmonic_orders:
+            atoms.append(Atom("cyclic", "joint", f"theta{j}",
+                              ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
+                              f"sin/cos({k} q{j})", f"joint {j}, {_ORD.get(k, f'{k}th')} harmonic", "catalogue", (j,),
+                              {"order": k}))
+        atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
+                          f"q{j}", f"joint {j} gear-ratio error (theta_{j} grows with q{j})", "catalogue", (j,)))
+    atoms.append(Atom("coupling", "joint", "theta6", ({"kind": "pow", "ch": "q5", "p": 1, "c": 0.0, "h": 1.0},), "q5",
+                      "wrist coupling (theta6 follows q5)", "catalogue", (5, 6)))
+    # thermal growth: each link, and all links together, against temp_c (linear) or a cubic in t_s
+    if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
+        ref = float(np.median(ctx.temp_c))
+        feats = ({"kind": "pow", "ch": "temp_c", "p": 1, "c": ref, "h": 1.0},)
+        ch = "temp_c"
+    elif _time_channel(ctx):
+        feats = tuple(_time_features(ctx, "t_s"))
+        ch = "t_s"
+    else:
+        feats = ()
+    if feats:
+        atoms.append(Atom("thermal", "length", "all_lengths", feats, ch, f"thermal growth of all link lengths vs {ch}",
+                          "catalogue"))
+        for L in length_names:
+            atoms.append(Atom("thermal", "length", L, feats, ch, f"thermal growth of link {L} vs {ch}", "catalogue"))
+    for s in range(3):
+        atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
+                          f"sphere {s} off its nominal plate position", "catalogue"))
+    return atoms
+
+
+def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], length_names: list[str],
+                  catalogue: list[Atom], *, n_change_points: int = 9) -> list[Atom]:
+    """The unnamed dictionary: every place against every smooth basis of every channel (module docstring).
+    Atoms whose columns equal a catalogue atom's are left out (the catalogue names them)."""
+    q = ctx.q
+    feats: list[tuple[str, dict | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
+    for j in range(1, N_JOINTS + 1):
+        c, h = _norm(q[:, j - 1])
+        if np.ptp(q[:, j - 1]) < 1e-6:
+            continue
+        for p in (1, 2, 3):
+            feats.append((f"q{j}^{p}" if p > 1 else f"q{j}", {"kind": "pow", "ch": f"q{j}", "p": p, "c": c, "h": h}, (j,)))
+        for k in (1, 2, 3):
+            feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
+        feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
+    for a in range(1, N_JOINTS + 1):
+        for b in range(a + 1, N_JOINTS + 1):
+            if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
+                continue
+            ca, ha = _norm(q[:, a - 1])
+            cb, hb = _norm(q[:, b - 1])
+            feats.append((f"q{a}*q{b}", {"kind": "prod", "ch": [f"q{a}", f"q{b}"], "c": [ca, cb], "h": [ha, hb]}, (a, b)))
+    for ax, nm in enumerate("xyz"):
+        feats.append((f"gravity_dir_flange_{nm}", {"kind": "gdir", "axis": ax}, ()))
+    tch = _time_channel(ctx) or "row"
+    tv = _channel(ctx, tch)
+    c, h = _norm(tv)
+    for p in (1, 2, 3):
+        feats.append((tch if p == 1 else f"{tch}^{p}", {"kind": "pow", "ch": tch, "p": p, "c": c, "h": h}, ()))
+    for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
+        at = float(np.quantile(tv, qq))
+        feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+    if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
+        c, h = _norm(ctx.temp_c)
+        for p in (1, 2):
+            feats.append(("temp_c" if p == 1 else "temp_c^2", {"kind": "pow", "ch": "temp_c", "p": p, "c": c, "h": h}, ()))
+    if ctx.station is not None:
+        names = sorted(set(np.asarray(ctx.station).astype(str).tolist()))
+        if len(names) > 1:
+            for s in names:
+                feats.append((f"station=={s}", {"kind": "station", "name": s}, ()))
+
+    places: list[tuple[str, str, str, tuple[int, ...]]] = [("joint", f"theta{j}", f"joint {j} angle", (j,))
+                                                           for j in range(1, N_JOINTS + 1)]
+    places += [("param", p, f"parameter {p}", ()) for p in param_names]
+    places += [("param", "tool", "tool (plate) frame", ()), ("param", "base", "base (measurement) frame", ()),
+               ("scale", "meas_scale", "measurement scale", ())]
+    cat_keys = {(a.place, a.target, _fkey(a.features)) for a in catalogue}
+    atoms = []
+    for place, target, pl_words, pj in places:
+        for ch, f, fj in feats:
+            fs = f if isinstance(f, tuple) else (f,)
+            if (place, target, _fkey(fs)) in cat_keys:
+                continue
+            if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == target.replace("theta", "q"):
+                continue  # = gear_ratio up to the geometry's constant
+            if place == "joint" and fs[0]["kind"] in ("sin", "cos") and fs[0]["ch"] == target.replace("theta", "q"):
+                continue  # = cyclic
+            if place == "joint" and fs[0]["kind"] == "sign" and fs[0]["j"] == int(target[5:]):
+                continue  # = backlash
+            if place == "joint" and target == "theta6" and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == "q5":
+                continue  # = coupling
+            if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow":
+                continue  # = thermal (absolute instead of relative: the same column)
+            joints = tuple(sorted(set(pj) | set(fj)))
+            atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
+    return atoms
+
+
+def _fkey(features) -> str:
+    return repr([(f.get("kind"), f.get("ch"), f.get("k"), f.get("p"), f.get("j"), f.get("axis")) for f in features])
