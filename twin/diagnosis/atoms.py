@@ -51,7 +51,9 @@ __all__ = [
 ]
 
 _DEG = np.pi / 180.0
-HISTORY_KINDS = ("sign",)  # features that depend on the order of the rows (their state can be unknown)
+HISTORY_KINDS = ("sign",)
+COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
+COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
 
 
@@ -164,6 +166,11 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
             out[:, k] = cache["grav"][:, f["i"] - 1, f["k"] - 1, f["c"]] / f.get("h", 1.0)
+        elif kind == "gravmix":
+            if "grav" not in cache:
+                cache["grav"] = gravity_torque_regressor(model, ctx.q)
+            Yg = cache["grav"]
+            out[:, k] = sum(w * Yg[:, f["i"] - 1, kk - 1, c] for w, (kk, c) in zip(f["w"], f["cols"])) / f["h"]
         elif kind == "gdir":
             if "gdir" not in cache:
                 fr = link_frames(model, ctx.q)
@@ -215,19 +222,35 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                     harmonic_orders: tuple[int, ...] = (1, 2, 3)) -> list[Atom]:
     """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``."""
     atoms: list[Atom] = []
-    # compliance: dtheta_i = c_i tau_i(q), tau_i linear in the mass moments of links k >= i
+    # compliance: dtheta_i = c_i tau_i(q), tau_i linear in the mass moments (m_k, h_k = m_k c_k) of links
+    # k >= i. The linear relaxation has up to 24 columns per joint; with a generic prior on the moments
+    # (masses of one order, centres of mass ~0.1 m off the link frames) the torques a real arm can have
+    # lie close to the leading COMPLIANCE_RANK principal shapes of the prior-weighted columns on these rows:
+    # the atom keeps those (a broad atom would collect a little of every other effect).
     Y = gravity_torque_regressor(model, ctx.q)
     for i in range(1, N_JOINTS + 1):
-        feats = []
+        cols, prior = [], []
         for k in range(i, N_JOINTS + 1):
             for c in range(4):
-                col = Y[:, i - 1, k - 1, c]
-                h = float(np.sqrt(np.mean(col**2)))
-                if h > 1e-9:
-                    feats.append({"kind": "grav", "i": i, "k": k, "c": c, "h": h})
-        if feats:
-            atoms.append(Atom("compliance", "joint", f"theta{i}", tuple(feats), f"gravity torque of joint {i}",
-                              f"joint {i} compliance under gravity", "catalogue", (i,)))
+                cols.append([k, c])
+                prior.append(1.0 if c == 0 else COM_PRIOR_M)
+        M = np.stack([Y[:, i - 1, k - 1, c] for k, c in cols], axis=1) * np.array(prior)
+        if not np.any(np.abs(M) > 1e-9):
+            continue
+        _, sv, Vt = np.linalg.svd(M, full_matrices=False)
+        rk = int(np.sum(sv > 1e-6 * sv[0]))
+
+        def shapes(a, b):
+            return tuple({"kind": "gravmix", "i": i, "cols": cols, "w": (Vt[j] * np.array(prior)).tolist(),
+                          "h": float(sv[j] / np.sqrt(len(M)))} for j in range(a, min(b, rk)))
+
+        atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(0, COMPLIANCE_RANK), f"gravity torque of joint {i}",
+                          f"joint {i} compliance under gravity", "catalogue", (i,)))
+        if rk > COMPLIANCE_RANK:
+            # the further shapes (a payload, wrist masses): a broad atom, tried after the small ones
+            atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(COMPLIANCE_RANK, 3 * COMPLIANCE_RANK),
+                              f"gravity torque of joint {i} (further shapes)",
+                              f"joint {i} compliance under gravity, further torque shapes", "catalogue", (i,)))
     for j in range(1, N_JOINTS + 1):
         atoms.append(Atom("backlash", "joint", f"theta{j}", ({"kind": "sign", "j": j},), f"approach_sign_j{j}",
                           f"joint {j} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))

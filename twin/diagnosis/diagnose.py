@@ -69,6 +69,7 @@ __all__ = [
 
 _MM = 1e-3
 _DEG = np.pi / 180.0
+MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
 
 
 class DiagnosisError(ValueError):
@@ -457,7 +458,7 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
         if not np.any(F):
             continue
         E = _raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
-        B = reduced_basis(E, Q=Q, max_rank=12 if a.family == "compliance" else 6)
+        B = reduced_basis(E, Q=Q, max_rank=6)
         if B.shape[1] == 0:
             continue
         EB = E @ B
@@ -471,7 +472,7 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
     return out
 
 
-def _order(scored: list[_Scored], broad_dim: int = 3) -> list[_Scored]:
+def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     """Atoms in the order to try: by pool-adjusted evidence, except that a broad atom (``>= broad_dim``
     reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
     explain more within the same number of parameters (a broad atom collects a little of several effects;
@@ -626,6 +627,7 @@ def diagnose(
     scores: list[CandidateScore] = []
     alternatives: list[dict] = []
     chosen: list = []
+    entry_chi2: dict[str, float] = {}
     test = test0
     if excess and max_effects > 0:
         length_names = [n for n in prep.space.names[: prep.space.n_robot]
@@ -637,6 +639,7 @@ def diagnose(
             pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat)
         sizes = {"catalogue": sum(a.pool == "catalogue" for a in pool), "generic": max(1, sum(a.pool == "generic" for a in pool))}
         rejected: set[str] = set()
+        entry_chi2: dict[str, float] = {}
         for rnd in range(1, max_effects + 1):
             remaining = [a for a in pool if a.key not in rejected and a.key not in {c.key for c, _ in chosen}]
             scored = _score_atoms(prob, fit, remaining, sizes)
@@ -667,6 +670,7 @@ def diagnose(
                 break
             alternatives += _alternatives(accepted, scored)
             chosen.append((accepted.atom, accepted.basis))
+            entry_chi2[accepted.atom.key] = accepted.dchi2
             z_eff = _psi_init(fit, chosen)
             fit = prob.fit(fit.z[: prep.space.size], chosen, z_eff)
             _update_gross(prob, fit)
@@ -701,9 +705,15 @@ def diagnose(
                          f"still structured (p = {test.p_value:.2g})")
     use = fit if confirmed else base_fit
     after = _error_stats(use.model_val, use.z, prob.keep_val) if confirmed else before
-    atoms_json, params = _atom_report(prob, use) if confirmed else ([], {})
-    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed"))
-    unnamed = tuple(a for a in atoms_json if a["family"] == "unnamed")
+    atoms_json, params = _atom_report(prob, use, base_fit.chi2, entry_chi2) if confirmed else ([], {})
+    # every kept atom stays in the model; the named effects are the families of the atoms that explained at
+    # least MINOR_RMS of the floor (RMS per residual) when they entered
+    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed" and not a["minor"]))
+    minor = [a["label"] for a in atoms_json if a["minor"]]
+    if minor:
+        notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
+                     f"of the floor, RMS per residual, when it entered): {'; '.join(minor)}")
+    unnamed = tuple(a for a in atoms_json if a["family"] == "unnamed" and not a["minor"])
     rows = _rows_report(prob, prep, dataset)
     if rows["gross_validation"] or rows["gross_calibration"]:
         notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
@@ -833,9 +843,13 @@ def _place_unit(a: Atom) -> tuple[str, float]:
     return "deg", 1 / _DEG
 
 
-def _atom_report(prob: _Problem, fit: _Fit) -> tuple[list[dict], dict[str, Any]]:
+def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
+                 entry_chi2: dict[str, float] | None = None) -> tuple[list[dict], dict[str, Any]]:
     """Every chosen atom: full parameters ``phi = B psi`` with standard deviations, its effect on its place
-    over the calibration rows, and words."""
+    over the calibration rows, words, its unique share of the explained calibration chi2 (Wald
+    ``psi^T C_psi^-1 psi`` over ``chi2_base - chi2``), and whether it is minor: its ``Delta chi2`` when it
+    entered the forward selection (what it explained beyond the atoms before it) is below ``MINOR_RMS^2``
+    per residual (parts shared by two atoms belong to the one that entered first, the stronger)."""
     rc = fit.model_cal.residuals(fit.z)
     sw = np.sqrt(prob.w_cal[rc.row])
     J = rc.J[:, fit.free] * sw[:, None]
@@ -847,7 +861,12 @@ def _atom_report(prob: _Problem, fit: _Fit) -> tuple[list[dict], dict[str, Any]]
     for k, (t, phi) in enumerate(zip(fit.model_cal.terms, phis)):
         a = t.atom
         idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
-        Cphi = t.basis @ C[np.ix_(idx, idx)] @ t.basis.T
+        Cpsi = C[np.ix_(idx, idx)]
+        Cphi = t.basis @ Cpsi @ t.basis.T
+        psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+        wald = float(psi @ np.linalg.lstsq(Cpsi, psi, rcond=None)[0])
+        explained = (chi2_base - fit.chi2) if chi2_base is not None else float("nan")
+        share = float(wald / explained) if explained > 0 else float("nan")
         sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
         unit, fac = _place_unit(a)
         F = prob.features(a)
@@ -883,6 +902,9 @@ def _atom_report(prob: _Problem, fit: _Fit) -> tuple[list[dict], dict[str, Any]]
             else:
                 words = f"{rms * fac:.5f} +- {sd_rms * fac:.5f} {unit} RMS over the rows"
         entry = {**a.spec(), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+                 "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
+                 "entry_chi2": (entry_chi2 or {}).get(a.key, wald),
+                 "minor": bool(np.sqrt((entry_chi2 or {}).get(a.key, wald) / max(J.shape[0], 1)) < MINOR_RMS),
                  "size": size, "text": f"{a.label}: {words}",
                  "unit": "SI per unit of each feature: rad (joint), relative (length, scale), m (plate), m or rad (param)"}
         out.append(entry)
