@@ -295,7 +295,10 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         if np.ptp(q[:, j - 1]) < 1e-6:
             continue
         for p in (1, 2, 3):
-            feats.append((f"q{j}^{p}" if p > 1 else f"q{j}", {"kind": "pow", "ch": f"q{j}", "p": p, "c": c, "h": h}, (j,)))
+            # a polynomial of degree p (all lower powers with it: a centred power alone cannot follow an
+            # offset curve)
+            feats.append((f"q{j}^{p}" if p > 1 else f"q{j}",
+                          tuple({"kind": "pow", "ch": f"q{j}", "p": e, "c": c, "h": h} for e in range(1, p + 1)), (j,)))
         for k in (1, 2, 3):
             feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
         feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
@@ -312,14 +315,16 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     tv = _channel(ctx, tch)
     c, h = _norm(tv)
     for p in (1, 2, 3):
-        feats.append((tch if p == 1 else f"{tch}^{p}", {"kind": "pow", "ch": tch, "p": p, "c": c, "h": h}, ()))
+        feats.append((tch if p == 1 else f"{tch}^{p}",
+                      tuple({"kind": "pow", "ch": tch, "p": e, "c": c, "h": h} for e in range(1, p + 1)), ()))
     for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
         at = float(np.quantile(tv, qq))
         feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         c, h = _norm(ctx.temp_c)
         for p in (1, 2):
-            feats.append(("temp_c" if p == 1 else "temp_c^2", {"kind": "pow", "ch": "temp_c", "p": p, "c": c, "h": h}, ()))
+            feats.append(("temp_c" if p == 1 else "temp_c^2",
+                          tuple({"kind": "pow", "ch": "temp_c", "p": e, "c": c, "h": h} for e in range(1, p + 1)), ()))
     if ctx.station is not None:
         names = sorted(set(np.asarray(ctx.station).astype(str).tolist()))
         if len(names) > 1:
@@ -346,7 +351,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 continue  # = backlash
             if place == "joint" and target == "theta6" and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == "q5":
                 continue  # = coupling
-            if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow":
+            if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow" \
+                    and len(fs) <= (1 if fs[0]["ch"] == "temp_c" else 3):
                 continue  # = thermal (absolute instead of relative: the same column)
             joints = tuple(sorted(set(pj) | set(fj)))
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
