@@ -52,6 +52,19 @@ def test_before_after_series_have_one_value_per_held_out_row(diagnosed):
     np.testing.assert_array_equal(poses, val_rows)
 
 
+def test_each_term_of_the_extended_model_is_plotted_per_held_out_row(diagnosed):
+    """One terms/term<k> series per atom of diagnosis.json, one value per validation row; a backlash term
+    takes two values (the clearance signed by the approach direction, 0 where the approach is unknown)."""
+    ds, d, ents = diagnosed
+    n_val = int(np.sum(ds.set == "validation"))
+    assert len(d["atoms"]) >= 1
+    for k, a in enumerate(d["atoms"]):
+        v = _scalars(ents, f"/diagnosis/terms/term{k + 1}")
+        assert v.size == n_val
+        if a["family"] == "backlash":
+            assert len(set(np.round(np.abs(v[v != 0]), 9))) == 1
+
+
 def test_series_values_agree_with_diagnosis_json(diagnosed):
     """The floor equals diagnosis.json's; the per-row RMS series pool to its before/after position RMS."""
     _, d, ents = diagnosed

@@ -44,7 +44,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"noise floor: {res.noise.sigma * 1e3:.5f} mm per coordinate ({res.noise.source})", file=out)
     print(f"structured: {res.structured} (p = {res.p_value:.3g}, alpha = {res.alpha}; {res.test_before.distribution}, "
           f"whitened RMS {res.test_before.whitened_rms:.3f})", file=out)
-    print(f"effects: {', '.join(res.effects) if res.effects else 'none'}", file=out)
+    print(f"effects: {', '.join(res.effects) if res.effects else 'none'}"
+          + (f"; explained {100 * res.explained_fraction:.0f} % of the held-out excess" if res.atoms else ""), file=out)
+    for term in res.atoms:
+        print(f"  term: {term['text']}" + ("  [minor]" if term.get("minor") else ""), file=out)
+    for d in res.alternatives:
+        print(f"  alternative to '{d['of']}': {d['alternative']} (delta chi2 {d['delta_chi2']:.0f} vs "
+              f"{d['delta_chi2_chosen']:.0f}; the data cannot tell them apart)", file=out)
     for n in res.notes:
         print(f"note: {n}", file=out)
     print("validation error        before             after", file=out)

@@ -934,6 +934,23 @@ def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
         r = f.model_val.residuals(f.z, jacobian=False)
         e, _ = _row_rms(r.r, r.row, f.model_val.obs.n)
         out[f"residual_rms_mm_{tag}"] = e * f.model_val.obs.sigma_position / _MM
+    # each term of the extended model on the held-out rows, in its place's display unit
+    _, phis = ext.model_val.split(ext.z)
+    terms = {}
+    for t, phi in zip(ext.model_val.terms, phis):
+        unit, fac = _place_unit(t.atom)
+        if t.atom.place == "param" and t.atom.target in ("tool", "base"):
+            v = np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
+            unit = "mm (translation)"
+        elif t.atom.place == "plate":
+            v = np.full(len(t.F), float(np.linalg.norm(phi)) / _MM)
+        elif t.atom.place == "joints":
+            v = np.linalg.norm(np.einsum("nik,k->ni", t.F.reshape(len(t.F), 6, -1), phi), axis=1) / _DEG
+            unit = "deg"
+        else:
+            v = (t.F @ phi) * fac
+        terms[t.atom.label] = {"value": v, "unit": unit, "channel": t.atom.channel}
+    out["terms"] = terms
     ctx = prob.ctx
     out["q_deg"] = ctx.q[rows_val] / _DEG
     out["approach_sign"] = _signs(ctx)[rows_val]

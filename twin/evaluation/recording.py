@@ -281,6 +281,7 @@ def diagnosis_blueprint(channels: Sequence[str] = ()) -> rrb.Blueprint:
     ]
     for ch in channels:
         bottom.append(plot(f"{DIAGNOSIS_ROOT}/variables/{ch}", ch))
+    bottom.append(plot(f"{DIAGNOSIS_ROOT}/terms", "terms of the extended model (vs their channel's timeline)"))
     bottom.append(rrb.TextLogView(origin=f"{DIAGNOSIS_ROOT}/log", name="verdict log"))
     return rrb.Blueprint(
         rrb.Vertical(
@@ -331,6 +332,16 @@ def _verdict_markdown(verdict: Mapping[str, object], timelines: Sequence[str]) -
         tl = [t for t in TELLING_TIMELINES.get(str(e), ()) if t in timelines]
         if tl:
             lines.append(f"* `{e}` shows against the timeline " + ", ".join(f"`{t}`" for t in tl))
+    atoms = list(verdict.get("atoms") or [])
+    if atoms:
+        frac = verdict.get("explained_fraction")
+        lines += ["", "## Terms of the extended model" + (f" ({100 * frac:.0f} % of the held-out excess explained)"
+                                                           if isinstance(frac, (int, float)) else ""), ""]
+        for k, a in enumerate(atoms):
+            lines.append(f"* term{k + 1}: {a.get('text')} (channel `{a.get('channel')}`)"
+                         + (" *minor*" if a.get("minor") else ""))
+    for d in verdict.get("alternatives") or []:
+        lines.append(f"* the data cannot tell `{d.get('of')}` from `{d.get('alternative')}`")
     lines += ["", "Switch the time panel to a variable's timeline to plot the residual against it:",
               ", ".join(f"`{t}`" for t in timelines) + "."]
     notes = list(verdict.get("notes") or [])
@@ -350,12 +361,14 @@ def record_diagnosis(
 
     ``series``: :attr:`twin.diagnosis.DiagnosisResult.series` (per held-out row: ``dataset_row``,
     ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, 6)``,
-    ``approach_sign`` ``(n, 6)``, optional ``temp_c``/``t_s``); ``verdict``: the content of ``diagnosis.json``
+    ``approach_sign`` ``(n, 6)``, optional ``temp_c``/``t_s``, optional ``terms``: per term of the extended
+    model ``{label: {value (n,), unit, channel}}``); ``verdict``: the content of ``diagnosis.json``
     (:func:`twin.diagnosis.diagnosis_dict`; ``structured``, ``p_value``, ``effects``, ``noise_floor``, ...).
 
     Entities (layout in ``docs/diagnosis.md``): ``diagnosis/residual/{before,after,noise_floor}``,
     ``diagnosis/variables/q_deg/q1..q6``, ``diagnosis/variables/approach_sign/j1..j6``,
-    ``diagnosis/variables/{temp_c,t_s}`` (when recorded), ``diagnosis/verdict`` (markdown) and
+    ``diagnosis/variables/{temp_c,t_s}`` (when recorded), ``diagnosis/terms/term<k>`` (each term of the
+    extended model), ``diagnosis/verdict`` (markdown) and
     ``diagnosis/log`` (text log). Every row is on the ``pose`` timeline (its row in the dataset, measurement
     order) and on one timeline per variable (``q<j>_mdeg`` [millidegree], ``temp_mdegC`` [milli deg C],
     ``t_s`` [s, duration]) so that the residual plots against any of them.
@@ -382,6 +395,12 @@ def record_diagnosis(
             raise ValueError(f"series[{key!r}] must have shape {shape}, got {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"series[{key!r}] holds non-finite values (row {int(np.flatnonzero(~np.isfinite(a).reshape(n, -1).all(axis=1))[0])})")
+    terms = dict(series.get("terms") or {})
+    for label, term in terms.items():
+        v = np.asarray(term.get("value"), dtype=float) if isinstance(term, Mapping) else None
+        if v is None or v.shape != (n,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"series['terms'][{label!r}]['value'] must be {n} finite numbers")
+        term["value"] = v
     nf = verdict.get("noise_floor")
     floor = nf.get("position_mm") if isinstance(nf, Mapping) else None
     if not isinstance(floor, (int, float, np.floating)) or not np.isfinite(floor) or floor <= 0:
@@ -434,6 +453,13 @@ def record_diagnosis(
                                  rr.Scalars.columns(scalars=sign[:, j]))
         for ch in channels:
             rec.send_columns(f"{root}/variables/{ch}", indexes, rr.Scalars.columns(scalars=extra[ch]))
+        # every term of the extended model on the held-out rows: switch the time panel to its channel's
+        # timeline (q<j>_mdeg, t_s, temp_mdegC) to see the term against what it depends on
+        for k, (label, term) in enumerate(terms.items()):
+            ent = f"{root}/terms/term{k + 1}"
+            rec.log(ent, rr.SeriesPoints(names=[f"{label} [{term['unit']}] vs {term['channel']}"], marker_sizes=[2.5]),
+                    static=True)
+            rec.send_columns(ent, indexes, rr.Scalars.columns(scalars=term["value"]))
         rec.log(f"{root}/verdict", rr.TextDocument(_verdict_markdown(verdict, timelines),
                                                    media_type=rr.MediaType.MARKDOWN), static=True)
         # the verdict log at the first held-out row (on every timeline), so that it shows from the start
