@@ -52,6 +52,7 @@ __all__ = [
 
 _DEG = np.pi / 180.0
 HISTORY_KINDS = ("sign",)
+SCAN_ORDERS = (4.0, 150.0, 0.5)  # cyclic-error orders scanned beyond 1-3: first, last, step
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
@@ -261,6 +262,17 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                               {"order": k}))
         atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
                           f"q{j}", f"joint {j} gear-ratio error (theta_{j} grows with q{j})", "catalogue", (j,)))
+    # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual),
+    # scanned on a half-order grid (a pool of their own: its size enters the evidence threshold)
+    for j in range(1, N_JOINTS + 1):
+        if np.ptp(ctx.q[:, j - 1]) < 1e-6:
+            continue
+        for k in np.arange(SCAN_ORDERS[0], SCAN_ORDERS[1] + 1e-9, SCAN_ORDERS[2]):
+            k = float(k)
+            atoms.append(Atom("cyclic", "joint", f"theta{j}",
+                              ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
+                              f"sin/cos({k:g} q{j})", f"joint {j}, harmonic of order {k:g} (cycles per joint turn)",
+                              "scan", (j,), {"order": k}))
     atoms.append(Atom("coupling", "joint", "theta6", ({"kind": "pow", "ch": "q5", "p": 1, "c": 0.0, "h": 1.0},), "q5",
                       "wrist coupling (theta6 follows q5)", "catalogue", (5, 6)))
     # thermal growth: each link, and all links together, against temp_c (linear) or a cubic in t_s
@@ -308,7 +320,11 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 continue
             ca, ha = _norm(q[:, a - 1])
             cb, hb = _norm(q[:, b - 1])
-            feats.append((f"q{a}*q{b}", {"kind": "prod", "ch": [f"q{a}", f"q{b}"], "c": [ca, cb], "h": [ha, hb]}, (a, b)))
+            # the product with both linear terms (a centred product alone leaves a linear remainder)
+            feats.append((f"q{a}*q{b}", ({"kind": "pow", "ch": f"q{a}", "p": 1, "c": ca, "h": ha},
+                                         {"kind": "pow", "ch": f"q{b}", "p": 1, "c": cb, "h": hb},
+                                         {"kind": "prod", "ch": [f"q{a}", f"q{b}"], "c": [ca, cb], "h": [ha, hb]}),
+                          (a, b)))
     for ax, nm in enumerate("xyz"):
         feats.append((f"gravity_dir_flange_{nm}", {"kind": "gdir", "axis": ax}, ()))
     tch = _time_channel(ctx) or "row"

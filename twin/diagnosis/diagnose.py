@@ -443,8 +443,70 @@ class _Scored:
     r: np.ndarray  # the residual it was scored against (projected off the current model)
 
 
-def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int]) -> list[_Scored]:
-    """Linearised evidence of every atom against the current fit (see the module docstring)."""
+def _screenable(a: Atom) -> bool:
+    """Atoms whose columns are one model column times their features (batch-screened)."""
+    if "regressor" in a.meta or len(a.features) > 3:
+        return False
+    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base"))
+
+
+def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes, chunk: int = 600) -> np.ndarray:
+    """Pool-adjusted log p-values ``(len(atoms),)`` of single-column-times-feature atoms, batched: columns
+    scaled to unit norm, projected off the current model, directions below 1 % of a unit column dropped
+    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``."""
+    from .extend import param_weights
+
+    x = fit.z[: prob.prep.space.size]
+    Jg = rc.J[:, : prob.prep.space.size]
+    base_cache: dict[tuple, np.ndarray] = {}
+    coords = None
+    out = np.full(len(atoms), np.inf)
+    swk = sw[keep]
+    rows = rc.row[keep]
+    for c0 in range(0, len(atoms), chunk):
+        part = atoms[c0:c0 + chunk]
+        cols, owner = [], []
+        for i, a in enumerate(part):
+            key = (a.place, a.target)
+            b = base_cache.get(key)
+            if b is None:
+                if a.place == "scale":
+                    if coords is None:
+                        x_, phis = fit.model_cal.split(fit.z)
+                        coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis))
+                    b = coords
+                else:
+                    b = (Jg @ param_weights(prob.prep.space, x, a))[:, 0]
+                b = b[keep] * swk
+                base_cache[key] = b
+            F = prob.features(a)[prob.rows_cal][rows]
+            cols.append(b[:, None] * F)
+            owner += [i] * F.shape[1]
+        E = np.concatenate(cols, axis=1)
+        nrm = np.linalg.norm(E, axis=0)
+        E = E / np.where(nrm > 0, nrm, 1.0)
+        Ep = E - Q @ (Q.T @ E)
+        owner = np.asarray(owner)
+        er = Ep.T @ r
+        for i in range(len(part)):
+            idx = np.flatnonzero(owner == i)
+            if not np.any(nrm[idx] > 0):
+                continue
+            G = Ep[:, idx].T @ Ep[:, idx]
+            lam, V = np.linalg.eigh(G)
+            ok = lam > 1e-4  # singular value above 1 % of a unit column
+            if not np.any(ok):
+                continue
+            d = float(np.sum((V[:, ok].T @ er[idx]) ** 2 / lam[ok]))
+            out[c0 + i] = _chi2_logsf(d, int(ok.sum())) + np.log(pool_sizes[part[i].pool])
+    return out
+
+
+def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
+                 exact_top: int = 40) -> list[_Scored]:
+    """Linearised evidence of the atoms against the current fit (see the module docstring). The catalogue
+    and the broad atoms are scored exactly; the many small dictionary atoms are screened in batches and only
+    the ``exact_top`` strongest of them scored exactly."""
     rc = fit.model_cal.residuals(fit.z)
     sw = np.sqrt(prob.w_cal[rc.row])
     keep = sw > 0
@@ -452,8 +514,13 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
     Q, _ = np.linalg.qr(A)
     r = (rc.r * sw)[keep]
     r = r - Q @ (Q.T @ r)
+    screen = [a for a in atoms if a.pool != "catalogue" and _screenable(a)]
+    exact = [a for a in atoms if not (a.pool != "catalogue" and _screenable(a))]
+    if screen:
+        lp = _screen(prob, fit, screen, rc, keep, sw, Q, r, pool_sizes)
+        exact += [screen[i] for i in np.argsort(lp)[:exact_top] if np.isfinite(lp[i])]
     out = []
-    for a in atoms:
+    for a in exact:
         F = prob.features(a)[prob.rows_cal]
         if not np.any(F):
             continue
@@ -637,7 +704,7 @@ def diagnose(
         if generic:
             pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
             pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat)
-        sizes = {"catalogue": sum(a.pool == "catalogue" for a in pool), "generic": max(1, sum(a.pool == "generic" for a in pool))}
+        sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
         rejected: set[str] = set()
         entry_chi2: dict[str, float] = {}
         for rnd in range(1, max_effects + 1):
@@ -809,7 +876,7 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
     nf = float(f @ f)
     out = []
     for s in scored:
-        if s is best or nf <= 0:
+        if s is best or nf <= 0 or s.basis.shape[1] > best.basis.shape[1]:
             continue
         if 0.5 * (best.dchi2 - s.dchi2) > log_evidence:
             continue
