@@ -79,3 +79,42 @@ def test_predict_command_applies_the_effects(backlash_case, tmp_path):
     want = predict_extended(cal, row_context(ds), ds.station_ids).spheres
     assert np.abs(got - want).max() < 1e-8
     assert {e["family"] for e in json.loads(p.read_text())["effects"]} == {"backlash"}
+
+
+def _bumped(seed=4):
+    """A camera moved 27 um after 60 % of the campaign (a measurement-side change point, no catalogue term)."""
+    from dataclasses import replace
+
+    n = 160
+    m = n + n // 4
+    t = np.arange(m) * 10.0
+    ds, _ = H.make_dataset(seed=seed, n=n, t_s=t, temp=np.full(m, 21.0))
+    sph = ds.spheres.copy()
+    sph[t >= 0.6 * t.max()] += np.array([15e-6, -10e-6, 20e-6])
+    return replace(ds, spheres=sph)
+
+
+@pytest.mark.slow
+def test_unnamed_frame_term_is_predicted_from_the_rows_time(tmp_path):
+    """The extended calibration of a camera bump predicts every row to the noise from its t_s, after reload."""
+    ds = _bumped()
+    res = diagnose(ds)
+    assert any(a["target"] == "base" and a["channel"].startswith("step(t_s") for a in res.unnamed)
+    write_diagnosis(res, tmp_path, plots=False)
+    cal = Calibration.load(tmp_path / "calibration.json")
+    ctx = row_context(ds)
+    e = np.linalg.norm(predict_extended(cal, ctx, ds.station_ids).spheres - ds.spheres, axis=-1)[ds.sphere_seen]
+    assert np.sqrt(np.mean(e**2)) < 1.3 * np.sqrt(3) * H.SIGMA
+
+
+@pytest.mark.slow
+def test_rows_lacking_a_channel_the_model_needs_are_refused(tmp_path):
+    """Predicting with a term in t_s on rows without t_s is a named error, not a silent geometric answer."""
+    from dataclasses import replace
+
+    ds = _bumped()
+    res = diagnose(ds)
+    write_diagnosis(res, tmp_path, plots=False)
+    cal = Calibration.load(tmp_path / "calibration.json")
+    with pytest.raises(ValueError, match="'t_s'"):
+        predict_extended(cal, replace(row_context(ds), t_s=None), ds.station_ids)

@@ -968,7 +968,19 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
                          f"({rms * fac:.5f} {unit} RMS over the rows)")
             else:
                 words = f"{rms * fac:.5f} +- {sd_rms * fac:.5f} {unit} RMS over the rows"
+        # one number in words' units for a table: amplitude (cyclic), the single coefficient, or the RMS effect
+        if "amplitude" in size:
+            value, value_sd, vunit = size["amplitude"], size["amplitude_sd"], unit
+        elif len(phi) == 1 and a.place not in ("plate",):
+            value, value_sd, vunit = float(phi[0] * fac), float(sd[0] * fac), f"{unit} per unit of {a.channel}"
+        elif "rms" in size:
+            value, value_sd, vunit = size["rms"], size["sd"], f"{unit} RMS"
+        elif "rms_mm" in size:
+            value, value_sd, vunit = size["rms_mm"], None, "mm RMS (translation)"
+        else:
+            value, value_sd, vunit = float(np.linalg.norm(phi) * fac), None, unit
         entry = {**a.spec(), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+                 "value": value, "value_sd": value_sd, "value_unit": vunit,
                  "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
                  "entry_chi2": (entry_chi2 or {}).get(a.key, wald),
                  "minor": bool(np.sqrt((entry_chi2 or {}).get(a.key, wald) / max(J.shape[0], 1)) < MINOR_RMS),
