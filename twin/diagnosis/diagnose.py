@@ -69,6 +69,7 @@ __all__ = [
 
 _MM = 1e-3
 _DEG = np.pi / 180.0
+CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
 
 
@@ -545,6 +546,12 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     explain more within the same number of parameters (a broad atom collects a little of several effects;
     it must not pre-empt the small atoms that each hold one of them)."""
     order = sorted(scored, key=lambda s: s.logp_adj)
+    if order and order[0].atom.pool == "generic":
+        # the dictionary holds supersets of catalogue terms (a polynomial in q_j on theta_j contains the
+        # gear-ratio direction): an unnamed term must beat the best named one clearly, not by fitting noise
+        named = [s for s in order if s.atom.pool != "generic"]
+        if named and named[0].logp_adj < order[0].logp_adj + CATALOGUE_MARGIN:
+            order = [named[0]] + [s for s in order if s is not named[0]]
     if not order or order[0].basis.shape[1] < broad_dim:
         return order
     best = order[0]
