@@ -33,7 +33,6 @@ on, so that ``twin predict`` evaluates the same regressor on new rows. Nothing h
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 

@@ -80,10 +80,18 @@ def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
 class ExtendedModel:
     """Residuals of the geometric model plus atom terms on one set of observations."""
 
-    def __init__(self, space: ParamSpace, obs: Observations, terms: list[AtomTerm]):
+    def __init__(self, space: ParamSpace, obs: Observations, terms: list[AtomTerm],
+                 axis_sigma: np.ndarray | None = None):
         self.space = space
         self.obs = obs
         self.terms = list(terms)
+        # per-axis noise of the measurement frame: residual c is whitened by axis_sigma[c] instead of the
+        # observations' scalar sigma (a stereo instrument is worse in depth)
+        shape = (3, 3, obs.n)
+        mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
+        self._crd = np.broadcast_to(np.arange(3)[None, :, None], shape)[mask]
+        self._f = (np.ones(self._crd.size) if axis_sigma is None
+                   else (obs.sigma_position / np.asarray(axis_sigma, dtype=float))[self._crd])
         sizes = [t.r for t in self.terms]
         self.offsets = np.concatenate([[space.size], space.size + np.cumsum(sizes)]).astype(int)
         self.size = int(self.offsets[-1])
@@ -118,9 +126,9 @@ class ExtendedModel:
             Jt = res.J[:, self.space.family("theta")]  # (m, 6)
             return np.einsum("mi,mik->mk", Jt, Fr.reshape(len(res.r), 6, -1))
         if a.place == "plate":
-            return self._plate_columns(x, obs, res, int(a.target[6:]))
+            return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]
         if a.place == "scale":
-            return Fr * self._coords(obs)[:, None]
+            return Fr * (self._coords(obs) * self._f)[:, None]
         raise ValueError(f"unknown atom place {a.place!r}")
 
     def _coords(self, obs: Observations) -> np.ndarray:
@@ -136,6 +144,8 @@ class ExtendedModel:
         first_order = [t.atom.place in ("length", "param", "scale") for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
+        res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,
+                        block=res.block)
         r = res.r
         cols = []
         for t, phi, fo in zip(self.terms, phis, first_order):
@@ -149,6 +159,10 @@ class ExtendedModel:
             return Residuals(r=r, J=None, row=res.row, block=res.block)
         Jz = np.concatenate([res.J] + cols, axis=1) if cols else res.J
         return Residuals(r=r, J=Jz, row=res.row, block=res.block)
+
+    def unwhiten(self, r: np.ndarray) -> np.ndarray:
+        """Whitened residuals back to metres (per residual, in ``absolute_residuals`` order)."""
+        return r * self.obs.sigma_position / self._f
 
     def _plate_columns(self, x: np.ndarray, obs: Observations, res: Residuals, sphere: int) -> np.ndarray:
         if obs.kind != "spheres":

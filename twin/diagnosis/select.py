@@ -1,0 +1,427 @@
+"""Sparse selection of atoms: the structure test, gross rows, scoring, ordering, held-out confirmation,
+the backward pass and the alternatives (the procedure is in :mod:`twin.diagnosis.diagnose`).
+
+Everything works on whitened residuals of :class:`~twin.diagnosis.extend.ExtendedModel` (per-axis noise of
+the measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ..estimator.core import Prepared
+from ..estimator.solvers import gauss_newton
+from .atoms import Atom, feature_values
+from .candidates import RowContext
+from .extend import AtomTerm, ExtendedModel, reduced_basis
+from .floor import NoiseFloor
+
+__all__ = ["StructureTest", "CATALOGUE_MARGIN"]
+
+CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
+
+
+@dataclass(frozen=True)
+class StructureTest:
+    """``T`` (quadratic form of the validation residuals), its ``m`` degrees of freedom, ``p_value``, and the
+    RMS of the whitened residuals (1 for noise alone)."""
+
+    statistic: float
+    dof: int
+    p_value: float
+    whitened_rms: float
+    distribution: str
+
+
+
+def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFloor) -> StructureTest:
+    """``T = r^T (I + Jv C Jv^T)^-1 r`` with ``C = (Jc^T Jc)^-1`` (whitened units)."""
+    m = r.size
+    H = Jc.T @ Jc
+    # Woodbury with C = H^-1: (I + Jv C Jv^T)^-1 = I - Jv (H + Jv^T Jv)^-1 Jv^T
+    M = H + Jv.T @ Jv
+    y = Jv.T @ r
+    T = float(r @ r - y @ np.linalg.lstsq(M, y, rcond=None)[0]) if M.size else float(r @ r)
+    if np.isinf(floor.dof):
+        p = float(stats.chi2.sf(T, m))
+        dist = f"chi2({m})"
+    else:
+        p = float(stats.f.sf(T / m, m, floor.dof))
+        dist = f"F({m}, {int(floor.dof)})"
+    return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
+
+
+def _row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    ss = np.bincount(row, weights=r**2, minlength=n)
+    cnt = np.bincount(row, minlength=n)
+    return np.sqrt(ss / np.maximum(cnt, 1)), cnt
+
+
+def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
+    """Rows ``(n,)`` bool whose whitened misfit is beyond both the floor's ``1e-6/n`` quantile and
+    ``median + 8 MAD`` of the rows; none when more than ``max(2, max_fraction n)`` rows are (that is
+    structure, not a few gross rows)."""
+    e, cnt = _row_rms(r, row, n)
+    has = cnt > 0
+    if has.sum() < 5:
+        return np.zeros(n, dtype=bool)
+    k = np.maximum(cnt, 1)
+    thr_floor = np.sqrt(stats.chi2.isf(1e-6 / max(n, 1), k) / k)
+    med = float(np.median(e[has]))
+    mad = 1.4826 * float(np.median(np.abs(e[has] - med)))
+    bad = has & (e > thr_floor) & (e > med + 8 * max(mad, 0.05 * med))
+    if bad.sum() > max(2, int(max_fraction * has.sum())):
+        return np.zeros(n, dtype=bool)
+    return bad
+
+
+
+@dataclass
+class _Fit:
+    chosen: list  # [(Atom, basis)]
+    z: np.ndarray
+    free: np.ndarray
+    chi2: float
+    model_cal: ExtendedModel
+    model_val: ExtendedModel
+
+
+class _Problem:
+    """Everything the selection rounds share: observations, rows, features, weights."""
+
+    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray):
+        self.prep = prep
+        self.obs_cal = prep.obs_cal.with_sigma(floor.sigma)
+        self.obs_val = prep.obs_val.with_sigma(floor.sigma)
+        self.rows_cal = prep.rows[prep.cal]
+        self.rows_val = prep.rows[prep.val]
+        self.ctx = ctx
+        self.free_geo = free_geo
+        self.floor = floor
+        self._F: dict[str, np.ndarray] = {}
+        self._cache: dict = {}
+        self.w_cal = np.ones(self.obs_cal.n)
+        self.keep_val = np.ones(self.obs_val.n, dtype=bool)
+
+    def features(self, atom: Atom) -> np.ndarray:
+        key = repr(atom.features)
+        if "regressor" in atom.meta:  # a given regressor (fit_with_effects with a legacy candidate)
+            key = f"regressor:{id(atom)}"
+        F = self._F.get(key)
+        if F is None and "regressor" in atom.meta:
+            G = atom.meta["regressor"](self.ctx)
+            F = G.reshape(len(G), -1)
+            self._F[key] = F
+        elif F is None:
+            F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
+            self._F[key] = F
+        return F
+
+    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> _Fit:
+        tc = [AtomTerm(a, self.features(a)[self.rows_cal], B) for a, B in chosen]
+        tv = [AtomTerm(a, self.features(a)[self.rows_val], B) for a, B in chosen]
+        ax = self.floor.axis_sigma
+        mc = ExtendedModel(self.prep.space, self.obs_cal, tc, ax)
+        mv = ExtendedModel(self.prep.space, self.obs_val, tv, ax)
+        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in tc] if z_eff is None else z_eff))
+        free = np.concatenate([self.free_geo, np.arange(self.prep.space.size, mc.size)]).astype(int)
+        # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
+        gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=self.w_cal, max_iter=30, xtol=1e-11,
+                          stage="extended")
+        res = mc.residuals(gn.x, jacobian=False)
+        rr = res.r * np.sqrt(self.w_cal[res.row])
+        return _Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+
+    def test(self, fit: _Fit) -> StructureTest:
+        rv = fit.model_val.residuals(fit.z)
+        rc = fit.model_cal.residuals(fit.z)
+        kv = self.keep_val[rv.row]
+        Jc = rc.J[:, fit.free] * np.sqrt(self.w_cal[rc.row])[:, None]
+        return _structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
+
+
+def _chi2_logsf(x: float, k: int) -> float:
+    """``log P(chi2(k) > x)``, finite where scipy's underflows to ``-inf`` (large ``x``: the leading term of
+    the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
+    v = float(stats.chi2.logsf(x, k))
+    if np.isfinite(v):
+        return v
+    from scipy.special import gammaln
+
+    return float(-x / 2 + (k / 2 - 1) * np.log(x / 2) - gammaln(k / 2))
+
+
+def _raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
+    x, phis = model.split(z)
+    obs = model.effective_obs(phis)
+    return model.columns(AtomTerm(atom, F, np.eye(F.shape[1])), x, obs, res)
+
+
+@dataclass
+class _Scored:
+    atom: Atom
+    basis: np.ndarray
+    Ep: np.ndarray  # projected reduced columns (m_cal_kept, r)
+    E: np.ndarray  # reduced columns (m_cal_kept, r)
+    psi: np.ndarray
+    dchi2: float
+    logp_adj: float
+    fitted: np.ndarray  # Ep psi
+    r: np.ndarray  # the residual it was scored against (projected off the current model)
+
+
+def _screenable(a: Atom) -> bool:
+    """Atoms whose columns are one model column times their features (batch-screened)."""
+    if "regressor" in a.meta or len(a.features) > 3:
+        return False
+    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base"))
+
+
+def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes, chunk: int = 600) -> np.ndarray:
+    """Pool-adjusted log p-values ``(len(atoms),)`` of single-column-times-feature atoms, batched: columns
+    scaled to unit norm, projected off the current model, directions below 1 % of a unit column dropped
+    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``."""
+    from .extend import param_weights
+
+    x = fit.z[: prob.prep.space.size]
+    Jg = rc.J[:, : prob.prep.space.size]
+    base_cache: dict[tuple, np.ndarray] = {}
+    coords = None
+    out = np.full(len(atoms), np.inf)
+    swk = sw[keep]
+    rows = rc.row[keep]
+    for c0 in range(0, len(atoms), chunk):
+        part = atoms[c0:c0 + chunk]
+        cols, owner = [], []
+        for i, a in enumerate(part):
+            key = (a.place, a.target)
+            b = base_cache.get(key)
+            if b is None:
+                if a.place == "scale":
+                    if coords is None:
+                        x_, phis = fit.model_cal.split(fit.z)
+                        coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis)) * fit.model_cal._f
+                    b = coords
+                else:
+                    b = (Jg @ param_weights(prob.prep.space, x, a))[:, 0]
+                b = b[keep] * swk
+                base_cache[key] = b
+            F = prob.features(a)[prob.rows_cal][rows]
+            cols.append(b[:, None] * F)
+            owner += [i] * F.shape[1]
+        E = np.concatenate(cols, axis=1)
+        nrm = np.linalg.norm(E, axis=0)
+        E = E / np.where(nrm > 0, nrm, 1.0)
+        Ep = E - Q @ (Q.T @ E)
+        owner = np.asarray(owner)
+        er = Ep.T @ r
+        for i in range(len(part)):
+            idx = np.flatnonzero(owner == i)
+            if not np.any(nrm[idx] > 0):
+                continue
+            G = Ep[:, idx].T @ Ep[:, idx]
+            lam, V = np.linalg.eigh(G)
+            ok = lam > 1e-4  # singular value above 1 % of a unit column
+            if not np.any(ok):
+                continue
+            d = float(np.sum((V[:, ok].T @ er[idx]) ** 2 / lam[ok]))
+            out[c0 + i] = _chi2_logsf(d, int(ok.sum())) + np.log(pool_sizes[part[i].pool])
+    return out
+
+
+def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
+                 exact_top: int = 40) -> list[_Scored]:
+    """Linearised evidence of the atoms against the current fit (see the module docstring). The catalogue
+    and the broad atoms are scored exactly; the many small dictionary atoms are screened in batches and only
+    the ``exact_top`` strongest of them scored exactly."""
+    rc = fit.model_cal.residuals(fit.z)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    keep = sw > 0
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    Q, _ = np.linalg.qr(A)
+    r = (rc.r * sw)[keep]
+    r = r - Q @ (Q.T @ r)
+    screen = [a for a in atoms if a.pool != "catalogue" and _screenable(a)]
+    exact = [a for a in atoms if not (a.pool != "catalogue" and _screenable(a))]
+    if screen:
+        lp = _screen(prob, fit, screen, rc, keep, sw, Q, r, pool_sizes)
+        exact += [screen[i] for i in np.argsort(lp)[:exact_top] if np.isfinite(lp[i])]
+    out = []
+    for a in exact:
+        F = prob.features(a)[prob.rows_cal]
+        if not np.any(F):
+            continue
+        E = _raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
+        B = reduced_basis(E, Q=Q, max_rank=6)
+        if B.shape[1] == 0:
+            continue
+        EB = E @ B
+        Ep = EB - Q @ (Q.T @ EB)
+        psi, *_ = np.linalg.lstsq(Ep, r, rcond=None)
+        fitted = Ep @ psi
+        d = float(fitted @ fitted)
+        # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
+        logp = _chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        out.append(_Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
+    return out
+
+
+def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
+    """Atoms in the order to try: by pool-adjusted evidence, except that a broad atom (``>= broad_dim``
+    reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
+    explain more within the same number of parameters (a broad atom collects a little of several effects;
+    it must not pre-empt the small atoms that each hold one of them)."""
+    order = sorted(scored, key=lambda s: s.logp_adj)
+    if order and order[0].atom.pool == "generic":
+        # the dictionary holds supersets of catalogue terms (a polynomial in q_j on theta_j contains the
+        # gear-ratio direction): an unnamed term must beat the best named one clearly, not by fitting noise
+        named = [s for s in order if s.atom.pool != "generic"]
+        if named and named[0].logp_adj < order[0].logp_adj + CATALOGUE_MARGIN:
+            order = [named[0]] + [s for s in order if s is not named[0]]
+    if not order or order[0].basis.shape[1] < broad_dim:
+        return order
+    best = order[0]
+    # a named broad atom (compliance) answers to the named small atoms; an unnamed one to all
+    small = [s for s in order if s.basis.shape[1] < broad_dim
+             and (best.atom.pool != "catalogue" or s.atom.pool == "catalogue")]
+    gain = _omp_gain(small, best.basis.shape[1])
+    if gain >= best.dchi2 and small:
+        return small[:1] + [s for s in order if s is not small[0]]
+    return order
+
+
+def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
+    """Calibration ``Delta chi2`` that small atoms reach together within ``budget`` parameters: greedy
+    orthogonal matching pursuit over their projected columns on the residual they were scored against (the
+    ``pool`` strongest atoms)."""
+    cand = sorted(small, key=lambda s: -s.dchi2)[:pool]
+    if not cand:
+        return 0.0
+    r = cand[0].r
+    Qs = [np.linalg.qr(s.Ep)[0] for s in cand]
+    taken = np.zeros((len(r), 0))
+    used = 0
+    gain = 0.0
+    avail = list(range(len(cand)))
+    while avail:
+        best = None
+        for i in avail:
+            Q = Qs[i] - taken @ (taken.T @ Qs[i])
+            Qo, R = np.linalg.qr(Q)
+            keep = np.abs(np.diag(R)) > 1e-8
+            Qo = Qo[:, keep]
+            g = float(np.sum((Qo.T @ r) ** 2))
+            if best is None or g > best[0]:
+                best = (g, i, Qo)
+        g, i, Qo = best
+        if used + Qo.shape[1] > budget:
+            break
+        gain += g
+        used += Qo.shape[1]
+        r = r - Qo @ (Qo.T @ r)
+        taken = np.concatenate([taken, Qo], axis=1)
+        avail.remove(i)
+    return gain
+
+
+def _confirm(prob: _Problem, fit: _Fit, s: _Scored, z_min: float) -> tuple[float, float, bool]:
+    """Held-out check of a scored atom: ``z``, ``z`` without the most favourable row, and whether the
+    held-out residual norm drops."""
+    rc = fit.model_cal.residuals(fit.z)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    keep = sw > 0
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
+    beta_A = -np.linalg.lstsq(A, s.E @ s.psi, rcond=None)[0]
+    rv = fit.model_val.residuals(fit.z)
+    kv = prob.keep_val[rv.row]
+    Fv = prob.features(s.atom)[prob.rows_val]
+    Ev = _raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
+    u = (Ev @ s.psi + rv.J[:, fit.free] @ beta_A)[kv]
+    r = rv.r[kv]
+    nu = float(np.linalg.norm(u))
+    if nu <= 0:
+        return 0.0, 0.0, False
+    srms = float(np.sqrt(np.mean(r**2)))
+    contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
+    z = float(r @ u) / (nu * srms)
+    z_minus = float(r @ u - contrib.max()) / (nu * srms)
+    better = float(np.sum((r - u) ** 2)) < float(r @ r)
+    return z, z_minus, better
+
+
+def _covariance(J: np.ndarray) -> np.ndarray:
+    """``(J^T J)^+`` of whitened columns, column-scaled first (geometric and effect columns differ by many
+    orders of magnitude: an unscaled pseudo-inverse truncates the small ones)."""
+    d = np.linalg.norm(J, axis=0)
+    d = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Js = J * d
+    return d[:, None] * np.linalg.pinv(Js.T @ Js, rcond=1e-12) * d[None, :]
+
+
+def _update_gross(prob: _Problem, fit: _Fit) -> None:
+    rc = fit.model_cal.residuals(fit.z, jacobian=False)
+    prob.w_cal = (~_gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    prob.keep_val = ~_gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
+    """Start values of the reduced coordinates: the current fit's for atoms already in, zero for new ones."""
+    prev = {t.atom.key: fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            for k, t in enumerate(fit.model_cal.terms)}
+    return [prev.get(a.key, np.zeros(B.shape[1])) if prev.get(a.key) is not None and prev[a.key].size == B.shape[1]
+            else np.zeros(B.shape[1]) for a, B in chosen]
+
+
+def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tuple[_Fit, list[Atom]]:
+    """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
+    dropped: list[Atom] = []
+    changed = True
+    while changed and len(fit.chosen) > 1:
+        changed = False
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        C = _covariance(rc.J[:, fit.free] * sw[:, None])
+        pos = {int(f): k for k, f in enumerate(fit.free)}
+        worst = None
+        for k, (a, B) in enumerate(fit.chosen):
+            idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
+            psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            Ck = C[np.ix_(idx, idx)]
+            d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
+            lp = _chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
+                worst = (lp, k)
+        if worst is not None:
+            k = worst[1]
+            dropped.append(fit.chosen[k][0])
+            chosen = [c for i, c in enumerate(fit.chosen) if i != k]
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, _psi_init(fit, chosen))
+            changed = True
+    return fit, dropped
+
+
+def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
+    """Atoms the data cannot tell apart from ``best``: they reproduce >= ``share`` of its fitted residual and
+    their evidence is within ``e^log_evidence`` of it."""
+    f = best.fitted
+    nf = float(f @ f)
+    out = []
+    for s in scored:
+        if s is best or nf <= 0 or s.basis.shape[1] > best.basis.shape[1]:
+            continue
+        if 0.5 * (best.dchi2 - s.dchi2) > log_evidence:
+            continue
+        Qs, _ = np.linalg.qr(s.Ep)
+        cover = float(np.sum((Qs.T @ f) ** 2)) / nf
+        if cover >= share:
+            out.append({"of": best.atom.label, "alternative": s.atom.label, "family": s.atom.family,
+                        "channel": s.atom.channel, "target": s.atom.target,
+                        "delta_chi2": s.dchi2, "delta_chi2_chosen": best.dchi2, "share_reproduced": cover})
+    out.sort(key=lambda d: -d["delta_chi2"])
+    return out[:3]
+
