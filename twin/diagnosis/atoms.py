@@ -52,6 +52,7 @@ __all__ = [
 _DEG = np.pi / 180.0
 HISTORY_KINDS = ("sign",)
 SCAN_ORDERS = (4.0, 150.0, 0.5)  # cyclic-error orders scanned beyond 1-3: first, last, step
+MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
@@ -135,6 +136,26 @@ def _signs(ctx: RowContext) -> np.ndarray:
     return approach_signs(q, None, unknown=np.concatenate([[True], reset]))[1:]
 
 
+def _last_moves(ctx: RowContext) -> np.ndarray:
+    """The last nonzero move ``(n, 6)`` [rad] of each joint before each row (0 while unknown: after the start
+    or a restart, until the joint moves)."""
+    n = len(ctx.q)
+    q = ctx.q if ctx.q_start is None else np.vstack([np.asarray(ctx.q_start, float)[None], ctx.q])
+    reset = np.zeros(len(q), bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool)
+    if ctx.q_start is not None:
+        reset = np.concatenate([[True], reset])
+    out = np.zeros((len(q), N_JOINTS))
+    last = np.zeros(N_JOINTS)
+    for k in range(len(q)):
+        if k == 0 or reset[k]:
+            last = np.zeros(N_JOINTS)
+        else:
+            d = q[k] - q[k - 1]
+            last = np.where(d != 0, d, last)
+        out[k] = last
+    return out[-n:]
+
+
 def approach_unknown(ctx: RowContext) -> np.ndarray:
     """Rows ``(n,)`` where some joint that moves during the campaign has an unknown approach direction (after
     the start or a restart, until it moves): history-dependent terms cannot be predicted there."""
@@ -166,6 +187,10 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
             out[:, k] = cache["grav"][:, f["i"] - 1, f["k"] - 1, f["c"]] / f.get("h", 1.0)
+        elif kind == "lastmove":
+            if "moves" not in cache:
+                cache["moves"] = _last_moves(ctx)
+            out[:, k] = np.tanh(cache["moves"][:, f["j"] - 1] / f["w"])
         elif kind == "gravmix":
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
@@ -313,6 +338,9 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for k in (1, 2, 3):
             feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
         feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
+        for w_deg in MOVE_WIDTHS_DEG:
+            # hysteresis that follows the size of the last move (friction-like), on the joint angles only
+            feats.append((f"tanh(last move j{j} / {w_deg:g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
     for a in range(1, N_JOINTS + 1):
         for b in range(a + 1, N_JOINTS + 1):
             if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
@@ -356,6 +384,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     for place, target, pl_words, pj in places:
         for ch, f, fj in feats:
             fs = f if isinstance(f, tuple) else (f,)
+            if fs[0]["kind"] == "lastmove" and place != "joint":
+                continue
             if (place, target, _fkey(fs)) in cat_keys:
                 continue
             if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == target.replace("theta", "q"):

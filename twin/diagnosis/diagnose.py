@@ -51,7 +51,7 @@ from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms
 from .candidates import EFFECT_VOCABULARY
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (StructureTest, _alternatives, _backward, _confirm, _covariance, _Fit, _order, _Problem,
+from .select import (StructureTest, _alternatives, _refine_step, _backward, _confirm, _covariance, _Fit, _order, _Problem,
                      _psi_init, _raw_columns, _row_rms, _score_atoms, _update_gross)
 
 __all__ = [
@@ -275,6 +275,8 @@ def diagnose(
                 rejected.add(s.atom.key)
             if accepted is None:
                 break
+            if any(f.get("kind") == "step" for f in accepted.atom.features):
+                accepted = _refine_step(prob, fit, accepted, sizes)
             alternatives += _alternatives(accepted, scored)
             chosen.append((accepted.atom, accepted.basis))
             entry_chi2[accepted.atom.key] = accepted.dchi2

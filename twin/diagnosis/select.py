@@ -425,3 +425,26 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
     out.sort(key=lambda d: -d["delta_chi2"])
     return out[:3]
 
+
+
+def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+    """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
+    neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
+    from dataclasses import replace as _rep
+
+    f0 = next(f for f in s.atom.features if f.get("kind") == "step")
+    ch = f0["ch"]
+    values = np.unique(feature_values(({"kind": "pow", "ch": ch, "p": 1, "c": 0.0, "h": 1.0},), prob.ctx,
+                                      prob.prep.nominal)[:, 0])
+    grid = np.quantile(values, np.linspace(0, 1, 11))
+    k = int(np.argmin(np.abs(grid - f0["at"])))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    cands = [v for v in values if lo < v < hi and v != f0["at"]]
+    trial = []
+    for v in cands:
+        feats = tuple(dict(f, at=float(v)) if f.get("kind") == "step" else f for f in s.atom.features)
+        label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
+        trial.append(_rep(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
+    scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
+    best = max(scored, key=lambda t: t.dchi2, default=None)
+    return best if best is not None and best.dchi2 > s.dchi2 else s

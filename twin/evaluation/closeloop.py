@@ -22,6 +22,7 @@ import numpy as np
 from ..dataset import Dataset, default_plate, robot_from_spec
 
 __all__ = ["Plan", "plan_poses", "synthetic_dataset", "effect_size", "true_model_error", "truth_effects",
+           "effect_delta", "oracle_delta_fit",
            "oracle_candidate", "oracle_fit"]
 
 _MM = 1e-3
@@ -191,3 +192,29 @@ def oracle_fit(ds: Dataset, caps: list):
 
     cand = oracle_candidate(ds, caps)
     return fit_with_effects(ds, [] if cand is None else [cand])
+
+
+def effect_delta(world, plan: Plan) -> np.ndarray:
+    """What the world's effects add to every measured sphere centre ``(n, 3, 3)`` [m]: the true centres of the
+    plan with the effects minus those without (same true geometry, plate and stations). Evaluation only."""
+    with_fx = world.true_sequence(plan.q, list(plan.stations), t_s=plan.t_s)
+    saved = list(world.effects)
+    world.effects = []
+    try:
+        without = world.true_sequence(plan.q, list(plan.stations), t_s=plan.t_s)
+    finally:
+        world.effects = saved
+    return np.stack([c.spheres_meas for c in with_fx]) - np.stack([c.spheres_meas for c in without])
+
+
+def oracle_delta_fit(ds: Dataset, delta: np.ndarray):
+    """The oracle: the true effect known exactly (``delta``, :func:`effect_delta`) and the geometry
+    re-identified on the same noisy calibration rows. The geometric model is fitted to ``measured - delta``;
+    its validation error there equals that of ``geometric prediction + delta`` against the measurements.
+    Works for every effect (robot, plate, base, instrument, changing in time), whatever its shape."""
+    from ..diagnosis import fit_with_effects
+
+    delta = np.asarray(delta, dtype=float)
+    if delta.shape != ds.spheres.shape:
+        raise ValueError(f"delta must have the dataset's sphere shape {ds.spheres.shape}, got {delta.shape}")
+    return fit_with_effects(replace(ds, spheres=ds.spheres - delta), [])

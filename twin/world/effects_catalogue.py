@@ -637,6 +637,10 @@ EFFECT_TYPES: dict[str, Callable[[Mapping[str, Any]], Any]] = {
     "sphere_out_of_round": SphereOutOfRound.from_table,
     "python": _python_effect,
 }
+# effects of other shapes than the diagnosis' candidates (twin/world/effects_shapes.py)
+from .effects_shapes import SHAPE_TYPES as _SHAPE_TYPES  # noqa: E402
+
+EFFECT_TYPES.update(_SHAPE_TYPES)
 
 
 def register_effect(name: str, factory: Callable[[Mapping[str, Any]], Any], *, replace: bool = False) -> None:
