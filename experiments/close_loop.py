@@ -28,6 +28,7 @@ from twin.diagnosis import diagnose, write_diagnosis
 from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, true_model_error
 from twin.instrument import BoardSpec, StereoCalibration, calibrate_stereo, measure_pair
 from twin.world import World, WorldConfig
+from twin.world.effects import EffectContext
 
 _MM = 1e-3
 
@@ -78,7 +79,9 @@ def main() -> int:
     n_flagged = 0
     with DatasetWriter(ds_dir, optional=["set", "station", "t_s", "temp_c", "status"]) as w:
         for k, (q, st) in enumerate(zip(plan.q, plan.stations)):
-            cap = world.capture(q, int(st), pose_id=k, noise_seed=k)
+            # the pose's time stamp reaches the effects (warm-up, change points); the world fills the history
+            cap = world.capture(q, int(st), EffectContext(t_s=float(plan.t_s[k]), station=int(st)), pose_id=k,
+                                noise_seed=k)
             m = measure_pair(cap.left, cap.right, calib, plate, bias_correction=bool(cl.get("bias_correction", True)))
             n_flagged += not m.complete
             w.write(PoseRow(k, q, list(m.centres), set=str(plan.sets[k]), station=world.station_names[int(st)],
