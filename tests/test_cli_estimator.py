@@ -214,3 +214,13 @@ def test_option_for_the_wrong_method_is_refused(written, capsys):
     d, _, _ = written
     assert main(["calibrate", str(d / "ds"), "--out", str(d / "x"), "--solver", "scaled"]) == 2
     assert "--solver applies to" in capsys.readouterr().err
+
+
+def test_out_naming_an_existing_file_is_a_named_error(written, tmp_path, capsys):
+    """--out pointing at an existing file: exit code 2, the path named, no traceback, the file untouched."""
+    d, _, _ = written
+    f = tmp_path / "taken.txt"
+    f.write_text("mine")
+    assert main(["calibrate", str(d / "ds"), "--out", str(f), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(f) in err and "Traceback" not in err and f.read_text() == "mine"

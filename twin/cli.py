@@ -55,6 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:  # bad input: a clear message naming the field, no traceback
         print(f"twin {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a path that cannot be used (an --out naming an existing file, no permission, ...)
+        where = exc.filename if exc.filename is not None else ""
+        print(f"twin {args.command}: error: {where}: {exc.strerror or exc} (check the paths given, e.g. --out)",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
