@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--use-given-bases", action="store_true",
                    help="start from dataset.toml's station base2meas instead of registering them")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true",
+                   help="write the calibration even when the data cannot be right (marked 'forced' in the JSON)")
 
 
 def _options(args) -> dict:
@@ -113,7 +115,30 @@ def report(cal: Calibration, path: Path) -> str:
 
 
 def run(args) -> int:
+    from dataclasses import replace
+
+    from ..estimator.plausibility import ImplausibleData, check_fit, check_joints, check_plate_rows
+
     ds = read_dataset(args.dataset)
+    forced: list[str] = []
+
+    def refuse(exc: ImplausibleData) -> None:
+        if not args.force:
+            raise ValueError(f"{args.dataset}: {exc}; no calibration written (--force writes it anyway, marked)")
+        forced.append(str(exc))
+
+    notes: list[str] = []
+    plate = None
+    try:
+        notes += check_joints(ds)
+        if ds.has_spheres:
+            plate = check_plate_rows(ds)
+            ds = plate.dataset
+    except ImplausibleData as exc:
+        refuse(exc)
+    if plate is not None and (plate.relabelled or plate.flagged):
+        notes.append(f"plate check: {len(plate.relabelled)} row(s) relabelled (pose_id {list(plate.relabelled)[:10]}), "
+                     f"{len(plate.flagged)} row(s) left out (pose_id {list(plate.flagged)[:10]})")
     cal = calibrate(
         ds,
         method=args.method,
@@ -125,9 +150,21 @@ def run(args) -> int:
         use_given_bases=args.use_given_bases,
         **_options(args),
     )
+    scale = cal.noise.get("residual_scale")
+    if scale is not None:
+        try:
+            check_fit(float(scale))
+        except ImplausibleData as exc:
+            refuse(exc)
+    details = dict(cal.details)
+    details["plausibility"] = {"plate": None if plate is None else plate.summary(), "joints": notes,
+                               "forced": forced}
+    cal = replace(cal, details=details, notes=tuple(cal.notes) + tuple(notes) + tuple(f"FORCED: {f}" for f in forced))
     out = Path(args.out)
     path = cal.save(out / "calibration.json")
     if not args.quiet:
         print(report(cal, path))
+    elif notes or forced:
+        for n in notes + [f"FORCED: {f}" for f in forced]:
+            print(f"note: {n}")
     return 0
-

@@ -27,7 +27,19 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, read_diagnosis, write_diagnosis
     from ..estimator import Calibration
 
+    from ..estimator.plausibility import ImplausibleData, check_joints, check_plate_rows
+
     ds = read_dataset(args.dataset)
+    try:
+        for n in check_joints(ds):
+            print(f"note: {n}", file=sys.stdout)
+        plate = check_plate_rows(ds)
+    except ImplausibleData as exc:
+        raise ValueError(f"{args.dataset}: {exc}; nothing diagnosed") from None
+    if plate.relabelled or plate.flagged:
+        print(f"note: plate check: {len(plate.relabelled)} row(s) relabelled (pose_id {list(plate.relabelled)[:10]}), "
+              f"{len(plate.flagged)} row(s) left out (pose_id {list(plate.flagged)[:10]})", file=sys.stdout)
+    ds = plate.dataset
     cal = Calibration.load(args.calibration) if args.calibration else None
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects)

@@ -1,0 +1,143 @@
+"""Refusing what cannot be right (issue 15): the usual mistakes on a valid dataset, through `twin calibrate`."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from twin.cli import main
+from twin.dataset import read_dataset, write_dataset
+from twin.estimator.plausibility import ImplausibleData, check_joints, check_plate_rows
+from twin.estimator.simulate import random_configurations, simulate_dataset
+from twin.robots import get_robot
+
+from _estimator_helpers import camera_base, random_truth
+
+Q_COLS = [f"q{j}" for j in range(1, 7)]
+P_COLS = [f"p{s}_{c}" for s in range(3) for c in "xyz"]
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """A valid 120-row dataset with calibration and validation rows, written by the library."""
+    d = tmp_path_factory.mktemp("plaus")
+    rng = np.random.default_rng(11)
+    truth = random_truth("irb1200", rng)
+    q = random_configurations(get_robot("irb1200"), 120, rng)
+    sets = np.array((["calibration"] * 3 + ["validation"]) * 30, dtype=object)
+    ds, _ = simulate_dataset(truth, q, robot_spec="irb1200", base2meas={"0": camera_base(rng)}, noise_position=1e-5,
+                             rng=rng, set_=sets)
+    write_dataset(d / "ds", ds)
+    return d / "ds"
+
+
+def _edit(src, dst, fn):
+    """Copy the dataset folder, rewriting poses.csv row by row with fn(row_index, row_dict)."""
+    dst.mkdir(parents=True)
+    (dst / "dataset.toml").write_text((src / "dataset.toml").read_text())
+    rows = list(csv.DictReader(open(src / "poses.csv", newline="")))
+    for k, r in enumerate(rows):
+        fn(k, r)
+    with open(dst / "poses.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return dst
+
+
+def test_joints_written_in_radians_are_refused(clean, tmp_path, capsys):
+    """Radians in the degree columns: exit 2, 'joints look like radians', no calibration written."""
+    def rad(k, r):
+        for c in Q_COLS:
+            r[c] = repr(float(r[c]) * np.pi / 180)
+
+    ds = _edit(clean, tmp_path / "rad", rad)
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet"]) == 2
+    assert "joints look like radians" in capsys.readouterr().err
+    assert not (tmp_path / "cal" / "calibration.json").exists()
+
+
+def test_sphere_centres_in_metres_are_refused(clean, tmp_path, capsys):
+    """Metres in the millimetre columns: exit 2, the distance ratio and 'positions in metres?' named."""
+    def metres(k, r):
+        for c in P_COLS:
+            r[c] = repr(float(r[c]) / 1000)
+
+    ds = _edit(clean, tmp_path / "m", metres)
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "positions in metres?" in err and "0.001x the plate's" in err
+    assert not (tmp_path / "cal").exists()
+
+
+def test_force_writes_a_marked_calibration(clean, tmp_path):
+    """--force writes the calibration anyway and marks it as forced, with the reason."""
+    def rad(k, r):
+        for c in Q_COLS:
+            r[c] = repr(float(r[c]) * np.pi / 180)
+
+    ds = _edit(clean, tmp_path / "rad", rad)
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet", "--force"]) == 0
+    d = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    assert any("radians" in f for f in d["details"]["plausibility"]["forced"])
+
+
+def test_swapped_labels_in_a_validation_row_are_relabelled(clean, tmp_path):
+    """Spheres 0 and 2 swapped in one validation row: the row is relabelled, reported, and the validation
+    statistics stay those of the clean data."""
+    target = 7  # a validation row (every 4th)
+
+    def swap(k, r):
+        if k == target:
+            for c in "xyz":
+                r[f"p0_{c}"], r[f"p2_{c}"] = r[f"p2_{c}"], r[f"p0_{c}"]
+
+    ds = _edit(clean, tmp_path / "swap", swap)
+    assert main(["calibrate", str(clean), "--out", str(tmp_path / "ref"), "--quiet"]) == 0
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
+    d = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    ref = json.loads((tmp_path / "ref" / "calibration.json").read_text())
+    pid = int(read_dataset(clean).pose_id[target])
+    assert d["details"]["plausibility"]["plate"]["relabelled"] == [pid]
+    v, v0 = d["residuals"]["validation"]["position_mm"], ref["residuals"]["validation"]["position_mm"]
+    assert v["max"] == pytest.approx(v0["max"], rel=1e-6)
+
+
+def test_a_row_the_instrument_could_not_have_measured_is_left_out(clean, tmp_path):
+    """One sphere 2 mm off in one validation row: flagged with its reason and not in the statistics."""
+    target = 11
+
+    def off(k, r):
+        if k == target:
+            r["p1_x"] = repr(float(r["p1_x"]) + 2.0)
+
+    ds = _edit(clean, tmp_path / "off", off)
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
+    d = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    pid = int(read_dataset(clean).pose_id[target])
+    assert list(d["details"]["plausibility"]["plate"]["flagged"]) == [str(pid)]
+    assert pid not in d["rows"]["validation"]
+    assert d["residuals"]["validation"]["position_mm"]["max"] < 0.1
+
+
+def test_check_plate_rows_leaves_a_clean_dataset_alone(clean):
+    """No relabelling, no flag, distance ratio 1 on clean data."""
+    pc = check_plate_rows(read_dataset(clean))
+    assert pc.relabelled == () and pc.flagged == {} and pc.distance_ratio == pytest.approx(1.0, abs=1e-4)
+
+
+def test_joints_outside_the_limits_are_reported(clean):
+    """A joint beyond its limit is named with the rows it occurs in."""
+    from dataclasses import replace
+
+    ds = read_dataset(clean)
+    q = ds.q.copy()
+    q[3, 1] = ds.robot.q_max[1] + 0.1
+    notes = check_joints(replace(ds, q=q))
+    assert len(notes) == 1 and notes[0].startswith("q2 outside")
+
+
+def test_implausible_data_is_a_value_error():
+    """The CLI's named-error path catches it (it is a ValueError)."""
+    assert issubclass(ImplausibleData, ValueError)
