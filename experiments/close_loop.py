@@ -38,6 +38,8 @@ def main() -> int:
     ap.add_argument("config")
     ap.add_argument("--out", required=True)
     ap.add_argument("--quick", action="store_true", help="half resolution, 20 configurations per station")
+    ap.add_argument("--reuse-dataset", action="store_true",
+                    help="diagnose OUT/dataset again (rendered before with the same config) instead of rendering")
     args = ap.parse_args()
     cfg = tomllib.loads(Path(args.config).read_text())
     cl = cfg.get("close_loop", {})
@@ -70,24 +72,30 @@ def main() -> int:
     if "instrument_noise_mm" in cl:
         raise ValueError(f"{args.config}: [close_loop] instrument_noise_mm is not allowed: a floor measured against the "
                          "world's truth; diagnosis measures its own (repeats, the plate's distances)")
-    write_dataset_toml(ds_dir, "irb1200", plate, noise_position=None,
-                       provenance=(f"experiments/close_loop.py {args.config}: the IRB-1200 twin rendered, measured by "
-                                   "twin.instrument; effects undeclared"))
+    if not args.reuse_dataset:
+        write_dataset_toml(ds_dir, "irb1200", plate, noise_position=None,
+                           provenance=(f"experiments/close_loop.py {args.config}: the IRB-1200 twin rendered, measured "
+                                       "by twin.instrument; effects undeclared"))
     world.reset_history()
     caps = []
     t = time.time()
     n_flagged = 0
-    with DatasetWriter(ds_dir, optional=["set", "station", "t_s", "temp_c", "status"]) as w:
-        for k, (q, st) in enumerate(zip(plan.q, plan.stations)):
-            # the pose's time stamp reaches the effects (warm-up, change points); the world fills the history
-            cap = world.capture(q, int(st), EffectContext(t_s=float(plan.t_s[k]), station=int(st)), pose_id=k,
-                                noise_seed=k)
-            m = measure_pair(cap.left, cap.right, calib, plate, bias_correction=bool(cl.get("bias_correction", True)))
-            n_flagged += not m.complete
-            w.write(PoseRow(k, q, list(m.centres), set=str(plan.sets[k]), station=world.station_names[int(st)],
-                            t_s=float(plan.t_s[k]), temp_c=float(cap.temp_c), status=m.status))
-            caps.append(dataclasses.replace(cap, left=None, right=None))  # keep the truth, drop the pixels
-    timings["render_and_measure_s"] = time.time() - t
+    if args.reuse_dataset and (ds_dir / "poses.csv").exists():
+        # the truth of the same plan without rendering (the world's effects see the same command history)
+        caps = world.true_sequence(plan.q, list(plan.stations), t_s=plan.t_s)
+        n_flagged = int((~read_dataset(ds_dir).sphere_seen.all(axis=1)).sum())
+    else:
+        with DatasetWriter(ds_dir, optional=["set", "station", "t_s", "temp_c", "status"]) as w:
+            for k, (q, st) in enumerate(zip(plan.q, plan.stations)):
+                # the pose's time stamp reaches the effects (warm-up, change points); the world fills the history
+                cap = world.capture(q, int(st), EffectContext(t_s=float(plan.t_s[k]), station=int(st)), pose_id=k,
+                                    noise_seed=k)
+                m = measure_pair(cap.left, cap.right, calib, plate, bias_correction=bool(cl.get("bias_correction", True)))
+                n_flagged += not m.complete
+                w.write(PoseRow(k, q, list(m.centres), set=str(plan.sets[k]), station=world.station_names[int(st)],
+                                t_s=float(plan.t_s[k]), temp_c=float(cap.temp_c), status=m.status))
+                caps.append(dataclasses.replace(cap, left=None, right=None))  # keep the truth, drop the pixels
+        timings["render_and_measure_s"] = time.time() - t
     world.write_truth(out / "truth.json")
 
     # 3. diagnosis: reads the dataset only

@@ -323,6 +323,10 @@ def diagnose(
         notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
                      f"of the floor, RMS per residual, when it entered): {'; '.join(minor)}")
     unnamed = tuple(a for a in atoms_json if a["family"] == "unnamed" and not a["minor"])
+    instrument = [a["label"] for a in atoms_json if a["place"] == "scale" or a["target"] == "base"]
+    if instrument:
+        notes.append("terms on the measurement side (scale or frame of the measurements) describe the instrument or "
+                     f"the cell, not the robot: {'; '.join(instrument)}")
     rows = _rows_report(prob, prep, dataset)
     if rows["gross_validation"] or rows["gross_calibration"]:
         notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "

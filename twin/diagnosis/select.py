@@ -22,6 +22,7 @@ from .floor import NoiseFloor
 __all__ = ["StructureTest", "CATALOGUE_MARGIN"]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
+CATALOGUE_SHARE = 0.05  # ... or beyond this share of the named term's evidence when both act at the same place
 
 
 @dataclass(frozen=True)
@@ -274,13 +275,19 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
     explain more within the same number of parameters (a broad atom collects a little of several effects;
     it must not pre-empt the small atoms that each hold one of them)."""
-    order = sorted(scored, key=lambda s: s.logp_adj)
+    order = _prefer_nested(sorted(scored, key=lambda s: s.logp_adj))
     if order and order[0].atom.pool == "generic":
         # the dictionary holds supersets of catalogue terms (a polynomial in q_j on theta_j contains the
         # gear-ratio direction): an unnamed term must beat the best named one clearly, not by fitting noise
         named = [s for s in order if s.atom.pool != "generic"]
-        if named and named[0].logp_adj < order[0].logp_adj + CATALOGUE_MARGIN:
-            order = [named[0]] + [s for s in order if s is not named[0]]
+        top = order[0]
+        same = [s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)]
+        cand = same[0] if same else (named[0] if named else None)
+        # at high signal-to-noise, effects not yet modelled leak a few per cent into any broader atom: the
+        # margin grows with the evidence (5 % of it) for a named atom acting at the same place
+        margin = max(CATALOGUE_MARGIN, CATALOGUE_SHARE * abs(cand.logp_adj)) if same else CATALOGUE_MARGIN
+        if cand is not None and cand.logp_adj < top.logp_adj + margin:
+            order = [cand] + [s for s in order if s is not cand]
     if not order or order[0].basis.shape[1] < broad_dim:
         return order
     best = order[0]
@@ -291,6 +298,26 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     if gain >= best.dchi2 and small:
         return small[:1] + [s for s in order if s is not small[0]]
     return order
+
+
+def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Scored]:
+    """When the leading atom's features contain those of a smaller significant atom at the same place (a product
+    group holds the linear terms of its joints; a cubic holds the quadratic and the linear), the smallest such
+    atom goes first: what the larger one adds beyond it must then earn its own place in a later round (its
+    evidence and held-out confirmation), instead of riding on the part they share."""
+    if not order:
+        return order
+    top = order[0]
+    keys = {repr(sorted(f.items())) for f in top.atom.features}
+    best = None
+    for s in order[1:]:
+        if (s.atom.place, s.atom.target) != (top.atom.place, top.atom.target) or s.logp_adj >= np.log(alpha_select):
+            continue
+        sk = {repr(sorted(f.items())) for f in s.atom.features}
+        if sk < keys and (best is None or len(sk) < len(best.atom.features)
+                          or (len(sk) == len(best.atom.features) and s.dchi2 > best.dchi2)):
+            best = s
+    return order if best is None else [best] + [s for s in order if s is not best]
 
 
 def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
