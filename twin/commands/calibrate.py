@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..dataset import read_dataset
-from ..estimator import Calibration, calibrate
 
 HELP = "identify the robot of a measured dataset (writes DIR/calibration.json)"
 
@@ -62,7 +60,7 @@ def _options(args) -> dict:
     return opts
 
 
-def report(cal: Calibration, path: Path) -> str:
+def report(cal, path: Path) -> str:
     """A short text report of a calibration."""
     r = cal.rows
     ida = cal.identifiability
@@ -115,6 +113,8 @@ def report(cal: Calibration, path: Path) -> str:
 
 
 def run(args) -> int:
+    from ..dataset import read_dataset
+    from ..estimator import calibrate
     from dataclasses import replace
 
     from ..estimator.plausibility import ImplausibleData, check_fit, check_joints, check_plate_rows

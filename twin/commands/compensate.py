@@ -6,9 +6,6 @@ import argparse
 
 import numpy as np
 
-from ..dataset import Joints, read_joints_csv, write_joints_csv
-from ..estimator import Calibration, compensation
-from ..kinematics import UnreachableError
 
 HELP = "corrected joint commands that reach target plate poses on the calibrated robot"
 
@@ -27,6 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from ..dataset import Joints, read_joints_csv, write_joints_csv
+    from ..estimator import Calibration, compensation
+    from ..kinematics import UnreachableError
+
     from ..estimator.files import read_targets_csv
 
     cal = Calibration.load(args.calibration)
@@ -62,6 +63,7 @@ def run(args) -> int:
 
 def _compensate_with_effects(cal, T, q_ref, pid, context_path):
     """An extended calibration (from twin diagnose): commands in file order, effects included."""
+    from ..dataset import read_joints_csv
     from ..diagnosis.apply import compensate_extended
     from ..diagnosis.candidates import RowContext
 

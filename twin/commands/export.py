@@ -14,7 +14,6 @@ import csv
 import math
 from pathlib import Path
 
-from ..estimator import Calibration
 
 HELP = "write the calibrated robot as a parameter table (CSV, markdown) and an MJCF model"
 
@@ -23,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (parameters.csv, parameters.md, robot.xml)")
 
 
-def mjcf(cal: Calibration) -> str:
+def mjcf(cal) -> str:
     """MJCF text of the calibrated robot (robot base frame = MJCF world; lengths [m], angles [rad]), made by
     the world's generator so that it looks like the twin."""
     from ..world.mjcf import robot_mjcf_xml
@@ -33,6 +32,8 @@ def mjcf(cal: Calibration) -> str:
 
 
 def run(args) -> int:
+    from ..estimator import Calibration
+
     cal = Calibration.load(args.calibration)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

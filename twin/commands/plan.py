@@ -9,10 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, mujoco_to_opencv_cam2world
-from ..dataset import Joints, default_plate, read_dataset, robot_from_spec, write_joints_csv
-from ..estimator.planning import PlanOptions, StereoCamera, plan_measurements
-from ..transforms import invert_transform, pose6_to_transform
 
 HELP = "choose measurement configurations the cameras can see that identify the parameters well (D-optimal)"
 
@@ -40,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _station_arg(text: str) -> tuple[str, np.ndarray]:
+    from ..transforms import pose6_to_transform
+
     try:
         name, vals = text.split("=", 1)
         v = np.array([float(x) for x in vals.split(",")])
@@ -53,6 +51,9 @@ def _station_arg(text: str) -> tuple[str, np.ndarray]:
 def from_campaign(path: str):
     """Nominal robot, nominal stereo camera (no distortion, centred) and each station's nominal base2meas from a
     world config (stations are placed relative to the nominal robot base, which is the lab frame)."""
+    from ..camera import CameraIntrinsics, mujoco_to_opencv_cam2world
+    from ..estimator.planning import StereoCamera
+    from ..transforms import invert_transform
     from ..world.config import load_world_config, nominal_robot_from_spec
     from ..world.rig import camera2rig, station_rig2world
 
@@ -76,6 +77,9 @@ def from_campaign(path: str):
 
 
 def run(args) -> int:
+    from ..dataset import Joints, default_plate, read_dataset, robot_from_spec, write_joints_csv
+    from ..estimator.planning import PlanOptions, StereoCamera, plan_measurements
+
     robot = camera = None
     stations: dict[str, np.ndarray] = {}
     plate = default_plate()

@@ -4,11 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
-from ..dataset import read_joints_csv
-from ..estimator import Calibration
-from ..estimator.files import write_pred_csv
 
 HELP = "predict sphere centres and plate poses (with standard deviations) for joint rows"
 
@@ -20,6 +15,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from ..dataset import read_joints_csv
+    from ..estimator import Calibration
+    from ..estimator.files import write_pred_csv
+
     cal = Calibration.load(args.calibration)
     j = read_joints_csv(args.joints)
     if cal.effects:
