@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shutil
 import time
 import tomllib
 from pathlib import Path
@@ -103,7 +104,11 @@ def main() -> int:
     t = time.time()
     res = diagnose(ds)
     timings["diagnose_s"] = time.time() - t
-    write_diagnosis(res, out / "diagnosis")
+    paths = write_diagnosis(res, out / "diagnosis")
+    # the verdict and its plots are small: committed beside close_loop.json (the folder is git-ignored)
+    for key in ("diagnosis", "residual_vs_joints", "residual_vs_history"):
+        if key in paths:
+            shutil.copyfile(paths[key], out / paths[key].name)
 
     # 4. evaluation: truth beside the diagnosis
     sigma = res.noise.sigma

@@ -32,6 +32,8 @@ import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel, link_frames
 from ..transforms import pose6_to_transform
+from .config import _check_keys, _num
+from .config import _vector as _config_vector
 from .effects import BaseEffect, EffectContext
 
 __all__ = ["JointPolynomial", "JointProduct", "MoveLag", "LinkGrowth", "BaseShift", "PlateFlex", "SHAPE_TYPES"]
@@ -41,24 +43,13 @@ _MM = 1e-3
 
 
 def _keys(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    unknown = sorted(set(t) - allowed - {"name", "type"})
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    _check_keys(t, allowed | {"name", "type"}, where)
 
 
 def _number(t: Mapping[str, Any], key: str, default: float | None, where: str, *, positive: bool = False) -> float:
-    if key not in t:
-        if default is None:
-            raise ValueError(f"{where}: missing {key!r}")
-        return float(default)
-    v = t[key]
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}.{key} must be a number, got {v!r}") from None
-    if not math.isfinite(x) or (positive and x <= 0):
-        raise ValueError(f"{where}.{key} must be {'positive' if positive else 'finite'}, got {v!r}")
-    return x
+    if default is None and key not in t:
+        raise ValueError(f"{where}: missing {key!r}")
+    return _num(t, key, 0.0 if default is None else default, where, positive=positive)
 
 
 def _joint(v: Any, what: str) -> int:
@@ -69,15 +60,9 @@ def _joint(v: Any, what: str) -> int:
 
 def _vector(t: Mapping[str, Any], key: str, n: int, where: str, default=None) -> np.ndarray:
     v = t.get(key, default)
-    try:
-        a = np.asarray(v, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}.{key} must be {n} numbers, got {v!r}") from None
-    if a.size == 1 and n > 1:
-        a = np.full(n, float(a[0]))
-    if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{where}.{key} must be {n} finite numbers, got {v!r}")
-    return a
+    if np.ndim(v) == 0 and v is not None and n > 1:
+        v = [v] * n
+    return _config_vector(v, n, f"{where}.{key}")
 
 
 class JointPolynomial(BaseEffect):
