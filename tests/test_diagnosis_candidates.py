@@ -5,7 +5,6 @@ import numpy as np
 from twin.diagnosis.candidates import (
     RowContext,
     approach_signs,
-    candidate_catalogue,
     gravity_torque_regressor,
 )
 from twin.kinematics import link_frames
@@ -57,14 +56,16 @@ def test_approach_signs_follow_last_motion_and_hold_when_still():
     assert np.all(s[:, 2] == 1)
 
 
-def test_catalogue_regressor_shapes_match_parameter_names():
-    """Every joint candidate's regressor has one column per named parameter."""
+def test_every_atom_of_both_pools_has_one_feature_column_per_feature():
+    """Catalogue and dictionary atoms evaluate to (rows, features) finite values on a row context."""
+    from twin.diagnosis.atoms import catalogue_atoms, feature_values, generic_atoms
+
     model = irb1200()
-    q = np.random.default_rng(2).uniform(-1, 1, (7, 6))
-    ctx = RowContext(q=q, q_start=np.zeros(6), temp_c=np.linspace(20, 25, 7))
-    for c in candidate_catalogue(model):
-        ref = c.reference(ctx)
-        if c.kind == "joint":
-            assert c.regressor(ctx, ref).shape == (7, 6, len(c.param_names(ref))), c.name
-        elif c.kind == "length":
-            assert c.regressor(ctx, ref).shape == (7, len(c.param_names(ref)))
+    q = np.random.default_rng(2).uniform(-1, 1, (40, 6))
+    ctx = RowContext(q=q, q_start=np.zeros(6), temp_c=np.linspace(20, 25, 40), t_s=np.arange(40) * 10.0)
+    lengths = ["d1", "d4", "a3"]
+    cat = catalogue_atoms(model, ctx, lengths)
+    gen = generic_atoms(model, ctx, ["d1", "alpha2"], lengths, cat)
+    for a in cat + gen[::50]:
+        F = feature_values(a.features, ctx, model)
+        assert F.shape == (40, len(a.features)) and np.all(np.isfinite(F)), a.label

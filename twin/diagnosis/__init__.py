@@ -8,7 +8,7 @@ Reads only datasets (``twin.dataset``) and calibrations (``twin.estimator``); ne
 """
 
 from .atoms import Atom, catalogue_atoms, generic_atoms
-from .candidates import EFFECT_VOCABULARY, Candidate, RowContext, approach_signs, candidate_catalogue, gravity_torque_regressor
+from .candidates import EFFECT_VOCABULARY, RowContext, approach_signs, gravity_torque_regressor
 from .diagnose import (
     CandidateScore,
     DiagnosisError,
@@ -30,7 +30,6 @@ __all__ = [
     "generic_atoms",
     "history_resets",
     "EFFECT_VOCABULARY",
-    "Candidate",
     "CandidateScore",
     "DIAGNOSIS_SCHEMA_VERSION",
     "DiagnosisError",
@@ -39,7 +38,6 @@ __all__ = [
     "RowContext",
     "StructureTest",
     "approach_signs",
-    "candidate_catalogue",
     "EffectFit",
     "diagnose",
     "fit_with_effects",

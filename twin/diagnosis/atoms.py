@@ -76,8 +76,6 @@ class Atom:
 
     @property
     def K(self) -> int:
-        if "K" in self.meta:
-            return int(self.meta["K"])
         return 3 if self.place == "plate" else (6 * len(self.features) if self.target in ("tool", "base") and self.place == "param" else len(self.features))
 
     @property

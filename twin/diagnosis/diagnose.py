@@ -418,10 +418,6 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
         elif a.place == "plate":
             size = {"offset_mm": (phi / _MM).tolist(), "sd_mm": (sd / _MM).tolist()}
             words = "offset (" + ", ".join(f"{v / _MM:+.4f} +- {e / _MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
-        elif a.place == "joints":  # a given all-joint regressor (legacy candidate)
-            eff = np.einsum("nik,k->ni", F.reshape(len(F), 6, -1), phi)
-            size = {"rms_deg": (np.sqrt(np.mean(eff**2, axis=0)) / _DEG).tolist()}
-            words = "RMS per joint " + ", ".join(f"{v:.5f}" for v in size["rms_deg"]) + " deg"
         else:
             eff = F @ phi
             g = F.T / max(len(F), 1)
@@ -496,9 +492,6 @@ def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
             unit = "mm (translation)"
         elif t.atom.place == "plate":
             v = np.full(len(t.F), float(np.linalg.norm(phi)) / _MM)
-        elif t.atom.place == "joints":
-            v = np.linalg.norm(np.einsum("nik,k->ni", t.F.reshape(len(t.F), 6, -1), phi), axis=1) / _DEG
-            unit = "deg"
         else:
             v = (t.F @ phi) * fac
         terms[t.atom.label] = {"value": v, "unit": unit, "channel": t.atom.channel}
@@ -535,7 +528,7 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
                      q_start: np.ndarray | None = None) -> EffectFit:
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
     from the geometry kept) on the calibration rows, and report on the validation rows. An entry may also be
-    a catalogue family's name (or a legacy ``Candidate``): every atom of that family (per joint, per link)."""
+    a catalogue family's name: every atom of that family (per joint, per link)."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:
@@ -544,20 +537,11 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
     prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=holdout or 0.0, seed=seed)
     ident = identify_best(prep, alpha=1e-6)
     ctx = row_context(dataset, q_start)
-    # a legacy Candidate with its own regressor: one term of its full regressor
-    legacy = []
-    for c in atoms:
-        if not isinstance(c, (Atom, str)) and getattr(c, "name", None) not in EFFECT_VOCABULARY and getattr(c, "kind", None) in ("joint", "length"):
-            ref = c.reference(ctx)
-            K = len(c.param_names(ref))
-            place, target = ("joints", "all") if c.kind == "joint" else ("length", "all_lengths")
-            legacy.append(Atom(c.name, place, target, (), c.name, c.description, "given", (),
-                               {"K": K, "regressor": (lambda cx, c=c, ref=ref: c.regressor(cx, ref))}))
-    atoms = [a for a in atoms if not any(a is getattr(l, "_src", None) for l in legacy)]
-    names_legacy = {l.family for l in legacy}
-    atoms = [a for a in atoms if getattr(a, "name", None) not in names_legacy] + legacy
-    # a catalogue family given by name (or as a legacy Candidate) stands for all its atoms
-    fams = {getattr(a, "name", a) for a in atoms if not isinstance(a, Atom)}
+    # a catalogue family given by name stands for all its atoms
+    bad = [a for a in atoms if not isinstance(a, (Atom, str))]
+    if bad:
+        raise ValueError(f"atoms must be twin.diagnosis.atoms.Atom or catalogue family names, got {bad[0]!r}")
+    fams = {a for a in atoms if isinstance(a, str)}
     if fams:
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:

@@ -109,8 +109,6 @@ class ExtendedModel:
             if t.atom.place == "joint":
                 j = int(t.atom.target[5:]) - 1
                 q[:, j] += t.F @ phi
-            elif t.atom.place == "joints":
-                q += np.einsum("nik,k->ni", t.F.reshape(len(q), 6, -1), phi)
             elif t.atom.place == "plate":
                 sph[int(t.atom.target[6:])] += phi
         return replace(self.obs, q=q, spheres_tool=sph)
@@ -122,9 +120,6 @@ class ExtendedModel:
         if a.place in ("joint", "length", "param"):
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
             return (Fr[:, :, None] * base[:, None, :]).reshape(len(res.r), -1)
-        if a.place == "joints":
-            Jt = res.J[:, self.space.family("theta")]  # (m, 6)
-            return np.einsum("mi,mik->mk", Jt, Fr.reshape(len(res.r), 6, -1))
         if a.place == "plate":
             return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]
         if a.place == "scale":

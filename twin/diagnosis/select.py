@@ -109,14 +109,8 @@ class _Problem:
 
     def features(self, atom: Atom) -> np.ndarray:
         key = repr(atom.features)
-        if "regressor" in atom.meta:  # a given regressor (fit_with_effects with a legacy candidate)
-            key = f"regressor:{id(atom)}"
         F = self._F.get(key)
-        if F is None and "regressor" in atom.meta:
-            G = atom.meta["regressor"](self.ctx)
-            F = G.reshape(len(G), -1)
-            self._F[key] = F
-        elif F is None:
+        if F is None:
             F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
             self._F[key] = F
         return F
@@ -176,7 +170,7 @@ class _Scored:
 
 def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
-    if "regressor" in a.meta or len(a.features) > 3:
+    if len(a.features) > 3:
         return False
     return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base"))
 

@@ -22,8 +22,7 @@ import numpy as np
 from ..dataset import Dataset, default_plate, robot_from_spec
 
 __all__ = ["Plan", "plan_poses", "synthetic_dataset", "effect_size", "true_model_error", "truth_effects",
-           "effect_delta", "oracle_delta_fit",
-           "oracle_candidate", "oracle_fit"]
+           "effect_delta", "oracle_delta_fit"]
 
 _MM = 1e-3
 
@@ -155,43 +154,6 @@ def truth_effects(world) -> list[dict]:
         params = e.params() if hasattr(e, "params") else {}
         out.append({"name": name, "params": params})
     return out
-
-
-def oracle_candidate(ds: Dataset, caps: list):
-    """The *true* effect's shape as a one-parameter candidate (scale ``s``, 1 for the truth): the per-row joint
-    offsets ``q_actual - q_cmd`` the world applied, or, when the world changed the geometry (thermal), the
-    per-row relative growth of the link lengths; None when the world applied no effect. Evaluation only: it
-    reads the world's truth."""
-    from ..diagnosis.candidates import Candidate
-
-    if len(caps) != ds.n:
-        raise ValueError(f"caps must align with the dataset rows ({ds.n}), got {len(caps)}")
-    dq = np.stack([c.q_actual - c.q_cmd for c in caps])  # (n, 6) [rad]
-    if all(c.params is None for c in caps) and not np.abs(dq).max() > 0:
-        return None  # no effect at all: the oracle is the geometric model
-    names = ("scale",)
-    if np.abs(dq).max() > 0:
-        return Candidate("oracle_joints", "joint", lambda ref: names,
-                         lambda ctx, ref: dq[:, :, None] if len(ctx.q) == len(dq) else _bad(len(ctx.q), len(dq)),
-                         "the world's own joint offsets, scaled")
-    L0 = np.stack([c.params for c in caps])
-    ref_len = np.median(L0, axis=0)
-    rel = np.where(np.abs(ref_len) > 1e-9, L0 / np.where(np.abs(ref_len) > 1e-9, ref_len, 1.0) - 1.0, 0.0)
-    growth = np.max(np.abs(rel), axis=1) * np.sign(rel.sum(axis=1))
-    return Candidate("oracle_lengths", "length", lambda ref: names, lambda ctx, ref: growth[:, None],
-                     "the world's own length growth per row, scaled")
-
-
-def _bad(a, b):
-    raise ValueError(f"oracle candidate built for {b} rows, asked for {a}")
-
-
-def oracle_fit(ds: Dataset, caps: list):
-    """What the true model achieves when identified on the same rows: geometry + the true effect shape."""
-    from ..diagnosis import fit_with_effects
-
-    cand = oracle_candidate(ds, caps)
-    return fit_with_effects(ds, [] if cand is None else [cand])
 
 
 def effect_delta(world, plan: Plan) -> np.ndarray:
