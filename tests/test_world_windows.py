@@ -31,7 +31,8 @@ def _windows_of(world: World, cap) -> tuple:
     """The windows the world renders for this capture's spheres (left, right)."""
     c2w = world.true_cam2world(cap.station)[0]
     pts = (c2w[:3, :3] @ cap.spheres_meas.T).T + c2w[:3, 3]
-    return world.target_windows(pts, np.full(3, 0.5 * world.nominal_plate.sphere_diameter), cap.station)
+    return world.target_windows(pts, np.full(3, 0.5 * world.nominal_plate.sphere_diameter), cap.station,
+                                outline_arc_px=world.config.render.window_arc_px)
 
 
 def _poses(world: World, n: int) -> np.ndarray:
@@ -44,7 +45,7 @@ def test_windowed_image_equals_full_supersampled_render_inside_the_windows(world
     for q in _poses(ww, 2):
         a, b = ww.capture(q, 0, noise_seed=1, record=False), wf.capture(q, 0, noise_seed=1, record=False)
         for img_a, img_b, rects in zip((a.left, a.right), (b.left, b.right), _windows_of(ww, a)):
-            assert len(rects) == 3
+            assert len(rects) >= 3  # one window per sphere, or a ring of them along its outline
             for u0, v0, u1, v1 in rects:
                 d = np.abs(img_a[v0:v1, u0:u1].astype(int) - img_b[v0:v1, u0:u1].astype(int))
                 # the noise-free grey levels agree to 1/16 level but for GL's rare tie-breaks at a triangle edge,
@@ -79,8 +80,8 @@ def test_detection_on_windows_matches_full_frame_supersample_4(worlds):
         assert diff_mm.max() <= 0.001, diff_mm  # measured <= 0.0007 mm
 
 
-def test_every_sphere_outline_lies_inside_its_window_with_margin(worlds):
-    """Points on each sphere's true outline (its tangent cone, distortion included) are >= 4 px inside a window."""
+def test_every_sphere_outline_lies_inside_its_windows_with_margin(worlds):
+    """Every point of each sphere's true outline (its tangent cone, distortion included) is >= 4 px inside a window."""
     import cv2
 
     ww = worlds["windows"]
@@ -102,9 +103,10 @@ def test_every_sphere_outline_lies_inside_its_window_with_margin(worlds):
                 rim = p * (1 - r**2 / d**2) + r * np.sqrt(1 - r**2 / d**2) * (np.cos(a) * e1 + np.sin(a) * e2)
                 K = np.array([[intr.fx, 0, intr.cx], [0, intr.fy, intr.cy], [0, 0, 1.0]])
                 uv = cv2.projectPoints(rim, np.zeros(3), np.zeros(3), K, np.asarray(intr.dist, float))[0].reshape(-1, 2)
-                ok = [np.all((uv[:, 0] >= u0 + 4) & (uv[:, 0] <= u1 - 5) & (uv[:, 1] >= v0 + 4) & (uv[:, 1] <= v1 - 5))
-                      for u0, v0, u1, v1 in rects]
-                assert any(ok), (cam, uv.min(0), uv.max(0), rects)
+                inside = np.zeros(len(uv), bool)
+                for u0, v0, u1, v1 in rects:
+                    inside |= (uv[:, 0] >= u0 + 4) & (uv[:, 0] <= u1 - 5) & (uv[:, 1] >= v0 + 4) & (uv[:, 1] <= v1 - 5)
+                assert inside.all(), (cam, uv[~inside], rects)
 
 
 def test_window_partly_outside_the_image_is_clipped_to_the_image(worlds):

@@ -182,6 +182,7 @@ class RenderConfig:
     renders that many times the pixels with the same field of view and each output pixel is the mean of its
     block), target windows (``window_supersample`` x ``window_supersample`` samples per pixel in a window
     around each target the camera sees, ``window_margin_px`` [px] beyond the target's projected outline;
+    a large sphere's outline is covered by a ring of windows, one per ``window_arc_px`` [px] of outline;
     0 = no windows; see :meth:`twin.world.World.target_windows`), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
     ``k1 k2 p1 p2 k3``), principal-point offsets from the sensor centre [px at full resolution], lighting
     (key light direction relative to the rig's viewing axis, strengths in MuJoCo's 0..1 light units)."""
@@ -190,6 +191,7 @@ class RenderConfig:
     supersample: int = 1
     window_supersample: int = 0
     window_margin_px: float = 4.0
+    window_arc_px: float = 48.0
     noise_sigma: float = 2.0
     distortion_left: tuple[float, ...] = _DEFAULT_DIST_LEFT
     distortion_right: tuple[float, ...] = _DEFAULT_DIST_RIGHT
@@ -205,7 +207,8 @@ class RenderConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderConfig":
         where = "world.render"
-        _check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "noise_sigma", "distortion", "distortion_left", "distortion_right",
+        _check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "window_arc_px",
+                        "noise_sigma", "distortion", "distortion_left", "distortion_right",
                         "principal_offset_px", "principal_offset_left_px", "principal_offset_right_px",
                         "key_light_azimuth_deg", "key_light_elevation_deg", "key_light", "key_ambient",
                         "headlight", "ambient"}, where)
@@ -242,6 +245,7 @@ class RenderConfig:
             supersample=int(ss),
             window_supersample=int(ws),
             window_margin_px=_num(d, "window_margin_px", 4.0, where, nonneg=True),
+            window_arc_px=_num(d, "window_arc_px", 48.0, where, positive=True),
             noise_sigma=_num(d, "noise_sigma", 2.0, where, nonneg=True),
             distortion_left=dl if dl is not None else _DEFAULT_DIST_LEFT,
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,

@@ -244,11 +244,11 @@ class ImageFormer:
         cv2.flip(self._grey_flipped, 0, dst=self._grey)
         return self._grey
 
-    def ideal_window(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption,
-                     box: tuple[int, int, int, int], s: int) -> np.ndarray:
-        """The ideal pinhole render of the box ``(x0, y0, x1, y1)`` (columns ``x0..x1-1``, rows ``y0..y1-1``, row 0
-        at the top) of the ideal sampling grid at ``s x s`` samples per pixel (``s*W x s*H``): ``(y1-y0, x1-x0)``
-        uint8, the same samples as the whole grid's render there (up to GL rounding).
+    def ideal_windows(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption,
+                      boxes: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
+        """The ideal pinhole renders of the boxes ``(x0, y0, x1, y1)`` (columns ``x0..x1-1``, rows ``y0..y1-1``, row
+        0 at the top) of the ideal sampling grid at ``s x s`` samples per pixel (``s*W x s*H``): ``(y1-y0, x1-x0)``
+        uint8 each, the same samples as the whole grid's render there (up to GL rounding).
 
         Off-axis frustum of the same camera: after ``mjv_updateScene`` the scene camera's near-plane window
         (``frustum_center``, ``frustum_bottom``, ``frustum_top``, half-width from the viewport's aspect when
@@ -258,10 +258,11 @@ class ImageFormer:
         """
         if self._con is None:
             raise RuntimeError("the image former was closed")
-        x0, y0, x1, y1 = (int(b) for b in box)
         gw, gh = s * self.width, s * self.height
-        if not (0 <= x0 < x1 <= gw and 0 <= y0 < y1 <= gh):
-            raise ValueError(f"box {box!r} is not inside the {gw}x{gh} sampling grid")
+        for box in boxes:
+            x0, y0, x1, y1 = box
+            if not (0 <= x0 < x1 <= gw and 0 <= y0 < y1 <= gh):
+                raise ValueError(f"box {box!r} is not inside the {gw}x{gh} sampling grid")
         self._gl.make_current()
         self._cam.fixedcamid = int(camera_id)
         # mjv_updateScene fills the scene cameras (mjr_render draws their average in mono): narrow their frustum
@@ -269,54 +270,64 @@ class ImageFormer:
         mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
         gl_cams = [self._scene.camera[0], self._scene.camera[1]]
         full = [(c.frustum_center, c.frustum_bottom, c.frustum_top) for c in gl_cams]
-        out = np.empty((y1 - y0, x1 - x0), dtype=np.uint8)
         bw, bh = self.render_width, self.render_height  # the offscreen buffer
+        outs = []
         try:
-            for ty in range(y0, y1, bh):
-                for tx in range(x0, x1, bw):
-                    w, h = min(bw, x1 - tx), min(bh, y1 - ty)
-                    for c, (cen, bot, top) in zip(gl_cams, full):
-                        height = top - bot
-                        half = 0.5 * gw / gh * height
-                        left = cen - half + tx / gw * 2 * half
-                        right = cen - half + (tx + w) / gw * 2 * half
-                        c.frustum_center = 0.5 * (left + right)
-                        c.frustum_width = 0.0  # half-width from the viewport aspect: (right - left) / 2
-                        c.frustum_top = top - ty / gh * height
-                        c.frustum_bottom = top - (ty + h) / gh * height
-                    rect = mujoco.MjrRect(0, 0, w, h)
-                    mujoco.mjr_render(rect, self._scene, self._con)
-                    rgb = np.empty((h, w, 3), dtype=np.uint8)
-                    mujoco.mjr_readPixels(rgb, None, rect, self._con)  # bottom row first
-                    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-                    out[ty - y0:ty - y0 + h, tx - x0:tx - x0 + w] = grey[::-1]
+            for x0, y0, x1, y1 in boxes:
+                out = np.empty((y1 - y0, x1 - x0), dtype=np.uint8)
+                outs.append(out)
+                for ty in range(y0, y1, bh):
+                    for tx in range(x0, x1, bw):
+                        w, h = min(bw, x1 - tx), min(bh, y1 - ty)
+                        for c, (cen, bot, top) in zip(gl_cams, full):
+                            height = top - bot
+                            half = 0.5 * gw / gh * height
+                            left = cen - half + tx / gw * 2 * half
+                            right = cen - half + (tx + w) / gw * 2 * half
+                            c.frustum_center = 0.5 * (left + right)
+                            c.frustum_width = 0.0  # half-width from the viewport aspect: (right - left) / 2
+                            c.frustum_top = top - ty / gh * height
+                            c.frustum_bottom = top - (ty + h) / gh * height
+                        rect = mujoco.MjrRect(0, 0, w, h)
+                        mujoco.mjr_render(rect, self._scene, self._con)
+                        rgb = np.empty((h, w, 3), dtype=np.uint8)
+                        mujoco.mjr_readPixels(rgb, None, rect, self._con)  # bottom row first
+                        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+                        out[ty - y0:ty - y0 + h, tx - x0:tx - x0 + w] = grey[::-1]
         finally:
             for c, (cen, bot, top) in zip(gl_cams, full):
                 c.frustum_center, c.frustum_bottom, c.frustum_top = cen, bot, top
-        return out
+        return outs
 
-    def window_analog(self, data: mujoco.MjData, camera_id: int, cam: CameraPipeline, option: mujoco.MjvOption,
-                      rect: tuple[int, int, int, int], s: int) -> np.ndarray:
-        """The noise-free output pixels ``(v1-v0, u1-u0)`` float32 of the image window ``rect`` = ``(u0, v0, u1,
-        v1)`` at ``s x s`` samples per pixel: the ideal render of the samples' source box, distortion on the
-        sampling grid (the same dithered bilinear remap as the full frame), block means."""
-        u0, v0, u1, v1 = rect
-        mx, my = cam.window_maps(rect, s)
+    def windows_analog(self, data: mujoco.MjData, camera_id: int, cam: CameraPipeline, option: mujoco.MjvOption,
+                       rects: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
+        """The noise-free output pixels ``(v1-v0, u1-u0)`` float32 of each image window ``(u0, v0, u1, v1)`` at
+        ``s x s`` samples per pixel: the ideal render of the samples' source box, distortion on the sampling
+        grid (the same dithered bilinear remap as the full frame), block means."""
         gw, gh = s * self.width, s * self.height
-        # the source box: every bilinear neighbour of every sample (clipped to the grid: BORDER_REPLICATE there,
-        # as in the full frame)
-        x0 = int(np.clip(np.floor(mx.min()) - 1, 0, gw - 1))
-        y0 = int(np.clip(np.floor(my.min()) - 1, 0, gh - 1))
-        x1 = int(np.clip(np.ceil(mx.max()) + 2, x0 + 1, gw))
-        y1 = int(np.clip(np.ceil(my.max()) + 2, y0 + 1, gh))
-        ideal = self.ideal_window(data, camera_id, option, (x0, y0, x1, y1), s).astype(np.float32)
-        if cam.maps is None:
-            samples = ideal[s * v0 - y0:s * v1 - y0, s * u0 - x0:s * u1 - x0]
-        else:
-            # the full frame's dither at these samples, then the source box's origin
-            m1, m2 = _dithered_fixed_point(cam.name, mx, my, s * u0, s * v0, shift=(x0, y0))
-            samples = cv2.remap(ideal, m1, m2, _REMAP_INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
-        return cv2.resize(samples, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA)
+        maps, boxes = [], []
+        for rect in rects:
+            mx, my = cam.window_maps(rect, s)
+            # the source box: every bilinear neighbour of every sample (clipped to the grid: BORDER_REPLICATE
+            # there, as in the full frame)
+            x0 = int(np.clip(np.floor(mx.min()) - 1, 0, gw - 1))
+            y0 = int(np.clip(np.floor(my.min()) - 1, 0, gh - 1))
+            x1 = int(np.clip(np.ceil(mx.max()) + 2, x0 + 1, gw))
+            y1 = int(np.clip(np.ceil(my.max()) + 2, y0 + 1, gh))
+            maps.append((mx, my))
+            boxes.append((x0, y0, x1, y1))
+        ideals = self.ideal_windows(data, camera_id, option, boxes, s)
+        out = []
+        for (u0, v0, u1, v1), (mx, my), (x0, y0, _, _), ideal in zip(rects, maps, boxes, ideals):
+            ideal = ideal.astype(np.float32)
+            if cam.maps is None:
+                samples = ideal[s * v0 - y0:s * v1 - y0, s * u0 - x0:s * u1 - x0]
+            else:
+                # the full frame's dither at these samples, then the source box's origin
+                m1, m2 = _dithered_fixed_point(cam.name, mx, my, s * u0, s * v0, shift=(x0, y0))
+                samples = cv2.remap(ideal, m1, m2, _REMAP_INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
+            out.append(cv2.resize(samples, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA))
+        return out
 
     def form(
         self,
@@ -378,9 +389,9 @@ class ImageFormer:
             ws = int(window_supersample)
             if ws < 1:
                 raise ValueError(f"window_supersample must be an integer >= 1, got {window_supersample!r}")
-            for rect in windows:
-                u0, v0, u1, v1 = rect
-                analog_img[v0:v1, u0:u1] = self.window_analog(data, camera_id, cam, option, rect, ws)
+            for (u0, v0, u1, v1), win in zip(windows, self.windows_analog(data, camera_id, cam, option,
+                                                                          list(windows), ws)):
+                analog_img[v0:v1, u0:u1] = win
         if analog:
             return analog_img.copy()
         if noise_sigma > 0:

@@ -58,7 +58,7 @@ def _merge_rects(rects: list[tuple[int, int, int, int]], always: bool = False) -
     """Rectangles ``(u0, v0, u1, v1)`` with overlapping ones replaced by their bounding box (all of them into
     one with ``always``), repeated until none overlap."""
     rects = list(rects)
-    if always and rects:
+    if always and rects:  # one window: no seam inside the region
         a = np.array(rects)
         return [(int(a[:, 0].min()), int(a[:, 1].min()), int(a[:, 2].max()), int(a[:, 3].max()))]
     merged = True
@@ -491,15 +491,21 @@ class World:
         self._image_counter += 1
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
-    def target_windows(self, targets_world: np.ndarray, radii: np.ndarray, station: int = 0
+    def target_windows(self, targets_world: np.ndarray, radii: np.ndarray, station: int = 0, *,
+                       outline_arc_px: float | None = None
                        ) -> tuple[tuple[tuple[int, int, int, int], ...], tuple[tuple[int, int, int, int], ...]]:
         """Image windows ``(u0, v0, u1, v1)`` [px] (columns ``u0..u1-1``) around targets, per camera (left, right).
 
         ``targets_world`` ``(n, 3)`` [m] are centres of balls of ``radii`` ``(n,)`` [m] (a plane region: its
         corners with radius 0). Each window is the bounding box of the true projections (distortion included) of
         the target's bounding cube, grown by ``render.window_margin_px`` [px] plus 2 px for the outline's blur,
-        clipped to the image; targets behind the camera or outside the image get none; overlapping windows
-        are merged (one window, no seam between two renders of the same outline).
+        clipped to the image; targets behind the camera or outside the image get none.
+
+        ``outline_arc_px``: a ball whose outline is long enough is covered by a ring of windows instead, one per
+        arc of about that length [px] of its true outline (the projected tangent circle), each the arc's
+        bounding box grown as above: the outline is what the sampling moves; the smooth shading inside and the
+        background outside are the same at one sample per pixel. Windows may overlap: the frame and every window
+        sample the same grid with the same tables, so overlaps agree (up to GL rounding) and need no merging.
         """
         pts = np.asarray(targets_world, dtype=float).reshape(-1, 3)
         rad = np.broadcast_to(np.asarray(radii, dtype=float), (len(pts),))
@@ -510,20 +516,40 @@ class World:
             w2c = invert_transform(c2w)
             intr = pipe.intr
             K = np.array([[intr.fx, 0, intr.cx], [0, intr.fy, intr.cy], [0, 0, 1.0]])
+            dist = np.asarray(intr.dist, dtype=float)
             rects = []
-            for p, r in zip(pts, rad):
-                cube = (w2c[:3, :3] @ (p + r * corners).T).T + w2c[:3, 3]
-                if np.any(cube[:, 2] <= 1e-3):
-                    continue
-                uv, _ = cv2.projectPoints(cube, np.zeros(3), np.zeros(3), K, np.asarray(intr.dist, dtype=float))
-                uv = uv.reshape(-1, 2)
+
+            def box(uv: np.ndarray) -> None:
                 u0 = max(int(np.floor(uv[:, 0].min() - margin)), 0)
                 v0 = max(int(np.floor(uv[:, 1].min() - margin)), 0)
                 u1 = min(int(np.ceil(uv[:, 0].max() + margin)) + 1, intr.width)
                 v1 = min(int(np.ceil(uv[:, 1].max() + margin)) + 1, intr.height)
                 if u1 > u0 and v1 > v0:
                     rects.append((u0, v0, u1, v1))
-            out.append(tuple(_merge_rects(rects)))
+
+            for p, r in zip(pts, rad):
+                pc = w2c[:3, :3] @ p + w2c[:3, 3]
+                cube = pc + r * corners
+                if np.any(cube[:, 2] <= 1e-3):
+                    continue
+                d = float(np.linalg.norm(pc))
+                r_px = intr.fx * r / max(d, 1e-9)
+                n_arcs = int(np.ceil(2 * np.pi * r_px / outline_arc_px)) if outline_arc_px and r > 0 else 0
+                if n_arcs < 4 or r_px < 4 * margin:
+                    box(cv2.projectPoints(cube, np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2))
+                    continue
+                # the tangent circle: centre pc (1 - r^2/d^2), radius r sqrt(1 - r^2/d^2), normal pc/d
+                n = pc / d
+                e1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [1.0, 0.0, 0.0])
+                e1 /= np.linalg.norm(e1)
+                e2 = np.cross(n, e1)
+                per = 8
+                a = np.linspace(0, 2 * np.pi, n_arcs * per + 1)[:, None]
+                rim = pc * (1 - r**2 / d**2) + r * np.sqrt(1 - r**2 / d**2) * (np.cos(a) * e1 + np.sin(a) * e2)
+                uv = cv2.projectPoints(rim, np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2)
+                for k in range(n_arcs):
+                    box(uv[k * per:(k + 1) * per + 1])
+            out.append(tuple(rects))
         return out[0], out[1]
 
     def _sphere_windows(self, station: int):
@@ -531,7 +557,8 @@ class World:
             return None
         g = self._sphere_geoms
         # where MuJoCo draws the spheres now (after scene effects): geom centres and bounding radii
-        return self.target_windows(self.data.geom_xpos[g], self.model.geom_rbound[g], station)
+        return self.target_windows(self.data.geom_xpos[g], self.model.geom_rbound[g], station,
+                                   outline_arc_px=self.config.render.window_arc_px)
 
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
                    analog: bool = False, pair_seed: int | None = None, cameras: tuple[int, ...] = (0, 1),
