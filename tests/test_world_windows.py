@@ -146,3 +146,33 @@ def test_window_supersample_is_validated():
     for bad in (-1, 9, 2.5, True):
         with pytest.raises(ValueError, match="window_supersample"):
             World.from_config({"world": {**BASE, "render": {"scale": SCALE, "window_supersample": bad}}})
+
+
+class _Brighten:
+    """An image effect adding 10 grey levels to the whole ideal render."""
+
+    name = "brighten"
+    changes_image = True
+
+    def joints(self, q, ctx):
+        return q
+
+    def geometry(self, robot, ctx):
+        return robot
+
+    def image(self, img, ctx, camera):
+        return np.minimum(img.astype(np.int16) + 10, 255).astype(np.uint8)
+
+    def params(self):
+        return {}
+
+
+def test_image_effects_turn_the_windows_off():
+    """With an image effect the windowed world forms the one-sample frame (effects need one whole sampling grid)."""
+    imgs = []
+    for ws in (4, 0):
+        cfg = {"world": {**BASE, "render": {"scale": SCALE, "window_supersample": ws}}}
+        with World.from_config(cfg, effects=[_Brighten()]) as w:
+            q = _poses(w, 1)[0]
+            imgs.append(w.capture(q, 0, noise_seed=5, record=False).left)
+    assert np.array_equal(imgs[0], imgs[1])

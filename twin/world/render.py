@@ -14,11 +14,19 @@ pixel is the mean of its block, as a sensor pixel integrates light. Averaging fi
 averaged image afterwards was measured too: the bilinear remap at output resolution puts 0.03 px of centre
 error back (0.033 px against 0.011 px RMS).
 
+Target windows (``render.window_supersample`` = ``S``): the frame at ``s`` samples per pixel, and windows
+``(u0, v0, u1, v1)`` of the output image at ``S x S``: their samples lie on the whole ``S``-grid (the tables
+of :meth:`CameraPipeline.window_maps`, the same dither), MuJoCo draws only their source box through an
+off-axis frustum of the same camera (:meth:`ImageFormer.ideal_windows`), and their block means replace the
+frame's noise-free pixels before the noise: one whole image, equal inside each window to the full ``S x S``
+render up to GL rounding.
+
 Sub-pixel fidelity: resampling an 8-bit image to 8 bits loses shifts smaller than ~1/30 px (each pixel
 changes by less than half a grey level and rounds back), and ``cv2.remap`` quantizes source positions to
 1/32 px, which biases every feature the same way. So the resampling runs in float32 and its tables carry
 a fixed uniform dither of one quantum (+-1/64 px), which makes the quantization error zero-mean from
-pixel to pixel; the sensor noise then dithers the final rounding. Measured: the image of a known point
+pixel to pixel (a hash of the sample's position, so that windows get the frame's dither); the sensor noise
+then dithers the final rounding. Measured: the image of a known point
 agrees with the camera model to about 0.001 px (``tests/test_world_render.py``).
 
 The distortion is applied by resampling: a true pixel ``(u, v)`` has normalized distorted coordinates
