@@ -48,9 +48,9 @@ def test_windowed_image_equals_full_supersampled_render_inside_the_windows(world
             assert len(rects) >= 3  # one window per sphere, or a ring of them along its outline
             for u0, v0, u1, v1 in rects:
                 d = np.abs(img_a[v0:v1, u0:u1].astype(int) - img_b[v0:v1, u0:u1].astype(int))
-                # the noise-free grey levels agree to 1/16 level but for GL's rare tie-breaks at a triangle edge,
-                # after which the noise and the 8-bit rounding can differ by one level
-                assert np.mean(d > 1) < 1e-3 and d.max() <= 4, (d.max(), np.mean(d > 1))
+                # the noise-free grey levels agree to 1/16 level (one sample of 16 one level apart: GL rounding),
+                # after which the same noise and the 8-bit rounding can differ by one level
+                assert d.max() <= 1 and np.mean(d > 0) < 0.01, (d.max(), np.mean(d > 0))
 
 
 def test_windowed_image_equals_the_one_sample_frame_outside_the_windows(worlds):
@@ -135,7 +135,7 @@ def test_spheres_hidden_by_the_arm_are_flagged_not_misplaced(worlds):
     for img_a, img_b, rects in zip((a.left, a.right), (b.left, b.right), _windows_of(ww, a)):
         for u0, v0, u1, v1 in rects:
             d = np.abs(img_a[v0:v1, u0:u1].astype(int) - img_b[v0:v1, u0:u1].astype(int))
-            assert np.mean(d > 1) < 1e-3 and d.max() <= 4
+            assert d.max() <= 1 and np.mean(d > 0) < 0.01
     il, ir = ww.true_intrinsics()
     m = measure_pair(a.left, a.right, StereoCalibration(il, ir, ww.true_left2right(), 0.0, 0.0, 0.0), ww.nominal_plate)
     assert not m.complete

@@ -139,29 +139,33 @@ class CameraPipeline:
         pixel coordinates (the whole grid: ``s*W x s*H``, focal ``s*f_r``, centre ``s*W/2 - 0.5``).
 
         The same construction as the full-frame tables (:func:`twin.world.rig.distortion_maps`): the inverse
-        distortion solved on the same coarse grid (every 16 samples), around the window, and a bicubic spline at
-        every sample (the spline's nodes away from the window change it by far less than cv2.remap's 1/32 px).
+        distortion solved on the whole grid's coarse lattice (every 16 samples, padded by two nodes) and the
+        same bicubic spline, evaluated at the window's samples only (:meth:`_lattice_splines`, built once).
         """
         u0, v0, u1, v1 = rect
-        si = sampling_intrinsics(self.intr, s)
         xs = np.arange(s * u0, s * u1, dtype=float)
         ys = np.arange(s * v0, s * v1, dtype=float)
-        ccx, ccy = s * self.intr.width / 2 - 0.5, s * self.intr.height / 2 - 0.5
-        fr = s * self.f_render
         if self.maps is None:  # the true camera is the ideal one: the window's samples are the ideal grid's
             mx, my = np.meshgrid(xs, ys)
             return mx.astype(np.float32), my.astype(np.float32)
-        # the full frame's coarse grid (every 16 samples from -32 on), over the window and 4 nodes beyond
-        step = 16
-        cu = np.arange(step * (np.floor(xs[0] / step) - 4), step * (np.ceil(xs[-1] / step) + 4) + 1, step)
-        cv = np.arange(step * (np.floor(ys[0] / step) - 4), step * (np.ceil(ys[-1] / step) + 4) + 1, step)
-        U, V = np.meshgrid(cu, cv)
-        xy = undistort_normalized(np.stack([(U - si.cx) / si.fx, (V - si.cy) / si.fy], axis=-1), si.dist)
-        maps = []
-        for c, cc in ((0, ccx), (1, ccy)):
-            m = RectBivariateSpline(cv, cu, xy[..., c], kx=3, ky=3)(ys, xs)
-            maps.append((m * fr + cc).astype(np.float32))
-        return maps[0], maps[1]
+        ccx, ccy = s * self.intr.width / 2 - 0.5, s * self.intr.height / 2 - 0.5
+        fr = s * self.f_render
+        sx, sy = self._lattice_splines(s)
+        return ((sx(ys, xs) * fr + ccx).astype(np.float32), (sy(ys, xs) * fr + ccy).astype(np.float32))
+
+    def _lattice_splines(self, s: int) -> tuple[RectBivariateSpline, RectBivariateSpline]:
+        """The normalized ray ``(x, y)`` of every sample of the ``s``-grid as two bicubic splines on the coarse
+        lattice of :func:`twin.world.rig.distortion_maps` (nodes every 16 samples from -32 on), cached."""
+        cache = self.__dict__.setdefault("_splines", {})
+        if s not in cache:
+            si = sampling_intrinsics(self.intr, s)
+            step = 16
+            us = np.arange(-2 * step, si.width + 2 * step + 1, step, dtype=float)
+            vs = np.arange(-2 * step, si.height + 2 * step + 1, step, dtype=float)
+            U, V = np.meshgrid(us, vs)
+            xy = undistort_normalized(np.stack([(U - si.cx) / si.fx, (V - si.cy) / si.fy], axis=-1), si.dist)
+            cache[s] = tuple(RectBivariateSpline(vs, us, xy[..., c], kx=3, ky=3) for c in (0, 1))
+        return cache[s]
 
     @property
     def fovy_deg(self) -> float:
