@@ -176,3 +176,14 @@ def test_image_effects_turn_the_windows_off():
             q = _poses(w, 1)[0]
             imgs.append(w.capture(q, 0, noise_seed=5, record=False).left)
     assert np.array_equal(imgs[0], imgs[1])
+
+
+def test_target_windows_reject_bad_input(worlds):
+    """Targets not (n, 3), radii of the wrong length or negative are ValueErrors naming the argument."""
+    w = worlds["windows"]
+    with pytest.raises(ValueError, match="targets_world"):
+        w.target_windows(np.zeros((2, 2)), np.zeros(2))
+    with pytest.raises(ValueError, match="radii"):
+        w.target_windows(np.zeros((2, 3)), np.zeros(3))
+    with pytest.raises(ValueError, match="radii"):
+        w.target_windows(np.zeros((1, 3)), np.array([-0.01]))

@@ -507,8 +507,15 @@ class World:
         background outside are the same at one sample per pixel. Windows may overlap: the frame and every window
         sample the same grid with the same tables, so overlaps agree (up to GL rounding) and need no merging.
         """
-        pts = np.asarray(targets_world, dtype=float).reshape(-1, 3)
-        rad = np.broadcast_to(np.asarray(radii, dtype=float), (len(pts),))
+        pts = np.asarray(targets_world, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+            raise ValueError(f"targets_world must be a finite (n, 3) array [m], got shape {pts.shape}")
+        rad = np.asarray(radii, dtype=float)
+        if rad.shape != (len(pts),) or not np.all(np.isfinite(rad)) or np.any(rad < 0):
+            raise ValueError(f"radii must be {len(pts)} finite radii >= 0 [m], got {radii!r}")
+        if outline_arc_px is not None and not outline_arc_px > 0:
+            raise ValueError(f"outline_arc_px must be positive [px] or None, got {outline_arc_px!r}")
+        station = self._check_station(station)
         corners = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float)
         margin = self.config.render.window_margin_px + 2.0
         out = []
