@@ -23,16 +23,9 @@ import numpy as np
 
 from twin.benchio import update_benchmark_section
 from twin.dataset import Plate
+from twin.estimator.problem import kabsch
 from twin.instrument import plate_pose_from_spheres
 from twin.transforms import rotation_angle_between
-
-
-def _kabsch(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Best rotation R and translation t with ``R X + t ~ Y`` for points ``(n, 3)``."""
-    mx, my = X.mean(0), Y.mean(0)
-    U, _, Vt = np.linalg.svd((Y - my).T @ (X - mx))
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-    return R, my - R @ mx
 
 
 def instrument_errors(run_dir: Path) -> dict:
@@ -53,7 +46,7 @@ def instrument_errors(run_dir: Path) -> dict:
             sph.append(np.array(t["spheres_meas_m"]))
             tool.append(np.array(t["tool2meas"]))
     X, Y = np.concatenate(meas), np.concatenate(sph)
-    R, t = _kabsch(X, Y)
+    R, t = kabsch(X, Y)  # R X + t ~ Y
     err_raw = np.linalg.norm(X - Y, axis=1) * 1e3
     err_al = np.linalg.norm(X @ R.T + t - Y, axis=1) * 1e3
     ori = [np.degrees(rotation_angle_between(R @ plate_pose_from_spheres(m, plate).tool2meas[:3, :3], T[:3, :3]))

@@ -187,3 +187,19 @@ def test_target_windows_reject_bad_input(worlds):
         w.target_windows(np.zeros((2, 3)), np.zeros(3))
     with pytest.raises(ValueError, match="radii"):
         w.target_windows(np.zeros((1, 3)), np.array([-0.01]))
+
+
+def test_board_view_window_equals_full_supersampled_render(worlds):
+    """A board view's window (the chessboard) equals the full-frame 4x4 render; outside it the one-sample frame."""
+    ww, wf, w1 = worlds["windows"], worlds["full4"], worlds["full1"]
+    T = ww.render_board_views(1, seed=2)[0].board2meas
+    a, b, c = (w.render_board(T, 0, noise=False, record=False) for w in (ww, wf, w1))
+    for img_a, img_b, img_c in ((a.left, b.left, c.left), (a.right, b.right, c.right)):
+        d4 = np.abs(img_a.astype(int) - img_b.astype(int))
+        d1 = np.abs(img_a.astype(int) - img_c.astype(int))
+        win = d1 > 0  # where the window changed the one-sample frame
+        assert win.mean() > 0.01  # the board is sampled differently
+        v, u = np.nonzero(win)
+        box = (slice(v.min(), v.max() + 1), slice(u.min(), u.max() + 1))
+        # GL rounding: a handful of samples on a texel edge flip (one sample of 16 is at most 16 levels)
+        assert np.mean(d4[box] > 1) < 1e-4 and d4[box].max() <= 16 and np.mean(d4[box] > 0) < 0.01
