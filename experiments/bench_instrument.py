@@ -19,6 +19,9 @@ averaged like a real sensor's pixel integrates light, then the same noise) and `
 and board views drawn by the analytic ray tracer of ``twin.instrument.synthetic``: exact, anti-aliased
 sphere outlines).
 
+The main ``world`` row renders with the twin's target windows (``--window-supersample``, default 4: one
+sample per pixel, 4 x 4 in windows along the sphere outlines and over the board, what ``make run`` renders);
+``world_full_frame`` is the same scene at one sample per pixel everywhere.
 ``--render-supersample N`` renders the main ``world`` row with the twin's own ``render.supersample = N``
 (N x N samples per pixel, distortion on the sampling grid, block means, then noise).
 
@@ -174,7 +177,7 @@ def _scaled_back(c: CameraIntrinsics, s: int) -> CameraIntrinsics:
 
 
 def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, depth_range=(0.5, 1.0),
-              render_supersample: int = 1) -> tuple[dict, dict]:
+              render_supersample: int = 1, window_supersample: int = 0) -> tuple[dict, dict]:
     """Render with the twin, calibrate from its board views, measure; returns (figures, scene for reuse).
 
     ``supersample`` > 1 is a what-if: the twin renders a sensor with ``supersample`` times the pixels (same
@@ -184,6 +187,9 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
     cfg: dict = {"seed": seed}
     if render_supersample > 1:
         cfg["render"] = {"supersample": render_supersample}  # the twin's own supersampling
+    if window_supersample > 0:
+        # the twin's target windows: 1 sample per pixel, window_supersample**2 along sphere outlines and boards
+        cfg.setdefault("render", {})["window_supersample"] = window_supersample
     if supersample > 1:
         rig = World.from_config({"seed": seed}).config.rig
         cfg["rig"] = {"width_px": rig.width_px * supersample, "height_px": rig.height_px * supersample,
@@ -238,6 +244,7 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
         "noise_sigma_grey": 2.0,
         "samples_per_pixel": supersample**2 * render_supersample**2,
         "render_supersample": render_supersample,
+        "window_supersample": window_supersample,
         "board_views": len(views),
         "offsamples": msaa,
     }
@@ -279,6 +286,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--render-supersample", type=int, default=1,
                     help="the twin's render.supersample for the main world row (samples per pixel along each axis)")
+    ap.add_argument("--window-supersample", type=int, default=4,
+                    help="the twin's render.window_supersample for the main world row (0: no windows); the row "
+                         "'world_full_frame' renders the same scene without windows")
     ap.add_argument("--no-msaa", action="store_true", help="skip the 4x multisampling what-if")
     ap.add_argument("--no-supersample", action="store_true", help="skip the 2x2 supersampled-rendering what-if")
     ap.add_argument("--no-analytic", action="store_true", help="skip the analytic-renderer row")
@@ -287,8 +297,12 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     load0 = os.getloadavg()
-    world, scene = run_world(args.per_station, args.seed, render_supersample=args.render_supersample)
+    world, scene = run_world(args.per_station, args.seed, render_supersample=args.render_supersample,
+                             window_supersample=args.window_supersample)
     section = {"protocol": __doc__.split("\n\n")[1].replace("\n", " "), "targets": TARGETS, "world": world}
+    if args.window_supersample > 0:
+        section["world_full_frame"], _ = run_world(args.per_station, args.seed,
+                                                   render_supersample=args.render_supersample)
     if not args.no_msaa:
         section["what_if_msaa4"], _ = run_world(args.per_station, args.seed, msaa=4)
     if not args.no_supersample:

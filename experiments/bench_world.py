@@ -1,6 +1,8 @@
 """Benchmark of the world's image formation: seconds per full-resolution stereo pair with sensor noise,
 next to MuJoCo's bare ``Renderer.update_scene`` + ``Renderer.render()`` for the same scene and cameras, with
-one sample per pixel and with ``render.supersample = 2`` (2 x 2 samples per pixel).
+one sample per pixel, with ``render.supersample = 2`` (2 x 2 samples per pixel) and with
+``render.window_supersample = 4`` (1 sample per pixel, 4 x 4 in windows along the sphere outlines and over the
+board), and the instrument's ``measure_pair`` on each rendered pair (render + measure against the bare render).
 
 Writes the ``world`` section of ``results/benchmark.json``. Bare and full renders are interleaved so that
 load from other processes on the machine hits both alike; figures are medians (and minima, the least
@@ -22,6 +24,7 @@ import numpy as np
 import twin  # noqa: F401  (MUJOCO_GL=egl before mujoco)
 import mujoco
 from twin.benchio import update_benchmark_section
+from twin.instrument import StereoCalibration, measure_pair
 from twin.world import World
 
 
@@ -30,7 +33,8 @@ def _stats(x: list[float]) -> dict:
 
 
 def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ...] = (1,)) -> dict:
-    """World.render_pair against MuJoCo's bare renderer at ``bare_scales`` times the image size, interleaved."""
+    """World.render_pair against MuJoCo's bare renderer at ``bare_scales`` times the image size, interleaved;
+    plus the instrument's measure_pair on the rendered pair (exact calibration: only its time is used here)."""
     world.capture(q, 0, record=False)  # warm-up: creates the world's renderer, uploads textures
     w, h = world.image_size
     renderers = {s: mujoco.Renderer(world.model, s * h, s * w) for s in bare_scales}  # MuJoCo's own renderer
@@ -39,7 +43,9 @@ def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ..
         r.update_scene(world.data, camera=world._cam_ids[0], scene_option=world._opt_pairs)
         r.render()  # warm-up
     bare: dict[int, list[float]] = {s: [] for s in bare_scales}
-    full = []
+    full, measure = [], []
+    il, ir = world.true_intrinsics()
+    cal = StereoCalibration(il, ir, world.true_left2right(), 0.0, 0.0, 0.0)
     for _ in range(repeats):
         for s, r in renderers.items():
             t = time.perf_counter()
@@ -48,17 +54,24 @@ def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ..
                 r.render()
             bare[s].append(time.perf_counter() - t)
         t = time.perf_counter()
-        world.render_pair(q, 0)
+        left, right = world.render_pair(q, 0)
         full.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        measure_pair(left, right, cal, world.nominal_plate)
+        measure.append(time.perf_counter() - t)
     world.truth_poses.clear()
     for r in renderers.values():
         r.close()
-    out = {"supersample": world.config.render.supersample, "pair_s": _stats(full)}
+    r = world.config.render
+    out = {"supersample": r.supersample, "window_supersample": r.window_supersample, "pair_s": _stats(full),
+           "measure_pair_s": _stats(measure)}
     for s in bare_scales:
         out[f"bare_pair_s_{s}x"] = _stats(bare[s])
     b1 = bare[1]
     out["ratio_to_bare_1x"] = round(float(np.median(full) / np.median(b1)), 3)
     out["ratio_of_min_to_bare_1x"] = round(float(np.min(full) / np.min(b1)), 3)
+    both = np.array(full) + np.array(measure)
+    out["render_plus_measure_ratio_to_bare_1x"] = round(float(np.median(both) / np.median(b1)), 3)
     return out
 
 
@@ -98,16 +111,28 @@ def main() -> int:
     out["board_view_pair_s_supersample_2"] = _board_pair_s(w, args.board_views)
     w.close()
 
+    t = time.perf_counter()
+    w = World.from_config({**base, "render": {"window_supersample": 4}})  # the default camera, 4 x 4 in windows
+    out["build_world_s_windows_4"] = round(time.perf_counter() - t, 3)
+    out["windows_4"] = _bench(w, q, args.repeats)
+    out["board_view_pair_s_windows_4"] = _board_pair_s(w, args.board_views)
+    w.close()
     d1, d2 = out["noise_and_distortion"], out["supersample_2"]
+    out["windows_4_over_1"] = {"median": round(out["windows_4"]["pair_s"]["median"] / d1["pair_s"]["median"], 3),
+                               "min": round(out["windows_4"]["pair_s"]["min"] / d1["pair_s"]["min"], 3)}
+    out["target_render_plus_measure_ratio_windows"] = 1.0
     out["supersample_2_over_1"] = {"median": round(d2["pair_s"]["median"] / d1["pair_s"]["median"], 3),
                                    "min": round(d2["pair_s"]["min"] / d1["pair_s"]["min"], 3)}
     out["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     out["note"] = ("pair_s: World.render_pair (kinematics, render both cameras, grey, distortion remap in float32, "
                    "with supersampling 2x2 block means, Gaussian noise, 8-bit rounding, truth of the pose); "
                    "bare_pair_s_Nx: Renderer.update_scene + Renderer.render() for both cameras of the same scene at N "
-                   "times the image width and height; ratio_to_bare_1x: pair_s over the bare render of the output size")
+                   "times the image width and height; ratio_to_bare_1x: pair_s over the bare render of the output size; "
+                   "measure_pair_s: the instrument on that pair; render_plus_measure_ratio_to_bare_1x: "
+                   "(pair_s + measure_pair_s) over the bare render, medians; windows_4: 4 x 4 samples per pixel in "
+                   "the target windows")
     path = update_benchmark_section("world", out)
-    for k in ("noise_only", "noise_and_distortion", "supersample_2"):
+    for k in ("noise_only", "noise_and_distortion", "supersample_2", "windows_4"):
         d = out[k]
         extra = f", bare 2x {d['bare_pair_s_2x']['median']:.3f} s" if "bare_pair_s_2x" in d else ""
         print(f"{k}: {d['pair_s']['median']:.3f} s/pair vs bare {d['bare_pair_s_1x']['median']:.3f} s/pair "

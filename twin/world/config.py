@@ -38,6 +38,8 @@ _DEG = math.pi / 180.0
 # Largest render.supersample: 4 x 2592 = 10368 px a side is inside GL's 16384 (llvmpipe here); the sampling-grid
 # buffers grow with s^2 (0.55 GB at s = 2). The GL limit itself is checked when the renderer is built.
 MAX_SUPERSAMPLE = 4
+# Largest render.window_supersample: windows are drawn in buffer-sized tiles, so only their cost limits it.
+MAX_WINDOW_SUPERSAMPLE = 8
 
 
 def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -178,12 +180,18 @@ _DEFAULT_PP_RIGHT = (-3.0, 5.5)
 class RenderConfig:
     """Image formation: resolution ``scale``, samples per pixel (``supersample`` x ``supersample``: MuJoCo
     renders that many times the pixels with the same field of view and each output pixel is the mean of its
-    block), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
+    block), target windows (``window_supersample`` x ``window_supersample`` samples per pixel in a window
+    around each target the camera sees, ``window_margin_px`` [px] beyond the target's projected outline;
+    a large sphere's outline is covered by a ring of windows, one per ``window_arc_px`` [px] of outline;
+    0 = no windows; see :meth:`twin.world.World.target_windows`), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
     ``k1 k2 p1 p2 k3``), principal-point offsets from the sensor centre [px at full resolution], lighting
     (key light direction relative to the rig's viewing axis, strengths in MuJoCo's 0..1 light units)."""
 
     scale: float = 1.0
     supersample: int = 1
+    window_supersample: int = 0
+    window_margin_px: float = 4.0
+    window_arc_px: float = 48.0
     noise_sigma: float = 2.0
     distortion_left: tuple[float, ...] = _DEFAULT_DIST_LEFT
     distortion_right: tuple[float, ...] = _DEFAULT_DIST_RIGHT
@@ -199,7 +207,8 @@ class RenderConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderConfig":
         where = "world.render"
-        _check_keys(d, {"scale", "supersample", "noise_sigma", "distortion", "distortion_left", "distortion_right",
+        _check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "window_arc_px",
+                        "noise_sigma", "distortion", "distortion_left", "distortion_right",
                         "principal_offset_px", "principal_offset_left_px", "principal_offset_right_px",
                         "key_light_azimuth_deg", "key_light_elevation_deg", "key_light", "key_ambient",
                         "headlight", "ambient"}, where)
@@ -210,6 +219,10 @@ class RenderConfig:
         if isinstance(ss, bool) or not isinstance(ss, (int, np.integer)) or not 1 <= ss <= MAX_SUPERSAMPLE:
             raise ValueError(f"{where}.supersample must be an integer 1..{MAX_SUPERSAMPLE} (samples per pixel along "
                              f"each axis), got {ss!r}")
+        ws = d.get("window_supersample", 0)
+        if isinstance(ws, bool) or not isinstance(ws, (int, np.integer)) or not 0 <= ws <= MAX_WINDOW_SUPERSAMPLE:
+            raise ValueError(f"{where}.window_supersample must be an integer 0..{MAX_WINDOW_SUPERSAMPLE} (samples per "
+                             f"pixel along each axis in the target windows, 0 = no windows), got {ws!r}")
         dl = dr = None
         if "distortion" in d:
             dl = dr = tuple(_vector(d["distortion"], 5, f"{where}.distortion"))
@@ -230,6 +243,9 @@ class RenderConfig:
         return cls(
             scale=scale,
             supersample=int(ss),
+            window_supersample=int(ws),
+            window_margin_px=_num(d, "window_margin_px", 4.0, where, nonneg=True),
+            window_arc_px=_num(d, "window_arc_px", 48.0, where, positive=True),
             noise_sigma=_num(d, "noise_sigma", 2.0, where, nonneg=True),
             distortion_left=dl if dl is not None else _DEFAULT_DIST_LEFT,
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,

@@ -14,11 +14,19 @@ pixel is the mean of its block, as a sensor pixel integrates light. Averaging fi
 averaged image afterwards was measured too: the bilinear remap at output resolution puts 0.03 px of centre
 error back (0.033 px against 0.011 px RMS).
 
+Target windows (``render.window_supersample`` = ``S``): the frame at ``s`` samples per pixel, and windows
+``(u0, v0, u1, v1)`` of the output image at ``S x S``: their samples lie on the whole ``S``-grid (the tables
+of :meth:`CameraPipeline.window_maps`, the same dither), MuJoCo draws only their source box through an
+off-axis frustum of the same camera (:meth:`ImageFormer.ideal_windows`), and their block means replace the
+frame's noise-free pixels before the noise: one whole image, equal inside each window to the full ``S x S``
+render up to GL rounding.
+
 Sub-pixel fidelity: resampling an 8-bit image to 8 bits loses shifts smaller than ~1/30 px (each pixel
 changes by less than half a grey level and rounds back), and ``cv2.remap`` quantizes source positions to
 1/32 px, which biases every feature the same way. So the resampling runs in float32 and its tables carry
 a fixed uniform dither of one quantum (+-1/64 px), which makes the quantization error zero-mean from
-pixel to pixel; the sensor noise then dithers the final rounding. Measured: the image of a known point
+pixel to pixel (a hash of the sample's position, so that windows get the frame's dither); the sensor noise
+then dithers the final rounding. Measured: the image of a known point
 agrees with the camera model to about 0.001 px (``tests/test_world_render.py``).
 
 The distortion is applied by resampling: a true pixel ``(u, v)`` has normalized distorted coordinates
@@ -37,7 +45,9 @@ import cv2
 import mujoco
 import numpy as np
 
-from ..camera import CameraIntrinsics
+from ..camera import CameraIntrinsics, undistort_normalized
+from scipy.interpolate import RectBivariateSpline
+
 from .rig import check_distortion_monotonic, distortion_maps, render_focal_px
 
 __all__ = ["CameraPipeline", "scene_option", "sampling_intrinsics"]
@@ -69,6 +79,34 @@ def sampling_intrinsics(intr: CameraIntrinsics, supersample: int) -> CameraIntri
                             s * intr.width, s * intr.height, intr.dist)
 
 
+def _hash_dither(seed: int, x0: int, y0: int, shape: tuple[int, int]) -> np.ndarray:
+    """A fixed uniform dither in ``[-1/64, 1/64)`` px ``shape`` float32 for the samples ``x0 + j``, ``y0 + i`` of
+    a sampling grid: a hash of (seed, column, row), so that any window of the grid gets the whole grid's values."""
+    ys = np.arange(y0, y0 + shape[0], dtype=np.uint32)[:, None]
+    xs = np.arange(x0, x0 + shape[1], dtype=np.uint32)[None, :]
+    with np.errstate(over="ignore"):
+        h = xs * np.uint32(0x9E3779B1) ^ ys * np.uint32(0x85EBCA77) ^ np.uint32(seed * 0xC2B2AE3D & 0xFFFFFFFF)
+        h ^= h >> np.uint32(16)  # murmur3's finalizer: every input bit reaches every output bit
+        h *= np.uint32(0x85EBCA6B)
+        h ^= h >> np.uint32(13)
+        h *= np.uint32(0xC2B2AE35)
+        h ^= h >> np.uint32(16)
+    return ((h >> np.uint32(8)).astype(np.float32) * np.float32(2.0**-24) - np.float32(0.5)) * np.float32(1.0 / 32.0)
+
+
+def _dithered_fixed_point(name: str, map_x: np.ndarray, map_y: np.ndarray, x0: int, y0: int,
+                          shift: tuple[int, int] = (0, 0)) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap``'s fixed-point tables (``CV_16SC2``) of the float32 maps of the samples from ``(x0, y0)`` on,
+    each moved by the camera's fixed dither of one quantum and by ``-shift`` (a source box's origin) [px]."""
+    seed = sum(map(ord, name))
+    mx = map_x + _hash_dither(2 * seed, x0, y0, map_x.shape)
+    my = map_y + _hash_dither(2 * seed + 1, x0, y0, map_y.shape)
+    if shift != (0, 0):
+        mx -= np.float32(shift[0])
+        my -= np.float32(shift[1])
+    return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+
+
 @dataclass
 class CameraPipeline:
     """One camera's image formation: its true intrinsics, ideal render focal length, samples per pixel along
@@ -90,12 +128,44 @@ class CameraPipeline:
         # the ideal render on the sampling grid has focal length s * f_r: the same field of view
         maps = distortion_maps(sampling_intrinsics(intr, s), s * f_r)
         if maps is not None:
-            # Dither of one quantum (cv2.remap works in 1/32 px), fixed per camera, then fixed-point tables.
-            rng = np.random.default_rng(sum(map(ord, name)))
-            for m in maps:
-                m += rng.uniform(-1.0 / 64.0, 1.0 / 64.0, size=m.shape).astype(np.float32)
-            maps = cv2.convertMaps(maps[0], maps[1], cv2.CV_16SC2)
+            # Dither of one quantum (cv2.remap works in 1/32 px), fixed per camera and sample (a hash of the
+            # sample's position, so that target windows get the same dither), then fixed-point tables.
+            maps = _dithered_fixed_point(name, maps[0], maps[1], 0, 0)
         return cls(name, intr, f_r, maps, s)
+
+    def window_maps(self, rect: tuple[int, int, int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where each sample of the output window ``rect`` = ``(u0, v0, u1, v1)`` [px] lies in the ideal render's
+        sampling grid at ``s x s`` samples per pixel: two float32 ``(s*(v1-v0), s*(u1-u0))`` maps in that grid's
+        pixel coordinates (the whole grid: ``s*W x s*H``, focal ``s*f_r``, centre ``s*W/2 - 0.5``).
+
+        The same construction as the full-frame tables (:func:`twin.world.rig.distortion_maps`): the inverse
+        distortion solved on the whole grid's coarse lattice (every 16 samples, padded by two nodes) and the
+        same bicubic spline, evaluated at the window's samples only (:meth:`_lattice_splines`, built once).
+        """
+        u0, v0, u1, v1 = rect
+        xs = np.arange(s * u0, s * u1, dtype=float)
+        ys = np.arange(s * v0, s * v1, dtype=float)
+        if self.maps is None:  # the true camera is the ideal one: the window's samples are the ideal grid's
+            mx, my = np.meshgrid(xs, ys)
+            return mx.astype(np.float32), my.astype(np.float32)
+        ccx, ccy = s * self.intr.width / 2 - 0.5, s * self.intr.height / 2 - 0.5
+        fr = s * self.f_render
+        sx, sy = self._lattice_splines(s)
+        return ((sx(ys, xs) * fr + ccx).astype(np.float32), (sy(ys, xs) * fr + ccy).astype(np.float32))
+
+    def _lattice_splines(self, s: int) -> tuple[RectBivariateSpline, RectBivariateSpline]:
+        """The normalized ray ``(x, y)`` of every sample of the ``s``-grid as two bicubic splines on the coarse
+        lattice of :func:`twin.world.rig.distortion_maps` (nodes every 16 samples from -32 on), cached."""
+        cache = self.__dict__.setdefault("_splines", {})
+        if s not in cache:
+            si = sampling_intrinsics(self.intr, s)
+            step = 16
+            us = np.arange(-2 * step, si.width + 2 * step + 1, step, dtype=float)
+            vs = np.arange(-2 * step, si.height + 2 * step + 1, step, dtype=float)
+            U, V = np.meshgrid(us, vs)
+            xy = undistort_normalized(np.stack([(U - si.cx) / si.fx, (V - si.cy) / si.fy], axis=-1), si.dist)
+            cache[s] = tuple(RectBivariateSpline(vs, us, xy[..., c], kx=3, ky=3) for c in (0, 1))
+        return cache[s]
 
     @property
     def fovy_deg(self) -> float:
@@ -186,6 +256,91 @@ class ImageFormer:
         cv2.flip(self._grey_flipped, 0, dst=self._grey)
         return self._grey
 
+    def ideal_windows(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption,
+                      boxes: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
+        """The ideal pinhole renders of the boxes ``(x0, y0, x1, y1)`` (columns ``x0..x1-1``, rows ``y0..y1-1``, row
+        0 at the top) of the ideal sampling grid at ``s x s`` samples per pixel (``s*W x s*H``): ``(y1-y0, x1-x0)``
+        uint8 each, the same samples as the whole grid's render there (up to GL rounding).
+
+        Off-axis frustum of the same camera: after ``mjv_updateScene`` the scene camera's near-plane window
+        (``frustum_center``, ``frustum_bottom``, ``frustum_top``, half-width from the viewport's aspect when
+        ``frustum_width`` is 0) is narrowed to the box's share of the whole grid's, and the box is drawn into a
+        viewport of its own size, so each pixel centre maps to the same ray as in the whole grid. Boxes larger
+        than the offscreen buffer are drawn in tiles.
+        """
+        if self._con is None:
+            raise RuntimeError("the image former was closed")
+        gw, gh = s * self.width, s * self.height
+        for box in boxes:
+            x0, y0, x1, y1 = box
+            if not (0 <= x0 < x1 <= gw and 0 <= y0 < y1 <= gh):
+                raise ValueError(f"box {box!r} is not inside the {gw}x{gh} sampling grid")
+        self._gl.make_current()
+        self._cam.fixedcamid = int(camera_id)
+        # mjv_updateScene fills the scene cameras (mjr_render draws their average in mono): narrow their frustum
+        # after it and before mjr_render (the only window onto the projection MuJoCo offers)
+        mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
+        gl_cams = [self._scene.camera[0], self._scene.camera[1]]
+        full = [(c.frustum_center, c.frustum_bottom, c.frustum_top) for c in gl_cams]
+        bw, bh = self.render_width, self.render_height  # the offscreen buffer
+        outs = []
+        try:
+            for x0, y0, x1, y1 in boxes:
+                out = np.empty((y1 - y0, x1 - x0), dtype=np.uint8)
+                outs.append(out)
+                for ty in range(y0, y1, bh):
+                    for tx in range(x0, x1, bw):
+                        w, h = min(bw, x1 - tx), min(bh, y1 - ty)
+                        for c, (cen, bot, top) in zip(gl_cams, full):
+                            height = top - bot
+                            half = 0.5 * gw / gh * height
+                            left = cen - half + tx / gw * 2 * half
+                            right = cen - half + (tx + w) / gw * 2 * half
+                            c.frustum_center = 0.5 * (left + right)
+                            c.frustum_width = 0.0  # half-width from the viewport aspect: (right - left) / 2
+                            c.frustum_top = top - ty / gh * height
+                            c.frustum_bottom = top - (ty + h) / gh * height
+                        rect = mujoco.MjrRect(0, 0, w, h)
+                        mujoco.mjr_render(rect, self._scene, self._con)
+                        rgb = np.empty((h, w, 3), dtype=np.uint8)
+                        mujoco.mjr_readPixels(rgb, None, rect, self._con)  # bottom row first
+                        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+                        out[ty - y0:ty - y0 + h, tx - x0:tx - x0 + w] = grey[::-1]
+        finally:
+            for c, (cen, bot, top) in zip(gl_cams, full):
+                c.frustum_center, c.frustum_bottom, c.frustum_top = cen, bot, top
+        return outs
+
+    def windows_analog(self, data: mujoco.MjData, camera_id: int, cam: CameraPipeline, option: mujoco.MjvOption,
+                       rects: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
+        """The noise-free output pixels ``(v1-v0, u1-u0)`` float32 of each image window ``(u0, v0, u1, v1)`` at
+        ``s x s`` samples per pixel: the ideal render of the samples' source box, distortion on the sampling
+        grid (the same dithered bilinear remap as the full frame), block means."""
+        gw, gh = s * self.width, s * self.height
+        maps, boxes = [], []
+        for rect in rects:
+            mx, my = cam.window_maps(rect, s)
+            # the source box: every bilinear neighbour of every sample (clipped to the grid: BORDER_REPLICATE
+            # there, as in the full frame)
+            x0 = int(np.clip(np.floor(mx.min()) - 1, 0, gw - 1))
+            y0 = int(np.clip(np.floor(my.min()) - 1, 0, gh - 1))
+            x1 = int(np.clip(np.ceil(mx.max()) + 2, x0 + 1, gw))
+            y1 = int(np.clip(np.ceil(my.max()) + 2, y0 + 1, gh))
+            maps.append((mx, my))
+            boxes.append((x0, y0, x1, y1))
+        ideals = self.ideal_windows(data, camera_id, option, boxes, s)
+        out = []
+        for (u0, v0, u1, v1), (mx, my), (x0, y0, _, _), ideal in zip(rects, maps, boxes, ideals):
+            ideal = ideal.astype(np.float32)
+            if cam.maps is None:
+                samples = ideal[s * v0 - y0:s * v1 - y0, s * u0 - x0:s * u1 - x0]
+            else:
+                # the full frame's dither at these samples, then the source box's origin
+                m1, m2 = _dithered_fixed_point(cam.name, mx, my, s * u0, s * v0, shift=(x0, y0))
+                samples = cv2.remap(ideal, m1, m2, _REMAP_INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
+            out.append(cv2.resize(samples, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA))
+        return out
+
     def form(
         self,
         data: mujoco.MjData,
@@ -197,6 +352,8 @@ class ImageFormer:
         image_effects: tuple[Callable[[np.ndarray], np.ndarray], ...] = (),
         *,
         analog: bool = False,
+        windows: tuple[tuple[int, int, int, int], ...] = (),
+        window_supersample: int = 4,
     ) -> np.ndarray:
         """The camera's image ``(H, W)`` uint8 (a new array): ideal render, image effects, distortion, pixel
         integration (supersampling), noise.
@@ -204,6 +361,11 @@ class ImageFormer:
         Image effects get the ideal render of :meth:`ideal_grey` (uint8, on the sampling grid: ``s`` times the
         image size with supersampling) and must return the same shape and dtype. ``analog``: return the
         float32 image before noise and 8-bit rounding (diagnostics).
+
+        ``windows``: image rectangles ``(u0, v0, u1, v1)`` [px] formed at ``window_supersample`` x
+        ``window_supersample`` samples per pixel (:meth:`window_analog`) and pasted into the full frame's
+        noise-free image before the noise, so that the result is one whole image. Ignored when image effects
+        are given (they work on the whole ideal render of one sampling grid): the image is the full frame's.
         """
         if cam.supersample != self.supersample:
             raise ValueError(f"camera {cam.name!r} was built for supersample {cam.supersample}, the renderer "
@@ -215,7 +377,8 @@ class ImageFormer:
             if img.shape != shape or img.dtype != np.uint8:
                 raise ValueError(f"an image effect returned {img.shape} {img.dtype}, expected {shape} uint8 "
                                  f"(the ideal render on the sampling grid, supersample {self.supersample})")
-        if cam.maps is None and self.supersample == 1:
+        windows = tuple(windows) if not image_effects else ()
+        if cam.maps is None and self.supersample == 1 and not windows:
             if analog:
                 return img.astype(np.float32)
             out = img.copy()
@@ -234,6 +397,13 @@ class ImageFormer:
             # each output pixel: the mean of its s x s samples (INTER_AREA with an integer factor, exact in float32)
             cv2.resize(analog_img, (self.width, self.height), dst=self._mean, interpolation=cv2.INTER_AREA)
             analog_img = self._mean
+        if windows:
+            ws = int(window_supersample)
+            if ws < 1:
+                raise ValueError(f"window_supersample must be an integer >= 1, got {window_supersample!r}")
+            for (u0, v0, u1, v1), win in zip(windows, self.windows_analog(data, camera_id, cam, option,
+                                                                          list(windows), ws)):
+                analog_img[v0:v1, u0:u1] = win
         if analog:
             return analog_img.copy()
         if noise_sigma > 0:

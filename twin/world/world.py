@@ -54,6 +54,29 @@ _BOARD_TEXTURE = "board_texture.png"
 _PROBE_TEXTURE = "probe_texture.png"
 
 
+def _merge_rects(rects: list[tuple[int, int, int, int]], always: bool = False) -> list[tuple[int, int, int, int]]:
+    """Rectangles ``(u0, v0, u1, v1)`` with overlapping ones replaced by their bounding box (all of them into
+    one with ``always``), repeated until none overlap."""
+    rects = list(rects)
+    if always and rects:  # one window: no seam inside the region
+        a = np.array(rects)
+        return [(int(a[:, 0].min()), int(a[:, 1].min()), int(a[:, 2].max()), int(a[:, 3].max()))]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(rects)):
+            for j in range(i + 1, len(rects)):
+                a, b = rects[i], rects[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    rects[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                    del rects[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return rects
+
+
 def _png_bytes(img: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".png", img)
     if not ok:
@@ -468,10 +491,88 @@ class World:
         self._image_counter += 1
         return int(np.random.SeedSequence([self.config.seed, 2, self._image_counter]).generate_state(1)[0])
 
+    def target_windows(self, targets_world: np.ndarray, radii: np.ndarray, station: int = 0, *,
+                       outline_arc_px: float | None = None
+                       ) -> tuple[tuple[tuple[int, int, int, int], ...], tuple[tuple[int, int, int, int], ...]]:
+        """Image windows ``(u0, v0, u1, v1)`` [px] (columns ``u0..u1-1``) around targets, per camera (left, right).
+
+        ``targets_world`` ``(n, 3)`` [m] are centres of balls of ``radii`` ``(n,)`` [m] (a plane region: its
+        corners with radius 0). Each window is the bounding box of the true projections (distortion included) of
+        the target's bounding cube, grown by ``render.window_margin_px`` [px] plus 2 px for the outline's blur,
+        clipped to the image; targets behind the camera or outside the image get none.
+
+        ``outline_arc_px``: a ball whose outline is long enough is covered by a ring of windows instead, one per
+        arc of about that length [px] of its true outline (the projected tangent circle), each the arc's
+        bounding box grown as above: the outline is what the sampling moves; the smooth shading inside and the
+        background outside are the same at one sample per pixel. Windows may overlap: the frame and every window
+        sample the same grid with the same tables, so overlaps agree (up to GL rounding) and need no merging.
+        """
+        pts = np.asarray(targets_world, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+            raise ValueError(f"targets_world must be a finite (n, 3) array [m], got shape {pts.shape}")
+        rad = np.asarray(radii, dtype=float)
+        if rad.shape != (len(pts),) or not np.all(np.isfinite(rad)) or np.any(rad < 0):
+            raise ValueError(f"radii must be {len(pts)} finite radii >= 0 [m], got {radii!r}")
+        if outline_arc_px is not None and not outline_arc_px > 0:
+            raise ValueError(f"outline_arc_px must be positive [px] or None, got {outline_arc_px!r}")
+        station = self._check_station(station)
+        corners = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float)
+        margin = self.config.render.window_margin_px + 2.0
+        out = []
+        for c2w, pipe in zip(self.true_cam2world(station), self._pipes):
+            w2c = invert_transform(c2w)
+            intr = pipe.intr
+            K = np.array([[intr.fx, 0, intr.cx], [0, intr.fy, intr.cy], [0, 0, 1.0]])
+            dist = np.asarray(intr.dist, dtype=float)
+            rects = []
+
+            def box(uv: np.ndarray) -> None:
+                u0 = max(int(np.floor(uv[:, 0].min() - margin)), 0)
+                v0 = max(int(np.floor(uv[:, 1].min() - margin)), 0)
+                u1 = min(int(np.ceil(uv[:, 0].max() + margin)) + 1, intr.width)
+                v1 = min(int(np.ceil(uv[:, 1].max() + margin)) + 1, intr.height)
+                if u1 > u0 and v1 > v0:
+                    rects.append((u0, v0, u1, v1))
+
+            for p, r in zip(pts, rad):
+                pc = w2c[:3, :3] @ p + w2c[:3, 3]
+                cube = pc + r * corners
+                if np.any(cube[:, 2] <= 1e-3):
+                    continue
+                d = float(np.linalg.norm(pc))
+                r_px = intr.fx * r / max(d, 1e-9)
+                n_arcs = int(np.ceil(2 * np.pi * r_px / outline_arc_px)) if outline_arc_px and r > 0 else 0
+                if n_arcs < 4 or r_px < 4 * margin:
+                    box(cv2.projectPoints(cube, np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2))
+                    continue
+                # the tangent circle: centre pc (1 - r^2/d^2), radius r sqrt(1 - r^2/d^2), normal pc/d
+                n = pc / d
+                e1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[1]) < 0.9 else [1.0, 0.0, 0.0])
+                e1 /= np.linalg.norm(e1)
+                e2 = np.cross(n, e1)
+                per = 8
+                a = np.linspace(0, 2 * np.pi, n_arcs * per + 1)[:, None]
+                rim = pc * (1 - r**2 / d**2) + r * np.sqrt(1 - r**2 / d**2) * (np.cos(a) * e1 + np.sin(a) * e2)
+                uv = cv2.projectPoints(rim, np.zeros(3), np.zeros(3), K, dist)[0].reshape(-1, 2)
+                for k in range(n_arcs):
+                    box(uv[k * per:(k + 1) * per + 1])
+            out.append(tuple(rects))
+        return out[0], out[1]
+
+    def _sphere_windows(self, station: int):
+        if self.config.render.window_supersample < 1:
+            return None
+        g = self._sphere_geoms
+        # where MuJoCo draws the spheres now (after scene effects): geom centres and bounding radii
+        return self.target_windows(self.data.geom_xpos[g], self.model.geom_rbound[g], station,
+                                   outline_arc_px=self.config.render.window_arc_px)
+
     def _form_pair(self, option: mujoco.MjvOption, ctx: EffectContext | None, noise: bool = True,
-                   analog: bool = False, pair_seed: int | None = None, cameras: tuple[int, ...] = (0, 1)):
+                   analog: bool = False, pair_seed: int | None = None, cameras: tuple[int, ...] = (0, 1),
+                   windows=None):
         """Both images (``cameras`` selects which are rendered; the other comes back ``None``, its noise seed
-        is drawn all the same so that later images do not depend on the selection)."""
+        is drawn all the same so that later images do not depend on the selection). ``windows``: per camera,
+        image rectangles rendered at ``render.window_supersample`` (:meth:`target_windows`)."""
         former = self._get_former()
         images = []
         for c, (cam_name, cam_id, pipe) in enumerate(zip(("left", "right"), self._cam_ids, self._pipes)):
@@ -487,7 +588,8 @@ class World:
                 )
             sigma = self.config.render.noise_sigma if noise else 0.0
             images.append(former.form(self.data, cam_id, pipe, option, sigma, self._noise_seed(pair_seed, c), fx,
-                                      analog=analog))
+                                      analog=analog, windows=() if windows is None else windows[c],
+                                      window_supersample=self.config.render.window_supersample))
         return images[0], images[1]
 
     def _truth_of(self, q_cmd: np.ndarray, station: int, ctx: EffectContext, pose_id: int, render: bool,
@@ -499,7 +601,8 @@ class World:
             left = right = np.empty((0, 0), np.uint8)
             if render:
                 self._apply_scene(apply_scene_effects(self.effects, self._default_scene, ctx))
-                left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed)
+                left, right = self._form_pair(self._opt_pairs, ctx, pair_seed=noise_seed,
+                                              windows=self._sphere_windows(station))
             spheres = self.true_spheres_meas(q_act, station)
             tool = self.true_tool2meas(q_act, station)
         finally:
@@ -621,7 +724,16 @@ class World:
             self.data.mocap_pos[k] = board2world[:3, 3]
             self.data.mocap_quat[k] = matrix_to_quat_wxyz(board2world[:3, :3])
             self._place(self.data.qpos[self._qadr].copy(), station)
-            left, right = self._form_pair(self._opt_board, None, noise=noise)
+            windows = None
+            if self.config.render.window_supersample >= 1:
+                # the board's corner region: the chessboard's four outer corners (the face without its margin)
+                b = self.config.board
+                sx, sy = b.squares_x * b.square, b.squares_y * b.square
+                quad = np.array([[0, 0, 0], [sx, 0, 0], [0, sy, 0], [sx, sy, 0]], dtype=float)
+                quad_world = (board2world[:3, :3] @ quad.T).T + board2world[:3, 3]
+                windows = self.target_windows(quad_world, np.zeros(4), station)
+                windows = tuple(tuple(_merge_rects(list(w), always=True)) for w in windows)
+            left, right = self._form_pair(self._opt_board, None, noise=noise, windows=windows)
         finally:
             self._hide("board")
         index = -1
