@@ -1,6 +1,7 @@
 """Synthetic sphere-centre datasets with known effects, for diagnosis tests (no rendering).
 
-The effects here are formulas applied to the commanded joints (test data only); the twin's own effects
+The effects here are formulas applied to the commanded joints (test data only), written independently of the
+diagnosis (gravity torques by differentiating the potential energy); the twin's own effects
 live in ``twin.world``. Noise: the instrument's order of magnitude (5 um per coordinate).
 """
 
@@ -91,29 +92,58 @@ def _replace(ds: Dataset, **kw) -> Dataset:
     return replace(ds, **kw)
 
 
-# ---- effects (test formulas) -------------------------------------------------------------------------
-from twin.diagnosis.candidates import approach_signs, gravity_torque_regressor  # noqa: E402
+# ---- effects (test formulas, written here: not the diagnosis' regressors) -----------------------------
+from twin.kinematics import link_frames  # noqa: E402
 
 # plausible IRB-1200 link masses [kg] and centres of mass in the link frames [m]
 MASSES = np.array([12.0, 10.0, 8.0, 3.0, 1.5, 0.8])
 COMS = np.array([[0, 0, -0.1], [0.17, 0, 0.0], [0.05, 0, 0.0], [0, 0, -0.15], [0, 0, 0.0], [0, 0, 0.05]])
+G = np.array([0.0, 0.0, -9.81])
+
+
+def _gravity_torque(model, q):
+    """Joint torques of gravity ``(n, 6)`` [N m] by central differences of the potential energy (an
+    independent route to what the diagnosis' regressor computes in closed form)."""
+    def V(qq):
+        F = link_frames(model, qq)
+        return sum(m * (F[:, k + 1, :3, 3] + np.einsum("nij,j->ni", F[:, k + 1, :3, :3], c)) @ G
+                   for k, (m, c) in enumerate(zip(MASSES, COMS)))
+
+    h = 1e-6
+    tau = np.zeros_like(q)
+    for i in range(6):
+        e = np.zeros(6)
+        e[i] = h
+        tau[:, i] = -(V(q + e) - V(q - e)) / (2 * h)
+    return tau
+
+
+def _approach(q, start=None):
+    """Sign of each joint's last move (from home before the first), test-side."""
+    prev = np.zeros(6) if start is None else np.asarray(start, float)
+    last = np.ones(6)
+    out = np.empty_like(q)
+    for k in range(len(q)):
+        d = np.sign(q[k] - prev)
+        last = np.where(d != 0, d, last)
+        out[k] = last
+        prev = q[k]
+    return out
 
 
 def compliance(scale=1.0):
     """dtheta_i = c_i tau_i(q) with stiffness of a 7 kg arm (c in rad per N m)."""
     c = scale * np.array([0, 2.0e-6, 3.0e-6, 5e-6, 8e-6, 1e-5])
-    theta = np.concatenate([MASSES[:, None], MASSES[:, None] * COMS], axis=1)
 
     def f(q, model):
-        tau = np.einsum("nikc,kc->ni", gravity_torque_regressor(model, q), theta)
-        return q - c * tau  # a servo yields to the gravity torque
+        return q + c * _gravity_torque(model, q)  # a servo yields to the gravity torque
 
     return f
 
 
 def backlash(b_deg=(0, 0.008, 0.008, 0, 0.01, 0)):
     b = np.deg2rad(b_deg)
-    return lambda q, model: q + approach_signs(q) * b
+    return lambda q, model: q + _approach(q) * b
 
 
 def cyclic(amp_deg=0.01, joint=2, k=2, phase=0.3):
