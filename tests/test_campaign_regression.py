@@ -51,3 +51,35 @@ def test_one_seed_of_the_ci_campaign_stays_in_the_bands(tmp_path):
     assert res["outside"] == [], f"outside the regression bands: {res['outside']}"
     assert res["failed_claims"] == [], f"paper orderings that held in >= 95 % of seeds failed: {res['failed_claims']}"
     assert len(tracked_statistics(run.results["methods"])) == len(b["statistics"])
+
+
+PAPER_CONFIG = ROOT / "experiments" / "separation_paper_ci.toml"
+OUTSIDE_SEED = 101  # not among the seeds that built the bands (1..20)
+
+
+def _paper_bands():
+    data = json.loads(BANDS.read_text())
+    assert "separation_paper_ci" in data, "results/regression.json has no separation_paper_ci section: run docs/runner.md's command"
+    return data["separation_paper_ci"]
+
+
+@pytest.fixture(scope="module")
+def paper_mode_run(tmp_path_factory):
+    """One campaign of experiments/separation_paper_ci.toml (true centres + noise, no rendering), seed 101."""
+    cfg = load_campaign_config(PAPER_CONFIG).with_seed(OUTSIDE_SEED)
+    return run_campaign(cfg, tmp_path_factory.mktemp("paper_ci") / "run", recording=False, figures=False)
+
+
+def test_paper_mode_bands_come_from_other_seeds():
+    """The paper-mode bands come from >= 20 seeds, none of them the seed the regression test runs."""
+    b = _paper_bands()
+    assert len(b["seeds"]) >= 20 and OUTSIDE_SEED not in b["seeds"]
+
+
+def test_paper_mode_seed_outside_the_bands_seeds_stays_in_the_bands(paper_mode_run):
+    """A seed that did not build the bands (paper measurement mode, five methods incl. separation_paper) falls
+    inside every band, and every ordering that held in >= 95 % of the band seeds holds."""
+    b = _paper_bands()
+    assert paper_mode_run.results["methods_unavailable"] == {}
+    res = check_against_bands(paper_mode_run.results, b)
+    assert res["missing"] == [] and res["outside"] == [] and res["failed_claims"] == [], res

@@ -217,3 +217,14 @@ def test_clm_orientation_stage_moves_only_angle_parameters():
                              settings_full=LMSettings(max_iter=0))
     moved = np.abs(r.X[0] - X0[0]) > 0
     assert moved[~sp.is_length].any() and not moved[sp.is_length].any()
+
+
+def test_separation_paper_holds_d2_and_the_tool_at_nominal():
+    """The paper-literal separation variant keeps d2 and the tool at nominal (Tables 1 and 4-6 mark d2 "-";
+    the plate is pinned to the flange) and uses the given base rotation."""
+    _, B, ds, qn, true_sph, effect = _data("irb1200", "spheres", given_base=True, tool_rotation=False,
+                                           zero=("d2", "alpha1"))
+    cal = calibrate(ds, method="separation_paper", solver="scaled")
+    nominal = get_robot("irb1200")
+    assert cal.value("d2") == nominal.param("d2")
+    assert any("paper-literal" in n for n in cal.notes) and any("dataset.toml" in n for n in cal.notes)

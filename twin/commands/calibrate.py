@@ -11,7 +11,7 @@ HELP = "identify the robot of a measured dataset (writes DIR/calibration.json)"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml)")
-    p.add_argument("--method", default="best", choices=["best", "distance", "fullpose", "separation", "lm", "clm"],
+    p.add_argument("--method", default="best", choices=["best", "distance", "fullpose", "separation", "separation_paper", "lm", "clm"],
                    help="identification method (default: best, ours)")
     p.add_argument("--out", required=True, help="output folder for calibration.json")
     p.add_argument("--error-model", choices=["tmmdh", "structural"], default=None,
@@ -46,7 +46,7 @@ def _options(args) -> dict:
             raise ValueError("--gauge applies to --method best only")
         opts["gauge"] = args.gauge
     if args.solver is not None:
-        if args.method not in ("distance", "fullpose", "separation"):
+        if args.method not in ("distance", "fullpose", "separation", "separation_paper"):
             raise ValueError(f"--solver applies to distance, fullpose and separation, not {args.method!r}")
         opts["solver"] = args.solver
     if args.angle_residual is not None:

@@ -35,6 +35,7 @@ they are not maximum-likelihood estimators; use ``best`` for uncertainties.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable, Literal
 
 import numpy as np
@@ -57,6 +58,8 @@ __all__ = [
     "identify_distance",
     "identify_fullpose",
     "identify_separation",
+    "identify_separation_paper",
+    "SEPARATION_PAPER_HELD",
     "identify_lm",
     "identify_clm",
     "EQ21_ANGLES",
@@ -227,12 +230,17 @@ def identify_separation(
     angle_residual: Literal["relative", "euler"] = "relative",
     tool: Literal["estimate", "nominal"] = "estimate",
     weighting: Literal["paper", "noise"] = "paper",
+    held: tuple[str, ...] = (),
     max_iter: int = 50,
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """The separation method: angles from orientation changes (eq. 21, 27), then lengths and the
-    theta2/theta3 split from distances (eq. 22, 30) with ``theta2 + theta3`` held at its step-1 value."""
+    theta2/theta3 split from distances (eq. 22, 30) with ``theta2 + theta3`` held at its step-1 value.
+    ``held``: parameter names kept at nominal in both steps (the paper-literal variant holds d2)."""
     space = prep.space
+    for n in held:
+        if n not in space.names:
+            raise ValueError(f"held names an unknown parameter: {n!r}")
     obs_all = _weighted(prep.obs_cal, weighting)
     obs_rot = obs_all.as_poses()  # sphere data: plate orientation from the three spheres
     pairs_rot, how = make_pairs(obs_rot)
@@ -242,7 +250,7 @@ def identify_separation(
     trace: list[TraceEntry] = []
     cb = _collect(trace, callback)
     # --- step 1: angles from orientation changes (theta3 held: the sum goes into theta2, eq. 21)
-    ang_names = EQ21_ANGLES + tuple(n for n in tool_names if n.startswith("tool_r"))
+    ang_names = tuple(n for n in EQ21_ANGLES + tuple(n for n in tool_names if n.startswith("tool_r")) if n not in held)
     free1 = _mask(space, ang_names)
     check_design(obs_rot, int(free1.sum()))
     kind = {"relative": "rotation_change", "euler": "euler_change"}.get(angle_residual)
@@ -262,7 +270,7 @@ def identify_separation(
     # --- step 2: lengths and the theta2/theta3 split from distances
     i2, i3 = space.index("theta2"), space.index("theta3")
     len_names = tuple(n for n in EQ22_LENGTHS if n not in ("theta2", "theta3")) + tuple(n for n in tool_names if not n.startswith("tool_r"))
-    free2 = _mask(space, len_names + ("theta2",))
+    free2 = _mask(space, tuple(n for n in len_names if n not in held) + ("theta2",))
     s23 = x1[i2] + x1[i3]
 
     def fun2(y):
@@ -294,6 +302,24 @@ def identify_separation(
         extra={"step1_identifiability": ida1.summary(), "step2_identifiability": ida2.summary(),
                "theta2_plus_theta3_step1": float(s23)},
     )
+
+
+SEPARATION_PAPER_HELD = ("d2",)
+
+
+def identify_separation_paper(
+    prep: Prepared,
+    *,
+    solver: Literal["spectral", "scaled"] = "spectral",
+    max_iter: int = 50,
+    callback: Callable[[TraceEntry], None] | None = None,
+) -> Identified:
+    """The separation method as the paper states it: the paper's parameter set (d2 held at nominal, Tables 1
+    and 4-6 mark it "-"), the plate pinned to the flange (nominal tool, not estimated) and the camera-to-base
+    rotation given (eq. 42: Euler-angle changes in the base frame, rotation from ``dataset.toml``)."""
+    res = identify_separation(prep, solver=solver, angle_residual="euler", tool="nominal", weighting="paper",
+                              held=SEPARATION_PAPER_HELD, max_iter=max_iter, callback=callback)
+    return replace(res, notes=res.notes + ("paper-literal: d2 held at nominal, nominal tool, given base rotation",))
 
 
 def _pose(x, space, k):
@@ -401,6 +427,7 @@ METHODS.update(
         "distance": identify_distance,
         "fullpose": identify_fullpose,
         "separation": identify_separation,
+        "separation_paper": identify_separation_paper,
         "lm": identify_lm,
         "clm": identify_clm,
     }

@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 SCHEMA_VERSION = 1
-KNOWN_METHODS = ("distance", "full_pose", "separation", "default")
+KNOWN_METHODS = ("distance", "full_pose", "separation", "separation_paper", "default")
 GROUP_KINDS = ("motion_pairs", "distance_moves", "configurations", "joints_csv")
 MEASUREMENT_MODES = ("images", "truth_noise")
 _MM = 1e-3

@@ -8,6 +8,7 @@ campaign       estimator       what
 ``distance``   ``distance``    distance constraints only (separation paper, Figure 11)
 ``full_pose``  ``fullpose``    full-pose constraint (separation paper, Figure 11)
 ``separation`` ``separation``  angles from orientation changes, then lengths from distances (eq. 21-36)
+``separation_paper``            the same, paper-literal: d2 held, nominal tool, given base rotation (eq. 42)
 ``default``    ``best``        our default estimator
 =============  ==============  ====================================================================
 
@@ -43,7 +44,8 @@ __all__ = [
     "dataset_fingerprint",
 ]
 
-ESTIMATOR_METHODS = {"distance": "distance", "full_pose": "fullpose", "separation": "separation", "default": "best"}
+ESTIMATOR_METHODS = {"distance": "distance", "full_pose": "fullpose", "separation": "separation",
+                     "separation_paper": "separation_paper", "default": "best"}
 
 
 class MethodUnavailable(ValueError):

@@ -45,6 +45,7 @@ MODEL_COLOURS = {
     "distance": (200, 60, 200),
     "full_pose": (60, 160, 230),
     "separation": (40, 200, 120),
+    "separation_paper": (20, 120, 70),
     "default": (240, 60, 60),
 }
 

@@ -31,7 +31,8 @@ RESULTS_SCHEMA_VERSION = 1
 METHOD_LABELS = {
     "distance": "distance constraint",
     "full_pose": "full-pose constraint",
-    "separation": "separation (paper's method)",
+    "separation": "separation (paper's method, our variant)",
+    "separation_paper": "separation, paper-literal (d2 held, nominal tool, given base rotation)",
     "default": "our default estimator",
 }
 
@@ -232,7 +233,7 @@ def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray]
     """The paper's Figure 11 in style: per method, (a) angle error and (b) position error after compensation."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    markers = {"distance": "^-", "full_pose": "s-", "separation": "o-", "default": "d--"}
+    markers = {"distance": "^-", "full_pose": "s-", "separation": "o-", "separation_paper": "v-", "default": "d--"}
     for ax, data, ylabel, name in ((axes[0], angle_after, "angle error [deg]", "(a) angle error after compensation"),
                                    (axes[1], pos_after, "position error [mm]", "(b) position error after compensation")):
         for m, v in data.items():
