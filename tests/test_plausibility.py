@@ -141,3 +141,20 @@ def test_joints_outside_the_limits_are_reported(clean):
 def test_implausible_data_is_a_value_error():
     """The CLI's named-error path catches it (it is a ValueError)."""
     assert issubclass(ImplausibleData, ValueError)
+
+
+def test_rows_of_two_stations_without_their_station_column_are_refused(tmp_path, capsys):
+    """Two camera stations' rows with the station column dropped fit badly whatever the noise estimate: the
+    residual is compared with the instrument's error seen in the plate distances and refused, named."""
+    from test_cli_estimator import _hand_dataset
+
+    _hand_dataset(tmp_path / "h", np.random.default_rng(21), n=40)
+    rows = list(csv.DictReader(open(tmp_path / "h" / "poses.csv", newline="")))
+    fields = [f for f in rows[0] if f != "station"]
+    with open(tmp_path / "h" / "poses.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+    assert main(["calibrate", str(tmp_path / "h"), "--out", str(tmp_path / "cal"), "--quiet"]) == 2
+    assert "instrument's error seen in the plate" in capsys.readouterr().err
+    assert not (tmp_path / "cal").exists()

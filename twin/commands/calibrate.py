@@ -117,7 +117,10 @@ def run(args) -> int:
     from ..estimator import calibrate
     from dataclasses import replace
 
-    from ..estimator.plausibility import ImplausibleData, check_fit, check_joints, check_plate_rows
+    import numpy as np
+
+    from ..estimator.plausibility import (ImplausibleData, check_fit, check_fit_against_plate, check_joints,
+                                          check_plate_rows, plate_noise)
 
     ds = read_dataset(args.dataset)
     forced: list[str] = []
@@ -151,11 +154,14 @@ def run(args) -> int:
         **_options(args),
     )
     scale = cal.noise.get("residual_scale")
-    if scale is not None:
-        try:
+    fit_rms = (cal.residuals.get("calibration") or {}).get("position_mm", {}).get("rms")
+    try:
+        if scale is not None:
             check_fit(float(scale))
-        except ImplausibleData as exc:
-            refuse(exc)
+        if fit_rms is not None and ds.has_spheres:
+            check_fit_against_plate(float(fit_rms) * 1e-3 / np.sqrt(3), plate_noise(ds))
+    except ImplausibleData as exc:
+        refuse(exc)
     details = dict(cal.details)
     details["plausibility"] = {"plate": None if plate is None else plate.summary(), "joints": notes,
                                "forced": forced}

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..dataset import Dataset
 
-__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_fit"]
+__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_fit", "plate_noise",
+           "check_fit_against_plate"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _DEG = np.pi / 180.0
@@ -142,3 +143,29 @@ def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
     if residual_scale >= limit:
         raise ImplausibleData(f"the model cannot fit these data: the residual is {residual_scale:.4g}x what the noise "
                               "explains (wrong robot, wrong units, swapped columns, or the stated noise far too small?)")
+
+
+def plate_noise(ds: Dataset) -> float | None:
+    """The instrument's error per coordinate [m] seen in the plate: the robust spread of the inter-sphere
+    distances over the rows with all three spheres, divided by sqrt(2) (None with fewer than 10 such rows).
+    No kinematic error changes these distances, so a fit cannot be much worse than this."""
+    full = ds.sphere_seen.all(axis=1)
+    if full.sum() < 10:
+        return None
+    d = _distances(ds.spheres[full])
+    mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return float(np.sqrt(np.mean(mad**2) / 2.0))
+
+
+def check_fit_against_plate(fit_rms_per_coordinate_m: float, sigma_plate_m: float | None, *,
+                            limit: float = 30.0, min_sigma_m: float = 1e-6) -> None:
+    """:class:`ImplausibleData` when the fit's residual per coordinate is ``limit`` or more times the
+    instrument's error seen in the plate distances (the fit's own noise estimate cannot hide it)."""
+    if sigma_plate_m is None or not np.isfinite(fit_rms_per_coordinate_m):
+        return
+    ratio = fit_rms_per_coordinate_m / max(sigma_plate_m, min_sigma_m)
+    if ratio >= limit:
+        raise ImplausibleData(f"the model cannot fit these data: the residual ({fit_rms_per_coordinate_m * 1e3:.4g} mm "
+                              f"per coordinate) is {ratio:.0f}x the instrument's error seen in the plate's sphere "
+                              "distances (rows of several camera stations without a 'station' column? wrong robot or "
+                              "joint order?)")
