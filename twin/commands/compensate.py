@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 
 HELP = "corrected joint commands that reach target plate poses on the calibrated robot"
 
@@ -24,11 +22,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from ..dataset import Joints, read_joints_csv, write_joints_csv
     from ..estimator import Calibration, compensation
-    from ..kinematics import UnreachableError
-
     from ..estimator.files import read_targets_csv
+    from ..kinematics import UnreachableError
 
     cal = Calibration.load(args.calibration)
     pid, T = read_targets_csv(args.targets)
@@ -63,6 +62,8 @@ def run(args) -> int:
 
 def _compensate_with_effects(cal, T, q_ref, pid, context_path):
     """An extended calibration (from twin diagnose): commands in file order, effects included."""
+    import numpy as np
+
     from ..dataset import read_joints_csv
     from ..diagnosis.apply import compensate_extended
     from ..diagnosis.candidates import RowContext

@@ -7,8 +7,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
 
 HELP = "choose measurement configurations the cameras can see that identify the parameters well (D-optimal)"
 
@@ -35,7 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", default=None, help="also write the plan's numbers to this JSON file")
 
 
-def _station_arg(text: str) -> tuple[str, np.ndarray]:
+def _station_arg(text: str) -> tuple:
+    import numpy as np
+
     from ..transforms import pose6_to_transform
 
     try:
@@ -77,6 +77,8 @@ def from_campaign(path: str):
 
 
 def run(args) -> int:
+    import numpy as np
+
     from ..dataset import Joints, default_plate, read_dataset, robot_from_spec, write_joints_csv
     from ..estimator.planning import PlanOptions, StereoCamera, plan_measurements
 
