@@ -38,7 +38,7 @@ def _data(robot, kind, seed=5, base=None, n=80, given_base=False, zero=("d2",), 
 @pytest.mark.parametrize("robot,kind", CASES)
 @pytest.mark.parametrize("method,options", [
     ("fullpose", {"solver": "scaled"}), ("fullpose", {"solver": "spectral"}), ("separation", {"solver": "scaled"}),
-    ("lm", {}), ("clm", {}),
+    ("lm", {}), ("clm", {}), ("lm_paper", {}), ("clm_paper", {}),
 ])
 def test_noise_free_recovery_predicts_the_truth(robot, kind, method, options):
     """Noise-free data, errors everywhere but d2: each method's model reproduces the truth on fresh
@@ -228,3 +228,31 @@ def test_separation_paper_holds_d2_and_the_tool_at_nominal():
     nominal = get_robot("irb1200")
     assert cal.value("d2") == nominal.param("d2")
     assert any("paper-literal" in n for n in cal.notes) and any("dataset.toml" in n for n in cal.notes)
+
+
+def test_paper_damping_refuses_a_factor_outside_the_papers_range():
+    """The paper bounds lambda to [2.5, 10]; a factor outside it is a clear error naming lam."""
+    with pytest.raises(ValueError, match="lam"):
+        LMSettings(damping="paper", lam=100.0)
+    with pytest.raises(ValueError, match="damping"):
+        LMSettings(damping="sometimes")
+
+
+def test_paper_damping_is_not_cumulative():
+    """With the paper's rule the damping after a rise is mu0 * lam however many rises came before: on a
+    problem whose cost rises at every step, the paper's LM keeps taking large steps while ours shrinks them."""
+
+    class Rising:
+        size = 1
+
+        def __call__(self, X, part="full", jacobian=True):
+            x = np.atleast_2d(X)[:, :1]
+            r = np.concatenate([x, np.full_like(x, 1.0 + np.abs(x).sum())], axis=1)  # cost grows with |x|
+            J = np.ones((x.shape[0], 1, 2))
+            return r, J
+
+    free = np.array([True])
+    st = dict(max_iter=8, tol_step=0.0, accept="always")
+    ours = levenberg_marquardt(Rising(), np.array([[1.0]]), free, settings=LMSettings(**st))
+    paper = levenberg_marquardt(Rising(), np.array([[1.0]]), free, settings=LMSettings(damping="paper", **st))
+    assert paper.X[0, 0] > 10 * ours.X[0, 0]

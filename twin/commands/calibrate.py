@@ -11,7 +11,7 @@ HELP = "identify the robot of a measured dataset (writes DIR/calibration.json)"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml)")
-    p.add_argument("--method", default="best", choices=["best", "distance", "fullpose", "separation", "separation_paper", "lm", "clm"],
+    p.add_argument("--method", default="best", choices=["best", "distance", "fullpose", "separation", "separation_paper", "lm", "clm", "lm_paper", "clm_paper"],
                    help="identification method (default: best, ours)")
     p.add_argument("--out", required=True, help="output folder for calibration.json")
     p.add_argument("--error-model", choices=["tmmdh", "structural"], default=None,
@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _options(args) -> dict:
     opts = {}
     if args.error_model is not None:
-        if args.method not in ("best", "lm", "clm"):
+        if args.method not in ("best", "lm", "clm", "lm_paper", "clm_paper"):
             raise ValueError(f"--error-model applies to best, lm and clm, not {args.method!r}")
         opts["error_model"] = args.error_model
     if args.gauge is not None:

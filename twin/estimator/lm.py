@@ -114,13 +114,24 @@ class GenericBatch:
 @dataclass(frozen=True)
 class LMSettings:
     """``mu0`` initial damping, ``lam`` its factor, ``max_iter`` cap, ``tol_step`` [SI] stop on the largest
-    parameter change, ``accept`` ``"always"`` (the paper's Step 3) or ``"improve"``."""
+    parameter change, ``accept`` ``"always"`` (the paper's Step 3) or ``"improve"``. ``damping``:
+    ``"cumulative"`` (ours: ``mu_{k+1} = mu_k / lam`` when the cost falls, ``mu_k * lam`` otherwise) or
+    ``"paper"`` (the TM-MDH paper's section 3.2 as it reads: ``mu_{k+1} = mu0 / lam`` when
+    ``|dP(rho_{k+1})| < |dP(rho_k)|``, else ``mu0 * lam``, with ``2.5 <= lam <= 10``: bounded, never
+    accumulated)."""
 
     mu0: float = 1e-3
     lam: float = 10.0
     max_iter: int = 100
     tol_step: float = 1e-12
     accept: Literal["always", "improve"] = "always"
+    damping: Literal["cumulative", "paper"] = "cumulative"
+
+    def __post_init__(self) -> None:
+        if self.damping not in ("cumulative", "paper"):
+            raise ValueError(f"damping must be 'cumulative' or 'paper', got {self.damping!r}")
+        if self.damping == "paper" and not 2.5 <= self.lam <= 10.0:
+            raise ValueError(f"lam must lie in [2.5, 10] for the paper's damping, got {self.lam!r}")
 
 
 @dataclass(frozen=True)
@@ -191,7 +202,10 @@ def levenberg_marquardt(
         rn, Jn = problem(Xn, part, True)
         cn = np.einsum("bm,bm->b", rn, rn)
         better = cn < ca
-        mua = np.clip(np.where(better, mua / settings.lam, mua * settings.lam), 1e-300, 1e16)
+        if settings.damping == "paper":
+            mua = np.where(better, settings.mu0 / settings.lam, settings.mu0 * settings.lam)
+        else:
+            mua = np.clip(np.where(better, mua / settings.lam, mua * settings.lam), 1e-300, 1e16)
         if settings.accept == "always":
             Xa, ra, Ja, ca = Xn, rn, Jn, cn
         else:

@@ -62,6 +62,8 @@ __all__ = [
     "SEPARATION_PAPER_HELD",
     "identify_lm",
     "identify_clm",
+    "identify_lm_paper",
+    "identify_clm_paper",
     "EQ21_ANGLES",
     "EQ22_LENGTHS",
 ]
@@ -84,7 +86,9 @@ def _weighted(obs: Observations, weighting: str) -> Observations:
         return obs.with_sigma(1.0, 1.0)
     if weighting == "noise":
         return obs
-    raise ValueError(f"weighting must be 'paper' or 'noise', got {weighting!r}")
+    if weighting == "mm_rad":  # unweighted, positions in mm and angles in rad
+        return obs.with_sigma(_MM, 1.0)
+    raise ValueError(f"weighting must be 'paper', 'mm_rad' or 'noise', got {weighting!r}")
 
 
 def _frame_fixed(ida) -> set[str]:
@@ -358,6 +362,7 @@ def identify_lm(
     exclude: tuple[str, ...] = (),
     max_iter: int = 100,
     accept: Literal["always", "improve"] = "always",
+    damping: Literal["cumulative", "paper"] = "cumulative",
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """The TM-MDH paper's LM: every parameter of the error model at once from the nominal start (stations
@@ -368,7 +373,7 @@ def identify_lm(
     free = _lm_free(space, error_model, tuple(exclude))
     check_design(obs, int(free.sum()))
     ida = analyse(space, prep.x_nominal, prep.obs_cal, free)
-    r = levenberg_marquardt(full, prep.x_nominal[None], free, settings=LMSettings(max_iter=max_iter, accept=accept))
+    r = levenberg_marquardt(full, prep.x_nominal[None], free, settings=LMSettings(max_iter=max_iter, accept=accept, damping=damping))
     trace = tuple(TraceEntry(t.stage, t.iteration, t.median_cost, float("nan")) for t in r.trace)
     if callback:
         for t in trace:
@@ -389,6 +394,7 @@ def identify_clm(
     n_cycles: int = 20,
     max_iter_stage: int = 10,
     accept: Literal["always", "improve"] = "always",
+    damping: Literal["cumulative", "paper"] = "cumulative",
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """The TM-MDH paper's C-LM: LM on orientations over the angle parameters, then LM on everything,
@@ -399,7 +405,7 @@ def identify_clm(
     free = _lm_free(space, error_model, tuple(exclude))
     check_design(obs, int(free.sum()))
     ida = analyse(space, prep.x_nominal, prep.obs_cal, free)
-    st = LMSettings(max_iter=max_iter_stage, accept=accept)
+    st = LMSettings(max_iter=max_iter_stage, accept=accept, damping=damping)
     r = cross_identification(rot, full, prep.x_nominal[None], free, ~space.is_length, n_cycles=n_cycles,
                              settings_orientation=st, settings_full=st)
     trace = tuple(TraceEntry(t.stage, t.iteration, t.median_cost, float("nan")) for t in r.trace)
@@ -411,6 +417,16 @@ def identify_clm(
         inlier=np.ones(obs.n, bool), rejected=(), noise=_noise_info(prep, weighting), trace=trace,
         notes=(f"C-LM: {int(r.cycles[0])} cycles (cap {n_cycles}), at most {max_iter_stage} LM iterations per stage",),
     )
+
+
+def identify_lm_paper(prep: Prepared, **kwargs) -> Identified:
+    """LM with the paper's bounded, non-cumulative damping (section 3.2), unweighted SI residuals."""
+    return identify_lm(prep, **{"damping": "paper", **kwargs})
+
+
+def identify_clm_paper(prep: Prepared, **kwargs) -> Identified:
+    """C-LM with the paper's damping and unweighted residuals in mm and rad (``weighting="mm_rad"``)."""
+    return identify_clm(prep, **{"damping": "paper", "weighting": "mm_rad", **kwargs})
 
 
 def _collect(trace: list, callback):
@@ -430,5 +446,7 @@ METHODS.update(
         "separation_paper": identify_separation_paper,
         "lm": identify_lm,
         "clm": identify_clm,
+        "lm_paper": identify_lm_paper,
+        "clm_paper": identify_clm_paper,
     }
 )
