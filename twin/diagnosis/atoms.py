@@ -42,10 +42,8 @@ from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regr
 __all__ = [
     "Atom",
     "feature_values",
-    "atom_features",
     "catalogue_atoms",
     "generic_atoms",
-    "HISTORY_KINDS",
     "approach_unknown",
 ]
 
@@ -214,10 +212,6 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
         bad = np.unique(np.nonzero(~np.isfinite(out))[0])[:10]
         raise ValueError(f"effect features are not finite in rows {bad.tolist()} (check t_s / temp_c)")
     return out
-
-
-def atom_features(atom: Atom, ctx: RowContext, model: RobotModel, cache: dict | None = None) -> np.ndarray:
-    return feature_values(atom.features, ctx, model, cache)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -175,8 +175,6 @@ def diagnose(
     generic: bool = True,
     q_start: np.ndarray | None = None,
     callback: Callable[[CandidateScore], None] | None = None,
-    bic_margin: float | None = None,
-    candidates: Any = None,
 ) -> DiagnosisResult:
     """Diagnose ``dataset`` (see the module docstring for the procedure and its statistics).
 
@@ -186,8 +184,7 @@ def diagnose(
     Bonferroni-adjusted). ``z_min``: held-out confirmation threshold. ``floor_tolerance``: an excess scatter
     below this multiple of the floor, with nothing predictable on held-out rows, is not called structure.
     ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
-    when known (otherwise the first row's approach is unknown). ``bic_margin`` and ``candidates`` are
-    accepted for compatibility and ignored.
+    when known (otherwise the first row's approach is unknown).
     """
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
