@@ -183,7 +183,9 @@ class RenderConfig:
     block), target windows (``window_supersample`` x ``window_supersample`` samples per pixel in a window
     around each target the camera sees, ``window_margin_px`` [px] beyond the target's projected outline;
     a large sphere's outline is covered by a ring of windows, one per ``window_arc_px`` [px] of outline;
-    0 = no windows; see :meth:`twin.world.World.target_windows`), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
+    0 = no windows; see :meth:`twin.world.World.target_windows`), the frame under the windows at one sample
+    per ``frame_subsample`` x ``frame_subsample`` pixels (needs windows and ``supersample`` 1; the world renders
+    it at full resolution when an effect changes the images), sensor noise ``noise_sigma`` [grey levels, 1 sigma], lens distortion per camera (OpenCV
     ``k1 k2 p1 p2 k3``), principal-point offsets from the sensor centre [px at full resolution], lighting
     (key light direction relative to the rig's viewing axis, strengths in MuJoCo's 0..1 light units)."""
 
@@ -192,6 +194,7 @@ class RenderConfig:
     window_supersample: int = 0
     window_margin_px: float = 4.0
     window_arc_px: float = 48.0
+    frame_subsample: int = 1
     noise_sigma: float = 2.0
     distortion_left: tuple[float, ...] = _DEFAULT_DIST_LEFT
     distortion_right: tuple[float, ...] = _DEFAULT_DIST_RIGHT
@@ -208,7 +211,7 @@ class RenderConfig:
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderConfig":
         where = "world.render"
         _check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "window_arc_px",
-                        "noise_sigma", "distortion", "distortion_left", "distortion_right",
+                        "frame_subsample", "noise_sigma", "distortion", "distortion_left", "distortion_right",
                         "principal_offset_px", "principal_offset_left_px", "principal_offset_right_px",
                         "key_light_azimuth_deg", "key_light_elevation_deg", "key_light", "key_ambient",
                         "headlight", "ambient"}, where)
@@ -223,6 +226,13 @@ class RenderConfig:
         if isinstance(ws, bool) or not isinstance(ws, (int, np.integer)) or not 0 <= ws <= MAX_WINDOW_SUPERSAMPLE:
             raise ValueError(f"{where}.window_supersample must be an integer 0..{MAX_WINDOW_SUPERSAMPLE} (samples per "
                              f"pixel along each axis in the target windows, 0 = no windows), got {ws!r}")
+        fs = d.get("frame_subsample", 1)
+        if isinstance(fs, bool) or not isinstance(fs, (int, np.integer)) or fs not in (1, 2, 4):
+            raise ValueError(f"{where}.frame_subsample must be 1, 2 or 4 (the frame under the target windows at one "
+                             f"sample per k x k pixels), got {fs!r}")
+        if fs > 1 and (ws < 1 or ss != 1):
+            raise ValueError(f"{where}.frame_subsample = {fs} needs target windows (window_supersample >= 1, got {ws}) "
+                             f"and supersample = 1 (got {ss}): without windows every outline would be sampled coarsely")
         dl = dr = None
         if "distortion" in d:
             dl = dr = tuple(_vector(d["distortion"], 5, f"{where}.distortion"))
@@ -246,6 +256,7 @@ class RenderConfig:
             window_supersample=int(ws),
             window_margin_px=_num(d, "window_margin_px", 4.0, where, nonneg=True),
             window_arc_px=_num(d, "window_arc_px", 48.0, where, positive=True),
+            frame_subsample=int(fs),
             noise_sigma=_num(d, "noise_sigma", 2.0, where, nonneg=True),
             distortion_left=dl if dl is not None else _DEFAULT_DIST_LEFT,
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,

@@ -107,6 +107,27 @@ def _dithered_fixed_point(name: str, map_x: np.ndarray, map_y: np.ndarray, x0: i
     return cv2.convertMaps(mx, my, cv2.CV_16SC2)
 
 
+def _overlap_groups(boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
+    """Indices of ``boxes`` ``(x0, y0, x1, y1)`` grouped into connected sets of overlapping (or touching) boxes."""
+    parent = list(range(len(boxes)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, a in enumerate(boxes):
+        for j in range(i + 1, len(boxes)):
+            b = boxes[j]
+            if a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]:
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(boxes)):
+        groups.setdefault(root(i), []).append(i)
+    return list(groups.values())
+
+
 @dataclass
 class CameraPipeline:
     """One camera's image formation: its true intrinsics, ideal render focal length, samples per pixel along
@@ -117,21 +138,38 @@ class CameraPipeline:
     f_render: float
     maps: tuple[np.ndarray, np.ndarray] | None
     supersample: int = 1
+    frame_subsample: int = 1
+    ideal: bool = False  # the true camera is the ideal pinhole (no distortion, centred, focal f_r)
 
     @classmethod
-    def build(cls, name: str, intr: CameraIntrinsics, supersample: int = 1) -> "CameraPipeline":
+    def build(cls, name: str, intr: CameraIntrinsics, supersample: int = 1,
+              frame_subsample: int = 1) -> "CameraPipeline":
+        """``frame_subsample`` ``k`` > 1 (only with ``supersample`` 1): the frame's ideal render has ``W/k x H/k``
+        samples (the same field of view) and the tables map each output pixel into that coarser grid."""
         check_distortion_monotonic(intr)
-        s = int(supersample)
+        s, k = int(supersample), int(frame_subsample)
         if s != supersample or s < 1:
             raise ValueError(f"supersample must be an integer >= 1, got {supersample!r}")
+        if k != frame_subsample or k < 1 or (k > 1 and s > 1):
+            raise ValueError(f"frame_subsample must be an integer >= 1 (> 1 only with supersample 1), got "
+                             f"{frame_subsample!r}")
+        if intr.width % k or intr.height % k:
+            raise ValueError(f"frame_subsample {k} must divide the image size {intr.width}x{intr.height}")
         f_r = render_focal_px(intr)
         # the ideal render on the sampling grid has focal length s * f_r: the same field of view
         maps = distortion_maps(sampling_intrinsics(intr, s), s * f_r)
+        ideal = maps is None
+        if k > 1:
+            if maps is None:
+                mx, my = np.meshgrid(np.arange(intr.width, dtype=np.float32), np.arange(intr.height, dtype=np.float32))
+                maps = (mx, my)
+            # a full-resolution ideal pixel x lies at (x + 0.5) / k - 0.5 in the k-times coarser ideal grid
+            maps = tuple(((m + np.float32(0.5)) / np.float32(k) - np.float32(0.5)).astype(np.float32) for m in maps)
         if maps is not None:
             # Dither of one quantum (cv2.remap works in 1/32 px), fixed per camera and sample (a hash of the
             # sample's position, so that target windows get the same dither), then fixed-point tables.
             maps = _dithered_fixed_point(name, maps[0], maps[1], 0, 0)
-        return cls(name, intr, f_r, maps, s)
+        return cls(name, intr, f_r, maps, s, k, ideal)
 
     def window_maps(self, rect: tuple[int, int, int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample of the output window ``rect`` = ``(u0, v0, u1, v1)`` [px] lies in the ideal render's
@@ -145,13 +183,29 @@ class CameraPipeline:
         u0, v0, u1, v1 = rect
         xs = np.arange(s * u0, s * u1, dtype=float)
         ys = np.arange(s * v0, s * v1, dtype=float)
-        if self.maps is None:  # the true camera is the ideal one: the window's samples are the ideal grid's
+        if self.ideal:  # the true camera is the ideal one: the window's samples are the ideal grid's
             mx, my = np.meshgrid(xs, ys)
             return mx.astype(np.float32), my.astype(np.float32)
         ccx, ccy = s * self.intr.width / 2 - 0.5, s * self.intr.height / 2 - 0.5
         fr = s * self.f_render
         sx, sy = self._lattice_splines(s)
-        return ((sx(ys, xs) * fr + ccx).astype(np.float32), (sy(ys, xs) * fr + ccy).astype(np.float32))
+        if s == 1 or len(xs) * len(ys) > 250_000:
+            return ((sx(ys, xs) * fr + ccx).astype(np.float32), (sy(ys, xs) * fr + ccy).astype(np.float32))
+        # Why not the spline at every sample of a small window: fitpack's per-call cost makes it ~40 ms per
+        # stereo pair over a ring of windows. The spline at every s-th sample (one per output pixel, plus the
+        # far edge) and linear in between, in float64: the map's curvature over one pixel leaves < 1e-4 sample,
+        # far below the tables' 1/32-sample fixed point (large windows keep the spline: the gathers grow faster).
+        xc, yc = xs[::s], ys[::s]
+        xc, yc = np.append(xc, xc[-1] + s), np.append(yc, yc[-1] + s)
+        tx, ty = np.arange(len(xs)), np.arange(len(ys))
+        ix, iy = tx // s, ty // s
+        wx, wy = (tx % s) / s, ((ty % s) / s)[:, None]
+        out = []
+        for spline, cc in ((sx, ccx), (sy, ccy)):
+            m = spline(yc, xc) * fr + cc
+            m = m[:, ix] + (m[:, ix + 1] - m[:, ix]) * wx  # (len(yc), len(xs))
+            out.append((m[iy] + (m[iy + 1] - m[iy]) * wy).astype(np.float32))
+        return out[0], out[1]
 
     def _lattice_splines(self, s: int) -> tuple[RectBivariateSpline, RectBivariateSpline]:
         """The normalized ray ``(x, y)`` of every sample of the ``s``-grid as two bicubic splines on the coarse
@@ -184,6 +238,55 @@ def gl_max_renderbuffer_px() -> int | None:
         return None
 
 
+class _FrustumCuller:
+    """Leaves out of a window's draw the scene geoms whose bounding sphere lies wholly outside its frustum.
+
+    Why: ``mjr_render`` sends every scene geom down the pipeline whatever the viewport shows, and on llvmpipe a
+    primitive sphere at ``quality numslices=128`` costs ~0.5 ms per draw against ~0.1 ms for the rest of a
+    small window; a geom outside the frustum produces no fragment (no shadows, no reflections here), so
+    leaving it out changes no pixel. A left-out geom gets ``mjGEOM_NONE``, which ``mjr_render`` skips;
+    :meth:`restore` puts the types back. Geoms without a model bounding radius (planes, decor) are always drawn.
+    """
+
+    _NONE = int(mujoco.mjtGeom.mjGEOM_NONE)
+
+    def __init__(self, scene: mujoco.MjvScene):
+        self._scene = scene
+        n = int(scene.ngeom)
+        self._types = np.array([scene.geoms[i].type for i in range(n)], dtype=int)
+        self._pos = np.array([scene.geoms[i].pos for i in range(n)], dtype=float).reshape(n, 3)
+        self._rbound = np.array([scene.geoms[i].modelrbound for i in range(n)], dtype=float)
+        # mono rendering draws from the average of the two eye cameras (mjv_updateScene places them +-ipd/2 apart)
+        cams = (scene.camera[0], scene.camera[1])
+        fwd = np.mean([np.array(c.forward, dtype=float) for c in cams], axis=0)
+        up = np.mean([np.array(c.up, dtype=float) for c in cams], axis=0)
+        d = self._pos - np.mean([np.array(c.pos, dtype=float) for c in cams], axis=0)
+        # camera coordinates: x right, y up, z along the view direction (depth)
+        self._xyz = np.stack([d @ np.cross(fwd, up), d @ up, d @ fwd], axis=1)
+        self._culled = np.zeros(n, dtype=bool)
+
+    def cull(self, left: float, right: float, bottom: float, top: float, near: float) -> None:
+        """Draw only the geoms that may reach the frustum of the near-plane window ``[left, right] x [bottom,
+        top]`` at depth ``near`` (scene camera units)."""
+        x, y, z = self._xyz.T
+        r = self._rbound
+
+        def outside(a: float, coord: np.ndarray, sign: float) -> np.ndarray:
+            # plane coord = a z through the eye: signed distance (inside > 0) below -r
+            return sign * (coord - a * z) / np.sqrt(1.0 + a * a) < -r
+
+        out = ((z + r < near) | outside(left / near, x, 1.0) | outside(right / near, x, -1.0)
+               | outside(bottom / near, y, 1.0) | outside(top / near, y, -1.0)) & (r > 0)
+        for i in np.flatnonzero(out != self._culled):
+            self._scene.geoms[i].type = self._NONE if out[i] else int(self._types[i])
+        self._culled = out
+
+    def restore(self) -> None:
+        for i in np.flatnonzero(self._culled):
+            self._scene.geoms[i].type = int(self._types[i])
+        self._culled[:] = False
+
+
 class ImageFormer:
     """Turns a scene into 8-bit greyscale images for a set of cameras, reusing one renderer.
 
@@ -194,23 +297,30 @@ class ImageFormer:
     falling on it; then noise and 8-bit rounding as with one sample.
     """
 
-    def __init__(self, model: mujoco.MjModel, width: int, height: int, supersample: int = 1):
+    def __init__(self, model: mujoco.MjModel, width: int, height: int, supersample: int = 1,
+                 frame_subsample: int = 1):
         self.model = model
         self.width, self.height = int(width), int(height)
-        s = int(supersample)
+        s, k = int(supersample), int(frame_subsample)
         if s != supersample or s < 1:
             raise ValueError(f"supersample must be an integer >= 1, got {supersample!r}")
-        self.supersample = s
-        self.render_width, self.render_height = s * self.width, s * self.height
+        if k != frame_subsample or k < 1 or (k > 1 and s > 1) or self.width % k or self.height % k:
+            raise ValueError(f"frame_subsample must be an integer >= 1 dividing the image size {self.width}x"
+                             f"{self.height} (> 1 only with supersample 1), got {frame_subsample!r}")
+        self.supersample, self.frame_subsample = s, k
+        # the frame's sampling grid: s times the image (supersampling) or 1/k of it (a coarse frame under windows)
+        self.render_width, self.render_height = s * self.width // k, s * self.height // k
         rw, rh = self.render_width, self.render_height
-        if rw > model.vis.global_.offwidth or rh > model.vis.global_.offheight:
+        # the offscreen buffer: the frame's grid, and at least the image (windows are drawn in buffer-sized tiles)
+        self.buffer_width, self.buffer_height = max(rw, self.width), max(rh, self.height)
+        if self.buffer_width > model.vis.global_.offwidth or self.buffer_height > model.vis.global_.offheight:
             raise ValueError(f"render {rw}x{rh} (image {self.width}x{self.height}, supersample {s}) exceeds the "
                              f"model's offscreen buffer {model.vis.global_.offwidth}x{model.vis.global_.offheight}")
         # The same pieces mujoco.Renderer assembles (GL context, MjrContext on the offscreen buffer, MjvScene),
         # kept here so that the pixels can be read without Renderer.render()'s extra flip of the RGB frame:
         # the flip is done once on the 8-bit grey image instead.
         try:
-            self._gl = mujoco.GLContext(rw, rh)
+            self._gl = mujoco.GLContext(self.buffer_width, self.buffer_height)
             self._gl.make_current()
         except mujoco.FatalError as exc:
             raise RuntimeError(
@@ -239,6 +349,8 @@ class ImageFormer:
         if s > 1:
             self._warped = np.empty((rh, rw), dtype=np.float32)
             self._mean = np.empty((self.height, self.width), dtype=np.float32)
+        elif k > 1:
+            self._warped = np.empty((self.height, self.width), dtype=np.float32)
         self._noise = np.empty((self.height, self.width), dtype=np.int16)
         self._noise_f = np.empty((self.height, self.width), dtype=np.float32)
 
@@ -282,7 +394,8 @@ class ImageFormer:
         mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
         gl_cams = [self._scene.camera[0], self._scene.camera[1]]
         full = [(c.frustum_center, c.frustum_bottom, c.frustum_top) for c in gl_cams]
-        bw, bh = self.render_width, self.render_height  # the offscreen buffer
+        bw, bh = self.buffer_width, self.buffer_height  # the offscreen buffer
+        culler = _FrustumCuller(self._scene)
         outs = []
         try:
             for x0, y0, x1, y1 in boxes:
@@ -301,12 +414,17 @@ class ImageFormer:
                             c.frustum_top = top - ty / gh * height
                             c.frustum_bottom = top - (ty + h) / gh * height
                         rect = mujoco.MjrRect(0, 0, w, h)
+                        c0 = gl_cams[0]
+                        half_w = 0.5 * w / h * (c0.frustum_top - c0.frustum_bottom)
+                        culler.cull(c0.frustum_center - half_w, c0.frustum_center + half_w, c0.frustum_bottom,
+                                    c0.frustum_top, c0.frustum_near)
                         mujoco.mjr_render(rect, self._scene, self._con)
                         rgb = np.empty((h, w, 3), dtype=np.uint8)
                         mujoco.mjr_readPixels(rgb, None, rect, self._con)  # bottom row first
                         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
                         out[ty - y0:ty - y0 + h, tx - x0:tx - x0 + w] = grey[::-1]
         finally:
+            culler.restore()
             for c, (cen, bot, top) in zip(gl_cams, full):
                 c.frustum_center, c.frustum_bottom, c.frustum_top = cen, bot, top
         return outs
@@ -328,11 +446,23 @@ class ImageFormer:
             y1 = int(np.clip(np.ceil(my.max()) + 2, y0 + 1, gh))
             maps.append((mx, my))
             boxes.append((x0, y0, x1, y1))
-        ideals = self.ideal_windows(data, camera_id, option, boxes, s)
+        # Why one draw per group of overlapping source boxes (a sphere's ring of windows, say) and not one per
+        # window: each mjr_render sends the target's whole tessellated sphere through llvmpipe (~0.5 ms) while
+        # the extra samples inside the group's bounding box cost ~5 ns each; the same frustum gives each sample
+        # the same ray either way.
+        groups = _overlap_groups(boxes)
+        group_boxes = [(min(boxes[i][0] for i in g), min(boxes[i][1] for i in g),
+                        max(boxes[i][2] for i in g), max(boxes[i][3] for i in g)) for g in groups]
+        drawn = self.ideal_windows(data, camera_id, option, group_boxes, s)
+        ideals: list[np.ndarray] = [np.empty(0)] * len(boxes)
+        for g, (gx0, gy0, _, _), img in zip(groups, group_boxes, drawn):
+            for i in g:
+                x0, y0, x1, y1 = boxes[i]
+                ideals[i] = img[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0]
         out = []
         for (u0, v0, u1, v1), (mx, my), (x0, y0, _, _), ideal in zip(rects, maps, boxes, ideals):
             ideal = ideal.astype(np.float32)
-            if cam.maps is None:
+            if cam.ideal:
                 samples = ideal[s * v0 - y0:s * v1 - y0, s * u0 - x0:s * u1 - x0]
             else:
                 # the full frame's dither at these samples, then the source box's origin
@@ -367,9 +497,12 @@ class ImageFormer:
         noise-free image before the noise, so that the result is one whole image. Ignored when image effects
         are given (they work on the whole ideal render of one sampling grid): the image is the full frame's.
         """
-        if cam.supersample != self.supersample:
-            raise ValueError(f"camera {cam.name!r} was built for supersample {cam.supersample}, the renderer "
-                             f"samples {self.supersample}")
+        if cam.supersample != self.supersample or cam.frame_subsample != self.frame_subsample:
+            raise ValueError(f"camera {cam.name!r} was built for supersample {cam.supersample} / frame_subsample "
+                             f"{cam.frame_subsample}, the renderer samples {self.supersample} / {self.frame_subsample}")
+        if image_effects and self.frame_subsample > 1:
+            raise ValueError("image effects need the frame at full resolution: frame_subsample must be 1 with "
+                             "image effects")
         img = self.ideal_grey(data, camera_id, option)
         shape = (self.render_height, self.render_width)
         for fx in image_effects:
@@ -390,7 +523,7 @@ class ImageFormer:
         np.copyto(self._f32, img)
         analog_img = self._f32
         if cam.maps is not None:
-            dst = self._warped if self.supersample > 1 else None
+            dst = self._warped if (self.supersample > 1 or self.frame_subsample > 1) else None
             analog_img = cv2.remap(self._f32, cam.maps[0], cam.maps[1], _REMAP_INTERPOLATION, dst=dst,
                                    borderMode=cv2.BORDER_REPLICATE)
         if self.supersample > 1:

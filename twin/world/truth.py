@@ -92,6 +92,8 @@ def truth_dict(world: Any, captures: Sequence[Capture]) -> dict[str, Any]:
             "left2right": _m(world.true_left2right()),
             "render_scale": world.config.render.scale,
             "render_supersample": world.config.render.supersample,
+            "render_window_supersample": world.config.render.window_supersample,
+            "render_frame_subsample": world.frame_subsample,
             "noise_sigma_grey": world.config.render.noise_sigma,
         },
         "stations": stations,

@@ -54,29 +54,6 @@ _BOARD_TEXTURE = "board_texture.png"
 _PROBE_TEXTURE = "probe_texture.png"
 
 
-def _merge_rects(rects: list[tuple[int, int, int, int]], always: bool = False) -> list[tuple[int, int, int, int]]:
-    """Rectangles ``(u0, v0, u1, v1)`` with overlapping ones replaced by their bounding box (all of them into
-    one with ``always``), repeated until none overlap."""
-    rects = list(rects)
-    if always and rects:  # one window: no seam inside the region
-        a = np.array(rects)
-        return [(int(a[:, 0].min()), int(a[:, 1].min()), int(a[:, 2].max()), int(a[:, 3].max()))]
-    merged = True
-    while merged:
-        merged = False
-        for i in range(len(rects)):
-            for j in range(i + 1, len(rects)):
-                a, b = rects[i], rects[j]
-                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
-                    rects[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-                    del rects[j]
-                    merged = True
-                    break
-            if merged:
-                break
-    return rects
-
-
 def _png_bytes(img: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".png", img)
     if not ok:
@@ -122,7 +99,14 @@ class World:
         # --- cameras -----------------------------------------------------------------------------------
         il, ir = true_intrinsics(cfg.rig, cfg.render)
         ss = cfg.render.supersample
-        self._pipes = (CameraPipeline.build("left", il, ss), CameraPipeline.build("right", ir, ss))
+        # image effects work on the whole ideal render of one sampling grid (and turn the windows off): with
+        # them the frame is rendered at full resolution whatever render.frame_subsample says
+        self.frame_subsample = 1 if any(getattr(e, "changes_image", True) for e in self.effects) else cfg.render.frame_subsample
+        fs = self.frame_subsample
+        if il.width % fs or il.height % fs:
+            raise ValueError(f"world.render.frame_subsample = {fs} must divide the image size {il.width}x{il.height} "
+                             f"(render.scale {cfg.render.scale})")
+        self._pipes = (CameraPipeline.build("left", il, ss, fs), CameraPipeline.build("right", ir, ss, fs))
         self._cam2rig = camera2rig(cfg.rig)
         self._rig2world = [station_rig2world(s, cfg.rig) for s in cfg.stations]
 
@@ -482,7 +466,7 @@ class World:
     def _get_former(self) -> ImageFormer:
         if self._former is None:
             w, h = self.image_size
-            self._former = ImageFormer(self.model, w, h, self.config.render.supersample)
+            self._former = ImageFormer(self.model, w, h, self.config.render.supersample, self.frame_subsample)
         return self._former
 
     def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
@@ -558,6 +542,23 @@ class World:
                     box(uv[k * per:(k + 1) * per + 1])
             out.append(tuple(rects))
         return out[0], out[1]
+
+    def board_windows(self, board2meas: np.ndarray, station: int = 0
+                      ) -> tuple[tuple[tuple[int, int, int, int], ...], tuple[tuple[int, int, int, int], ...]]:
+        """The target windows of a board view (per camera, as :meth:`target_windows`): one around each inner
+        chessboard corner, reaching a quarter square from it plus the margin.
+
+        What the instrument measures on a board view is the inner corners (sub-pixel corner refinement looks a
+        few pixels around each); the markers in between are found at one sample per pixel all the same. A
+        window per corner rather than one over the whole board: a quarter of the samples."""
+        station = self._check_station(station)
+        T = np.asarray(board2meas, dtype=float)
+        board2world = self.true_cam2world(station)[0] @ T
+        b = self.config.board
+        ii, jj = np.meshgrid(np.arange(1, b.squares_x), np.arange(1, b.squares_y))
+        corners = np.stack([ii.ravel() * b.square, jj.ravel() * b.square, np.zeros(ii.size)], axis=1)
+        corners_world = (board2world[:3, :3] @ corners.T).T + board2world[:3, 3]
+        return self.target_windows(corners_world, np.full(len(corners), 0.25 * b.square), station)
 
     def _sphere_windows(self, station: int):
         if self.config.render.window_supersample < 1:
@@ -724,15 +725,7 @@ class World:
             self.data.mocap_pos[k] = board2world[:3, 3]
             self.data.mocap_quat[k] = matrix_to_quat_wxyz(board2world[:3, :3])
             self._place(self.data.qpos[self._qadr].copy(), station)
-            windows = None
-            if self.config.render.window_supersample >= 1:
-                # the board's corner region: the chessboard's four outer corners (the face without its margin)
-                b = self.config.board
-                sx, sy = b.squares_x * b.square, b.squares_y * b.square
-                quad = np.array([[0, 0, 0], [sx, 0, 0], [0, sy, 0], [sx, sy, 0]], dtype=float)
-                quad_world = (board2world[:3, :3] @ quad.T).T + board2world[:3, 3]
-                windows = self.target_windows(quad_world, np.zeros(4), station)
-                windows = tuple(tuple(_merge_rects(list(w), always=True)) for w in windows)
+            windows = self.board_windows(T, station) if self.config.render.window_supersample >= 1 else None
             left, right = self._form_pair(self._opt_board, None, noise=noise, windows=windows)
         finally:
             self._hide("board")
