@@ -70,12 +70,17 @@ def test_world_effect_is_detected_named_and_removed(world, name):
 
 @pytest.mark.slow
 def test_world_compliance_and_backlash_together(world):
-    """MuJoCo compliance and backlash at once: both named."""
+    """MuJoCo compliance and backlash at once: both named, and the extended model within 1.2x the oracle (the
+    world's compliance turns every joint; a small joint-5 term, e.g. a q5 harmonic, may stand in for joint 5's)."""
     world.effects = [effect_from_spec({"name": "backlash"}), effect_from_spec({"name": "compliance"})]
     plan = plan_poses(world, 50, seed=3)
     ds, _ = synthetic_dataset(world, plan, sigma=SIGMA, seed=4, record_temp=True)
     res = diagnose(ds)
-    assert set(res.effects) == {"compliance", "backlash"}
+    assert {"compliance", "backlash"} <= set(res.effects)
+    extra = [a for a in res.atoms if a["family"] not in ("compliance", "backlash")]
+    assert all(a["joints"] == [5] or a["unique_rms_floor"] < 1.0 for a in extra), extra
+    oracle = oracle_delta_fit(ds, effect_delta(world, plan)).after["position_mm"]["rms"]
+    assert res.after["position_mm"]["rms"] <= 1.2 * oracle
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """Target windows: supersampled windows around the spheres (and the board) composited into a 1-sample frame."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -52,9 +53,10 @@ def test_windowed_image_equals_full_supersampled_render_inside_the_windows(world
             assert len(rects) >= 3  # one window per sphere, or a ring of them along its outline
             for u0, v0, u1, v1 in rects:
                 d = np.abs(img_a[v0:v1, u0:u1].astype(int) - img_b[v0:v1, u0:u1].astype(int))
-                # the noise-free grey levels agree to 1/16 level (one sample of 16 one level apart: GL rounding),
-                # after which the same noise and the 8-bit rounding can differ by one level
-                assert d.max() <= 1 and np.mean(d > 0) < 0.01, (d.max(), np.mean(d > 0))
+                # the noise-free grey levels agree up to GL rounding: a sample one level apart changes the block mean
+                # by 1/16 level (after the same noise and the 8-bit rounding, one level), and now and then a sample
+                # on an outline flips (one of 16 samples: at most 255/16 levels)
+                assert np.mean(d > 1) < 2e-3 and d.max() <= 16 and np.mean(d > 0) < 0.01, (d.max(), np.mean(d > 0))
 
 
 def test_windowed_image_equals_the_one_sample_frame_outside_the_windows(worlds):
@@ -78,12 +80,17 @@ def test_detection_on_windows_matches_full_frame_supersample_4(worlds, which):
     ww, wf = worlds[which], worlds["full4"]
     il, ir = ww.true_intrinsics()
     cal = StereoCalibration(il, ir, ww.true_left2right(), 0.0, 0.0, 0.0)
+    compared = 0
     for q in _poses(ww, 3):
         a, b = ww.capture(q, 0, noise_seed=3, record=False), wf.capture(q, 0, noise_seed=3, record=False)
         ma, mb = measure_pair(a.left, a.right, cal, ww.nominal_plate), measure_pair(b.left, b.right, cal, wf.nominal_plate)
-        assert ma.complete and mb.complete
-        diff_mm = np.linalg.norm(ma.centres_array() - mb.centres_array(), axis=1) * 1e3
-        assert diff_mm.max() <= 0.001, diff_mm  # measured <= 0.0007 mm
+        # the same spheres measured (one may be refused in both, e.g. its outline touching the arm)
+        assert ma.reasons == mb.reasons
+        for ca, cb in zip(ma.centres, mb.centres):
+            if ca is not None:
+                assert np.linalg.norm(ca - cb) * 1e3 <= 0.001  # measured <= 0.0007 mm
+                compared += 1
+    assert compared >= 6
 
 
 def test_every_sphere_outline_lies_inside_its_windows_with_margin(worlds):
@@ -164,10 +171,13 @@ def test_half_frame_differs_only_smoothly_outside_the_windows(worlds):
         inside = np.zeros(img_a.shape, bool)
         for u0, v0, u1, v1 in rects:
             inside[v0:v1, u0:u1] = True
-        d = np.abs(img_a.astype(int) - img_b.astype(int))[~inside]
-        # measured: 0.6-0.9 % of the pixels outside the windows differ (the shading next to the windows, the
-        # arm's and plate's edges, which the coarse frame blurs), 0.06 % by more than 4 grey levels
-        assert 0.001 < np.mean(d > 0) < 0.03 and np.mean(d > 4) < 0.003
+        d = np.abs(img_a.astype(int) - img_b.astype(int))
+        # away from edges (grey range over the 5 x 5 neighbourhood below 8 levels) the coarse frame is the fine one
+        # up to a level; on edges (the arm's, the plate's) it is blurred
+        rng = cv2.dilate(img_b, np.ones((5, 5), np.uint8)).astype(int) - cv2.erode(img_b, np.ones((5, 5), np.uint8))
+        smooth = (rng < 8) & ~inside
+        assert np.mean(d[smooth] > 1) < 1e-3
+        assert np.mean(d[~inside & ~smooth] > 1) > 0.01  # the frame really is coarser
 
 
 def test_frame_subsample_is_validated():

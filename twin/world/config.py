@@ -123,7 +123,13 @@ def default_stations() -> tuple[StationConfig, ...]:
 class RigConfig:
     """Two MV-EM500M-like cameras: ``baseline`` [m]; the optical axes cross at ``standoff`` [m] unless a
     total ``vergence`` [rad] is given; ``backdrop_behind`` [m] puts the dark board behind the target
-    (``None``: no backdrop)."""
+    (``None``: no backdrop).
+
+    Placement tolerances (the true rig deviates from the nominal one, as on a real cell; seeded by the world's
+    seed, 1 sigma per axis): each station's rig pose by ``placement_sigma`` [m] and ``placement_sigma_rot``
+    [rad] (a rig bolted to brackets against marks: 3 mm, 0.2 deg by default), each camera on the rig's bar by
+    ``camera_mount_sigma`` [m] and ``camera_mount_sigma_rot`` [rad] (0.2 mm, 0.05 deg). Zero places the rig
+    exactly where the configuration says."""
 
     baseline: float = 0.25
     standoff: float = 0.70
@@ -133,6 +139,10 @@ class RigConfig:
     pixel_size: float = 2.2e-6
     focal_length: float = 0.016
     backdrop_behind: float | None = 0.30
+    placement_sigma: float = 3.0e-3
+    placement_sigma_rot: float = 0.2 * math.pi / 180
+    camera_mount_sigma: float = 0.2e-3
+    camera_mount_sigma_rot: float = 0.05 * math.pi / 180
 
     @property
     def focal_px(self) -> float:
@@ -149,7 +159,15 @@ class RigConfig:
     def from_dict(cls, d: Mapping[str, Any]) -> "RigConfig":
         where = "world.rig"
         _check_keys(d, {"baseline_mm", "standoff_mm", "vergence_deg", "width_px", "height_px", "pixel_um",
-                        "focal_mm", "backdrop_behind_mm", "backdrop"}, where)
+                        "focal_mm", "backdrop_behind_mm", "backdrop", "placement_sigma_mm",
+                        "placement_sigma_deg", "camera_mount_sigma_mm", "camera_mount_sigma_deg"}, where)
+        tol = {}
+        for key, default, lim in (("placement_sigma_mm", 3.0, 100.0), ("placement_sigma_deg", 0.2, 5.0),
+                                  ("camera_mount_sigma_mm", 0.2, 10.0), ("camera_mount_sigma_deg", 0.05, 2.0)):
+            v = _num(d, key, default, where, nonneg=True)
+            if v > lim:
+                raise ValueError(f"{where}.{key} must be within 0..{lim} (a placement tolerance, 1 sigma), got {v!r}")
+            tol[key] = v
         vergence = None if "vergence_deg" not in d else _num(d, "vergence_deg", 0, where) * _DEG
         backdrop = bool(d.get("backdrop", True))
         standoff = _num(d, "standoff_mm", 700.0, where, positive=True) * _MM
@@ -167,6 +185,10 @@ class RigConfig:
             pixel_size=_num(d, "pixel_um", 2.2, where, positive=True) * 1e-6,
             focal_length=_num(d, "focal_mm", 16.0, where, positive=True) * _MM,
             backdrop_behind=(_num(d, "backdrop_behind_mm", 300.0, where, positive=True) * _MM) if backdrop else None,
+            placement_sigma=tol["placement_sigma_mm"] * _MM,
+            placement_sigma_rot=tol["placement_sigma_deg"] * _DEG,
+            camera_mount_sigma=tol["camera_mount_sigma_mm"] * _MM,
+            camera_mount_sigma_rot=tol["camera_mount_sigma_deg"] * _DEG,
         )
 
 

@@ -107,8 +107,18 @@ class World:
             raise ValueError(f"world.render.frame_subsample = {fs} must divide the image size {il.width}x{il.height} "
                              f"(render.scale {cfg.render.scale})")
         self._pipes = (CameraPipeline.build("left", il, ss, fs), CameraPipeline.build("right", ir, ss, fs))
-        self._cam2rig = camera2rig(cfg.rig)
-        self._rig2world = [station_rig2world(s, cfg.rig) for s in cfg.stations]
+        # the rig as placed: the nominal geometry with seeded placement errors (its own random stream, so that
+        # the other draws do not depend on the tolerances); the nominal one is what a dataset states
+        rig_rng = np.random.default_rng([cfg.seed, 7])
+        rc = cfg.rig
+
+        def placement_error(sigma: float, sigma_rot: float) -> np.ndarray:
+            return pose6_to_transform(rig_rng.normal(size=6) * np.array([sigma] * 3 + [sigma_rot] * 3))
+
+        self._cam2rig = tuple(c2r @ placement_error(rc.camera_mount_sigma, rc.camera_mount_sigma_rot)
+                              for c2r in camera2rig(rc))
+        self._rig2world = [station_rig2world(s, rc) @ placement_error(rc.placement_sigma, rc.placement_sigma_rot)
+                           for s in cfg.stations]
 
         # --- MJCF -------------------------------------------------------------------------------------
         board_tex = board_texture(cfg.board)
