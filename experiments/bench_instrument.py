@@ -20,7 +20,8 @@ and board views drawn by the analytic ray tracer of ``twin.instrument.synthetic`
 sphere outlines).
 
 The main ``world`` row renders with the twin's target windows (``--window-supersample``, default 4: one
-sample per pixel, 4 x 4 in windows along the sphere outlines and over the board, what ``make run`` renders);
+sample per pixel, 4 x 4 in windows along the sphere outlines and around the board's corners, over a frame at
+one sample per 2 x 2 pixels (``--frame-subsample``), what ``make run`` renders);
 ``world_full_frame`` is the same scene at one sample per pixel everywhere.
 ``--render-supersample N`` renders the main ``world`` row with the twin's own ``render.supersample = N``
 (N x N samples per pixel, distortion on the sampling grid, block means, then noise).
@@ -177,7 +178,7 @@ def _scaled_back(c: CameraIntrinsics, s: int) -> CameraIntrinsics:
 
 
 def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, depth_range=(0.5, 1.0),
-              render_supersample: int = 1, window_supersample: int = 0) -> tuple[dict, dict]:
+              render_supersample: int = 1, window_supersample: int = 0, frame_subsample: int = 1) -> tuple[dict, dict]:
     """Render with the twin, calibrate from its board views, measure; returns (figures, scene for reuse).
 
     ``supersample`` > 1 is a what-if: the twin renders a sensor with ``supersample`` times the pixels (same
@@ -190,6 +191,8 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
     if window_supersample > 0:
         # the twin's target windows: 1 sample per pixel, window_supersample**2 along sphere outlines and boards
         cfg.setdefault("render", {})["window_supersample"] = window_supersample
+        if frame_subsample > 1:  # the frame under the windows at one sample per k x k pixels
+            cfg["render"]["frame_subsample"] = frame_subsample
     if supersample > 1:
         rig = World.from_config({"seed": seed}).config.rig
         cfg["rig"] = {"width_px": rig.width_px * supersample, "height_px": rig.height_px * supersample,
@@ -245,6 +248,7 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
         "samples_per_pixel": supersample**2 * render_supersample**2,
         "render_supersample": render_supersample,
         "window_supersample": window_supersample,
+        "frame_subsample": frame_subsample if window_supersample > 0 else 1,
         "board_views": len(views),
         "offsamples": msaa,
     }
@@ -289,6 +293,8 @@ def main() -> int:
     ap.add_argument("--window-supersample", type=int, default=4,
                     help="the twin's render.window_supersample for the main world row (0: no windows); the row "
                          "'world_full_frame' renders the same scene without windows")
+    ap.add_argument("--frame-subsample", type=int, default=2,
+                    help="with windows: the frame at one sample per k x k pixels (make run's setting: 2)")
     ap.add_argument("--no-msaa", action="store_true", help="skip the 4x multisampling what-if")
     ap.add_argument("--no-supersample", action="store_true", help="skip the 2x2 supersampled-rendering what-if")
     ap.add_argument("--no-analytic", action="store_true", help="skip the analytic-renderer row")
@@ -298,7 +304,7 @@ def main() -> int:
     t0 = time.perf_counter()
     load0 = os.getloadavg()
     world, scene = run_world(args.per_station, args.seed, render_supersample=args.render_supersample,
-                             window_supersample=args.window_supersample)
+                             window_supersample=args.window_supersample, frame_subsample=args.frame_subsample)
     section = {"protocol": __doc__.split("\n\n")[1].replace("\n", " "), "targets": TARGETS, "world": world}
     if args.window_supersample > 0:
         section["world_full_frame"], _ = run_world(args.per_station, args.seed,
