@@ -63,6 +63,8 @@ __all__ = [
     "LINEAR_METHODS",
     "METHODS",
     "SCENARIOS",
+    "UNITS",
+    "conditioning",
     "StepSolution",
     "solve_step",
     "FitResult",
@@ -186,11 +188,14 @@ def gauss_newton_fit(
     spectral_iterations: int = 100_000,
 ) -> FitResult:
     """Undamped Gauss-Newton over the parameters ``idx`` with the linear solver ``method``; every step taken.
-    Converged when the largest step is below ``xtol`` [SI] or the cost changes by less than ``rtol`` of itself."""
+    Converged when the largest step is below ``xtol`` [SI], when the cost changes by less than ``rtol`` of itself,
+    or when the step changes the linearised residual by less than ``rtol`` of the start residual's norm (round-off
+    level: a noise-free fit of an ill-conditioned problem ends there)."""
     x = np.array(x0, dtype=float)
     idx = np.asarray(idx, dtype=int)
     res = fun(x)
     cost = float(res.r @ res.r)
+    r0 = float(np.sqrt(cost))
     conds = conditioning(res.J[:, idx])
     inner_tot = inner_max = 0
     inner_ok = True
@@ -203,6 +208,7 @@ def gauss_newton_fit(
         if not st.ok:
             ok, msg = False, st.message
             break
+        lin = float(np.linalg.norm(res.J[:, idx] @ st.dx))
         x = x.copy()
         x[idx] += st.dx
         res = fun(x)
@@ -210,7 +216,8 @@ def gauss_newton_fit(
         if not np.isfinite(cost_new):
             ok, msg = False, "non-finite cost"
             break
-        small = float(np.max(np.abs(st.dx))) < xtol or abs(cost - cost_new) <= rtol * max(cost, 1e-300)
+        small = (float(np.max(np.abs(st.dx))) < xtol or abs(cost - cost_new) <= rtol * max(cost, 1e-300)
+                 or lin <= rtol * r0)
         cost = cost_new
         if small:
             converged = True
@@ -406,6 +413,7 @@ class RunRecord:
     rotation_prediction_error: float
     failed: bool = False
     failure: str = ""
+    units: str = "si"
     x: np.ndarray | None = field(default=None, repr=False, compare=False)  # the estimate (P,) [SI]
 
     def as_dict(self) -> dict:
@@ -431,19 +439,48 @@ def _rms(v: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
 
 
+UNITS = ("si", "mm")
+
+
+def _fit_in_units(fit: SolverFn, fun, x0: np.ndarray, idx: np.ndarray, col: np.ndarray, row: float) -> FitResult:
+    """``fit`` run on the problem in other units: parameters ``u = x / col``, residuals ``row * r``; the result
+    (``x``, residual RMS) converted back to SI, its iteration counts and condition numbers those of the units."""
+    from dataclasses import replace
+
+    if row == 1.0 and np.all(col == 1.0):
+        return fit(fun, x0, idx)
+
+    def fun_u(u):
+        res = fun(col * u)
+        return Residuals(r=row * res.r, J=row * res.J * col, row=res.row, block=res.block)
+
+    f = fit(fun_u, x0 / col, idx)
+    return replace(f, x=col * f.x, residual_rms=f.residual_rms / row, cost=f.cost / row**2)
+
+
 def run_method(problem: SeparationProblem, method: str | SolverFn, *, max_iter: int = 50,
-               spectral_iterations: int = 100_000, name: str | None = None) -> RunRecord:
+               spectral_iterations: int = 100_000, name: str | None = None, units: str = "si") -> RunRecord:
     """Both separation steps with one solver (a name of :data:`METHODS`, or a fit function
-    ``(fun, x0, idx) -> FitResult``), then the evaluation against the truth (``failed`` left False)."""
+    ``(fun, x0, idx) -> FitResult``), then the evaluation against the truth (``failed`` left False).
+
+    ``units``: the units the solver sees, ``"si"`` (residuals and parameters in m and rad, the project's) or
+    ``"mm"`` (lengths in mm, angles in rad; step 2's distance residuals in mm). Column-scaled least squares
+    and SVD least squares are unaffected; the plain normal equations, LM's ``mu I`` and spectral correction's
+    ``+ I`` are not invariant to the choice."""
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {UNITS}, got {units!r}")
     fit = method if callable(method) else _fitter(method, max_iter, spectral_iterations)
     label = name or (method if isinstance(method, str) else getattr(method, "__name__", "custom"))
     p, space = problem, problem.space
+    col = np.where(space.is_length, 1e-3, 1.0) if units == "mm" else np.ones(space.size)
+    row2 = 1e3 if units == "mm" else 1.0
     x0 = p.prep.x_nominal.copy()
-    f1 = fit(lambda y: pair_residuals(space, y, p.obs_rot, p.pairs_rot, "rotation_change"), x0, p.idx1)
+    f1 = _fit_in_units(fit, lambda y: pair_residuals(space, y, p.obs_rot, p.pairs_rot, "rotation_change"), x0,
+                       p.idx1, col, 1.0)
     i2, i3 = space.index("theta2"), space.index("theta3")
     x1 = f1.x
     s23 = x1[i2] + x1[i3]
-    f2 = fit(_step2_fun(space, p.obs, p.pairs, s23), x1, p.idx2)
+    f2 = _fit_in_units(fit, _step2_fun(space, p.obs, p.pairs, s23), x1, p.idx2, col, row2)
     x = f2.x.copy()
     x[i3] = s23 - x[i2]
     ev = np.array([space.index(m) for m in p.evaluated])
@@ -466,7 +503,7 @@ def run_method(problem: SeparationProblem, method: str | SolverFn, *, max_iter: 
         residual_rms=(f1.residual_rms * np.sqrt(2.0), f2.residual_rms * np.sqrt(2.0)),
         length_error=_rms(err[is_len]), angle_error=_rms(err[~is_len]),
         distance_prediction_error=dpe, rotation_prediction_error=rpe,
-        failure="; ".join(m for m in (f1.message, f2.message) if m), x=x,
+        failure="; ".join(m for m in (f1.message, f2.message) if m), x=x, units=units,
     )
 
 
@@ -491,18 +528,19 @@ def _judge(rec: RunRecord, ref: RunRecord | None, factor: float, floor_length: f
 
 def run_case(problem: SeparationProblem, methods: Sequence[str | tuple[str, SolverFn]] = METHODS, *,
              max_iter: int = 50, spectral_iterations: int = 100_000, fail_factor: float = 2.0,
-             fail_floor_length: float = 1e-7, fail_floor_angle: float = 1e-7) -> list[RunRecord]:
+             fail_floor_length: float = 1e-7, fail_floor_angle: float = 1e-7, units: str = "si") -> list[RunRecord]:
     """Every method on one problem, judged. A run fails on a solver error (singular matrix, non-finite step),
     when it does not converge in ``max_iter`` outer iterations (either step), or when one of its errors (length
     and angle parameter errors, distance and rotation prediction errors) exceeds ``fail_factor`` times that of
     the reference solver ``lstsq`` on the same data plus ``fail_floor_length`` [m] / ``fail_floor_angle`` [rad]
     (the reference itself fails only by the first two rules). ``methods``: names, or ``(name, fit function)``
-    pairs."""
+    pairs. ``units``: see :func:`run_method`."""
     recs = {}
     for m in methods:
         name, fn = (m, m) if isinstance(m, str) else m
-        recs[name] = run_method(problem, fn, max_iter=max_iter, spectral_iterations=spectral_iterations, name=name)
-    ref = recs.get("lstsq") or run_method(problem, "lstsq", max_iter=max_iter)
+        recs[name] = run_method(problem, fn, max_iter=max_iter, spectral_iterations=spectral_iterations, name=name,
+                                units=units)
+    ref = recs.get("lstsq") or run_method(problem, "lstsq", max_iter=max_iter, units=units)
     return [_judge(r, ref, fail_factor, fail_floor_length, fail_floor_angle) for r in recs.values()]
 
 
@@ -516,15 +554,17 @@ def study(
     narrow_span_deg: float = 5.0,
     max_iter: int = 50,
     spectral_iterations: int = 100_000,
+    units: str = "si",
     progress: Callable[[str], None] | None = None,
 ) -> list[RunRecord]:
-    """Every scenario x noise level [m] x seed x method: the judged run records."""
+    """Every scenario x noise level [m] x seed x method: the judged run records (``units``: see
+    :func:`run_method`)."""
     out: list[RunRecord] = []
     for sc in scenarios:
         for noise in noise_levels:
             for s in seeds:
                 prob = simulate_problem(s, noise, scenario=sc, n_pairs=n_pairs, narrow_span_deg=narrow_span_deg)
-                out += run_case(prob, methods, max_iter=max_iter, spectral_iterations=spectral_iterations)
+                out += run_case(prob, methods, max_iter=max_iter, spectral_iterations=spectral_iterations, units=units)
             if progress:
                 progress(f"{sc} noise {noise * 1e3:g} mm: {len(seeds)} seeds")
     return out
@@ -547,20 +587,16 @@ def _pct(v, q):
 def summarise(records: Sequence[RunRecord]) -> list[dict]:
     """One row per (scenario, noise, method): medians of the iteration counts and condition numbers (step 1 /
     step 2), median and 95th percentile of the parameter and prediction errors, failure rate and reasons."""
-    keys = []
-    for r in records:
-        k = (r.scenario, r.noise_position, r.method)
-        if k not in keys:
-            keys.append(k)
+    keys = list(dict.fromkeys((r.units, r.scenario, r.noise_position, r.method) for r in records))
     rows = []
-    for sc, noise, m in keys:
-        rs = [r for r in records if (r.scenario, r.noise_position, r.method) == (sc, noise, m)]
+    for units, sc, noise, m in keys:
+        rs = [r for r in records if (r.units, r.scenario, r.noise_position, r.method) == (units, sc, noise, m)]
         col = lambda f: [f(r) for r in rs]
         reasons: dict[str, int] = {}
         for r in rs:
             if r.failed:
                 reasons[r.failure] = reasons.get(r.failure, 0) + 1
-        row = {"scenario": sc, "noise_mm": noise * 1e3, "method": m, "runs": len(rs)}
+        row = {"units": units, "scenario": sc, "noise_mm": noise * 1e3, "method": m, "runs": len(rs)}
         for s in (0, 1):
             row[f"iterations_step{s + 1}"] = _pct(col(lambda r: r.iterations[s]), 50)
             row[f"inner_iterations_step{s + 1}"] = _pct(col(lambda r: r.inner_iterations[s]), 50)
@@ -593,16 +629,17 @@ def _g(v: float, digits: int = 3) -> str:
 
 
 def markdown_table(rows: Sequence[dict]) -> str:
-    """The summary rows as Markdown, one table per scenario."""
+    """The summary rows as Markdown, one table per (units, scenario)."""
     out = []
-    for sc in dict.fromkeys(r["scenario"] for r in rows):
-        out += [f"### Scenario `{sc}`", "",
+    for units, sc in dict.fromkeys((r.get("units", "si"), r["scenario"]) for r in rows):
+        what = "m and rad (SI)" if units == "si" else "mm and rad"
+        out += [f"### Scenario `{sc}`, solver units {what}", "",
                 "| noise [mm] | method | GN its (1/2) | spectral its (1/2) | cond H raw (1/2) | cond H scaled (1/2) "
                 "| cond H^T H + I (1/2) | length err med / p95 [um] | angle err med / p95 [urad] "
                 "| distance pred. med / p95 [um] | failure rate (solver error / not conv. / error) |",
                 "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
-            if r["scenario"] != sc:
+            if (r.get("units", "si"), r["scenario"]) != (units, sc):
                 continue
             sp = (f"{_g(r['inner_iterations_step1'])} / {_g(r['inner_iterations_step2'])}"
                   if r["method"].startswith("spectral") else "-")
@@ -620,15 +657,17 @@ def markdown_table(rows: Sequence[dict]) -> str:
     return "\n".join(out)
 
 
-def plot_study(rows: Sequence[dict], path) -> None:
-    """Figure: one column per scenario; rows: median distance prediction error [um] and median length parameter
-    error [um] (bars up to the 95th percentile), failure rate [%], and iterations of both steps (GN outer
-    iterations; spectral: inner iterations), against the noise sigma, one line per method."""
+def plot_study(rows: Sequence[dict], path, *, units: str = "si") -> None:
+    """Figure of the summary rows in ``units``: one column per scenario; rows: median distance prediction error
+    [um] and median length parameter error [um] (bars up to the 95th percentile), failure rate [%], and
+    iterations of both steps (GN outer iterations; spectral: inner iterations), against the noise sigma, one
+    line per method."""
     from .report import _plt, _save_figure
 
     plt = _plt()
     from matplotlib.ticker import NullFormatter
 
+    rows = [r for r in rows if r.get("units", "si") == units]
     scs = list(dict.fromkeys(r["scenario"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     fig, axes = plt.subplots(4, len(scs), figsize=(4.3 * len(scs), 13), squeeze=False)
