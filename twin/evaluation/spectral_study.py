@@ -64,6 +64,8 @@ __all__ = [
     "METHODS",
     "SCENARIOS",
     "UNITS",
+    "UNBOUNDED_ITERATIONS",
+    "NARROW_POSTURE_DEG",
     "conditioning",
     "StepSolution",
     "solve_step",
@@ -85,6 +87,8 @@ LINEAR_METHODS = ("normal", "lstsq", "scaled", "spectral", "spectral_unbounded")
 METHODS = LINEAR_METHODS + ("lm",)
 UNBOUNDED_ITERATIONS = 10**15
 SCENARIOS = ("wide", "narrow", "with_d2", "paper_list")
+UNITS = ("si", "mm")
+NARROW_POSTURE_DEG = (0.0, 10.0, 10.0, 0.0, 40.0, 0.0)  # centre of the narrow design
 _DEG = np.pi / 180.0
 
 
@@ -94,9 +98,9 @@ _DEG = np.pi / 180.0
 
 @dataclass(frozen=True)
 class StepSolution:
-    """One linear solve: the step ``dx`` ``(p,)`` [SI], inner iterations (spectral correction; 1 otherwise),
-    ``ok`` (False when the solver failed: singular matrix, non-finite result, inner iteration not converged
-    is *not* a failure here, it is counted in ``inner_converged``)."""
+    """One linear solve: the step ``dx`` ``(p,)`` [SI], inner iterations (spectral correction; 1 otherwise) and
+    whether they met their tolerance (``inner_converged``), ``ok`` (False when the solver failed: singular
+    matrix or non-finite step; an inner iteration stopped by its cap is not a failure of the step)."""
 
     dx: np.ndarray
     inner_iterations: int
@@ -295,7 +299,7 @@ class SeparationProblem:
 
 def _configs(nom, n: int, rng: np.random.Generator, scenario: str, span: float) -> np.ndarray:
     if scenario == "narrow":
-        centre = np.array([0.0, 10.0, 10.0, 0.0, 40.0, 0.0]) * _DEG
+        centre = np.array(NARROW_POSTURE_DEG) * _DEG
         return centre + rng.uniform(-span, span, (n, 6))
     return random_configurations(nom, n, rng)
 
@@ -327,7 +331,8 @@ def simulate_problem(
 ) -> SeparationProblem:
     """Simulate one problem: ``n_pairs`` motion pairs of the IRB-1200 carrying ``preset``'s deviations, sphere
     centres plus N(0, ``noise_position``^2) [m] per coordinate, in the frame of a camera-like station.
-    ``scenario`` in :data:`SCENARIOS` (``narrow``: every joint within +-``narrow_span_deg`` of one posture)."""
+    ``scenario`` in :data:`SCENARIOS` (``narrow``: every joint within +-``narrow_span_deg`` of
+    :data:`NARROW_POSTURE_DEG`)."""
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario must be one of {SCENARIOS}, got {scenario!r}")
     if noise_position < 0:
@@ -437,9 +442,6 @@ def _fitter(method: str, max_iter: int, spectral_iterations: int) -> SolverFn:
 def _rms(v: np.ndarray) -> float:
     v = np.asarray(v, dtype=float)
     return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
-
-
-UNITS = ("si", "mm")
 
 
 def _fit_in_units(fit: SolverFn, fun, x0: np.ndarray, idx: np.ndarray, col: np.ndarray, row: float) -> FitResult:
