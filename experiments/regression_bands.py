@@ -43,6 +43,8 @@ def main() -> int:
     print(f"wrote section {a.section!r} of {path}")
     for claim, e in rep["orderings"].items():
         print(f"  {claim}: holds in {e['holds']}/{e['n']} seeds")
+    for claim, e in data["orderings_literal"].items():
+        print(f"  {claim} (paper-literal separation): holds in {e['holds']}/{e['n']} seeds")
     return 0
 
 

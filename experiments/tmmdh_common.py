@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import sys
 import time
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,8 +28,10 @@ MM = 1e-3
 
 
 def targets() -> dict:
-    with open(ROOT / "experiments" / "paper_targets_tmmdh.toml", "rb") as f:
-        return tomllib.load(f)
+    """The TM-MDH paper's targets (validated, with its ``[[unscored]]`` flags: twin.evaluation.targets)."""
+    from twin.evaluation.targets import DEFAULT_TMMDH_TARGETS, read_targets
+
+    return read_targets(DEFAULT_TMMDH_TARGETS)
 
 
 def truth_model() -> RobotModel:

@@ -115,3 +115,39 @@ def test_joints_csv_group_takes_poses_from_a_plan_file(tmp_path):
     raw["poses"][1]["pairing"] = "none"
     with pytest.raises(ValueError, match="no motion to evaluate"):
         parse_campaign_config(raw)
+
+
+def test_motion_keys_are_read_in_si():
+    """turn_deg / shift_mm / distance_turn_deg / max_joint_step_deg reach the sampler in rad and m."""
+    raw = _raw()
+    raw["sampling"]["turn_deg"] = [0, 18]
+    raw["sampling"]["shift_mm"] = [50, 100]
+    raw["poses"][2]["sampling"]["distance_turn_deg"] = [20, 45]
+    raw["poses"][2]["sampling"]["max_joint_step_deg"] = 40
+    g = {x.name: x for x in parse_campaign_config(raw).groups}
+    assert g["compensation"].sampling.turn == pytest.approx((0.0, np.deg2rad(18)))
+    assert g["compensation"].sampling.shift == pytest.approx((0.05, 0.1))
+    assert g["distance"].sampling.distance_turn == pytest.approx((np.deg2rad(20), np.deg2rad(45)))
+    assert g["distance"].sampling.max_joint_step == pytest.approx(np.deg2rad(40))
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("turn_deg", [30, 10], "turn"), ("shift_mm", [50, 100], "shift_mm"), ("distance_turn_deg", [0], "distance_turn_deg"),
+])
+def test_bad_motion_keys_are_refused_naming_them(key, value, message):
+    """A reversed turn range, a shift without a turn, or a malformed range is refused naming the key."""
+    raw = _raw()
+    raw["sampling"][key] = value
+    with pytest.raises(ValueError, match=message):
+        parse_campaign_config(raw)
+
+
+def test_matched_config_is_the_paper_protocol_with_local_motions():
+    """separation_matched.toml: truth_noise, 25 + 25 local motion pairs, 40 turning moves of 50/60/80/100 mm, five methods."""
+    c = load_campaign_config(ROOT / "experiments" / "separation_matched.toml")
+    g = {x.name: x for x in c.groups}
+    assert c.measurement.mode == "truth_noise" and c.measurement.noise_position == pytest.approx(1e-5)
+    assert (g["calibration"].count, g["compensation"].count, g["distance"].count) == (25, 25, 40)
+    assert sorted(set(np.round(np.array(g["distance"].distances) * 1e3, 6))) == [50, 60, 80, 100]
+    assert g["calibration"].sampling.turn is not None and g["distance"].sampling.distance_turn[1] > 0
+    assert set(c.methods) == {"distance", "full_pose", "separation", "separation_paper", "default"}

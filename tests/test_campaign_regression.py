@@ -1,4 +1,8 @@
-"""Regression of the Figure 10/11 statistics: one seed of the CI campaign against the bands over 20 seeds."""
+"""Regression of the Figure 10/11 statistics: one seed of the CI campaign against the bands over 20 seeds.
+
+These are the loose ``minmax`` bands (they contain every band seed): they catch a broken pipeline, not a 20 %
+worsening of one method. tests/test_regression_matched.py tests new seeds of the matched protocol against
+prediction bands that do catch it (where the seed-to-seed spread allows)."""
 
 import json
 from pathlib import Path

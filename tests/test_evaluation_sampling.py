@@ -111,3 +111,50 @@ def test_plate_pitch_stays_away_from_the_euler_singularity():
     q = sample_configurations(MODEL, STATION, PLATE, 30, np.random.default_rng(4), opt)
     pitch = euler_zyx_from_matrix(flange2base(MODEL, q)[:, :3, :3])[:, 1]
     assert np.all(np.abs(pitch) <= np.deg2rad(40.0) + 1e-9)
+
+
+def _plate2base(q):
+    from twin.instrument.plate import paper_frame_from_spheres
+
+    return flange2base(MODEL, q) @ MODEL.tool2flange @ paper_frame_from_spheres(PLATE.spheres_flange)
+
+
+def test_local_motion_pairs_turn_and_shift_within_the_ranges():
+    """With turn/shift set, every pair's plate turns by an angle in turn and its centre moves by a length in shift."""
+    opt = SamplingOptions(margin_px=40, max_roll=np.deg2rad(45), turn=(np.deg2rad(5), np.deg2rad(18)), shift=(0.05, 0.1))
+    a, b = sample_motion_pairs(MODEL, STATION, PLATE, 6, np.random.default_rng(3), opt)
+    Pa, Pb = _plate2base(a), _plate2base(b)
+    turn = rotation_angle_between(Pa[:, :3, :3], Pb[:, :3, :3])
+    shift = np.linalg.norm(Pb[:, :3, 3] - Pa[:, :3, 3], axis=1)
+    assert np.all((turn >= np.deg2rad(5) - 1e-7) & (turn <= np.deg2rad(18) + 1e-7))
+    assert np.all((shift >= 0.05 - 1e-7) & (shift <= 0.1 + 1e-7))
+    assert plate_in_view(MODEL, b, STATION, PLATE, opt).all()
+
+
+def test_independent_motion_pairs_turn_more_than_local_ones():
+    """Without turn the end is an independent configuration: larger turns than a 0-18 deg local motion allows."""
+    base = SamplingOptions(margin_px=40, max_roll=np.deg2rad(45))
+    a, b = sample_motion_pairs(MODEL, STATION, PLATE, 8, np.random.default_rng(4), base)
+    turn = rotation_angle_between(_plate2base(a)[:, :3, :3], _plate2base(b)[:, :3, :3])
+    assert turn.max() > np.deg2rad(18)
+
+
+def test_turning_distance_moves_keep_the_distance_and_turn_in_range():
+    """With distance_turn set, the plate centre still moves by exactly the distance and the plate turns in range."""
+    opt = SamplingOptions(margin_px=40, distance_turn=(np.deg2rad(20), np.deg2rad(45)))
+    d = np.array([0.05, 0.1])
+    a, b = sample_distance_moves(MODEL, STATION, PLATE, d, np.random.default_rng(5), opt)
+    Pa, Pb = _plate2base(a), _plate2base(b)
+    np.testing.assert_allclose(np.linalg.norm(Pb[:, :3, 3] - Pa[:, :3, 3], axis=1), d, atol=1e-9)
+    turn = rotation_angle_between(Pa[:, :3, :3], Pb[:, :3, :3])
+    assert np.all((turn >= np.deg2rad(20) - 1e-7) & (turn <= np.deg2rad(45) + 1e-7))
+
+
+@pytest.mark.parametrize("kw", [
+    {"turn": (0.3, 0.1)}, {"turn": (-0.1, 0.1)}, {"shift": (0.0, -0.01)}, {"distance_turn": (0.0, 4.0)},
+    {"max_joint_step": 0.0},
+])
+def test_bad_motion_ranges_are_refused_naming_them(kw):
+    """A reversed, negative or too-large motion range is a ValueError naming the option."""
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        SamplingOptions(**kw)

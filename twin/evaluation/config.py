@@ -282,7 +282,17 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     pitch = r.number("max_euler_pitch_deg", None, positive=True)
     roll = r.number("max_roll_deg", None, nonneg=True)
     lim = r.number("limit_margin_deg", None, nonneg=True)
+    turn = r.vector("turn_deg", 2)
+    shift = r.vector("shift_mm", 2)
+    dturn = r.vector("distance_turn_deg", 2)
+    step = r.number("max_joint_step_deg", None, positive=True)
     kw: dict[str, Any] = {}
+    kw["turn"] = (float(turn[0]) * _DEG, float(turn[1]) * _DEG) if turn is not None else defaults.turn
+    kw["shift"] = (float(shift[0]) * _MM, float(shift[1]) * _MM) if shift is not None else defaults.shift
+    kw["distance_turn"] = (float(dturn[0]) * _DEG, float(dturn[1]) * _DEG) if dturn is not None else defaults.distance_turn
+    kw["max_joint_step"] = step * _DEG if step is not None else defaults.max_joint_step
+    if shift is not None and kw["turn"] is None:
+        raise ValueError(f"{r.path}: [{r.where}]: shift_mm: only a local motion (turn_deg set) takes a shift")
     kw["limit_margin"] = lim * _DEG if lim is not None else defaults.limit_margin
     kw["max_roll"] = roll * _DEG if roll is not None else defaults.max_roll
     kw["max_euler_pitch"] = pitch * _DEG if pitch is not None else defaults.max_euler_pitch

@@ -15,6 +15,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .store import atomic_write_text
+from .targets import scored_value, target_value
 
 __all__ = [
     "RESULTS_SCHEMA_VERSION",
@@ -24,6 +25,7 @@ __all__ = [
     "plot_figure10",
     "plot_figure11",
     "paper_parameter_value",
+    "paper_parameter_path",
     "render_parameter_table",
 ]
 
@@ -130,18 +132,30 @@ def render_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> str:
     return "\n".join(lines)
 
 
-def paper_parameter_value(targets: Mapping[str, Any] | None, key: str) -> float | None:
-    """The separation paper's identified value (its Table 3 or 5) of a ``parameters`` key (``alpha2_deg``,
-    ``d3_mm``, ``theta2_plus_theta3_deg`` ...), or None where the paper gives none."""
+def paper_parameter_path(targets: Mapping[str, Any] | None, key: str) -> str | None:
+    """Dotted path into the separation targets of a ``parameters`` key's paper value (its Table 3 or 5), or
+    None where the paper gives none."""
     if not targets:
         return None
     t3 = _g(targets, "simulation", "table3_deg") or {}
     t5 = _g(targets, "simulation", "table5") or {}
     if key in t5:
-        return float(t5[key])
+        return f"simulation.table5.{key}"
     if key.endswith("_deg") and key[:-4] in t3:
-        return float(t3[key[:-4]])
+        return f"simulation.table3_deg.{key[:-4]}"
     return None
+
+
+def paper_parameter_value(targets: Mapping[str, Any] | None, key: str, *, scored_only: bool = False) -> float | None:
+    """The separation paper's identified value (its Table 3 or 5) of a ``parameters`` key (``alpha2_deg``,
+    ``d3_mm``, ``theta2_plus_theta3_deg`` ...), or None where the paper gives none; with ``scored_only`` also
+    None where the targets file flags the value unscored (a slip or synthetic entry, :mod:`.targets`)."""
+    path = paper_parameter_path(targets, key)
+    if path is None:
+        return None
+    if scored_only:
+        return scored_value(targets, path)
+    return float(target_value(targets, path))
 
 
 def render_parameter_table(params: Mapping[str, Mapping[str, Mapping[str, Any]]], targets: Mapping[str, Any] | None,
@@ -159,14 +173,17 @@ def render_parameter_table(params: Mapping[str, Mapping[str, Mapping[str, Any]]]
     for k in keys:
         true = params[methods[0]][k]["true"]
         paper = paper_parameter_value(targets, k)
+        flagged = paper is not None and paper_parameter_value(targets, k, scored_only=True) is None
+        paper_cell = "-" if paper is None else f"{paper:.4f}" + ("^" if flagged else "")
         cells = []
         for m in methods:
             e = params[m][k]
             cells.append(f"{e['identified']:>11.4f}" if e.get("estimated", True) else f"{e['identified']:>10.4f}*")
-        lines.append(f"{k:<24} {true:>9.4f} {'-' if paper is None else f'{paper:.4f}':>9} " + " ".join(cells))
+        lines.append(f"{k:<24} {true:>9.4f} {paper_cell:>9} " + " ".join(cells))
     lines.append("injected: the world's errors; paper: its identified values (Tables 3 and 5, targets); "
                  "*: not identified by that method (held, or moved only with a coupled parameter: see "
-                 "calibrations/<method>.calibration.json).")
+                 "calibrations/<method>.calibration.json); ^: the paper's value is flagged unscored in the targets file "
+                 "(synthetic: exactly 0.95 x the preset), printed but not a target.")
     return "\n".join(lines)
 
 

@@ -12,11 +12,14 @@ Three samplers, all seeded by the caller's ``numpy.random.Generator``:
   a plate centre uniformly on a random pixel ray of the reference camera at a random depth, the plate
   normal within ``max_tilt`` of the direction to the station, a uniform roll about it; the closed-form
   inverse (:func:`twin.kinematics.inverse_kinematics_closed_form`) of the nominal model gives the joints.
-* :func:`sample_motion_pairs` -- the separation paper's motion pairs: two independent configurations of
-  the same station (its "beginning and end of the posture movement").
+* :func:`sample_motion_pairs` -- the separation paper's motion pairs (its "beginning and end of the posture
+  movement"): by default two independent configurations of the same station; with ``turn`` set, a local
+  posture movement: the plate turns about its centre by an angle drawn uniformly in ``turn`` about a random
+  axis and its centre shifts by a length drawn uniformly in ``shift`` along a random direction.
 * :func:`sample_distance_moves` -- fixed-distance moves: a start configuration, a random direction, the
-  end translated by exactly ``distance`` with the orientation kept, solved with the closed-form inverse on
-  the branch nearest the start.
+  plate centre moved by exactly ``distance``; the orientation kept (default) or turned about the plate
+  centre by an angle drawn uniformly in ``distance_turn``; solved with the closed-form inverse on the
+  branch nearest the start.
 """
 
 from __future__ import annotations
@@ -134,6 +137,16 @@ class SamplingOptions:
     max_euler_pitch: float = np.deg2rad(60.0)
     # roll of the plate about its normal, from 'level' (plate x axis horizontal): uniform in [-max_roll, max_roll]
     max_roll: float = np.pi
+    # motion pairs: (min, max) [rad] of the plate's turn about its centre between start and end (random axis,
+    # angle uniform in the range); None = start and end are independent configurations
+    turn: tuple[float, float] | None = None
+    # motion pairs with `turn`: (min, max) [m] of the plate centre's shift (random direction, length uniform)
+    shift: tuple[float, float] = (0.0, 0.0)
+    # distance moves: (min, max) [rad] of the plate's turn about its centre during the move; (0, 0) keeps the
+    # orientation
+    distance_turn: tuple[float, float] = (0.0, 0.0)
+    # [rad] no joint moves more than this between the start and the end of a local motion or a distance move
+    max_joint_step: float = np.deg2rad(60.0)
 
     def __post_init__(self) -> None:
         if not (0 < self.depth_min <= self.depth_max):
@@ -148,6 +161,14 @@ class SamplingOptions:
             raise ValueError(f"branch must be 'random' or 'home', got {self.branch!r}")
         if self.max_attempts < 1:
             raise ValueError(f"max_attempts must be >= 1, got {self.max_attempts}")
+        for name, rng_, top in (("turn", self.turn, np.pi), ("shift", self.shift, np.inf),
+                                ("distance_turn", self.distance_turn, np.pi)):
+            if rng_ is None and name == "turn":
+                continue
+            if len(rng_) != 2 or not (0 <= rng_[0] <= rng_[1] <= top):
+                raise ValueError(f"{name} must be (min, max) with 0 <= min <= max <= {top}, got {rng_!r}")
+        if not (0 < self.max_joint_step <= 2 * np.pi):
+            raise ValueError(f"max_joint_step must be in (0, 2 pi] [rad], got {self.max_joint_step}")
 
 
 def _plate_centre_flange(plate: Plate) -> np.ndarray:
@@ -318,9 +339,52 @@ def sample_motion_pairs(
     """``(q_start, q_end)``, each ``(n_pairs, 6)`` [rad]: a random in-view start and a random in-view end
     reached on the start's inverse-kinematics branch (the arm moves to another posture without flipping its
     shoulder, elbow or wrist)."""
+    opt = options or SamplingOptions()
+    if opt.turn is not None:
+        return _local_motions(model, station, plate, n_pairs, rng, opt)
     starts = sample_configurations(model, station, plate, n_pairs, rng, options)
     ends = np.array([sample_configurations(model, station, plate, 1, rng, options, q_ref=q0)[0] for q0 in starts])
     return starts, ends.reshape(n_pairs, 6)
+
+
+def _random_turns(rng: np.random.Generator, m: int, lo: float, hi: float) -> np.ndarray:
+    """``m`` rotations ``(m, 3, 3)`` about uniformly random axes by angles uniform in ``[lo, hi]`` [rad]."""
+    return rotvec_to_matrix(_random_unit(rng, m) * rng.uniform(lo, hi, m)[:, None])
+
+
+def _moved_flange_targets(model: RobotModel, plate: Plate, q0: np.ndarray, turns: np.ndarray,
+                          shifts: np.ndarray) -> np.ndarray:
+    """Flange targets ``(m, 4, 4)`` that turn the plate (frame of eq. 38-40) of configuration ``q0`` about its
+    centre by ``turns`` ``(m, 3, 3)`` (in the base frame) and move its centre by ``shifts`` ``(m, 3)`` [m]."""
+    plate2flange = model.tool2flange @ _plate_centre_flange(plate)
+    P0 = flange2base(_flange_model(model), q0)[0] @ plate2flange
+    P1 = np.broadcast_to(P0, (len(turns), 4, 4)).copy()
+    P1[:, :3, :3] = turns @ P0[:3, :3]
+    P1[:, :3, 3] += shifts
+    return P1 @ invert_transform(plate2flange)
+
+
+def _local_motions(model, station, plate, n_pairs, rng, opt, tries_per_start: int = 30):
+    """Motion pairs whose end turns the plate by ``opt.turn`` and shifts it by ``opt.shift`` from the start."""
+    fm = _flange_model(model)
+    starts, ends = [], []
+    for k in range(n_pairs):
+        for _ in range(max(1, opt.max_attempts // tries_per_start)):
+            q0 = sample_configurations(model, station, plate, 1, rng, opt)[0]
+            turns = _random_turns(rng, tries_per_start, *opt.turn)
+            shifts = _random_unit(rng, tries_per_start) * rng.uniform(*opt.shift, tries_per_start)[:, None]
+            F1 = _moved_flange_targets(model, plate, q0, turns, shifts)
+            q1, ok = _pick_branches(inverse_kinematics_closed_form(fm, F1), rng, opt, q0, model)
+            ok &= np.max(np.abs(wrap_angle(q1 - q0)), axis=1) <= opt.max_joint_step
+            ok &= plate_in_view(model, q1, station, plate, opt) & _euler_pitch_ok(model, q1, plate, opt)
+            if np.any(ok):
+                starts.append(q0)
+                ends.append(q1[np.argmax(ok)])
+                break
+        else:
+            raise SamplingError(f"no in-view motion pair with the requested turn found for station {station.name!r} "
+                                f"(pair {k})")
+    return np.array(starts).reshape(-1, 6), np.array(ends).reshape(-1, 6)
 
 
 def sample_distance_moves(
@@ -332,11 +396,13 @@ def sample_distance_moves(
     options: SamplingOptions | None = None,
     tries_per_start: int = 30,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Moves of exactly ``distances[k]`` [m] along random directions with the orientation kept.
+    """Moves of exactly ``distances[k]`` [m] of the plate centre along random directions.
 
-    Returns ``(q_start, q_end)`` ``(len(distances), 6)`` [rad]; on the nominal model the flange (hence every
-    plate point) moves by exactly the requested distance and does not turn. The end is the closed-form
-    branch nearest the start.
+    Returns ``(q_start, q_end)`` ``(len(distances), 6)`` [rad]; on the nominal model the plate centre moves
+    by exactly the requested distance; the plate keeps its orientation when ``options.distance_turn`` is
+    ``(0, 0)`` (the default; then every plate point moves by that distance) and otherwise turns about its
+    centre by an angle uniform in ``distance_turn`` about a random axis. The end is the closed-form branch
+    nearest the start, no joint moving more than ``max_joint_step``.
     """
     dist = np.asarray(distances, dtype=float).reshape(-1)
     if not np.all(np.isfinite(dist)) or np.any(dist <= 0):
@@ -348,11 +414,15 @@ def sample_distance_moves(
         found = False
         for _ in range(max(1, opt.max_attempts // tries_per_start)):
             q0 = sample_configurations(model, station, plate, 1, rng, opt)[0]
-            F0 = flange2base(fm, q0)[0]
-            F1 = np.broadcast_to(F0, (tries_per_start, 4, 4)).copy()
-            F1[:, :3, 3] += d * _random_unit(rng, tries_per_start)
+            if opt.distance_turn[1] > 0:
+                turns = _random_turns(rng, tries_per_start, *opt.distance_turn)
+                F1 = _moved_flange_targets(model, plate, q0, turns, d * _random_unit(rng, tries_per_start))
+            else:  # orientation kept (the random stream of configs written before distance_turn existed)
+                F0 = flange2base(fm, q0)[0]
+                F1 = np.broadcast_to(F0, (tries_per_start, 4, 4)).copy()
+                F1[:, :3, 3] += d * _random_unit(rng, tries_per_start)
             q1, ok = _pick_branches(inverse_kinematics_closed_form(fm, F1), rng, opt, q0, model)
-            ok &= np.max(np.abs(wrap_angle(q1 - q0)), axis=1) <= np.deg2rad(60)
+            ok &= np.max(np.abs(wrap_angle(q1 - q0)), axis=1) <= opt.max_joint_step
             ok &= plate_in_view(model, q1, station, plate, opt)
             if np.any(ok):
                 starts.append(q0)
