@@ -12,8 +12,18 @@ TABLE = tomllib.loads((ROOT / "tests" / "readme_figures.toml").read_text())["fig
 
 
 def _lookup(d, key):
-    for part in key.split("."):
-        d = d[int(part)] if isinstance(d, list) else d[part]
+    """The value at dotted ``key``; a dict key may itself hold dots (the longest one that exists is taken)."""
+    parts = key.split(".")
+    while parts:
+        if isinstance(d, list):
+            d, parts = d[int(parts[0])], parts[1:]
+            continue
+        for n in range(len(parts), 0, -1):
+            if ".".join(parts[:n]) in d:
+                d, parts = d[".".join(parts[:n])], parts[n:]
+                break
+        else:
+            raise KeyError(f"{key!r}: no key {parts[0]!r}")
     return d
 
 

@@ -29,7 +29,10 @@ METHODS = ("distance", "full_pose", "separation", "separation_paper", "default")
 # After-compensation means whose seed-to-seed spread lets 6 new seeds see a 20 % worsening at 99 %
 # (detectable_factor < 1.2). Distance-only, separation and paper-literal separation position means spread too much
 # (sd of log 0.22-0.41 over the 20 band seeds): no number of new seeds brings them under 1.2 with 20 band seeds.
-DETECTABLE = {(m, "angle_deg") for m in METHODS} | {("full_pose", "position_mm"), ("default", "position_mm")}
+# Nor does the paper-literal separation's angle mean (x1.26): it takes the camera-to-base rotation from
+# dataset.toml, which states the nominal rig, and the rig is placed with error, differently for every seed.
+DETECTABLE = ({(m, "angle_deg") for m in METHODS if m != "separation_paper"}
+              | {("full_pose", "position_mm"), ("default", "position_mm")})
 
 
 def _bands():
