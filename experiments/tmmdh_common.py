@@ -42,16 +42,21 @@ def poses(n: int, seed: int) -> np.ndarray:
     return random_configurations(brtirus0707a(), n, np.random.default_rng(seed))
 
 
-def dataset(q: np.ndarray, *, noise=(0.0, 0.0), seed: int = 0, sets=None, declare=True):
+def dataset(q: np.ndarray, *, noise=(0.0, 0.0), seed: int = 0, sets=None, declare=True, orientation_reading="rotvec"):
     """Pose dataset measured on the truth; nominal station base2meas = identity in dataset.toml (the paper's
-    T_m0 nominal). Returns (dataset, noise-free truth dict)."""
+    T_m0 nominal). ``orientation_reading``: how ``noise[1]`` is applied (:func:`orientation_noise`); the noise
+    declared to the estimator is the per-component sigma (``noise[1] / sqrt(3)`` for ``"norm"``). Returns
+    (dataset, noise-free truth dict)."""
     truth = truth_model()
     rng = np.random.default_rng(seed)
     ds, true = simulate_dataset(truth, q, robot_spec="brtirus0707a", kind="pose", base2meas={"0": truth.base2meas},
                                 noise_position=noise[0], noise_orientation=noise[1], rng=rng,
                                 set_=np.array(sets if sets is not None else ["calibration"] * len(q), dtype=object),
-                                declare_noise=declare)
-    return replace(ds, stations_base2meas={"0": np.eye(4)}), true
+                                declare_noise=declare, orientation_noise_reading=orientation_reading)
+    ds = replace(ds, stations_base2meas={"0": np.eye(4)})
+    if orientation_reading == "norm" and ds.noise_orientation is not None:
+        ds = replace(ds, noise_orientation=ds.noise_orientation / np.sqrt(3.0))
+    return ds, true
 
 
 def euler_from_rotvec(r: np.ndarray) -> np.ndarray:
