@@ -178,7 +178,9 @@ READINGS = ("initial_value", "preset")
 # name -> (method, damping, units, stop); units "si" (m, rad) or "mm_rad"; stop: LM "tol" (largest step < 1e-12,
 # at most 100 iterations) or "iter20" (at most 20 iterations); C-LM "data" (leave once the fit reproduces the
 # measured positions to 1 um RMS; 20 cycles) or "cycles" (no data rule: 20 cycles, or a cycle without progress);
-# an optional fifth entry: the orientation residual, "log" (default) or the paper's "first_order" (sin(angle) axis)
+# optional fifth and sixth entries: the orientation residual, "log" (default) or the paper's "first_order"
+# (sin(angle) axis), and the step rule, "always" (the paper's Step 3, default) or "improve" (a step that raises
+# the cost is rejected; with the paper's bounded damping the retry uses mu0 * lam again)
 VARIANTS = {
     "lm": ("lm", "cumulative", "si", "tol"),
     "lm_paper": ("lm", "paper", "si", "tol"),
@@ -192,6 +194,8 @@ VARIANTS = {
     "clm_paper_cycles": ("clm", "paper", "mm_rad", "cycles"),
     "lm_paper_first_order": ("lm", "paper", "si", "tol", "first_order"),
     "clm_paper_first_order": ("clm", "paper", "mm_rad", "data", "first_order"),
+    "lm_paper_reject": ("lm", "paper", "si", "tol", "log", "improve"),
+    "clm_paper_reject": ("clm", "paper", "mm_rad", "data", "log", "improve"),
 }
 
 
@@ -228,6 +232,7 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
 
     method, damping, units, stop_rule, *rest = VARIANTS[variant]
     rot = rest[0] if rest else "log"
+    accept = rest[1] if len(rest) > 1 else "always"
     sig_p = MM if units == "mm_rad" else 1.0
     t0 = time.perf_counter()
     Xs, its = [], []
@@ -236,10 +241,11 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
         Xc = pb.starts(X0[c0:c0 + chunk])
         free = pb.free(np.ones(sp.size, dtype=bool))
         if method == "lm":
-            st = replace(LM_SETTINGS, damping=damping, max_iter=20 if stop_rule == "iter20" else LM_SETTINGS.max_iter)
+            st = replace(LM_SETTINGS, damping=damping, accept=accept,
+                         max_iter=20 if stop_rule == "iter20" else LM_SETTINGS.max_iter)
             r = levenberg_marquardt(pb, Xc, free, settings=st)
         else:
-            st = replace(CLM_STAGE, damping=damping)
+            st = replace(CLM_STAGE, damping=damping, accept=accept)
             stop = (lambda X, pb=pb: pb.position_rms(X) <= CONVERGED_M) if stop_rule == "data" else None
             r = cross_identification(pb, pb, Xc, free, np.r_[~sp.is_length, False], n_cycles=CLM_CYCLES,
                                      settings_orientation=st, settings_full=st, stop=stop)
@@ -250,7 +256,7 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
     ep = np.concatenate([e for _, e in Xs])
     conv = ep <= CONVERGED_M
     n = int(round(np.sqrt(X0.shape[0])))
-    return {"method": method, "damping": damping, "units": units, "stop": stop_rule, "rotation_residual": rot,
+    return {"method": method, "damping": damping, "units": units, "stop": stop_rule, "rotation_residual": rot, "accept": accept,
             "converged_percent": float(100 * conv.mean()), "time_total_s": el, "time_per_run_s": el / X0.shape[0],
             "iterations_median": float(np.median(np.concatenate(its))),
             "converged": conv.astype(int).reshape(n, n).tolist()}
