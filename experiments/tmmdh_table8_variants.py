@@ -10,7 +10,7 @@ stop rules, and the paper's first-order orientation residual. All 37 parameters 
 The grid is subsampled (every ``--step``-th value of the 63-point grid over [-3.1, 3.1] rad) to keep the CPU
 time modest. Writes results/tmmdh_table8_variants.{json,md}.
 
-    python experiments/tmmdh_table8_variants.py [--step 2]
+    python experiments/tmmdh_table8_variants.py [--step 2] [--render]
 """
 
 from __future__ import annotations
@@ -34,7 +34,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--step", type=int, default=2, help="take every step-th value of the 63-point grid")
     ap.add_argument("--variants", nargs="*", default=list(tc.VARIANTS))
+    ap.add_argument("--render", action="store_true", help="only rewrite the .md from the existing .json")
     args = ap.parse_args()
+    if args.render:
+        render(json.loads((tc.RESULTS / "tmmdh_table8_variants.json").read_text()))
+        return 0
     g = tc.convergence_grid(63)[:: args.step]
     t0 = time.perf_counter()
     res = {"grid_rad": g.tolist(), "grid_step": args.step, "n_starts": int(g.size**2), "readings": {}}
@@ -46,16 +50,24 @@ def main() -> int:
             res["readings"][reading][v] = r
             print(f"{reading:14s} {v:24s} {r['converged_percent']:6.2f} %  {r['time_total_s']:.1f} s", flush=True)
     res["study_time_s"] = time.perf_counter() - t0
-    tg = tc.targets()["table8"]
-    res["paper_table8"] = tg
+    res["paper_table8"] = tc.targets()["table8"]
     full = json.loads((tc.RESULTS / "tmmdh_convergence.json").read_text()) if (tc.RESULTS / "tmmdh_convergence.json").exists() else None
     if full:
         res["full_grid_initial_value"] = {m: full[m]["converged_percent"] for m in ("lm", "clm")}
     (tc.RESULTS / "tmmdh_table8_variants.json").write_text(json.dumps(res) + "\n")
+    render(res)
+    return 0
+
+
+def render(res: dict) -> None:
+    """results/tmmdh_table8_variants.md from the study's JSON."""
+    tg, g, step = res["paper_table8"], res["grid_rad"], res["grid_step"]
+    full = res.get("full_grid_initial_value")
+    variants = list(res["readings"]["initial_value"])
     rd = res["readings"]
     pct = lambda r, v: f"{rd[r][v]['converged_percent']:.2f} %" if v in rd[r] else "-"  # noqa: E731
     L = ["# TM-MDH paper, Table 8: two readings of the grid, the literal LM, and solver variants", "",
-         f"Grid: one value in {args.step} of the paper's 63 over [-3.1, 3.1] rad, {g.size} x {g.size} = {g.size**2} starts "
+         f"Grid: one value in {step} of the paper's 63 over [-3.1, 3.1] rad, {len(g)} x {len(g)} = {len(g)**2} starts "
          f"(subsampled to keep the CPU time modest; whole study {res['study_time_s']:.0f} s). All 37 parameters free, "
          "noise-free poses at the 100 calibration configurations, converged = the fit reproduces its run's poses to "
          "1 um RMS (position). `initial_value`: the robot carries the Tables 4-5 presets, the fit starts from nominal "
@@ -67,11 +79,11 @@ def main() -> int:
         m = tc.VARIANTS[v][0]
         L.append(f"| {label} | {pct('initial_value', v)} | {pct('preset', v)} | {tg[m]['convergence_percent']} % |")
     if full:
-        L += ["", f"Full 63 x 63 grid, `initial_value` (results/tmmdh_convergence.json): LM {full['lm']['converged_percent']:.2f} %, "
-              f"C-LM {full['clm']['converged_percent']:.2f} %."]
+        L += ["", f"Full 63 x 63 grid, `initial_value` (results/tmmdh_convergence.json): LM {full['lm']:.2f} %, "
+              f"C-LM {full['clm']:.2f} %."]
     L += ["", "## Variants", "", "| variant | method | damping | residual units | stop rule | orientation residual | steps | initial_value | preset | "
           "time per start (initial_value) |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for v in args.variants:
+    for v in variants:
         r = rd["initial_value"][v]
         L.append(f"| {v} | {r['method']} | {r['damping']} | {r['units']} | {r['stop']} | {r['rotation_residual']} | "
                  f"{pct('initial_value', v)} | {pct('preset', v)} | {1e3 * r['time_per_run_s']:.1f} ms |")
@@ -86,9 +98,12 @@ def main() -> int:
     gap = lo - tg["lm"]["convergence_percent"]
     L += ["", f"Lowest LM convergence among all variants and both readings: {lo:.2f} % against the paper's "
           f"{tg['lm']['convergence_percent']} % ({gap:+.2f} points)."]
+    if gap > 5.0:
+        L.append(f"No variant brings LM near the paper's {tg['lm']['convergence_percent']} %: under either reading of the grid, "
+                 "with either damping rule, unit, stop rule, step rule or orientation residual tried here, LM converges about as "
+                 "often as C-LM or more often. The paper's LM ratio stays unexplained.")
     (tc.RESULTS / "tmmdh_table8_variants.md").write_text("\n".join(L) + "\n")
     print("\n".join(L))
-    return 0
 
 
 if __name__ == "__main__":
