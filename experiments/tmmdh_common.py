@@ -173,7 +173,7 @@ def convergence_study(n_grid: int = 63, chunk: int = 256, methods=("lm", "clm"),
 # Table 8 under two readings of the grid, and variants of the solver (issue 13 item 4)
 # ------------------------------------------------------------------------------------------------
 
-READINGS = ("initial_value", "preset")
+READINGS = ("initial_value", "preset", "initial_value_nominal")
 
 # name -> (method, damping, units, stop); units "si" (m, rad) or "mm_rad"; stop: LM "tol" (largest step < 1e-12,
 # at most 100 iterations) or "iter20" (at most 20 iterations); C-LM "data" (leave once the fit reproduces the
@@ -203,7 +203,8 @@ def grid_problem(reading: str, g: np.ndarray):
     """Starts and per-run data of the Table 8 grid (Delta theta1, Delta alpha2) over ``g`` x ``g``.
 
     ``"initial_value"``: every run fits the same robot (Tables 4-5 presets) from the start nominal + (Delta
-    theta1, Delta alpha2) (what :func:`convergence_study` does). ``"preset"``: the robot of run k carries the
+    theta1, Delta alpha2) (what :func:`convergence_study` does); ``"initial_value_nominal"``: the same starts on
+    the nominal robot (no presets, base and tool at identity). ``"preset"``: the robot of run k carries the
     Tables 4-5 presets plus its (Delta theta1, Delta alpha2), and every fit starts from nominal. Noise-free poses
     at the 100 calibration configurations. Returns (space, x_nominal, X0 (runs, P), pose_p, pose_R)."""
     from twin.kinematics import tool2meas
@@ -216,10 +217,11 @@ def grid_problem(reading: str, g: np.ndarray):
     sp = prep.space
     T1, A2 = np.meshgrid(g, g, indexing="ij")
     X0 = np.repeat(prep.x_nominal[None], T1.size, axis=0)
-    if reading == "initial_value":
+    if reading in ("initial_value", "initial_value_nominal"):
         X0[:, sp.index("theta1")] += T1.ravel()
         X0[:, sp.index("alpha2")] += A2.ravel()
-        T = np.repeat(true["pose"][None], T1.size, axis=0)
+        Tt = true["pose"] if reading == "initial_value" else tool2meas(brtirus0707a(), q)
+        T = np.repeat(Tt[None], T1.size, axis=0)
     else:
         tr = truth_model()
         T = np.stack([tool2meas(tr.perturbed({"theta1": t, "alpha2": a}), q) for t, a in zip(T1.ravel(), A2.ravel())])
