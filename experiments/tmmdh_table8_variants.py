@@ -66,7 +66,7 @@ def render(res: dict) -> None:
     variants = list(res["readings"]["initial_value"])
     rd = res["readings"]
     pct = lambda r, v: f"{rd[r][v]['converged_percent']:.2f} %" if r in rd and v in rd[r] else "-"  # noqa: E731
-    L = ["# TM-MDH paper, Table 8: two readings of the grid, the literal LM, and solver variants", "",
+    L = ["# TM-MDH paper, Table 8: three readings of the grid, the literal LM, and solver variants", "",
          f"Grid: one value in {step} of the paper's 63 over [-3.1, 3.1] rad, {len(g)} x {len(g)} = {len(g)**2} starts "
          f"(subsampled to keep the CPU time modest; whole study {res['study_time_s']:.0f} s). All 37 parameters free, "
          "noise-free poses at the 100 calibration configurations, converged = the fit reproduces its run's poses to "
