@@ -33,6 +33,7 @@ from .problem import Observations, ParamSpace, absolute_residuals
 __all__ = [
     "BatchProblem",
     "PoseBatch",
+    "PerRunPoseBatch",
     "GenericBatch",
     "LMSettings",
     "LMTrace",
@@ -90,6 +91,89 @@ class PoseBatch:
         blk = J[:, :, :3] if part == "position" else J[:, :, 3:]
         s = sp_ if part == "position" else so
         return r, (blk * (1.0 / s)).reshape(B, sp.size, -1)
+
+
+class PerRunPoseBatch:
+    """Single-station 6-DOF poses at the same joints ``q`` ``(n, 6)`` but measured *per run*: run ``k`` of a
+    batch fits its own poses ``pose_p[k]`` ``(n, 3)`` [m], ``pose_R[k]`` ``(n, 3, 3)`` (e.g. one simulated
+    robot per start of a convergence map). The solvers drop finished runs from the batch, so a run is
+    identified by an extra last column of ``X`` holding its index into ``pose_p``: build starts with
+    :meth:`starts` and keep that column out of ``free`` (:meth:`free`). Residuals are divided by
+    ``sigma_position`` [m] and ``sigma_orientation`` [rad] (1 and 1: the paper's unweighted SI).
+
+    ``rotation_residual``: ``"log"`` (ours: the rotation vector of ``R_meas R^T``, exact at any size) or
+    ``"first_order"`` (the TM-MDH paper's differential rotation read off ``dT T^-1``: the axial vector of the
+    antisymmetric part of ``R_meas R^T``, i.e. ``sin(angle) * axis``, which equals the rotation vector to first
+    order and shrinks again beyond pi/2). The Jacobian is the same small-error one in both cases."""
+
+    def __init__(self, space: ParamSpace, q: np.ndarray, pose_p: np.ndarray, pose_R: np.ndarray,
+                 sigma_position: float = 1.0, sigma_orientation: float = 1.0,
+                 rotation_residual: Literal["log", "first_order"] = "log") -> None:
+        if rotation_residual not in ("log", "first_order"):
+            raise ValueError(f"rotation_residual must be 'log' or 'first_order', got {rotation_residual!r}")
+        self.rotation_residual = rotation_residual
+        pose_p, pose_R = np.asarray(pose_p, float), np.asarray(pose_R, float)
+        q = np.asarray(q, float)
+        if pose_p.ndim != 3 or pose_p.shape[1:] != (q.shape[0], 3):
+            raise ValueError(f"pose_p must be (runs, {q.shape[0]}, 3), got {pose_p.shape}")
+        if pose_R.shape != pose_p.shape + (3,):
+            raise ValueError(f"pose_R must be {pose_p.shape + (3,)}, got {pose_R.shape}")
+        if len(space.stations) != 1:
+            raise ValueError("PerRunPoseBatch needs a parameter space with one station")
+        self.space, self.q, self.pose_p, self.pose_R = space, q, pose_p, pose_R
+        self.sigma_position, self.sigma_orientation = float(sigma_position), float(sigma_orientation)
+        self.size = space.size + 1
+
+    def starts(self, X0: np.ndarray) -> np.ndarray:
+        """Start values ``(runs, P)`` -> ``(runs, P + 1)`` with the run index appended."""
+        X0 = np.atleast_2d(np.asarray(X0, float))
+        if X0.shape != (self.pose_p.shape[0], self.space.size):
+            raise ValueError(f"X0 must be ({self.pose_p.shape[0]}, {self.space.size}), got {X0.shape}")
+        return np.c_[X0, np.arange(X0.shape[0], dtype=float)]
+
+    def free(self, free: np.ndarray) -> np.ndarray:
+        """A ``(P,)`` free mask -> ``(P + 1,)`` with the run-index column held."""
+        return np.r_[np.asarray(free, dtype=bool), False]
+
+    def evaluate(self, X: np.ndarray, jacobian: bool):
+        sp = self.space
+        X = np.atleast_2d(X)
+        k = X[:, -1].astype(int)
+        ev = sp.chain.evaluate(X[:, : sp.n_rt], self.q, base6=X[:, sp.n_rt: sp.size], jacobian=jacobian)
+        return ev, self.pose_p[k], self.pose_R[k]
+
+    def position_rms(self, X: np.ndarray) -> np.ndarray:
+        """RMS position residual [m] of each run against its own measured poses."""
+        ev, p, _ = self.evaluate(X, False)
+        return np.sqrt(np.mean(np.sum((ev.p - p) ** 2, axis=-1), axis=1))
+
+    def __call__(self, X, part="full", jacobian=True):
+        X = np.atleast_2d(X)
+        B, sp_, so = X.shape[0], self.sigma_position, self.sigma_orientation
+        ev, p, R = self.evaluate(X, jacobian)
+        rs = []
+        if part in ("full", "position"):
+            rs.append(((p - ev.p) / sp_).transpose(0, 2, 1).reshape(B, -1))
+        if part in ("full", "orientation"):
+            A = R @ np.swapaxes(ev.R, -1, -2)
+            if self.rotation_residual == "log":
+                e = matrix_to_rotvec(A)
+            else:
+                e = 0.5 * np.stack([A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0],
+                                    A[..., 1, 0] - A[..., 0, 1]], axis=-1)
+            rs.append((e / so).transpose(0, 2, 1).reshape(B, -1))
+        r = np.concatenate(rs, axis=1) if len(rs) > 1 else rs[0]
+        if not jacobian:
+            return r, None
+        J = ev.J  # (B, P, 6, n)
+        if part == "full":
+            J[:, :, :3] *= 1.0 / sp_
+            J[:, :, 3:] *= 1.0 / so
+            J = J.reshape(B, self.space.size, -1)
+        else:
+            J = J[:, :, :3] if part == "position" else J[:, :, 3:]
+            J = (J * (1.0 / (sp_ if part == "position" else so))).reshape(B, self.space.size, -1)
+        return r, np.concatenate([J, np.zeros((B, 1, J.shape[-1]))], axis=1)
 
 
 class GenericBatch:

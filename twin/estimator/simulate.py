@@ -11,9 +11,34 @@ import numpy as np
 
 from ..dataset import Dataset, Plate, default_plate
 from ..kinematics import RobotModel, flange2base
-from ..transforms import invert_transform, rotvec_to_matrix
+from ..transforms import euler_zyx_from_matrix, invert_transform, matrix_from_euler_zyx, rotvec_to_matrix
 
-__all__ = ["simulate_dataset", "random_configurations"]
+__all__ = ["simulate_dataset", "random_configurations", "orientation_noise", "ORIENTATION_NOISE_READINGS"]
+
+ORIENTATION_NOISE_READINGS = ("rotvec", "norm", "euler")
+
+
+def orientation_noise(R: np.ndarray, sigma: float, reading: str, rng: np.random.Generator) -> np.ndarray:
+    """Rotations ``R`` ``(n, 3, 3)`` with Gaussian orientation noise of ``sigma`` [rad], read one of three ways
+    (the TM-MDH paper's "0.002 rad" does not say which):
+
+    * ``"rotvec"``: ``exp(w) R`` with ``w ~ N(0, sigma^2 I3)``, sigma per rotation-vector component (RMS
+      rotation angle ``sqrt(3) sigma``);
+    * ``"norm"``: ``exp(w) R`` with ``w ~ N(0, sigma^2 / 3 I3)``, sigma the RMS *norm* of the rotation vector
+      (the RMS rotation angle);
+    * ``"euler"``: sigma on each of the Z-Y-X Euler angles of ``R`` (``R = Rz Ry Rx``, the paper's eq. 3).
+    """
+    R = np.asarray(R, dtype=float)
+    if sigma < 0:
+        raise ValueError(f"sigma must be >= 0, got {sigma!r}")
+    n = R.shape[0]
+    if reading == "rotvec":
+        return rotvec_to_matrix(rng.normal(0.0, sigma, (n, 3))) @ R
+    if reading == "norm":
+        return rotvec_to_matrix(rng.normal(0.0, sigma / np.sqrt(3.0), (n, 3))) @ R
+    if reading == "euler":
+        return matrix_from_euler_zyx(euler_zyx_from_matrix(R) + rng.normal(0.0, sigma, (n, 3)))
+    raise ValueError(f"reading must be one of {ORIENTATION_NOISE_READINGS}, got {reading!r}")
 
 
 def random_configurations(model: RobotModel, n: int, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
@@ -40,12 +65,14 @@ def simulate_dataset(
     set_: np.ndarray | None = None,
     pair: np.ndarray | None = None,
     declare_noise: bool = True,
+    orientation_noise_reading: str = "rotvec",
 ) -> tuple[Dataset, dict[str, np.ndarray]]:
     """A :class:`Dataset` measured on ``model`` (its robot and ``tool2flange``) at joints ``q`` ``(n, 6)``.
 
     ``kind``: ``"spheres"`` (three sphere centres, noise ``noise_position`` [m] per coordinate), ``"pose"``
     (tool pose: position noise [m] per coordinate, rotation noise [rad] per rotation-vector component,
-    applied on the left) or ``"both"``. Each row is measured in the frame of its ``station`` (default
+    applied on the left, or as :func:`orientation_noise` reads it with ``orientation_noise_reading``) or
+    ``"both"``. Each row is measured in the frame of its ``station`` (default
     ``"0"``) through ``base2meas[station]`` (default: the model's). The plate geometry is given in the flange
     frame of the *nominal* ``tool2flange`` (``nominal``, default ``model``'s structure with identity tool),
     as ``dataset.toml`` states it. The noise is declared in the dataset (``[noise]``) when ``declare_noise``
@@ -74,7 +101,7 @@ def simulate_dataset(
     if kind in ("pose", "both"):
         pose = T.copy()
         pose[:, :3, 3] += rng.normal(0.0, noise_position, (n, 3))
-        pose[:, :3, :3] = rotvec_to_matrix(rng.normal(0.0, noise_orientation, (n, 3))) @ T[:, :3, :3]
+        pose[:, :3, :3] = orientation_noise(T[:, :3, :3], noise_orientation, orientation_noise_reading, rng)
         pose_seen[:] = True
     if kind not in ("spheres", "pose", "both"):
         raise ValueError(f"kind must be 'spheres', 'pose' or 'both', got {kind!r}")
