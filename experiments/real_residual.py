@@ -49,6 +49,9 @@ def grid() -> list[EffectMagnitudes]:
     for bl, geo in ((0.04, 3.0), (0.055, 3.0), (0.04, 4.0), (0.045, 4.0)):
         pts.append(E(noise_mm=0.01, repeatability_mm=RP_MM, backlash_deg=bl, extra_length_mm=geo,
                      extra_angle_deg=geo / 10))
+    # which part of that geometry raises the 'before': lengths alone, angles alone
+    pts += [E(noise_mm=0.01, repeatability_mm=RP_MM, backlash_deg=0.04, extra_length_mm=4.0),
+            E(noise_mm=0.01, repeatability_mm=RP_MM, backlash_deg=0.04, extra_angle_deg=0.4)]
     return pts
 
 
@@ -93,10 +96,10 @@ def write_markdown(path: Path, data: dict) -> None:
     L += ["", f"Consistent rows: {data['consistent_rows'] or 'none'}. Closest row (smallest worst miss of the four "
           f"means): #{data['best_row']} ({data['scan'][data['best_row']]['label']}), worst miss "
           f"{data['best_score'] * 100:.0f} %.", ""]
-    comp = data.get("comparison")
-    if comp:
-        L += [f"## Methods on that twin ({len(comp['seeds'])} seeds: {comp['seeds'][0]}..{comp['seeds'][-1]}; "
-              f"{comp['label']})", "",
+    for comp in data.get("comparisons", []):
+        which = "the closest row" if comp["row"] == data["best_row"] else "another consistent row"
+        L += [f"## Methods on row #{comp['row']}, {which} ({len(comp['seeds'])} other seeds: "
+              f"{comp['seeds'][0]}..{comp['seeds'][-1]}; {comp['label']})", "",
               "| method | angle before [deg] | angle after [deg] | position before [mm] | position after [mm] | "
               "within 20 % of the paper (of 4) |", "|---|---|---|---|---|---|"]
         for m, a in comp["aggregate"].items():
@@ -109,10 +112,13 @@ def write_markdown(path: Path, data: dict) -> None:
               "Seeds where the separation method's after mean is below distance-only's: separation_paper angle "
               f"{comp['wins']['separation_paper']['angle_deg']}, position {comp['wins']['separation_paper']['position_mm']}; "
               f"separation (ours) angle {comp['wins']['separation']['angle_deg']}, position "
-              f"{comp['wins']['separation']['position_mm']}.", ""]
+              f"{comp['wins']['separation']['position_mm']}.", "",
+              "The same twin judged on these seeds (separation_paper): "
+              + ("consistent" if comp["verdicts"]["separation_paper"]["consistent"]
+                 else "ruled out: " + "; ".join(comp["verdicts"]["separation_paper"]["reasons"])) + ".", ""]
     t = data["timings_s"]
     L += [f"CPU time of this process (summed over resumed runs): scan {t['scan']:.0f} s, comparison "
-          f"{t.get('comparison', 0) + t.get('comparison_reused', 0):.0f} s.",
+          f"{t.get('comparison', 0):.0f} s.",
           "", "`python experiments/real_residual.py " + data["args"] + "`", ""]
     path.write_text("\n".join(L))
 
@@ -123,6 +129,8 @@ def main() -> None:
     ap.add_argument("--comparison-seeds", type=int, default=20, help="seeds of the methods comparison (0: skip)")
     ap.add_argument("--limit", type=int, default=0, help="scan only the first N combinations (0: all)")
     ap.add_argument("--out", default="results/real_residual", help="output stem (.json and .md are added)")
+    ap.add_argument("--comparison-row", type=int, action="append", default=[],
+                    help="also compare the methods on this scan row (repeatable)")
     ap.add_argument("--resume", action="store_true", help="reuse combinations already in the output JSON")
     args = ap.parse_args()
     base = tomllib.loads(PROTOCOL.read_text())
@@ -131,8 +139,17 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     seeds = list(range(1, args.seeds + 1))
     points = grid()[: args.limit or None]
+    argv = []
+    for k, v in vars(args).items():
+        flag = f"--{k.replace('_', '-')}"
+        if isinstance(v, list):
+            argv += [f"{flag} {x}" for x in v]
+        elif v is True:
+            argv.append(flag)
+        elif v is not False:
+            argv.append(f"{flag} {v}")
     data: dict = {"paper": paper, "tol": 0.2, "protocol": str(PROTOCOL.name), "scan_methods": list(SCAN_METHODS),
-                  "scan": [], "timings_s": {}, "args": " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items())}
+                  "scan": [], "timings_s": {}, "args": " ".join(argv)}
     done, old = {}, {}
     if args.resume and out.with_suffix(".json").exists():
         old = json.loads(out.with_suffix(".json").read_text())
@@ -152,25 +169,29 @@ def main() -> None:
     data["best_row"], data["best_score"] = best, scores[best]
     if args.comparison_seeds:
         t1 = time.process_time()
-        mag = EffectMagnitudes(**data["scan"][best]["magnitudes"])
         cseeds = list(range(101, 101 + args.comparison_seeds))
-        oc = old.get("comparison") or {}
-        if oc.get("magnitudes") == asdict(mag) and oc.get("seeds") == cseeds:
-            per_seed = oc["per_seed"]  # the same twin and seeds, already run
-            data["timings_s"]["comparison_reused"] = old["timings_s"].get("comparison", 0.0)
-        else:
-            per_seed = []
-            for s in cseeds:
-                per_seed.append(run_real_protocol(base, mag, s, COMPARISON_METHODS))
-                print(f"comparison seed {s} done", flush=True)
-        agg = aggregate_seeds(per_seed)
-        order = {u: sorted(COMPARISON_METHODS, key=lambda m: agg[m][u]["after"]["mean"]["mean"]) for u in UNITS}
-        wins = {m: {u: f"{sum(r[m][u]['after']['mean'] < r['distance'][u]['after']['mean'] for r in per_seed)}"
-                       f"/{len(per_seed)}" for u in UNITS} for m in ("separation_paper", "separation")}
-        data["comparison"] = {"label": mag.label(), "magnitudes": data["scan"][best]["magnitudes"], "seeds": cseeds,
-                              "per_seed": per_seed, "aggregate": agg, "order": order, "wins": wins,
-                              "verdicts": {m: judge(agg[m], paper) for m in COMPARISON_METHODS}}
-        data["timings_s"]["comparison"] = time.process_time() - t1
+        previous = [c for c in (old.get("comparisons") or ([old["comparison"]] if old.get("comparison") else []))]
+        data["comparisons"] = []
+        for row in [best] + [r for r in args.comparison_row if r != best]:
+            mag = EffectMagnitudes(**data["scan"][row]["magnitudes"])
+            oc = next((c for c in previous if c.get("magnitudes") == asdict(mag) and c.get("seeds") == cseeds), None)
+            if oc is not None:
+                per_seed = oc["per_seed"]  # the same twin and seeds, already run
+            else:
+                per_seed = []
+                for s in cseeds:
+                    per_seed.append(run_real_protocol(base, mag, s, COMPARISON_METHODS))
+                    print(f"comparison (row {row}) seed {s} done", flush=True)
+            agg = aggregate_seeds(per_seed)
+            order = {u: sorted(COMPARISON_METHODS, key=lambda m: agg[m][u]["after"]["mean"]["mean"]) for u in UNITS}
+            wins = {m: {u: f"{sum(r[m][u]['after']['mean'] < r['distance'][u]['after']['mean'] for r in per_seed)}"
+                           f"/{len(per_seed)}" for u in UNITS} for m in ("separation_paper", "separation")}
+            data["comparisons"].append({"row": row, "label": mag.label(), "magnitudes": asdict(mag), "seeds": cseeds,
+                                        "per_seed": per_seed, "aggregate": agg, "order": order, "wins": wins,
+                                        "verdicts": {m: judge(agg[m], paper) for m in COMPARISON_METHODS}})
+        data["timings_s"]["comparison"] = (old.get("timings_s", {}).get("comparison", 0.0)
+                                           + old.get("timings_s", {}).get("comparison_reused", 0.0)
+                                           + time.process_time() - t1)
     out.with_suffix(".json").write_text(json.dumps(data, indent=1))
     write_markdown(out.with_suffix(".md"), data)
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
