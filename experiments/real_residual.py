@@ -162,7 +162,7 @@ def main() -> None:
         print(f"[{i + 1}/{len(points)}] {p.label()}: {'consistent' if v['consistent'] else '; '.join(v['reasons'])}",
               flush=True)
         data["timings_s"]["scan"] = old.get("timings_s", {}).get("scan", 0.0) + time.process_time() - t0
-        out.with_suffix(".json").write_text(json.dumps(data, indent=1))
+        out.with_suffix(".json").write_text(json.dumps(data, separators=(",", ":")))
     scores = [_score(p) for p in data["scan"]]
     best = min(range(len(scores)), key=scores.__getitem__)
     data["consistent_rows"] = [i for i, p in enumerate(data["scan"]) if p["verdict"]["consistent"]]
@@ -192,7 +192,7 @@ def main() -> None:
         data["timings_s"]["comparison"] = (old.get("timings_s", {}).get("comparison", 0.0)
                                            + old.get("timings_s", {}).get("comparison_reused", 0.0)
                                            + time.process_time() - t1)
-    out.with_suffix(".json").write_text(json.dumps(data, indent=1))
+    out.with_suffix(".json").write_text(json.dumps(data, separators=(",", ":")))
     write_markdown(out.with_suffix(".md"), data)
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
 
