@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
+from twin.kinematics import link_frames
 from twin.robots import irb1200
 from twin.world.effects import EffectContext, contexts_for_sequence
 from twin.world.effects_catalogue import effect_from_spec
+from twin.world.effects_shapes import Repeatability, flange_repeatability, repeatability_sigma
 
 DEG = np.pi / 180
 
@@ -90,3 +92,39 @@ def test_bad_effect_tables_name_the_field(spec, field):
     """A wrong or unknown key is an error naming it."""
     with pytest.raises(ValueError, match=field):
         effect_from_spec(spec)
+
+
+def test_repeatability_draw_depends_on_pose_index_only():
+    """The same pose index gives the same joint offsets (resume), another index a new draw."""
+    e = effect_from_spec({"name": "repeatability", "sigma_deg": 0.001, "seed": 7})
+    q = np.array([0.1, 0.5, -0.2, 0.3, 0.9, 0.0])
+    a = e.joints(q, EffectContext(pose_index=3, q_cmd=q))
+    b = e.joints(q, EffectContext(pose_index=3, q_cmd=q, t_s=50.0))
+    c = e.joints(q, EffectContext(pose_index=4, q_cmd=q))
+    np.testing.assert_array_equal(a, b)
+    assert np.max(np.abs(a - c)) > 1e-7
+    assert np.max(np.abs(a - q)) < 5 * 0.001 * DEG
+
+
+def test_repeatability_sigma_gives_the_asked_flange_rp():
+    """Joint offsets sized by repeatability_sigma scatter the flange with RP = mean + 3 std of about 0.02 mm."""
+    robot = irb1200()
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-1.0, 1.0, size=(8, 6))
+    sigma = repeatability_sigma(robot, q, 0.02e-3)
+    e = Repeatability(sigma, seed=1)
+    # the effect itself, one arrival per pose index at each configuration
+    rp = []
+    for k, qk in enumerate(q):
+        qs = np.array([e.joints(qk, EffectContext(pose_index=1000 * k + i, q_cmd=qk)) for i in range(300)])
+        p = link_frames(robot, qs)[:, -1, :3, 3]
+        d = np.linalg.norm(p - p.mean(axis=0), axis=1)
+        rp.append(d.mean() + 3 * d.std())
+    assert np.mean(rp) == pytest.approx(0.02e-3, rel=0.1)
+    assert flange_repeatability(robot, q, 2 * sigma, seed=3) == pytest.approx(0.04e-3, rel=0.1)
+
+
+def test_repeatability_rejects_negative_sigma():
+    """A negative sigma is refused, naming the effect."""
+    with pytest.raises(ValueError, match="repeatability"):
+        effect_from_spec({"name": "repeatability", "sigma_deg": -0.001})

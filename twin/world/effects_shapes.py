@@ -17,6 +17,9 @@ lagging temperature, a robot base that slips during the campaign, a plate that f
                       an effect that changes during the campaign, at the base frame
 ``plate_flex``        the plate flexes along the flange axis: ``tool2flange`` translation ``+= k g_z e_z`` (``g_z`` the
                       gravity component along the flange axis, ``k`` [mm per g])
+``repeatability``     the robot's pose repeatability: every measurement adds seeded random joint offsets
+                      ``N(0, sigma_j^2)`` drawn from ``(seed, pose_index)`` (a new draw each time the robot arrives,
+                      even at the same command); :func:`repeatability_sigma` sizes ``sigma`` for an ISO 9283 RP
 ================  ==========================================================================================
 
 Registered in :data:`twin.world.effects_catalogue.EFFECT_TYPES` (names above) so that campaign TOML can
@@ -36,7 +39,8 @@ from .config import _check_keys, _num
 from .config import _vector as _config_vector
 from .effects import BaseEffect, EffectContext
 
-__all__ = ["JointPolynomial", "JointProduct", "MoveLag", "LinkGrowth", "BaseShift", "PlateFlex", "SHAPE_TYPES"]
+__all__ = ["JointPolynomial", "JointProduct", "MoveLag", "LinkGrowth", "BaseShift", "PlateFlex", "Repeatability",
+           "flange_repeatability", "repeatability_sigma", "SHAPE_TYPES"]
 
 _DEG = math.pi / 180.0
 _MM = 1e-3
@@ -288,5 +292,73 @@ class PlateFlex(BaseEffect):
         return {"k_m_per_g": self.k, "model": "tool2flange.t += k * (gravity . flange z) * flange z"}
 
 
+class Repeatability(BaseEffect):
+    """The robot's pose repeatability: each measurement's actual joints carry random offsets
+    ``N(0, sigma_j^2)`` [rad], drawn from ``np.random.default_rng([seed, pose_index])``: the same pose index gives
+    the same draw in any process (a resumed campaign reproduces it), a new arrival at the same command (another
+    pose index) a new one. ``sigma`` ``(6,)`` [rad]; :func:`repeatability_sigma` sizes it for a flange RP."""
+
+    name = "repeatability"
+
+    def __init__(self, sigma_rad: Sequence[float] | np.ndarray | float, seed: int = 0):
+        sig = np.asarray(sigma_rad, dtype=float).reshape(-1)
+        if sig.size == 1:
+            sig = np.full(N_JOINTS, float(sig[0]))
+        if sig.shape != (N_JOINTS,) or not np.all(np.isfinite(sig)) or np.any(sig < 0):
+            raise ValueError(f"repeatability sigma_rad must be {N_JOINTS} non-negative numbers, got {sigma_rad!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"repeatability seed must be a non-negative integer, got {seed!r}")
+        self.sigma = sig
+        self.seed = int(seed)
+
+    @classmethod
+    def from_table(cls, t: Mapping[str, Any]) -> "Repeatability":
+        where = "world.effects (repeatability)"
+        _keys(t, {"sigma_deg", "seed"}, where)
+        if "sigma_deg" not in t:
+            raise ValueError(f"{where}: missing 'sigma_deg'")
+        return cls(_vector(t, "sigma_deg", N_JOINTS, where) * _DEG, t.get("seed", 0))
+
+    def offsets(self, context: EffectContext) -> np.ndarray:
+        """The joint offsets ``(6,)`` [rad] of the measurement ``context.pose_index``."""
+        rng = np.random.default_rng([self.seed, int(context.pose_index)])
+        return rng.normal(size=N_JOINTS) * self.sigma
+
+    def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
+        return q + self.offsets(context)
+
+    def params(self) -> dict:
+        return {"sigma_rad": self.sigma.tolist(), "seed": self.seed,
+                "model": "q_act = q + N(0, sigma^2), drawn from (seed, pose_index)"}
+
+
+def flange_repeatability(robot: RobotModel, q: np.ndarray, sigma_rad: Sequence[float] | np.ndarray, *,
+                         draws: int = 200, seed: int = 0) -> float:
+    """ISO 9283 pose repeatability RP [m] of the flange origin, ``mean(l) + 3 std(l)`` with ``l`` the distance of
+    each arrival from the barycentre of its pose, over ``draws`` arrivals at each configuration ``q`` ``(n, 6)``
+    [rad] with joint offsets ``N(0, sigma^2)`` [rad]; the mean RP over the configurations."""
+    q = np.asarray(q, dtype=float).reshape(-1, N_JOINTS)
+    sig = np.broadcast_to(np.asarray(sigma_rad, dtype=float), (N_JOINTS,))
+    if draws < 2:
+        raise ValueError(f"draws must be at least 2, got {draws}")
+    rng = np.random.default_rng(seed)
+    rp = []
+    for qk in q:
+        qs = qk + rng.normal(size=(draws, N_JOINTS)) * sig
+        p = link_frames(robot, qs)[:, -1, :3, 3]
+        d = np.linalg.norm(p - p.mean(axis=0), axis=1)
+        rp.append(float(d.mean() + 3.0 * d.std()))
+    return float(np.mean(rp))
+
+
+def repeatability_sigma(robot: RobotModel, q: np.ndarray, rp_m: float, *, draws: int = 200, seed: int = 0) -> float:
+    """The joint sigma [rad] (the same for every joint) whose :func:`flange_repeatability` over ``q`` is ``rp_m``
+    [m] (RP is linear in a small sigma)."""
+    if not (math.isfinite(rp_m) and rp_m >= 0):
+        raise ValueError(f"rp_m must be a non-negative length [m], got {rp_m!r}")
+    unit = 1e-5
+    return rp_m / flange_repeatability(robot, q, np.full(N_JOINTS, unit), draws=draws, seed=seed) * unit
+
+
 SHAPE_TYPES = {cls.name: cls.from_table for cls in (JointPolynomial, JointProduct, MoveLag, LinkGrowth, BaseShift,
-                                                     PlateFlex)}
+                                                     PlateFlex, Repeatability)}
