@@ -92,10 +92,10 @@ def test_effect_magnitudes_reject_negative_sizes():
 
 @pytest.mark.slow
 def test_zero_effects_reproduce_the_geometric_only_real_protocol():
-    """With no effects and near-zero noise, the campaign seed gives the committed images run's 'before' means (same
-    plan, same Table 6 truth) and leaves almost nothing after separation, as the images run does."""
+    """With no effects and near-zero noise, the campaign seed gives the committed images run's 'before' means on the
+    world's truth (same plan, same Table 6 truth, no instrument) and leaves almost nothing after separation."""
     ref = json.loads((ROOT / "results" / "separation_real" / "results.json").read_text())
-    want = ref["methods"]["separation"]["measured"]
+    want = ref["methods"]["separation"]["truth"]
     got = run_real_protocol(BASE, EffectMagnitudes(noise_mm=0.001), int(ref["seed"]), ("separation",))["separation"]
     for u in ("angle_deg", "position_mm"):
         assert got[u]["before"]["mean"] == pytest.approx(want[u]["before"]["mean"], rel=0.05)
