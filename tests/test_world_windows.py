@@ -38,6 +38,14 @@ def _windows_of(world: World, cap) -> tuple:
                                 outline_arc_px=world.config.render.window_arc_px)
 
 
+def _inside(shape: tuple[int, int], rects) -> np.ndarray:
+    """Boolean mask ``shape`` of the pixels inside any window ``(u0, v0, u1, v1)``."""
+    inside = np.zeros(shape, dtype=bool)
+    for u0, v0, u1, v1 in rects:
+        inside[v0:v1, u0:u1] = True
+    return inside
+
+
 def _poses(world: World, n: int) -> np.ndarray:
     return world.visible_configurations(0, n, seed=5)
 
@@ -65,9 +73,7 @@ def test_windowed_image_equals_the_one_sample_frame_outside_the_windows(worlds):
     q = _poses(ww, 1)[0]
     a, b = ww.capture(q, 0, noise_seed=2, record=False), w1.capture(q, 0, noise_seed=2, record=False)
     for img_a, img_b, rects in zip((a.left, a.right), (b.left, b.right), _windows_of(ww, a)):
-        inside = np.zeros(img_a.shape, bool)
-        for u0, v0, u1, v1 in rects:
-            inside[v0:v1, u0:u1] = True
+        inside = _inside(img_a.shape, rects)
         d = np.abs(img_a.astype(int) - img_b.astype(int))
         assert d[~inside].max() == 0
         assert np.mean(d[inside] > 2) > 0.005  # the outlines are sampled differently
@@ -168,9 +174,7 @@ def test_half_frame_differs_only_smoothly_outside_the_windows(worlds):
     q = _poses(wh, 1)[0]
     a, b = wh.capture(q, 0, noise_seed=2, record=False), w1.capture(q, 0, noise_seed=2, record=False)
     for img_a, img_b, rects in zip((a.left, a.right), (b.left, b.right), _windows_of(wh, a)):
-        inside = np.zeros(img_a.shape, bool)
-        for u0, v0, u1, v1 in rects:
-            inside[v0:v1, u0:u1] = True
+        inside = _inside(img_a.shape, rects)
         d = np.abs(img_a.astype(int) - img_b.astype(int))
         # away from edges (grey range over the 5 x 5 neighbourhood below 8 levels) the coarse frame is the fine one
         # up to a level; on edges (the arm's, the plate's) it is blurred
@@ -239,9 +243,7 @@ def test_board_view_windows_equal_full_supersampled_render(worlds):
     wins = ww.board_windows(T, 0)
     for img_a, img_b, img_c, rects in ((a.left, b.left, c.left, wins[0]), (a.right, b.right, c.right, wins[1])):
         assert len(rects) >= 20  # one per inner corner the camera sees
-        inside = np.zeros(img_a.shape, dtype=bool)
-        for u0, v0, u1, v1 in rects:
-            inside[v0:v1, u0:u1] = True
+        inside = _inside(img_a.shape, rects)
         d4 = np.abs(img_a.astype(int) - img_b.astype(int))[inside]
         d1 = np.abs(img_a.astype(int) - img_c.astype(int))
         assert np.mean(d1[inside] > 0) > 0.05  # the corners are sampled differently from the one-sample frame
