@@ -178,7 +178,8 @@ class CameraPipeline:
 
         The same construction as the full-frame tables (:func:`twin.world.rig.distortion_maps`): the inverse
         distortion solved on the whole grid's coarse lattice (every 16 samples, padded by two nodes) and the
-        same bicubic spline, evaluated at the window's samples only (:meth:`_lattice_splines`, built once).
+        same bicubic spline (:meth:`_lattice_splines`, built once), evaluated at the window's samples, or, in a
+        small window with ``s > 1``, at one sample per output pixel with linear interpolation between them.
         """
         u0, v0, u1, v1 = rect
         xs = np.arange(s * u0, s * u1, dtype=float)
