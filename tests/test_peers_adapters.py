@@ -81,9 +81,11 @@ def test_pybotics_refuses_a_model_with_beta():
         mdh_table_mm(make_problem().truth)
 
 
+@pytest.mark.slow
 def test_robotkinecal_recovers_a_noise_free_robot():
     """robotkinecal (on numpy 2) calibrates our URDF to noise-free poses of a perturbed beta-free robot and then
-    predicts held-out poses to round-off: the adapter's conversions (URDF, SE3, joints) are consistent."""
+    predicts held-out poses to round-off: the adapter's conversions (URDF, SE3, joints) are consistent. Slow:
+    importing robotkinecal (Robotics Toolbox) takes seconds."""
     _need("robotkinecal")
     from experiments.peers.robotkinecal_adapter import calibrate
 
@@ -95,5 +97,28 @@ def test_robotkinecal_recovers_a_noise_free_robot():
     res = calibrate(pb.nominal, q_cal, tool2meas(truth, q_cal), q_val, variant="pose")
     assert res.ok, res.error
     T = tool2meas(truth, q_val)
+    assert np.abs(res.positions - T[:, :3, 3]).max() < 1e-9
+    assert np.abs(res.rotations - T[:, :3, :3]).max() < 1e-9
+
+
+@pytest.mark.slow
+def test_figaroh_recovers_a_noise_free_robot():
+    """FIGAROH (full_params, frames unknown) calibrates our URDF to noise-free poses of a perturbed beta-free
+    robot, far from nominal, and then predicts held-out poses to round-off: the adapter's conversions (URDF,
+    its CSV of positions and roll-pitch-yaw, joints) are consistent. Slow: importing FIGAROH takes seconds."""
+    _need("figaroh")
+    _need("pinocchio")
+    from experiments.peers.figaroh_adapter import calibrate
+
+    pb = make_problem()
+    dev = {k: v for k, v in preset_deviation("separation_tables_2_4").items() if not k.startswith("beta")}
+    truth = pb.nominal.perturbed(dev).with_frames(base2meas=pb.truth.base2meas, tool2flange=pb.truth.tool2flange)
+    rng = np.random.default_rng(1)
+    q_cal, q_val = sample_configurations(truth, 30, rng), sample_configurations(truth, 10, rng)
+    T = tool2meas(truth, q_val)
+    nominal_in_truth_frames = pb.nominal.with_frames(base2meas=truth.base2meas, tool2flange=truth.tool2flange)
+    assert np.abs(tool2meas(nominal_in_truth_frames, q_val)[:, :3, 3] - T[:, :3, 3]).max() > 1e-4  # work to do
+    res = calibrate(pb.nominal, q_cal, tool2meas(truth, q_cal), q_val, 1e-5, 1e-4, variant="pose")
+    assert res.ok, res.error
     assert np.abs(res.positions - T[:, :3, 3]).max() < 1e-9
     assert np.abs(res.rotations - T[:, :3, :3]).max() < 1e-9
