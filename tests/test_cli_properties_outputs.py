@@ -250,3 +250,20 @@ def test_export_of_a_mutated_calibration_is_a_named_error_or_every_file(base, js
             return
         assert sorted(p.name for p in out.iterdir()) == ["parameters.csv", "parameters.md", "robot.xml"]
         assert "nan" not in (out / "robot.xml").read_text().lower(), m
+
+
+@pytest.mark.parametrize("mutation", [
+    ("replace", ("notes",), None),
+    ("replace", ("effects",), None),
+    ("replace", ("details",), []),
+    ("replace", ("robot", "beta_joints", 0), math.inf),
+    ("replace", ("method",), math.nan),
+    ("replace", ("robot", "q_min_deg", 0), 1e12),
+    ("replace", ("parameters", 0, "identified"), math.nan),
+], ids=lambda m: "-".join(map(str, m[1])) + f"={m[2]!r}")
+def test_calibration_load_names_what_earlier_searches_found(base, mutation):
+    """The mutations that were tracebacks or silent NaN results before (found by the searches above and by an
+    exhaustive pass by hand) are refused by Calibration.load, naming the file."""
+    _, _, d, _ = base
+    with pytest.raises(ValueError, match="calibration.json"):
+        Calibration.from_json_dict(json.loads(_mutate_json(d, mutation)), where="calibration.json")

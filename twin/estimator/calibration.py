@@ -359,11 +359,11 @@ class Calibration:
                 if not isinstance(v, typ):
                     raise ValueError(f"field {key!r} must be a {'table' if typ is dict else 'list'}, got {v!r:.40}")
                 opt[key] = v
-        except KeyError as exc:
-            raise ValueError(f"{where}: missing field {exc}") from None
             for key in ("method", "measurement", "dataset"):
                 if not isinstance(d.get(key, ""), str):
                     raise ValueError(f"field {key!r} must be text, got {d[key]!r:.40}")
+        except KeyError as exc:
+            raise ValueError(f"{where}: missing field {exc}") from None
         except (TypeError, ValueError, AttributeError, IndexError, OverflowError) as exc:
             raise ValueError(f"{where}: {exc}") from None
         return cls(
