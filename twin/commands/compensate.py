@@ -31,15 +31,14 @@ def run(args) -> int:
     from ..estimator import Calibration, compensation
     from ..estimator.files import read_targets_csv
     from ..kinematics import UnreachableError
-    from . import warn_forced
-
     from ..estimator.plausibility import ImplausibleData, check_joint_values, check_targets, forced_reasons
+    from . import warn_forced
 
     cal = Calibration.load(args.calibration)
     pid, T = read_targets_csv(args.targets)
     warn_forced(args.calibration, forced_reasons(cal.details))
     try:
-        check_targets(T, pid, cal.robot, where=str(args.targets))
+        check_targets(T, pid, cal.robot, where="TARGETS.csv")
     except ImplausibleData as exc:
         raise ValueError(f"{args.targets}: {exc}; nothing written") from None
     if args.reference:
@@ -50,7 +49,7 @@ def run(args) -> int:
             raise ValueError(f"{args.reference}: no reference row for pose_id {missing[:10]}")
         try:
             problems = check_joint_values(ref.q, ref.pose_id, cal.nominal.q_min, cal.nominal.q_max,
-                                          where=str(args.reference))
+                                          where="JOINTS.csv")
             if problems:
                 raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
         except ImplausibleData as exc:

@@ -21,7 +21,6 @@ def run(args) -> int:
     from ..dataset import read_joints_csv
     from ..estimator import Calibration
     from ..estimator.files import write_pred_csv
-
     from ..estimator.plausibility import ImplausibleData, check_joint_values, forced_reasons
     from . import warn_forced
 
@@ -29,7 +28,7 @@ def run(args) -> int:
     j = read_joints_csv(args.joints)
     warn_forced(args.calibration, forced_reasons(cal.details))
     try:
-        problems = check_joint_values(j.q, j.pose_id, cal.nominal.q_min, cal.nominal.q_max, where=str(args.joints))
+        problems = check_joint_values(j.q, j.pose_id, cal.nominal.q_min, cal.nominal.q_max, where="JOINTS.csv")
         if problems:
             raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
     except ImplausibleData as exc:
