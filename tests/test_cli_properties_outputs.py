@@ -258,6 +258,7 @@ def test_export_of_a_mutated_calibration_is_a_named_error_or_every_file(base, js
     ("replace", ("details",), []),
     ("replace", ("robot", "beta_joints", 0), math.inf),
     ("replace", ("method",), math.nan),
+    ("replace", ("robot", "name"), math.nan),
     ("replace", ("robot", "q_min_deg", 0), 1e12),
     ("replace", ("parameters", 0, "identified"), math.nan),
 ], ids=lambda m: "-".join(map(str, m[1])) + f"={m[2]!r}")

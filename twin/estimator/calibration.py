@@ -362,6 +362,8 @@ class Calibration:
             for key in ("method", "measurement", "dataset"):
                 if not isinstance(d.get(key, ""), str):
                     raise ValueError(f"field {key!r} must be text, got {d[key]!r:.40}")
+            if not isinstance(rb["name"], str) or not isinstance(rb["convention"], str):
+                raise ValueError("robot: fields 'name' and 'convention' must be text")
         except KeyError as exc:
             raise ValueError(f"{where}: missing field {exc}") from None
         except (TypeError, ValueError, AttributeError, IndexError, OverflowError) as exc:
