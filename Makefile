@@ -6,12 +6,13 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
+PEERS_STAMP := $(VENV)/.peers-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 export MUJOCO_GL ?= egl
 # many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/__init__.py)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: run run-quick test test-fast bench install sysdeps sysdeps-browser clean
+.PHONY: run run-quick test test-fast bench install peers sysdeps sysdeps-browser clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +24,18 @@ $(STAMP): pyproject.toml | $(PY)
 	touch $(STAMP)
 
 install: sysdeps $(STAMP)
+
+# The peer calibrators (FIGAROH with Pinocchio, pybotics, robotkinecal): the adapter tests of `make test` and
+# `make bench` need them. pybotics and robotkinecal pin numpy<2 in their metadata (rerun-sdk needs numpy>=2);
+# they run on numpy 2, so they are installed without their metadata's dependencies, which the `peers` extra
+# brings instead (pyproject.toml).
+$(PEERS_STAMP): $(STAMP)
+	$(PY) -m pip install -q -e ".[test,peers]"
+	$(PY) -m pip install -q --no-deps "pybotics>=3.1.2,<4" "robotkinecal>=0.1.0,<0.2"
+	rm -f $(VENV)/.peers-*
+	touch $(PEERS_STAMP)
+
+peers: install $(PEERS_STAMP)
 
 # Offscreen MuJoCo rendering needs Mesa's EGL (llvmpipe on CPU).
 sysdeps:
@@ -44,17 +57,14 @@ run: install
 run-quick: install
 	$(VENV)/bin/twin campaign experiments/separation.toml --out results/separation-quick --quick
 
-test: install sysdeps-browser
+# the whole suite, the peer-adapter tests included (they skip, with the reason, only where a peer is missing)
+test: install peers sysdeps-browser
 	$(PY) -m pytest -q
 
 test-fast: install
 	$(PY) -m pytest -q -m "not slow and not browser"
 
-# pybotics and robotkinecal pin numpy<2 in their metadata (rerun-sdk needs numpy>=2); they run on numpy 2, so
-# they are installed without their metadata's dependencies, which the `peers` extra brings instead.
-bench: install
-	$(PY) -m pip install -q -e ".[test,peers]"
-	$(PY) -m pip install -q --no-deps "pybotics>=3.1.2,<4" "robotkinecal>=0.1.0,<0.2"
+bench: peers
 	$(PY) experiments/benchmark.py
 
 clean:

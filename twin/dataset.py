@@ -758,13 +758,19 @@ def write_joints_csv(path: str | os.PathLike, joints: Joints) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cols = ["pose_id", *JOINT_COLUMNS] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(cols)
-        for k in range(len(joints.pose_id)):
-            row = [str(int(joints.pose_id[k]))] + [_fmt_deg(x) for x in joints.q[k]]
-            for c in cols[7:]:
-                v = getattr(joints, c)[k]
-                row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
-            w.writerow(row)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for k in range(len(joints.pose_id)):
+        row = [str(int(joints.pose_id[k]))] + [_fmt_deg(x) for x in joints.q[k]]
+        for c in cols[7:]:
+            v = getattr(joints, c)[k]
+            row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
+        w.writerow(row)
+    tmp = path.with_name(f".{path.name}.tmp")  # written whole, then moved: no partial output file
+    try:
+        tmp.write_text(buf.getvalue())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 HELP = "corrected joint commands that reach target plate poses on the calibrated robot"
@@ -16,6 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="JOINTS.csv whose rows (by pose_id) pick the inverse-kinematics branch (default: the branch "
                         "nearest --q-ref-deg)")
     p.add_argument("--q-ref-deg", default="0,0,0,0,0,0", help="reference joints [deg] when --reference is not given")
+    p.add_argument("--force", action="store_true",
+                   help="use --reference joints outside the robot's limits or that look like radians")
     p.add_argument("--context", default=None,
                    help="JOINTS.csv-like file giving temp_c / t_s per pose_id, for an extended calibration with "
                         "thermal growth")
@@ -28,15 +31,31 @@ def run(args) -> int:
     from ..estimator import Calibration, compensation
     from ..estimator.files import read_targets_csv
     from ..kinematics import UnreachableError
+    from ..estimator.plausibility import ImplausibleData, check_joint_values, check_targets, forced_reasons
+    from . import warn_forced
 
     cal = Calibration.load(args.calibration)
     pid, T = read_targets_csv(args.targets)
+    warn_forced(args.calibration, forced_reasons(cal.details))
+    try:
+        check_targets(T, pid, cal.robot, where="TARGETS.csv")
+    except ImplausibleData as exc:
+        raise ValueError(f"{args.targets}: {exc}; nothing written") from None
     if args.reference:
         ref = read_joints_csv(args.reference)
         by_id = {int(p): k for k, p in enumerate(ref.pose_id)}
         missing = [int(p) for p in pid if int(p) not in by_id]
         if missing:
             raise ValueError(f"{args.reference}: no reference row for pose_id {missing[:10]}")
+        try:
+            problems = check_joint_values(ref.q, ref.pose_id, cal.nominal.q_min, cal.nominal.q_max,
+                                          where="JOINTS.csv")
+            if problems:
+                raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
+        except ImplausibleData as exc:
+            if not args.force:
+                raise ValueError(f"{args.reference}: {exc}; nothing written (--force uses them anyway)") from None
+            print(f"warning: {args.reference}: {exc} (--force: used anyway)", file=sys.stderr)
         q_ref = ref.q[[by_id[int(p)] for p in pid]]
     else:
         try:

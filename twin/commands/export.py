@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
 from pathlib import Path
 
@@ -34,25 +35,34 @@ def mjcf(cal) -> str:
 def run(args) -> int:
     from ..estimator import Calibration
 
+    from ..estimator.plausibility import forced_reasons
+    from . import warn_forced
+
     cal = Calibration.load(args.calibration)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    forced = forced_reasons(cal.details)
+    warn_forced(args.calibration, forced)
+    # every text first, then the files: an error leaves no partial output folder
     rows = cal.table()
     cols = ["name", "unit", "nominal", "identified", "deviation", "sd", "status"]
-    with open(out / "parameters.csv", "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(cols)
-        for r in rows:
-            w.writerow([r["name"], r["unit"]] + [("" if not math.isfinite(r[c]) else f"{r[c]:.9g}") for c in cols[2:6]] + [r["status"]])
-    md = [f"# Calibrated {cal.nominal.name} ({cal.nominal.convention}), method `{cal.method}`", "",
-          "| parameter | unit | nominal | identified | deviation | sd | status |", "|---|---|---|---|---|---|---|"]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow([r["name"], r["unit"]] + [("" if not math.isfinite(r[c]) else f"{r[c]:.9g}") for c in cols[2:6]] + [r["status"]])
+    md = [f"# Calibrated {cal.nominal.name} ({cal.nominal.convention}), method `{cal.method}`", ""]
+    md += [f"**Forced** (`twin calibrate --force`): {r}" for r in forced] + ([""] if forced else [])
+    md += ["| parameter | unit | nominal | identified | deviation | sd | status |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         sd = "" if not math.isfinite(r["sd"]) else f"{r['sd']:.3g}"
         md.append(f"| {r['name']} | {r['unit']} | {r['nominal']:.6f} | {r['identified']:.6f} | {r['deviation']:+.6f} | {sd} | {r['status']} |")
     if cal.combinations:
         md += ["", "Not identifiable from these data (held at nominal or estimated only in combination):", ""]
         md += [f"* {c.describe()}" for c in cal.combinations]
+    xml = mjcf(cal)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "parameters.csv").write_text(buf.getvalue())
     (out / "parameters.md").write_text("\n".join(md) + "\n")
-    (out / "robot.xml").write_text(mjcf(cal))
+    (out / "robot.xml").write_text(xml)
     print(f"wrote {out / 'parameters.csv'}, {out / 'parameters.md'}, {out / 'robot.xml'}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 HELP = "predict sphere centres and plate poses (with standard deviations) for joint rows"
@@ -12,15 +13,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("calibration", help="calibration.json")
     p.add_argument("joints", help="JOINTS.csv (pose_id, q1..q6 [deg], optional station)")
     p.add_argument("--out", required=True, help="PRED.csv to write")
+    p.add_argument("--force", action="store_true",
+                   help="predict even for joints outside the robot's limits or that look like radians")
 
 
 def run(args) -> int:
     from ..dataset import read_joints_csv
     from ..estimator import Calibration
     from ..estimator.files import write_pred_csv
+    from ..estimator.plausibility import ImplausibleData, check_joint_values, forced_reasons
+    from . import warn_forced
 
     cal = Calibration.load(args.calibration)
     j = read_joints_csv(args.joints)
+    warn_forced(args.calibration, forced_reasons(cal.details))
+    try:
+        problems = check_joint_values(j.q, j.pose_id, cal.nominal.q_min, cal.nominal.q_max, where="JOINTS.csv")
+        if problems:
+            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
+    except ImplausibleData as exc:
+        if not args.force:
+            raise ValueError(f"{args.joints}: {exc}; nothing written (--force predicts anyway)") from None
+        print(f"warning: {args.joints}: {exc} (--force: predicted anyway)", file=sys.stderr)
     if cal.effects:
         # an extended calibration (from twin diagnose): apply its effects to the rows in this order
         from ..diagnosis.apply import predict_extended

@@ -297,6 +297,8 @@ class Calibration:
 
     @classmethod
     def from_json_dict(cls, d: dict, where: str = "calibration.json") -> "Calibration":
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}: not a calibration (a JSON object expected, got {type(d).__name__})")
         ver = d.get("schema_version")
         if ver != CALIBRATION_SCHEMA_VERSION:
             raise ValueError(f"{where}: schema_version {ver!r} is not supported (this library reads {CALIBRATION_SCHEMA_VERSION})")
@@ -345,9 +347,26 @@ class Calibration:
                 Combination(dropped=c["dropped"], kind=c["kind"], terms=tuple((str(n), float(v)) for n, v in c["terms"]))
                 for c in d.get("unidentifiable", [])
             )
+            _check_finite(nominal=nominal.params, q_min=nominal.q_min, q_max=nominal.q_max,
+                          tool2flange=tool, parameters=x, nominal_parameters=x0, plate=plate.spheres_flange,
+                          sphere_diameter=plate.sphere_diameter, covariance=cov)
+            if not np.all(nominal.q_min < nominal.q_max):
+                raise ValueError("robot: q_min_deg must be below q_max_deg for every joint")
+            opt = {}
+            for key, typ in (("noise", dict), ("identifiability", dict), ("rows", dict), ("residuals", dict),
+                             ("options", dict), ("details", dict), ("notes", list), ("effects", list)):
+                v = d.get(key, typ())
+                if not isinstance(v, typ):
+                    raise ValueError(f"field {key!r} must be a {'table' if typ is dict else 'list'}, got {v!r:.40}")
+                opt[key] = v
+            for key in ("method", "measurement", "dataset"):
+                if not isinstance(d.get(key, ""), str):
+                    raise ValueError(f"field {key!r} must be text, got {d[key]!r:.40}")
+            if not isinstance(rb["name"], str) or not isinstance(rb["convention"], str):
+                raise ValueError("robot: fields 'name' and 'convention' must be text")
         except KeyError as exc:
             raise ValueError(f"{where}: missing field {exc}") from None
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, AttributeError, IndexError, OverflowError) as exc:
             raise ValueError(f"{where}: {exc}") from None
         return cls(
             method=str(d.get("method", "")),
@@ -360,16 +379,16 @@ class Calibration:
             plate=plate,
             spheres_tool=spheres_tool,
             measurement=str(d.get("measurement", "")),
-            noise=d.get("noise", {}),
+            noise=opt["noise"],
             combinations=combos,
-            identifiability=d.get("identifiability", {}),
-            rows=d.get("rows", {}),
-            residuals=d.get("residuals", {}),
-            options=d.get("options", {}),
-            notes=tuple(d.get("notes", [])),
-            effects=tuple(d.get("effects", [])),
+            identifiability=opt["identifiability"],
+            rows=opt["rows"],
+            residuals=opt["residuals"],
+            options=opt["options"],
+            notes=tuple(str(n) for n in opt["notes"]),
+            effects=tuple(opt["effects"]),
             dataset=str(d.get("dataset", "")),
-            details=d.get("details", {}),
+            details=opt["details"],
         )
 
 
@@ -389,6 +408,13 @@ def _pose_mm(T: np.ndarray) -> dict[str, float]:
     v = transform_to_pose6(T)
     return {"x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
             "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5])}
+
+
+def _check_finite(**arrays) -> None:
+    """ValueError naming the first field that holds a non-finite number (None fields are skipped)."""
+    for name, a in arrays.items():
+        if a is not None and not np.all(np.isfinite(np.asarray(a, dtype=float))):
+            raise ValueError(f"{name}: not finite (NaN or infinity in the file)")
 
 
 def _pose_from_mm(d: dict) -> np.ndarray:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +36,7 @@ def write_pred_csv(path: str | os.PathLike, pose_id: np.ndarray, pred: Predictio
     if has_sd:
         cols += [f"sd_{c}" for c in SPHERE_COLS] + [f"sd_{c}" for c in POSE_COLS]
     pose6 = transform_to_pose6(pred.pose)
-    with open(path, "w", newline="") as f:
+    with _atomic(path) as f:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(cols)
         for i in range(n):
@@ -50,6 +51,19 @@ def write_pred_csv(path: str | os.PathLike, pose_id: np.ndarray, pred: Predictio
                 row += [f"{v / _MM:.6g}" for v in pred.sd_pose[i, :3]] + [f"{v:.6g}" for v in pred.sd_pose[i, 3:]]
             w.writerow(row)
     return path
+
+
+@contextmanager
+def _atomic(path: Path):
+    """A text file opened for writing beside ``path`` and moved onto it only when the block ends without an
+    error (no partial output file)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        with open(tmp, "w", newline="") as f:
+            yield f
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:

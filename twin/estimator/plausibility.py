@@ -12,6 +12,11 @@ Checks on data a user has (nothing here reads truth):
   must move (joints written in radians in the degree columns).
 * **Fit.** A residual scale far above 1 (the noise stated or estimated cannot explain the residual: the model
   cannot fit these data).
+* **Targets** (``twin compensate``). Plate positions against the reach of the calibrated robot within its joint
+  limits: every target within a few millimetres of the base origin (metres written in the millimetre columns),
+  targets beyond the reach (wrong units or frame).
+* **A forced calibration** (``twin calibrate --force``): the reasons it was forced past, for the commands that
+  use it to warn.
 """
 
 from __future__ import annotations
@@ -23,8 +28,8 @@ import numpy as np
 
 from ..dataset import Dataset
 
-__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_fit", "plate_noise",
-           "check_fit_against_plate"]
+__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values", "check_fit",
+           "plate_noise", "check_fit_against_plate", "tool_reach", "check_targets", "forced_reasons"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _DEG = np.pi / 180.0
@@ -118,22 +123,89 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
 
 
 def check_joints(ds: Dataset) -> list[str]:
-    """Problems of the commanded joints in words (empty when none); :class:`ImplausibleData` when the joints
-    cannot be degrees (every joint within 3.2 deg of zero over 10 rows or more: radians written in the degree
-    columns)."""
-    q = ds.q
-    if ds.n >= 10 and np.all(np.abs(q) <= np.pi * _DEG * 1.02) and np.ptp(q, axis=0).max() > 0:
-        raise ImplausibleData(f"every joint of the {ds.n} rows lies within {np.abs(q).max() / _DEG:.3g} deg of zero: "
-                              "joints look like radians (poses.csv expects q1..q6 in degrees)")
-    r = ds.robot
-    lo, hi = np.asarray(r.q_min, float), np.asarray(r.q_max, float)
+    """Problems of the commanded joints of a dataset in words (empty when none); :class:`ImplausibleData` when
+    the joints cannot be degrees (see :func:`check_joint_values`)."""
+    return check_joint_values(ds.q, ds.pose_id, ds.robot.q_min, ds.robot.q_max, where="poses.csv")
+
+
+def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, *,
+                       where: str = "poses.csv") -> list[str]:
+    """Joints ``q`` ``(n, 6)`` [rad] (read from degree columns) against the limits ``q_min``/``q_max`` [rad].
+
+    Returns the rows outside the limits in words (empty when none). Raises :class:`ImplausibleData` when the
+    joints cannot be degrees: every joint within 3.2 deg of zero over 10 rows or more that move (radians
+    written in the degree columns of ``where``)."""
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 6:
+        raise ValueError(f"q must have shape (n, 6), got {q.shape}")
+    pose_id = np.asarray(pose_id)
+    if pose_id.shape != (q.shape[0],):
+        raise ValueError(f"pose_id must have shape ({q.shape[0]},), got {pose_id.shape}")
+    n = q.shape[0]
+    if n >= 10 and np.all(np.abs(q) <= np.pi * _DEG * 1.02) and np.ptp(q, axis=0).max() > 0:
+        raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(q).max() / _DEG:.3g} deg of zero: "
+                              f"joints look like radians ({where} expects q1..q6 in degrees)")
+    lo, hi = np.asarray(q_min, float), np.asarray(q_max, float)
     out = []
     for j in range(q.shape[1]):
         b = np.flatnonzero((q[:, j] < lo[j] - 1e-9) | (q[:, j] > hi[j] + 1e-9))
         if b.size:
             out.append(f"q{j + 1} outside the robot's limits [{lo[j] / _DEG:.1f}, {hi[j] / _DEG:.1f}] deg in "
-                       f"{b.size} rows (pose_id {[int(x) for x in ds.pose_id[b[:5]]]})")
+                       f"{b.size} rows (pose_id {[int(x) for x in pose_id[b[:5]]]})")
     return out
+
+
+def tool_reach(robot, *, n: int = 4000, seed: int = 0) -> tuple[float, float]:
+    """The median and largest distance [m] of the tool (plate) origin from the robot base origin over ``n``
+    joint configurations drawn uniformly within the robot's limits (a fixed seed: the same answer each call).
+    ``robot``: a :class:`~twin.kinematics.RobotModel` whose base frame is the robot base."""
+    from ..kinematics import tool2base
+
+    if n < 10:
+        raise ValueError(f"n must be at least 10, got {n!r}")
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(robot.q_min, robot.q_max, (n, 6))
+    r = np.linalg.norm(tool2base(robot, q)[:, :3, 3], axis=-1)
+    return float(np.median(r)), float(r.max())
+
+
+def check_targets(tool2base_targets: np.ndarray, pose_id: np.ndarray, robot, *, where: str = "TARGETS.csv",
+                  margin: float = 1.02) -> None:
+    """:class:`ImplausibleData` when target plate poses ``(n, 4, 4)`` in the robot base frame cannot be meant
+    for ``robot`` (a :class:`~twin.kinematics.RobotModel`, tool = plate): all of them far nearer the base origin
+    than the plate ever is (positions in metres in the millimetre columns), or any of them farther than the
+    plate reaches within the joint limits (``margin`` x the largest sampled distance; wrong units or frame)."""
+    T = np.asarray(tool2base_targets, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"tool2base_targets must have shape (n, 4, 4), got {T.shape}")
+    pose_id = np.asarray(pose_id)
+    r = np.linalg.norm(T[:, :3, 3], axis=-1)
+    typical, reach = tool_reach(robot)
+    ratio = float(np.median(r)) / typical
+    if ratio < 0.01:
+        raise ImplausibleData(f"every target lies within {r.max() * 1e3:.4g} mm of the robot base origin, where the "
+                              f"plate is typically {typical * 1e3:.0f} mm from it: positions in metres? ({where} expects "
+                              "x, y, z in millimetres)")
+    far = np.flatnonzero(r > margin * reach)
+    if far.size:
+        if far.size == r.size and 300 < ratio < 3000:
+            cause = "positions in micrometres?"
+        elif far.size == r.size and 20 < ratio < 30:
+            cause = "positions 25.4x too large: millimetres converted as if inches?"
+        else:
+            cause = f"wrong units, or a frame other than the robot base? ({where} expects millimetres in the robot base frame)"
+        raise ImplausibleData(f"{far.size} of {r.size} targets lie beyond the robot's reach ({reach * 1e3:.0f} mm from "
+                              f"the base origin within its joint limits; farthest {r.max() * 1e3:.4g} mm, pose_id "
+                              f"{[int(x) for x in pose_id[far[:10]]]}): {cause}")
+
+
+def forced_reasons(details: dict) -> list[str]:
+    """Why a calibration was written with ``twin calibrate --force`` (its ``details``; empty when it was not)."""
+    pl = (details or {}).get("plausibility") if isinstance(details, dict) else None
+    forced = pl.get("forced") if isinstance(pl, dict) else None
+    if not forced:
+        return []
+    return [str(f) for f in (forced if isinstance(forced, list) else [forced])]
 
 
 def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
