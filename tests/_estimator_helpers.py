@@ -79,3 +79,19 @@ def space_vector(cal, robot: RobotModel, bases: dict[str, np.ndarray]) -> np.nda
 def camera_base(rng: np.random.Generator) -> np.ndarray:
     """A camera-like ``base2meas`` somewhere in front of the robot."""
     return pose6_to_transform(np.r_[rng.normal(0, 0.3, 3) + [0.0, 0.0, 1.0], rng.normal(0, 1.0, 3)])
+
+
+def write_clean_dataset(folder, n_rows: int, seed: int):
+    """Write a valid single-station IRB-1200 dataset of ``n_rows`` (a multiple of 4: three calibration rows to
+    one validation row) simulated at 0.01 mm noise into ``folder``; returns the folder."""
+    from twin.dataset import write_dataset
+    from twin.estimator.simulate import random_configurations, simulate_dataset
+
+    rng = np.random.default_rng(seed)
+    truth = random_truth("irb1200", rng)
+    q = random_configurations(get_robot("irb1200"), n_rows, rng)
+    sets = np.array((["calibration"] * 3 + ["validation"]) * (n_rows // 4), dtype=object)
+    ds, _ = simulate_dataset(truth, q, robot_spec="irb1200", base2meas={"0": camera_base(rng)}, noise_position=1e-5,
+                             rng=rng, set_=sets)
+    write_dataset(folder, ds)
+    return folder

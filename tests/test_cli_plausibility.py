@@ -8,28 +8,22 @@ import numpy as np
 import pytest
 
 from twin.cli import main
-from twin.dataset import Joints, read_joints_csv, write_dataset, write_joints_csv
+from twin.dataset import Joints, read_joints_csv, write_joints_csv
 from twin.estimator import Calibration
 from twin.estimator.files import write_targets_csv
 from twin.estimator.plausibility import ImplausibleData, check_joint_values, check_targets, forced_reasons, tool_reach
-from twin.estimator.simulate import random_configurations, simulate_dataset
+from twin.estimator.simulate import random_configurations
 from twin.kinematics import tool2base
 from twin.robots import get_robot
 
-from _estimator_helpers import camera_base, random_truth
+from _estimator_helpers import write_clean_dataset
 
 
 @pytest.fixture(scope="module")
 def cal(tmp_path_factory):
     """A clean 80-row single-station dataset, its calibration, and a copy of that calibration marked forced."""
     d = tmp_path_factory.mktemp("plaus_cli")
-    rng = np.random.default_rng(12)
-    truth = random_truth("irb1200", rng)
-    q = random_configurations(get_robot("irb1200"), 80, rng)
-    sets = np.array((["calibration"] * 3 + ["validation"]) * 20, dtype=object)
-    ds, _ = simulate_dataset(truth, q, robot_spec="irb1200", base2meas={"0": camera_base(rng)}, noise_position=1e-5,
-                             rng=rng, set_=sets)
-    write_dataset(d / "ds", ds)
+    write_clean_dataset(d / "ds", 80, seed=12)
     assert main(["calibrate", str(d / "ds"), "--out", str(d / "cal"), "--quiet"]) == 0
     j = json.loads((d / "cal" / "calibration.json").read_text())
     j["details"]["plausibility"]["forced"] = ["every joint of the 80 rows lies within 3 deg of zero: joints look like radians"]

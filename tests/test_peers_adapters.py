@@ -81,6 +81,16 @@ def test_pybotics_refuses_a_model_with_beta():
         mdh_table_mm(make_problem().truth)
 
 
+def _beta_free_case():
+    """The benchmark problem, a true robot carrying the Tables 2+4 presets without beta (the peers' models have
+    none), and 30 calibration / 10 validation configurations."""
+    pb = make_problem()
+    dev = {k: v for k, v in preset_deviation("separation_tables_2_4").items() if not k.startswith("beta")}
+    truth = pb.nominal.perturbed(dev).with_frames(base2meas=pb.truth.base2meas, tool2flange=pb.truth.tool2flange)
+    rng = np.random.default_rng(1)
+    return pb, truth, sample_configurations(truth, 30, rng), sample_configurations(truth, 10, rng)
+
+
 @pytest.mark.slow
 def test_robotkinecal_recovers_a_noise_free_robot():
     """robotkinecal (on numpy 2) calibrates our URDF to noise-free poses of a perturbed beta-free robot and then
@@ -89,11 +99,7 @@ def test_robotkinecal_recovers_a_noise_free_robot():
     _need("robotkinecal")
     from experiments.peers.robotkinecal_adapter import calibrate
 
-    pb = make_problem()
-    dev = {k: v for k, v in preset_deviation("separation_tables_2_4").items() if not k.startswith("beta")}
-    truth = pb.nominal.perturbed(dev).with_frames(base2meas=pb.truth.base2meas, tool2flange=pb.truth.tool2flange)
-    rng = np.random.default_rng(1)
-    q_cal, q_val = sample_configurations(truth, 30, rng), sample_configurations(truth, 10, rng)
+    pb, truth, q_cal, q_val = _beta_free_case()
     res = calibrate(pb.nominal, q_cal, tool2meas(truth, q_cal), q_val, variant="pose")
     assert res.ok, res.error
     T = tool2meas(truth, q_val)
@@ -110,11 +116,7 @@ def test_figaroh_recovers_a_noise_free_robot():
     _need("pinocchio")
     from experiments.peers.figaroh_adapter import calibrate
 
-    pb = make_problem()
-    dev = {k: v for k, v in preset_deviation("separation_tables_2_4").items() if not k.startswith("beta")}
-    truth = pb.nominal.perturbed(dev).with_frames(base2meas=pb.truth.base2meas, tool2flange=pb.truth.tool2flange)
-    rng = np.random.default_rng(1)
-    q_cal, q_val = sample_configurations(truth, 30, rng), sample_configurations(truth, 10, rng)
+    pb, truth, q_cal, q_val = _beta_free_case()
     T = tool2meas(truth, q_val)
     nominal_in_truth_frames = pb.nominal.with_frames(base2meas=truth.base2meas, tool2flange=truth.tool2flange)
     assert np.abs(tool2meas(nominal_in_truth_frames, q_val)[:, :3, 3] - T[:, :3, 3]).max() > 1e-4  # work to do

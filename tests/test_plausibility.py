@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 
 from twin.cli import main
-from twin.dataset import read_dataset, write_dataset
+from twin.dataset import read_dataset
 from twin.estimator.plausibility import ImplausibleData, check_joints, check_plate_rows
-from twin.estimator.simulate import random_configurations, simulate_dataset
-from twin.robots import get_robot
 
-from _estimator_helpers import camera_base, random_truth
+from _estimator_helpers import write_clean_dataset
 
 Q_COLS = [f"q{j}" for j in range(1, 7)]
 P_COLS = [f"p{s}_{c}" for s in range(3) for c in "xyz"]
@@ -21,15 +19,7 @@ P_COLS = [f"p{s}_{c}" for s in range(3) for c in "xyz"]
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory):
     """A valid 120-row dataset with calibration and validation rows, written by the library."""
-    d = tmp_path_factory.mktemp("plaus")
-    rng = np.random.default_rng(11)
-    truth = random_truth("irb1200", rng)
-    q = random_configurations(get_robot("irb1200"), 120, rng)
-    sets = np.array((["calibration"] * 3 + ["validation"]) * 30, dtype=object)
-    ds, _ = simulate_dataset(truth, q, robot_spec="irb1200", base2meas={"0": camera_base(rng)}, noise_position=1e-5,
-                             rng=rng, set_=sets)
-    write_dataset(d / "ds", ds)
-    return d / "ds"
+    return write_clean_dataset(tmp_path_factory.mktemp("plaus") / "ds", 120, seed=11)
 
 
 def _edit(src, dst, fn):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["warn_forced"]
+__all__ = ["warn_forced", "check_joints_file"]
 
 
 def warn_forced(path, reasons: list[str]) -> None:
@@ -13,3 +13,19 @@ def warn_forced(path, reasons: list[str]) -> None:
     for r in reasons:
         print(f"warning: {path} was written by `twin calibrate --force` past: {r}; results from it may be wrong",
               file=sys.stderr)
+
+
+def check_joints_file(path, q, pose_id, robot, force: bool, what: str) -> None:
+    """Joints ``q`` ``(n, 6)`` [rad] read from the JOINTS.csv ``path`` against ``robot``'s limits and a radians
+    reading (:func:`twin.estimator.plausibility.check_joint_values`): a ``ValueError`` naming the file and the
+    cause, or with ``force`` a warning on stderr (``what``: what the command does anyway, e.g. "predicted")."""
+    from ..estimator.plausibility import ImplausibleData, check_joint_values
+
+    try:
+        problems = check_joint_values(q, pose_id, robot.q_min, robot.q_max, where="JOINTS.csv")
+        if problems:
+            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
+    except ImplausibleData as exc:
+        if not force:
+            raise ValueError(f"{path}: {exc}; nothing written (--force goes on anyway)") from None
+        print(f"warning: {path}: {exc} (--force: {what} anyway)", file=sys.stderr)

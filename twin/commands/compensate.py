@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 HELP = "corrected joint commands that reach target plate poses on the calibrated robot"
@@ -31,8 +30,8 @@ def run(args) -> int:
     from ..estimator import Calibration, compensation
     from ..estimator.files import read_targets_csv
     from ..kinematics import UnreachableError
-    from ..estimator.plausibility import ImplausibleData, check_joint_values, check_targets, forced_reasons
-    from . import warn_forced
+    from ..estimator.plausibility import ImplausibleData, check_targets, forced_reasons
+    from . import check_joints_file, warn_forced
 
     cal = Calibration.load(args.calibration)
     pid, T = read_targets_csv(args.targets)
@@ -47,15 +46,7 @@ def run(args) -> int:
         missing = [int(p) for p in pid if int(p) not in by_id]
         if missing:
             raise ValueError(f"{args.reference}: no reference row for pose_id {missing[:10]}")
-        try:
-            problems = check_joint_values(ref.q, ref.pose_id, cal.nominal.q_min, cal.nominal.q_max,
-                                          where="JOINTS.csv")
-            if problems:
-                raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
-        except ImplausibleData as exc:
-            if not args.force:
-                raise ValueError(f"{args.reference}: {exc}; nothing written (--force uses them anyway)") from None
-            print(f"warning: {args.reference}: {exc} (--force: used anyway)", file=sys.stderr)
+        check_joints_file(args.reference, ref.q, ref.pose_id, cal.nominal, args.force, "used")
         q_ref = ref.q[[by_id[int(p)] for p in pid]]
     else:
         try:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 HELP = "predict sphere centres and plate poses (with standard deviations) for joint rows"
@@ -21,20 +20,13 @@ def run(args) -> int:
     from ..dataset import read_joints_csv
     from ..estimator import Calibration
     from ..estimator.files import write_pred_csv
-    from ..estimator.plausibility import ImplausibleData, check_joint_values, forced_reasons
-    from . import warn_forced
+    from ..estimator.plausibility import forced_reasons
+    from . import check_joints_file, warn_forced
 
     cal = Calibration.load(args.calibration)
     j = read_joints_csv(args.joints)
     warn_forced(args.calibration, forced_reasons(cal.details))
-    try:
-        problems = check_joint_values(j.q, j.pose_id, cal.nominal.q_min, cal.nominal.q_max, where="JOINTS.csv")
-        if problems:
-            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
-    except ImplausibleData as exc:
-        if not args.force:
-            raise ValueError(f"{args.joints}: {exc}; nothing written (--force predicts anyway)") from None
-        print(f"warning: {args.joints}: {exc} (--force: predicted anyway)", file=sys.stderr)
+    check_joints_file(args.joints, j.q, j.pose_id, cal.nominal, args.force, "predicted")
     if cal.effects:
         # an extended calibration (from twin diagnose): apply its effects to the rows in this order
         from ..diagnosis.apply import predict_extended
