@@ -9,12 +9,12 @@ HELP = "find structure beyond the noise in held-out residuals, trace it to an ef
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml) with repeats or a stated noise, and held-out rows")
+    p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml); held-out rows from its 'set' column, else --holdout")
     p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots, diagnosis.rrd")
     p.add_argument("--calibration", help="a geometric calibration.json to start from")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
-                   help="without a 'set' column: hold out this seeded random fraction for validation")
+                   help="without a 'set' column: hold out this seeded random fraction for validation (default 0.3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out draw")
     p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")

@@ -87,7 +87,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
     """Change ``(n, 3, 3)`` [m] of the predicted spheres from length, parameter and scale atoms."""
     n = len(q_eff)
     d = np.zeros((n, len(spheres_tool), 3))
-    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale")]
+    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale", "field")]
     if not fo:
         return d
     cache: dict = {}
@@ -98,13 +98,18 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
         if a.place == "scale":
             d += (F @ phi)[:, None, None] * pts
             continue
+        if a.place == "field":
+            from .field import field_values
+
+            d += np.einsum("mkc,k->mc", field_values(a.features, pts.reshape(-1, 3)), phi).reshape(pts.shape)
+            continue
         W = param_weights(space, x, a)  # (P, c)
         c = W.shape[1]
         dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)
     if not np.all(known):
         # rows in the robot base frame (unknown station): measurement-side atoms do not apply
-        base_only = [a.place == "scale" or (a.place == "param" and a.target == "base") for a, _ in fo]
+        base_only = [a.place in ("scale", "field") or (a.place == "param" and a.target == "base") for a, _ in fo]
         if any(base_only):
             raise ValueError("the calibration's effects act on the measurement frame: rows need a known station")
     return d
@@ -116,7 +121,7 @@ def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | No
     q_eff = effective_joints(cal, ctx)
     c = _plate(cal)
     pred = c.predict(q_eff, station)
-    if not any(a.place in ("length", "param", "scale") for a, _ in effect_atoms(cal)):
+    if not any(a.place in ("length", "param", "scale", "field") for a, _ in effect_atoms(cal)):
         return pred
     known = pred.frame == "measurement"
     sp = cal.space
@@ -160,7 +165,7 @@ def compensate_extended(
     cp = _plate(cal)
     base = compensation(cp, T, q_ref)
     atoms = [(a, phi) for a, phi in effect_atoms(cal)
-             if not (a.place == "scale" or (a.place == "param" and a.target == "base") or a.place == "plate")]
+             if not (a.place in ("scale", "field", "plate") or (a.place == "param" and a.target == "base"))]
     if not atoms:
         return base
     sp = ParamSpace(cp.space.chain, ("base",))

@@ -12,6 +12,8 @@ station) acting at one *place* of the model:
             the station of each row) (first order)
 ``plate``   the centre of one sphere in the plate frame (``"sphere1"``, three columns, constant) [m]
 ``scale``   the measurement frame's scale about its origin (``"meas_scale"``): ``p -> p (1 + delta)``
+``field``   the measurement field (``"meas_field"``): ``p -> p + sum_k phi_k G_k(p)``, lens distortion, a
+            scale that changes with depth, a quadratic field (:mod:`twin.diagnosis.field`; first order)
 ==========  =============================================================================================
 
 Atoms come in two pools. The *catalogue* names physical effects (family from :data:`EFFECT_VOCABULARY`),
@@ -50,10 +52,13 @@ __all__ = [
 _DEG = np.pi / 180.0
 HISTORY_KINDS = ("sign",)
 SCAN_ORDERS = (4.0, 150.0, 0.5)  # cyclic-error orders scanned beyond 1-3: first, last, step
-MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary
+MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
+TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
+WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
+PLACES = ("joint", "length", "param", "plate", "scale", "field")
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,8 +95,8 @@ class Atom:
         for k in ("family", "place", "target", "features"):
             if k not in d:
                 raise ValueError(f"effect term is missing {k!r}: {d!r}")
-        if d["place"] not in ("joint", "length", "param", "plate", "scale"):
-            raise ValueError(f"effect term place {d['place']!r} is not one of joint, length, param, plate, scale")
+        if d["place"] not in PLACES:
+            raise ValueError(f"effect term place {d['place']!r} is not one of {', '.join(PLACES)}")
         return cls(family=d["family"], place=d["place"], target=d["target"], features=tuple(d["features"]),
                    channel=d.get("channel", ""), label=d.get("label", ""), pool=d.get("pool", ""),
                    joints=tuple(d.get("joints", ())))
@@ -152,6 +157,19 @@ def _last_moves(ctx: RowContext) -> np.ndarray:
     return out[-n:]
 
 
+def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+    """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)``
+    [s]: ``y_k = y_{k-1} + (1 - exp(-(t_k - t_{k-1}) / tau)) (x_k - y_{k-1})``, ``y_0 = x_0``."""
+    y = np.empty_like(x, dtype=float)
+    if len(x) == 0:
+        return y
+    a = -np.expm1(-np.clip(np.diff(t), 0.0, None) / tau)
+    y[0] = x[0]
+    for k in range(1, len(x)):
+        y[k] = y[k - 1] + a[k - 1] * (x[k] - y[k - 1])
+    return y
+
+
 def approach_unknown(ctx: RowContext) -> np.ndarray:
     """Rows ``(n,)`` where some joint that moves during the campaign has an unknown approach direction (after
     the start or a restart, until it moves): history-dependent terms cannot be predicted there."""
@@ -200,12 +218,19 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
             out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+        elif kind == "exp":
+            # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
+            out[:, k] = -np.expm1(-(_channel(ctx, f["ch"]) - f["t0"]) / f["tau"])
+        elif kind == "lag":
+            # the channel seen through a first-order lag of time constant tau (a link's temperature follows
+            # the air's): exact for a channel constant between rows, started at the first row's value
+            out[:, k] = (_lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"]) - f["c"]) / f.get("h", 1.0)
         elif kind == "station":
             if ctx.station is None:
                 raise ValueError("this effect term depends on the station: the rows need a station column")
             out[:, k] = (np.asarray(ctx.station).astype(str) == str(f["name"])).astype(float)
-        elif kind == "const":
-            out[:, k] = 1.0
+        elif kind in ("const", "field"):
+            out[:, k] = 1.0  # a field atom's values depend on the point, not the row (twin.diagnosis.field)
         else:
             raise ValueError(f"unknown feature kind {kind!r} in {f!r}")
     if not np.all(np.isfinite(out)):
@@ -289,8 +314,11 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                               ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
                               f"sin/cos({k:g} q{j})", f"joint {j}, harmonic of order {k:g} (cycles per joint turn)",
                               "scan", (j,), {"order": k}))
-    atoms.append(Atom("coupling", "joint", "theta6", ({"kind": "pow", "ch": "q5", "p": 1, "c": 0.0, "h": 1.0},), "q5",
-                      "wrist coupling (theta6 follows q5)", "catalogue", (5, 6)))
+    # wrist coupling: the drives of joints 5 and 6 pass through joint 4 (and 6's through 5): a coupling-ratio error
+    # turns the driven joint with the driving one
+    for jd, js in WRIST_COUPLINGS:
+        atoms.append(Atom("coupling", "joint", f"theta{jd}", ({"kind": "pow", "ch": f"q{js}", "p": 1, "c": 0.0, "h": 1.0},),
+                          f"q{js}", f"wrist coupling (theta{jd} follows q{js})", "catalogue", (js, jd)))
     # thermal growth: each link, and all links together, against temp_c (linear) or a cubic in t_s
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         ref = float(np.median(ctx.temp_c))
@@ -301,11 +329,24 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         ch = "t_s"
     else:
         feats = ()
-    if feats:
-        atoms.append(Atom("thermal", "length", "all_lengths", feats, ch, f"thermal growth of all link lengths vs {ch}",
+    variants = [(feats, ch)] if feats else []
+    # a link's temperature lags the recorded one (the air's, a sensor elsewhere on the arm): the temperature
+    # through a first-order lag; without a temperature, the warm-up as a transient 1 - exp(-t / tau) beside the
+    # cubic. Time constants on a coarse grid, refined when an atom is kept.
+    span = float(np.ptp(ctx.t_s)) if _time_channel(ctx) else 0.0
+    if span > 0:
+        for tau in (fr * span for fr in TAU_FRACTIONS):
+            if ch == "temp_c":
+                f = {"kind": "lag", "ch": "temp_c", "tau": float(tau), "c": ref, "h": 1.0}
+                variants.append(((f,), f"temp_c lagged {tau:.4g} s"))
+            else:
+                f = {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}
+                variants.append(((f,), f"warm-up 1-exp(-t/{tau:.4g} s)"))
+    for fs, chan in variants:
+        atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
                           "catalogue"))
         for L in length_names:
-            atoms.append(Atom("thermal", "length", L, feats, ch, f"thermal growth of link {L} vs {ch}", "catalogue"))
+            atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
     for s in range(3):
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
@@ -313,9 +354,11 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
 
 
 def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], length_names: list[str],
-                  catalogue: list[Atom], *, n_change_points: int = 9) -> list[Atom]:
+                  catalogue: list[Atom], *, n_change_points: int = 9, points: np.ndarray | None = None) -> list[Atom]:
     """The unnamed dictionary: every place against every smooth basis of every channel (module docstring).
-    Atoms whose columns equal a catalogue atom's are left out (the catalogue names them)."""
+    Atoms whose columns equal a catalogue atom's are left out (the catalogue names them). ``points``: the
+    measured sphere centres ``(n, 3, 3)`` [m] in the measurement frame (NaN where not seen), for the field
+    atoms' constants (none without them)."""
     q = ctx.q
     feats: list[tuple[str, dict | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
     for j in range(1, N_JOINTS + 1):
@@ -332,7 +375,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
         for w_deg in MOVE_WIDTHS_DEG:
             # hysteresis that follows the size of the last move (friction-like), on the joint angles only
-            feats.append((f"tanh(last move j{j} / {w_deg:g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
+            feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
     for a in range(1, N_JOINTS + 1):
         for b in range(a + 1, N_JOINTS + 1):
             if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
@@ -355,11 +398,18 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
         at = float(np.quantile(tv, qq))
         feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+    span = float(np.ptp(tv))
+    for tau in (fr * span for fr in TAU_FRACTIONS):
+        # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
+        feats.append((f"1-exp(-{tch}/{tau:.4g})", {"kind": "exp", "ch": tch, "t0": float(tv[0]), "tau": float(tau)}, ()))
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         c, h = _norm(ctx.temp_c)
         for p in (1, 2):
             feats.append(("temp_c" if p == 1 else "temp_c^2",
                           tuple({"kind": "pow", "ch": "temp_c", "p": e, "c": c, "h": h} for e in range(1, p + 1)), ()))
+        if tch == "t_s":
+            for tau in (fr * span for fr in TAU_FRACTIONS):
+                feats.append((f"temp_c lagged {tau:.4g} s", {"kind": "lag", "ch": "temp_c", "tau": float(tau), "c": c, "h": h}, ()))
     if ctx.station is not None:
         names = sorted(set(np.asarray(ctx.station).astype(str).tolist()))
         if len(names) > 1:
@@ -386,15 +436,26 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 continue  # = cyclic
             if place == "joint" and fs[0]["kind"] == "sign" and fs[0]["j"] == int(target[5:]):
                 continue  # = backlash
-            if place == "joint" and target == "theta6" and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == "q5":
+            if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and \
+                    (int(target[5:]), int(fs[0]["ch"][1:]) if fs[0]["ch"].startswith("q") else 0) in WRIST_COUPLINGS:
                 continue  # = coupling
             if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow" \
                     and len(fs) <= (1 if fs[0]["ch"] == "temp_c" else 3):
                 continue  # = thermal (absolute instead of relative: the same column)
+            if place == "param" and target in length_names and fs[0]["kind"] in ("lag", "exp"):
+                continue  # = thermal with a lag or a warm-up (absolute instead of relative)
             joints = tuple(sorted(set(pj) | set(fj)))
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
+    if points is not None:
+        from .field import field_applicable, field_atom_specs, field_constants
+
+        P = np.asarray(points, dtype=float).reshape(-1, 3)
+        if field_applicable(P):
+            for ch, fs, words in field_atom_specs(field_constants(P)):
+                atoms.append(Atom("unnamed", "field", "meas_field", fs, ch, f"unnamed: {words}", "generic"))
     return atoms
 
 
 def _fkey(features) -> str:
-    return repr([(f.get("kind"), f.get("ch"), f.get("k"), f.get("p"), f.get("j"), f.get("axis")) for f in features])
+    return repr([(f.get("kind"), f.get("ch"), f.get("k"), f.get("p"), f.get("j"), f.get("axis"), f.get("tau"))
+                 for f in features])

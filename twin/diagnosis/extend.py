@@ -11,7 +11,8 @@ geometry; :func:`reduced_basis`). With the atom's features ``F_a`` ``(n, K_a)`` 
 * ``param`` atoms: ``x_p -> x_p + F_a phi_a`` for one parameter, or the six of the tool / the row's base
   frame (six columns per feature), to first order;
 * ``plate`` atoms: sphere ``s`` at ``spheres_tool[s] + phi`` in the tool frame (exact);
-* ``scale`` atoms: measured points ``p -> p (1 + F_a phi_a)`` about the measurement origin (first order).
+* ``scale`` atoms: measured points ``p -> p (1 + F_a phi_a)`` about the measurement origin (first order);
+* ``field`` atoms: measured points ``p -> p + sum_k phi_k G_k(p)`` (:mod:`twin.diagnosis.field`, first order).
 
 Whitened residual ``r = (measured - predicted) / sigma``; the column of an atom feature is the derivative
 of the prediction, e.g. ``J[:, theta_j] F[row, k]`` or ``J[:, L] L F[row, k]``.
@@ -90,6 +91,9 @@ class ExtendedModel:
         shape = (3, 3, obs.n)
         mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
         self._crd = np.broadcast_to(np.arange(3)[None, :, None], shape)[mask]
+        self._sph = np.broadcast_to(np.arange(3)[:, None, None], shape)[mask]
+        self._elem_row = np.broadcast_to(np.arange(obs.n)[None, None, :], shape)[mask]
+        self._field_cache: dict[str, np.ndarray] = {}
         self._f = (np.ones(self._crd.size) if axis_sigma is None
                    else (obs.sigma_position / np.asarray(axis_sigma, dtype=float))[self._crd])
         sizes = [t.r for t in self.terms]
@@ -124,7 +128,21 @@ class ExtendedModel:
             return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]
         if a.place == "scale":
             return Fr * (self._coords(obs) * self._f)[:, None]
+        if a.place == "field":
+            return Fr * (self._field(a, obs) * self._f[:, None])
         raise ValueError(f"unknown atom place {a.place!r}")
+
+    def _field(self, a: Atom, obs: Observations) -> np.ndarray:
+        """``G_k`` at each residual's measured point, its coordinate, divided by sigma ``(m, K)``."""
+        key = repr(a.features)
+        G = self._field_cache.get(key)
+        if G is None:
+            from .field import field_values
+
+            pts = obs.spheres[self._elem_row, self._sph]  # (m, 3) measured points, measurement frame
+            G = field_values(a.features, pts)[np.arange(len(pts)), :, self._crd] / obs.sigma_position
+            self._field_cache[key] = G
+        return G
 
     def _coords(self, obs: Observations) -> np.ndarray:
         """Measured coordinates in residual order, divided by sigma (the derivative of a scale)."""
@@ -136,7 +154,7 @@ class ExtendedModel:
         """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``."""
         x, phis = self.split(z)
         obs = self.effective_obs(phis)
-        first_order = [t.atom.place in ("length", "param", "scale") for t in self.terms]
+        first_order = [t.atom.place in ("length", "param", "scale", "field") for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
         res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,

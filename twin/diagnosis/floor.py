@@ -69,35 +69,92 @@ def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
     return ss, dof, groups
 
 
-def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float] | None:
+def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.ndarray],
+                          alpha: float = 0.01) -> tuple[list[np.ndarray], list[np.ndarray], dict | None]:
+    """Remove from the distance deviations what varies systematically with the plate's place in the
+    measurement field (the instrument's distortion or a scale changing with depth moves the three distances
+    together with the place; :mod:`twin.diagnosis.field`), when an F-test finds it (``p < alpha``). Returns
+    the deviations to use, their variance inflation ``1 / (1 - leverage)``, and what was found (or None)."""
+    from .field import FIELD_NAMES, field_applicable, field_constants, field_values
+
+    infl = [np.ones(len(x)) for x in dev]
+    if not field_applicable(P):
+        return dev, infl, None
+    feats = tuple({"kind": "field", "g": g, **field_constants(P)} for g in FIELD_NAMES)
+    cols, ys = [], []
+    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        pa, pb = P[keep[k], a], P[keep[k], b]
+        u = (pa - pb) / np.linalg.norm(pa - pb, axis=1)[:, None]
+        # change of the distance a-b under each field: (G(p_a) - G(p_b)) . u, with the pair's own constant
+        C = np.einsum("mkc,mc->mk", field_values(feats, pa) - field_values(feats, pb), u)
+        const = np.zeros((len(C), 3))
+        const[:, k] = 1.0
+        cols.append(np.hstack([const, C]))
+        ys.append(dev[k])
+    A, y = np.vstack(cols), np.concatenate(ys)
+    y0 = np.concatenate([np.full(len(x), x.mean()) for x in ys])  # each pair's own mean
+    sc = np.linalg.norm(A, axis=0)
+    As = A / np.where(sc > 0, sc, 1.0)
+    Q, R = np.linalg.qr(As)
+    rank = int(np.sum(np.abs(np.diag(R)) > 1e-8 * np.abs(R[0, 0])))
+    Q = Q[:, :rank]
+    fit = Q @ (Q.T @ y)
+    res = y - fit
+    n, p3 = len(y), 3  # three pair constants
+    ss0 = float(np.sum((y - y0) ** 2))
+    ss1 = float(res @ res)
+    dfn, dfd = rank - p3, n - rank
+    if dfn <= 0 or dfd <= 0 or ss1 <= 0:
+        return dev, infl, None
+    from scipy import stats
+
+    F = ((ss0 - ss1) / dfn) / (ss1 / dfd)
+    pval = float(stats.f.sf(F, dfn, dfd))
+    if pval >= alpha:
+        return dev, infl, None
+    h = np.sum(Q**2, axis=1)
+    out, inf2, k0 = [], [], 0
+    for x in ys:
+        out.append(res[k0:k0 + len(x)])
+        inf2.append(1.0 / np.clip(1.0 - h[k0:k0 + len(x)], 0.05, None))
+        k0 += len(x)
+    return out, inf2, {"p_value": pval, "rms_removed_mm": float(np.sqrt(np.mean((fit - y0) ** 2))) / _MM,
+                       "parameters": dfn}
+
+
+def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None] | None:
     """Per-axis centre error ``(3,)`` [m] from the spread of the three inter-sphere distances over the
-    campaign (module docstring), and its degrees of freedom; None with fewer than 10 complete rows."""
+    campaign (module docstring), its degrees of freedom, and the systematic variation of the distances over
+    the measurement field that was taken out first (None if none was found); None with fewer than 10
+    complete rows."""
     from scipy.optimize import nnls
 
     full = ds.sphere_seen.all(axis=1)
     if full.sum() < 10:
         return None
     P = ds.spheres[full]
-    X, Y, var_iso = [], [], []
+    keeps, devs, us, var_iso = [], [], [], []
     for a, b in ((0, 1), (0, 2), (1, 2)):
         v = P[:, a] - P[:, b]
         d = np.linalg.norm(v, axis=1)
         dev = d - np.median(d)
         mad = 1.4826 * float(np.median(np.abs(dev)))
         keep = np.abs(dev) <= 5 * max(mad, 1e-12)  # a few gross or mislabelled rows do not set the floor
-        u = v[keep] / d[keep, None]
-        dk = d[keep] - d[keep].mean()
-        X.append(2 * u**2)
-        Y.append(dk**2)
-        var_iso.append(float(np.var(d[keep], ddof=1)) / 2 if keep.sum() > 2 else mad**2 / 2)
-    X, Y = np.concatenate(X), np.concatenate(Y)
+        keeps.append(keep)
+        us.append(v[keep] / d[keep, None])
+        devs.append(d[keep] - d[keep].mean())
+        var_iso.append(mad**2 / 2)
+    devs, infl, systematic = _systematic_distances(P, keeps, devs)
+    X = np.concatenate([2 * u**2 for u in us])
+    Y = np.concatenate([dk**2 * f for dk, f in zip(devs, infl)])
+    var_iso = [float(np.mean(dk**2 * f)) / 2 if len(dk) > 2 else v for dk, f, v in zip(devs, infl, var_iso)]
     s2, _ = nnls(X, Y)
     iso = float(np.mean(var_iso))
     # an axis the distances barely point along is not measured: it gets at least the isotropic figure
     lever = X.mean(axis=0) / 2
     s2 = np.where((lever < 0.01) | (s2 <= 0), np.maximum(s2, iso), s2)
     # three distances of one row share their spheres: about two independent values per row
-    return np.sqrt(s2), float(2 * (full.sum() - 1))
+    return np.sqrt(s2), float(2 * (full.sum() - 1)), systematic
 
 
 def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
@@ -114,8 +171,13 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
     if 3 * dof >= 30:
         comps["repeats"] = (np.sqrt(ss / dof), float(3 * dof), f"{groups} groups of consecutive repeats")
     pl = _plate_floor(ds)
+    systematic = None
     if pl is not None:
-        comps["plate"] = (pl[0], pl[1], f"spread of the plate's inter-sphere distances over {int(pl[1] / 2 + 1)} rows")
+        systematic = pl[2]
+        extra = ("" if systematic is None else
+                 f", after removing their systematic variation over the measurement field ({systematic['rms_removed_mm']:.5f} "
+                 f"mm RMS, p = {systematic['p_value']:.2g}: the instrument's distortion or a scale changing with depth)")
+        comps["plate"] = (pl[0], pl[1], f"spread of the plate's inter-sphere distances over {int(pl[1] / 2 + 1)} rows{extra}")
     if stated_ok and ds.noise_position is not None:
         comps["stated"] = (np.full(3, float(ds.noise_position)), float("inf"), "dataset.toml [noise] position_mm (stated)")
     if not comps:
@@ -138,10 +200,11 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
     others = "; ".join(f"{k}: {fmt(v[0])}" for k, v in comps.items() if k not in setters)
     source = " and ".join(comps[k][2] for k in setters) + f", per axis x, y, z {fmt(axis)}" + (
         f" (the largest; {others})" if others else "")
-    return NoiseFloor(sigma, nu, source, groups,
-                      {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / _MM, "axis_sigma_mm": (v[0] / _MM).tolist(),
-                           "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()},
-                      axis_sigma=axis)
+    components = {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / _MM, "axis_sigma_mm": (v[0] / _MM).tolist(),
+                      "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
+    if systematic is not None:
+        components["plate"]["systematic"] = systematic
+    return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis)
 
 
 def history_resets(ds: Dataset, *, gap_factor: float = 20.0) -> np.ndarray:

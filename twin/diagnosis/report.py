@@ -81,6 +81,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
             "components": res.noise.components,
         },
         "rows": res.rows,
+        "unexplained": res.unexplained,
         "candidates": [
             {
                 "round": s.round,

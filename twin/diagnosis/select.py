@@ -374,6 +374,62 @@ def _confirm(prob: _Problem, fit: _Fit, s: _Scored, z_min: float) -> tuple[float
     return z, z_minus, better
 
 
+NEIGHBOURS = 4  # rows a neighbour smoother averages
+JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
+
+
+def _row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
+    """Whitened residuals ``(m,)`` as ``(n, 9)`` per row (sphere-major, x y z), NaN where not measured."""
+    obs = model.obs
+    shape = (3, 3, obs.n)
+    mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
+    tmp = np.full(shape, np.nan)
+    tmp[mask] = r
+    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
+
+
+def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
+
+    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
+    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
+    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
+    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
+    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
+    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
+    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
+    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+    rc = fit.model_cal.residuals(fit.z, jacobian=False)
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    Rc = _row_blocks(fit.model_cal, rc.r)
+    Rv = _row_blocks(fit.model_val, rv.r)
+    Rc[prob.w_cal <= 0] = np.nan
+    Rv[~prob.keep_val] = np.nan
+    qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
+    scale = np.ptp(np.vstack([qc, qv]), axis=0)
+    w = JOINT_WEIGHTS / np.where(scale > 1e-9, scale, 1.0)
+    same = np.all(np.abs(qv[:, None, :] - qc[None, :, :]) < 1e-9, axis=2)
+    t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
+    out = {}
+    for name, D in (("joints", np.linalg.norm((qv[:, None, :] - qc[None, :, :]) * w, axis=2)),
+                    ("time", np.abs(t[prob.rows_val][:, None] - t[prob.rows_cal][None, :]))):
+        D = np.where(same | np.all(np.isnan(Rc), axis=1)[None, :], np.inf, D)
+        k = min(NEIGHBOURS, D.shape[1])
+        nb = np.argsort(D, axis=1)[:, :k]
+        with np.errstate(invalid="ignore"):
+            U = np.nanmean(Rc[nb], axis=1)  # (n_v, 9)
+        c = np.nansum(Rv * U, axis=1)
+        ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
+        c = c[ok_rows]
+        den = float(np.sqrt(np.sum(c**2)))
+        z = float(c.sum() / den) if den > 0 else 0.0
+        z_minus = float((c.sum() - c.max()) / np.sqrt(max(np.sum(c**2) - c.max() ** 2, 1e-300))) if c.size > 1 else 0.0
+        out[name] = {"z": z, "z_without_best_row": z_minus, "rows": int(c.size)}
+    best = max(out, key=lambda k: out[k]["z"])
+    return {"by": best, "z": out[best]["z"], "confirmed": any(v["z"] > z_min and v["z_without_best_row"] > z_min
+                                                              for v in out.values()), "smoothers": out}
+
+
 def _covariance(J: np.ndarray) -> np.ndarray:
     """``(J^T J)^+`` of whitened columns, column-scaled first (geometric and effect columns differ by many
     orders of magnitude: an unscaled pseudo-inverse truncates the small ones)."""
@@ -446,6 +502,44 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
     out.sort(key=lambda d: -d["delta_chi2"])
     return out[:3]
 
+
+
+def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+    """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
+    point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
+    grid); a time constant (``exp``, ``lag``) or a move width (``lastmove``) over a log grid around it, zoomed
+    twice. Other atoms come back as they are."""
+    kinds = {f.get("kind") for f in s.atom.features}
+    if "step" in kinds:
+        return _refine_step(prob, fit, s, pool_sizes)
+    key = "tau" if kinds & {"exp", "lag"} else "w" if "lastmove" in kinds else None
+    if key is None:
+        return s
+    best = s
+    v0 = next(f[key] for f in s.atom.features if key in f)
+    for span in (4.0, 1.4):
+        vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
+        trial = [_with_constant(best.atom, key, v) for v in vals]
+        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        top = max(scored, key=lambda t: t.dchi2, default=None)
+        if top is not None and top.dchi2 > best.dchi2:
+            best = top
+        v0 = next(f[key] for f in best.atom.features if key in f)
+    return best
+
+
+def _with_constant(atom: Atom, key: str, v: float) -> Atom:
+    """``atom`` with the constant ``key`` (``tau`` [s] or ``w`` [rad]) of its features set to ``v``; channel
+    and label renamed to match."""
+    from dataclasses import replace as _rep
+
+    old = next(f[key] for f in atom.features if key in f)
+    feats = tuple(dict(f, **{key: float(v)}) if key in f else f for f in atom.features)
+    if key == "tau":
+        o, n = f"{old:.4g}", f"{v:.4g}"
+    else:
+        o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
+    return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
 
 
 def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:

@@ -1,0 +1,104 @@
+"""Errors of the measurement field: an instrument that reports a point ``p`` (measurement frame, ``z`` along the
+line of sight, as for the left camera of a stereo rig or a tracker's head) at ``p + sum_k phi_k G_k(p)``.
+
+The fields ``G_k`` are low-order and physical; with ``u = x / z``, ``v = y / z`` (the direction of the point
+seen from the instrument), ``rho^2 = (u^2 + v^2) / rho2_h`` and ``w = (z - z_c) / z_h`` (depth, centred and
+scaled on the campaign's points):
+
+================  ============================================================================================
+``radial``        radial lens distortion left in the measurements: ``(x rho^2, y rho^2, 0)``
+``tangential``    decentering (Brown's tangential terms): ``z (2uv, rho^2 + 2u^2, 0) / rho2_h`` and ``z (rho^2 + 2v^2, 2uv, 0) / rho2_h``
+``depth_scale``   a scale that changes with depth (a stereo baseline or focal length slightly off): ``p w``
+``depth2``        a depth error growing with the square of the depth offset: ``(0, 0, z_h w^2)``
+``quad_<c>_<m>``  a general quadratic field: coordinate ``c`` of ``G`` is the monomial ``m`` of ``(u, v, w)``
+                  (``uu, vv, ww, uv, uw, vw``), scaled to ``z_h``
+================  ============================================================================================
+
+Constant and linear parts (a rigid motion, a uniform scale, a shear) are left to the registration of the
+frame, the plate and the measurement scale atoms; what the geometry absorbs is projected out anyway. Nothing
+here reads truth: the constants come from the measured points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["FIELD_NAMES", "field_applicable", "field_constants", "field_values", "field_atom_specs"]
+
+_MONOMIALS = ("uu", "vv", "ww", "uv", "uw", "vw")
+FIELD_NAMES = ("radial", "tangential1", "tangential2", "depth_scale", "depth2") + tuple(
+    f"quad_{c}_{m}" for c in "xyz" for m in _MONOMIALS)
+
+
+def field_applicable(points: np.ndarray, max_angle: float = 2.0) -> bool:
+    """Whether the measured points ``(..., 3)`` [m] look like a line-of-sight frame: every finite point in front
+    (``z > 0``) within ``|x / z|, |y / z| < max_angle``, and at least three of them. Otherwise (a frame with ``z``
+    up, say) no field atom is built: their ``u, v`` would mean nothing."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if len(P) < 3 or np.any(P[:, 2] <= 0):
+        return False
+    return bool(np.all(np.abs(P[:, :2]) < max_angle * P[:, 2:3]))
+
+
+def field_constants(points: np.ndarray) -> dict[str, float]:
+    """Centring and scales of the measured points ``(m, 3)`` [m] (finite rows only): ``z_c``, ``z_h`` [m] and
+    ``rho2_h`` (the largest ``u^2 + v^2``)."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1) & (P[:, 2] > 0)]
+    if len(P) < 3:
+        raise ValueError("field_constants needs points in front of the instrument (z > 0)")
+    z = P[:, 2]
+    u2 = (P[:, 0] / z) ** 2 + (P[:, 1] / z) ** 2
+    return {"z_c": float(np.mean(z)), "z_h": float(max(0.5 * np.ptp(z), 1e-3)), "rho2_h": float(max(u2.max(), 1e-6))}
+
+
+def field_values(features, points: np.ndarray) -> np.ndarray:
+    """``G_k(p)`` ``(m, K, 3)`` [m per unit phi] of the field ``features`` (dicts ``{"kind": "field", "g": name,
+    "z_c", "z_h", "rho2_h"}``) at the points ``(m, 3)`` [m] in the measurement frame."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    x, y, z = P[:, 0], P[:, 1], P[:, 2]
+    out = np.zeros((len(P), len(features), 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = x / z, y / z
+    for k, f in enumerate(features):
+        if f.get("kind") != "field":
+            raise ValueError(f"not a field feature: {f!r}")
+        g, zc, zh, r2h = f["g"], f["z_c"], f["z_h"], f["rho2_h"]
+        w = (z - zc) / zh
+        rho2 = (u * u + v * v) / r2h
+        if g == "radial":
+            out[:, k, 0], out[:, k, 1] = x * rho2, y * rho2
+        elif g == "tangential1":
+            out[:, k, 0], out[:, k, 1] = z * 2 * u * v / r2h, z * (u * u + v * v + 2 * u * u) / r2h
+        elif g == "tangential2":
+            out[:, k, 0], out[:, k, 1] = z * (u * u + v * v + 2 * v * v) / r2h, z * 2 * u * v / r2h
+        elif g == "depth_scale":
+            out[:, k] = P * w[:, None]
+        elif g == "depth2":
+            out[:, k, 2] = zh * w * w
+        elif g.startswith("quad_"):
+            _, c, m = g.split("_")
+            s = 1.0 / np.sqrt(r2h)
+            var = {"u": u * s, "v": v * s, "w": w}
+            out[:, k, "xyz".index(c)] = zh * var[m[0]] * var[m[1]]
+        else:
+            raise ValueError(f"unknown field {g!r}; known: {FIELD_NAMES}")
+    if not np.all(np.isfinite(out)):
+        raise ValueError("field features are not finite: points at or behind the instrument (z <= 0)")
+    return out
+
+
+def field_atom_specs(consts: dict[str, float]) -> list[tuple[str, tuple[dict, ...], str]]:
+    """``(channel, features, words)`` of the field atoms: the physical ones, each small, and the general
+    quadratic field (a broad atom)."""
+    def feats(*names):
+        return tuple({"kind": "field", "g": n, **consts} for n in names)
+
+    return [
+        ("radial distortion", feats("radial"), "radial distortion of the measurement field"),
+        ("tangential distortion", feats("tangential1", "tangential2"), "decentering (tangential) distortion of the measurement field"),
+        ("scale vs depth", feats("depth_scale"), "measurement scale changing with depth"),
+        ("depth error vs depth^2", feats("depth2"), "depth error growing with the square of the depth offset"),
+        ("quadratic field", feats(*[n for n in FIELD_NAMES if n.startswith("quad_")]), "quadratic distortion of the measurement field"),
+    ]
