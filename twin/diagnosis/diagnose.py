@@ -335,7 +335,17 @@ def diagnose(
     atoms_json, params = _atom_report(prob, use, base_fit.chi2, entry_chi2) if confirmed else ([], {})
     # every kept atom stays in the model; the named effects are the families of the atoms that explained at
     # least MINOR_RMS of the floor (RMS per residual) when they entered
-    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed" and not a["minor"]))
+    # a named shape of one joint variable (a harmonic, a ratio, a coupling) kept beside a non-minor unnamed
+    # function of the same variable at the same joint is part of one shape the catalogue does not name (a
+    # one-sided pull of a cable past some angle took a quadratic and a 1st harmonic of q5 on a blind campaign)
+    merged = _merged_into_unnamed(atoms_json)
+    for a, u in merged:
+        notes.append(f"'{a['label']}' is reported with '{u['label']}' as one function of "
+                     f"{', '.join(sorted(_joint_channels(a)))} on joint {a['target'][5:]} that the catalogue does not "
+                     f"name (not as {a['family']})")
+    unnamed_shape = {id(a) for a, _ in merged}
+    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json
+                                  if a["family"] != "unnamed" and not a["minor"] and id(a) not in unnamed_shape))
     minor = [a["label"] for a in atoms_json if a["minor"]]
     if minor:
         notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
@@ -385,6 +395,36 @@ def diagnose(
 # ------------------------------------------------------------------------------------------------
 # Reports
 # ------------------------------------------------------------------------------------------------
+
+def _joint_channels(a: dict) -> set[str]:
+    """Joint variables a term's features are functions of (only pow/sin/cos features of joint angles; empty
+    when any feature is of another kind: gravity, approach, time)."""
+    chans = set()
+    for f in a["features"]:
+        ch = f.get("ch")
+        if f.get("kind") not in ("pow", "sin", "cos") or not (isinstance(ch, str) and ch.startswith("q")):
+            return set()
+        chans.add(ch)
+    return chans
+
+
+def _merged_into_unnamed(atoms_json: list[dict]) -> list[tuple[dict, dict]]:
+    """``(named, unnamed)`` pairs of non-minor joint terms at the same joint whose named term is a function of
+    joint variables all of which the unnamed one also uses."""
+    out = []
+    for a in atoms_json:
+        if a["family"] == "unnamed" or a["minor"] or a["place"] != "joint":
+            continue
+        ca = _joint_channels(a)
+        if not ca:
+            continue
+        for u in atoms_json:
+            if u["family"] == "unnamed" and not u["minor"] and u["place"] == "joint" and u["target"] == a["target"] \
+                    and ca <= _joint_channels(u):
+                out.append((a, u))
+                break
+    return out
+
 
 def _place_unit(a: Atom) -> tuple[str, float]:
     """Display unit of an atom's effect on its place, and the factor from SI."""

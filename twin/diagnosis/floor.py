@@ -22,7 +22,7 @@ import numpy as np
 from ..dataset import Dataset
 from .candidates import RowContext
 
-__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "history_resets", "row_context"]
+__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "history_resets", "row_resets", "row_context"]
 
 _MM = 1e-3
 
@@ -210,17 +210,23 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
 def history_resets(ds: Dataset, *, gap_factor: float = 20.0) -> np.ndarray:
     """Rows ``(n,)`` bool whose approach history is unknown: the first row, a row after a gap in ``t_s``
     longer than ``gap_factor`` times the median step, and rows whose ``status`` says restart/home/power."""
-    n = ds.n
+    return row_resets(ds.n, ds.t_s, ds.status, gap_factor=gap_factor)
+
+
+def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None = None, *,
+               gap_factor: float = 20.0) -> np.ndarray:
+    """:func:`history_resets` from the channels themselves (``t_s`` ``(n,)`` [s], ``status`` ``(n,)`` text): what
+    ``twin predict`` uses on a JOINTS.csv, so that new rows read their history as the diagnosis did."""
     out = np.zeros(n, dtype=bool)
     if n:
         out[0] = True
-    if ds.t_s is not None and n > 2:
-        dt = np.diff(ds.t_s)
+    if t_s is not None and n > 2:
+        dt = np.diff(t_s)
         med = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
         if med > 0:
             out[1:] |= dt > gap_factor * med
-    if ds.status is not None:
-        st = np.char.lower(np.asarray(ds.status, dtype=str))
+    if status is not None:
+        st = np.char.lower(np.asarray(status, dtype=str))
         out |= np.char.find(st, "restart") >= 0
         out |= np.char.find(st, "power") >= 0
         out |= np.char.find(st, "homed") >= 0
