@@ -35,7 +35,7 @@ def run(args) -> int:
         from ..diagnosis.floor import row_resets
 
         # where the robot stood before the first row is not in the file: history-dependent terms (backlash)
-        # read 0 until each joint has moved, and again after a gap in t_s (as the diagnosis read its rows)
+        # read 0 until each joint has moved (as the diagnosis read its rows)
         ctx = RowContext(q=j.q, q_start=None, temp_c=j.temp_c, t_s=j.t_s, station=j.station,
                          history_reset=row_resets(len(j.q), j.t_s))
         pred = predict_extended(cal, ctx, j.station)

@@ -77,7 +77,7 @@ def effective_joints(cal: Calibration, ctx: RowContext) -> np.ndarray:
 def _plate(cal: Calibration) -> Calibration:
     off = np.zeros((3, 3))
     for a, phi in effect_atoms(cal):
-        if a.place == "plate":
+        if a.place == "plate" and not a.varying_plate:
             off[int(a.target[6:])] += phi
     return cal if not off.any() else replace(cal, spheres_tool=cal.spheres_tool + off)
 
@@ -87,7 +87,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
     """Change ``(n, 3, 3)`` [m] of the predicted spheres from length, parameter and scale atoms."""
     n = len(q_eff)
     d = np.zeros((n, len(spheres_tool), 3))
-    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale", "field")]
+    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale", "field") or a.varying_plate]
     if not fo:
         return d
     cache: dict = {}
@@ -98,14 +98,33 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
         if a.place == "scale":
             d += (F @ phi)[:, None, None] * pts
             continue
+        if a.place == "plate":
+            # the sphere's offset in the plate frame, turned into the measurement frame by each row's plate
+            axes, _ = predict_points(space, x, q_eff, rows_station, np.concatenate([np.zeros((1, 3)), np.eye(3)]))
+            R = np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2)  # (n, 3, 3): columns are the plate axes
+            off = F @ phi.reshape(len(a.features), 3)  # (n, 3) in the plate frame
+            d[:, int(a.target[6:])] += np.einsum("ncj,nj->nc", R, off)
+            continue
         if a.place == "field":
-            from .field import field_values
+            from .field import field_values, station_mask
 
-            d += np.einsum("mkc,k->mc", field_values(a.features, pts.reshape(-1, 3)), phi).reshape(pts.shape)
+            n_tool = next((f["n_tool"] for f in a.features if "n_tool" in f), None)
+            nrm = None
+            if n_tool is not None:
+                # the plate normal of each predicted row (the view fields follow the plate's tilt)
+                axes, _ = predict_points(space, x, q_eff, rows_station, np.concatenate([np.zeros((1, 3)), np.eye(3)]))
+                R = np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2)
+                nrm = np.repeat(R @ np.asarray(n_tool, dtype=float), pts.shape[1], axis=0)
+            G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(*pts.shape[:2], len(a.features), 3)
+            G = G * station_mask(a.features, np.asarray(space.stations)[rows_station])[:, None, :, None]
+            d += np.einsum("nskc,k->nsc", G, phi)
             continue
         W = param_weights(space, x, a)  # (P, c)
         c = W.shape[1]
-        dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
+        if a.target == "base_along":
+            dx = F * phi[0]  # (n, 3): the displacement along the row's direction
+        else:
+            dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)
     if not np.all(known):
         # rows in the robot base frame (unknown station): measurement-side atoms do not apply
@@ -121,7 +140,7 @@ def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | No
     q_eff = effective_joints(cal, ctx)
     c = _plate(cal)
     pred = c.predict(q_eff, station)
-    if not any(a.place in ("length", "param", "scale", "field") for a, _ in effect_atoms(cal)):
+    if not any(a.place in ("length", "param", "scale", "field") or a.varying_plate for a, _ in effect_atoms(cal)):
         return pred
     known = pred.frame == "measurement"
     sp = cal.space

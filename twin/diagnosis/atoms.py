@@ -9,8 +9,10 @@ station) acting at one *place* of the model:
 ``length``  a link length, relative (``"a2"``, or ``"all_lengths"``): ``L -> L (1 + delta)`` (first order)
 ``param``   any parameter of the estimator's vector (``"alpha3"``, ``"tool_rz"``, ``"d4"`` absolute [m]);
             ``"tool"`` / ``"base"`` name the whole 6-DOF frame (six columns per feature; ``base`` acts on
-            the station of each row) (first order)
-``plate``   the centre of one sphere in the plate frame (``"sphere1"``, three columns, constant) [m]
+            the station of each row), ``"base_along"`` a displacement in the robot base frame along the
+            direction its three features give, one coefficient (first order)
+``plate``   the centre of one sphere in the plate frame (``"sphere1"``, three columns per feature) [m]: constant
+            (exact), or varying with its features (a loose sphere rolling with gravity; first order)
 ``scale``   the measurement frame's scale about its origin (``"meas_scale"``): ``p -> p (1 + delta)``
 ``field``   the measurement field (``"meas_field"``): ``p -> p + sum_k phi_k G_k(p)``, lens distortion, a
             scale that changes with depth, a quadratic field (:mod:`twin.diagnosis.field`; first order)
@@ -43,6 +45,7 @@ from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regr
 
 __all__ = [
     "Atom",
+    "play_backlash",
     "feature_values",
     "catalogue_atoms",
     "generic_atoms",
@@ -54,6 +57,8 @@ HISTORY_KINDS = ("sign",)
 SCAN_ORDERS = (4.0, 150.0, 0.5)  # cyclic-error orders scanned beyond 1-3: first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
+PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
+TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
@@ -79,7 +84,18 @@ class Atom:
 
     @property
     def K(self) -> int:
-        return 3 if self.place == "plate" else (6 * len(self.features) if self.target in ("tool", "base") and self.place == "param" else len(self.features))
+        if self.place == "plate":
+            return 3 * len(self.features)
+        if self.place == "param" and self.target in ("tool", "base"):
+            return 6 * len(self.features)
+        if self.place == "param" and self.target == "base_along":
+            return 1
+        return len(self.features)
+
+    @property
+    def varying_plate(self) -> bool:
+        """A plate atom whose offset changes from row to row (first order), not a constant one (exact)."""
+        return self.place == "plate" and any(f.get("kind") != "const" for f in self.features)
 
     @property
     def key(self) -> str:
@@ -157,6 +173,59 @@ def _last_moves(ctx: RowContext) -> np.ndarray:
     return out[-n:]
 
 
+def _resets(ctx: RowContext) -> np.ndarray:
+    n = len(ctx.q)
+    reset = np.zeros(n, bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool).copy()
+    if n and ctx.q_start is None:
+        reset[0] = True
+    return reset
+
+
+def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
+    """Backlash as a play operator on the commanded joint ``j`` with half clearance ``h`` [rad]: the output
+    ``o_k = clip(o_{k-1}, u_k - h, u_k + h)`` lags the command ``u``; the feature is ``(o - u) / h`` in [-1, 1]
+    (-1 after a move up by more than ``2 h``, +1 after one down; moves within the clearance do not switch it).
+    The state is unknown (0) after the start or a restart until the joint has moved by ``2 h``."""
+    u = ctx.q[:, j - 1] if ctx.q_start is None else np.concatenate([[ctx.q_start[j - 1]], ctx.q[:, j - 1]])
+    reset = _resets(ctx)
+    if ctx.q_start is not None:
+        reset = np.concatenate([[False], reset])
+    out = np.zeros(len(u))
+    o, lo, hi = u[0], u[0], u[0]  # output and the range travelled since the last reset
+    for k in range(len(u)):
+        if reset[k]:
+            o, lo, hi = u[k], u[k], u[k]
+            out[k] = 0.0
+            continue
+        o = min(max(o, u[k] - h), u[k] + h)
+        lo, hi = min(lo, u[k]), max(hi, u[k])
+        out[k] = (o - u[k]) / h if hi - lo >= 2 * h else 0.0
+    return out[-len(ctx.q):]
+
+
+def _cartesian_moves(ctx: RowContext, model: RobotModel, tcp: np.ndarray) -> np.ndarray:
+    """Unit vector ``(n, 3)`` of the last move of the tool centre point ``tcp`` (flange frame [m]; the plate's
+    centre) in the base frame (nominal kinematics; zero after the start or a restart, and kept through rows
+    that do not move)."""
+    F = link_frames(model, ctx.q if ctx.q_start is None else np.vstack([ctx.q_start[None], ctx.q]))[:, -1]
+    pos = F[:, :3, 3] + F[:, :3, :3] @ tcp
+    reset = _resets(ctx)
+    if ctx.q_start is not None:
+        reset = np.concatenate([[False], reset])
+    out = np.zeros((len(pos), 3))
+    last = np.zeros(3)
+    for k in range(len(pos)):
+        if reset[k]:
+            last = np.zeros(3)
+        elif k > 0:
+            d = pos[k] - pos[k - 1]
+            nd = np.linalg.norm(d)
+            if nd > 1e-6:
+                last = d / nd
+        out[k] = last
+    return out[-len(ctx.q):]
+
+
 def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)``
     [s]: ``y_k = y_{k-1} + (1 - exp(-(t_k - t_{k-1}) / tau)) (x_k - y_{k-1})``, ``y_0 = x_0``."""
@@ -218,6 +287,19 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
             out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+        elif kind == "gated":
+            # an inner feature that acts from a moment on (a payload added at a restart)
+            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * (_channel(ctx, f["ch"]) >= f["at"])
+        elif kind == "play":
+            key = ("play", f["j"], f["h"])
+            if key not in cache:
+                cache[key] = _play(ctx, f["j"], f["h"])
+            out[:, k] = cache[key]
+        elif kind == "cartdir":
+            key = ("cartdir", tuple(f.get("tcp", (0.0, 0.0, 0.0))))
+            if key not in cache:
+                cache[key] = _cartesian_moves(ctx, model, np.asarray(f.get("tcp", (0.0, 0.0, 0.0)), dtype=float))
+            out[:, k] = cache[key][:, f["axis"]]
         elif kind == "exp":
             # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
             out[:, k] = -np.expm1(-(_channel(ctx, f["ch"]) - f["t0"]) / f["tau"])
@@ -247,6 +329,26 @@ def _norm(x: np.ndarray) -> tuple[float, float]:
     c = float(np.mean(x))
     h = float(max(0.5 * np.ptp(x), 1e-9))
     return c, h
+
+
+def play_backlash(j: int, h: float) -> Atom:
+    """Joint ``j``'s backlash as a play operator with half clearance ``h`` [rad] (moves shorter than the
+    clearance do not switch the side): tried when a backlash atom is kept (:func:`twin.diagnosis.select._refine`)."""
+    hd = np.rad2deg(h)
+    return Atom("backlash", "joint", f"theta{j}", ({"kind": "play", "j": j, "h": float(h)},), f"play j{j} half {hd:.3g} deg",
+                f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",
+                "catalogue", (j,))
+
+
+def _session_starts(ctx: RowContext) -> list[tuple[str, float]]:
+    """``(time channel, value)`` at the first row of every session after the first (a gap in ``t_s`` or a
+    recorded restart: ``ctx.session_start``)."""
+    if ctx.session_start is None:
+        return []
+    tch = _time_channel(ctx) or "row"
+    tv = _channel(ctx, tch)
+    rows = np.flatnonzero(np.asarray(ctx.session_start, bool))
+    return [(tch, float(tv[r])) for r in rows if r > 0]
 
 
 def _time_channel(ctx: RowContext) -> str | None:
@@ -288,6 +390,13 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
 
         atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(0, COMPLIANCE_RANK), f"gravity torque of joint {i}",
                           f"joint {i} compliance under gravity", "catalogue", (i,)))
+        for tch, at in _session_starts(ctx):
+            # a payload added (or a brake set) at a restart changes the torque from then on
+            atoms.append(Atom("compliance", "joint", f"theta{i}",
+                              tuple({"kind": "gated", "f": f, "ch": tch, "at": at} for f in shapes(0, COMPLIANCE_RANK)),
+                              f"gravity torque of joint {i} from {tch} >= {at:.6g}",
+                              f"joint {i} compliance under gravity, changed at the restart ({tch} >= {at:.6g})",
+                              "catalogue", (i,)))
         if rk > COMPLIANCE_RANK:
             # the further shapes (a payload, wrist masses): a broad atom, tried after the small ones
             atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(COMPLIANCE_RANK, 3 * COMPLIANCE_RANK),
@@ -354,11 +463,13 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
 
 
 def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], length_names: list[str],
-                  catalogue: list[Atom], *, n_change_points: int = 9, points: np.ndarray | None = None) -> list[Atom]:
+                  catalogue: list[Atom], *, n_change_points: int = 9, points: np.ndarray | None = None,
+                  plate_spheres: np.ndarray | None = None) -> list[Atom]:
     """The unnamed dictionary: every place against every smooth basis of every channel (module docstring).
     Atoms whose columns equal a catalogue atom's are left out (the catalogue names them). ``points``: the
     measured sphere centres ``(n, 3, 3)`` [m] in the measurement frame (NaN where not seen), for the field
-    atoms' constants (none without them)."""
+    atoms' constants (none without them); ``plate_spheres`` ``(3, 3)`` [m]: the nominal sphere centres in the
+    plate frame (their plane's normal, for the field that follows the plate's tilt)."""
     q = ctx.q
     feats: list[tuple[str, dict | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
     for j in range(1, N_JOINTS + 1):
@@ -398,6 +509,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
         at = float(np.quantile(tv, qq))
         feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+    for _, at in _session_starts(ctx):
+        feats.append((f"step({tch} >= {at:.6g}) (restart)", {"kind": "step", "ch": tch, "at": at}, ()))
     span = float(np.ptp(tv))
     for tau in (fr * span for fr in TAU_FRACTIONS):
         # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
@@ -416,6 +529,14 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             for s in names:
                 feats.append((f"station=={s}", {"kind": "station", "name": s}, ()))
 
+    # an oscillation in time (the air conditioning's cycle swaying a stand, warming a mount): on the cell's
+    # places only (the measurement frame and scale), the period refined when kept
+    cell_feats = []
+    if span > 0:
+        for cyc in TIME_CYCLES:
+            k = 2 * np.pi * cyc / span
+            cell_feats.append((f"sin/cos(2pi {tch}/{span / cyc:.4g})", ({"kind": "sin", "ch": tch, "k": float(k)},
+                                                                        {"kind": "cos", "ch": tch, "k": float(k)}), ()))
     places: list[tuple[str, str, str, tuple[int, ...]]] = [("joint", f"theta{j}", f"joint {j} angle", (j,))
                                                            for j in range(1, N_JOINTS + 1)]
     places += [("param", p, f"parameter {p}", ()) for p in param_names]
@@ -445,13 +566,39 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             if place == "param" and target in length_names and fs[0]["kind"] in ("lag", "exp"):
                 continue  # = thermal with a lag or a warm-up (absolute instead of relative)
             joints = tuple(sorted(set(pj) | set(fj)))
+            if place == "scale":
+                # the geometry cannot absorb a constant scale (the plate's size pins it), and the features are
+                # centred: the scale atom carries its own constant (s = s0 + s1 f)
+                fs = ({"kind": "const"},) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
+    for place, target, pl_words in (("param", "base", "base (measurement) frame"), ("scale", "meas_scale", "measurement scale")):
+        for ch, fs, _ in cell_feats:
+            fs = (({"kind": "const"},) if place == "scale" else ()) + fs
+            atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic"))
+    # the flange stops short of (or beyond) its target along its last move (settling): a displacement in the
+    # base frame along the direction of the last Cartesian move
+    tcp = [0.0, 0.0, 0.0] if plate_spheres is None else np.mean(np.asarray(plate_spheres, float), axis=0).tolist()
+    atoms.append(Atom("unnamed", "param", "base_along", tuple({"kind": "cartdir", "axis": a, "tcp": tcp} for a in range(3)),
+                      "direction of the last Cartesian move", "unnamed: the flange is displaced along its last Cartesian move",
+                      "generic"))
+    for sph in range(3):
+        # a sphere that moves on the plate with the direction of gravity (loose in its seat, a flexing holder)
+        atoms.append(Atom("unnamed", "plate", f"sphere{sph}", tuple({"kind": "gdir", "axis": ax} for ax in range(3)),
+                          "gravity_dir_flange", f"unnamed: sphere {sph} moves on the plate with the gravity direction",
+                          "generic"))
     if points is not None:
         from .field import field_applicable, field_atom_specs, field_constants
 
         P = np.asarray(points, dtype=float).reshape(-1, 3)
         if field_applicable(P):
-            for ch, fs, words in field_atom_specs(field_constants(P)):
+            n_tool = None
+            if plate_spheres is not None:
+                S = np.asarray(plate_spheres, dtype=float)
+                n = np.cross(S[1] - S[0], S[2] - S[0])
+                if np.linalg.norm(n) > 0:
+                    n_tool = n / np.linalg.norm(n) * (1.0 if n[2] >= 0 else -1.0)
+            stations = sorted(set(np.asarray(ctx.station).astype(str).tolist())) if ctx.station is not None else None
+            for ch, fs, words in field_atom_specs(field_constants(P), n_tool, stations):
                 atoms.append(Atom("unnamed", "field", "meas_field", fs, ch, f"unnamed: {words}", "generic"))
     return atoms
 

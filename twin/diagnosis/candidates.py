@@ -44,7 +44,8 @@ class RowContext:
     measurement included: the robot still moved there); ``q_start`` ``(6,)`` [rad] where the campaign
     started (``None``: unknown); ``temp_c`` ``(n,)`` [deg C] and ``t_s`` ``(n,)`` [s] or None; ``station``
     ``(n,)`` names or None; ``history_reset`` ``(n,)`` bool: rows whose approach is unknown (the first row
-    without a known ``q_start``, a gap in time, a recorded restart), or None.
+    without a known ``q_start``, a recorded restart), or None; ``session_start`` ``(n,)`` bool: rows that
+    start a session (the first, after a long gap in time or a recorded restart), or None.
     """
 
     q: np.ndarray
@@ -53,6 +54,7 @@ class RowContext:
     t_s: np.ndarray | None = None
     station: np.ndarray | None = None
     history_reset: np.ndarray | None = None
+    session_start: np.ndarray | None = None
 
 
 def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None, unknown: np.ndarray | None = None) -> np.ndarray:

@@ -52,7 +52,7 @@ from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms
 from .candidates import EFFECT_VOCABULARY
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (StructureTest, _alternatives, _refine, _backward, _confirm, _smooth_confirm, _covariance, _Fit, _order, _Problem,
+from .select import (StructureTest, _alternatives, _refine, _widen, _backward, _confirm, _smooth_confirm, _covariance, _Fit, _order, _Problem,
                      _psi_init, _raw_columns, _row_rms, _score_atoms, _update_gross)
 
 __all__ = [
@@ -246,7 +246,8 @@ def diagnose(
         pool = list(cat)
         if generic:
             pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
-            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=dataset.spheres)
+            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=dataset.spheres,
+                                  plate_spheres=dataset.plate.spheres_flange)
         sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
         rejected: set[str] = set()
         entry_chi2: dict[str, float] = {}
@@ -278,7 +279,7 @@ def diagnose(
                 rejected.add(s.atom.key)
             if accepted is None:
                 break
-            accepted = _refine(prob, fit, accepted, sizes)
+            accepted = _widen(prob, fit, _refine(prob, fit, accepted, sizes), alpha_select)
             alternatives += _alternatives(accepted, scored)
             chosen.append((accepted.atom, accepted.basis))
             entry_chi2[accepted.atom.key] = accepted.dchi2
@@ -432,7 +433,7 @@ def _place_unit(a: Atom) -> tuple[str, float]:
         return "deg", 1 / _DEG
     if a.place in ("length", "scale"):
         return "ppm", 1e6
-    if a.place in ("plate", "field"):
+    if a.place in ("plate", "field") or a.target == "base_along":
         return "mm", 1 / _MM
     t = a.target
     if t in ("tool", "base"):
@@ -469,22 +470,28 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
         sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
         unit, fac = _place_unit(a)
         F = prob.features(a)
-        if a.place == "param" and a.target in ("tool", "base"):
+        if a.place == "param" and a.target == "base_along":
+            size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
+            words = f"{phi[0] / _MM:+.5f} +- {sd[0] / _MM:.5f} mm along the direction of its last move"
+        elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
             size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
                     "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / _DEG).item()}
             words = f"{size['rms_mm']:.4f} mm / {size['rms_deg']:.5f} deg RMS over the rows"
         elif a.place == "field":
-            from .field import field_values
-
             obs = prob.obs_cal
-            G = field_values(a.features, obs.spheres[obs.seen])  # (m, K, 3) at the measured points
+            G = fit.model_cal.field_grid(a)[obs.seen]  # (m, K, 3) at the measured points
             disp = np.einsum("mkc,k->mc", G, phi)  # (m, 3)
             rms = float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
             grad = np.einsum("mkc,mc->k", G, disp) / (len(disp) * max(rms, 1e-300))
             sd_rms = float(np.sqrt(max(grad @ Cphi @ grad, 0.0)))
             size = {"rms": rms / _MM, "sd": sd_rms / _MM, "unit": "mm"}
             words = f"{rms / _MM:.5f} +- {sd_rms / _MM:.5f} mm RMS displacement over the measured points"
+        elif a.varying_plate:
+            eff = F @ phi.reshape(len(a.features), 3)  # (n, 3) offset per row in the plate frame
+            rms = float(np.sqrt(np.mean(np.sum(eff**2, axis=1))))
+            size = {"rms": rms / _MM, "sd": float(np.sqrt(np.sum(sd**2))) / _MM, "unit": "mm"}
+            words = f"{rms / _MM:.5f} mm RMS over the rows (offset in the plate frame)"
         elif a.place == "plate":
             size = {"offset_mm": (phi / _MM).tolist(), "sd_mm": (sd / _MM).tolist()}
             words = "offset (" + ", ".join(f"{v / _MM:+.4f} +- {e / _MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
@@ -561,7 +568,13 @@ def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
             v = np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
             unit = "mm (translation)"
         elif t.atom.place == "plate":
-            v = np.full(len(t.F), float(np.linalg.norm(phi)) / _MM)
+            v = np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
+        elif t.atom.target == "base_along":
+            v = np.linalg.norm(t.F, axis=1) * phi[0] / _MM
+        elif t.atom.place == "field":
+            obs = ext.model_val.obs
+            disp = np.linalg.norm(np.einsum("nskc,k->nsc", ext.model_val.field_grid(t.atom), phi), axis=2)
+            v = np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / _MM
         else:
             v = (t.F @ phi) * fac
         terms[t.atom.label] = {"value": v, "unit": unit, "channel": t.atom.channel}

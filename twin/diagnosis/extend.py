@@ -10,7 +10,8 @@ geometry; :func:`reduced_basis`). With the atom's features ``F_a`` ``(n, K_a)`` 
   length columns of the Jacobian (relative changes ~1e-5: the second-order term is below 1e-9 m);
 * ``param`` atoms: ``x_p -> x_p + F_a phi_a`` for one parameter, or the six of the tool / the row's base
   frame (six columns per feature), to first order;
-* ``plate`` atoms: sphere ``s`` at ``spheres_tool[s] + phi`` in the tool frame (exact);
+* ``plate`` atoms: sphere ``s`` at ``spheres_tool[s] + phi`` in the tool frame (exact), or at
+  ``spheres_tool[s] + F_a phi_a`` (``phi`` ``(K_f, 3)``; first order) when the offset varies with features;
 * ``scale`` atoms: measured points ``p -> p (1 + F_a phi_a)`` about the measurement origin (first order);
 * ``field`` atoms: measured points ``p -> p + sum_k phi_k G_k(p)`` (:mod:`twin.diagnosis.field`, first order).
 
@@ -72,6 +73,16 @@ def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
                 sl = space.base_slice(k)
                 w[np.arange(sl.start, sl.stop), np.arange(6)] = 1.0
             return w
+        if t == "base_along":
+            # a displacement e_a in the robot base frame moves the measured points by R_base2meas e_a: the
+            # translation of each station's base2meas along the columns of its rotation (one column per axis)
+            from ..transforms import rotvec_to_matrix
+
+            w = np.zeros((P, 3))
+            for k in range(len(space.stations)):
+                sl = space.base_slice(k)
+                w[sl.start:sl.start + 3, :] = rotvec_to_matrix(x[sl.start + 3:sl.stop])
+            return w
         w = np.zeros((P, 1))
         w[space.index(t), 0] = 1.0
         return w
@@ -113,7 +124,7 @@ class ExtendedModel:
             if t.atom.place == "joint":
                 j = int(t.atom.target[5:]) - 1
                 q[:, j] += t.F @ phi
-            elif t.atom.place == "plate":
+            elif t.atom.place == "plate" and not t.atom.varying_plate:
                 sph[int(t.atom.target[6:])] += phi
         return replace(self.obs, q=q, spheres_tool=sph)
 
@@ -123,26 +134,41 @@ class ExtendedModel:
         Fr = t.F[res.row]  # (m, K_f)
         if a.place in ("joint", "length", "param"):
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
+            if a.target == "base_along":
+                return np.sum(Fr * base, axis=1, keepdims=True)  # along the row's direction, one coefficient
             return (Fr[:, :, None] * base[:, None, :]).reshape(len(res.r), -1)
         if a.place == "plate":
-            return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]
+            P = self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]  # (m, 3)
+            return P if not a.varying_plate else (Fr[:, :, None] * P[:, None, :]).reshape(len(res.r), -1)
         if a.place == "scale":
             return Fr * (self._coords(obs) * self._f)[:, None]
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
         raise ValueError(f"unknown atom place {a.place!r}")
 
-    def _field(self, a: Atom, obs: Observations) -> np.ndarray:
-        """``G_k`` at each residual's measured point, its coordinate, divided by sigma ``(m, K)``."""
+    def field_grid(self, a: Atom) -> np.ndarray:
+        """``G_k`` ``(n, 3 spheres, K, 3)`` of a field atom at every row's measured sphere centres (zero where a
+        sphere was not seen; the view fields take each row's plate normal from its measured spheres)."""
         key = repr(a.features)
         G = self._field_cache.get(key)
         if G is None:
-            from .field import field_values
+            from .field import field_values, plate_normals, station_mask
 
-            pts = obs.spheres[self._elem_row, self._sph]  # (m, 3) measured points, measurement frame
-            G = field_values(a.features, pts)[np.arange(len(pts)), :, self._crd] / obs.sigma_position
+            obs = self.obs
+            pts = np.where(obs.seen[..., None], obs.spheres, np.array([0.0, 0.0, 1.0]))  # (n, 3, 3)
+            n_tool = next((f["n_tool"] for f in a.features if "n_tool" in f), None)
+            nrm = None if n_tool is None else np.repeat(
+                plate_normals(obs.spheres, obs.seen, obs.spheres_tool, n_tool), 3, axis=0)
+            G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(obs.n, 3, len(a.features), 3)
+            G = np.where(obs.seen[:, :, None, None], G, 0.0)
+            G = G * station_mask(a.features, np.asarray(obs.station_names)[obs.station])[:, None, :, None]
             self._field_cache[key] = G
         return G
+
+    def _field(self, a: Atom, obs: Observations) -> np.ndarray:
+        """``G_k`` at each residual's measured point, its coordinate, divided by sigma ``(m, K)``."""
+        G = self.field_grid(a)
+        return G[self._elem_row, self._sph, :, self._crd] / obs.sigma_position
 
     def _coords(self, obs: Observations) -> np.ndarray:
         """Measured coordinates in residual order, divided by sigma (the derivative of a scale)."""
@@ -154,7 +180,7 @@ class ExtendedModel:
         """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``."""
         x, phis = self.split(z)
         obs = self.effective_obs(phis)
-        first_order = [t.atom.place in ("length", "param", "scale", "field") for t in self.terms]
+        first_order = [t.atom.place in ("length", "param", "scale", "field") or t.atom.varying_plate for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
         res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,

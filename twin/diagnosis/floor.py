@@ -69,27 +69,51 @@ def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
     return ss, dof, groups
 
 
-def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.ndarray],
+def _row_regressors(ds: Dataset, full: np.ndarray) -> np.ndarray:
+    """What a plate's distances may follow besides the place in the field ``(n_full, k)``: the gravity
+    direction in the flange frame, linear and quadratic (a loose sphere rolling in its seat, a holder that
+    flexes), and ``t_s`` / ``temp_c`` when recorded (the plate or the instrument growing)."""
+    from ..kinematics import link_frames
+    from .candidates import GRAVITY
+
+    R = link_frames(ds.robot, ds.q[full])[:, -1, :3, :3]
+    g = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
+    cols = [g, g**2, g[:, [0]] * g[:, [1]], g[:, [0]] * g[:, [2]], g[:, [1]] * g[:, [2]]]
+    for ch in (ds.t_s, ds.temp_c):
+        if ch is not None and np.ptp(ch[full]) > 0:
+            x = ch[full]
+            cols.append(((x - x.mean()) / np.ptp(x))[:, None])
+    return np.hstack(cols)
+
+
+def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.ndarray], rows: np.ndarray,
                           alpha: float = 0.01) -> tuple[list[np.ndarray], list[np.ndarray], dict | None]:
-    """Remove from the distance deviations what varies systematically with the plate's place in the
-    measurement field (the instrument's distortion or a scale changing with depth moves the three distances
-    together with the place; :mod:`twin.diagnosis.field`), when an F-test finds it (``p < alpha``). Returns
+    # P (n_full, 3, 3): the plate's nominal sphere centres rigidly fitted to each row's measured ones
+    """Remove from the distance deviations what varies systematically, when an F-test finds it (``p < alpha``):
+    with the plate's place in the measurement field (the instrument's distortion or a scale changing with depth
+    moves the three distances together with the place; :mod:`twin.diagnosis.field`; only in a line-of-sight
+    frame) and, per pair, with the row regressors ``rows`` ``(n_full, k)`` (:func:`_row_regressors`). Returns
     the deviations to use, their variance inflation ``1 / (1 - leverage)``, and what was found (or None)."""
-    from .field import FIELD_NAMES, field_applicable, field_constants, field_values
+    from .field import POINT_FIELDS, field_applicable, field_constants, field_values
 
     infl = [np.ones(len(x)) for x in dev]
-    if not field_applicable(P):
-        return dev, infl, None
-    feats = tuple({"kind": "field", "g": g, **field_constants(P)} for g in FIELD_NAMES)
+    feats = (tuple({"kind": "field", "g": g, **field_constants(P)} for g in POINT_FIELDS)
+             if field_applicable(P) else ())
     cols, ys = [], []
+    nr = rows.shape[1]
     for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        # the fields at the rigid fit of the nominal plate (P is that): evaluated at the measured centres, a
+        # field close to a scale would reproduce the measured distance, noise and all, and empty the floor
         pa, pb = P[keep[k], a], P[keep[k], b]
         u = (pa - pb) / np.linalg.norm(pa - pb, axis=1)[:, None]
-        # change of the distance a-b under each field: (G(p_a) - G(p_b)) . u, with the pair's own constant
-        C = np.einsum("mkc,mc->mk", field_values(feats, pa) - field_values(feats, pb), u)
-        const = np.zeros((len(C), 3))
-        const[:, k] = 1.0
-        cols.append(np.hstack([const, C]))
+        # change of the distance a-b under each field: (G(p_a) - G(p_b)) . u (one field for all pairs)
+        C = (np.einsum("mkc,mc->mk", field_values(feats, pa) - field_values(feats, pb), u) if feats
+             else np.zeros((len(u), 0)))
+        # the pair's own constant and its own response to the row regressors
+        own = np.zeros((len(u), 3 * (1 + nr)))
+        own[:, k] = 1.0
+        own[:, 3 + k * nr:3 + (k + 1) * nr] = rows[keep[k]]
+        cols.append(np.hstack([own, C]))
         ys.append(dev[k])
     A, y = np.vstack(cols), np.concatenate(ys)
     y0 = np.concatenate([np.full(len(x), x.mean()) for x in ys])  # each pair's own mean
@@ -144,7 +168,11 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None] | None:
         us.append(v[keep] / d[keep, None])
         devs.append(d[keep] - d[keep].mean())
         var_iso.append(mad**2 / 2)
-    devs, infl, systematic = _systematic_distances(P, keeps, devs)
+    from ..estimator.problem import kabsch
+
+    R, t = kabsch(np.broadcast_to(ds.plate.spheres_flange, P.shape), P)
+    P_fit = np.einsum("nij,sj->nsi", R, ds.plate.spheres_flange) + t[:, None, :]
+    devs, infl, systematic = _systematic_distances(P_fit, keeps, devs, _row_regressors(ds, full))
     X = np.concatenate([2 * u**2 for u in us])
     Y = np.concatenate([dk**2 * f for dk, f in zip(devs, infl)])
     var_iso = [float(np.mean(dk**2 * f)) / 2 if len(dk) > 2 else v for dk, f, v in zip(devs, infl, var_iso)]
@@ -175,8 +203,9 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
     if pl is not None:
         systematic = pl[2]
         extra = ("" if systematic is None else
-                 f", after removing their systematic variation over the measurement field ({systematic['rms_removed_mm']:.5f} "
-                 f"mm RMS, p = {systematic['p_value']:.2g}: the instrument's distortion or a scale changing with depth)")
+                 f", after removing their systematic variation ({systematic['rms_removed_mm']:.5f} mm RMS, p = "
+                 f"{systematic['p_value']:.2g}) with the place in the measurement field, the gravity direction, time "
+                 "or temperature: the instrument's distortion, a sphere or plate that moves, thermal growth")
         comps["plate"] = (pl[0], pl[1], f"spread of the plate's inter-sphere distances over {int(pl[1] / 2 + 1)} rows{extra}")
     if stated_ok and ds.noise_position is not None:
         comps["stated"] = (np.full(3, float(ds.noise_position)), float("inf"), "dataset.toml [noise] position_mm (stated)")
@@ -207,20 +236,24 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
     return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis)
 
 
-def history_resets(ds: Dataset, *, gap_factor: float = 20.0) -> np.ndarray:
-    """Rows ``(n,)`` bool whose approach history is unknown: the first row, a row after a gap in ``t_s``
-    longer than ``gap_factor`` times the median step, and rows whose ``status`` says restart/home/power."""
-    return row_resets(ds.n, ds.t_s, ds.status, gap_factor=gap_factor)
+def history_resets(ds: Dataset) -> np.ndarray:
+    """Rows ``(n,)`` bool whose approach history is unknown: the first row and rows whose ``status`` says
+    restart/home/power. A pause alone (a gap in ``t_s``) keeps the robot where it stood: its history goes on
+    (a blind campaign's joint offset that followed the last move across a pause was mispredicted at 1.5x its
+    oracle when pauses reset it)."""
+    return row_resets(ds.n, ds.t_s, ds.status)
 
 
-def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None = None, *,
+def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None = None, *, gaps: bool = False,
                gap_factor: float = 20.0) -> np.ndarray:
     """:func:`history_resets` from the channels themselves (``t_s`` ``(n,)`` [s], ``status`` ``(n,)`` text): what
-    ``twin predict`` uses on a JOINTS.csv, so that new rows read their history as the diagnosis did."""
+    ``twin predict`` uses on a JOINTS.csv, so that new rows read their history as the diagnosis did. With
+    ``gaps``, also rows after a gap in ``t_s`` longer than ``gap_factor`` times the median step: the starts of
+    the campaign's sessions (a restart, a long pause), where something may have changed."""
     out = np.zeros(n, dtype=bool)
     if n:
         out[0] = True
-    if t_s is not None and n > 2:
+    if gaps and t_s is not None and n > 2:
         dt = np.diff(t_s)
         med = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
         if med > 0:
@@ -246,5 +279,6 @@ def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
         t_s=None if ds.t_s is None else ds.t_s.copy(),
         station=ds.station_ids.copy() if ds.station is not None else None,
         history_reset=reset,
+        session_start=row_resets(ds.n, ds.t_s, ds.status, gaps=True),
     )
 

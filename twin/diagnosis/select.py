@@ -23,6 +23,7 @@ __all__ = ["StructureTest", "CATALOGUE_MARGIN"]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
 CATALOGUE_SHARE = 0.05  # ... or beyond this share of the named term's evidence when both act at the same place
+# (or the named term's columns lie within the unnamed one's)
 
 
 @dataclass(frozen=True)
@@ -170,9 +171,9 @@ class _Scored:
 
 def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
-    if len(a.features) > 3:
+    if len(a.features) > 4:
         return False
-    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base"))
+    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
 
 
 def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes, chunk: int = 600) -> np.ndarray:
@@ -275,7 +276,10 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
         # gear-ratio direction): an unnamed term must beat the best named one clearly, not by fitting noise
         named = [s for s in order if s.atom.pool != "generic"]
         top = order[0]
-        same = [s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)]
+        # "the same place": the same target, or a named atom whose columns lie within the unnamed one's (a joint-1
+        # backlash is a rotation about base z, inside the base frame's six directions with the same sign)
+        same = [s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)
+                or _nested(s, top)]
         cand = same[0] if same else (named[0] if named else None)
         # at high signal-to-noise, effects not yet modelled leak a few per cent into any broader atom: the
         # margin grows with the evidence (5 % of it) for a named atom acting at the same place
@@ -292,6 +296,15 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     if gain >= best.dchi2 and small:
         return small[:1] + [s for s in order if s is not small[0]]
     return order
+
+
+def _nested(small: _Scored, big: _Scored, share: float = 0.99) -> bool:
+    """Whether ``small``'s projected columns lie (to ``share`` of their norm) within ``big``'s span."""
+    if small.basis.shape[1] >= big.basis.shape[1] or small.Ep.shape != (big.Ep.shape[0], small.Ep.shape[1]):
+        return False
+    Qb, _ = np.linalg.qr(big.Ep)
+    tot = float(np.sum(small.Ep**2))
+    return tot > 0 and float(np.sum((Qb.T @ small.Ep) ** 2)) >= share * tot
 
 
 def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Scored]:
@@ -507,17 +520,38 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
 def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
-    grid); a time constant (``exp``, ``lag``) or a move width (``lastmove``) over a log grid around it, zoomed
-    twice. Other atoms come back as they are."""
+    grid); a time constant (``exp``, ``lag``), a move width (``lastmove``), a clearance (``play``) or a period
+    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice. Other atoms come back as they
+    are."""
     kinds = {f.get("kind") for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
-    key = "tau" if kinds & {"exp", "lag"} else "w" if "lastmove" in kinds else None
+    if kinds == {"sign"} and s.atom.family == "backlash":
+        # the clearance as a play operator (short moves do not switch the side): one more parameter, kept only
+        # when it explains significantly more (a sign is the play's limit for moves much longer than it)
+        from .atoms import PLAY_HALF_DEG, play_backlash
+
+        j = s.atom.features[0]["j"]
+        trial = _score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
+                             exact_top=len(PLAY_HALF_DEG))
+        top = max(trial, key=lambda t: t.dchi2, default=None)
+        if top is None or top.dchi2 - s.dchi2 < stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1):
+            return s
+        # the two differ only on rows after moves shorter than the clearance: a few of them must carry it
+        f_sign = prob.features(s.atom)[prob.rows_cal, 0]
+        f_play = prob.features(top.atom)[prob.rows_cal, 0]
+        if np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5) < 3:
+            return s
+        s, kinds = top, {"play"}
+    timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
+    key = ("tau" if kinds & {"exp", "lag"} else "w" if "lastmove" in kinds else "h" if "play" in kinds
+           else "k" if kinds <= {"sin", "cos"} and timely else None)
     if key is None:
         return s
+    span_max = 4.0 if key != "k" else 1.25  # a period is sharp: zoom within +-25 % of the grid's
     best = s
     v0 = next(f[key] for f in s.atom.features if key in f)
-    for span in (4.0, 1.4):
+    for span in (span_max, span_max ** 0.25):
         vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
         trial = [_with_constant(best.atom, key, v) for v in vals]
         scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
@@ -528,15 +562,42 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
     return best
 
 
+def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank: int = 18) -> _Scored:
+    """An accepted atom was scored on at most 6 directions (a broad atom must not fit noise); its further
+    directions above 1 % of a unit column are kept when together they add significant calibration evidence
+    (``chi2_sf(Delta chi2_more - Delta chi2, extra) < alpha_select``): a frame swaying in time moves along its
+    six axes with a sine and a cosine, twelve directions."""
+    rc = fit.model_cal.residuals(fit.z)
+    sw = np.sqrt(prob.w_cal[rc.row])
+    keep = sw > 0
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    Q, _ = np.linalg.qr(A)
+    F = prob.features(s.atom)[prob.rows_cal]
+    E = _raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    B = reduced_basis(E, Q=Q, max_rank=max_rank)
+    if B.shape[1] <= s.basis.shape[1]:
+        return s
+    EB = E @ B
+    Ep = EB - Q @ (Q.T @ EB)
+    psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
+    fitted = Ep @ psi
+    d = float(fitted @ fitted)
+    if _chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+        return s
+    return _Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
+
+
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
-    """``atom`` with the constant ``key`` (``tau`` [s] or ``w`` [rad]) of its features set to ``v``; channel
-    and label renamed to match."""
+    """``atom`` with the constant ``key`` (``tau`` [s], ``w`` or ``h`` [rad], ``k`` [rad/s]) of its features set to
+    ``v``; channel and label renamed to match."""
     from dataclasses import replace as _rep
 
     old = next(f[key] for f in atom.features if key in f)
     feats = tuple(dict(f, **{key: float(v)}) if key in f else f for f in atom.features)
     if key == "tau":
         o, n = f"{old:.4g}", f"{v:.4g}"
+    elif key == "k":
+        o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
     return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))

@@ -147,7 +147,7 @@ def _trace(key: BlindKey, atoms: list[dict]) -> dict[str, Any]:
             elif pl == "length" and apl in ("length", "param") and (
                     not links or tgt == "all_lengths" or any(tgt == x or (x.isdigit() and tgt[-1:] == x) for x in links)):
                 ok = True
-            elif pl in ("base", "measurement") and (tgt == "base" or apl in ("scale", "field")):
+            elif pl in ("base", "measurement") and (tgt in ("base", "base_along") or apl in ("scale", "field")):
                 ok = True
             elif pl == "tool" and tgt == "tool":
                 ok = True
