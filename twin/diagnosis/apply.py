@@ -116,7 +116,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
                 R = np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2)
                 nrm = np.repeat(R @ np.asarray(n_tool, dtype=float), pts.shape[1], axis=0)
             G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(*pts.shape[:2], len(a.features), 3)
-            G = G * station_mask(a.features, np.asarray(space.stations)[rows_station])[:, None, :, None]
+            G = G * (station_mask(a.features, np.asarray(space.stations)[rows_station]) * F)[:, None, :, None]
             d += np.einsum("nskc,k->nsc", G, phi)
             continue
         W = param_weights(space, x, a)  # (P, c)

@@ -54,9 +54,10 @@ __all__ = [
 
 _DEG = np.pi / 180.0
 HISTORY_KINDS = ("sign",)
-SCAN_ORDERS = (4.0, 150.0, 0.5)  # cyclic-error orders scanned beyond 1-3: first, last, step
+SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
+MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of their own
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
@@ -181,6 +182,32 @@ def _resets(ctx: RowContext) -> np.ndarray:
     return reset
 
 
+def _steps_in(ctx: RowContext) -> np.ndarray:
+    """The move ``(n, 6)`` [rad] into each row from the one before (0 for the first row, a repeat, after a
+    restart; from ``q_start`` when known)."""
+    q = ctx.q if ctx.q_start is None else np.vstack([np.asarray(ctx.q_start, float)[None], ctx.q])
+    d = np.vstack([np.zeros((1, N_JOINTS)), np.diff(q, axis=0)])
+    reset = _resets(ctx)
+    if ctx.q_start is not None:
+        reset = np.concatenate([[True], reset])
+    d[reset] = 0.0
+    return d[-len(ctx.q):]
+
+
+def _motion_heat(ctx: RowContext, tau: float, joints: tuple[int, ...] = (1, 2, 3, 4, 5, 6)) -> np.ndarray:
+    """Heat the motors of ``joints`` put into the arm with its motion, through a first-order lag of time
+    constant ``tau`` [s]: each move adds their joint travel ``sum_j |dq_j|`` [rad], which decays with ``tau``
+    over ``t_s`` (``h_k = h_{k-1} exp(-dt / tau) + travel_k``) [rad]. Needs ``t_s``."""
+    t = _channel(ctx, "t_s")
+    travel = np.abs(_steps_in(ctx)[:, [j - 1 for j in joints]]).sum(axis=1)
+    h = np.empty(len(t))
+    acc = 0.0
+    for k in range(len(t)):
+        acc = acc * (np.exp(-max(t[k] - t[k - 1], 0.0) / tau) if k else 0.0) + travel[k]
+        h[k] = acc
+    return h
+
+
 def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
     """Backlash as a play operator on the commanded joint ``j`` with half clearance ``h`` [rad]: the output
     ``o_k = clip(o_{k-1}, u_k - h, u_k + h)`` lags the command ``u``; the feature is ``(o - u) / h`` in [-1, 1]
@@ -287,6 +314,24 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
             out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+        elif kind == "stepin":
+            out[:, k] = _steps_in(ctx)[:, f["j"] - 1]
+        elif kind == "heat":
+            joints = tuple(f.get("joints", (1, 2, 3, 4, 5, 6)))
+            key = ("heat", f["tau"], joints)
+            if key not in cache:
+                cache[key] = _motion_heat(ctx, f["tau"], joints)
+            out[:, k] = cache[key] / f["h"]  # a scale fixed on the rows the atom was built on
+        elif kind == "settle":
+            st = np.asarray(ctx.station).astype(str) if ctx.station is not None else None
+            if st is None:
+                raise ValueError("this effect term depends on the station: the rows need a station column")
+            t0 = np.array([f["t0"].get(s, np.nan) for s in st])
+            if np.any(np.isnan(t0)):
+                raise ValueError(f"this effect term knows the set-up times of stations {sorted(f['t0'])} only")
+            out[:, k] = -np.expm1(-np.clip(_channel(ctx, "t_s") - t0, 0.0, None) / f["tau"])
+            if "only" in f:
+                out[:, k] *= st == str(f["only"])
         elif kind == "gated":
             # an inner feature that acts from a moment on (a payload added at a restart)
             out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * (_channel(ctx, f["ch"]) >= f["at"])
@@ -311,8 +356,11 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if ctx.station is None:
                 raise ValueError("this effect term depends on the station: the rows need a station column")
             out[:, k] = (np.asarray(ctx.station).astype(str) == str(f["name"])).astype(float)
-        elif kind in ("const", "field"):
+        elif kind == "const" or (kind == "field" and "tau" not in f):
             out[:, k] = 1.0  # a field atom's values depend on the point, not the row (twin.diagnosis.field)
+        elif kind == "field":
+            # a field that grows with a settling transient (an instrument warming up after switch-on)
+            out[:, k] = -np.expm1(-(_channel(ctx, "t_s") - f["t0"]) / f["tau"])
         else:
             raise ValueError(f"unknown feature kind {kind!r} in {f!r}")
     if not np.all(np.isfinite(out)):
@@ -340,6 +388,11 @@ def play_backlash(j: int, h: float) -> Atom:
                 "catalogue", (j,))
 
 
+def _nominal_length(model: RobotModel, name: str) -> float:
+    """The nominal value [m] of length parameter ``name`` (``"a3"``, ``"d4"``) of ``model``."""
+    return float(model.params[model.layout.index(name)])
+
+
 def _session_starts(ctx: RowContext) -> list[tuple[str, float]]:
     """``(time channel, value)`` at the first row of every session after the first (a gap in ``t_s`` or a
     recorded restart: ``ctx.session_start``)."""
@@ -359,7 +412,7 @@ def _time_channel(ctx: RowContext) -> str | None:
 
 def _time_features(ctx: RowContext, ch: str) -> list[dict]:
     c, h = _norm(_channel(ctx, ch))
-    return [{"kind": "pow", "ch": ch, "p": p, "c": c, "h": h} for p in (1, 2, 3)]
+    return [{"kind": "pow", "ch": ch, "p": 1, "c": c, "h": h}]
 
 
 def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
@@ -413,15 +466,18 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
                           f"q{j}", f"joint {j} gear-ratio error (theta_{j} grows with q{j})", "catalogue", (j,)))
     # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual),
-    # scanned on a half-order grid (a pool of their own: its size enters the evidence threshold)
+    # and of a stage with a non-integer ratio (a belt, an intermediate gear), scanned on a half-order grid (a pool
+    # of their own: its size enters the evidence threshold), the order refined when kept
     for j in range(1, N_JOINTS + 1):
         if np.ptp(ctx.q[:, j - 1]) < 1e-6:
             continue
         for k in np.arange(SCAN_ORDERS[0], SCAN_ORDERS[1] + 1e-9, SCAN_ORDERS[2]):
             k = float(k)
+            if k in harmonic_orders or k * np.ptp(ctx.q[:, j - 1]) < 1.5 * (2 * np.pi):
+                continue  # a period is evidence only where the rows see it repeat (1.5 periods over the range)
             atoms.append(Atom("cyclic", "joint", f"theta{j}",
                               ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
-                              f"sin/cos({k:g} q{j})", f"joint {j}, harmonic of order {k:g} (cycles per joint turn)",
+                              f"sin/cos({k:.4g} q{j})", f"joint {j}, harmonic of order {k:.4g} (cycles per joint turn)",
                               "scan", (j,), {"order": k}))
     # wrist coupling: the drives of joints 5 and 6 pass through joint 4 (and 6's through 5): a coupling-ratio error
     # turns the driven joint with the driving one
@@ -435,13 +491,15 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         ch = "temp_c"
     elif _time_channel(ctx):
         feats = tuple(_time_features(ctx, "t_s"))
-        ch = "t_s"
+        ch = "t_s"  # linear: a polynomial in time goes where the rows are not (later rows), a warm-up settles
     else:
         feats = ()
     variants = [(feats, ch)] if feats else []
     # a link's temperature lags the recorded one (the air's, a sensor elsewhere on the arm): the temperature
     # through a first-order lag; without a temperature, the warm-up as a transient 1 - exp(-t / tau) beside the
-    # cubic. Time constants on a coarse grid, refined when an atom is kept.
+    # linear drift. And whatever the air does, the motors heat the arm with its motion: each link against the
+    # joints' travel through a first-order lag (heat in per move, out with tau). Time constants on a coarse
+    # grid, refined when an atom is kept.
     span = float(np.ptp(ctx.t_s)) if _time_channel(ctx) else 0.0
     if span > 0:
         for tau in (fr * span for fr in TAU_FRACTIONS):
@@ -451,10 +509,19 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             else:
                 f = {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}
                 variants.append(((f,), f"warm-up 1-exp(-t/{tau:.4g} s)"))
+            # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
+            # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
+            heat = [{"kind": "heat", "tau": float(tau), "joints": js,
+                     "h": float(max(np.mean(_motion_heat(ctx, float(tau), tuple(js))), 1e-9))} for js in ([1, 2, 3], [4, 5, 6])]
+            variants.append(((*heat,
+                              {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}),
+                             f"motion heat lagged {tau:.4g} s"))
     for fs, chan in variants:
         atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
                           "catalogue"))
         for L in length_names:
+            if abs(_nominal_length(model, L)) < MIN_THERMAL_LENGTH:
+                continue  # a link of nominal length ~0 (a2 of the IRB 1200) has no length to grow
             atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
     for s in range(3):
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
@@ -487,6 +554,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for w_deg in MOVE_WIDTHS_DEG:
             # hysteresis that follows the size of the last move (friction-like), on the joint angles only
             feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
+        # the step into this row (zero for a repeat): a joint still settling from the move it just made
+        feats.append((f"step into the row j{j}", {"kind": "stepin", "j": j}, (j,)))
     for a in range(1, N_JOINTS + 1):
         for b in range(a + 1, N_JOINTS + 1):
             if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
@@ -503,14 +572,19 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     tch = _time_channel(ctx) or "row"
     tv = _channel(ctx, tch)
     c, h = _norm(tv)
-    for p in (1, 2, 3):
-        feats.append((tch if p == 1 else f"{tch}^{p}",
-                      tuple({"kind": "pow", "ch": tch, "p": e, "c": c, "h": h} for e in range(1, p + 1)), ()))
+    # time: linear, change points, settling transients and (on the cell) oscillations; no higher polynomial in
+    # time: it goes where the rows are not (the next rows, later), and a blind campaign's re-seated plate,
+    # fitted with t^2, was predicted 13x worse than its oracle on the rows after the campaign
+    feats.append((tch, ({"kind": "pow", "ch": tch, "p": 1, "c": c, "h": h},), ()))
     for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
         at = float(np.quantile(tv, qq))
         feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
-    for _, at in _session_starts(ctx):
+    starts = _session_starts(ctx)
+    for _, at in starts:
         feats.append((f"step({tch} >= {at:.6g}) (restart)", {"kind": "step", "ch": tch, "at": at}, ()))
+    if len(starts) > 1:
+        # a change at every restart (a joint re-homed, a plate re-seated each time): one term, a step at each
+        feats.append(("a step at every session start", tuple({"kind": "step", "ch": tch, "at": at} for _, at in starts), ()))
     span = float(np.ptp(tv))
     for tau in (fr * span for fr in TAU_FRACTIONS):
         # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
@@ -547,7 +621,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     for place, target, pl_words, pj in places:
         for ch, f, fj in feats:
             fs = f if isinstance(f, tuple) else (f,)
-            if fs[0]["kind"] == "lastmove" and place != "joint":
+            if fs[0]["kind"] in ("lastmove", "stepin") and place != "joint":
                 continue
             if (place, target, _fkey(fs)) in cat_keys:
                 continue
@@ -571,6 +645,15 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 # centred: the scale atom carries its own constant (s = s0 + s1 f)
                 fs = ({"kind": "const"},) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
+    # a station's instrument settling after it was set up (a tripod foot sinking, a mount relaxing): a transient
+    # from each station's first row, on the measurement frame
+    if ctx.station is not None and tch == "t_s" and span > 0:
+        st = np.asarray(ctx.station).astype(str)
+        t_first = {s: float(tv[np.flatnonzero(st == s)[0]]) for s in sorted(set(st.tolist()))}
+        for tau in (fr * span for fr in TAU_FRACTIONS):
+            # one transient per station (each set-up settles its own way, about its own axis)
+            cell_feats.append((f"settling since set-up 1-exp(-t/{tau:.4g})",
+                               tuple({"kind": "settle", "tau": float(tau), "t0": t_first, "only": s} for s in t_first), ()))
     for place, target, pl_words in (("param", "base", "base (measurement) frame"), ("scale", "meas_scale", "measurement scale")):
         for ch, fs, _ in cell_feats:
             fs = (({"kind": "const"},) if place == "scale" else ()) + fs
@@ -598,8 +681,20 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 if np.linalg.norm(n) > 0:
                     n_tool = n / np.linalg.norm(n) * (1.0 if n[2] >= 0 else -1.0)
             stations = sorted(set(np.asarray(ctx.station).astype(str).tolist())) if ctx.station is not None else None
-            for ch, fs, words in field_atom_specs(field_constants(P), n_tool, stations):
+            specs = field_atom_specs(field_constants(P), n_tool, stations)
+            for ch, fs, words in specs:
                 atoms.append(Atom("unnamed", "field", "meas_field", fs, ch, f"unnamed: {words}", "generic"))
+            if _time_channel(ctx):
+                # the instrument warming up after switch-on: its scale and range errors settle with time
+                span = float(np.ptp(ctx.t_s))
+                for ch, fs, words in specs:
+                    if ch not in ("scale vs depth", "range error vs range"):
+                        continue
+                    for tau in (fr * span for fr in TAU_FRACTIONS):
+                        ft = tuple(dict(f, t0=float(ctx.t_s[0]), tau=float(tau)) for f in fs)
+                        atoms.append(Atom("unnamed", "field", "meas_field", ft, f"{ch}, warm-up 1-exp(-t_s/{tau:.4g})",
+                                          f"unnamed: {words}, growing as the instrument warms up (1-exp(-t_s/{tau:.4g}))",
+                                          "generic"))
     return atoms
 
 

@@ -544,7 +544,9 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
             return s
         s, kinds = top, {"play"}
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
-    key = ("tau" if kinds & {"exp", "lag"} else "w" if "lastmove" in kinds else "h" if "play" in kinds
+    if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
+        return _refine_order(prob, fit, s, pool_sizes)
+    key = ("tau" if kinds & {"exp", "lag", "heat", "settle"} or any("tau" in f for f in s.atom.features) else "w" if "lastmove" in kinds else "h" if "play" in kinds
            else "k" if kinds <= {"sin", "cos"} and timely else None)
     if key is None:
         return s
@@ -559,6 +561,30 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
         if top is not None and top.dchi2 > best.dchi2:
             best = top
         v0 = next(f[key] for f in best.atom.features if key in f)
+    return best
+
+
+def _refine_order(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+    """A scanned cyclic order (half-order grid) moved to the order that explains most within half a grid step
+    (a stage's ratio need not be a half-integer), zoomed twice."""
+    from dataclasses import replace as _rep
+
+    best = s
+    for half in (0.25, 0.06):
+        k0 = best.atom.features[0]["k"]
+        trial = []
+        for k in k0 + np.linspace(-half, half, 9):
+            if k <= 0 or k == k0:
+                continue
+            feats = tuple(dict(f, k=float(k)) for f in best.atom.features)
+            ch = best.atom.features[0]["ch"]
+            trial.append(_rep(best.atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
+                              label=best.atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"),
+                              meta=dict(best.atom.meta, order=float(k))))
+        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        top = max(scored, key=lambda t: t.dchi2, default=None)
+        if top is not None and top.dchi2 > best.dchi2:
+            best = top
     return best
 
 
