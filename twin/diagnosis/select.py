@@ -543,11 +543,17 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
         if np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5) < 3:
             return s
         s, kinds = top, {"play"}
-    timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
         return _refine_order(prob, fit, s, pool_sizes)
-    key = ("tau" if kinds & {"exp", "lag", "heat", "settle"} or any("tau" in f for f in s.atom.features) else "w" if "lastmove" in kinds else "h" if "play" in kinds
-           else "k" if kinds <= {"sin", "cos"} and timely else None)
+    timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
+    if any("tau" in f for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
+        key = "tau"
+    elif "lastmove" in kinds or "play" in kinds:
+        key = "w" if "lastmove" in kinds else "h"
+    elif kinds <= {"sin", "cos"} and timely:
+        key = "k"
+    else:
+        key = None
     if key is None:
         return s
     span_max = 4.0 if key != "k" else 1.25  # a period is sharp: zoom within +-25 % of the grid's
