@@ -34,7 +34,23 @@ def main() -> int:
     rows = []
     for p in sorted(ROOT.glob("*/results.json")):
         rows.append(_row(p.parent.name, json.loads(p.read_text())["summary"]))
-    (ROOT / "overview.json").write_text(json.dumps({"batches": {r["batch"]: r for r in rows}}, indent=1) + "\n")
+    # the README's table: per batch and for all current scores together
+    agg = {}
+    groups = {r["batch"]: [r] for r in rows}
+    groups["current"] = [r for r in rows if not r["batch"].endswith("_first_pass")]
+    for name, rs in groups.items():
+        def tot(cat, key):
+            return sum((r.get(cat) or {}).get(key) or 0 for r in rs)
+        effect_cats = ("catalogue", "outside", "mixed")
+        agg[name] = {
+            "clean_no_alarm": f"{tot('clean', 'n') - tot('clean', 'structured')}/{tot('clean', 'n')}",
+            "catalogue_named_right": f"{tot('catalogue', 'named_right')}/{tot('catalogue', 'n')}",
+            "outside_val_within_1_5": f"{tot('outside', 'val_within_1_5')}/{tot('outside', 'n')}",
+            "effects_test_within_1_5": f"{sum(tot(c, 'test_within_1_5') for c in effect_cats)}/"
+                                       f"{sum(tot(c, 'n') for c in effect_cats)}",
+        }
+    (ROOT / "overview.json").write_text(json.dumps({"batches": {r["batch"]: r for r in rows}, "aggregate": agg},
+                                                   indent=1) + "\n")
     lines = ["# Blind campaigns: every batch", "",
              "First passes are blind scores (the diagnosis as it stood when the batch arrived); the others are the",
              "current code on the same batches, after it was improved on them. Per category: campaigns; errors; structured;",
