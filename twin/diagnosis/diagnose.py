@@ -56,6 +56,7 @@ from .select import (StructureTest, _alternatives, _refine, _widen, _backward, _
                      _psi_init, _raw_columns, _row_rms, _score_atoms, _update_gross)
 
 __all__ = [
+    "virtual_spheres",
     "CandidateScore",
     "DiagnosisResult",
     "EffectFit",
@@ -200,8 +201,10 @@ def diagnose(
         raise ValueError(f"alpha_select must be in (0, 0.5), got {alpha_select!r}")
     if not (isinstance(max_effects, (int, np.integer)) and max_effects >= 0):
         raise ValueError(f"max_effects must be a non-negative integer, got {max_effects!r}")
-    if not dataset.has_spheres:
-        raise DiagnosisError("diagnosis works on sphere-centre datasets (p0_x..p2_z); this one has none")
+    virtual = not dataset.has_spheres
+    if virtual:
+        # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
+        dataset, note_virtual = virtual_spheres(dataset)
     default_holdout = dataset.set is None and holdout is None
     if dataset.set is None:
         if holdout is None:
@@ -211,8 +214,10 @@ def diagnose(
             raise ValueError(f"holdout must be in [0.05, 0.8], got {holdout!r}")
     elif not np.any(dataset.set == "validation"):
         raise DiagnosisError("diagnosis needs held-out rows: the 'set' column has no 'validation' rows")
-    floor = noise_floor(dataset)
+    floor = noise_floor(dataset, plate=not virtual)
     notes: list[str] = [f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}"]
+    if virtual:
+        notes.append(note_virtual)
     if default_holdout:
         notes.append(f"no 'set' column: held out a seeded random {100 * holdout:.0f} % of the rows for validation "
                      f"(seed {seed}; --holdout and --seed choose another split)")
@@ -248,8 +253,10 @@ def diagnose(
         pool = list(cat)
         if generic:
             pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
-            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=dataset.spheres,
+            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=None if virtual else dataset.spheres,
                                   plate_spheres=dataset.plate.spheres_flange)
+        if virtual:
+            pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
         sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
         rejected: set[str] = set()
         entry_chi2: dict[str, float] = {}
@@ -409,6 +416,36 @@ def diagnose(
 # ------------------------------------------------------------------------------------------------
 # Reports
 # ------------------------------------------------------------------------------------------------
+
+VIRTUAL_ARM = 0.1  # [m] distance of the virtual points from the tool origin when poses are read as points
+
+
+def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
+    """A pose dataset (``x y z rx ry rz``) as three points of the tool frame ``VIRTUAL_ARM`` along its x, y
+    and z axes, measured where the pose puts them: every sphere-centre atom then applies (the plate's own atoms
+    do not: the points are the tool frame's). The noise per point coordinate is ``sqrt(sigma_p^2 + (2/3)
+    (L sigma_r)^2)`` from ``[noise]`` (a point inherits the rotation noise across its arm). Returns the dataset and
+    a note."""
+    from ..dataset import Plate
+
+    if not ds.has_poses:
+        raise DiagnosisError("diagnosis needs sphere centres (p0_x..p2_z) or poses (x y z rx ry rz); this dataset has "
+                             "neither")
+    L = VIRTUAL_ARM
+    pts = np.eye(3) * L  # (3 points, xyz) in the tool frame
+    R, t = ds.pose[:, :3, :3], ds.pose[:, :3, 3]
+    spheres = np.einsum("nij,sj->nsi", R, pts) + t[:, None, :]
+    seen = np.repeat(ds.pose_seen[:, None], 3, axis=1)
+    spheres[~seen] = np.nan
+    noise = None
+    if ds.noise_position is not None:
+        sr = ds.noise_orientation or 0.0
+        noise = float(np.sqrt(ds.noise_position**2 + (2.0 / 3.0) * (L * sr) ** 2))
+    out = replace(ds, spheres=spheres, sphere_seen=seen, pose_seen=np.zeros(ds.n, bool),
+                  plate=Plate(ds.plate.sphere_diameter, pts), noise_position=noise)
+    return out, (f"poses read as three points of the tool frame {L / _MM:.0f} mm along its axes (virtual spheres); "
+                 "the plate's own terms and the plate-distance floor do not apply")
+
 
 def _implausible(prob: _Problem, s) -> str | None:
     """Why a named (catalogue) atom's fitted size is not physical for its family, or None: thermal growth of more

@@ -185,7 +185,7 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None] | None:
     return np.sqrt(s2), float(2 * (full.sum() - 1)), systematic
 
 
-def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
+def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> NoiseFloor:
     """The sphere-coordinate noise floor (see the module docstring): per axis the largest of the repeats'
     spread, the plate-geometry spread and the stated figure, with the smallest degrees of freedom of the
     estimates that set it."""
@@ -198,7 +198,7 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True) -> NoiseFloor:
     ss, dof, groups = _repeat_floor(ds)
     if 3 * dof >= 30:
         comps["repeats"] = (np.sqrt(ss / dof), float(3 * dof), f"{groups} groups of consecutive repeats")
-    pl = _plate_floor(ds)
+    pl = _plate_floor(ds) if plate else None  # virtual points of a pose are rigid by construction
     systematic = None
     if pl is not None:
         systematic = pl[2]
