@@ -688,10 +688,15 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                 # the instrument warming up after switch-on: its scale and range errors settle with time
                 span = float(np.ptp(ctx.t_s))
                 for ch, fs, words in specs:
-                    if ch not in ("scale vs depth", "range error vs range"):
+                    if ch not in ("scale vs depth", "range error vs range", "range error vs range^2"):
                         continue
                     for tau in (fr * span for fr in TAU_FRACTIONS):
                         ft = tuple(dict(f, t0=float(ctx.t_s[0]), tau=float(tau)) for f in fs)
+                        if ch == "range error vs range^2":
+                            # a stereo bar bending as it warms: the convergence error was already growing when
+                            # the first row was measured (switched on earlier), so the field's constant part
+                            # comes with it: G (c0 + c1 (1 - exp(-(t - t0) / tau)))
+                            ft = fs + ft
                         atoms.append(Atom("unnamed", "field", "meas_field", ft, f"{ch}, warm-up 1-exp(-t_s/{tau:.4g})",
                                           f"unnamed: {words}, growing as the instrument warms up (1-exp(-t_s/{tau:.4g}))",
                                           "generic"))

@@ -8,11 +8,19 @@ sight:
 
 ================  ============================================================================================
 ``radial``        radial lens distortion left in the measurements: ``(x rho^2, y rho^2, 0)``
-``tangential``    decentering (Brown's tangential terms): ``z (2uv, rho^2 + 2u^2, 0) / rho2_h`` and ``z (rho^2 + 2v^2, 2uv, 0) / rho2_h``
+``tangential``    decentering (Brown's tangential terms, OpenCV's ``p1``, ``p2``): ``z (2uv, rho^2 + 2v^2, 0) / rho2_h``
+                  and ``z (rho^2 + 2u^2, 2uv, 0) / rho2_h`` (``rho^2`` here unscaled, ``u^2 + v^2``)
 ``depth_scale``   a scale that changes with depth (a stereo baseline or focal length slightly off): ``p w``
 ``depth2``        a depth error growing with the square of the depth offset: ``(0, 0, z_h w^2)``
 ``range0/1/2``    a range error along the line of sight, constant (a tracker's zero-point offset), linear or
                   quadratic in the range: ``r_h w_r^k l``
+``range_sq``      a range error growing with the square of the range, ``r_h (|p| / r_c)^2 l``, with
+``range_x/_y``    ``r_h (x / r_c) l`` and ``r_h (y / r_c) l``: a stereo rig whose convergence (vergence) angle is
+                  off by ``dphi`` moves a point along its line of sight by about ``|p - c|^2 dphi / B``, ``c`` the
+                  other camera's centre at the baseline ``B`` along ``x`` (or ``y``); ``|p - c|^2 = |p|^2 -
+                  2 c . p + B^2`` (the constant is ``range0``). Three parameters, in the span of the range
+                  polynomial only when ``x, y`` do not vary, and the shape that extrapolates beyond the
+                  campaign's ranges
 ``view1/2``       a bias that follows the plate's tilt to the line of sight (a sphere partly hidden by the plate's
                   rim, a highlight): with ``n`` the plate normal and ``n_perp = n - (n . l) l``: ``n_perp`` and
                   ``|n_perp| n_perp`` (needs each point's plate normal)
@@ -35,7 +43,7 @@ __all__ = ["FIELD_NAMES", "POINT_FIELDS", "field_applicable", "field_constants",
 _MONOMIALS = ("uu", "vv", "ww", "uv", "uw", "vw")
 POINT_FIELDS = ("radial", "tangential1", "tangential2", "depth_scale", "depth2", "range0", "range1", "range2") + tuple(
     f"quad_{c}_{m}" for c in "xyz" for m in _MONOMIALS)  # functions of the point alone
-FIELD_NAMES = POINT_FIELDS + ("view1", "view2")
+FIELD_NAMES = POINT_FIELDS + ("range_sq", "range_x", "range_y", "view1", "view2")
 
 
 def field_applicable(points: np.ndarray, max_angle: float = 2.0) -> bool:
@@ -97,9 +105,9 @@ def field_values(features, points: np.ndarray, normals: np.ndarray | None = None
         if g == "radial":
             out[:, k, 0], out[:, k, 1] = x * rho2, y * rho2
         elif g == "tangential1":
-            out[:, k, 0], out[:, k, 1] = z * 2 * u * v / r2h, z * (u * u + v * v + 2 * u * u) / r2h
+            out[:, k, 0], out[:, k, 1] = z * 2 * u * v / r2h, z * (u * u + v * v + 2 * v * v) / r2h
         elif g == "tangential2":
-            out[:, k, 0], out[:, k, 1] = z * (u * u + v * v + 2 * v * v) / r2h, z * 2 * u * v / r2h
+            out[:, k, 0], out[:, k, 1] = z * (u * u + v * v + 2 * u * u) / r2h, z * 2 * u * v / r2h
         elif g == "depth_scale":
             out[:, k] = P * w[:, None]
         elif g == "depth2":
@@ -107,6 +115,10 @@ def field_values(features, points: np.ndarray, normals: np.ndarray | None = None
         elif g in ("range0", "range1", "range2"):
             wr = (r - f["r_c"]) / f["r_h"]
             out[:, k] = (f["r_h"] * wr ** int(g[-1]))[:, None] * los
+        elif g == "range_sq":
+            out[:, k] = (f["r_h"] * (r / f["r_c"]) ** 2)[:, None] * los
+        elif g in ("range_x", "range_y"):
+            out[:, k] = (f["r_h"] * P[:, "xy".index(g[-1])] / f["r_c"])[:, None] * los
         elif g in ("view1", "view2"):
             if normals is None:
                 raise ValueError(f"the field {g!r} needs the plate normal of every point")
@@ -149,6 +161,7 @@ def field_atom_specs(consts: dict, n_tool: np.ndarray | None = None,
         ("scale vs depth", feats("depth_scale"), "measurement scale changing with depth"),
         ("depth error vs depth^2", feats("depth2"), "depth error growing with the square of the depth offset"),
         ("range error vs range", feats("range0", "range1", "range2"), "range error along the line of sight, a polynomial of degree 2 in the range"),
+        ("range error vs range^2", feats("range_sq", "range_x", "range_y"), "range error along the line of sight growing with the square of the distance to the other camera (a stereo rig's convergence off)"),
         ("quadratic field", feats(*[n for n in FIELD_NAMES if n.startswith("quad_")]), "quadratic distortion of the measurement field"),
     ]
     if n_tool is not None:
