@@ -48,6 +48,9 @@ def main() -> int:
             "outside_val_within_1_5": f"{tot('outside', 'val_within_1_5')}/{tot('outside', 'n')}",
             "effects_test_within_1_5": f"{sum(tot(c, 'test_within_1_5') for c in effect_cats)}/"
                                        f"{sum(tot(c, 'n') for c in effect_cats)}",
+            # effect campaigns given a catalogue name their key does not expect
+            "effects_extra_names": f"{sum(tot(c, 'extra_names') for c in effect_cats)}/"
+                                   f"{sum(tot(c, 'n') for c in effect_cats)}",
         }
     (ROOT / "overview.json").write_text(json.dumps({"batches": {r["batch"]: r for r in rows}, "aggregate": agg},
                                                    indent=1) + "\n")
