@@ -1,6 +1,6 @@
-"""Regression on blind campaigns: `twin diagnose` against the answer keys of four generators written blind to it.
+"""Regression on blind campaigns: `twin diagnose` against the answer keys of five generators written blind to it.
 
-The generators (`experiments/blind/generator_a` .. `generator_d`) were written by other sessions from the public
+The generators (`experiments/blind/generator_a` .. `generator_e`) were written by other sessions from the public
 documentation only (they do not import `twin`); the diagnosis was then improved on what they exposed, so these
 campaigns are a regression guard, not an exam (the exam scores are in `results/blind/`). Each campaign here
 checks the targets of its category, on the held-out rows: clean -> no structure claimed; catalogue -> the
@@ -25,12 +25,14 @@ CASES = {
     "generator_b": (7, {"O9_loose_sphere": "b01", "O2_depth_bias_inline": "b10", "M3_grazing_bias_plus_cyclic_j5": "b13",
                         "M1_hvac_plus_backlash_j1": "b14", "K6_clean_repeatability_static_los2": "b19",
                         "O8_cartesian_lag": "b20", "C1_compliance_j23_payload_restart": "b29"}, None),
-    # generator C selects by its internal tags, generator D by its spec indices (folder names are a seeded
+    # generator C selects by its internal tags, generator D by its spec indices, E by folder names (folder names are a seeded
     # permutation of them; the test checks the folders exist)
     "generator_c": (11, {"O2_stereo_bar_warm_up": "c19"}, ["--only", "O2"]),
     "generator_d": (23, {"decentering_left_lens": "d01", "compliance_payload_depth_heavy_noise": "d05",
                          "clean_depth_heavy_noise": "d07", "thermal_plus_gear_ratio": "d08",
                          "rig_knocked_in_a_pause": "d13"}, ["--only", "23", "7", "1", "26", "19"]),
+    "generator_e": (31, {"thermal_door_open_plus_mount_drift": "e14", "clean_depth_heavy_unstated": "e25",
+                         "tripod_knocked_in_a_pause": "e28"}, ["--only", "e14", "e25", "e28"]),
 }
 PARAMS = [(g, folder) for g, (_, labels, _) in CASES.items() for folder in labels.values()]
 
