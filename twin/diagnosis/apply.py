@@ -87,12 +87,21 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
     """Change ``(n, 3, 3)`` [m] of the predicted spheres from length, parameter and scale atoms."""
     n = len(q_eff)
     d = np.zeros((n, len(spheres_tool), 3))
-    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.place in ("length", "param", "scale", "field") or a.varying_plate]
+    fo = [(a, phi) for a, phi in effect_atoms(cal) if a.first_order]
     if not fo:
         return d
     cache: dict = {}
     x = cal.x
     pts, Jk = predict_points(space, x, q_eff, rows_station, spheres_tool, jacobian=True)  # Jk (P, 3, 3, n)
+    plate_axes: list[np.ndarray] = []
+
+    def plate2meas() -> np.ndarray:
+        """``(n, 3, 3)``: each row's plate axes in the measurement frame (columns), computed once."""
+        if not plate_axes:
+            axes, _ = predict_points(space, x, q_eff, rows_station, np.concatenate([np.zeros((1, 3)), np.eye(3)]))
+            plate_axes.append(np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2))
+        return plate_axes[0]
+
     for a, phi in fo:
         F = feature_values(a.features, ctx, cal.nominal, cache)  # (n, K_f)
         if a.place == "scale":
@@ -100,10 +109,8 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             continue
         if a.place == "plate":
             # the sphere's offset in the plate frame, turned into the measurement frame by each row's plate
-            axes, _ = predict_points(space, x, q_eff, rows_station, np.concatenate([np.zeros((1, 3)), np.eye(3)]))
-            R = np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2)  # (n, 3, 3): columns are the plate axes
             off = F @ phi.reshape(len(a.features), 3)  # (n, 3) in the plate frame
-            d[:, int(a.target[6:])] += np.einsum("ncj,nj->nc", R, off)
+            d[:, int(a.target[6:])] += np.einsum("ncj,nj->nc", plate2meas(), off)
             continue
         if a.place == "field":
             from .field import field_values, station_mask
@@ -112,9 +119,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             nrm = None
             if n_tool is not None:
                 # the plate normal of each predicted row (the view fields follow the plate's tilt)
-                axes, _ = predict_points(space, x, q_eff, rows_station, np.concatenate([np.zeros((1, 3)), np.eye(3)]))
-                R = np.swapaxes(axes[:, 1:] - axes[:, :1], 1, 2)
-                nrm = np.repeat(R @ np.asarray(n_tool, dtype=float), pts.shape[1], axis=0)
+                nrm = np.repeat(plate2meas() @ np.asarray(n_tool, dtype=float), pts.shape[1], axis=0)
             G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(*pts.shape[:2], len(a.features), 3)
             G = G * (station_mask(a.features, np.asarray(space.stations)[rows_station]) * F)[:, None, :, None]
             d += np.einsum("nskc,k->nsc", G, phi)
@@ -140,7 +145,7 @@ def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | No
     q_eff = effective_joints(cal, ctx)
     c = _plate(cal)
     pred = c.predict(q_eff, station)
-    if not any(a.place in ("length", "param", "scale", "field") or a.varying_plate for a, _ in effect_atoms(cal)):
+    if not any(a.first_order for a, _ in effect_atoms(cal)):
         return pred
     known = pred.frame == "measurement"
     sp = cal.space

@@ -99,6 +99,12 @@ class Atom:
         return self.place == "plate" and any(f.get("kind") != "const" for f in self.features)
 
     @property
+    def first_order(self) -> bool:
+        """Whether the atom acts on the prediction to first order (through the Jacobian), not exactly through
+        the joints or a constant plate offset."""
+        return self.place in ("length", "param", "scale", "field") or self.varying_plate
+
+    @property
     def key(self) -> str:
         return f"{self.family}:{self.place}:{self.target}:{self.channel}"
 
@@ -154,42 +160,41 @@ def _signs(ctx: RowContext) -> np.ndarray:
     return approach_signs(q, None, unknown=np.concatenate([[True], reset]))[1:]
 
 
+def _history(ctx: RowContext) -> tuple[np.ndarray, np.ndarray]:
+    """The commanded joints ``(m, 6)`` [rad] in order, with the start prepended when it is known (``m = n + 1``,
+    else ``n``), and the rows ``(m,)`` where the history starts anew (the first, a recorded restart). The
+    history-dependent features below run over them and return their last ``n`` rows."""
+    reset = np.zeros(len(ctx.q), bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool).copy()
+    q = np.asarray(ctx.q, float)
+    if ctx.q_start is not None:
+        q = np.vstack([np.asarray(ctx.q_start, float)[None], q])
+        reset = np.concatenate([[False], reset])
+    if len(reset):
+        reset[0] = True
+    return q, reset
+
+
 def _last_moves(ctx: RowContext) -> np.ndarray:
     """The last nonzero move ``(n, 6)`` [rad] of each joint before each row (0 while unknown: after the start
     or a restart, until the joint moves)."""
-    n = len(ctx.q)
-    q = ctx.q if ctx.q_start is None else np.vstack([np.asarray(ctx.q_start, float)[None], ctx.q])
-    reset = np.zeros(len(q), bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool)
-    if ctx.q_start is not None:
-        reset = np.concatenate([[True], reset])
+    q, reset = _history(ctx)
     out = np.zeros((len(q), N_JOINTS))
     last = np.zeros(N_JOINTS)
     for k in range(len(q)):
-        if k == 0 or reset[k]:
+        if reset[k]:
             last = np.zeros(N_JOINTS)
         else:
             d = q[k] - q[k - 1]
             last = np.where(d != 0, d, last)
         out[k] = last
-    return out[-n:]
-
-
-def _resets(ctx: RowContext) -> np.ndarray:
-    n = len(ctx.q)
-    reset = np.zeros(n, bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool).copy()
-    if n and ctx.q_start is None:
-        reset[0] = True
-    return reset
+    return out[-len(ctx.q):]
 
 
 def _steps_in(ctx: RowContext) -> np.ndarray:
     """The move ``(n, 6)`` [rad] into each row from the one before (0 for the first row, a repeat, after a
     restart; from ``q_start`` when known)."""
-    q = ctx.q if ctx.q_start is None else np.vstack([np.asarray(ctx.q_start, float)[None], ctx.q])
+    q, reset = _history(ctx)
     d = np.vstack([np.zeros((1, N_JOINTS)), np.diff(q, axis=0)])
-    reset = _resets(ctx)
-    if ctx.q_start is not None:
-        reset = np.concatenate([[True], reset])
     d[reset] = 0.0
     return d[-len(ctx.q):]
 
@@ -213,10 +218,8 @@ def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
     ``o_k = clip(o_{k-1}, u_k - h, u_k + h)`` lags the command ``u``; the feature is ``(o - u) / h`` in [-1, 1]
     (-1 after a move up by more than ``2 h``, +1 after one down; moves within the clearance do not switch it).
     The state is unknown (0) after the start or a restart until the joint has moved by ``2 h``."""
-    u = ctx.q[:, j - 1] if ctx.q_start is None else np.concatenate([[ctx.q_start[j - 1]], ctx.q[:, j - 1]])
-    reset = _resets(ctx)
-    if ctx.q_start is not None:
-        reset = np.concatenate([[False], reset])
+    q, reset = _history(ctx)
+    u = q[:, j - 1]
     out = np.zeros(len(u))
     o, lo, hi = u[0], u[0], u[0]  # output and the range travelled since the last reset
     for k in range(len(u)):
@@ -234,17 +237,15 @@ def _cartesian_moves(ctx: RowContext, model: RobotModel, tcp: np.ndarray) -> np.
     """Unit vector ``(n, 3)`` of the last move of the tool centre point ``tcp`` (flange frame [m]; the plate's
     centre) in the base frame (nominal kinematics; zero after the start or a restart, and kept through rows
     that do not move)."""
-    F = link_frames(model, ctx.q if ctx.q_start is None else np.vstack([ctx.q_start[None], ctx.q]))[:, -1]
+    q, reset = _history(ctx)
+    F = link_frames(model, q)[:, -1]
     pos = F[:, :3, 3] + F[:, :3, :3] @ tcp
-    reset = _resets(ctx)
-    if ctx.q_start is not None:
-        reset = np.concatenate([[False], reset])
     out = np.zeros((len(pos), 3))
     last = np.zeros(3)
     for k in range(len(pos)):
         if reset[k]:
             last = np.zeros(3)
-        elif k > 0:
+        else:
             d = pos[k] - pos[k - 1]
             nd = np.linalg.norm(d)
             if nd > 1e-6:
@@ -685,8 +686,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             for ch, fs, words in specs:
                 atoms.append(Atom("unnamed", "field", "meas_field", fs, ch, f"unnamed: {words}", "generic"))
             if _time_channel(ctx):
-                # the instrument warming up after switch-on: its scale and range errors settle with time
-                span = float(np.ptp(ctx.t_s))
+                # the instrument warming up after switch-on: its scale and range errors settle with time (here
+                # the time channel is t_s, and span its range)
                 for ch, fs, words in specs:
                     if ch not in ("scale vs depth", "range error vs range", "range error vs range^2"):
                         continue

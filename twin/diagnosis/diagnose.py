@@ -468,14 +468,11 @@ def _implausible(prob: _Problem, s) -> str | None:
 
 def _single_joint_variable(a: Atom) -> str | None:
     """The one joint variable (``"q4"``) a joint atom's features are functions of (pow/sin/cos), else None."""
-    kinds = {f.get("kind") for f in a.features}
-    if a.place != "joint" or not kinds <= {"pow", "sin", "cos"}:
+    if a.place != "joint" or not {f.get("kind") for f in a.features} <= {"pow", "sin", "cos"}:
         return None
-    chans = {f.get("ch") for f in a.features if isinstance(f.get("ch"), str)}
-    if len(chans) != 1 or len(chans) != len({repr(f.get("ch")) for f in a.features}):
-        return None
-    ch = next(iter(chans))
-    return ch if isinstance(ch, str) and ch.startswith("q") else None
+    chans = {f["ch"] for f in a.features}  # pow/sin/cos features name one channel each
+    ch = chans.pop() if len(chans) == 1 else ""
+    return ch if ch.startswith("q") else None
 
 
 def _named_shapes(prob: _Problem, fit: _Fit, pool: list[Atom], sizes: dict,

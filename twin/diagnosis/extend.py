@@ -180,7 +180,7 @@ class ExtendedModel:
         """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``."""
         x, phis = self.split(z)
         obs = self.effective_obs(phis)
-        first_order = [t.atom.place in ("length", "param", "scale", "field") or t.atom.varying_plate for t in self.terms]
+        first_order = [t.atom.first_order for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
         res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,

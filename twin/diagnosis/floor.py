@@ -191,6 +191,30 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarra
     return np.sqrt(s2), float(2 * (full.sum() - 1)), systematic, lever
 
 
+def _stated_axes(sig: float, pl: tuple | None) -> tuple[np.ndarray, str]:
+    """The stated figure ``sig`` [m] per axis ``(3,)``, and how it was read. One figure per coordinate is an
+    average over the axes: where the plate's distances (``pl``, :func:`_plate_floor`) show how the axes differ (a
+    stereo instrument is worse in depth), it is spread over them in that shape with the same RMS, or the better
+    axes' floor is inflated and the test blunted there. An axis the distances barely point along (the depth,
+    when the plate faces the instrument: lever ~0.09) is estimated low and noisily: it may raise the stated
+    figure there, never lower it; the well-measured axes share the rest of the RMS. Only a clear difference
+    counts (``ANISOTROPY_MIN``): the plate's per-axis figures scatter by ~15 %, and a floor lowered on one axis
+    by that much let a spurious term in on a blind campaign."""
+    iso = np.full(3, sig)
+    if pl is None or pl[1] < 100 or not np.all(pl[0] > 0):
+        return iso, ""
+    shape, lever = pl[0], pl[3]
+    shaped = sig * shape / np.sqrt(np.mean(shape**2))
+    weak = lever < WEAK_LEVER
+    shaped[weak] = np.maximum(shaped[weak], sig)
+    rest = 3 * sig**2 - float(np.sum(shaped[weak] ** 2))
+    if np.any(~weak) and rest > 0:
+        shaped[~weak] = shape[~weak] * np.sqrt(rest / float(np.sum(shape[~weak] ** 2)))
+    if shaped.max() < ANISOTROPY_MIN * shaped.min():
+        return iso, ""
+    return shaped, ", spread over the axes as the plate shows"
+
+
 def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> NoiseFloor:
     """The sphere-coordinate noise floor (see the module docstring): per axis the largest of the repeats'
     spread, the plate-geometry spread and the stated figure, with the smallest degrees of freedom of the
@@ -214,27 +238,7 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
                  "or temperature: the instrument's distortion, a sphere or plate that moves, thermal growth")
         comps["plate"] = (pl[0], pl[1], f"spread of the plate's inter-sphere distances over {int(pl[1] / 2 + 1)} rows{extra}")
     if stated_ok and ds.noise_position is not None:
-        sig = float(ds.noise_position)
-        stated = np.full(3, sig)
-        how = ""
-        # one stated figure per coordinate is an average over the axes: where the plate's distances show how the
-        # axes differ (a stereo instrument is worse in depth), spread it over them in that shape, or the better
-        # axes' floor is inflated and the test blunted there. An axis the distances barely point along (the
-        # depth, when the plate faces the instrument: lever ~0.09) is estimated low and noisily: it may raise
-        # the stated figure there, never lower it; the well-measured axes share the rest of the RMS.
-        if pl is not None and pl[1] >= 100 and np.all(pl[0] > 0):
-            shape, lever = pl[0], pl[3]
-            shaped = sig * shape / np.sqrt(np.mean(shape**2))
-            weak = lever < WEAK_LEVER
-            shaped[weak] = np.maximum(shaped[weak], sig)
-            rest = 3 * sig**2 - float(np.sum(shaped[weak] ** 2))
-            if np.any(~weak) and rest > 0:
-                shaped[~weak] = shape[~weak] * np.sqrt(rest / float(np.sum(shape[~weak] ** 2)))
-            # only a clear difference between the axes: the plate's per-axis figures scatter by ~15 % (a floor
-            # lowered on one axis by that much let a spurious term in on a blind campaign)
-            if shaped.max() >= ANISOTROPY_MIN * shaped.min():
-                stated = shaped
-                how = ", spread over the axes as the plate shows"
+        stated, how = _stated_axes(float(ds.noise_position), pl)
         comps["stated"] = (stated, float("inf"), f"dataset.toml [noise] position_mm (stated){how}")
     if not comps:
         raise DiagnosisError(

@@ -8,6 +8,7 @@ the measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from dataclasses import replace as _rep
 
 import numpy as np
 from scipy import stats
@@ -573,8 +574,6 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
 def _refine_order(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
     """A scanned cyclic order (half-order grid) moved to the order that explains most within half a grid step
     (a stage's ratio need not be a half-integer), zoomed twice."""
-    from dataclasses import replace as _rep
-
     best = s
     for half in (0.25, 0.06):
         k0 = best.atom.features[0]["k"]
@@ -622,8 +621,6 @@ def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank:
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
     """``atom`` with the constant ``key`` (``tau`` [s], ``w`` or ``h`` [rad], ``k`` [rad/s]) of its features set to
     ``v``; channel and label renamed to match."""
-    from dataclasses import replace as _rep
-
     old = next(f[key] for f in atom.features if key in f)
     feats = tuple(dict(f, **{key: float(v)}) if key in f else f for f in atom.features)
     if key == "tau":
@@ -638,8 +635,6 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
 def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
     neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
-    from dataclasses import replace as _rep
-
     f0 = next(f for f in s.atom.features if f.get("kind") == "step")
     ch = f0["ch"]
     values = np.unique(feature_values(({"kind": "pow", "ch": ch, "p": 1, "c": 0.0, "h": 1.0},), prob.ctx,
