@@ -5,37 +5,38 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
-PEERS_STAMP := $(VENV)/.peers-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
+# uv installs exactly what uv.lock pins (every extra: test, peers, dask) into .venv; uv itself comes pinned by
+# hash from .ci/uv-requirements.txt into .tools/. `make lock` is the only target that changes uv.lock.
+TOOLS := .tools
+UV := $(TOOLS)/bin/uv
+STAMP := $(VENV)/.synced-$(shell cat pyproject.toml uv.lock | sha1sum | cut -c1-12)
+export UV_PYTHON_DOWNLOADS := never
 export MUJOCO_GL ?= egl
 # many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/__init__.py)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
+# test workers: one per core (pytest-xdist)
+JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: run run-quick test test-fast bench install peers sysdeps sysdeps-browser clean
+.PHONY: run run-quick test test-fast bench install lock sysdeps sysdeps-browser clean
 
-$(PY):
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
+$(UV): .ci/uv-requirements.txt
+	$(PYTHON) -m venv $(TOOLS)
+	$(TOOLS)/bin/python -m pip install -q --require-hashes -r .ci/uv-requirements.txt
+	touch $(UV)
 
-$(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e ".[test]"
-	rm -f $(VENV)/.installed-*
+$(STAMP): pyproject.toml uv.lock | $(UV)
+	$(UV) sync --frozen --all-extras --python $(PYTHON)
+	rm -f $(VENV)/.synced-*
 	touch $(STAMP)
 
 install: sysdeps $(STAMP)
 
-# The peer calibrators (FIGAROH with Pinocchio, pybotics, robotkinecal): the adapter tests of `make test` and
-# `make bench` need them. pybotics and robotkinecal pin numpy<2 in their metadata (rerun-sdk needs numpy>=2);
-# they run on numpy 2, so they are installed without their metadata's dependencies, which the `peers` extra
-# brings instead (pyproject.toml).
-$(PEERS_STAMP): $(STAMP)
-	$(PY) -m pip install -q -e ".[test,peers]"
-	$(PY) -m pip install -q --no-deps "pybotics>=3.1.2,<4" "robotkinecal>=0.1.0,<0.2"
-	rm -f $(VENV)/.peers-*
-	touch $(PEERS_STAMP)
-
-peers: install $(PEERS_STAMP)
+# Refresh the lock deliberately (newest releases allowed by pyproject.toml), then rerun the suite and the
+# benchmarks before committing uv.lock with what they measured.
+lock: $(UV)
+	$(UV) lock --upgrade
+	@echo "uv.lock refreshed: now run make test and make bench, and commit uv.lock with their results"
 
 # Offscreen MuJoCo rendering needs Mesa's EGL (llvmpipe on CPU).
 sysdeps:
@@ -58,14 +59,14 @@ run-quick: install
 	$(VENV)/bin/twin campaign experiments/separation.toml --out results/separation-quick --quick
 
 # the whole suite, the peer-adapter tests included (they skip, with the reason, only where a peer is missing)
-test: install peers sysdeps-browser
-	$(PY) -m pytest -q
+test: install sysdeps-browser
+	$(PY) -m pytest -q -n $(JOBS)
 
 test-fast: install
-	$(PY) -m pytest -q -m "not slow and not browser"
+	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not browser"
 
-bench: peers
+bench: install
 	$(PY) experiments/benchmark.py
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) $(TOOLS) .pytest_cache

@@ -15,7 +15,7 @@ from twin.kinematics import tool2base, tool2meas  # noqa: E402
 from twin.presets import preset_deviation  # noqa: E402
 from twin.robots import brtirus0707a  # noqa: E402
 
-_WHY = "not installed: `make peers` installs the peer calibrators (the `peers` extra, pybotics and robotkinecal --no-deps)"
+_WHY = "not installed: `make install` installs the peer calibrators (the `peers` extra of uv.lock)"
 
 
 def _need(module: str):
