@@ -10,19 +10,63 @@ import platform
 from pathlib import Path
 from typing import Any
 
-__all__ = ["update_benchmark_section", "read_benchmark", "machine_info"]
+__all__ = ["update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES"]
 
 DEFAULT_PATH = Path(__file__).resolve().parent.parent / "results" / "benchmark.json"
 
 
+# the packages whose version can change a figure: results (numerics, rendering, image processing) or times
+PROVENANCE_PACKAGES = ("numpy", "scipy", "mujoco", "opencv-python-headless", "rerun-sdk", "yourdfpy", "figaroh", "pin")
+
+
+def _cpu_model() -> str | None:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def _versions() -> dict[str, str | None]:
+    from importlib import metadata
+
+    out: dict[str, str | None] = {}
+    for name in PROVENANCE_PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
 def machine_info() -> dict[str, Any]:
-    """What the figures were measured on."""
+    """What the figures were measured on: CPU model and count, Python and the versions of the packages that
+    can change a result or a time (``PROVENANCE_PACKAGES``), the 1/5/15-minute load average when written."""
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        load = None
     return {
         "cpu_count": os.cpu_count(),
+        "cpu_model": _cpu_model(),
         "machine": platform.machine(),
         "python": platform.python_version(),
+        "packages": _versions(),
+        "load_average_1_5_15": load,
         "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
+
+
+def provenance(load_at_start: tuple[float, float, float] | list[float] | None = None) -> dict[str, Any]:
+    """The ``provenance`` block every results file carries: :func:`machine_info` at the time of writing,
+    plus the load average the run started under (``load_at_start``, from ``os.getloadavg()``) when given.
+    Comparisons of results ignore this block."""
+    out = machine_info()
+    if load_at_start is not None:
+        out["load_average_at_start_1_5_15"] = [round(float(x), 2) for x in load_at_start]
+    return out
 
 
 def read_benchmark(path: str | os.PathLike | None = None) -> dict[str, Any]:
