@@ -35,17 +35,32 @@ __all__ = ["calibrate", "identify_best", "identifiability", "METHODS", "candidat
 _MM = 1e-3
 
 
-def candidates(space: ParamSpace, error_model: ErrorModel) -> np.ndarray:
+LEVELS = ("full", "offsets", "frames")
+
+
+def candidates(space: ParamSpace, error_model: ErrorModel, level: str = "full") -> np.ndarray:
     """Mask of the parameters an error model estimates: ``"tmmdh"`` all (robot structure, tool, a base per
     station: the TM-MDH paper's model, 37 for one station); ``"structural"`` the robot structure only (the
-    separation paper's MDH+beta / the TM-MDH paper's DH+beta: base and tool held at their given values)."""
+    separation paper's MDH+beta / the TM-MDH paper's DH+beta: base and tool held at their given values).
+
+    ``level`` restricts the robot structure: ``"full"`` every geometric parameter of every joint,
+    ``"offsets"`` the joint offsets only (``theta_i`` of a 6R chain, ``<joint>.offset`` of any chain),
+    ``"frames"`` none (base and tool only)."""
+    if level not in LEVELS:
+        raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
     if error_model == "tmmdh":
-        return np.ones(space.size, dtype=bool)
-    if error_model == "structural":
+        m = np.ones(space.size, dtype=bool)
+    elif error_model == "structural":
         m = np.zeros(space.size, dtype=bool)
         m[: space.n_robot] = True
-        return m
-    raise ValueError(f"error_model must be 'tmmdh' or 'structural', got {error_model!r}")
+    else:
+        raise ValueError(f"error_model must be 'tmmdh' or 'structural', got {error_model!r}")
+    if level != "full":
+        joint = set(space.chain.structure.joint_params) if level == "offsets" else set()
+        m[: space.n_robot] &= np.array([n in joint for n in space.names[: space.n_robot]], dtype=bool)
+    if not m.any():
+        raise ValueError(f"error_model {error_model!r} with level {level!r} leaves no parameter to estimate")
+    return m
 
 
 def _variance_components(res, J_w: np.ndarray, inl_rows: np.ndarray) -> dict[int, tuple[float, float]]:
@@ -68,6 +83,7 @@ def identify_best(
     gauge: Literal["frames", "structure"] = "frames",
     robust: bool = True,
     alpha: float = 1e-3,
+    level: str = "full",
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """Our estimator: statistically weighted, column-scaled, robust, start-independent.
@@ -87,7 +103,7 @@ def identify_best(
     """
     space = prep.space
     obs = prep.obs_cal
-    cand = candidates(space, error_model)
+    cand = candidates(space, error_model, level)
     check_design(obs, int(cand.sum()))
     x0 = prep.x_nominal.copy()
     res0 = absolute_residuals(space, x0, obs)
@@ -184,7 +200,8 @@ def identify_best(
         noise=noise,
         trace=tuple(trace),
         notes=tuple(notes),
-        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge},
+        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge,
+               "level": level},
     )
 
 
@@ -334,6 +351,9 @@ def calibrate(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if method != "best" and dataset.robot.convention not in ("mdh", "dh"):
+        raise ValueError(f"method {method!r} reproduces a paper on 6R DH/MDH arms; robot {dataset.robot.name!r} is a "
+                         f"{dataset.robot.n_joints}-joint {dataset.robot.convention!r} chain: use method 'best'")
     prep = prepare(
         dataset,
         measurement=measurement,

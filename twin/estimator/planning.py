@@ -409,7 +409,7 @@ def plan_measurements(
             progress(f"station {s}: {qk.shape[0]} visible candidates")
     Q = np.concatenate(qs)
     S = np.concatenate(st)
-    space = ParamSpace(Chain(model.convention, model.beta_joints), names)
+    space = ParamSpace(Chain.of(model), names)
     x0 = space.from_model(model.with_frames(base2meas=np.eye(4)), {s: np.asarray(stations[s], float) for s in names})
     Tinv = invert_transform(model.tool2flange)
     s_tool = plate.spheres_flange @ Tinv[:3, :3].T + Tinv[:3, 3]
