@@ -152,7 +152,7 @@ def read_urdf_chain(path: str | os.PathLike, root_link: str, end_link: str, *, n
             xyz=tuple(O[:3, 3]), rpy=tuple(euler_zyx_from_matrix(O[:3, :3])), axis=tuple(axis),
             q_min=lo, q_max=hi, inertial=_combine(subtree_parts(j.child, np.eye(4))),
         ))
-    return RobotModel.from_joints(name or f"{u.robot.name}:{root_link}->{end_link}", specs, end_origin=T_acc)
+    return RobotModel.from_joints(name or u.robot.name or "robot", specs, end_origin=T_acc)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -383,6 +383,7 @@ def identifiability(
     measurement: Literal["auto", "spheres", "pose"] = "auto",
     rows: Literal["calibration", "all"] = "calibration",
     tol: float = 1e-6,
+    level: str = "full",
 ):
     """Identifiability analysis of ``dataset``'s configurations at the nominal model (stations registered).
 
@@ -395,5 +396,5 @@ def identifiability(
     obs = prep.obs if rows == "all" else prep.obs_cal
     if part != "full" and obs.kind == "spheres":
         obs = obs.as_poses()
-    cand = candidates(prep.space, error_model)
+    cand = candidates(prep.space, error_model, level)
     return analyse(prep.space, prep.x_nominal, obs, cand, gauge=gauge, part=part, tol=tol)

@@ -299,16 +299,20 @@ def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
                               "explains (wrong robot, wrong units, swapped columns, or the stated noise far too small?)")
 
 
-def plate_noise(ds: Dataset) -> float | None:
+def plate_noise(ds: Dataset, *, virtual_m: float = 1e-6) -> float | None:
     """The instrument's error per coordinate [m] seen in the marker set: the robust spread of the inter-point
     distances over the rows with all K points, divided by sqrt(2) (None with fewer than 10 such rows or K < 2).
-    No kinematic error changes these distances, so a fit cannot be much worse than this."""
+    No kinematic error changes these distances, so a fit cannot be much worse than this. Distances constant to
+    below ``virtual_m`` (1 um: no instrument measures independent points that well) are the virtual points of a
+    tracked rigid body (a motion-capture body's points, computed from its fitted pose): they carry no noise
+    information, and the answer is None."""
     full = ds.sphere_seen.all(axis=1)
     if full.sum() < 10 or not ds.plate.pairs:
         return None
     d = _distances(ds.spheres[full], ds.plate.pairs)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return float(np.sqrt(np.mean(mad**2) / 2.0))
+    sigma = float(np.sqrt(np.mean(mad**2) / 2.0))
+    return None if sigma < virtual_m else sigma
 
 
 def check_fit_against_plate(fit_rms_per_coordinate_m: float, sigma_plate_m: float | None, *,
