@@ -327,3 +327,26 @@ def test_oblique_axis_turns_about_that_axis():
     m = RobotModel.from_joints("one", [JointSpec("j", "revolute", (0, 0, 0), (0, 0, 0), tuple(a), -3, 3)])
     F = flange2base(m, np.array([[0.7]]))[0]
     assert np.abs(F[:3, :3] - rotvec_to_matrix(a * 0.7)).max() < 1e-14
+
+
+def test_plan_on_the_eight_joint_arm_picks_visible_configurations(tiago):
+    """Planning on a chain without a closed-form inverse samples joint space: every chosen configuration of the
+    8-joint arm is visible and inside the limits, and the D-optimal plan predicts no worse than random plans."""
+    from twin.dataset import Plate
+    from twin.estimator.planning import PlanOptions, StereoCamera, plan_measurements, visibility
+    from twin.transforms import invert_transform, make_transform
+
+    cam = StereoCamera.from_json_dict({
+        "kind": "stereo_camera", "image_width": 1280, "image_height": 1024,
+        "left": {"fx_px": 900, "fy_px": 900, "cx_px": 640, "cy_px": 512},
+        "right": {"fx_px": 900, "fy_px": 900, "cx_px": 640, "cy_px": 512},
+        "left2right": {"R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "t_mm": [-200.0, 0, 0]}})
+    cam2base = make_transform(np.array([[0, 0, -1], [-1, 0, 0], [0, -1, 0]], dtype=float), np.array([1.6, 0.0, 0.9]))
+    b2m = invert_transform(cam2base)
+    plate = Plate(0.0, np.array([[0.06, 0, 0.07], [0.08, 0, -0.09], [0.17, 0.01, -0.06], [0.17, 0, 0.05]]))
+    opts = PlanOptions(depth=(1.0, 2.0), max_tilt=np.deg2rad(80))
+    res = plan_measurements(tiago, {"front": b2m}, cam, plate, 25, pool_per_station=120, n_random=4, seed=1,
+                            options=opts)
+    assert res.q.shape == (25, 8) and tiago.within_limits(res.q).all()
+    assert visibility(tiago, res.q, b2m, cam, plate, opts)[0].all()
+    assert res.floor_plan <= np.median(res.floor_random)
