@@ -21,6 +21,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--level", choices=["full", "offsets", "frames"], default=None,
                    help="best only: which robot parameters are estimated besides base and tool: full (every "
                         "geometric parameter, default), offsets (joint offsets only), frames (none)")
+    p.add_argument("--prior-mm", type=float, default=None,
+                   help="best only: Gaussian prior sd [mm] on every robot length's deviation from nominal (MAP fit)")
+    p.add_argument("--prior-mrad", type=float, default=None,
+                   help="best only: Gaussian prior sd [mrad] on every robot angle's deviation (joint offsets excluded)")
+    p.add_argument("--prior-offset-mrad", type=float, default=None,
+                   help="best only: Gaussian prior sd [mrad] on the joint offsets (mm for a prismatic joint)")
     p.add_argument("--measurement", choices=["auto", "spheres", "pose"], default="auto")
     p.add_argument("--solver", choices=["spectral", "scaled"], default=None,
                    help="distance/fullpose/separation: the paper's spectral correction (default) or scaled GN")
@@ -52,6 +58,12 @@ def _options(args) -> dict:
         if args.method != "best":
             raise ValueError("--level applies to --method best only")
         opts["level"] = args.level
+    prior = {k: v * 1e-3 for k, v in (("length", args.prior_mm), ("angle", args.prior_mrad),
+                                       ("offset", args.prior_offset_mrad)) if v is not None}
+    if prior:
+        if args.method != "best":
+            raise ValueError("--prior-mm / --prior-mrad / --prior-offset-mrad apply to --method best only")
+        opts["prior"] = prior
     if args.solver is not None:
         if args.method not in ("distance", "fullpose", "separation", "separation_paper"):
             raise ValueError(f"--solver applies to distance, fullpose and separation, not {args.method!r}")
