@@ -7,7 +7,8 @@ Run from the repository root::
 It imports the committed campaign (``data/tiago_mocap``) with ``twin import`` (into a temporary folder), calibrates
 it at every parameter level with ``twin.estimator.calibrate``, runs FIGAROH itself on the same files when it is
 installed (the ``peers`` extra), and writes ``studies/tiago_mocap/results/results.json`` (with a ``provenance``
-block), ``results/table.md`` and the ``real_data`` section of ``results/benchmark.json``.
+block), ``results/table.md`` and the ``real_data`` section of ``results/benchmark.json``; then the prototype of
+non-geometric effects (``effects_run.py``: ``results/effects.json``, ``results/effects.md``).
 """
 
 from __future__ import annotations
@@ -221,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(HERE / "results"), help="results folder (default studies/tiago_mocap/results)")
     ap.add_argument("--no-figaroh", action="store_true", help="do not run FIGAROH (its figures are quoted only)")
     ap.add_argument("--no-benchmark", action="store_true", help="do not write the real_data benchmark section")
+    ap.add_argument("--no-effects", action="store_true", help="skip the non-geometric prototype (effects_run.py)")
     args = ap.parse_args(argv)
     load = os.getloadavg()
     from twin.benchio import provenance, update_benchmark_section
@@ -285,6 +287,10 @@ def main(argv: list[str] | None = None) -> int:
             "provenance": provenance(load),
         })
     print(table(results))
+    if not args.no_effects:
+        import effects_run
+
+        effects_run.main()
     return 0
 
 
