@@ -218,3 +218,36 @@ def test_cli_import_error_exits_2(tmp_path, capsys):
     code = main(["import", str(TRAIN), "--urdf", str(URDF), "--root", "base_link", "--end", "nowhere",
                  "--out", str(tmp_path / "x")])
     assert code == 2 and "'nowhere' is not a link" in capsys.readouterr().err
+
+
+def test_cli_predict_compensate_export_on_the_eight_joint_arm(tmp_path, capsys):
+    """The CLI after import: predict writes the four points per JOINTS row, compensate returns the robot's joint
+    columns and reaches the targets on the calibrated model, export writes a URDF and an MJCF MuJoCo loads."""
+    import mujoco
+
+    from twin.dataset import Joints, read_joints_csv, write_joints_csv
+    from twin.estimator import Calibration
+    from twin.estimator.files import read_pred_csv, write_targets_csv
+    from twin.kinematics import tool2base
+
+    out = tmp_path / "ds"
+    assert main(["import", str(TRAIN), "--urdf", str(URDF), "--root", "base_link", "--end", END, "--out", str(out)]) == 0
+    assert main(["calibrate", str(out), "--out", str(tmp_path / "cal"), "--level", "offsets", "--quiet"]) == 0
+    calp = tmp_path / "cal" / "calibration.json"
+    cal = Calibration.load(calp)
+    ds = read_dataset(out)
+    q = ds.q[[0, 5, 9]]
+    q[:, 0] = np.clip(q[:, 0], 0.05, 0.3)
+    write_joints_csv(tmp_path / "joints.csv", Joints(pose_id=np.arange(3), q=q), robot=cal.nominal)
+    assert main(["predict", str(calp), str(tmp_path / "joints.csv"), "--out", str(tmp_path / "pred.csv")]) == 0
+    pred = read_pred_csv(tmp_path / "pred.csv")
+    assert pred["spheres"].shape == (3, 4, 3)
+    assert np.abs(pred["spheres"] - cal.predict(read_joints_csv(tmp_path / "joints.csv", robot=cal.nominal).q).spheres).max() < 1e-6
+    write_targets_csv(tmp_path / "targets.csv", np.arange(3), tool2base(cal.nominal, q))
+    assert main(["compensate", str(calp), str(tmp_path / "targets.csv"), "--reference", str(tmp_path / "joints.csv"),
+                 "--out", str(tmp_path / "cmd.csv")]) == 0
+    cmd = read_joints_csv(tmp_path / "cmd.csv", robot=cal.nominal)
+    assert np.abs(tool2base(cal.robot, cmd.q)[:, :3, 3] - tool2base(cal.nominal, q)[:, :3, 3]).max() < 1e-9
+    assert main(["export", str(calp), "--out", str(tmp_path / "exp")]) == 0
+    assert read_urdf_chain(tmp_path / "exp" / "robot.urdf", "base", "tool").n_joints == 8
+    mujoco.MjModel.from_xml_path(str(tmp_path / "exp" / "robot.xml"))

@@ -27,7 +27,8 @@ def check_joints_file(path, q, pose_id, robot, force: bool, what: str) -> None:
         problems = check_joint_values(q, pose_id, robot.q_min, robot.q_max, where="JOINTS.csv", joint_names=names,
                                       prismatic=None if six_r else robot.is_prismatic)
         if problems:
-            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
+            unit = "degrees" if six_r or not robot.is_prismatic.any() else "degrees, millimetres for a prismatic joint,"
+            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints ({unit} expected)")
     except ImplausibleData as exc:
         if not force:
             raise ValueError(f"{path}: {exc}; nothing written (--force goes on anyway)") from None
