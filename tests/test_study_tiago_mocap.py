@@ -50,3 +50,15 @@ def test_quoted_repeatability_and_effects_figures_match_the_results():
     v = best["validation"]
     assert re.search(rf"from {base['validation']['all']['rmse']:.2f}\s+to {v['all']['rmse']:.2f} mm", text)
     assert f"{v['new_in_range']['rmse']:.2f}" in text and f"{v['outside']['rmse']:.2f}" in text
+
+
+def test_quoted_coefficient_ranges_match_the_results():
+    """The ranges of the compliance and tilt coefficients quoted in the README are those of every fit."""
+    eff = json.loads((STUDY / "results" / "effects.json").read_text())
+    fits = eff["rows"] + eff["swapped_days"]
+    text = (STUDY / "README.md").read_text()
+    arm3 = [r["effect_parameters"]["c_arm_3_joint"] * 1e3 for r in fits if "c_arm_3_joint" in r["effect_parameters"]]
+    tilt = [r["effect_parameters"][k] * 1e3 for r in fits for k in ("k_tilt_x", "k_tilt_y") if k in r["effect_parameters"]]
+    assert len(arm3) == 12 and min(arm3) > 0
+    assert f"({min(arm3):.2f}\n  to {max(arm3):.2f} mrad/Nm)" in text or f"({min(arm3):.2f} to {max(arm3):.2f} mrad/Nm)" in text
+    assert f"from {min(tilt):.2f} to {max(tilt):.2f} mrad/Nm" in text

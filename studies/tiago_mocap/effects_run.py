@@ -57,7 +57,7 @@ def cv_rmse(ds, points, level: str, eff) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
 
-def run(ds, points, group, level: str) -> list[dict]:
+def run(ds, points, group, level: str, cv: bool = True) -> list[dict]:
     cal_rows = np.flatnonzero(ds.set == "calibration")
     val_rows = np.flatnonzero(ds.set == "validation")
     out = []
@@ -68,7 +68,7 @@ def run(ds, points, group, level: str) -> list[dict]:
         e_val = np.linalg.norm(em.predict(z, val_rows) - ds.spheres[val_rows], axis=-1)[:, points] * 1e3
         n_geo = int(np.sum(np.abs(z[: prep.space.size] - prep.x_nominal) > 0))
         out.append({"level": level, "effects": list(eff) or ["none"], "parameters": n_geo + em.n_eff,
-                    "cv_rmse_mm": cv_rmse(ds, points, level, eff),
+                    "cv_rmse_mm": cv_rmse(ds, points, level, eff) if cv else None,
                     "effect_parameters": dict(zip(em.names, [float(v) for v in z[prep.space.size:]])),
                     "training": stats(e_cal), "validation": by_group(e_val, group)})
     return out
@@ -84,10 +84,12 @@ def main() -> int:
     p = cfg["protocol"]
     data = ROOT / "data" / "tiago_mocap"
     files = [(data / p["training"], "calibration"), (data / p["validation"], "validation")]
+    swapped = [(data / p["validation"], "calibration"), (data / p["training"], "validation")]
     with tempfile.TemporaryDirectory() as tmp:
         import_mocap(files, data / p["urdf"], p["root_link"], p["end_link"], Path(tmp) / "m1", points=[1])
         import_mocap(files, data / p["urdf"], p["root_link"], p["end_link"], Path(tmp) / "b4")
-        ds1, ds4 = read_dataset(Path(tmp) / "m1"), read_dataset(Path(tmp) / "b4")
+        import_mocap(swapped, data / p["urdf"], p["root_link"], p["end_link"], Path(tmp) / "sw")
+        ds1, ds4, dsw = (read_dataset(Path(tmp) / k) for k in ("m1", "b4", "sw"))
     cal = ds1.set == "calibration"
     group, _, _ = split_validation(ds1.q[cal], ds1.q[~cal], p["replay_tolerance"], p["range_margin"])
     rows = []
@@ -99,7 +101,15 @@ def main() -> int:
         best = min(vr, key=lambda r: r["cv_rmse_mm"])
         best["chosen_by_training_cv"] = True
         rows += vr
-    res = {"command": ".venv/bin/python studies/tiago_mocap/effects_run.py", "rows": rows, "provenance": provenance(load)}
+    # the other direction: fit on 2021-11-26 (62 postures), score on 2021-11-30: do the coefficients repeat?
+    cs = dsw.set == "calibration"
+    gsw, _, _ = split_validation(dsw.q[cs], dsw.q[~cs], p["replay_tolerance"], p["range_margin"])
+    swap_rows = []
+    for level in ("offsets", "full"):
+        for r in run(dsw, [0], gsw, level, cv=False):
+            swap_rows.append({"variant": "four points, scored on marker 1; trained on 2021-11-26, scored on 2021-11-30", **r})
+    res = {"command": ".venv/bin/python studies/tiago_mocap/effects_run.py", "rows": rows, "swapped_days": swap_rows,
+           "provenance": provenance(load)}
     out = HERE / "results"
     out.mkdir(exist_ok=True)
     (out / "effects.json").write_text(json.dumps(res, indent=1) + "\n")
@@ -119,6 +129,14 @@ def main() -> int:
         lines.append(f"| {r['variant']} | {r['level']}{star} | {' + '.join(r['effects'])} | {r['parameters']} | {f(r['training'])} | "
                      f"{r['cv_rmse_mm']:.2f} | "
                      f"{f(v['all'])} | {f(v['replayed'])} | {f(v['new_in_range'])} | {f(v['outside'])} | {ep} |")
+    lines += ["", "The other direction (the hand's four points, scored on marker 1): trained on 2021-11-26 (62 postures), "
+              "scored on 2021-11-30 (37).", "",
+              "| level | effects | validation all | replayed | new in range | outside | effect parameters |", "|---|---|---|---|---|---|---|"]
+    for r in swap_rows:
+        v = r["validation"]
+        ep = ", ".join(f"{k} {x * 1e3:.3g} mrad/Nm" for k, x in r["effect_parameters"].items())
+        lines.append(f"| {r['level']} | {' + '.join(r['effects'])} | {f(v['all'])} | {f(v['replayed'])} | "
+                     f"{f(v['new_in_range'])} | {f(v['outside'])} | {ep} |")
     (out / "effects.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
