@@ -13,7 +13,8 @@ FORBIDDEN = {
     "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2"),
     "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", "mujoco", "rerun", "cv2"),
 }
-FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__"}
+FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
+              "mocap"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}
 RERUN_MODULE = "twin/evaluation/recording.py"

@@ -248,7 +248,7 @@ def test_export_of_a_mutated_calibration_is_a_named_error_or_every_file(base, js
         if code == 2:
             assert "error:" in err and not out.exists(), (m, err)
             return
-        assert sorted(p.name for p in out.iterdir()) == ["parameters.csv", "parameters.md", "robot.xml"]
+        assert sorted(p.name for p in out.iterdir()) == ["parameters.csv", "parameters.md", "robot.urdf", "robot.xml"]
         assert "nan" not in (out / "robot.xml").read_text().lower(), m
 
 

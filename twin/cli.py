@@ -16,6 +16,7 @@ SUBCOMMANDS = (
     "campaign",
     "render",
     "measure",
+    "import",
     "calibrate",
     "predict",
     "compensate",

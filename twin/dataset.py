@@ -3,7 +3,12 @@
 The one reader (:func:`read_dataset`) and the one writer (:func:`write_dataset`, :class:`DatasetWriter`)
 of the dataset folder (``poses.csv`` + ``dataset.toml``), and of ``JOINTS.csv``
 (:func:`read_joints_csv` / :func:`write_joints_csv`). Everything here could come from a real robot:
-nothing reads truth. Inside, units are SI; the files hold millimetres and degrees.
+nothing reads truth. Inside, units are SI; the files hold millimetres and degrees (the marker columns may be
+declared in metres in ``dataset.toml``).
+
+A row holds the commanded joints of the dataset's robot (``q1..q6`` for the 6R conventions, the joint names of
+any other chain; degrees for revolute joints, millimetres for prismatic ones) and K >= 1 points of one rigid
+body (the plate's three spheres, a motion-capture body's markers, one reflector) and/or a 6-DOF pose.
 """
 
 from __future__ import annotations
@@ -40,11 +45,27 @@ __all__ = [
     "read_joints_csv",
     "write_joints_csv",
     "robot_from_spec",
+    "marker_columns",
+    "joint_columns",
+    "LENGTH_UNITS",
 ]
 
 SCHEMA_VERSION = 1
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 SPHERE_COLUMNS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
+# Units of the marker (p<k>_x ...) and pose position (x y z) columns of poses.csv, to metres.
+LENGTH_UNITS = {"mm": 1e-3, "m": 1.0}
+
+
+def marker_columns(k: int) -> tuple[str, ...]:
+    """The columns ``p0_x .. p<k-1>_z`` of ``k`` marker points."""
+    return tuple(f"p{i}_{c}" for i in range(int(k)) for c in "xyz")
+
+
+def joint_columns(robot: RobotModel) -> tuple[str, ...]:
+    """The joint columns of ``robot``'s datasets: its joint names (``q1..q6`` for the 6R conventions)."""
+    return tuple(robot.joint_names)
+
 POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz")
 OPTIONAL_COLUMNS = ("set", "station", "pair", "temp_c", "t_s", "status")
 SETS = ("calibration", "validation")
@@ -58,25 +79,38 @@ class DatasetError(ValueError):
 
 @dataclass(frozen=True)
 class Plate:
-    """The three-sphere plate: diameter [m] and nominal sphere centres in the flange frame ``(3, 3)`` [m]."""
+    """The rigid marker set measured on every row: the twin's three-sphere plate, a motion-capture body's
+    points, one reflector. ``spheres_flange`` ``(K, 3)`` [m]: nominal points in the flange frame (K >= 1);
+    ``sphere_diameter`` [m] (0 for points that are not spheres)."""
 
     sphere_diameter: float
     spheres_flange: np.ndarray
 
     def __post_init__(self) -> None:
         s = np.asarray(self.spheres_flange, dtype=float)
-        if s.shape != (3, 3) or not np.all(np.isfinite(s)):
-            raise ValueError(f"spheres_flange must be a finite (3, 3) array [m], got shape {s.shape}")
-        if not (np.isfinite(self.sphere_diameter) and self.sphere_diameter > 0):
-            raise ValueError(f"sphere_diameter must be positive [m], got {self.sphere_diameter!r}")
+        if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 1 or not np.all(np.isfinite(s)):
+            raise ValueError(f"spheres_flange must be a finite (K, 3) array [m] with K >= 1, got shape {s.shape}")
+        if not (np.isfinite(self.sphere_diameter) and self.sphere_diameter >= 0):
+            raise ValueError(f"sphere_diameter must be >= 0 [m], got {self.sphere_diameter!r}")
         s.setflags(write=False)
         object.__setattr__(self, "spheres_flange", s)
 
     @property
+    def n_points(self) -> int:
+        """K, the number of points."""
+        return int(self.spheres_flange.shape[0])
+
+    @property
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """Point pairs ``(a, b)``, ``a < b``, in the order of :attr:`pairwise_distances`."""
+        k = self.n_points
+        return tuple((a, b) for a in range(k) for b in range(a + 1, k))
+
+    @property
     def pairwise_distances(self) -> np.ndarray:
-        """Distances ``(3,)`` [m] between spheres (0-1, 0-2, 1-2)."""
+        """Distances ``(K(K-1)/2,)`` [m] between points (0-1, 0-2, ..., 1-2, ...)."""
         s = self.spheres_flange
-        return np.array([np.linalg.norm(s[0] - s[1]), np.linalg.norm(s[0] - s[2]), np.linalg.norm(s[1] - s[2])])
+        return np.array([np.linalg.norm(s[a] - s[b]) for a, b in self.pairs])
 
 
 def default_plate() -> Plate:
@@ -91,9 +125,10 @@ def default_plate() -> Plate:
 class Dataset:
     """A measured dataset in SI units. ``n`` rows in measurement order.
 
-    ``spheres`` ``(n, 3, 3)`` [m] and ``pose`` ``(n, 4, 4)`` hold measurements only where ``sphere_seen``
-    ``(n, 3)`` / ``pose_seen`` ``(n,)`` say so; elsewhere they are NaN and must not be used (every
-    consumer selects with the masks). ``q`` ``(n, 6)`` [rad] are the commanded joints.
+    ``spheres`` ``(n, K, 3)`` [m] (the K points of ``plate``) and ``pose`` ``(n, 4, 4)`` hold measurements
+    only where ``sphere_seen`` ``(n, K)`` / ``pose_seen`` ``(n,)`` say so; elsewhere they are NaN and must not
+    be used (every consumer selects with the masks). ``q`` ``(n, N)`` [rad, m for prismatic joints] are the
+    commanded joints. ``length_unit``: the unit the file's marker columns were written in (``"mm"``/``"m"``).
     """
 
     robot: RobotModel
@@ -117,10 +152,16 @@ class Dataset:
     stations_base2meas: dict[str, np.ndarray] = field(default_factory=dict)
     provenance: str = ""
     path: Path | None = None
+    length_unit: str = "mm"
 
     @property
     def n(self) -> int:
         return int(self.q.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        """K, the number of marker points per row."""
+        return int(self.spheres.shape[1])
 
     @property
     def has_spheres(self) -> bool:
@@ -168,14 +209,38 @@ class Dataset:
 # Robot specs (dataset.toml "robot")
 # ------------------------------------------------------------------------------------------------
 
-def robot_from_spec(spec: Any, where: str = "dataset.toml") -> RobotModel:
-    """A nominal :class:`RobotModel` from a robot name or an inline table (``docs/formats.md``)."""
+def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.PathLike | None = None) -> RobotModel:
+    """A nominal :class:`RobotModel` from a robot name or a table (``docs/formats.md``): a 6R table
+    (``convention = "mdh"``/``"dh"``), a joint table (``convention = "urdf"``, ``joints = [...]``) or a URDF file
+    (``urdf = "file.urdf"`` relative to ``base_dir``, ``root_link``, ``end_link``)."""
     if isinstance(spec, str):
         if spec not in ROBOTS:
             raise DatasetError(f"{where}: field 'robot': unknown robot name {spec!r}; known: {', '.join(sorted(ROBOTS))}")
         return get_robot(spec)
     if not isinstance(spec, dict):
         raise DatasetError(f"{where}: field 'robot' must be a robot name or a table, got {type(spec).__name__}")
+    if "urdf" in spec:
+        from .urdf import read_urdf_chain
+
+        for k in ("root_link", "end_link"):
+            if k not in spec:
+                raise DatasetError(f"{where}: table 'robot' with a urdf lacks field {k!r}")
+        path = Path(str(spec["urdf"]))
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        try:
+            return read_urdf_chain(path, str(spec["root_link"]), str(spec["end_link"]), name=spec.get("name"))
+        except ValueError as exc:
+            raise DatasetError(f"{where}: table 'robot': {exc}") from None
+    if spec.get("convention") == "urdf":
+        from .robots import robot_from_joint_table
+
+        try:
+            return robot_from_joint_table(spec, where=f"{where}: table 'robot'")
+        except DatasetError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise DatasetError(str(exc)) from None
     need = ("convention", "theta_deg", "d_mm", "a_mm", "alpha_deg")
     for k in need:
         if k not in spec:
@@ -239,27 +304,41 @@ def _read_toml(path: Path) -> dict:
     return meta
 
 
-def _plate_from_meta(meta: dict, where: str) -> Plate:
-    plate = meta.get("plate")
-    if not isinstance(plate, dict):
-        raise DatasetError(f"{where}: missing table [plate] (sphere_diameter_mm, spheres_mm)")
+def _plate_from_meta(meta: dict, where: str) -> tuple[Plate, str]:
+    """The marker set (``[plate]`` or ``[markers]``) and the unit of the marker/pose columns of poses.csv."""
+    if "plate" in meta and "markers" in meta:
+        raise DatasetError(f"{where}: give either [plate] or [markers], not both")
+    if "markers" in meta:
+        tab, what, key, dkey = meta["markers"], "[markers]", "points_mm", "diameter_mm"
+    else:
+        tab, what, key, dkey = meta.get("plate"), "[plate]", "spheres_mm", "sphere_diameter_mm"
+    if not isinstance(tab, dict):
+        raise DatasetError(f"{where}: missing table [plate] (sphere_diameter_mm, spheres_mm) or [markers] (points_mm, unit)")
+    diam = 0.0
+    if dkey in tab or what == "[plate]":
+        try:
+            diam = float(tab[dkey]) * _MM
+        except KeyError:
+            raise DatasetError(f"{where}: {what} lacks field {dkey!r}") from None
+        except (TypeError, ValueError):
+            raise DatasetError(f"{where}: {what} {dkey} is not a number: {tab[dkey]!r}") from None
+    if key not in tab:
+        raise DatasetError(f"{where}: {what} lacks field {key!r} (nominal points in the flange frame)")
     try:
-        diam = float(plate["sphere_diameter_mm"]) * _MM
-    except KeyError:
-        raise DatasetError(f"{where}: [plate] lacks field 'sphere_diameter_mm'") from None
+        s = np.asarray(tab[key], dtype=float)
     except (TypeError, ValueError):
-        raise DatasetError(f"{where}: [plate] sphere_diameter_mm is not a number: {plate['sphere_diameter_mm']!r}") from None
-    if "spheres_mm" not in plate:
-        raise DatasetError(f"{where}: [plate] lacks field 'spheres_mm' (nominal sphere centres in the flange frame)")
-    try:
-        s = np.asarray(plate["spheres_mm"], dtype=float)
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: [plate] spheres_mm must be 3 triples of numbers, got {plate['spheres_mm']!r}") from None
-    if s.shape != (3, 3) or not np.all(np.isfinite(s)):
-        raise DatasetError(f"{where}: [plate] spheres_mm must be 3 triples of finite numbers, got {plate['spheres_mm']!r}")
-    if not (math.isfinite(diam) and diam > 0):
-        raise DatasetError(f"{where}: [plate] sphere_diameter_mm must be positive, got {plate['sphere_diameter_mm']!r}")
-    return Plate(diam, s * _MM)
+        raise DatasetError(f"{where}: {what} {key} must be triples of numbers, got {tab[key]!r}") from None
+    if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 1 or not np.all(np.isfinite(s)):
+        raise DatasetError(f"{where}: {what} {key} must be one or more triples of finite numbers, got {tab[key]!r}")
+    if what == "[plate]" and not (math.isfinite(diam) and diam > 0):
+        raise DatasetError(f"{where}: [plate] sphere_diameter_mm must be positive, got {tab[dkey]!r}")
+    if not (math.isfinite(diam) and diam >= 0):
+        raise DatasetError(f"{where}: {what} {dkey} must be >= 0, got {tab[dkey]!r}")
+    unit = tab.get("unit", "mm")
+    if unit not in LENGTH_UNITS:
+        raise DatasetError(f"{where}: {what} unit must be one of {sorted(LENGTH_UNITS)} (the unit of the marker and "
+                           f"pose position columns of poses.csv), got {unit!r}")
+    return Plate(diam, s * _MM), str(unit)
 
 
 def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
@@ -294,8 +373,9 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     meta = _read_toml(toml_path)
     if "robot" not in meta:
         raise DatasetError(f"{toml_path}: missing field 'robot' (a robot name or an inline table)")
-    robot = robot_from_spec(meta["robot"], str(toml_path))
-    plate = _plate_from_meta(meta, str(toml_path))
+    robot = robot_from_spec(meta["robot"], str(toml_path), base_dir=folder)
+    plate, length_unit = _plate_from_meta(meta, str(toml_path))
+    to_m = LENGTH_UNITS[length_unit]
     noise = meta.get("noise", {}) or {}
     stations_b2m = {}
     for sid, st in (meta.get("stations") or {}).items():
@@ -316,31 +396,41 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     if len(col) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise DatasetError(f"{file}: duplicate columns {dup}")
-    missing = [c for c in ("pose_id",) + JOINT_COLUMNS if c not in col]
+    jcols = joint_columns(robot)
+    jscale = [_MM if pr else _DEG for pr in robot.is_prismatic]
+    missing = [c for c in ("pose_id",) + jcols if c not in col]
     if missing:
-        raise DatasetError(f"{file}: missing required columns {missing}")
-    has_sph_cols = all(c in col for c in SPHERE_COLUMNS)
+        raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
+                           f"{', '.join(jcols)})")
+    K = plate.n_points
+    mcols = marker_columns(K)
+    beyond = [h for h in header if h.startswith("p") and h[1:].split("_")[0].isdigit() and h not in mcols]
+    if beyond:
+        raise DatasetError(f"{file}: columns {beyond[:6]} name marker points beyond the {K} of dataset.toml's marker "
+                           "set")
+    has_sph_cols = all(c in col for c in mcols)
     has_pose_cols = all(c in col for c in POSE_COLUMNS)
-    part_sph = [c for c in SPHERE_COLUMNS if c in col]
+    part_sph = [c for c in mcols if c in col]
     if part_sph and not has_sph_cols:
-        raise DatasetError(f"{file}: sphere columns incomplete, missing {[c for c in SPHERE_COLUMNS if c not in col]}")
+        raise DatasetError(f"{file}: marker columns incomplete, missing {[c for c in mcols if c not in col]}")
     part_pose = [c for c in POSE_COLUMNS if c in col]
     if part_pose and not has_pose_cols:
         raise DatasetError(f"{file}: pose columns incomplete, missing {[c for c in POSE_COLUMNS if c not in col]}")
     if not (has_sph_cols or has_pose_cols):
-        raise DatasetError(f"{file}: no measurement columns: need p0_x..p2_z (spheres) or x y z rx ry rz (pose)")
+        raise DatasetError(f"{file}: no measurement columns: need {mcols[0]}..{mcols[-1]} (markers) or x y z rx ry rz "
+                           "(pose)")
     n = len(rows)
     if n == 0:
         raise DatasetError(f"{file}: no data rows")
 
     pose_id = np.zeros(n, dtype=np.int64)
-    q = np.zeros((n, 6))
-    spheres = np.full((n, 3, 3), np.nan)
-    seen = np.zeros((n, 3), dtype=bool)
+    q = np.zeros((n, robot.n_joints))
+    spheres = np.full((n, K, 3), np.nan)
+    seen = np.zeros((n, K), dtype=bool)
     pose = np.full((n, 4, 4), np.nan)
     pose_seen = np.zeros(n, dtype=bool)
     opt: dict[str, list] = {c: [] for c in OPTIONAL_COLUMNS if c in col}
-    known = set(("pose_id",) + JOINT_COLUMNS + SPHERE_COLUMNS + POSE_COLUMNS + OPTIONAL_COLUMNS)
+    known = set(("pose_id",) + jcols + mcols + POSE_COLUMNS + OPTIONAL_COLUMNS)
     extra_cols = [h for h in header if h not in known]
     extra: dict[str, list] = {c: [] for c in extra_cols}
     seen_ids: dict[int, int] = {}
@@ -360,21 +450,21 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
         seen_ids[pid] = rown
         pose_id[k] = pid
-        for j, c in enumerate(JOINT_COLUMNS):
+        for j, c in enumerate(jcols):
             t = cell(r, c)
             if t == "":
                 raise DatasetError(f"{file}: row {rown} (pose_id {pid}), column {c!r}: empty (commanded joints are required)")
-            q[k, j] = _parse_float(t, file, rown, str(pid), c) * _DEG
+            q[k, j] = _parse_float(t, file, rown, str(pid), c) * jscale[j]
         if has_sph_cols:
-            for s in range(3):
-                cs = SPHERE_COLUMNS[3 * s:3 * s + 3]
+            for s in range(K):
+                cs = mcols[3 * s:3 * s + 3]
                 texts = [cell(r, c) for c in cs]
                 if all(t == "" for t in texts):
                     continue
                 if any(t == "" for t in texts):
                     empty = [c for c, t in zip(cs, texts) if t == ""]
-                    raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: sphere p{s} is partly empty")
-                spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * _MM for t, c in zip(texts, cs)]
+                    raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: point p{s} is partly empty")
+                spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * to_m for t, c in zip(texts, cs)]
                 seen[k, s] = True
         if has_pose_cols:
             texts = [cell(r, c) for c in POSE_COLUMNS]
@@ -383,7 +473,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
                     empty = [c for c, t in zip(POSE_COLUMNS, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: pose is partly empty")
                 v = [_parse_float(t, file, rown, str(pid), c) for t, c in zip(texts, POSE_COLUMNS)]
-                pose[k] = pose6_to_transform(np.array([v[0] * _MM, v[1] * _MM, v[2] * _MM, v[3], v[4], v[5]]))
+                pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
                 pose_seen[k] = True
         for c in opt:
             opt[c].append(cell(r, c))
@@ -397,7 +487,8 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     incomplete = ~(seen.all(axis=1) | pose_seen)
     if has_sph_cols and incomplete.mean() > max_rows_without_spheres:
         raise DatasetError(
-            f"{file}: {int(incomplete.sum())} of {n} rows have fewer than three spheres and no pose "
+            f"{file}: {int(incomplete.sum())} of {n} rows have fewer than "
+            f"{'three spheres' if K == 3 else f'{K} marker points'} and no pose "
             f"(more than {max_rows_without_spheres:.0%}); check the instrument's 'status' column"
         )
 
@@ -454,6 +545,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         stations_base2meas=stations_b2m,
         provenance=str(meta.get("provenance", "")),
         path=folder,
+        length_unit=length_unit,
     )
 
 
@@ -489,8 +581,13 @@ def write_dataset_toml(
     noise_orientation: float | None = None,
     stations_base2meas: dict[str, np.ndarray] | None = None,
     provenance: str = "",
+    length_unit: str = "mm",
 ) -> Path:
-    """Write ``dataset.toml`` (SI in, mm/deg out)."""
+    """Write ``dataset.toml`` (SI in, mm/deg out). The twin's plate (three spheres, columns in millimetres) is
+    written as ``[plate]``, any other marker set as ``[markers]`` with ``length_unit``, the unit of the marker and
+    pose position columns of poses.csv."""
+    if length_unit not in LENGTH_UNITS:
+        raise ValueError(f"length_unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     lines = [f"schema_version = {SCHEMA_VERSION}"]
@@ -499,12 +596,21 @@ def write_dataset_toml(
     lines.append(f"provenance = {_toml_value(provenance)}")
     if isinstance(robot_spec, dict):
         lines += ["", "[robot]"] + [f"{k} = {_toml_value(v)}" for k, v in robot_spec.items()]
-    lines += [
-        "",
-        "[plate]",
-        f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
-        f"spheres_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
-    ]
+    if plate.n_points == 3 and plate.sphere_diameter > 0 and length_unit == "mm":
+        lines += [
+            "",
+            "[plate]",
+            f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
+            f"spheres_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+        ]
+    else:
+        lines += [
+            "",
+            "[markers]",
+            f"unit = {_toml_value(length_unit)}",
+            f"diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
+            f"points_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+        ]
     if noise_position is not None or noise_orientation is not None:
         lines += ["", "[noise]"]
         if noise_position is not None:
@@ -527,12 +633,12 @@ def _toml_key(k: str) -> str:
 
 @dataclass
 class PoseRow:
-    """One measured row, SI units. ``spheres`` ``(3, 3)`` [m] with rows of NaN where not seen is NOT allowed:
-    pass ``None`` for a sphere that was not measured (and say why in ``status``)."""
+    """One measured row, SI units. ``spheres``: K entries (the writer's ``n_points``), each ``(3,)`` [m] or
+    ``None`` for a point that was not measured (say why in ``status``); NaN is NOT allowed."""
 
     pose_id: int
-    q: np.ndarray  # (6,) [rad] commanded
-    spheres: Sequence[np.ndarray | None] | None = None  # 3 entries, each (3,) [m] or None
+    q: np.ndarray  # (N,) [rad, m for prismatic joints] commanded
+    spheres: Sequence[np.ndarray | None] | None = None  # K entries, each (3,) [m] or None
     pose: np.ndarray | None = None  # (4, 4) tool2meas
     set: str | None = None
     station: str | int | None = None
@@ -554,7 +660,9 @@ def _fmt_mm(x: float) -> str:
 
 class DatasetWriter:
     """Streams rows into ``poses.csv`` (header first, one flushed line per row), so that a long campaign
-    loses nothing already measured when it stops. Columns are fixed at construction."""
+    loses nothing already measured when it stops. Columns are fixed at construction: the joints of ``robot``
+    (default ``q1..q6`` in degrees; a prismatic joint in millimetres), ``n_points`` marker points and/or a pose,
+    lengths in ``length_unit``."""
 
     def __init__(
         self,
@@ -565,16 +673,27 @@ class DatasetWriter:
         optional: Iterable[str] = (),
         extra: Iterable[str] = (),
         append: bool = False,
+        robot: RobotModel | None = None,
+        n_points: int = 3,
+        length_unit: str = "mm",
     ) -> None:
+        if length_unit not in LENGTH_UNITS:
+            raise ValueError(f"length_unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}")
+        if int(n_points) < 1:
+            raise ValueError(f"n_points must be at least 1, got {n_points!r}")
+        self._jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
+        self._jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+        self._k = int(n_points)
+        self._to_m = LENGTH_UNITS[length_unit]
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         opt = [c for c in OPTIONAL_COLUMNS if c in set(optional)]
         unknown = set(optional) - set(OPTIONAL_COLUMNS)
         if unknown:
             raise ValueError(f"optional: unknown columns {sorted(unknown)}; known: {list(OPTIONAL_COLUMNS)}")
-        self.columns = ["pose_id", *JOINT_COLUMNS]
+        self.columns = ["pose_id", *self._jcols]
         if spheres:
-            self.columns += SPHERE_COLUMNS
+            self.columns += marker_columns(self._k)
         if pose:
             self.columns += POSE_COLUMNS
         self.columns += opt + [c for c in extra]
@@ -591,29 +710,35 @@ class DatasetWriter:
             self._f.write(",".join(self.columns) + "\n")
             self._f.flush()
 
+    def _fmt_len(self, x: float) -> str:
+        return _fmt_mm(x) if self._to_m == _MM else f"{float(x):.9f}"
+
     def write(self, row: PoseRow) -> None:
-        q = np.asarray(row.q, dtype=float).reshape(6)
+        nj = len(self._jcols)
+        q = np.asarray(row.q, dtype=float).reshape(-1)
+        if q.shape != (nj,):
+            raise ValueError(f"pose_id {row.pose_id}: q must have {nj} values ({', '.join(self._jcols)}), got {q.size}")
         if not np.all(np.isfinite(q)):
             raise ValueError(f"pose_id {row.pose_id}: q must be finite, got {q}")
-        cells = [str(int(row.pose_id))] + [_fmt_deg(x) for x in q]
+        cells = [str(int(row.pose_id))] + [f"{float(x) / sc:.10f}" for x, sc in zip(q, self._jscale)]
         if self._spheres:
-            sph = list(row.spheres) if row.spheres is not None else [None, None, None]
-            if len(sph) != 3:
-                raise ValueError(f"pose_id {row.pose_id}: spheres must have 3 entries (None where not seen)")
+            sph = list(row.spheres) if row.spheres is not None else [None] * self._k
+            if len(sph) != self._k:
+                raise ValueError(f"pose_id {row.pose_id}: spheres must have {self._k} entries (None where not seen)")
             for s in sph:
                 if s is None:
                     cells += ["", "", ""]
                     continue
                 s = np.asarray(s, dtype=float).reshape(3)
                 if not np.all(np.isfinite(s)):
-                    raise ValueError(f"pose_id {row.pose_id}: a sphere centre is not finite ({s}); pass None and a status")
-                cells += [_fmt_mm(x) for x in s]
+                    raise ValueError(f"pose_id {row.pose_id}: a marker point is not finite ({s}); pass None and a status")
+                cells += [self._fmt_len(x) for x in s]
         if self._pose:
             if row.pose is None:
                 cells += [""] * 6
             else:
                 v = transform_to_pose6(np.asarray(row.pose, dtype=float))
-                cells += [_fmt_mm(x) for x in v[:3]] + [f"{x:.12f}" for x in v[3:]]
+                cells += [self._fmt_len(x) for x in v[:3]] + [f"{x:.12f}" for x in v[3:]]
         for c in self._opt:
             v = getattr(row, c)
             if v is None:
@@ -650,17 +775,19 @@ def write_dataset(folder: str | os.PathLike, ds: Dataset) -> Path:
         noise_orientation=ds.noise_orientation,
         stations_base2meas=ds.stations_base2meas,
         provenance=ds.provenance,
+        length_unit=ds.length_unit,
     )
     optional = [c for c in OPTIONAL_COLUMNS if getattr(ds, c) is not None]
     with DatasetWriter(
-        folder, spheres=ds.has_spheres or not ds.has_poses, pose=ds.has_poses, optional=optional, extra=list(ds.extra)
+        folder, spheres=ds.has_spheres or not ds.has_poses, pose=ds.has_poses, optional=optional, extra=list(ds.extra),
+        robot=ds.robot, n_points=ds.n_points, length_unit=ds.length_unit,
     ) as w:
         for k in range(ds.n):
             w.write(
                 PoseRow(
                     pose_id=int(ds.pose_id[k]),
                     q=ds.q[k],
-                    spheres=[ds.spheres[k, s] if ds.sphere_seen[k, s] else None for s in range(3)],
+                    spheres=[ds.spheres[k, s] if ds.sphere_seen[k, s] else None for s in range(ds.n_points)],
                     pose=ds.pose[k] if ds.pose_seen[k] else None,
                     set=None if ds.set is None else ds.set[k],
                     station=None if ds.station is None else ds.station[k],
@@ -683,7 +810,8 @@ JOINTS_OPTIONAL = ("temp_c", "t_s", "station", "set")
 
 @dataclass(frozen=True)
 class Joints:
-    """Rows of ``JOINTS.csv``: ``pose_id`` ``(n,)``, ``q`` ``(n, 6)`` [rad], optional channels."""
+    """Rows of ``JOINTS.csv``: ``pose_id`` ``(n,)``, ``q`` ``(n, N)`` [rad, m for prismatic joints], optional
+    channels."""
 
     pose_id: np.ndarray
     q: np.ndarray
@@ -718,21 +846,24 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
 __all__.append("read_csv_rows")
 
 
-def read_joints_csv(path: str | os.PathLike) -> Joints:
-    """Read ``JOINTS.csv`` (``pose_id, q1..q6`` [deg], optional ``temp_c, t_s, station, set``)."""
+def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) -> Joints:
+    """Read ``JOINTS.csv`` (``pose_id``, the joints of ``robot`` (default ``q1..q6``) in degrees (millimetres for
+    a prismatic joint), optional ``temp_c, t_s, station, set``)."""
     path = Path(path)
-    header, rows = read_csv_rows(path, ("pose_id",) + JOINT_COLUMNS)
+    jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
+    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
-    q = np.zeros((n, 6))
+    q = np.zeros((n, len(jcols)))
     chans: dict[str, list] = {c: [] for c in JOINTS_OPTIONAL if c in header}
     for k, r in enumerate(rows):
         try:
             pid[k] = int(r["pose_id"])
         except (TypeError, ValueError):
             raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': not an integer: {r['pose_id']!r}") from None
-        for j, c in enumerate(JOINT_COLUMNS):
-            q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * _DEG
+        for j, c in enumerate(jcols):
+            q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * jscale[j]
         for c in chans:
             chans[c].append((r[c] or "").strip())
     if len(set(pid.tolist())) != n:
@@ -753,17 +884,22 @@ def read_joints_csv(path: str | os.PathLike) -> Joints:
     )
 
 
-def write_joints_csv(path: str | os.PathLike, joints: Joints) -> Path:
-    """Write ``JOINTS.csv`` from :class:`Joints` (SI in, degrees out)."""
+def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel | None = None) -> Path:
+    """Write ``JOINTS.csv`` from :class:`Joints` (SI in, degrees (millimetres for a prismatic joint) out); the
+    joint columns are ``robot``'s (default ``q1..q6``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    cols = ["pose_id", *JOINT_COLUMNS] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]
+    jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
+    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    if np.shape(joints.q)[1:] != (len(jcols),):
+        raise ValueError(f"joints.q must have shape (n, {len(jcols)}) for columns {', '.join(jcols)}, got {np.shape(joints.q)}")
+    cols = ["pose_id", *jcols] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for k in range(len(joints.pose_id)):
-        row = [str(int(joints.pose_id[k]))] + [_fmt_deg(x) for x in joints.q[k]]
-        for c in cols[7:]:
+        row = [str(int(joints.pose_id[k]))] + [f"{float(x) / sc:.10f}" for x, sc in zip(joints.q[k], jscale)]
+        for c in cols[1 + len(jcols):]:
             v = getattr(joints, c)[k]
             row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
         w.writerow(row)

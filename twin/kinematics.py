@@ -1,30 +1,44 @@
-"""Kinematics of 6R arms in the two papers' conventions (pure numpy, batched).
+"""Kinematics of serial chains (pure numpy, batched): the papers' 6R arms and any chain of revolute and
+prismatic joints.
 
-Conventions (see ``docs/conventions.md``):
+A chain is a sequence of elementary operations (:class:`ChainOp`) per joint: a rotation about, or a translation
+along, a local axis by a parameter (plus, for the joint's own operation, the commanded joint value), or a
+constant rotation or translation. Two families of structures (see ``docs/conventions.md``):
 
-* ``"mdh"`` -- the separation paper's eq. 1 (Craig modified DH). The transform from frame ``i-1`` to
-  frame ``i`` is ``RotX(alpha_i) TransX(a_i) TransZ(d_i) RotZ(theta_i + q_i) RotY(beta_i)``. Here
-  ``alpha_i``/``a_i`` are Craig's ``alpha_{i-1}``/``a_{i-1}``: every parameter is named after the
-  joint whose transform it sits in, as in the paper's Table 1.
-* ``"dh"`` -- the TM-MDH paper's eq. 1 (standard DH + beta):
-  ``RotZ(theta_i + q_i) TransZ(d_i) TransX(a_i) RotX(alpha_i) RotY(beta_i)``.
+* the papers' 6R conventions, six revolute joints with columns ``q1..q6``:
 
-In both, ``RotY(beta_i)`` exists only for joints listed in ``beta_joints``. The tool pose in the
-measurement frame is ``tool2meas = base2meas @ flange2base(q) @ tool2flange``.
+  * ``"mdh"`` -- the separation paper's eq. 1 (Craig modified DH). The transform from frame ``i-1`` to frame
+    ``i`` is ``RotX(alpha_i) TransX(a_i) TransZ(d_i) RotZ(theta_i + q_i) RotY(beta_i)``. Here
+    ``alpha_i``/``a_i`` are Craig's ``alpha_{i-1}``/``a_{i-1}``: every parameter is named after the joint
+    whose transform it sits in, as in the paper's Table 1.
+  * ``"dh"`` -- the TM-MDH paper's eq. 1 (standard DH + beta):
+    ``RotZ(theta_i + q_i) TransZ(d_i) TransX(a_i) RotX(alpha_i) RotY(beta_i)``.
 
-The parameter vector (SI units: [m] and [rad]) is ordered as in the TM-MDH paper::
+  ``RotY(beta_i)`` exists only for joints listed in ``beta_joints``. Parameter vector (SI: [m], [rad]),
+  ordered as in the TM-MDH paper: ``theta1..6, d1..6, a1..6, alpha1..6, beta_j (j in beta_joints)``.
 
-    theta1..6, d1..6, a1..6, alpha1..6, beta_j (j in beta_joints),
+* ``"urdf"`` -- any chain of N revolute or prismatic joints described as URDF joints (``origin`` xyz + rpy,
+  ``axis``; :class:`JointSpec`): joint ``j``'s transform is ``Trans(x_j, y_j, z_j) R_j RotX(rx_j) RotY(ry_j)
+  RotZ(rz_j) Joint_j(offset_j + q_j)`` where ``R_j`` is the nominal origin rotation (constant), ``rx, ry, rz``
+  small origin rotation errors (nominal 0) about the origin frame's axes and ``Joint_j`` a rotation about
+  (revolute) or a translation along (prismatic) the joint axis. Parameters are named ``<joint>.<family>``,
+  family-major: ``offset`` of every joint, then ``x``, ``y``, ``z``, ``rx``, ``ry``, ``rz``. A constant
+  transform after the last joint (fixed joints up to the chain's end link) makes the flange the end link.
+
+Both are followed by the base and tool 6-DOF transforms::
+
     base_x, base_y, base_z, base_rx, base_ry, base_rz,   # base2meas: translation [m], rotation vector [rad]
     tool_x, tool_y, tool_z, tool_rx, tool_ry, tool_rz    # tool2flange: translation [m], rotation vector [rad]
 
-A 6-DOF transform is perturbed additively on its (translation, rotation vector) pair.
+The tool pose in the measurement frame is ``tool2meas = base2meas @ flange2base(q) @ tool2flange``. A 6-DOF
+transform is perturbed additively on its (translation, rotation vector) pair.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
-from typing import Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -32,6 +46,7 @@ from .transforms import (
     invert_transform,
     left_jacobian_so3,
     make_transform,
+    matrix_from_euler_zyx,
     matrix_to_rotvec,
     pose6_to_transform,
     rotvec_to_matrix,
@@ -42,6 +57,9 @@ from .transforms import (
 __all__ = [
     "Convention",
     "N_JOINTS",
+    "ChainOp",
+    "ChainStructure",
+    "JointSpec",
     "ParameterLayout",
     "RobotModel",
     "UnreachableError",
@@ -61,13 +79,18 @@ __all__ = [
     "inverse_kinematics_iterative",
     "closest_branch",
     "wrap_angle",
+    "URDF_FAMILIES",
+    "elementary_transform",
 ]
 
-Convention = Literal["mdh", "dh"]
+Convention = Literal["mdh", "dh", "urdf"]
+# The joint count of the papers' 6R conventions ("mdh", "dh"); a chain's own count is RobotModel.n_joints.
 N_JOINTS = 6
 _POSE_NAMES = ("x", "y", "z", "rx", "ry", "rz")
+# Parameter families of a "urdf" chain, in vector order (family-major).
+URDF_FAMILIES = ("offset", "x", "y", "z", "rx", "ry", "rz")
 
-# Elementary operations per joint, in order of application, for each convention:
+# Elementary operations per joint, in order of application, for each 6R convention:
 # (kind, axis index, parameter family). kind 'r' rotates about the local axis, 't' translates along it.
 _OPS: dict[str, tuple[tuple[str, int, str], ...]] = {
     "mdh": (("r", 0, "alpha"), ("t", 0, "a"), ("t", 2, "d"), ("r", 2, "theta"), ("r", 1, "beta")),
@@ -85,32 +108,284 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
     return np.where(a <= -np.pi, a + 2.0 * np.pi, a)
 
 
+# ------------------------------------------------------------------------------------------------
+# Chain structure
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ChainOp:
+    """One elementary operation of a chain.
+
+    ``kind``: ``"r"`` rotation about local axis ``axis`` (0, 1, 2 = x, y, z) by the value of parameter
+    ``param`` [rad]; ``"t"`` translation along it [m]; ``"R"`` the constant rotation ``const`` (a row-major
+    9-tuple); ``"P"`` the constant translation ``const`` (3-tuple) [m]. ``joint`` (0-based, -1 for none): the
+    commanded joint value ``q[joint]`` enters the value as ``param + q`` (``sign`` +1) or ``param - q`` (-1).
+    """
+
+    kind: Literal["r", "t", "R", "P"]
+    axis: int = 0
+    param: str | None = None
+    joint: int = -1
+    sign: float = 1.0
+    const: tuple[float, ...] | None = None
+
+    def matrix(self) -> np.ndarray:
+        """The constant transform ``(4, 4)`` of an ``"R"`` / ``"P"`` operation."""
+        T = np.eye(4)
+        if self.kind == "R":
+            T[:3, :3] = np.asarray(self.const, dtype=float).reshape(3, 3)
+        elif self.kind == "P":
+            T[:3, 3] = np.asarray(self.const, dtype=float)
+        else:
+            raise ValueError(f"operation {self.kind!r} has no constant transform")
+        return T
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One joint of a ``"urdf"`` chain in SI: ``origin`` as ``xyz`` [m] and ``rpy`` [rad] (URDF's
+    ``R = Rz(yaw) Ry(pitch) Rx(roll)``) relative to the previous joint's frame (fixed joints before it folded
+    in), unit ``axis`` (3,) in the joint frame, ``kind`` ``"revolute"`` or ``"prismatic"``, limits
+    ``q_min``/``q_max`` [rad or m]. ``inertial``: optional mass properties of the link the joint moves (its
+    child link plus fixed descendants up to the next joint): ``{"mass": kg, "com": (3,) [m], "inertia": (3, 3)
+    [kg m^2]}`` in the joint frame."""
+
+    name: str
+    kind: Literal["revolute", "prismatic"]
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    q_min: float = -np.pi
+    q_max: float = np.pi
+    inertial: dict | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("revolute", "prismatic"):
+            raise ValueError(f"joint {self.name!r}: kind must be 'revolute' or 'prismatic', got {self.kind!r}")
+        for attr in ("xyz", "rpy", "axis"):
+            v = np.asarray(getattr(self, attr), dtype=float)
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"joint {self.name!r}: {attr} must be 3 finite numbers, got {getattr(self, attr)!r}")
+            object.__setattr__(self, attr, tuple(float(x) for x in v))
+        n = float(np.linalg.norm(self.axis))
+        if not n > 1e-9:
+            raise ValueError(f"joint {self.name!r}: axis must be a non-zero vector, got {self.axis!r}")
+        object.__setattr__(self, "axis", tuple(float(x) / n for x in self.axis))
+        if not (np.isfinite(self.q_min) and np.isfinite(self.q_max) and self.q_min < self.q_max):
+            raise ValueError(f"joint {self.name!r}: limits must be finite with q_min < q_max, got "
+                             f"[{self.q_min!r}, {self.q_max!r}]")
+        if not self.name or "." in self.name or "@" in self.name or "," in self.name:
+            raise ValueError(f"joint name {self.name!r} must be non-empty without '.', '@' or ','")
+
+    @property
+    def origin(self) -> np.ndarray:
+        """The origin transform ``(4, 4)``: joint frame in the previous joint's frame at ``q = 0``."""
+        return make_transform(matrix_from_euler_zyx(np.array(self.rpy)), np.array(self.xyz))
+
+
+def _axis_ops(axis: tuple[float, float, float]) -> tuple[int, float, np.ndarray | None]:
+    """(local axis index, sign, constant rotation taking z onto the axis or None) of a unit joint axis."""
+    a = np.asarray(axis, dtype=float)
+    k = int(np.argmax(np.abs(a)))
+    if abs(abs(a[k]) - 1.0) < 1e-12:
+        return k, float(np.sign(a[k])), None
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(z, a)
+    ang = np.arctan2(np.linalg.norm(v), a[2])
+    R = rotvec_to_matrix(v / np.linalg.norm(v) * ang)
+    return 2, 1.0, R
+
+
+@dataclass(frozen=True, eq=False)
+class ChainStructure:
+    """The structure of a serial chain: joints (names, kinds), their elementary operations and the names,
+    units, families and joints of its structural parameters (base and tool excluded).
+
+    ``ops[i]`` are joint ``i``'s operations in order of application; ``end`` the constant operations after the
+    last joint (the flange is the frame they end in). ``convention`` ``"mdh"``, ``"dh"`` (the 6R papers'
+    tables) or ``"urdf"`` (``joints`` holds the :class:`JointSpec` table it was built from, ``end_origin`` the
+    constant end transform ``(4, 4)``).
+    """
+
+    convention: str
+    joint_names: tuple[str, ...]
+    joint_kinds: tuple[str, ...]
+    ops: tuple[tuple[ChainOp, ...], ...]
+    end: tuple[ChainOp, ...]
+    param_names: tuple[str, ...]
+    param_units: tuple[str, ...]
+    param_families: tuple[str, ...]
+    param_joints: tuple[int, ...]
+    beta_joints: tuple[int, ...] = ()
+    joints: tuple[JointSpec, ...] = ()
+    end_origin: tuple[float, ...] | None = None
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def joint_params(self) -> tuple[str, ...]:
+        """The parameter each joint's commanded value adds to (``theta_i`` / ``<joint>.offset``)."""
+        out = []
+        for i, ops in enumerate(self.ops):
+            out.append(next(op.param for op in ops if op.joint == i))
+        return tuple(out)
+
+    @property
+    def joint_signs(self) -> np.ndarray:
+        """``(N,)`` +1 / -1: how each commanded joint enters its operation."""
+        return np.array([next(op.sign for op in ops if op.joint == i) for i, ops in enumerate(self.ops)])
+
+    @staticmethod
+    @functools.lru_cache(maxsize=None)
+    def six_r(convention: str, beta_joints: tuple[int, ...]) -> "ChainStructure":
+        """The 6R structure of a papers' convention (``"mdh"`` / ``"dh"``) with beta on ``beta_joints``."""
+        if convention not in _OPS:
+            raise ValueError(f"convention must be 'mdh' or 'dh', got {convention!r}")
+        names: list[str] = []
+        for fam in ("theta", "d", "a", "alpha"):
+            names += [f"{fam}{i}" for i in range(1, N_JOINTS + 1)]
+        names += [f"beta{j}" for j in beta_joints]
+        ops = []
+        for i in range(N_JOINTS):
+            jops = []
+            for kind, axis, fam in _OPS[convention]:
+                if fam == "beta" and (i + 1) not in beta_joints:
+                    continue
+                jops.append(ChainOp(kind, axis, f"{fam}{i + 1}", joint=i if fam == "theta" else -1))
+            ops.append(tuple(jops))
+        units = tuple("m" if n.rstrip("0123456789") in ("d", "a") else "rad" for n in names)
+        return ChainStructure(
+            convention=convention,
+            joint_names=tuple(f"q{i}" for i in range(1, N_JOINTS + 1)),
+            joint_kinds=("revolute",) * N_JOINTS,
+            ops=tuple(ops),
+            end=(),
+            param_names=tuple(names),
+            param_units=units,
+            param_families=tuple(n.rstrip("0123456789") for n in names),
+            param_joints=tuple(int(n[len(n.rstrip("0123456789")):]) for n in names),
+            beta_joints=tuple(beta_joints),
+        )
+
+    @staticmethod
+    def from_joints(joints: tuple[JointSpec, ...] | list[JointSpec], end_origin: np.ndarray | None = None) -> "ChainStructure":
+        """A ``"urdf"`` chain from its joints and the constant transform ``(4, 4)`` after the last one."""
+        joints = tuple(joints)
+        if not joints:
+            raise ValueError("joints: a chain needs at least one joint")
+        names = [j.name for j in joints]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"joints: duplicate joint names {dup}")
+        pnames, units, fams, pj = [], [], [], []
+        for fam in URDF_FAMILIES:
+            for i, j in enumerate(joints):
+                pnames.append(f"{j.name}.{fam}")
+                fams.append(fam)
+                pj.append(i + 1)
+                if fam == "offset":
+                    units.append("m" if j.kind == "prismatic" else "rad")
+                else:
+                    units.append("m" if fam in ("x", "y", "z") else "rad")
+        ops = []
+        for i, j in enumerate(joints):
+            jops = [ChainOp("t", 0, f"{j.name}.x"), ChainOp("t", 1, f"{j.name}.y"), ChainOp("t", 2, f"{j.name}.z")]
+            R = matrix_from_euler_zyx(np.array(j.rpy))
+            if not np.array_equal(R, np.eye(3)):
+                jops.append(ChainOp("R", const=tuple(R.reshape(-1).tolist())))
+            jops += [ChainOp("r", 0, f"{j.name}.rx"), ChainOp("r", 1, f"{j.name}.ry"), ChainOp("r", 2, f"{j.name}.rz")]
+            k, sign, Ra = _axis_ops(j.axis)
+            if Ra is not None:
+                jops.append(ChainOp("R", const=tuple(Ra.reshape(-1).tolist())))
+            jops.append(ChainOp("r" if j.kind == "revolute" else "t", k, f"{j.name}.offset", joint=i, sign=sign))
+            if Ra is not None:
+                jops.append(ChainOp("R", const=tuple(Ra.T.reshape(-1).tolist())))
+            ops.append(tuple(jops))
+        E = np.eye(4) if end_origin is None else np.asarray(end_origin, dtype=float)
+        if E.shape != (4, 4) or not np.all(np.isfinite(E)):
+            raise ValueError(f"end_origin must be a finite (4, 4) transform, got shape {E.shape}")
+        end = []
+        if np.any(E[:3, 3] != 0):
+            end.append(ChainOp("P", const=tuple(E[:3, 3].tolist())))
+        if not np.array_equal(E[:3, :3], np.eye(3)):
+            end.append(ChainOp("R", const=tuple(E[:3, :3].reshape(-1).tolist())))
+        return ChainStructure(
+            convention="urdf",
+            joint_names=tuple(names),
+            joint_kinds=tuple(j.kind for j in joints),
+            ops=tuple(ops),
+            end=tuple(end),
+            param_names=tuple(pnames),
+            param_units=tuple(units),
+            param_families=tuple(fams),
+            param_joints=tuple(pj),
+            joints=joints,
+            end_origin=tuple(E.reshape(-1).tolist()),
+        )
+
+    def nominal_params(self) -> np.ndarray:
+        """Structural parameter values of a ``"urdf"`` chain's nominal joints ``(P_s,)`` (origin translations,
+        zero offsets and origin rotation errors)."""
+        if self.convention != "urdf":
+            raise ValueError("nominal_params: only a 'urdf' chain carries its nominal values in its joints")
+        v = np.zeros(len(self.param_names))
+        for k, (fam, j) in enumerate(zip(self.param_families, self.param_joints)):
+            if fam in ("x", "y", "z"):
+                v[k] = self.joints[j - 1].xyz["xyz".index(fam)]
+        return v
+
+
 @dataclass(frozen=True)
 class ParameterLayout:
-    """Names, units and positions of the entries of a model's parameter vector."""
+    """Names, units and positions of the entries of a model's parameter vector: the chain's structural
+    parameters, then ``base_*`` and ``tool_*``. ``ParameterLayout(beta_joints)`` is the papers' 6R layout;
+    ``ParameterLayout(structure=...)`` any chain's."""
 
-    beta_joints: tuple[int, ...]
+    beta_joints: tuple[int, ...] = ()
+    structure: ChainStructure | None = None
     names: tuple[str, ...] = field(init=False)
     units: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
-        names: list[str] = []
-        for fam in ("theta", "d", "a", "alpha"):
-            names += [f"{fam}{i}" for i in range(1, N_JOINTS + 1)]
-        names += [f"beta{j}" for j in self.beta_joints]
+        st = self.structure
+        if st is None:
+            st = ChainStructure.six_r("mdh", tuple(self.beta_joints))
+            object.__setattr__(self, "structure", st)
+        else:
+            object.__setattr__(self, "beta_joints", tuple(st.beta_joints))
+        names = list(st.param_names)
         names += [f"base_{c}" for c in _POSE_NAMES]
         names += [f"tool_{c}" for c in _POSE_NAMES]
-        units = [self._unit(n) for n in names]
+        unit_of = dict(zip(st.param_names, st.param_units))
+        units = [unit_of.get(n) or self._frame_unit(n) for n in names]
         object.__setattr__(self, "names", tuple(names))
         object.__setattr__(self, "units", tuple(units))
+        object.__setattr__(self, "_unit_of", {**unit_of, **{n: u for n, u in zip(names, units)}})
+        object.__setattr__(self, "_fam_of", dict(zip(st.param_names, st.param_families)))
 
     @staticmethod
-    def _unit(name: str) -> str:
+    def _frame_unit(name: str) -> str:
         if name.startswith(("d", "a")) and not name.startswith("alpha"):
             return "m"
         if name in ("base_x", "base_y", "base_z", "tool_x", "tool_y", "tool_z"):
             return "m"
         return "rad"
+
+    def _unit(self, name: str) -> str:
+        """Unit (``"m"`` or ``"rad"``) of parameter ``name``."""
+        u = self._unit_of.get(name)  # type: ignore[attr-defined]
+        return u if u is not None else self._frame_unit(name)
+
+    def family_of(self, name: str) -> str:
+        """Family of a parameter name: ``theta``/``d``/``a``/``alpha``/``beta``, ``offset``/``x``/...``rz`` of a
+        ``"urdf"`` chain, or ``base``/``tool``."""
+        name = name.split("@")[0]
+        if name.startswith(("base_", "tool_")):
+            return name.split("_")[0]
+        fam = self._fam_of.get(name)  # type: ignore[attr-defined]
+        return fam if fam is not None else name.rstrip("0123456789")
 
     @property
     def size(self) -> int:
@@ -127,11 +402,13 @@ class ParameterLayout:
         return np.array([self.index(n) for n in names], dtype=int)
 
     def family(self, fam: str) -> np.ndarray:
-        """Indices of one family: 'theta', 'd', 'a', 'alpha', 'beta', 'base', 'tool'."""
+        """Indices of one family: 'theta', 'd', 'a', 'alpha', 'beta' (6R), 'offset', 'x', ..., 'rz' ("urdf"),
+        'base', 'tool'."""
         if fam in ("base", "tool"):
             return np.array([i for i, n in enumerate(self.names) if n.startswith(fam + "_")], dtype=int)
         return np.array(
-            [i for i, n in enumerate(self.names) if n.rstrip("0123456789") == fam], dtype=int
+            [i for i, n in enumerate(self.names[: len(self.structure.param_names)]) if self.family_of(n) == fam],
+            dtype=int,
         )
 
     @property
@@ -152,36 +429,55 @@ class ParameterLayout:
 
 @dataclass(frozen=True, eq=False)
 class RobotModel:
-    """A 6R arm: convention, absolute parameter vector (SI), joint limits.
+    """A serial arm: convention, absolute parameter vector (SI), joint limits.
 
-    ``params`` ``(P,)`` follows :class:`ParameterLayout`. ``q_min``/``q_max`` ``(6,)`` [rad] bound the
-    commanded joints ``q`` (the joint angle is ``theta_i + q_i``).
+    ``params`` ``(P,)`` follows :class:`ParameterLayout`. ``q_min``/``q_max`` ``(N,)`` [rad, or m for prismatic
+    joints] bound the commanded joints ``q``. ``convention`` ``"mdh"``/``"dh"`` (six revolute joints ``q1..q6``,
+    ``beta_joints``) or ``"urdf"`` (``structure`` required: :meth:`ChainStructure.from_joints`).
     """
 
     name: str
     convention: Convention
     params: np.ndarray
     beta_joints: tuple[int, ...] = ()
-    q_min: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, -np.pi))
-    q_max: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, np.pi))
+    q_min: np.ndarray | None = None
+    q_max: np.ndarray | None = None
+    structure: ChainStructure | None = None
 
     def __post_init__(self) -> None:
-        if self.convention not in _OPS:
-            raise ValueError(f"convention must be 'mdh' or 'dh', got {self.convention!r}")
+        if self.convention in _OPS:
+            st = ChainStructure.six_r(self.convention, tuple(self.beta_joints))
+        elif self.convention == "urdf":
+            if not isinstance(self.structure, ChainStructure) or self.structure.convention != "urdf":
+                raise ValueError("convention 'urdf' needs structure=ChainStructure.from_joints(...)")
+            st = self.structure
+        else:
+            raise ValueError(f"convention must be 'mdh', 'dh' or 'urdf', got {self.convention!r}")
+        object.__setattr__(self, "structure", st)
+        object.__setattr__(self, "beta_joints", tuple(st.beta_joints) if self.convention == "urdf" else tuple(self.beta_joints))
         p = np.array(self.params, dtype=float).reshape(-1)
-        layout = ParameterLayout(tuple(self.beta_joints))
+        layout = ParameterLayout(structure=st) if self.convention == "urdf" else ParameterLayout(tuple(self.beta_joints))
         if p.shape != (layout.size,):
-            raise ValueError(f"params must have {layout.size} entries for beta_joints={self.beta_joints}, got {p.size}")
+            raise ValueError(f"params must have {layout.size} entries for this chain, got {p.size}")
         if not np.all(np.isfinite(p)):
             bad = [layout.names[i] for i in np.flatnonzero(~np.isfinite(p))]
             raise ValueError(f"params contain non-finite values at {bad}")
         p.setflags(write=False)
         object.__setattr__(self, "params", p)
-        for attr in ("q_min", "q_max"):
-            v = np.array(getattr(self, attr), dtype=float).reshape(N_JOINTS)
+        nj = st.n_joints
+        for attr, default in (("q_min", -np.pi), ("q_max", np.pi)):
+            raw = getattr(self, attr)
+            if raw is None:
+                if self.convention == "urdf":
+                    raw = [getattr(j, attr) for j in st.joints]
+                else:
+                    raw = np.full(nj, default)
+            v = np.array(raw, dtype=float).reshape(nj)
             v.setflags(write=False)
             object.__setattr__(self, attr, v)
         object.__setattr__(self, "_layout", layout)
+        object.__setattr__(self, "_pindex", tuple(
+            tuple(layout.index(op.param) if op.param is not None else -1 for op in ops) for ops in st.ops))
 
     # --- construction -------------------------------------------------------------------------
     @classmethod
@@ -200,7 +496,7 @@ class RobotModel:
         q_min: np.ndarray | None = None,
         q_max: np.ndarray | None = None,
     ) -> "RobotModel":
-        """Model from per-joint tables in SI (``theta``/``alpha`` [rad], ``d``/``a`` [m], ``(6,)`` each)."""
+        """6R model from per-joint tables in SI (``theta``/``alpha`` [rad], ``d``/``a`` [m], ``(6,)`` each)."""
         beta = dict(beta or {})
         beta_joints = tuple(sorted(beta))
         base = np.zeros(6) if base2meas is None else transform_to_pose6(base2meas)
@@ -215,6 +511,24 @@ class RobotModel:
         if q_max is not None:
             kw["q_max"] = q_max
         return cls(name=name, convention=convention, params=params, beta_joints=beta_joints, **kw)
+
+    @classmethod
+    def from_joints(
+        cls,
+        name: str,
+        joints: list[JointSpec] | tuple[JointSpec, ...],
+        *,
+        end_origin: np.ndarray | None = None,
+        base2meas: np.ndarray | None = None,
+        tool2flange: np.ndarray | None = None,
+    ) -> "RobotModel":
+        """A ``"urdf"`` chain from its joints (nominal: zero offsets and origin errors), the constant transform
+        ``(4, 4)`` after the last joint (flange = end link) and optional base and tool ``(4, 4)``."""
+        st = ChainStructure.from_joints(joints, end_origin)
+        base = np.zeros(6) if base2meas is None else transform_to_pose6(base2meas)
+        tool = np.zeros(6) if tool2flange is None else transform_to_pose6(tool2flange)
+        params = np.concatenate([st.nominal_params(), base, tool])
+        return cls(name=name, convention="urdf", params=params, structure=st)
 
     def with_params(self, params: np.ndarray, name: str | None = None) -> "RobotModel":
         """Same structure, new parameter vector ``(P,)``."""
@@ -247,32 +561,54 @@ class RobotModel:
     def layout(self) -> ParameterLayout:
         return self._layout  # type: ignore[attr-defined]
 
+    @property
+    def n_joints(self) -> int:
+        """Number of joints N."""
+        return self.structure.n_joints  # type: ignore[union-attr]
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint names (``q1..q6`` for the 6R conventions): the joint columns of datasets."""
+        return self.structure.joint_names  # type: ignore[union-attr]
+
+    @property
+    def joint_kinds(self) -> tuple[str, ...]:
+        """``"revolute"`` or ``"prismatic"`` per joint."""
+        return self.structure.joint_kinds  # type: ignore[union-attr]
+
+    @property
+    def is_prismatic(self) -> np.ndarray:
+        """``(N,)`` mask of prismatic joints (commanded in [m]; revolute ones in [rad])."""
+        return np.array([k == "prismatic" for k in self.joint_kinds])
+
     def _family(self, fam: str) -> np.ndarray:
+        if self.convention == "urdf" and fam in ("theta", "d", "a", "alpha", "beta"):
+            raise ValueError(f"model {self.name!r} is a 'urdf' chain: it has no DH parameter {fam!r}")
         return self.params[self.layout.family(fam)]
 
     @property
     def theta(self) -> np.ndarray:
-        """Joint angle offsets ``(6,)`` [rad]."""
+        """Joint angle offsets ``(6,)`` [rad] (6R conventions)."""
         return self._family("theta")
 
     @property
     def d(self) -> np.ndarray:
-        """Link offsets ``(6,)`` [m]."""
+        """Link offsets ``(6,)`` [m] (6R conventions)."""
         return self._family("d")
 
     @property
     def a(self) -> np.ndarray:
-        """Link lengths ``(6,)`` [m]."""
+        """Link lengths ``(6,)`` [m] (6R conventions)."""
         return self._family("a")
 
     @property
     def alpha(self) -> np.ndarray:
-        """Link twists ``(6,)`` [rad]."""
+        """Link twists ``(6,)`` [rad] (6R conventions)."""
         return self._family("alpha")
 
     @property
     def beta(self) -> np.ndarray:
-        """Parallel-axis tilts ``(6,)`` [rad], zero for joints without beta."""
+        """Parallel-axis tilts ``(6,)`` [rad], zero for joints without beta (6R conventions)."""
         out = np.zeros(N_JOINTS)
         for j, v in zip(self.beta_joints, self._family("beta")):
             out[j - 1] = v
@@ -292,7 +628,7 @@ class RobotModel:
         return float(self.params[self.layout.index(name)])
 
     def within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        """Mask ``(n,)`` of configurations ``(n, 6)`` [rad] inside the joint limits."""
+        """Mask ``(n,)`` of configurations ``(n, N)`` inside the joint limits."""
         q = np.atleast_2d(q)
         return np.all((q >= self.q_min - tol) & (q <= self.q_max + tol), axis=-1)
 
@@ -301,12 +637,12 @@ class RobotModel:
 # Forward kinematics
 # ------------------------------------------------------------------------------------------------
 
-def _as_q(q: np.ndarray) -> np.ndarray:
+def _as_q(q: np.ndarray, n_joints: int = N_JOINTS) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.ndim == 1:
         q = q[None, :]
-    if q.ndim != 2 or q.shape[1] != N_JOINTS:
-        raise ValueError(f"q must have shape (n, {N_JOINTS}) [rad], got {q.shape}")
+    if q.ndim != 2 or q.shape[1] != n_joints:
+        raise ValueError(f"q must have shape (n, {n_joints}) [rad, m for prismatic joints], got {q.shape}")
     if not np.all(np.isfinite(q)):
         rows = np.unique(np.nonzero(~np.isfinite(q))[0])
         raise ValueError(f"q contains non-finite values in rows {rows[:10].tolist()}")
@@ -330,55 +666,63 @@ def _elementary(kind: str, axis: int, value: np.ndarray) -> np.ndarray:
     return T
 
 
-def _joint_values(model: RobotModel, i: int) -> dict[str, float]:
-    return {
-        "theta": model.theta[i],
-        "d": model.d[i],
-        "a": model.a[i],
-        "alpha": model.alpha[i],
-        "beta": model.beta[i],
-    }
+def elementary_transform(kind: Literal["r", "t"], axis: int, value: np.ndarray) -> np.ndarray:
+    """Rotation about (``"r"``) or translation along (``"t"``) local axis ``axis`` (0, 1, 2 = x, y, z) by
+    ``value`` ``(...)`` [rad or m]: transforms ``(..., 4, 4)``."""
+    if kind not in ("r", "t") or axis not in (0, 1, 2):
+        raise ValueError(f"kind must be 'r' or 't' and axis 0, 1 or 2, got {kind!r}, {axis!r}")
+    return _elementary(kind, axis, value)
 
 
-def _joint_ops(model: RobotModel, i: int):
-    """Elementary ops of joint ``i`` (0-based), skipping beta where the model has none."""
-    for kind, axis, fam in _OPS[model.convention]:
-        if fam == "beta" and (i + 1) not in model.beta_joints:
-            continue
-        yield kind, axis, fam
+def _op_value(op: ChainOp, value: float, q: np.ndarray, n: int) -> np.ndarray:
+    """Value ``(n,)`` of a parameterised operation: the parameter, plus or minus its joint's commanded value."""
+    if op.joint < 0:
+        return np.full(n, value)
+    return value + q[:, op.joint] if op.sign > 0 else value - q[:, op.joint]
+
+
+def _op_transform(op: ChainOp, model: RobotModel, k: int, i: int, q: np.ndarray, n: int) -> np.ndarray:
+    """Transform ``(n, 4, 4)`` (or ``(4, 4)`` for a constant) of operation ``k`` of joint ``i``."""
+    if op.kind in ("R", "P"):
+        return op.matrix()
+    v = model.params[model._pindex[i][k]]  # type: ignore[attr-defined]
+    return _elementary(op.kind, op.axis, _op_value(op, v, q, n))
 
 
 def link_transforms(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Per-joint transforms ``(n, 6, 4, 4)``: entry ``i`` maps frame ``i+1`` into frame ``i``."""
-    q = _as_q(q)
+    """Per-joint transforms ``(n, N, 4, 4)``: entry ``i`` maps frame ``i+1`` into frame ``i`` (the last one
+    includes the chain's constant end transform, so frame ``N`` is the flange)."""
+    st = model.structure
+    q = _as_q(q, st.n_joints)
     n = q.shape[0]
-    out = np.empty((n, N_JOINTS, 4, 4))
-    for i in range(N_JOINTS):
-        vals = _joint_values(model, i)
+    out = np.empty((n, st.n_joints, 4, 4))
+    for i, ops in enumerate(st.ops):
         T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-        for kind, axis, fam in _joint_ops(model, i):
-            v = vals[fam] + q[:, i] if fam == "theta" else np.full(n, vals[fam])
-            T = T @ _elementary(kind, axis, v)
+        for k, op in enumerate(ops):
+            T = T @ _op_transform(op, model, k, i, q, n)
+        if i == st.n_joints - 1:
+            for op in st.end:
+                T = T @ op.matrix()
         out[:, i] = T
     return out
 
 
 def link_frames(model: RobotModel, q: np.ndarray, frame: Literal["base", "meas"] = "base") -> np.ndarray:
-    """Poses of frames 0..6 ``(n, 7, 4, 4)`` (frame 0 = robot base, frame 6 = flange), in ``frame``."""
+    """Poses of frames 0..N ``(n, N+1, 4, 4)`` (frame 0 = robot base, frame N = flange), in ``frame``."""
     L = link_transforms(model, q)
-    n = L.shape[0]
-    out = np.empty((n, N_JOINTS + 1, 4, 4))
+    n, nj = L.shape[:2]
+    out = np.empty((n, nj + 1, 4, 4))
     out[:, 0] = model.base2meas if frame == "meas" else np.eye(4)
-    for i in range(N_JOINTS):
+    for i in range(nj):
         out[:, i + 1] = out[:, i] @ L[:, i]
     return out
 
 
 def flange2base(model: RobotModel, q: np.ndarray) -> np.ndarray:
-    """Flange poses in the base frame ``(n, 4, 4)`` for joints ``q`` ``(n, 6)`` [rad]."""
+    """Flange poses in the base frame ``(n, 4, 4)`` for joints ``q`` ``(n, N)``."""
     L = link_transforms(model, q)
     T = L[:, 0]
-    for i in range(1, N_JOINTS):
+    for i in range(1, L.shape[1]):
         T = T @ L[:, i]
     return T
 
@@ -407,7 +751,8 @@ def pose_jacobian(model: RobotModel, q: np.ndarray, frame: Literal["meas", "base
     rotation vectors enter through the left Jacobian of SO(3). With ``frame="base"`` the base
     parameters get zero columns (the pose excludes ``base2meas``).
     """
-    q = _as_q(q)
+    st = model.structure
+    q = _as_q(q, st.n_joints)
     n = q.shape[0]
     lay = model.layout
     J = np.zeros((n, 6, lay.size))
@@ -416,16 +761,18 @@ def pose_jacobian(model: RobotModel, q: np.ndarray, frame: Literal["meas", "base
     T = np.broadcast_to(B, (n, 4, 4)).copy()
     rot_axes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     trans_axes: dict[int, np.ndarray] = {}
-    for i in range(N_JOINTS):
-        vals = _joint_values(model, i)
-        for kind, axis, fam in _joint_ops(model, i):
-            v = vals[fam] + q[:, i] if fam == "theta" else np.full(n, vals[fam])
-            T = T @ _elementary(kind, axis, v)
-            col = lay.index(f"{fam}{i + 1}")
-            if kind == "r":
-                rot_axes[col] = (T[:, :3, axis].copy(), T[:, :3, 3].copy())
+    for i, ops in enumerate(st.ops):
+        for k, op in enumerate(ops):
+            T = T @ _op_transform(op, model, k, i, q, n)
+            if op.kind in ("R", "P"):
+                continue
+            col = model._pindex[i][k]  # type: ignore[attr-defined]
+            if op.kind == "r":
+                rot_axes[col] = (T[:, :3, op.axis].copy(), T[:, :3, 3].copy())
             else:
-                trans_axes[col] = T[:, :3, axis].copy()
+                trans_axes[col] = T[:, :3, op.axis].copy()
+    for op in st.end:
+        T = T @ op.matrix()
     flange = T
     tool = flange @ model.tool2flange
     p = tool[:, :3, 3]
@@ -468,9 +815,12 @@ def point_jacobian(
 
 
 def joint_jacobian(model: RobotModel, q: np.ndarray, frame: Literal["meas", "base"] = "base") -> np.ndarray:
-    """Geometric Jacobian ``(n, 6, 6)`` of the tool pose with respect to the joints ``q``."""
+    """Geometric Jacobian ``(n, 6, N)`` of the tool pose with respect to the joints ``q``."""
     J = pose_jacobian(model, q, frame=frame)
-    return J[:, :, model.layout.family("theta")]
+    st = model.structure
+    Jq = J[:, :, model.layout.indices(st.joint_params)]
+    signs = st.joint_signs
+    return Jq if np.all(signs > 0) else Jq * signs
 
 
 def pose_error(T_target: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -500,19 +850,30 @@ class IKSolutions:
 
 
 def _split_joint(model: RobotModel, i: int) -> tuple[np.ndarray, np.ndarray]:
-    """(pre, post) constant transforms ``(4, 4)`` around ``RotZ(theta_i + q_i)`` of joint ``i``."""
-    vals = _joint_values(model, i)
+    """(pre, post) constant transforms ``(4, 4)`` around ``RotZ(theta_i + q_i)`` of joint ``i`` (the last
+    joint's post includes the chain's end transform); ``ValueError`` when the joint is not a revolute joint
+    about its local z axis."""
+    st = model.structure
     pre, post = np.eye(4), np.eye(4)
     seen = False
-    for kind, axis, fam in _joint_ops(model, i):
-        if fam == "theta":
+    for k, op in enumerate(st.ops[i]):
+        if op.joint == i:
+            if not (op.kind == "r" and op.axis == 2 and op.sign > 0):
+                raise ValueError(f"model {model.name!r}: joint {st.joint_names[i]!r} does not turn about its local z "
+                                 "axis: no closed-form inverse (use inverse_kinematics_iterative)")
             seen = True
             continue
-        E = _elementary(kind, axis, vals[fam])
+        if op.kind in ("R", "P"):
+            E = op.matrix()
+        else:
+            E = _elementary(op.kind, op.axis, model.params[model._pindex[i][k]])  # type: ignore[attr-defined]
         if seen:
             post = post @ E
         else:
             pre = pre @ E
+    if i == st.n_joints - 1:
+        for op in st.end:
+            post = post @ op.matrix()
     return pre, post
 
 
@@ -539,6 +900,9 @@ def _rz(x: np.ndarray) -> np.ndarray:
 
 def _check_ik_structure(model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
     """Wrist centre in frame 3 and in the flange frame, checking the model admits the closed form."""
+    if model.n_joints != N_JOINTS:
+        raise ValueError(f"model {model.name!r} has {model.n_joints} joints: the closed-form inverse is for 6R arms "
+                         "(use inverse_kinematics_iterative)")
     rng = np.random.default_rng(0)
     pre = [_split_joint(model, i) for i in range(N_JOINTS)]
 
@@ -590,7 +954,7 @@ def inverse_kinematics_closed_form(
     p3, wc_flange = _check_ik_structure(model)
     n = Tt.shape[0]
     split = [_split_joint(model, i) for i in range(N_JOINTS)]
-    offs = model.theta
+    offs = model.params[model.layout.indices(model.structure.joint_params)]
     c = (Tt @ np.append(wc_flange, 1.0))[:, :3]  # wrist centre in base (n, 3)
     c_h = np.concatenate([c, np.ones((n, 1))], axis=1)
 
@@ -675,7 +1039,7 @@ def inverse_kinematics_closed_form(
 
 
 def closest_branch(solutions: IKSolutions, q_ref: np.ndarray, require_limits: bool = True) -> np.ndarray:
-    """Pick, per target, the valid branch nearest ``q_ref`` ``(n, 6)``; raises when none exists."""
+    """Pick, per target, the valid branch nearest ``q_ref`` ``(n, 6)`` [rad]; raises when none exists."""
     mask = solutions.within_limits if require_limits else solutions.valid
     q_ref = np.broadcast_to(np.asarray(q_ref, dtype=float), (solutions.q.shape[0], N_JOINTS))
     dist = np.linalg.norm(wrap_angle(solutions.q - q_ref[:, None]), axis=-1)
@@ -701,7 +1065,7 @@ class IKTraceEntry:
 
 @dataclass(frozen=True)
 class IKResult:
-    """Result of :func:`inverse_kinematics_iterative`: ``q`` ``(n, 6)`` [rad], per-target convergence."""
+    """Result of :func:`inverse_kinematics_iterative`: ``q`` ``(n, N)``, per-target convergence."""
 
     q: np.ndarray
     converged: np.ndarray
@@ -723,18 +1087,21 @@ def inverse_kinematics_iterative(
     max_step: float = 0.2,
     callback: Callable[[IKTraceEntry], None] | None = None,
 ) -> IKResult:
-    """Newton iteration ``q <- q + J^+ e`` on the model's own FK (the paper's section 2.4).
+    """Newton iteration ``q <- q + J^+ e`` on the model's own FK (the paper's section 2.4), any chain.
 
     ``target`` ``(n, 4, 4)``: flange pose in the base frame (``frame="flange"``), tool pose in the
-    base frame (``"tool"``) or tool pose in the measurement frame (``"meas"``). ``q0`` ``(n, 6)``:
+    base frame (``"tool"``) or tool pose in the measurement frame (``"meas"``). ``q0`` ``(n, N)``:
     start, typically the closed-form solution of the nominal model. ``e`` stacks the position error
-    [m] and the rotation vector of ``R_target R^T`` [rad]; ``J`` is :func:`joint_jacobian`. Steps use
-    a tiny damping so near-singular wrists stay finite. Converged when both errors are below tolerance.
+    [m] and the rotation vector of ``R_target R^T`` [rad]; ``J`` is :func:`joint_jacobian`. A 6-joint
+    chain steps with ``(J^T J + 1e-14 I)^-1 J^T e`` (a tiny damping so near-singular wrists stay finite);
+    any other joint count with the pseudo-inverse ``J^+ e`` (the minimum-norm step of a redundant chain, the
+    least-squares step of a chain with fewer than six joints). Converged when both errors are below
+    tolerance.
     """
     target = np.asarray(target, dtype=float)
     if target.ndim == 2:
         target = target[None]
-    q = _as_q(q0).copy()
+    q = _as_q(q0, model.n_joints).copy()
     if target.shape != (q.shape[0], 4, 4):
         raise ValueError(f"target must have shape ({q.shape[0]}, 4, 4), got {target.shape}")
     if frame == "flange":
@@ -763,9 +1130,12 @@ def inverse_kinematics_iterative(
         if np.all(done):
             break
         Jq = joint_jacobian(m, q, frame=fk_frame)
-        JT = np.swapaxes(Jq, 1, 2)
-        H = JT @ Jq + 1e-14 * np.eye(N_JOINTS)
-        dq = np.linalg.solve(H, np.einsum("nij,nj->ni", JT, e)[..., None])[..., 0]
+        if model.n_joints == N_JOINTS:
+            JT = np.swapaxes(Jq, 1, 2)
+            H = JT @ Jq + 1e-14 * np.eye(N_JOINTS)
+            dq = np.linalg.solve(H, np.einsum("nij,nj->ni", JT, e)[..., None])[..., 0]
+        else:
+            dq = np.einsum("nij,nj->ni", np.linalg.pinv(Jq, rcond=1e-10), e)
         # Trust region: at most max_step [rad] per joint and step, so a start near a singularity
         # cannot throw the iteration onto a far branch.
         big = np.abs(dq).max(axis=1, keepdims=True)

@@ -5,6 +5,9 @@
   last twist; see ``docs/conventions.md``). beta on joint 2 (the parallel pair 2-3).
 * ``brtirus0707a``: the TM-MDH paper's Table 3 robot in its standard DH + beta convention, with the
   lost minus signs of the twists restored and the first row read as d1 = 444.5 mm, a1 = 50 mm.
+
+Any other serial chain comes from a URDF (:mod:`twin.urdf`) or from a joint table
+(:func:`robot_from_joint_table`, the form ``dataset.toml`` and ``calibration.json`` hold).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 
 from .kinematics import RobotModel
 
-__all__ = ["irb1200", "brtirus0707a", "get_robot", "ROBOTS"]
+__all__ = ["irb1200", "brtirus0707a", "get_robot", "ROBOTS", "robot_from_joint_table", "joint_table"]
 
 _MM = 1e-3
 _DEG = np.pi / 180.0
@@ -87,3 +90,91 @@ def get_robot(name: str) -> RobotModel:
         return ROBOTS[name]()
     except KeyError:
         raise ValueError(f"unknown robot name {name!r}; known robots: {', '.join(sorted(ROBOTS))}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# Chains as tables (dataset.toml, calibration.json): millimetres and degrees at the edge
+# ------------------------------------------------------------------------------------------------
+
+def _floats(v, n: int, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be {n} numbers, got {v!r}") from None
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} must be {n} finite numbers, got {v!r}")
+    return a
+
+
+def _transform_from_table(t: dict, what: str) -> np.ndarray:
+    from .transforms import make_transform, matrix_from_euler_zyx
+
+    if not isinstance(t, dict):
+        raise ValueError(f"{what} must be a table with xyz_mm and rpy_deg, got {t!r}")
+    xyz = _floats(t.get("xyz_mm", [0, 0, 0]), 3, f"{what}.xyz_mm") * _MM
+    rpy = _floats(t.get("rpy_deg", [0, 0, 0]), 3, f"{what}.rpy_deg") * _DEG
+    return make_transform(matrix_from_euler_zyx(rpy), xyz)
+
+
+def robot_from_joint_table(spec: dict, where: str = "robot") -> RobotModel:
+    """A ``"urdf"`` chain from its table (``docs/formats.md``): ``name``, ``joints`` (each ``name``, ``type``
+    ``revolute``/``prismatic``, ``xyz_mm``, ``rpy_deg``, ``axis``, ``limits`` [deg or mm], optional ``mass_kg``,
+    ``com_mm``, ``inertia_kg_m2`` ``[ixx, ixy, ixz, iyy, iyz, izz]``), optional ``end`` (``xyz_mm``,
+    ``rpy_deg``). ``ValueError`` naming the field."""
+    from .kinematics import JointSpec
+
+    joints = spec.get("joints")
+    if not isinstance(joints, list) or not joints:
+        raise ValueError(f"{where}: field 'joints' must be a non-empty list of joint tables")
+    specs = []
+    for k, j in enumerate(joints):
+        w = f"{where}.joints[{k}]"
+        if not isinstance(j, dict):
+            raise ValueError(f"{w} must be a table, got {j!r}")
+        for key in ("name", "type", "xyz_mm", "rpy_deg", "limits"):
+            if key not in j:
+                raise ValueError(f"{w} lacks field {key!r}")
+        kind = j["type"]
+        if kind not in ("revolute", "prismatic"):
+            raise ValueError(f"{w}.type must be 'revolute' or 'prismatic', got {kind!r}")
+        unit = _MM if kind == "prismatic" else _DEG
+        lim = _floats(j["limits"], 2, f"{w}.limits") * unit
+        inertial = None
+        if "mass_kg" in j:
+            I6 = _floats(j.get("inertia_kg_m2", [0] * 6), 6, f"{w}.inertia_kg_m2")
+            inertia = ((I6[0], I6[1], I6[2]), (I6[1], I6[3], I6[4]), (I6[2], I6[4], I6[5]))
+            mass = float(_floats([j["mass_kg"]], 1, f"{w}.mass_kg")[0])
+            com = tuple(_floats(j.get("com_mm", [0, 0, 0]), 3, f"{w}.com_mm") * _MM)
+            inertial = {"mass": mass, "com": com, "inertia": inertia}
+        specs.append(JointSpec(
+            name=str(j["name"]), kind=kind,
+            xyz=tuple(_floats(j["xyz_mm"], 3, f"{w}.xyz_mm") * _MM),
+            rpy=tuple(_floats(j["rpy_deg"], 3, f"{w}.rpy_deg") * _DEG),
+            axis=tuple(_floats(j.get("axis", [0, 0, 1]), 3, f"{w}.axis")),
+            q_min=float(lim[0]), q_max=float(lim[1]), inertial=inertial,
+        ))
+    end = _transform_from_table(spec["end"], f"{where}.end") if "end" in spec else None
+    return RobotModel.from_joints(str(spec.get("name", "custom")), specs, end_origin=end)
+
+
+def joint_table(model: RobotModel) -> dict:
+    """The table of a ``"urdf"`` chain's *nominal structure* (what :func:`robot_from_joint_table` reads):
+    joints with their nominal origins, axes, limits and mass properties, and the end transform."""
+    from .transforms import euler_zyx_from_matrix
+
+    st = model.structure
+    if st.convention != "urdf":
+        raise ValueError(f"model {model.name!r} is a {st.convention!r} robot: its table is the DH one")
+    joints = []
+    for j in st.joints:
+        unit = _MM if j.kind == "prismatic" else _DEG
+        row = {"name": j.name, "type": j.kind, "xyz_mm": [x / _MM for x in j.xyz], "rpy_deg": [x / _DEG for x in j.rpy],
+               "axis": list(j.axis), "limits": [j.q_min / unit, j.q_max / unit]}
+        if j.inertial:
+            I = np.asarray(j.inertial["inertia"], dtype=float)
+            row.update({"mass_kg": j.inertial["mass"], "com_mm": [c / _MM for c in j.inertial["com"]],
+                        "inertia_kg_m2": [I[0, 0], I[0, 1], I[0, 2], I[1, 1], I[1, 2], I[2, 2]]})
+        joints.append(row)
+    E = np.asarray(st.end_origin, dtype=float).reshape(4, 4)
+    return {"name": model.name, "convention": "urdf", "joints": joints,
+            "end": {"xyz_mm": (E[:3, 3] / _MM).tolist(), "rpy_deg": (euler_zyx_from_matrix(E[:3, :3]) / _DEG).tolist()}}

@@ -16,15 +16,19 @@ def warn_forced(path, reasons: list[str]) -> None:
 
 
 def check_joints_file(path, q, pose_id, robot, force: bool, what: str) -> None:
-    """Joints ``q`` ``(n, 6)`` [rad] read from the JOINTS.csv ``path`` against ``robot``'s limits and a radians
+    """Joints ``q`` ``(n, N)`` [rad, m] read from the JOINTS.csv ``path`` against ``robot``'s limits and a radians
     reading (:func:`twin.estimator.plausibility.check_joint_values`): a ``ValueError`` naming the file and the
     cause, or with ``force`` a warning on stderr (``what``: what the command does anyway, e.g. "predicted")."""
     from ..estimator.plausibility import ImplausibleData, check_joint_values
 
     try:
-        problems = check_joint_values(q, pose_id, robot.q_min, robot.q_max, where="JOINTS.csv")
+        six_r = robot.n_joints == 6 and tuple(robot.joint_names) == tuple(f"q{j}" for j in range(1, 7))
+        names = None if six_r else robot.joint_names
+        problems = check_joint_values(q, pose_id, robot.q_min, robot.q_max, where="JOINTS.csv", joint_names=names,
+                                      prismatic=None if six_r else robot.is_prismatic)
         if problems:
-            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints (degrees expected)")
+            unit = "degrees" if six_r or not robot.is_prismatic.any() else "degrees, millimetres for a prismatic joint,"
+            raise ImplausibleData(f"{'; '.join(problems)}: the robot cannot take these joints ({unit} expected)")
     except ImplausibleData as exc:
         if not force:
             raise ValueError(f"{path}: {exc}; nothing written (--force goes on anyway)") from None

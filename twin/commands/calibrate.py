@@ -18,6 +18,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tmmdh: robot + tool + base per station (default); structural: robot only, frames held")
     p.add_argument("--gauge", choices=["frames", "structure"], default=None,
                    help="which member of a coupled set is kept (best only; default frames)")
+    p.add_argument("--level", choices=["full", "offsets", "frames"], default=None,
+                   help="best only: which robot parameters are estimated besides base and tool: full (every "
+                        "geometric parameter, default), offsets (joint offsets only), frames (none)")
+    p.add_argument("--prior-mm", type=float, default=None,
+                   help="best only: Gaussian prior sd [mm] on every robot length's deviation from nominal (MAP fit)")
+    p.add_argument("--prior-mrad", type=float, default=None,
+                   help="best only: Gaussian prior sd [mrad] on every robot angle's deviation (joint offsets excluded)")
+    p.add_argument("--prior-offset-mrad", type=float, default=None,
+                   help="best only: Gaussian prior sd [mrad] on the joint offsets (mm for a prismatic joint)")
     p.add_argument("--measurement", choices=["auto", "spheres", "pose"], default="auto")
     p.add_argument("--solver", choices=["spectral", "scaled"], default=None,
                    help="distance/fullpose/separation: the paper's spectral correction (default) or scaled GN")
@@ -45,6 +54,16 @@ def _options(args) -> dict:
         if args.method != "best":
             raise ValueError("--gauge applies to --method best only")
         opts["gauge"] = args.gauge
+    if args.level is not None:
+        if args.method != "best":
+            raise ValueError("--level applies to --method best only")
+        opts["level"] = args.level
+    prior = {k: v * 1e-3 for k, v in (("length", args.prior_mm), ("angle", args.prior_mrad),
+                                       ("offset", args.prior_offset_mrad)) if v is not None}
+    if prior:
+        if args.method != "best":
+            raise ValueError("--prior-mm / --prior-mrad / --prior-offset-mrad apply to --method best only")
+        opts["prior"] = prior
     if args.solver is not None:
         if args.method not in ("distance", "fullpose", "separation", "separation_paper"):
             raise ValueError(f"--solver applies to distance, fullpose and separation, not {args.method!r}")
@@ -120,7 +139,7 @@ def run(args) -> int:
     import numpy as np
 
     from ..estimator.plausibility import (ImplausibleData, check_fit, check_fit_against_plate, check_joints,
-                                          check_plate_rows, plate_noise)
+                                          check_length_unit, check_plate_rows, plate_noise)
 
     ds = read_dataset(args.dataset)
     forced: list[str] = []
@@ -137,6 +156,7 @@ def run(args) -> int:
         if ds.has_spheres:
             plate = check_plate_rows(ds)
             ds = plate.dataset
+        check_length_unit(ds)
     except ImplausibleData as exc:
         refuse(exc)
     if plate is not None and (plate.relabelled or plate.flagged):

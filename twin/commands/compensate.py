@@ -15,7 +15,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reference", default=None,
                    help="JOINTS.csv whose rows (by pose_id) pick the inverse-kinematics branch (default: the branch "
                         "nearest --q-ref-deg)")
-    p.add_argument("--q-ref-deg", default="0,0,0,0,0,0", help="reference joints [deg] when --reference is not given")
+    p.add_argument("--q-ref-deg", default=None,
+                   help="reference joints [deg; mm for a prismatic joint] when --reference is not given (default: zeros)")
     p.add_argument("--force", action="store_true",
                    help="use --reference joints outside the robot's limits or that look like radians")
     p.add_argument("--context", default=None,
@@ -41,7 +42,7 @@ def run(args) -> int:
     except ImplausibleData as exc:
         raise ValueError(f"{args.targets}: {exc}; nothing written") from None
     if args.reference:
-        ref = read_joints_csv(args.reference)
+        ref = read_joints_csv(args.reference, robot=cal.nominal)
         by_id = {int(p): k for k, p in enumerate(ref.pose_id)}
         missing = [int(p) for p in pid if int(p) not in by_id]
         if missing:
@@ -49,13 +50,15 @@ def run(args) -> int:
         check_joints_file(args.reference, ref.q, ref.pose_id, cal.nominal, args.force, "used")
         q_ref = ref.q[[by_id[int(p)] for p in pid]]
     else:
+        nj = cal.nominal.n_joints
+        what = "six" if nj == 6 else f"{nj} ({', '.join(cal.nominal.joint_names)}; mm for a prismatic joint)"
         try:
-            v = np.array([float(t) for t in args.q_ref_deg.split(",")])
+            v = np.zeros(nj) if args.q_ref_deg is None else np.array([float(t) for t in args.q_ref_deg.split(",")])
         except ValueError:
-            raise ValueError(f"--q-ref-deg must be six comma-separated numbers, got {args.q_ref_deg!r}") from None
-        if v.shape != (6,) or not np.all(np.isfinite(v)):
-            raise ValueError(f"--q-ref-deg must be six finite numbers, got {args.q_ref_deg!r}")
-        q_ref = np.deg2rad(v)
+            raise ValueError(f"--q-ref-deg must be {what} comma-separated numbers, got {args.q_ref_deg!r}") from None
+        if v.shape != (nj,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"--q-ref-deg must be {what} finite numbers, got {args.q_ref_deg!r}")
+        q_ref = np.where(cal.nominal.is_prismatic, v * 1e-3, np.deg2rad(v))
     try:
         if cal.effects:
             res = _compensate_with_effects(cal, T, q_ref, pid, args.context)
@@ -63,8 +66,9 @@ def run(args) -> int:
             res = compensation(cal, T, q_ref)
     except UnreachableError as exc:
         raise ValueError(f"{args.targets}: {exc} (indices count data rows from 0)") from None
-    write_joints_csv(args.out, Joints(pose_id=pid, q=res.q))
-    dq = np.rad2deg(np.abs(res.q - res.q_nominal)).max()
+    write_joints_csv(args.out, Joints(pose_id=pid, q=res.q), robot=cal.nominal)
+    rev = ~cal.nominal.is_prismatic
+    dq = np.rad2deg(np.abs(res.q - res.q_nominal)[:, rev]).max()
     print(f"compensated {len(pid)} targets (largest change from the nominal inverse {dq:.4g} deg; residual "
           f"{res.position_error.max() * 1e3:.2g} mm); wrote {args.out}")
     return 0

@@ -20,16 +20,28 @@ HELP = "write the calibrated robot as a parameter table (CSV, markdown) and an M
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("calibration", help="calibration.json")
-    p.add_argument("--out", required=True, help="output folder (parameters.csv, parameters.md, robot.xml)")
+    p.add_argument("--out", required=True, help="output folder (parameters.csv, parameters.md, robot.urdf, robot.xml)")
 
 
 def mjcf(cal) -> str:
-    """MJCF text of the calibrated robot (robot base frame = MJCF world; lengths [m], angles [rad]), made by
-    the world's generator so that it looks like the twin."""
-    from ..world.mjcf import robot_mjcf_xml
+    """MJCF text of the calibrated robot (robot base frame = MJCF world; lengths [m], angles [rad]): the world's
+    generator for the 6R arms (so that it looks like the twin), :func:`twin.urdf.chain_mjcf_xml` otherwise."""
+    name = f"{cal.nominal.name}_calibrated_{cal.method}"
+    if cal.nominal.convention in ("mdh", "dh") and cal.spheres_tool.shape[0] == 3:
+        from ..world.mjcf import robot_mjcf_xml
 
-    return robot_mjcf_xml(cal.robot, cal.spheres_tool, cal.plate.sphere_diameter,
-                          model_name=f"{cal.nominal.name}_calibrated_{cal.method}")
+        return robot_mjcf_xml(cal.robot, cal.spheres_tool, cal.plate.sphere_diameter, model_name=name)
+    from ..urdf import chain_mjcf_xml
+
+    return chain_mjcf_xml(cal.robot, model_name=name, tool_points=cal.spheres_tool)
+
+
+def urdf(cal) -> str:
+    """URDF text of the calibrated chain (robot base frame = root link ``base``), the tool and its points."""
+    from ..urdf import chain_urdf_xml
+
+    return chain_urdf_xml(cal.robot, robot_name=f"{cal.nominal.name}_calibrated_{cal.method}",
+                          tool_points=cal.spheres_tool)
 
 
 def run(args) -> int:
@@ -59,10 +71,12 @@ def run(args) -> int:
         md += ["", "Not identifiable from these data (held at nominal or estimated only in combination):", ""]
         md += [f"* {c.describe()}" for c in cal.combinations]
     xml = mjcf(cal)
+    urdf_text = urdf(cal)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "parameters.csv").write_text(buf.getvalue())
     (out / "parameters.md").write_text("\n".join(md) + "\n")
     (out / "robot.xml").write_text(xml)
-    print(f"wrote {out / 'parameters.csv'}, {out / 'parameters.md'}, {out / 'robot.xml'}")
+    (out / "robot.urdf").write_text(urdf_text)
+    print(f"wrote {out / 'parameters.csv'}, {out / 'parameters.md'}, {out / 'robot.urdf'}, {out / 'robot.xml'}")
     return 0

@@ -117,7 +117,7 @@ def run(args) -> int:
     res = plan_measurements(robot, stations, camera, plate, args.n, pool_per_station=args.pool,
                             noise_position=args.noise_mm * 1e-3, n_random=args.random, seed=args.seed,
                             options=opts, progress=print)
-    write_joints_csv(args.out, Joints(pose_id=np.arange(len(res.q)), q=res.q, station=res.station))
+    write_joints_csv(args.out, Joints(pose_id=np.arange(len(res.q)), q=res.q, station=res.station), robot=robot)
     fr = res.floor_random
     finite = fr[np.isfinite(fr)]
     print(f"{len(res.identifiable)} identifiable parameters ({len(res.dropped)} not: {', '.join(res.dropped)})")

@@ -10,7 +10,7 @@ HELP = "predict sphere centres and plate poses (with standard deviations) for jo
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("calibration", help="calibration.json")
-    p.add_argument("joints", help="JOINTS.csv (pose_id, q1..q6 [deg], optional station)")
+    p.add_argument("joints", help="JOINTS.csv (pose_id, the robot's joints (q1..q6) [deg, mm], optional station)")
     p.add_argument("--out", required=True, help="PRED.csv to write")
     p.add_argument("--force", action="store_true",
                    help="predict even for joints outside the robot's limits or that look like radians")
@@ -24,7 +24,7 @@ def run(args) -> int:
     from . import check_joints_file, warn_forced
 
     cal = Calibration.load(args.calibration)
-    j = read_joints_csv(args.joints)
+    j = read_joints_csv(args.joints, robot=cal.nominal)
     warn_forced(args.calibration, forced_reasons(cal.details))
     check_joints_file(args.joints, j.q, j.pose_id, cal.nominal, args.force, "predicted")
     if cal.effects:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,8 +37,8 @@ def _display(name: str, unit: str) -> tuple[str, float]:
 
 @dataclass(frozen=True)
 class Prediction:
-    """Predicted sphere centres ``(n, 3, 3)`` [m], plate poses ``tool2frame`` ``(n, 4, 4)``, the frame of
-    each row (``"measurement"`` or ``"base"``) and standard deviations (same shapes as the centres, and
+    """Predicted marker points ``(n, K, 3)`` [m], plate poses ``tool2frame`` ``(n, 4, 4)``, the frame of
+    each row (``"measurement"`` or ``"base"``) and standard deviations (same shapes as the points, and
     ``(n, 6)`` for the pose: position [m], rotation vector [rad]) or None without covariance."""
 
     spheres: np.ndarray
@@ -86,7 +86,7 @@ class Calibration:
     def space(self) -> ParamSpace:
         sp = self.__dict__.get("_space")
         if sp is None:
-            sp = ParamSpace(Chain(self.nominal.convention, self.nominal.beta_joints), self.stations)
+            sp = ParamSpace(Chain.of(self.nominal), self.stations)
             object.__setattr__(self, "_space", sp)
         return sp
 
@@ -129,7 +129,7 @@ class Calibration:
 
     # --- prediction ------------------------------------------------------------------------------
     def predict(self, q: np.ndarray, station: np.ndarray | None = None) -> Prediction:
-        """Sphere centres and plate poses for joints ``q`` ``(n, 6)`` [rad].
+        """Marker points and tool poses for joints ``q`` ``(n, N)`` [rad, m for prismatic joints].
 
         Rows whose ``station`` the calibration knows are predicted in that station's measurement frame;
         without a station column, a single-station calibration uses its station; every other row is
@@ -137,8 +137,9 @@ class Calibration:
         (``sd^2 = diag(J C J^T)``): the uncertainty of the model, not the instrument's noise.
         """
         q = np.asarray(q, dtype=float)
-        if q.ndim != 2 or q.shape[1] != 6:
-            raise ValueError(f"q must have shape (n, 6) [rad], got {q.shape}")
+        nj = self.nominal.n_joints
+        if q.ndim != 2 or q.shape[1] != nj:
+            raise ValueError(f"q must have shape (n, {nj}) ({', '.join(self.nominal.joint_names)}), got {q.shape}")
         if not np.all(np.isfinite(q)):
             rows = np.unique(np.nonzero(~np.isfinite(q))[0])
             raise ValueError(f"q contains non-finite values in rows {rows[:10].tolist()}")
@@ -152,9 +153,10 @@ class Calibration:
                 raise ValueError(f"station must have shape ({n},), got {st.shape}")
         known = np.array([s in self.stations for s in st])
         frame = np.where(known, "measurement", "base")
-        spheres = np.empty((n, 3, 3))
+        K = self.spheres_tool.shape[0]
+        spheres = np.empty((n, K, 3))
         pose = np.empty((n, 4, 4))
-        sd_s = np.full((n, 3, 3), np.nan) if self.covariance is not None else None
+        sd_s = np.full((n, K, 3), np.nan) if self.covariance is not None else None
         sd_p = np.full((n, 6), np.nan) if self.covariance is not None else None
         C = self.covariance
         # Group rows: each known station, then the base frame (a zero base with no base columns).
@@ -174,9 +176,9 @@ class Calibration:
             else:
                 st_idx = np.full(idx.size, k)
             pts, Jk = predict_points(sp_use, x, q[idx], st_idx, pts_tool, jacobian=C is not None)
-            spheres[idx] = pts[:, :3]
-            o = pts[:, 3]
-            Rcols = pts[:, 4:7] - o[:, None, :]
+            spheres[idx] = pts[:, :K]
+            o = pts[:, K]
+            Rcols = pts[:, K + 1:K + 4] - o[:, None, :]
             T = np.zeros((idx.size, 4, 4))
             T[:, :3, :3] = np.swapaxes(Rcols, 1, 2)
             T[:, :3, 3] = o
@@ -189,13 +191,13 @@ class Calibration:
                 else:
                     Cu = C
                 # sphere coordinates
-                for s in range(3):
+                for s in range(K):
                     Js = Jk[:, s]  # (P, 3, n)
                     sd_s[idx, s] = np.sqrt(np.clip(np.einsum("pcn,pq,qcn->nc", Js, Cu, Js), 0, None))
-                sd_p[idx, :3] = np.sqrt(np.clip(np.einsum("pcn,pq,qcn->nc", Jk[:, 3], Cu, Jk[:, 3]), 0, None))
+                sd_p[idx, :3] = np.sqrt(np.clip(np.einsum("pcn,pq,qcn->nc", Jk[:, K], Cu, Jk[:, K]), 0, None))
                 # rotation: the rate of the tool frame = (unit-axis points) derivative; use the pose
                 # Jacobian's angular rows through the relation d(R e_k) = w x (R e_k)
-                Ja = _angular_rows(Jk[:, 4:7] - Jk[:, 3:4], Rcols)
+                Ja = _angular_rows(Jk[:, K + 1:K + 4] - Jk[:, K:K + 1], Rcols)
                 sd_p[idx, 3:] = np.sqrt(np.clip(np.einsum("pcn,pq,qcn->nc", Ja, Cu, Ja), 0, None))
         return Prediction(spheres=spheres, pose=pose, frame=frame, station=st, sd_spheres=sd_s, sd_pose=sd_p)
 
@@ -235,21 +237,7 @@ class Calibration:
             "method": self.method,
             "dataset": self.dataset,
             "measurement": self.measurement,
-            "robot": {
-                "name": nom.name,
-                "convention": nom.convention,
-                "beta_joints": list(nom.beta_joints),
-                "nominal": {
-                    "theta_deg": (nom.theta / _DEG).tolist(),
-                    "d_mm": (nom.d / _MM).tolist(),
-                    "a_mm": (nom.a / _MM).tolist(),
-                    "alpha_deg": (nom.alpha / _DEG).tolist(),
-                    "beta_deg": [float(nom.param(f"beta{j}") / _DEG) for j in nom.beta_joints],
-                    "tool2flange": _pose_mm(nom.tool2flange),
-                },
-                "q_min_deg": (nom.q_min / _DEG).tolist(),
-                "q_max_deg": (nom.q_max / _DEG).tolist(),
-            },
+            "robot": _robot_json(nom),
             "plate": {
                 "sphere_diameter_mm": self.plate.sphere_diameter / _MM,
                 "spheres_mm": (self.plate.spheres_flange / _MM).tolist(),
@@ -304,22 +292,10 @@ class Calibration:
             raise ValueError(f"{where}: schema_version {ver!r} is not supported (this library reads {CALIBRATION_SCHEMA_VERSION})")
         try:
             rb = d["robot"]
-            nomd = rb["nominal"]
-            tool = _pose_from_mm(nomd["tool2flange"])
-            nominal = RobotModel.from_tables(
-                rb["name"],
-                rb["convention"],
-                theta=np.asarray(nomd["theta_deg"], float) * _DEG,
-                d=np.asarray(nomd["d_mm"], float) * _MM,
-                a=np.asarray(nomd["a_mm"], float) * _MM,
-                alpha=np.asarray(nomd["alpha_deg"], float) * _DEG,
-                beta={int(j): float(b) * _DEG for j, b in zip(rb["beta_joints"], nomd["beta_deg"])},
-                tool2flange=tool,
-                q_min=np.asarray(rb["q_min_deg"], float) * _DEG,
-                q_max=np.asarray(rb["q_max_deg"], float) * _DEG,
-            )
+            nominal = _robot_from_json(rb)
+            tool = _pose_from_mm(rb["nominal"]["tool2flange"])
             stations = tuple(d["stations"].keys())
-            sp = ParamSpace(Chain(nominal.convention, nominal.beta_joints), stations)
+            sp = ParamSpace(Chain.of(nominal), stations)
             by_name = {p["name"]: p for p in d["parameters"]}
             missing = [n for n in sp.names if n not in by_name]
             if missing:
@@ -390,6 +366,59 @@ class Calibration:
             dataset=str(d.get("dataset", "")),
             details=opt["details"],
         )
+
+
+def _robot_json(nom: RobotModel) -> dict[str, Any]:
+    """The ``robot`` field of calibration.json: 6R DH tables, or a chain's joint table (``docs/formats.md``)."""
+    if nom.convention == "urdf":
+        from ..robots import joint_table
+
+        scale = np.where(nom.is_prismatic, 1.0 / _MM, 1.0 / _DEG)
+        return {"name": nom.name, "convention": "urdf", "joint_names": list(nom.joint_names),
+                "joint_units": ["mm" if p else "deg" for p in nom.is_prismatic],
+                "table": joint_table(nom), "nominal": {"tool2flange": _pose_mm(nom.tool2flange)},
+                "q_min": (nom.q_min * scale).tolist(), "q_max": (nom.q_max * scale).tolist()}
+    return {
+        "name": nom.name,
+        "convention": nom.convention,
+        "beta_joints": list(nom.beta_joints),
+        "nominal": {
+            "theta_deg": (nom.theta / _DEG).tolist(),
+            "d_mm": (nom.d / _MM).tolist(),
+            "a_mm": (nom.a / _MM).tolist(),
+            "alpha_deg": (nom.alpha / _DEG).tolist(),
+            "beta_deg": [float(nom.param(f"beta{j}") / _DEG) for j in nom.beta_joints],
+            "tool2flange": _pose_mm(nom.tool2flange),
+        },
+        "q_min_deg": (nom.q_min / _DEG).tolist(),
+        "q_max_deg": (nom.q_max / _DEG).tolist(),
+    }
+
+
+def _robot_from_json(rb: dict) -> RobotModel:
+    """Inverse of :func:`_robot_json` (KeyError / ValueError on a malformed field)."""
+    nomd = rb["nominal"]
+    tool = _pose_from_mm(nomd["tool2flange"])
+    if rb["convention"] == "urdf":
+        from ..robots import robot_from_joint_table
+
+        m = robot_from_joint_table(rb["table"], where="robot.table")
+        scale = np.where(m.is_prismatic, _MM, _DEG)
+        lo = np.asarray(rb["q_min"], float) * scale
+        hi = np.asarray(rb["q_max"], float) * scale
+        return replace(m.with_frames(tool2flange=tool), q_min=lo, q_max=hi)
+    return RobotModel.from_tables(
+        rb["name"],
+        rb["convention"],
+        theta=np.asarray(nomd["theta_deg"], float) * _DEG,
+        d=np.asarray(nomd["d_mm"], float) * _MM,
+        a=np.asarray(nomd["a_mm"], float) * _MM,
+        alpha=np.asarray(nomd["alpha_deg"], float) * _DEG,
+        beta={int(j): float(b) * _DEG for j, b in zip(rb["beta_joints"], nomd["beta_deg"])},
+        tool2flange=tool,
+        q_min=np.asarray(rb["q_min_deg"], float) * _DEG,
+        q_max=np.asarray(rb["q_max_deg"], float) * _DEG,
+    )
 
 
 def _angular_rows(Jaxes: np.ndarray, Rcols: np.ndarray) -> np.ndarray:

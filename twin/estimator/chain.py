@@ -26,16 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics import N_JOINTS, Convention, ParameterLayout
+from ..kinematics import ChainStructure, Convention, ParameterLayout, RobotModel
 from ..transforms import left_jacobian_so3, matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = ["Chain", "ChainEval", "cross"]
-
-# (kind, axis, family) per joint, in order of application (docs/conventions.md).
-_OPS: dict[str, tuple[tuple[str, int, str], ...]] = {
-    "mdh": (("r", 0, "alpha"), ("t", 0, "a"), ("t", 2, "d"), ("r", 2, "theta"), ("r", 1, "beta")),
-    "dh": (("r", 2, "theta"), ("t", 2, "d"), ("t", 0, "a"), ("r", 0, "alpha"), ("r", 1, "beta")),
-}
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -68,32 +62,52 @@ class ChainEval:
 
 
 class Chain:
-    """The kinematic chain of one robot structure (convention + beta joints), evaluated in batches.
+    """The kinematic chain of one robot structure, evaluated in batches.
 
-    Parameter vectors given to :meth:`evaluate` are the *robot-and-tool* part of the foundation layout:
-    ``theta1..6, d1..6, a1..6, alpha1..6, beta_j, tool_x..tool_rz`` (``P_rt = P - 6``). Use
-    :meth:`split_full` to obtain it from a full 37-entry vector.
+    ``Chain(convention, beta_joints)`` is a papers' 6R chain (``"mdh"`` / ``"dh"``);
+    ``Chain(structure=...)`` or :meth:`of` (a model) any chain. Parameter vectors given to :meth:`evaluate` are
+    the *robot-and-tool* part of the foundation layout: the structural parameters (for the 6R chains ``theta1..6,
+    d1..6, a1..6, alpha1..6, beta_j``), then ``tool_x..tool_rz`` (``P_rt = P - 6``). Use :meth:`split_full` to
+    obtain it from a full vector.
     """
 
-    def __init__(self, convention: Convention, beta_joints: tuple[int, ...]) -> None:
-        if convention not in _OPS:
-            raise ValueError(f"convention must be 'mdh' or 'dh', got {convention!r}")
-        self.convention = convention
-        self.beta_joints = tuple(int(j) for j in beta_joints)
-        self.layout = ParameterLayout(self.beta_joints)
+    def __init__(self, convention: Convention | None = None, beta_joints: tuple[int, ...] = (), *,
+                 structure: ChainStructure | None = None) -> None:
+        if structure is None:
+            if convention not in ("mdh", "dh"):
+                raise ValueError(f"convention must be 'mdh' or 'dh' (or give structure=...), got {convention!r}")
+            structure = ChainStructure.six_r(convention, tuple(int(j) for j in beta_joints))
+            self.layout = ParameterLayout(structure.beta_joints)
+        else:
+            self.layout = ParameterLayout(structure.beta_joints) if structure.convention in ("mdh", "dh") \
+                else ParameterLayout(structure=structure)
+        self.structure = structure
+        self.convention = structure.convention
+        self.beta_joints = tuple(structure.beta_joints)
+        self.n_joints = structure.n_joints
         full = self.layout.names
         bs = self.layout.base_slice
         self.rt_names: tuple[str, ...] = full[: bs.start] + full[bs.stop:]
         self.n_rt = len(self.rt_names)
-        self.n_robot = bs.start  # structural parameters (theta, d, a, alpha, beta)
+        self.n_robot = bs.start  # structural parameters
         self.tool_slice = slice(self.n_robot, self.n_robot + 6)
         ops = []
-        for i in range(N_JOINTS):
-            for kind, axis, fam in _OPS[convention]:
-                if fam == "beta" and (i + 1) not in self.beta_joints:
-                    continue
-                ops.append((kind, axis, fam == "theta", i, self.rt_names.index(f"{fam}{i + 1}")))
+        for i, jops in enumerate(structure.ops):
+            for op in jops:
+                if op.kind in ("R", "P"):
+                    ops.append((op.kind, 0, False, -1, -1, 1.0, np.asarray(op.const, dtype=float)))
+                else:
+                    ops.append((op.kind, op.axis, op.joint >= 0, op.joint, self.rt_names.index(op.param), op.sign, None))
+        for op in structure.end:
+            ops.append((op.kind, 0, False, -1, -1, 1.0, np.asarray(op.const, dtype=float)))
         self._ops = tuple(ops)
+
+    @classmethod
+    def of(cls, model: RobotModel) -> "Chain":
+        """The chain of a model's structure."""
+        if model.convention in ("mdh", "dh"):
+            return cls(model.convention, model.beta_joints)
+        return cls(structure=model.structure)
 
     # --- parameter vector helpers ---------------------------------------------------------------
     def split_full(self, params_full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -112,8 +126,8 @@ class Chain:
     def evaluate(
         self, params_rt: np.ndarray, q: np.ndarray, base6: np.ndarray | None = None, jacobian: bool = True
     ) -> ChainEval:
-        """Tool poses (and Jacobian) for parameters ``(B, P_rt)`` or ``(P_rt,)`` and joints ``q`` ``(n, 6)``
-        [rad] shared by the batch.
+        """Tool poses (and Jacobian) for parameters ``(B, P_rt)`` or ``(P_rt,)`` and joints ``q`` ``(n, N)``
+        [rad, m for prismatic joints] shared by the batch.
 
         Without ``base6`` the poses are in the robot base frame and ``J`` has ``P_rt`` columns. With
         ``base6`` ``(B, 6)`` or ``(6,)`` (``base2meas`` as translation [m] + rotation vector [rad]) they are
@@ -126,8 +140,8 @@ class Chain:
         if P.ndim != 2 or P.shape[1] != self.n_rt:
             raise ValueError(f"params_rt must have shape (B, {self.n_rt}), got {np.shape(params_rt)}")
         q = np.asarray(q, dtype=float)
-        if q.ndim != 2 or q.shape[1] != N_JOINTS:
-            raise ValueError(f"q must have shape (n, 6) [rad], got {q.shape}")
+        if q.ndim != 2 or q.shape[1] != self.n_joints:
+            raise ValueError(f"q must have shape (n, {self.n_joints}) [rad, m for prismatic joints], got {q.shape}")
         B, n = P.shape[0], q.shape[0]
         # Structure of arrays: every vector is (3, B, n) (or (3, B, 1) before the first joint angle).
         if base6 is None:
@@ -148,10 +162,17 @@ class Chain:
             t = base6[:, :3].T[:, :, None].copy()
         rot_cols: list[tuple[int, np.ndarray, np.ndarray]] = []
         trans_cols: list[tuple[int, np.ndarray]] = []
-        for kind, axis, is_theta, joint, col in self._ops:
+        for kind, axis, is_theta, joint, col, sign, const in self._ops:
+            if kind == "P":
+                t = t + c0 * const[0] + c1 * const[1] + c2 * const[2]
+                continue
+            if kind == "R":
+                M = const.reshape(3, 3)
+                c0, c1, c2 = (c0 * M[0, k] + c1 * M[1, k] + c2 * M[2, k] for k in range(3))
+                continue
             v = P[:, col][:, None]  # (B, 1)
             if is_theta:
-                v = v + q[None, :, joint]  # (B, n)
+                v = v + q[None, :, joint] if sign > 0 else v - q[None, :, joint]  # (B, n)
             if kind == "t":
                 ax = (c0, c1, c2)[axis]
                 t = t + v * ax

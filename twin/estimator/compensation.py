@@ -24,8 +24,8 @@ __all__ = ["CompensationResult", "compensation", "compensate"]
 
 @dataclass(frozen=True)
 class CompensationResult:
-    """``q`` ``(n, 6)`` [rad] commands; ``q_nominal`` the nominal model's answer (what an uncalibrated
-    controller would command); ``position_error`` [m] / ``rotation_error`` [rad] of the calibrated model at
+    """``q`` ``(n, N)`` commands [rad, m for prismatic joints]; ``q_nominal`` the nominal model's answer (what an
+    uncalibrated controller would command); ``position_error`` [m] / ``rotation_error`` [rad] of the calibrated model at
     ``q`` against the targets; ``iterations``; the IK trace."""
 
     q: np.ndarray
@@ -49,8 +49,10 @@ def compensation(
     """Joint commands that put the plate at ``targets_tool2base`` ``(n, 4, 4)`` (plate frame in the robot base
     frame of the calibration) on the *identified* robot.
 
-    1. Start: the nominal model's closed-form inverse (target through the nominal ``tool2flange``), the
-       branch nearest ``q_ref`` ``(n, 6)`` or ``(6,)`` [rad] inside the joint limits.
+    1. Start: for a 6R arm with a spherical wrist, the nominal model's closed-form inverse (target through the
+       nominal ``tool2flange``), the branch nearest ``q_ref`` ``(n, N)`` or ``(N,)`` inside the joint limits;
+       for any other chain the nominal model's iterative inverse from ``q_ref`` (a redundant chain takes
+       minimum-norm steps, so it stays near the reference).
     2. Newton iteration ``q <- q + J^+ e`` on the identified model's forward kinematics (tool frame, with the
        identified ``tool2flange``) until position and rotation errors are below ``tol_position`` [m] /
        ``tol_rotation`` [rad].
@@ -68,20 +70,40 @@ def compensation(
     if np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max() > 1e-6:
         raise ValueError("targets_tool2base: rotation parts are not orthonormal")
     n = T.shape[0]
-    q_ref = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, 6))
-    if not np.all(np.isfinite(q_ref)):
-        raise ValueError("q_ref must be finite [rad]")
     nominal = calibration.nominal
+    nj = nominal.n_joints
+    try:
+        q_ref = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, nj))
+    except ValueError:
+        raise ValueError(f"q_ref must have shape ({n}, {nj}) or ({nj},), got {np.shape(q_ref)}") from None
+    if not np.all(np.isfinite(q_ref)):
+        raise ValueError("q_ref must be finite [rad, m for prismatic joints]")
     flange_nom = T @ invert_transform(nominal.tool2flange)
-    sols = inverse_kinematics_closed_form(nominal, flange_nom)
-    q0 = closest_branch(sols, q_ref)  # raises UnreachableError naming the targets
+    try:
+        sols = inverse_kinematics_closed_form(nominal, flange_nom)
+    except ValueError:
+        sols = None
+    if sols is not None:
+        q0 = closest_branch(sols, q_ref)  # raises UnreachableError naming the targets
+    else:
+        start = np.clip(q_ref, nominal.q_min, nominal.q_max)
+        ik0 = inverse_kinematics_iterative(nominal, T, start, frame="tool", tol_position=tol_position,
+                                           tol_rotation=tol_rotation, max_iter=max_iter)
+        bad0 = np.flatnonzero(~ik0.converged)
+        if bad0.size:
+            raise UnreachableError(f"targets {bad0[:10].tolist()}: the nominal model does not reach them from the "
+                                   f"reference joints (position error {ik0.position_error[bad0].max():.3g} m)")
+        q0 = ik0.q
     robot = calibration.robot
     ik = inverse_kinematics_iterative(
         robot, T, q0, frame="tool", tol_position=tol_position, tol_rotation=tol_rotation, max_iter=max_iter,
         callback=callback,
     )
     # keep the command in the same turn as the nominal start (the iteration moves it by a tiny amount)
-    q = q0 + wrap_angle(ik.q - q0)
+    if nominal.is_prismatic.any():
+        q = np.where(nominal.is_prismatic, ik.q, q0 + wrap_angle(ik.q - q0))
+    else:
+        q = q0 + wrap_angle(ik.q - q0)
     bad = np.flatnonzero(~ik.converged)
     if bad.size:
         raise UnreachableError(
@@ -99,5 +121,5 @@ def compensation(
 
 
 def compensate(calibration: Calibration, targets_tool2base: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
-    """Corrected joint commands ``(n, 6)`` [rad] for plate targets in the base frame (see :func:`compensation`)."""
+    """Corrected joint commands ``(n, N)`` for plate targets in the base frame (see :func:`compensation`)."""
     return compensation(calibration, targets_tool2base, q_ref).q

@@ -149,7 +149,7 @@ def prepare(
         notes.append(split)
     if cal.size == 0:
         raise ValueError(f"dataset {ds.path}: no calibration rows with a usable measurement")
-    space = ParamSpace(Chain(nominal.convention, nominal.beta_joints), obs.station_names)
+    space = ParamSpace(Chain.of(nominal), obs.station_names)
     x0 = space.from_model(nominal)
     given = tuple(s for s in obs.station_names if s in ds.stations_base2meas)
     if use_given_bases:
@@ -183,7 +183,8 @@ def _check_finite(ds: Dataset) -> None:
     if bad.any():
         i, j = np.argwhere(bad)[0]
         raise ValueError(
-            f"dataset {ds.path or '(in memory)'}: row {i + 1} (pose_id {int(ds.pose_id[i])}), column 'q{j + 1}': "
+            f"dataset {ds.path or '(in memory)'}: row {i + 1} (pose_id {int(ds.pose_id[i])}), column "
+            f"'{ds.robot.joint_names[j]}': "
             f"commanded joint is not finite ({ds.q[i, j]!r})"
         )
     sb = ds.sphere_seen[..., None] & ~np.isfinite(ds.spheres)
@@ -191,7 +192,7 @@ def _check_finite(ds: Dataset) -> None:
         i, s, c = np.argwhere(sb)[0]
         raise ValueError(
             f"dataset {ds.path or '(in memory)'}: row {i + 1} (pose_id {int(ds.pose_id[i])}), column 'p{s}_{'xyz'[c]}': "
-            "sphere marked as seen but not finite"
+            "point marked as seen but not finite"
         )
     pb = ds.pose_seen & ~np.all(np.isfinite(ds.pose.reshape(ds.n, -1)), axis=1)
     if pb.any():
@@ -276,12 +277,12 @@ def analyse(
 
 
 def generic_configurations(model: RobotModel, n: int = 60, seed: int = 12345) -> np.ndarray:
-    """Random joint configurations inside the limits (at most +-pi): a generic design for telling
+    """Random joint configurations ``(n, N)`` inside the limits (at most +-pi): a generic design for telling
     structural couplings from data-dependent ones."""
     rng = np.random.default_rng(seed)
     lo = np.maximum(model.q_min, -np.pi)
     hi = np.minimum(model.q_max, np.pi)
-    return rng.uniform(lo, hi, (n, 6))
+    return rng.uniform(lo, hi, (n, model.n_joints))
 
 
 def residual_stats(space: ParamSpace, x: np.ndarray, obs: Observations) -> dict[str, Any]:

@@ -25,16 +25,21 @@ PRED_COLUMNS = ("pose_id",) + SPHERE_COLS + POSE_COLS + ("frame",)
 TARGET_COLUMNS = ("pose_id", "x", "y", "z", "qw", "qx", "qy", "qz")
 
 
+def _point_cols(k: int) -> tuple[str, ...]:
+    return tuple(f"p{i}_{c}" for i in range(k) for c in "xyz")
+
+
 def write_pred_csv(path: str | os.PathLike, pose_id: np.ndarray, pred: Prediction, station: np.ndarray | None = None) -> Path:
-    """Write ``PRED.csv``: ``pose_id, p0_x..p2_z`` [mm], ``x y z`` [mm], ``rx ry rz`` [rad], ``frame``,
-    (``station`` when given), and ``sd_p0_x..sd_p2_z``, ``sd_x..sd_rz`` when the prediction has them."""
+    """Write ``PRED.csv``: ``pose_id, p0_x..p<K-1>_z`` [mm], ``x y z`` [mm], ``rx ry rz`` [rad], ``frame``,
+    (``station`` when given), and ``sd_p0_x..``, ``sd_x..sd_rz`` when the prediction has them."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     n = len(pose_id)
-    cols = list(PRED_COLUMNS) + (["station"] if station is not None else [])
+    pcols = _point_cols(pred.spheres.shape[1])
+    cols = ["pose_id", *pcols, *POSE_COLS, "frame"] + (["station"] if station is not None else [])
     has_sd = pred.sd_spheres is not None
     if has_sd:
-        cols += [f"sd_{c}" for c in SPHERE_COLS] + [f"sd_{c}" for c in POSE_COLS]
+        cols += [f"sd_{c}" for c in pcols] + [f"sd_{c}" for c in POSE_COLS]
     pose6 = transform_to_pose6(pred.pose)
     with _atomic(path) as f:
         w = csv.writer(f, lineterminator="\n")
@@ -67,18 +72,22 @@ def _atomic(path: Path):
 
 
 def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Read ``PRED.csv`` back: ``pose_id`` ``(n,)``, ``spheres`` ``(n, 3, 3)`` [m], ``pose6`` ``(n, 6)``
+    """Read ``PRED.csv`` back: ``pose_id`` ``(n,)``, ``spheres`` ``(n, K, 3)`` [m], ``pose6`` ``(n, 6)``
     (translation [m], rotation vector [rad]), ``frame`` ``(n,)``, and ``sd_spheres`` when present."""
     path = Path(path)
-    _, rows = read_csv_rows(path, ("pose_id",) + tuple(SPHERE_COLS) + tuple(POSE_COLS) + ("frame",))
+    header, rows = read_csv_rows(path, ("pose_id", "p0_x", "p0_y", "p0_z") + tuple(POSE_COLS) + ("frame",))
+    K = 0
+    while f"p{K}_x" in header:
+        K += 1
+    pcols = _point_cols(K)
     out = {
         "pose_id": np.array([int(r["pose_id"]) for r in rows]),
-        "spheres": np.array([[float(r[c]) for c in SPHERE_COLS] for r in rows]).reshape(-1, 3, 3) * _MM,
+        "spheres": np.array([[float(r[c]) for c in pcols] for r in rows]).reshape(-1, K, 3) * _MM,
         "pose6": np.array([[float(r[c]) * (_MM if c in "xyz" else 1.0) for c in POSE_COLS] for r in rows]),
         "frame": np.array([r["frame"] for r in rows], dtype=object),
     }
     if "sd_p0_x" in rows[0]:
-        out["sd_spheres"] = np.array([[float(r[f"sd_{c}"]) for c in SPHERE_COLS] for r in rows]).reshape(-1, 3, 3) * _MM
+        out["sd_spheres"] = np.array([[float(r[f"sd_{c}"]) for c in pcols] for r in rows]).reshape(-1, K, 3) * _MM
     return out
 
 

@@ -143,20 +143,30 @@ class Identifiability:
 def preference_order(names: Sequence[str], gauge: Literal["frames", "structure"] = "frames") -> tuple[str, ...]:
     """Order in which parameters are offered to the rank-revealing pass (earlier = kept when coupled).
 
-    ``"frames"``: base (every station) and tool first, then the robot parameters family by family
-    (theta, d, a, alpha, beta) from joint 6 down to joint 1, so that of a coupled set the base/tool
-    survives, and of the parallel pair d3 survives and d2 is dropped. ``"structure"``: the robot
-    parameters first (joint 1 up), then base and tool.
+    ``"frames"``: base (every station) and tool first, then the robot parameters family by family (6R: theta,
+    d, a, alpha, beta; a ``"urdf"`` chain's ``<joint>.<family>``: offset, x, y, z, rx, ry, rz) from the last
+    joint down to joint 1, so that of a coupled set the base/tool survives, of the parallel pair d3 survives
+    and d2 is dropped, and a joint offset survives against an origin rotation about the same axis.
+    ``"structure"``: the robot parameters first (joint 1 up), then base and tool.
     """
     if gauge not in ("frames", "structure"):
         raise ValueError(f"gauge must be 'frames' or 'structure', got {gauge!r}")
     frames = [n for n in names if n.startswith(("base_", "tool_"))]
     robot = [n for n in names if not n.startswith(("base_", "tool_"))]
-    fam_rank = {"theta": 0, "d": 1, "a": 2, "alpha": 3, "beta": 4}
+    fam_rank = {"theta": 0, "d": 1, "a": 2, "alpha": 3, "beta": 4,
+                "offset": 0, "x": 1, "y": 2, "z": 3, "rx": 4, "ry": 5, "rz": 6}
+    joint_order: dict[str, int] = {}
+    for n in robot:
+        if "." in n:
+            joint_order.setdefault(n.rsplit(".", 1)[0], len(joint_order) + 1)
 
     def key(n: str, descending: bool):
-        fam = n.rstrip("0123456789")
-        j = int(n[len(fam):]) if len(fam) < len(n) else 0
+        if "." in n:
+            jn, fam = n.rsplit(".", 1)
+            j = joint_order[jn]
+        else:
+            fam = n.rstrip("0123456789")
+            j = int(n[len(fam):]) if len(fam) < len(n) else 0
         return (fam_rank.get(fam, 9), -j if descending else j)
 
     if gauge == "frames":

@@ -35,17 +35,32 @@ __all__ = ["calibrate", "identify_best", "identifiability", "METHODS", "candidat
 _MM = 1e-3
 
 
-def candidates(space: ParamSpace, error_model: ErrorModel) -> np.ndarray:
+LEVELS = ("full", "offsets", "frames")
+
+
+def candidates(space: ParamSpace, error_model: ErrorModel, level: str = "full") -> np.ndarray:
     """Mask of the parameters an error model estimates: ``"tmmdh"`` all (robot structure, tool, a base per
     station: the TM-MDH paper's model, 37 for one station); ``"structural"`` the robot structure only (the
-    separation paper's MDH+beta / the TM-MDH paper's DH+beta: base and tool held at their given values)."""
+    separation paper's MDH+beta / the TM-MDH paper's DH+beta: base and tool held at their given values).
+
+    ``level`` restricts the robot structure: ``"full"`` every geometric parameter of every joint,
+    ``"offsets"`` the joint offsets only (``theta_i`` of a 6R chain, ``<joint>.offset`` of any chain),
+    ``"frames"`` none (base and tool only)."""
+    if level not in LEVELS:
+        raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
     if error_model == "tmmdh":
-        return np.ones(space.size, dtype=bool)
-    if error_model == "structural":
+        m = np.ones(space.size, dtype=bool)
+    elif error_model == "structural":
         m = np.zeros(space.size, dtype=bool)
         m[: space.n_robot] = True
-        return m
-    raise ValueError(f"error_model must be 'tmmdh' or 'structural', got {error_model!r}")
+    else:
+        raise ValueError(f"error_model must be 'tmmdh' or 'structural', got {error_model!r}")
+    if level != "full":
+        joint = set(space.chain.structure.joint_params) if level == "offsets" else set()
+        m[: space.n_robot] &= np.array([n in joint for n in space.names[: space.n_robot]], dtype=bool)
+    if not m.any():
+        raise ValueError(f"error_model {error_model!r} with level {level!r} leaves no parameter to estimate")
+    return m
 
 
 def _variance_components(res, J_w: np.ndarray, inl_rows: np.ndarray) -> dict[int, tuple[float, float]]:
@@ -68,6 +83,8 @@ def identify_best(
     gauge: Literal["frames", "structure"] = "frames",
     robust: bool = True,
     alpha: float = 1e-3,
+    level: str = "full",
+    prior: dict[str, float] | None = None,
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """Our estimator: statistically weighted, column-scaled, robust, start-independent.
@@ -84,10 +101,16 @@ def identify_best(
        components ``sigma_b^2 <- sigma_b^2 * sum_b r^2 / (m_b - sum_b h_ii)`` (hat-matrix redundancy), refitting
        until the ratio settles (it changes the fit only when there are two blocks).
     5. Covariance ``(J^T W J)^-1`` of the whitened Jacobian on the inliers.
+
+    ``prior`` (maximum a posteriori instead of least squares): ``{"length": sd [m], "angle": sd [rad]}`` and
+    optionally ``"offset"`` [rad; m for prismatic joints], a zero-mean Gaussian prior on the deviation of every
+    identified robot parameter from its nominal value (joint offsets only with ``"offset"``; base and tool
+    never). The rows and the noise are settled without it (steps 3-4); a final fit on the inlier rows adds the
+    rows ``(x - x_nominal) / sd`` and the covariance becomes the posterior ``(J^T W J + diag(1/sd^2))^-1``.
     """
     space = prep.space
     obs = prep.obs_cal
-    cand = candidates(space, error_model)
+    cand = candidates(space, error_model, level)
     check_design(obs, int(cand.sum()))
     x0 = prep.x_nominal.copy()
     res0 = absolute_residuals(space, x0, obs)
@@ -147,6 +170,9 @@ def identify_best(
     else:
         notes.append("noise estimation did not settle in 6 rounds")
     w_rows = inlier.astype(float)[res.row]
+    if prior:
+        sd = prior_sd(space, prior, cand)
+        x, res, Jw, w_rows = _map_fit(space, obs.with_sigma(sig_p, sig_o), x, x0, sd, free_idx, inlier, cb)
     C = full_covariance(space, Jw, free_idx, w_rows)
     rejected = []
     if robust and row_stat is not None:
@@ -184,8 +210,55 @@ def identify_best(
         noise=noise,
         trace=tuple(trace),
         notes=tuple(notes),
-        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge},
+        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge,
+               "level": level, **({"prior": {k: float(v) for k, v in prior.items()}} if prior else {})},
     )
+
+
+PRIOR_KEYS = ("length", "angle", "offset")
+
+
+def prior_sd(space: ParamSpace, prior: dict[str, float], cand: np.ndarray) -> np.ndarray:
+    """Prior standard deviation ``(P,)`` [SI] of every parameter (``inf`` = no prior) from ``prior``
+    (see :func:`identify_best`); ``ValueError`` naming a bad key or value."""
+    bad = [k for k in prior if k not in PRIOR_KEYS]
+    if bad:
+        raise ValueError(f"prior: unknown keys {bad}; known: {list(PRIOR_KEYS)}")
+    for k, v in prior.items():
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"prior: {k} must be a positive standard deviation [SI], got {v!r}")
+    joint = set(space.chain.structure.joint_params)
+    sd = np.full(space.size, np.inf)
+    for k in range(space.n_robot):
+        if not cand[k]:
+            continue
+        name = space.names[k]
+        if name in joint:
+            sd[k] = prior.get("offset", np.inf)
+        else:
+            sd[k] = prior.get("length" if space.units[k] == "m" else "angle", np.inf)
+    return sd
+
+
+def _map_fit(space, obs, x, x0, sd, free_idx, inlier, cb):
+    """Gauss-Newton on the inlier rows plus the prior rows ``(x - x0) / sd`` (one extra pseudo-row)."""
+    from .problem import Residuals
+
+    w = np.where(np.isfinite(sd), 1.0 / sd, 0.0)
+    pk = np.flatnonzero(w > 0)
+
+    def fun(xx):
+        r = absolute_residuals(space, xx, obs)
+        Jp = np.zeros((pk.size, space.size))
+        Jp[np.arange(pk.size), pk] = w[pk]
+        return Residuals(r=np.concatenate([r.r, -(xx[pk] - x0[pk]) * w[pk]]), J=np.concatenate([r.J, Jp]),
+                         row=np.concatenate([r.row, np.full(pk.size, obs.n)]),
+                         block=np.concatenate([r.block, np.full(pk.size, 2)]))
+
+    row_w = np.append(inlier.astype(float), 1.0)
+    g = gauss_newton(fun, x, free_idx, row_weights=row_w, stage="map", callback=cb)
+    res = g.residuals
+    return g.x, res, res.J[:, free_idx], row_w[res.row]
 
 
 def build_calibration(prep: Prepared, ident: Identified, method: str, options: dict[str, Any]) -> Calibration:
@@ -334,6 +407,9 @@ def calibrate(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if method != "best" and dataset.robot.convention not in ("mdh", "dh"):
+        raise ValueError(f"method {method!r} reproduces a paper on 6R DH/MDH arms; robot {dataset.robot.name!r} is a "
+                         f"{dataset.robot.n_joints}-joint {dataset.robot.convention!r} chain: use method 'best'")
     prep = prepare(
         dataset,
         measurement=measurement,
@@ -363,6 +439,7 @@ def identifiability(
     measurement: Literal["auto", "spheres", "pose"] = "auto",
     rows: Literal["calibration", "all"] = "calibration",
     tol: float = 1e-6,
+    level: str = "full",
 ):
     """Identifiability analysis of ``dataset``'s configurations at the nominal model (stations registered).
 
@@ -375,5 +452,5 @@ def identifiability(
     obs = prep.obs if rows == "all" else prep.obs_cal
     if part != "full" and obs.kind == "spheres":
         obs = obs.as_poses()
-    cand = candidates(prep.space, error_model)
+    cand = candidates(prep.space, error_model, level)
     return analyse(prep.space, prep.x_nominal, obs, cand, gauge=gauge, part=part, tol=tol)

@@ -102,7 +102,7 @@ class PlanOptions:
 
 @dataclass(frozen=True)
 class PlanResult:
-    """``q`` ``(N, 6)`` [rad] and ``station`` ``(N,)`` of the plan, in measurement order; ``floor_plan``
+    """``q`` ``(n, N)`` and ``station`` ``(n,)`` of the plan, in measurement order; ``floor_plan``
     [m] predicted RMS sphere-prediction error of the plan, ``floor_random`` ``(R,)`` [m] the same for random
     plans (``inf`` when a random plan cannot identify the parameters); design numbers (``logdet``, ``O1``,
     condition number) for the plan and the random plans' median; pool sizes per station; identifiable
@@ -160,7 +160,7 @@ def visibility(
     plate: Plate,
     options: PlanOptions = PlanOptions(),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Which configurations ``q`` ``(n, 6)`` [rad] the rig at ``base2meas`` sees (see the module docstring).
+    """Which configurations ``q`` ``(n, N)`` the rig at ``base2meas`` sees (see the module docstring).
 
     Returns ``(visible (n,), reason (n,))`` with reason codes ``""`` (visible), ``"limits"``, ``"image"``,
     ``"tilt"``, ``"occluded"`` (the first failed test).
@@ -171,7 +171,7 @@ def visibility(
     s_tool = plate.spheres_flange @ Tinv[:3, :3].T + Tinv[:3, 3]
     r_s = 0.5 * plate.sphere_diameter
     T = base2meas @ tool2base(model, q)  # tool2meas (n, 4, 4)
-    S = np.einsum("nij,kj->nki", T[:, :3, :3], s_tool) + T[:, None, :3, 3]  # (n, 3, 3) left-camera frame
+    S = np.einsum("nij,kj->nki", T[:, :3, :3], s_tool) + T[:, None, :3, 3]  # (n, K, 3) left-camera frame
     reason = np.full(n, "", dtype=object)
     reason[~model.within_limits(q)] = "limits"
     L2R = camera.left2right
@@ -197,8 +197,8 @@ def visibility(
     reason[(reason == "") & ~ok_tilt] = "tilt"
     todo = np.flatnonzero(reason == "")
     if todo.size:
-        F = link_frames(model.with_frames(base2meas=base2meas), q[todo], frame="meas")[:, :, :3, 3]  # (m, 7, 3)
-        seg0, seg1 = F[:, :-1], F[:, 1:]  # (m, 6, 3)
+        F = link_frames(model.with_frames(base2meas=base2meas), q[todo], frame="meas")[:, :, :3, 3]  # (m, N+1, 3)
+        seg0, seg1 = F[:, :-1], F[:, 1:]  # (m, N, 3)
         occl = np.zeros(todo.size, dtype=bool)
         for c in centres:
             a0 = np.broadcast_to(c, S[todo].shape)[:, :, None, :]  # (m, 3, 1, 3)
@@ -236,7 +236,13 @@ def candidate_pool(
     options: PlanOptions = PlanOptions(),
     max_rounds: int = 40,
 ) -> np.ndarray:
-    """About ``n`` visible configurations ``(m, 6)`` [rad] for one station (see the module docstring)."""
+    """About ``n`` visible configurations ``(m, N)`` for one station (see the module docstring). A chain without a
+    closed-form inverse (not a 6R arm with a spherical wrist) is sampled uniformly inside its joint limits
+    instead, keeping what the rig sees."""
+    try:
+        inverse_kinematics_closed_form(model, np.eye(4)[None])
+    except ValueError:
+        return _joint_space_pool(model, base2meas, camera, plate, n, rng, options, max_rounds)
     intr = camera.left
     dmin, dmax = options.depth if options.depth is not None else _default_depth(camera)
     Tinv = invert_transform(model.tool2flange)
@@ -277,8 +283,28 @@ def candidate_pool(
         if total >= n:
             break
     if not out or total == 0:
-        return np.zeros((0, 6))
+        return np.zeros((0, model.n_joints))
     q = np.concatenate(out)
+    if q.shape[0] > n:
+        q = q[rng.choice(q.shape[0], n, replace=False)]
+    return q
+
+
+def _joint_space_pool(model: RobotModel, base2meas: np.ndarray, camera: StereoCamera, plate: Plate, n: int,
+                      rng: np.random.Generator, options: PlanOptions, max_rounds: int) -> np.ndarray:
+    """Visible configurations ``(m, N)`` drawn uniformly inside the joint limits (at most +-pi)."""
+    lo = np.maximum(model.q_min, -np.pi)
+    hi = np.minimum(model.q_max, np.pi)
+    out: list[np.ndarray] = []
+    total = 0
+    for _ in range(max_rounds):
+        qs = rng.uniform(lo, hi, (max(500, 4 * (n - total)), model.n_joints))
+        vis, _ = visibility(model, qs, base2meas, camera, plate, options)
+        out.append(qs[vis])
+        total += int(vis.sum())
+        if total >= n:
+            break
+    q = np.concatenate(out) if out else np.zeros((0, model.n_joints))
     if q.shape[0] > n:
         q = q[rng.choice(q.shape[0], n, replace=False)]
     return q
@@ -289,14 +315,14 @@ def candidate_pool(
 # ------------------------------------------------------------------------------------------------
 
 def _blocks(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, s_tool: np.ndarray, sigma: float):
-    """Whitened Jacobian blocks ``(m, 9, P)`` of the three sphere centres of each candidate."""
-    _, Jk = predict_points(space, x, q, station, s_tool, jacobian=True)  # (P, 3, 3, m)
-    return np.transpose(Jk, (3, 1, 2, 0)).reshape(q.shape[0], 9, space.size) / sigma
+    """Whitened Jacobian blocks ``(m, 3K, P)`` of the K marker points of each candidate."""
+    _, Jk = predict_points(space, x, q, station, s_tool, jacobian=True)  # (P, K, 3, m)
+    return np.transpose(Jk, (3, 1, 2, 0)).reshape(q.shape[0], 3 * s_tool.shape[0], space.size) / sigma
 
 
 def design_floor(A: np.ndarray, sel: np.ndarray, A_eval: np.ndarray) -> float:
-    """Predicted RMS 3-D sphere-prediction error over the evaluation blocks ``A_eval`` ``(e, 9, p)`` (in units
-    of sigma) of the design ``sel`` (indices into ``A`` ``(m, 9, p)``): ``inf`` if the design is singular."""
+    """Predicted RMS 3-D point-prediction error over the evaluation blocks ``A_eval`` ``(e, 3K, p)`` (in units
+    of sigma) of the design ``sel`` (indices into ``A`` ``(m, 3K, p)``): ``inf`` if the design is singular."""
     M = np.einsum("kri,krj->ij", A[sel], A[sel])
     try:
         L = np.linalg.cholesky(M)
@@ -304,8 +330,8 @@ def design_floor(A: np.ndarray, sel: np.ndarray, A_eval: np.ndarray) -> float:
         return float("inf")
     if np.min(np.diag(L)) ** 2 < 1e-12 * np.max(np.diag(M)):
         return float("inf")
-    Z = np.linalg.solve(L, A_eval.reshape(-1, A_eval.shape[-1]).T)  # (p, 9e)
-    v = np.sum(Z**2, axis=0).reshape(-1, 3, 3).sum(axis=-1)  # per sphere: summed over coordinates
+    Z = np.linalg.solve(L, A_eval.reshape(-1, A_eval.shape[-1]).T)  # (p, 3K e)
+    v = np.sum(Z**2, axis=0).reshape(-1, 3).sum(axis=-1)  # per point: summed over coordinates
     return float(np.sqrt(np.mean(v)))
 
 
@@ -409,7 +435,7 @@ def plan_measurements(
             progress(f"station {s}: {qk.shape[0]} visible candidates")
     Q = np.concatenate(qs)
     S = np.concatenate(st)
-    space = ParamSpace(Chain(model.convention, model.beta_joints), names)
+    space = ParamSpace(Chain.of(model), names)
     x0 = space.from_model(model.with_frames(base2meas=np.eye(4)), {s: np.asarray(stations[s], float) for s in names})
     Tinv = invert_transform(model.tool2flange)
     s_tool = plate.spheres_flange @ Tinv[:3, :3].T + Tinv[:3, 3]

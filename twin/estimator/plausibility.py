@@ -2,12 +2,15 @@
 
 Checks on data a user has (nothing here reads truth):
 
-* **Plate geometry per row.** The three pairwise sphere distances of the plate are known (``dataset.toml``
-  ``[plate] spheres_mm``) and distinct, so each measured row can be checked: a row whose labels are permuted
-  is relabelled (the permutation whose distances match the plate best, when it matches far better than the
-  labels given); a row whose distances are off by more than ``k`` robust standard deviations of all rows is
-  flagged and left out. The median ratio of measured to nominal distances tells units (1000x: millimetres
-  written in metres or the reverse).
+* **Marker geometry per row.** The pairwise distances of the K >= 2 points of the rigid marker set are known
+  (``dataset.toml`` ``[plate] spheres_mm`` / ``[markers] points_mm``), so each measured row can be checked: a
+  row whose labels are permuted is relabelled (the permutation whose distances match the set best, when it
+  matches far better than the labels given; distinct distances make it unambiguous); a row whose distances are
+  off by more than ``k`` robust standard deviations of all rows is flagged and left out. The median ratio of
+  measured to nominal distances tells units (1000x: millimetres written in metres or the reverse).
+* **Length unit** (any K, poses too): the spread of the measured positions over the campaign against the spread
+  the nominal robot gives them at the same joints (no registration needed: a spread does not depend on the
+  frame). A ratio near 1/1000 or 1000 is a unit declared wrong in ``dataset.toml``.
 * **Joints.** Values outside the robot's limits; all joints within a few degrees of zero over a campaign that
   must move (joints written in radians in the degree columns).
 * **Fit.** A residual scale far above 1 (the noise stated or estimated cannot explain the residual: the model
@@ -29,10 +32,12 @@ import numpy as np
 from ..dataset import Dataset
 
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values", "check_fit",
-           "plate_noise", "check_fit_against_plate", "tool_reach", "check_targets", "forced_reasons"]
+           "plate_noise", "check_fit_against_plate", "tool_reach", "check_targets", "forced_reasons",
+           "check_length_unit"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _DEG = np.pi / 180.0
+_MAX_RELABEL_POINTS = 6  # K! permutations are tried per row
 
 
 class ImplausibleData(ValueError):
@@ -58,8 +63,8 @@ class PlateCheck:
                         "whose distances are off by more than k robust sd of all rows left out"}
 
 
-def _distances(P: np.ndarray) -> np.ndarray:
-    return np.stack([np.linalg.norm(P[:, a] - P[:, b], axis=-1) for a, b in _PAIRS], axis=-1)
+def _distances(P: np.ndarray, pairs=_PAIRS) -> np.ndarray:
+    return np.stack([np.linalg.norm(P[:, a] - P[:, b], axis=-1) for a, b in pairs], axis=-1)
 
 
 def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) -> PlateCheck:
@@ -74,34 +79,41 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
     if not (k > 0):
         raise ValueError(f"k must be positive, got {k!r}")
     full = ds.sphere_seen.all(axis=1)
-    if full.sum() == 0:
+    pairs = ds.plate.pairs
+    if full.sum() == 0 or not pairs:
         return PlateCheck(ds)
-    nom = _distances(ds.plate.spheres_flange[None])[0]  # (3,)
+    nom = _distances(ds.plate.spheres_flange[None], pairs)[0]  # (K(K-1)/2,)
     P = ds.spheres[full]
-    d = _distances(P)
+    d = _distances(P, pairs)
     ratio = float(np.median(d / nom))
+    unit = getattr(ds, "length_unit", "mm")
     if not 0.5 < ratio < 2.0:
         if 300 < ratio < 3000:
-            cause = "sphere positions in micrometres, or the plate in metres?"
+            cause = ("marker positions in micrometres, or the marker set in metres?" if unit == "mm" else
+                     f"marker positions in millimetres? (dataset.toml declares unit {unit!r})")
         elif 3e-4 < ratio < 3e-3:
-            cause = "positions in metres? (poses.csv expects millimetres)"
+            cause = f"positions in metres? (dataset.toml declares unit {unit!r}: poses.csv must hold millimetres)"
         else:
             cause = "a different plate, or wrong units?"
-        raise ImplausibleData(f"sphere distances are {ratio:.4g}x the plate's ({', '.join(f'{x * 1e3:.2f}' for x in nom)} "
-                              f"mm in dataset.toml [plate]): {cause}")
-    perms = list(permutations(range(3)))
+        label = ("sphere distances", "the plate's") if ds.plate.sphere_diameter > 0 else ("marker distances",
+                                                                                        "the marker set's")
+        raise ImplausibleData(f"{label[0]} are {ratio:.4g}x {label[1]} ({', '.join(f'{x * 1e3:.2f}' for x in nom[:6])} "
+                              f"mm in dataset.toml): {cause}")
+    K = ds.plate.n_points
     spheres = ds.spheres.copy()
     rows = np.flatnonzero(full)
     relabelled = []
-    for r in rows:
-        errs = []
-        for p in perms:
-            errs.append(float(np.sum((_distances(spheres[r][list(p)][None])[0] - nom) ** 2)))
-        best = int(np.argmin(errs))
-        if best != 0 and errs[0] > 100 * errs[best] and errs[0] > (50e-6) ** 2:
-            spheres[r] = spheres[r][list(perms[best])]
-            relabelled.append(int(ds.pose_id[r]))
-    e = _distances(spheres[full]) - nom  # (m, 3)
+    if K <= _MAX_RELABEL_POINTS:
+        perms = list(permutations(range(K)))
+        for r in rows:
+            errs = []
+            for p in perms:
+                errs.append(float(np.sum((_distances(spheres[r][list(p)][None], pairs)[0] - nom) ** 2)))
+            best = int(np.argmin(errs))
+            if best != 0 and errs[0] > 100 * errs[best] and errs[0] > (50e-6) ** 2:
+                spheres[r] = spheres[r][list(perms[best])]
+                relabelled.append(int(ds.pose_id[r]))
+    e = _distances(spheres[full], pairs) - nom  # (m, K(K-1)/2)
     med = np.median(e, axis=0)  # a plate slightly off its nominal geometry: a common offset, not an error
     dev = np.abs(e - med)
     sd = np.maximum(1.4826 * np.median(dev, axis=0), min_sd_m)
@@ -109,12 +121,12 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
     flagged = {}
     for r, b, x in zip(rows, bad, dev):
         if b:
-            flagged[int(ds.pose_id[r])] = (f"plate geometry off: inter-sphere distances differ from the campaign's by "
+            flagged[int(ds.pose_id[r])] = (f"plate geometry off: inter-point distances differ from the campaign's by "
                                            f"{', '.join(f'{v * 1e3:.3f}' for v in x)} mm (> {k:g} robust sd): not what the "
                                            f"instrument could have measured")
     if bad.mean() > 0.5:
-        raise ImplausibleData(f"{int(bad.sum())} of {int(full.sum())} rows have sphere distances that do not fit the "
-                              "plate in dataset.toml: wrong plate geometry or units?")
+        raise ImplausibleData(f"{int(bad.sum())} of {int(full.sum())} rows have marker distances that do not fit the "
+                              "marker set in dataset.toml: wrong geometry, units, or not one rigid body?")
     out = replace(ds, spheres=spheres)
     if flagged:
         keep = ~np.isin(out.pose_id, list(flagged))
@@ -125,32 +137,43 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
 def check_joints(ds: Dataset) -> list[str]:
     """Problems of the commanded joints of a dataset in words (empty when none); :class:`ImplausibleData` when
     the joints cannot be degrees (see :func:`check_joint_values`)."""
-    return check_joint_values(ds.q, ds.pose_id, ds.robot.q_min, ds.robot.q_max, where="poses.csv")
+    r = ds.robot
+    if r.n_joints == 6 and tuple(r.joint_names) == tuple(f"q{j}" for j in range(1, 7)):
+        return check_joint_values(ds.q, ds.pose_id, r.q_min, r.q_max, where="poses.csv")
+    return check_joint_values(ds.q, ds.pose_id, r.q_min, r.q_max, where="poses.csv", joint_names=r.joint_names,
+                              prismatic=r.is_prismatic)
 
 
 def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, *,
-                       where: str = "poses.csv") -> list[str]:
-    """Joints ``q`` ``(n, 6)`` [rad] (read from degree columns) against the limits ``q_min``/``q_max`` [rad].
+                       where: str = "poses.csv", joint_names=None, prismatic=None) -> list[str]:
+    """Joints ``q`` ``(n, N)`` [rad; m for prismatic joints] (read from degree / millimetre columns) against the
+    limits ``q_min``/``q_max``. ``joint_names`` (default ``q1..qN``), ``prismatic`` ``(N,)`` mask (default none).
 
     Returns the rows outside the limits in words (empty when none). Raises :class:`ImplausibleData` when the
-    joints cannot be degrees: every joint within 3.2 deg of zero over 10 rows or more that move (radians
-    written in the degree columns of ``where``)."""
+    joints cannot be degrees: every revolute joint within 3.2 deg of zero over 10 rows or more that move
+    (radians written in the degree columns of ``where``)."""
     q = np.asarray(q, dtype=float)
-    if q.ndim != 2 or q.shape[1] != 6:
-        raise ValueError(f"q must have shape (n, 6), got {q.shape}")
+    if q.ndim != 2 or q.shape[1] != np.size(q_min):
+        raise ValueError(f"q must have shape (n, {np.size(q_min)}), got {q.shape}")
+    nj = q.shape[1]
+    names = tuple(joint_names) if joint_names is not None else tuple(f"q{j + 1}" for j in range(nj))
+    pris = np.zeros(nj, bool) if prismatic is None else np.asarray(prismatic, dtype=bool)
     pose_id = np.asarray(pose_id)
     if pose_id.shape != (q.shape[0],):
         raise ValueError(f"pose_id must have shape ({q.shape[0]},), got {pose_id.shape}")
     n = q.shape[0]
-    if n >= 10 and np.all(np.abs(q) <= np.pi * _DEG * 1.02) and np.ptp(q, axis=0).max() > 0:
-        raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(q).max() / _DEG:.3g} deg of zero: "
-                              f"joints look like radians ({where} expects q1..q6 in degrees)")
+    rev = q[:, ~pris]
+    if n >= 10 and rev.size and np.all(np.abs(rev) <= np.pi * _DEG * 1.02) and np.ptp(rev, axis=0).max() > 0:
+        cols = "q1..q6" if joint_names is None else ", ".join(n_ for n_, p in zip(names, pris) if not p)
+        raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(rev).max() / _DEG:.3g} deg of zero: "
+                              f"joints look like radians ({where} expects {cols} in degrees)")
     lo, hi = np.asarray(q_min, float), np.asarray(q_max, float)
     out = []
-    for j in range(q.shape[1]):
+    for j in range(nj):
         b = np.flatnonzero((q[:, j] < lo[j] - 1e-9) | (q[:, j] > hi[j] + 1e-9))
         if b.size:
-            out.append(f"q{j + 1} outside the robot's limits [{lo[j] / _DEG:.1f}, {hi[j] / _DEG:.1f}] deg in "
+            f, u = (1e3, "mm") if pris[j] else (1 / _DEG, "deg")
+            out.append(f"{names[j]} outside the robot's limits [{lo[j] * f:.1f}, {hi[j] * f:.1f}] {u} in "
                        f"{b.size} rows (pose_id {[int(x) for x in pose_id[b[:5]]]})")
     return out
 
@@ -164,7 +187,7 @@ def tool_reach(robot, *, n: int = 4000, seed: int = 0) -> tuple[float, float]:
     if n < 10:
         raise ValueError(f"n must be at least 10, got {n!r}")
     rng = np.random.default_rng(seed)
-    q = rng.uniform(robot.q_min, robot.q_max, (n, 6))
+    q = rng.uniform(robot.q_min, robot.q_max, (n, robot.n_joints))
     r = np.linalg.norm(tool2base(robot, q)[:, :3, 3], axis=-1)
     return float(np.median(r)), float(r.max())
 
@@ -208,6 +231,65 @@ def forced_reasons(details: dict) -> list[str]:
     return [str(f) for f in (forced if isinstance(forced, list) else [forced])]
 
 
+def check_length_unit(ds: Dataset, *, low: float = 0.05, high: float = 20.0) -> float | None:
+    """:class:`ImplausibleData` when the measured positions (marker points, or pose positions) spread over the
+    campaign ``low`` times less or ``high`` times more than the nominal robot moves the same points at the same
+    joints: the length unit declared in ``dataset.toml`` (``[markers] unit``) is not the file's. Returns the
+    ratio (the median over stations; None with fewer than 3 measured rows). The spread (RMS distance from the
+    centroid, per station) does not depend on the measurement frame, so no registration is needed."""
+    from ..kinematics import tool2base
+
+    robot = ds.robot
+    if ds.has_spheres:
+        rows = np.flatnonzero(ds.sphere_seen.any(axis=1))
+    elif ds.has_poses:
+        rows = np.flatnonzero(ds.pose_seen)
+    else:
+        return None
+    if rows.size < 3:
+        return None
+    T = tool2base(robot, ds.q[rows])
+    if ds.has_spheres:
+        T0 = np.linalg.inv(robot.tool2flange)
+        pts_tool = ds.plate.spheres_flange @ T0[:3, :3].T + T0[:3, 3]
+        pred = np.einsum("nij,kj->nki", T[:, :3, :3], pts_tool) + T[:, None, :3, 3]
+        meas = ds.spheres[rows]
+        seen = ds.sphere_seen[rows]
+    else:
+        pred = T[:, None, :3, 3]
+        meas = ds.pose[rows, None, :3, 3]
+        seen = np.ones((rows.size, 1), bool)
+
+    def spread(P):
+        return float(np.sqrt(np.mean(np.sum((P - P.mean(axis=0)) ** 2, axis=-1))))
+
+    st = ds.station_ids[rows]
+    sm, sp = [], []
+    for s_ in np.unique(st):
+        sel = (st == s_)[:, None] & seen
+        if sel.sum() >= 3:
+            sm.append(spread(meas[sel]))
+            sp.append(spread(pred[sel]))
+    if not sp or min(sp) <= 0:
+        return None
+    ratio = float(np.median(np.array(sm) / np.array(sp)))
+    sm_, sp = float(np.median(sm)), float(np.median(sp))
+    unit = ds.length_unit
+    if ratio < low or ratio > high:
+        if 3e-4 < ratio < 3e-3:
+            cause = (f"the values look like metres but dataset.toml declares unit {unit!r}" if unit == "mm"
+                     else f"dataset.toml declares unit {unit!r}: values in micrometres?")
+        elif 300 < ratio < 3000:
+            cause = (f"the values look like millimetres but dataset.toml declares unit {unit!r}" if unit == "m"
+                     else f"dataset.toml declares unit {unit!r}: values in micrometres?")
+        else:
+            cause = "wrong units, wrong robot, or joints in the wrong columns?"
+        f = 1e3 if unit == "mm" else 1.0
+        raise ImplausibleData(f"the measured positions spread {sm_ * f:.4g} {unit} over the campaign where "
+                              f"the nominal robot moves them {sp * f:.4g} {unit} (ratio {ratio:.3g}): {cause}")
+    return ratio
+
+
 def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
     """:class:`ImplausibleData` when the whitened residual is ``limit`` or more times what the noise explains."""
     if not np.isfinite(residual_scale):
@@ -217,16 +299,20 @@ def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
                               "explains (wrong robot, wrong units, swapped columns, or the stated noise far too small?)")
 
 
-def plate_noise(ds: Dataset) -> float | None:
-    """The instrument's error per coordinate [m] seen in the plate: the robust spread of the inter-sphere
-    distances over the rows with all three spheres, divided by sqrt(2) (None with fewer than 10 such rows).
-    No kinematic error changes these distances, so a fit cannot be much worse than this."""
+def plate_noise(ds: Dataset, *, virtual_m: float = 1e-6) -> float | None:
+    """The instrument's error per coordinate [m] seen in the marker set: the robust spread of the inter-point
+    distances over the rows with all K points, divided by sqrt(2) (None with fewer than 10 such rows or K < 2).
+    No kinematic error changes these distances, so a fit cannot be much worse than this. Distances constant to
+    below ``virtual_m`` (1 um: no instrument measures independent points that well) are the virtual points of a
+    tracked rigid body (a motion-capture body's points, computed from its fitted pose): they carry no noise
+    information, and the answer is None."""
     full = ds.sphere_seen.all(axis=1)
-    if full.sum() < 10:
+    if full.sum() < 10 or not ds.plate.pairs:
         return None
-    d = _distances(ds.spheres[full])
+    d = _distances(ds.spheres[full], ds.plate.pairs)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return float(np.sqrt(np.mean(mad**2) / 2.0))
+    sigma = float(np.sqrt(np.mean(mad**2) / 2.0))
+    return None if sigma < virtual_m else sigma
 
 
 def check_fit_against_plate(fit_rms_per_coordinate_m: float, sigma_plate_m: float | None, *,

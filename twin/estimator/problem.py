@@ -64,9 +64,9 @@ MeasurementKind = Literal["spheres", "pose"]
 class ParamSpace:
     """Names and positions of the estimated vector: robot structure, tool, then one base per station.
 
-    Order: the foundation layout without the base (``theta1..6, d1..6, a1..6, alpha1..6, beta_j,
-    tool_x..tool_rz``), then ``base_x..base_rz`` of every station (named ``base_x@<station>`` when the
-    data have more than one station). Units SI ([m], [rad]).
+    Order: the foundation layout without the base (the chain's structural parameters, for a 6R chain
+    ``theta1..6, d1..6, a1..6, alpha1..6, beta_j``; then ``tool_x..tool_rz``), then ``base_x..base_rz`` of every
+    station (named ``base_x@<station>`` when the data have more than one station). Units SI ([m], [rad]).
     """
 
     chain: Chain
@@ -125,14 +125,19 @@ class ParamSpace:
             raise ValueError(f"unknown station {station!r}; known: {list(self.stations)}") from None
 
     def family(self, fam: str) -> np.ndarray:
-        """Indices of 'theta', 'd', 'a', 'alpha', 'beta', 'tool', 'base' (all stations), 'structure'."""
+        """Indices of a structural family ('theta', 'd', 'a', 'alpha', 'beta' of a 6R chain; 'offset', 'x', ...,
+        'rz' of a "urdf" chain), 'joint' (the parameter each joint's command adds to), 'tool', 'base' (all
+        stations) or 'structure'."""
         if fam == "structure":
             return np.arange(self.n_robot)
         if fam == "tool":
             return np.arange(self.tool_slice.start, self.tool_slice.stop)
         if fam == "base":
             return np.arange(self.n_rt, self.size)
-        return np.array([i for i, n in enumerate(self.names[: self.n_robot]) if n.rstrip("0123456789") == fam], int)
+        if fam == "joint":
+            return np.array([self.index(n) for n in self.chain.structure.joint_params], int)
+        lay = self.chain.layout
+        return np.array([i for i, n in enumerate(self.names[: self.n_robot]) if lay.family_of(n) == fam], int)
 
     def angle_mask(self) -> np.ndarray:
         """Parameters in [rad]: theta, alpha, beta, tool and base rotations."""
@@ -141,7 +146,8 @@ class ParamSpace:
     # --- conversions ---------------------------------------------------------------------------------
     def from_model(self, model: RobotModel, bases: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """Vector from a model (robot + tool) and ``base2meas`` ``(4, 4)`` per station (default: the model's)."""
-        if model.convention != self.chain.convention or tuple(model.beta_joints) != self.chain.beta_joints:
+        if model.convention != self.chain.convention or tuple(model.beta_joints) != self.chain.beta_joints or \
+                model.layout.names != self.chain.layout.names:
             raise ValueError(
                 f"model {model.name!r} ({model.convention}, beta {model.beta_joints}) does not match the parameter "
                 f"space ({self.chain.convention}, beta {self.chain.beta_joints})"
@@ -173,9 +179,10 @@ class ParamSpace:
 class Observations:
     """Measured rows in SI units, ready for residuals.
 
-    ``kind`` ``"spheres"``: ``spheres`` ``(n, 3, 3)`` [m] with ``seen`` ``(n, 3)``; ``"pose"``: ``pose_R``
-    ``(n, 3, 3)`` and ``pose_p`` ``(n, 3)`` [m] (tool2meas). ``station`` ``(n,)`` indexes
-    ``station_names``. ``spheres_tool`` ``(3, 3)`` [m]: sphere centres in the tool (plate) frame.
+    ``kind`` ``"spheres"``: ``spheres`` ``(n, K, 3)`` [m] (K marker points) with ``seen`` ``(n, K)``;
+    ``"pose"``: ``pose_R`` ``(n, 3, 3)`` and ``pose_p`` ``(n, 3)`` [m] (tool2meas). ``q`` ``(n, N)``.
+    ``station`` ``(n,)`` indexes ``station_names``. ``spheres_tool`` ``(K, 3)`` [m]: the points in the tool
+    frame.
     """
 
     kind: MeasurementKind
@@ -224,11 +231,16 @@ class Observations:
         )
 
     def as_poses(self) -> "Observations":
-        """Pose observations: unchanged for pose data; for sphere data the plate pose of every row with all
-        three spheres (rigid registration of the plate geometry onto them). The pose noise is derived from
-        the sphere noise (centroid: ``sigma / sqrt(3)``; rotation: ``sigma`` over the plate's RMS radius)."""
+        """Pose observations: unchanged for pose data; for marker data the rigid body's pose in every row with all
+        K points (rigid registration of its geometry onto them; K >= 3 points not on one line). The pose noise is
+        derived from the point noise (centroid: ``sigma / sqrt(K)``; rotation: ``sigma`` over the body's RMS
+        radius, times ``sqrt(2 / K)``: for the plate's K = 3 the factor ``1 / sqrt(1.5)``)."""
         if self.kind == "pose":
             return self
+        k = self.spheres_tool.shape[0]
+        c0 = self.spheres_tool - self.spheres_tool.mean(axis=0)
+        if k < 3 or np.linalg.svd(c0, compute_uv=False)[1] < 1e-6 * max(np.abs(c0).max(), 1e-12):
+            raise ValueError(f"a pose needs at least 3 marker points not on one line; this marker set has {k}")
         full = self.seen.all(axis=1)
         sub = self.subset(full)
         R, p = plate_pose_from_spheres(sub.spheres, self.spheres_tool)
@@ -241,8 +253,8 @@ class Observations:
             pose_p=p,
             spheres=None,
             seen=None,
-            sigma_position=self.sigma_position / np.sqrt(3.0),
-            sigma_orientation=self.sigma_position / max(rad, 1e-9) / np.sqrt(1.5),
+            sigma_position=self.sigma_position / np.sqrt(float(k)),
+            sigma_orientation=self.sigma_position / max(rad, 1e-9) / np.sqrt(k / 2.0),
         )
 
 
@@ -270,8 +282,8 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[n
 
 
 def plate_pose_from_spheres(spheres_meas: np.ndarray, spheres_tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Plate (tool) poses ``(R (n, 3, 3), p (n, 3))`` in the measurement frame from measured centres
-    ``(n, 3, 3)`` and the plate geometry ``(3, 3)`` in the tool frame."""
+    """Plate (tool) poses ``(R (n, 3, 3), p (n, 3))`` in the measurement frame from measured points
+    ``(n, K, 3)`` and the marker geometry ``(K, 3)`` in the tool frame."""
     A = np.broadcast_to(np.asarray(spheres_tool, dtype=float), np.shape(spheres_meas))
     return kabsch(A, spheres_meas)
 

@@ -42,11 +42,11 @@ def orientation_noise(R: np.ndarray, sigma: float, reading: str, rng: np.random.
 
 
 def random_configurations(model: RobotModel, n: int, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
-    """``n`` joint configurations ``(n, 6)`` [rad] uniform inside the limits (clipped to +-pi, shrunk by
-    ``margin`` [rad])."""
+    """``n`` joint configurations ``(n, N)`` uniform inside the limits (clipped to +-pi, shrunk by
+    ``margin`` [rad, m])."""
     lo = np.maximum(model.q_min, -np.pi) + margin
     hi = np.minimum(model.q_max, np.pi) - margin
-    return rng.uniform(lo, hi, (int(n), 6))
+    return rng.uniform(lo, hi, (int(n), model.n_joints))
 
 
 def simulate_dataset(
@@ -67,9 +67,9 @@ def simulate_dataset(
     declare_noise: bool = True,
     orientation_noise_reading: str = "rotvec",
 ) -> tuple[Dataset, dict[str, np.ndarray]]:
-    """A :class:`Dataset` measured on ``model`` (its robot and ``tool2flange``) at joints ``q`` ``(n, 6)``.
+    """A :class:`Dataset` measured on ``model`` (its robot and ``tool2flange``) at joints ``q`` ``(n, N)``.
 
-    ``kind``: ``"spheres"`` (three sphere centres, noise ``noise_position`` [m] per coordinate), ``"pose"``
+    ``kind``: ``"spheres"`` (the K points of ``plate``, noise ``noise_position`` [m] per coordinate), ``"pose"``
     (tool pose: position noise [m] per coordinate, rotation noise [rad] per rotation-vector component,
     applied on the left, or as :func:`orientation_noise` reads it with ``orientation_noise_reading``) or
     ``"both"``. Each row is measured in the frame of its ``station`` (default
@@ -86,13 +86,14 @@ def simulate_dataset(
     st = np.full(n, "0", dtype=object) if station is None else np.asarray(station, dtype=object).astype(str)
     bases = dict(base2meas) if base2meas else {s: model.base2meas for s in np.unique(st)}
     T_nom = (nominal.tool2flange if nominal is not None else np.eye(4))
-    spheres_tool = (invert_transform(T_nom) @ np.c_[plate.spheres_flange, np.ones(3)].T).T[:, :3]
+    K = plate.n_points
+    spheres_tool = (invert_transform(T_nom) @ np.c_[plate.spheres_flange, np.ones(K)].T).T[:, :3]
     F = flange2base(model, q) @ model.tool2flange
     B = np.stack([bases[s] for s in st])
     T = B @ F  # tool2meas (n, 4, 4)
     true_sph = np.einsum("nij,kj->nki", T[:, :3, :3], spheres_tool) + T[:, None, :3, 3]
-    spheres = np.full((n, 3, 3), np.nan)
-    seen = np.zeros((n, 3), dtype=bool)
+    spheres = np.full((n, K, 3), np.nan)
+    seen = np.zeros((n, K), dtype=bool)
     pose = np.full((n, 4, 4), np.nan)
     pose_seen = np.zeros(n, dtype=bool)
     if kind in ("spheres", "both"):
