@@ -14,9 +14,9 @@ import shlex
 import sys
 from pathlib import Path
 
-from twin.evaluation.campaign import run_repeats
-from twin.evaluation.config import load_campaign_config
-from twin.evaluation.executor import open_executor
+from twin.runner.campaign import run_repeats
+from twin.runner.config import load_campaign_config
+from twin.runner.executor import open_executor
 from twin.evaluation.regression import bands_from_repeats, update_regression_file
 
 

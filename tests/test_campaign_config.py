@@ -1,4 +1,4 @@
-"""Tests of twin.evaluation.config and twin.evaluation.plan: campaign configs and pose plans."""
+"""Tests of twin.runner.config and twin.runner.plan: campaign configs and pose plans."""
 
 import tomllib
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twin.evaluation.config import load_campaign_config, parse_campaign_config
-from twin.evaluation.plan import make_plan, pose_seed
+from twin.runner.config import load_campaign_config, parse_campaign_config
+from twin.runner.plan import make_plan, pose_seed
 from twin.kinematics import flange2base
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from twin.evaluation.campaign import run_campaign
-from twin.evaluation.config import load_campaign_config
+from twin.runner.campaign import run_campaign
+from twin.runner.config import load_campaign_config
 from twin.evaluation.regression import check_against_bands, tracked_statistics
 
 ROOT = Path(__file__).resolve().parent.parent

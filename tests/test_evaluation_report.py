@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from twin.evaluation.evaluate import kabsch, paper_orderings, parameter_comparison
-from twin.evaluation.methods import MethodResult, load_method_result, save_method_result
+from twin.runner.methods import MethodResult, load_method_result, save_method_result
 from twin.evaluation.regression import check_against_bands, tracked_statistics
 from twin.evaluation.report import comparison_rows, plot_figure10, plot_figure11, render_table, write_results
-from twin.evaluation.store import PoseResult, PoseStore
+from twin.runner.store import PoseResult, PoseStore
 from twin.evaluation.targets import read_targets
 from twin.presets import preset_deviation
 from twin.robots import irb1200

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twin.evaluation.config import parse_campaign_config
+from twin.runner.config import parse_campaign_config
 from twin.evaluation.realresidual import (EffectMagnitudes, aggregate_seeds, campaign_raw, judge, paper_real_targets,
                                           run_real_protocol, scan_point)
 from twin.evaluation.targets import read_targets

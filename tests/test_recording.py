@@ -112,8 +112,8 @@ def test_campaign_recording_reads_back(tmp_path):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _campaign_helpers import reference_full_pose, small_config
 
-    from twin.evaluation.campaign import run_campaign
-    from twin.evaluation.store import PoseStore
+    from twin.runner.campaign import run_campaign
+    from twin.runner.store import PoseStore
 
     run = run_campaign(small_config(outputs={"recording": True, "figures": False}), tmp_path,
                        implementations={"full_pose": reference_full_pose})

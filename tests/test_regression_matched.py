@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from twin.evaluation.campaign import run_repeats
-from twin.evaluation.config import load_campaign_config
-from twin.evaluation.executor import open_executor
+from twin.runner.campaign import run_repeats
+from twin.runner.config import load_campaign_config
+from twin.runner.executor import open_executor
 from twin.evaluation.regression import check_prediction, detectable_factor
 from twin.evaluation.targets import read_targets
 

@@ -7,8 +7,8 @@ import pytest
 
 import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 
-from twin.evaluation.campaign import run_campaign
-from twin.evaluation.config import parse_campaign_config
+from twin.runner.campaign import run_campaign
+from twin.runner.config import parse_campaign_config
 from twin.dataset import read_dataset
 from twin.camera import mujoco_to_opencv_cam2world
 from twin.transforms import rotation_angle_between

@@ -1,6 +1,6 @@
 """``twin campaign CONFIG --out DIR``: world -> instrument -> dataset -> estimator -> evaluation.
 
-Thin: parses the arguments, runs :func:`twin.evaluation.campaign.run_campaign` (or ``run_repeats`` with
+Thin: parses the arguments, runs :func:`twin.runner.campaign.run_campaign` (or ``run_repeats`` with
 ``--repeats``), shows progress bars and the comparison table, writes results. See ``docs/runner.md``.
 """
 
@@ -81,9 +81,9 @@ def _rich_tables(results: dict, source: str = "measured") -> list:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from twin.evaluation.campaign import run_campaign, run_repeats
-    from twin.evaluation.config import load_campaign_config, parse_campaign_config
-    from twin.evaluation.executor import open_executor
+    from twin.runner.campaign import run_campaign, run_repeats
+    from twin.runner.config import load_campaign_config, parse_campaign_config
+    from twin.runner.executor import open_executor
     from twin.evaluation.report import write_results
 
     console = Console()

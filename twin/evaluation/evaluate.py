@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 
@@ -35,7 +35,6 @@ from ..dataset import Plate
 from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, make_transform
-from .plan import CampaignPlan
 from .statistics import (
     absolute_pose_errors,
     euler_change_error,
@@ -43,12 +42,35 @@ from .statistics import (
     moved_distance_error,
     summarize,
 )
-from .store import PoseResult
 
 __all__ = ["PairErrors", "MethodEvaluation", "evaluate_campaign", "parameter_comparison", "paper_orderings", "kabsch"]
 
 _DEG = 180.0 / math.pi
 _MM = 1e3
+
+
+class PoseResult(Protocol):
+    """What evaluation reads of a measured pose (the runner's ``PoseResult``): its ``station``, the measured
+    centres (``spheres_array()``: ``(3, 3)`` [m], NaN where not measured, and the seen mask ``(3,)``) and the
+    world's ``truth`` (``spheres_meas`` ``(3, 3)`` [m] in the station's true frame)."""
+
+    station: str
+    truth: dict
+
+    def spheres_array(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class CampaignPlan(Protocol):
+    """What evaluation reads of a plan (the runner's ``CampaignPlan``): rows in measurement order with their
+    ``pose_id``, commanded ``q`` ``(n, 6)`` [rad], ``group``, commanded ``distance`` [m], and the motion pairs of
+    a group (``pairs(group) -> (start rows, end rows)``)."""
+
+    pose_id: np.ndarray
+    q: np.ndarray
+    group: np.ndarray
+    distance: np.ndarray
+
+    def pairs(self, group: str) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass

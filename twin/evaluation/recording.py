@@ -34,7 +34,7 @@ import rerun.blueprint as rrb
 
 from ..camera import CameraIntrinsics
 from ..transforms import matrix_to_quat_wxyz
-from .store import encode_image
+from .images import encode_image
 
 __all__ = ["CameraView", "StationView", "CampaignRecording", "encode_image", "default_blueprint"]
 

@@ -1,6 +1,6 @@
 """Regression bands of the campaign statistics (``results/regression.json``).
 
-:func:`bands_from_repeats` turns a Monte-Carlo run (:func:`twin.evaluation.campaign.run_repeats`) into bands:
+:func:`bands_from_repeats` turns a Monte-Carlo run (:func:`twin.runner.campaign.run_repeats`) into bands:
 for each tracked statistic its mean, sample std, min and max over the seeds, and for each of the paper's
 ordering claims the fraction of seeds where it holds. Two band kinds:
 
@@ -31,9 +31,9 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-from .executor import flatten_numbers
-from .report import _clean
-from .store import atomic_write_text
+from ..benchio import atomic_write_text
+from .report import clean_json
+from .statistics import flatten_numbers
 
 __all__ = ["tracked_statistics", "bands_from_repeats", "check_against_bands", "update_regression_file", "DEFAULT_PATH",
            "PREDICTION_STATISTICS", "prediction_band", "detectable_factor", "check_prediction", "literal_orderings",
@@ -306,7 +306,7 @@ def update_regression_file(section: str, data: Mapping[str, Any], path: str | os
     with open(lock, "w") as lf:
         fcntl.flock(lf, fcntl.LOCK_EX)
         current = json.loads(p.read_text()) if p.exists() else {"schema_version": 1}
-        current[section] = _clean(dict(data))
+        current[section] = clean_json(dict(data))
         atomic_write_text(p, json.dumps(current, indent=1, sort_keys=True) + "\n")
     try:
         lock.unlink()

@@ -16,7 +16,7 @@ seeds on an executor and aggregates the statistics. Output folder (``docs/runner
       after/<method>/         the compensated poses measured again (dataset format)
       work/                   per-pose results (resume state), renders.log; images under work/poses/images/
 
-Resume: every measured pose is written atomically as soon as it is finished (:mod:`twin.evaluation.store`);
+Resume: every measured pose is written atomically as soon as it is finished (:mod:`twin.runner.store`);
 running the same command again measures only what is missing. The dataset CSV is assembled from the
 per-pose files in plan order, so a resumed run writes the same bytes as an uninterrupted one. A different
 config in the same folder is refused (``work/campaign.json`` holds the config's fingerprint).
@@ -41,16 +41,18 @@ from ..transforms import invert_transform
 from ..world.effects import contexts_for_sequence
 from ..world.truth import write_truth
 from .config import CampaignConfig
-from .evaluate import evaluate_campaign, paper_orderings, parameter_comparison
-from .executor import SerialExecutor, aggregate, open_executor, run_tasks, worker_identity
+from ..evaluation.evaluate import evaluate_campaign, paper_orderings, parameter_comparison
+from ..evaluation.statistics import aggregate
+from .executor import SerialExecutor, open_executor, run_tasks, worker_identity
 from .methods import (Identify, MethodUnavailable, compensate, dataset_fingerprint, identify, load_method_result,
                       save_method_result)
-from .pipeline import PoseTask, backend_spec_for, get_backend, measure_pose
+from .measure import PoseTask, backend_spec_for, get_backend, measure_pose
 from .plan import CampaignPlan, make_plan, pose_seed
-from .report import comparison_rows, plot_figure10, plot_figure11, render_parameter_table, render_table, write_results
+from ..evaluation.report import comparison_rows, plot_figure10, plot_figure11, render_parameter_table, render_table, write_results
 from ..instrument.plate import paper_frame_from_spheres
-from .store import PoseResult, PoseStore, atomic_write_text
-from .targets import read_targets
+from ..benchio import atomic_write_text
+from .store import PoseResult, PoseStore
+from ..evaluation.targets import read_targets
 
 __all__ = ["CampaignRun", "run_campaign", "run_repeats", "visit_contexts", "Progress"]
 
@@ -429,7 +431,7 @@ def _figures(out: Path, evals, cfg: CampaignConfig) -> dict[str, Path]:
 
 
 def _recording(path: Path, cfg, plan, store, before, after, evals, method_results, stations_truth, backend, not_converged) -> Path:
-    from . import recording as rec_mod  # the only module that imports rerun
+    from ..evaluation import recording as rec_mod  # the only module that imports rerun
 
     images_mode = cfg.outputs.recording_images
     views = []

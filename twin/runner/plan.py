@@ -1,7 +1,7 @@
 """A campaign's pose plan: every commanded configuration, in measurement order, with its role.
 
-Built from a :class:`~twin.evaluation.config.CampaignConfig` and its seed only (same seed, same plan), with the
-nominal robot and the nominal station placement (see :mod:`twin.evaluation.sampling`). Pose ids count up
+Built from a :class:`~twin.runner.config.CampaignConfig` and its seed only (same seed, same plan), with the
+nominal robot and the nominal station placement (see :mod:`twin.runner.sampling`). Pose ids count up
 in measurement order; a motion pair is two consecutive rows sharing a ``pair`` id (``start`` then ``end``);
 pairs and moves of a group go round-robin over the group's stations.
 """

@@ -9,10 +9,10 @@ runs). Two backends:
 * ``truth_noise`` (:class:`TruthNoiseBackend`): the separation paper's own simulation (section 3.1): the true
   model's sphere centres in the station's measurement frame plus N(0, sigma^2) per coordinate. No images.
 
-Both return a :class:`~twin.evaluation.store.PoseResult` with the measured spheres (what goes into the
+Both return a :class:`~twin.runner.store.PoseResult` with the measured spheres (what goes into the
 dataset) and, apart, the world's truth for the pose (what only evaluation reads, from
 :meth:`twin.world.World.true_pose` / :meth:`~twin.world.World.capture`: one definition of truth). Per-pose
-noise is seeded from the campaign seed and the pose key (:func:`twin.evaluation.plan.pose_seed`), and the
+noise is seeded from the campaign seed and the pose key (:func:`twin.runner.plan.pose_seed`), and the
 effect context of a pose (its command history, time stamp, index in the robot's visit order) comes with the
 task, built from the plan by :func:`twin.world.effects.contexts_for_sequence`; so a pose measured again after
 a resume, or in another process, gives the same numbers.
@@ -34,7 +34,8 @@ import numpy as np
 from ..transforms import invert_transform
 from .config import CampaignConfig, parse_campaign_config
 from .executor import worker_identity
-from .store import PoseResult, encode_image
+from ..evaluation.images import encode_image
+from .store import PoseResult
 
 __all__ = [
     "PoseTask",
@@ -57,7 +58,7 @@ class PoseTask:
     ``context``: a :class:`twin.world.effects.EffectContext` from
     :func:`twin.world.effects.contexts_for_sequence` over the robot's whole visit order (``world`` left
     ``None``: the backend fills it): ``q_cmd_history``, ``pose_index``, ``t_s`` [s], ``station`` index.
-    :func:`twin.evaluation.campaign.run_campaign` always gives it. Without it (callers that measure single
+    :func:`twin.runner.campaign.run_campaign` always gives it. Without it (callers that measure single
     poses, e.g. benchmarks), the history is ``q_prev`` alone (one previous command, ``None`` for the first)
     and the time stamp ``pose_id * seconds_per_pose``.
     """
@@ -345,8 +346,8 @@ def cv2_ellipse_points(cx: float, cy: float, width: float, height: float, angle_
 
 
 BACKENDS = {
-    "truth_noise": "twin.evaluation.pipeline:TruthNoiseBackend",
-    "images": "twin.evaluation.pipeline:ImageBackend",
+    "truth_noise": "twin.runner.measure:TruthNoiseBackend",
+    "images": "twin.runner.measure:ImageBackend",
 }
 
 _CACHE: dict[str, Any] = {}
