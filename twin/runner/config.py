@@ -39,6 +39,7 @@ __all__ = [
     "MeasurementConfig",
     "PoseGroup",
     "OutputConfig",
+    "DiagnosisConfig",
     "CampaignConfig",
     "load_campaign_config",
     "parse_campaign_config",
@@ -197,6 +198,16 @@ class OutputConfig:
     paper: str = "simulation"  # which of the paper's experiments to print beside ours: 'simulation' or 'real'
 
 
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """``[diagnosis]``: ``enabled`` runs ``twin diagnose`` on the campaign's dataset (the diagnose stage) at
+    significance ``alpha``; the residual, the terms found and the error before and after go to the table,
+    results.json and the recording, the diagnosis files to ``diagnosis/``."""
+
+    enabled: bool = False
+    alpha: float = 0.01
+
+
 @dataclass(frozen=True, eq=False)
 class CampaignConfig:
     """A validated campaign (SI inside). ``world`` is the ``[world]`` table, passed to the world unchanged
@@ -216,6 +227,7 @@ class CampaignConfig:
     source: Path | None
     raw: dict[str, Any] = field(repr=False)
     _stations: tuple[Station, ...] = field(repr=False, default=())
+    diagnosis: DiagnosisConfig = DiagnosisConfig()
 
     @property
     def plate(self) -> Plate:
@@ -250,8 +262,10 @@ class CampaignConfig:
         return parse_campaign_config(raw, source=self.source, quick=False, _quick_applied=self.quick)
 
     def fingerprint(self) -> str:
-        """Hash of everything that determines the measurements (resume refuses a different campaign)."""
-        blob = json.dumps({"config": self.raw, "quick": self.quick}, sort_keys=True, default=str).encode()
+        """Hash of everything that determines the measurements (resume refuses a different campaign); the
+        ``[diagnosis]`` table reads the dataset and changes no measurement, so it is left out."""
+        raw = {k: v for k, v in self.raw.items() if k != "diagnosis"}
+        blob = json.dumps({"config": raw, "quick": self.quick}, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
@@ -431,6 +445,11 @@ def parse_campaign_config(
         paper=orr.string("paper", "simulation", choices=("simulation", "real")),
     )
     orr.done()
+    dr = r.table("diagnosis")
+    diagnosis = DiagnosisConfig(enabled=dr.boolean("enabled", False), alpha=dr.number("alpha", 0.01, positive=True))
+    dr.done()
+    if not diagnosis.alpha < 0.5:
+        raise ValueError(f"{path}: diagnosis.alpha must be in (0, 0.5), got {diagnosis.alpha!r}")
     er = r.table("execution")
     workers = er.integer("workers", min(2, os.cpu_count() or 1), minimum=1)
     er.done()
@@ -449,6 +468,7 @@ def parse_campaign_config(
         source=source,
         raw=merged,
         _stations=stations,
+        diagnosis=diagnosis,
     )
 
 

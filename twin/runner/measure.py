@@ -1,97 +1,151 @@
-"""Measurement backends: how a campaign turns a commanded configuration into a measured pose.
+"""The measure stage: commanded configurations -> the world renders -> the instrument measures -> a dataset.
 
-A backend is built once per worker process from a picklable :class:`BackendSpec` (:func:`get_backend`
-caches it), then measures :class:`PoseTask` s one by one (:func:`measure_pose`, the function the executor
-runs). Two backends:
+This is the one render -> measure -> dataset loop of the project: ``twin campaign`` (its dataset and its
+compensated poses), ``twin measure --render`` and the close-loop study all measure through it.
+
+A backend is built once per worker process from a picklable :class:`BackendSpec` (:func:`get_backend` caches
+it), then measures :class:`PoseTask` s one by one (:func:`measure_pose`, the function the executor runs;
+:func:`measure_tasks` runs a list of them, resumably). Two backends:
 
 * ``images`` (:class:`ImageBackend`): the world renders the stereo pair, the instrument measures it (stereo
-  calibration from rendered board views, once per campaign and cached on disk).
+  calibration from rendered board views, once per run and cached on disk).
 * ``truth_noise`` (:class:`TruthNoiseBackend`): the separation paper's own simulation (section 3.1): the true
   model's sphere centres in the station's measurement frame plus N(0, sigma^2) per coordinate. No images.
 
-Both return a :class:`~twin.runner.store.PoseResult` with the measured spheres (what goes into the
-dataset) and, apart, the world's truth for the pose (what only evaluation reads, from
-:meth:`twin.world.World.true_pose` / :meth:`~twin.world.World.capture`: one definition of truth). Per-pose
-noise is seeded from the campaign seed and the pose key (:func:`twin.runner.plan.pose_seed`), and the
-effect context of a pose (its command history, time stamp, index in the robot's visit order) comes with the
-task, built from the plan by :func:`twin.world.effects.contexts_for_sequence`; so a pose measured again after
-a resume, or in another process, gives the same numbers.
+Both return a :class:`~twin.runner.store.PoseResult` with the measured spheres (what goes into the dataset)
+and, apart, the world's truth for the pose (what only evaluation reads, from
+:meth:`twin.world.World.true_pose` / :meth:`~twin.world.World.capture`: one definition of truth). The effect
+context of a pose (its command history, time stamp, index in the robot's visit order) comes with the task,
+built from the plan by :func:`twin.world.effects.contexts_for_sequence`, and its image noise is seeded by the
+task's seed; so a pose measured again after a resume, or in another process, gives the same numbers. A task
+without a seed takes the world's own image counter (one process, poses in order: ``twin measure --render``).
 
-Every measurement appends one line to ``<work>/renders.log`` (the resume test counts them).
+:func:`write_measured_dataset` writes the rows (``poses.csv``) of measured poses; each caller writes its own
+``dataset.toml``. With a work folder, every measurement appends one line to ``<work>/renders.log`` (the resume
+test counts them).
 """
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import hashlib
 import importlib
+import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from ..transforms import invert_transform
-from .config import CampaignConfig, parse_campaign_config
-from .executor import worker_identity
+from ..dataset import DatasetWriter, Plate, PoseRow
 from ..evaluation.images import encode_image
-from .store import PoseResult
+from ..transforms import invert_transform
+from .config import CampaignConfig
+from .executor import run_tasks, worker_identity
+from .store import MemoryStore, PoseResult, PoseStore
 
 __all__ = [
     "PoseTask",
+    "InstrumentSetup",
     "BackendSpec",
     "MeasurementBackend",
     "TruthNoiseBackend",
+    "ImageBackend",
     "get_backend",
     "measure_pose",
+    "measure_tasks",
     "backend_spec_for",
+    "setup_from_campaign",
     "StationTruth",
+    "write_measured_dataset",
+    "status_reasons",
 ]
+
+Progress = Callable[[str, int, int], None]  # (phase, done, total)
 
 
 @dataclass(frozen=True)
 class PoseTask:
-    """One pose to measure: a unique ``key`` (``m/<pose_id>`` for the campaign's own poses,
+    """One pose to measure: a unique ``key`` (``m/<pose_id>`` for a campaign's own poses,
     ``c/<method>/<pose_id>`` for compensated ones), the commanded joints ``q`` ``(6,)`` [rad], the station,
-    the per-pose seed, and the pose's effect ``context``.
+    the per-pose noise ``seed`` (``None``: the world's own image counter, poses measured in order in one
+    process), and the pose's effect ``context``.
 
     ``context``: a :class:`twin.world.effects.EffectContext` from
     :func:`twin.world.effects.contexts_for_sequence` over the robot's whole visit order (``world`` left
     ``None``: the backend fills it): ``q_cmd_history``, ``pose_index``, ``t_s`` [s], ``station`` index.
-    :func:`twin.runner.campaign.run_campaign` always gives it. Without it (callers that measure single
-    poses, e.g. benchmarks), the history is ``q_prev`` alone (one previous command, ``None`` for the first)
-    and the time stamp ``pose_id * seconds_per_pose``.
+    Without it (callers that measure single poses, e.g. benchmarks), the history is ``q_prev`` alone (one
+    previous command, ``None`` for the first) and the time stamp ``pose_id * seconds_per_pose``.
     """
 
     key: str
     pose_id: int
     q: np.ndarray
     station: str
-    seed: int
+    seed: int | None
     q_prev: np.ndarray | None = None  # used only without a context: the command measured just before
     context: Any = None  # EffectContext from the plan (world=None)
 
 
+@dataclass(frozen=True, eq=False)
+class InstrumentSetup:
+    """What a measurement backend needs (picklable): the world and how the instrument measures.
+
+    ``world``: the ``[world]`` table (``twin.world.WorldConfig.from_dict``; its ``seed`` set). ``mode``:
+    ``images`` or ``truth_noise``; ``noise_position`` [m]: the 1-sigma noise per coordinate of
+    ``truth_noise``. ``seconds_per_pose`` [s]: time stamp of a task without a context. ``bias_correction``:
+    the instrument corrects the perspective bias of the sphere outlines. ``board_views`` / ``board_seed``:
+    board views rendered for the stereo calibration (``None``: the world's ``board.views`` and seed);
+    ``calibration_file``: a stereo calibration to use instead (``stereo_calibration.json``). ``keep_images``:
+    encoded images kept with the results (``none``, ``dataset``: the campaign's own poses, ``all``),
+    ``lossless`` (PNG) or JPEG at ``jpeg_quality``. ``plate``: the nominal plate the instrument labels the
+    spheres with (``None``: the world's nominal plate)."""
+
+    world: dict
+    mode: str = "images"
+    noise_position: float = 1e-5
+    seconds_per_pose: float = 10.0
+    bias_correction: bool = True
+    board_views: int | None = None
+    board_seed: int | None = None
+    calibration_file: str | None = None
+    keep_images: str = "none"
+    lossless: bool = False
+    jpeg_quality: int = 85
+    plate: Plate | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in BACKENDS:
+            raise ValueError(f"mode must be one of {sorted(BACKENDS)}, got {self.mode!r}")
+        if self.keep_images not in ("none", "dataset", "all"):
+            raise ValueError(f"keep_images must be 'none', 'dataset' or 'all', got {self.keep_images!r}")
+
+    def key(self) -> str:
+        """A fingerprint of everything that determines the measurements (the backend cache key)."""
+        d = {k: getattr(self, k) for k in ("world", "mode", "noise_position", "seconds_per_pose", "bias_correction",
+                                         "board_views", "board_seed", "calibration_file", "keep_images", "lossless",
+                                         "jpeg_quality")}
+        if self.plate is not None:
+            d["plate"] = [float(self.plate.sphere_diameter), np.asarray(self.plate.spheres_flange).tolist()]
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
 @dataclass(frozen=True)
 class BackendSpec:
-    """Everything a worker needs to build the backend: its factory (``module:callable``), the campaign config
-    (as its TOML dict), the campaign's work folder, and free options."""
+    """Everything a worker needs to build the backend: its factory (``module:callable``), the instrument set-up,
+    the run's work folder (``None``: nothing cached, no log) and free options."""
 
     factory: str
-    config_raw: dict
-    config_source: str | None
-    quick: bool
-    work_dir: str
+    setup: InstrumentSetup
+    work_dir: str | None
     options: dict = field(default_factory=dict)
-
-    def config(self) -> CampaignConfig:
-        return parse_campaign_config(
-            self.config_raw, source=Path(self.config_source) if self.config_source else None, _quick_applied=self.quick
-        )
 
     @property
     def cache_key(self) -> str:
-        return f"{self.factory}|{self.work_dir}|{self.config().fingerprint()}|{sorted(self.options.items())}"
+        return f"{self.factory}|{self.work_dir}|{self.setup.key()}|{sorted(self.options.items())}"
 
 
 @dataclass(frozen=True)
@@ -106,7 +160,7 @@ class StationTruth:
 
 class MeasurementBackend(Protocol):
     def prepare(self) -> None:
-        """One-off work per campaign, in the main process (e.g. stereo calibration); cached on disk."""
+        """One-off work per run, in the main process (e.g. stereo calibration); cached on disk."""
 
     def measure(self, task: PoseTask) -> PoseResult:
         """Measure one pose."""
@@ -121,8 +175,10 @@ class MeasurementBackend(Protocol):
         """The instrument's 1-sigma noise per coordinate [m] for ``dataset.toml``, when known."""
 
 
-def _log_render(work_dir: str, key: str, what: str) -> None:
+def _log_render(work_dir: str | None, key: str, what: str) -> None:
     """One line per measurement in ``renders.log`` (an O_APPEND write of one short line is atomic)."""
+    if work_dir is None:
+        return
     path = Path(work_dir) / "renders.log"
     line = f"{what} {key} {os.getpid()}\n".encode()
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
@@ -138,17 +194,18 @@ class _WorldBackend:
     asked for."""
 
     def __init__(self, spec: BackendSpec) -> None:
-        from ..world import World  # the world is only built where measurements are made
+        from ..world import World, WorldConfig  # the world is only built where measurements are made
 
         self.spec = spec
-        self.cfg = spec.config()
-        self.world = World.from_config(self.cfg.world_config())
+        self.setup = spec.setup
+        self.world = World.from_config(WorldConfig.from_dict(self.setup.world))
         self.station_index = {name: k for k, name in enumerate(self.world.station_names)}
-        self.plate = self.cfg.plate
-        self.seconds_per_pose = self.cfg.measurement.seconds_per_pose
+        self.plate = self.setup.plate if self.setup.plate is not None else self.world.nominal_plate
+        self.seconds_per_pose = self.setup.seconds_per_pose
 
     def prepare(self) -> None:
-        Path(self.spec.work_dir).mkdir(parents=True, exist_ok=True)
+        if self.spec.work_dir is not None:
+            Path(self.spec.work_dir).mkdir(parents=True, exist_ok=True)
 
     def stations_truth(self) -> dict[str, StationTruth]:
         il, ir = self.world.true_intrinsics()
@@ -222,7 +279,7 @@ class TruthNoiseBackend(_WorldBackend):
 
     def __init__(self, spec: BackendSpec) -> None:
         super().__init__(spec)
-        self.sigma = self.cfg.measurement.noise_position
+        self.sigma = self.setup.noise_position
 
     def noise_position(self) -> float | None:
         return self.sigma
@@ -255,32 +312,42 @@ class TruthNoiseBackend(_WorldBackend):
 class ImageBackend(_WorldBackend):
     """World renders the stereo pair, the instrument measures it (``images`` mode).
 
-    :meth:`prepare` renders the board views and runs the instrument's stereo calibration once per campaign
-    (cached as ``<work>/stereo_calibration.json``; the instrument never sees the world's camera parameters).
-    Image noise is seeded per pose, so a pose rendered again (resume, another worker) is the same image.
+    :meth:`prepare` renders the board views and runs the instrument's stereo calibration once per run (cached
+    as ``<work>/stereo_calibration.json``; the instrument never sees the world's camera parameters), or loads
+    the set-up's ``calibration_file``. Image noise is seeded per pose, so a pose rendered again (resume,
+    another worker) is the same image. ``image_sink`` (in-process callers only): called with
+    ``("board", index, left, right)`` for every board view and ``("pair", task, left, right)`` for every
+    measured pair, to keep the raw images (``twin measure --render --keep-images``).
     """
 
     def __init__(self, spec: BackendSpec) -> None:
         super().__init__(spec)
-        self.calib_path = Path(spec.work_dir) / "stereo_calibration.json"
+        self.calib_path = None if spec.work_dir is None else Path(spec.work_dir) / "stereo_calibration.json"
         self._calib = None
-        out = self.cfg.outputs
-        self.keep_images = out.recording and out.recording_images != "none"
-        self.keep_after = out.recording and out.recording_images == "all"
+        self.keep_images = self.setup.keep_images != "none"
+        self.keep_after = self.setup.keep_images == "all"
+        self.image_sink: Callable[..., None] | None = None
 
     def prepare(self) -> None:
         from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
 
         super().prepare()
-        if self.calib_path.exists():
+        if self.setup.calibration_file is not None:
+            self._calib = StereoCalibration.load(self.setup.calibration_file)
+            return
+        if self.calib_path is not None and self.calib_path.exists():
             self._calib = StereoCalibration.load(self.calib_path)
             return
-        views = self.world.render_board_views(seed=self.cfg.seed)
+        views = self.world.render_board_views(self.setup.board_views, seed=self.setup.board_seed)
+        if self.image_sink is not None:
+            for v in views:
+                self.image_sink("board", v.index, v.left, v.right)
         board = BoardSpec.from_table(self.world.rig_info()["board"])
-        calib = calibrate_stereo([(v.left, v.right) for v in views], board)
-        tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")
-        calib.save(tmp)
-        os.replace(tmp, self.calib_path)
+        calib = calibrate_stereo([(v.left, v.right) for v in views], board, names=[f"{v.index:03d}" for v in views])
+        if self.calib_path is not None:
+            tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")
+            calib.save(tmp)
+            os.replace(tmp, self.calib_path)
         self._calib = calib
 
     @property
@@ -288,8 +355,8 @@ class ImageBackend(_WorldBackend):
         if self._calib is None:
             from ..instrument import StereoCalibration
 
-            if not self.calib_path.exists():
-                raise ValueError(f"{self.calib_path}: no stereo calibration yet (the campaign runs prepare() first)")
+            if self.calib_path is None or not self.calib_path.exists():
+                raise ValueError(f"{self.calib_path}: no stereo calibration yet (the run calls prepare() first)")
             self._calib = StereoCalibration.load(self.calib_path)
         return self._calib
 
@@ -301,10 +368,12 @@ class ImageBackend(_WorldBackend):
         # Image noise per pose: noise_seed makes the pair's noise a function of (world seed, pose seed) alone,
         # independent of what this process rendered before (resume, several workers).
         cap = self.world.capture(np.asarray(task.q, dtype=float), k, self._context(task), task.pose_id, record=False,
-                                 noise_seed=int(task.seed))
+                                 noise_seed=None if task.seed is None else int(task.seed))
+        if self.image_sink is not None:
+            self.image_sink("pair", task, cap.left, cap.right)
         t1 = time.perf_counter()
         m = measure_pair(cap.left, cap.right, self.calibration, self.plate,
-                         bias_correction=self.cfg.measurement.bias_correction)
+                         bias_correction=self.setup.bias_correction)
         t2 = time.perf_counter()
         overlays = {}
         for cam, obs in (("left", m.left), ("right", m.right)):
@@ -322,9 +391,9 @@ class ImageBackend(_WorldBackend):
         images: dict[str, bytes] = {}
         fmt = ""
         if (self.keep_images and task.key.startswith("m/")) or self.keep_after:
-            lossless = self.cfg.outputs.recording_lossless
+            lossless = self.setup.lossless
             for cam, img in (("left", cap.left), ("right", cap.right)):
-                images[cam], media = encode_image(img, lossless=lossless, jpeg_quality=self.cfg.outputs.jpeg_quality)
+                images[cam], media = encode_image(img, lossless=lossless, jpeg_quality=self.setup.jpeg_quality)
             fmt = "png" if lossless else "jpg"
         _log_render(self.spec.work_dir, task.key, "render")
         return PoseResult(
@@ -366,7 +435,7 @@ def get_backend(spec: BackendSpec):
     b = _CACHE.get(key)
     if b is None:
         b = _load_factory(spec.factory)(spec)
-        _CACHE.clear()  # one campaign per process at a time: free the previous renderer
+        _CACHE.clear()  # one run per process at a time: free the previous renderer
         _CACHE[key] = b
     return b
 
@@ -376,14 +445,103 @@ def measure_pose(spec: BackendSpec, task: PoseTask) -> PoseResult:
     return get_backend(spec).measure(task)
 
 
+def setup_from_campaign(cfg: CampaignConfig) -> InstrumentSetup:
+    """The instrument set-up of a campaign: its world (seed defaulting to the campaign's), ``[measurement]``,
+    the images its recording keeps, board views rendered with the campaign seed."""
+    world = dict(cfg.world)
+    world.setdefault("seed", cfg.seed)
+    out = cfg.outputs
+    keep = "none" if not out.recording else out.recording_images
+    return InstrumentSetup(
+        world=world, mode=cfg.measurement.mode, noise_position=cfg.measurement.noise_position,
+        seconds_per_pose=cfg.measurement.seconds_per_pose, bias_correction=cfg.measurement.bias_correction,
+        board_views=None, board_seed=cfg.seed, keep_images=keep, lossless=out.recording_lossless,
+        jpeg_quality=out.jpeg_quality, plate=cfg.plate,
+    )
+
+
 def backend_spec_for(cfg: CampaignConfig, work_dir: str | os.PathLike, factory: str | None = None, **options) -> BackendSpec:
     """The spec of the campaign's backend (``cfg.measurement.mode``) or of an explicit ``factory``."""
-    f = factory or BACKENDS[cfg.measurement.mode]
     return BackendSpec(
-        factory=f,
-        config_raw=cfg.raw,
-        config_source=str(cfg.source) if cfg.source else None,
-        quick=cfg.quick,
+        factory=factory or BACKENDS[cfg.measurement.mode],
+        setup=setup_from_campaign(cfg),
         work_dir=str(work_dir),
         options=dict(options),
     )
+
+
+def _stored_for(store: PoseStore | MemoryStore, task: PoseTask) -> bool:
+    """True when the store holds a result of ``task.key`` measured at the task's commanded joints."""
+    if not store.has(task.key):
+        return False
+    q_stored = np.asarray(store.read(task.key).q, dtype=float)
+    return q_stored.shape == np.shape(task.q) and bool(np.all(np.abs(q_stored - np.asarray(task.q, dtype=float)) <= 1e-12))
+
+
+def measure_tasks(executor: cf.Executor, spec: BackendSpec, tasks: Sequence[PoseTask], store: PoseStore | MemoryStore,
+                  phase: str = "measuring", progress: Progress | None = None,
+                  on_result: Callable[[PoseTask, PoseResult], None] | None = None) -> int:
+    """Measure the tasks not yet in ``store``; every result is written as soon as it arrives. Returns how many
+    were measured in this call.
+
+    A stored result is reused only when it was measured at the task's own command: a compensated pose whose
+    command changed (the identification was redone on a re-measured dataset) is measured again, so a command
+    is never paired with spheres measured at another one. ``on_result(task, result)`` runs in the calling
+    process after each new result is stored."""
+    pending = [t for t in tasks if not _stored_for(store, t)]
+    done = len(tasks) - len(pending)
+    if progress:
+        progress(phase, done, len(tasks))
+    counter = {"n": done}
+
+    def on_done(task: PoseTask, res: PoseResult) -> None:
+        store.write(res)
+        counter["n"] += 1
+        if on_result is not None:
+            on_result(task, res)
+        if progress:
+            progress(phase, counter["n"], len(tasks))
+
+    run_tasks(executor, measure_pose, pending, args=(spec,), on_done=on_done)
+    return len(pending)
+
+
+def write_measured_dataset(folder: str | os.PathLike, results: Sequence[PoseResult], q: np.ndarray | None = None, *,
+                           set: Sequence[str] | None = None, station: Sequence[str] | None = None,
+                           pair: Sequence[int] | None = None, t_s: Sequence[float] | None = None,
+                           temp_c: Sequence[float] | None = None) -> Path:
+    """``poses.csv`` of measured poses, in the order given: ``pose_id``, the commanded joints (``q`` ``(n, 6)``
+    [rad], default each result's own), the measured sphere centres, ``status``, and the optional columns given
+    (``pair`` ``-1`` for a row outside a pair). The caller writes ``dataset.toml``."""
+    n = len(results)
+    cols = {"set": set, "station": station, "pair": pair, "t_s": t_s, "temp_c": temp_c}
+    for name, v in cols.items():
+        if v is not None and len(v) != n:
+            raise ValueError(f"{name}: {len(v)} entries for {n} measured poses")
+    if q is not None and np.shape(q) != (n, 6):
+        raise ValueError(f"q must be ({n}, 6) [rad], got {np.shape(q)}")
+    optional = ["status"] + [k for k, v in cols.items() if v is not None]
+    with DatasetWriter(folder, spheres=True, optional=optional) as w:
+        for k, r in enumerate(results):
+            w.write(PoseRow(
+                pose_id=int(r.pose_id),
+                q=r.q if q is None else q[k],
+                spheres=list(r.spheres),
+                set=None if set is None else str(set[k]),
+                station=None if station is None else str(station[k]),
+                pair=None if pair is None or int(pair[k]) < 0 else int(pair[k]),
+                status=r.status,
+                temp_c=None if temp_c is None else float(temp_c[k]),
+                t_s=None if t_s is None else float(t_s[k]),
+            ))
+    return Path(folder) / "poses.csv"
+
+
+def status_reasons(status: str) -> list[str]:
+    """The per-sphere reasons of a ``status`` cell (``"p0:occluded(left);p2:not_found"``), numbers in
+    parentheses dropped (``"occluded(left)"`` stays, ``"epipolar(3.2px)"`` becomes ``"epipolar"``)."""
+    out = []
+    for part in filter(None, status.split(";")):
+        _, _, why = part.partition(":")
+        out.append(re.sub(r"\([0-9.]+(px|%)\)", "", why))
+    return out

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..benchio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["PoseResult", "PoseStore"]
+__all__ = ["PoseResult", "PoseStore", "MemoryStore"]
 
 
 def _enc(x: Any) -> Any:
@@ -159,3 +159,24 @@ class PoseStore:
 
     def keys(self) -> list[str]:
         return sorted(p.stem.replace("__", "/") for p in self.folder.glob("*.json"))
+
+
+class MemoryStore:
+    """The :class:`PoseStore` interface in memory (a run that needs no resume: ``twin measure --render``)."""
+
+    def __init__(self) -> None:
+        self._results: dict[str, PoseResult] = {}
+
+    def has(self, key: str) -> bool:
+        return key in self._results
+
+    def write(self, result: PoseResult) -> None:
+        self._results[result.key] = result
+
+    def read(self, key: str, with_images: bool = False) -> PoseResult:
+        if key not in self._results:
+            raise ValueError(f"no result for pose key {key!r}")
+        return self._results[key]
+
+    def keys(self) -> list[str]:
+        return sorted(self._results)
