@@ -64,7 +64,7 @@ def instrument_errors(run_dir: Path) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="experiments/separation.toml")
-    p.add_argument("--out", default="/scratch/bench_campaign")
+    p.add_argument("--out", default="results/runs/bench_campaign", help="campaign folder (git-ignored)")
     p.add_argument("--from", dest="from_", default=None, help="record this results.json instead of running")
     a = p.parse_args()
     load_before = os.getloadavg()

@@ -14,20 +14,21 @@ from twin.runner.config import load_campaign_config
 from twin.evaluation.regression import check_against_bands, tracked_statistics
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "experiments" / "separation_ci.toml"
-BANDS = ROOT / "results" / "regression.json"
+STUDY = ROOT / "studies" / "separation_paper"
+CONFIG = STUDY / "separation_ci.toml"
+BANDS = STUDY / "results" / "regression.json"
 
 
 def _bands():
     data = json.loads(BANDS.read_text())
-    assert "separation_ci" in data, "results/regression.json has no separation_ci section: run the command in docs/runner.md"
+    assert "separation_ci" in data, "studies/separation_paper/results/regression.json has no separation_ci section: run the command in docs/runner.md"
     return data["separation_ci"]
 
 
 def test_regression_file_records_its_command_and_enough_seeds():
     """The bands say how they were made and come from at least 20 seeds of this very config."""
     b = _bands()
-    assert "experiments/separation_ci.toml" in b["command"] and "--seeds" in b["command"]
+    assert "studies/separation_paper/separation_ci.toml" in b["command"] and "--seeds" in b["command"]
     assert len(b["seeds"]) >= 20
     assert all(s["n"] >= 20 for s in b["statistics"].values())
 
@@ -44,7 +45,7 @@ def test_band_check_flags_a_shifted_statistic():
 
 @pytest.mark.slow
 def test_one_seed_of_the_ci_campaign_stays_in_the_bands(tmp_path):
-    """Seed 1 of experiments/separation_ci.toml (rendered, measured, four methods) falls inside every band, and
+    """Seed 1 of studies/separation_paper/separation_ci.toml (rendered, measured, four methods) falls inside every band, and
     every ordering claim that held in >= 95 % of the band seeds holds."""
     b = _bands()
     cfg = load_campaign_config(CONFIG).with_seed(b["seeds"][0])
@@ -57,19 +58,19 @@ def test_one_seed_of_the_ci_campaign_stays_in_the_bands(tmp_path):
     assert len(tracked_statistics(run.results["methods"])) == len(b["statistics"])
 
 
-PAPER_CONFIG = ROOT / "experiments" / "separation_paper_ci.toml"
+PAPER_CONFIG = STUDY / "separation_paper_ci.toml"
 OUTSIDE_SEED = 101  # not among the seeds that built the bands (1..20)
 
 
 def _paper_bands():
     data = json.loads(BANDS.read_text())
-    assert "separation_paper_ci" in data, "results/regression.json has no separation_paper_ci section: run docs/runner.md's command"
+    assert "separation_paper_ci" in data, "studies/separation_paper/results/regression.json has no separation_paper_ci section: run docs/runner.md's command"
     return data["separation_paper_ci"]
 
 
 @pytest.fixture(scope="module")
 def paper_mode_run(tmp_path_factory):
-    """One campaign of experiments/separation_paper_ci.toml (true centres + noise, no rendering), seed 101."""
+    """One campaign of studies/separation_paper/separation_paper_ci.toml (true centres + noise, no rendering), seed 101."""
     cfg = load_campaign_config(PAPER_CONFIG).with_seed(OUTSIDE_SEED)
     return run_campaign(cfg, tmp_path_factory.mktemp("paper_ci") / "run", recording=False, figures=False)
 

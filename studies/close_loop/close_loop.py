@@ -1,35 +1,46 @@
 """Close the loop through rendered images: world (with an undeclared effect) -> images -> instrument ->
 dataset -> `twin diagnose` -> evaluation beside the truth.
 
-    python experiments/close_loop.py experiments/close_loop.toml --out results/close_loop
+    python studies/close_loop/close_loop.py studies/close_loop/close_loop.toml --out studies/close_loop/results/close_loop
 
-Writes ``OUT/dataset/`` (what the diagnosis saw), ``OUT/truth.json``, ``OUT/diagnosis/`` (diagnosis.json, the
-two calibrations, plots) and ``OUT/close_loop.json``: geometric-only error, extended-model error, the oracle
-(the true effect known exactly, from the world's centres with and without it, and the geometry re-identified on
-the same measured rows) and the true model's error (the instrument's error only), side by side, with every term
-diagnosis kept. The dataset records ``t_s`` and ``temp_c`` whatever the effect; its noise floor is what the
-diagnosis measures itself (repeats, plate distances): nothing stated from the world's truth.
+The runner's measure stage (``twin.runner.measure``: the world renders, the instrument measures, each pose
+stored in the work folder under OUT as it is measured, so a rerun resumes) on the close-loop plan (``twin.evaluation.closeloop.plan_poses``:
+configurations the cameras see, station by station, every ``repeats_every``-th measured twice), then the public
+``twin.diagnosis.diagnose`` on the dataset. Writes ``OUT/dataset/`` (what the diagnosis saw), ``OUT/truth.json``,
+``OUT/diagnosis/`` (diagnosis.json, the two calibrations, plots) and ``OUT/close_loop.json``: geometric-only
+error, extended-model error, the oracle (the true effect known exactly, from the world's centres with and without
+it, and the geometry re-identified on the same measured rows) and the true model's error (the instrument's error
+only), side by side, with every term diagnosis kept. The dataset records ``t_s`` and ``temp_c`` whatever the
+effect; its noise floor is what the diagnosis measures itself (repeats, plate distances): nothing stated from the
+world's truth.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
+import os
 import shutil
+import sys
 import time
 import tomllib
 from pathlib import Path
 
-import twin  # noqa: F401  (MUJOCO_GL, single-threaded BLAS)
-import numpy as np
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
 
-from twin.dataset import DatasetWriter, PoseRow, default_plate, read_dataset, write_dataset_toml
-from twin.diagnosis import diagnose, write_diagnosis
-from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, true_model_error
-from twin.instrument import BoardSpec, StereoCalibration, calibrate_stereo, measure_pair
-from twin.world import World, WorldConfig
-from twin.world.effects import EffectContext
+import twin  # noqa: E402,F401  (MUJOCO_GL, single-threaded BLAS)
+import numpy as np  # noqa: E402
+
+from twin.benchio import provenance  # noqa: E402
+from twin.dataset import default_plate, read_dataset, write_dataset_toml  # noqa: E402
+from twin.diagnosis import diagnose, write_diagnosis  # noqa: E402
+from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, true_model_error  # noqa: E402
+from twin.runner.executor import SerialExecutor, open_executor  # noqa: E402
+from twin.runner.measure import (BACKENDS, BackendSpec, InstrumentSetup, PoseTask, get_backend, measure_tasks,  # noqa: E402
+                                 write_measured_dataset)
+from twin.runner.store import PoseStore  # noqa: E402
+from twin.world.effects import contexts_for_sequence  # noqa: E402
 
 _MM = 1e-3
 
@@ -39,65 +50,54 @@ def main() -> int:
     ap.add_argument("config")
     ap.add_argument("--out", required=True)
     ap.add_argument("--quick", action="store_true", help="half resolution, 20 configurations per station")
-    ap.add_argument("--reuse-dataset", action="store_true",
-                    help="diagnose OUT/dataset again (rendered before with the same config) instead of rendering")
+    ap.add_argument("--workers", type=int, default=1, help="local processes rendering and measuring (default 1)")
     args = ap.parse_args()
+    load_start = os.getloadavg()
     cfg = tomllib.loads(Path(args.config).read_text())
     cl = cfg.get("close_loop", {})
+    if "instrument_noise_mm" in cl:
+        raise ValueError(f"{args.config}: [close_loop] instrument_noise_mm is not allowed: a floor measured against the "
+                         "world's truth; diagnosis measures its own (repeats, the plate's distances)")
     if args.quick:
         cfg.setdefault("world", {}).setdefault("render", {})["scale"] = 0.5
         cl["per_station"] = 20
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timings = {}
-    t = time.time()
-    world = World.from_config(WorldConfig.from_dict(cfg))
-    timings["world_build_s"] = time.time() - t
+    plate = default_plate()
 
-    # 1. the rig, calibrated from board views (the instrument never sees the world's cameras)
+    # 1. the instrument: the rig calibrated from board views (the instrument never sees the world's cameras)
     t = time.time()
-    calib_path = out / "stereo_calibration.json"
-    if calib_path.exists():
-        calib = StereoCalibration.load(calib_path)
-    else:
-        views = world.render_board_views(int(cl.get("board_views", 24)))
-        calib = calibrate_stereo(views, BoardSpec.from_table(world.rig_info()["board"]))
-        calib.save(calib_path)
+    setup = InstrumentSetup(world=cfg["world"], mode="images", board_views=int(cl.get("board_views", 24)),
+                            bias_correction=bool(cl.get("bias_correction", True)), plate=plate)
+    spec = BackendSpec(BACKENDS["images"], setup, work_dir=str(out / "work"))
+    backend = get_backend(spec)
+    backend.prepare()
+    world = backend.world
     timings["stereo_calibration_s"] = time.time() - t
 
-    # 2. the plan and the measurements, in order (the effects see the command history)
+    # 2. the plan and the measurements, in order (the effects see the command history, the pose's time stamp)
     plan = plan_poses(world, int(cl.get("per_station", 50)), repeats_every=int(cl.get("repeats_every", 4)),
                       seed=int(cl.get("seed", 1)))
-    plate = default_plate()
-    ds_dir = out / "dataset"
-    if "instrument_noise_mm" in cl:
-        raise ValueError(f"{args.config}: [close_loop] instrument_noise_mm is not allowed: a floor measured against the "
-                         "world's truth; diagnosis measures its own (repeats, the plate's distances)")
-    if not args.reuse_dataset:
-        write_dataset_toml(ds_dir, "irb1200", plate, noise_position=None,
-                           provenance=(f"experiments/close_loop.py {args.config}: the IRB-1200 twin rendered, measured "
-                                       "by twin.instrument; effects undeclared"))
-    world.reset_history()
-    caps = []
+    ctx = contexts_for_sequence(plan.q, t_s=plan.t_s, stations=list(plan.stations))
+    names = [world.station_names[int(s)] for s in plan.stations]
+    tasks = [PoseTask(f"m/{k:05d}", k, plan.q[k], names[k], k, context=ctx[k]) for k in range(len(plan.q))]
+    store = PoseStore(out / "work" / "poses")
     t = time.time()
-    n_flagged = 0
-    if args.reuse_dataset and (ds_dir / "poses.csv").exists():
-        # the truth of the same plan without rendering (the world's effects see the same command history)
-        caps = world.true_sequence(plan.q, list(plan.stations), t_s=plan.t_s)
-        n_flagged = int((~read_dataset(ds_dir).sphere_seen.all(axis=1)).sum())
-    else:
-        with DatasetWriter(ds_dir, optional=["set", "station", "t_s", "temp_c", "status"]) as w:
-            for k, (q, st) in enumerate(zip(plan.q, plan.stations)):
-                # the pose's time stamp reaches the effects (warm-up, change points); the world fills the history
-                cap = world.capture(q, int(st), EffectContext(t_s=float(plan.t_s[k]), station=int(st)), pose_id=k,
-                                    noise_seed=k)
-                m = measure_pair(cap.left, cap.right, calib, plate, bias_correction=bool(cl.get("bias_correction", True)))
-                n_flagged += not m.complete
-                w.write(PoseRow(k, q, list(m.centres), set=str(plan.sets[k]), station=world.station_names[int(st)],
-                                t_s=float(plan.t_s[k]), temp_c=float(cap.temp_c), status=m.status))
-                caps.append(dataclasses.replace(cap, left=None, right=None))  # keep the truth, drop the pixels
-        timings["render_and_measure_s"] = time.time() - t
-    world.write_truth(out / "truth.json")
+    with (open_executor("process", args.workers) if args.workers > 1 else SerialExecutor()) as ex:
+        measure_tasks(ex, spec, tasks, store)
+    timings["render_and_measure_s"] = time.time() - t
+    results = [store.read(task.key) for task in tasks]
+    ds_dir = out / "dataset"
+    write_dataset_toml(ds_dir, "irb1200", plate, noise_position=None,
+                       provenance=(f"studies/close_loop/close_loop.py {args.config}: the IRB-1200 twin rendered, "
+                                   "measured by twin.instrument; effects undeclared"))
+    write_measured_dataset(ds_dir, results, plan.q, set=plan.sets, station=names, t_s=plan.t_s,
+                           temp_c=[float(r.truth["temp_c"]) for r in results])
+    from twin.world.truth import write_truth
+
+    write_truth(out / "truth.json", backend.truth_record(results))
+    n_flagged = sum(1 for r in results if any(s is None for s in r.spheres))
 
     # 3. diagnosis: reads the dataset only
     ds = read_dataset(ds_dir)
@@ -113,7 +113,7 @@ def main() -> int:
     # 4. evaluation: truth beside the diagnosis
     sigma = res.noise.sigma
     oracle = oracle_delta_fit(ds, effect_delta(world, plan))
-    truth_only = true_model_error(ds, caps)
+    truth_only = true_model_error(ds, np.stack([np.asarray(r.truth["spheres_meas"], dtype=float) for r in results]))
     size = effect_size(world, plan, sigma)
     summary = {
         "config": args.config,
@@ -147,7 +147,8 @@ def main() -> int:
         "oracle_definition": "the true effect known exactly (the world's centres with minus without the effects) "
                              "and the geometry re-identified on the same measured calibration rows",
         "timings_s": timings,
-        "command": f"python experiments/close_loop.py {args.config} --out {args.out}" + (" --quick" if args.quick else ""),
+        "command": f"python studies/close_loop/close_loop.py {args.config} --out {args.out}" + (" --quick" if args.quick else ""),
+        "provenance": provenance(load_start),
     }
     (out / "close_loop.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
     _plot(summary, out / "close_loop.png")
@@ -163,11 +164,9 @@ def main() -> int:
 
 
 def _plot(s: dict, path: Path) -> None:
-    import matplotlib
+    from twin.evaluation.report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     v = s["validation_error_mm"]
     keys = ["geometric_only", "extended", "oracle_fit", "true_model"]
     fig, ax = plt.subplots(figsize=(7, 4))

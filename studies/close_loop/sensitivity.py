@@ -2,7 +2,7 @@
 
 The world's effects (written as world code: ``twin/world/effects_catalogue.py``, ``effects_shapes.py``), the
 default stations' camera-visible poses, the world's true sphere centres plus N(0, sigma^2) per coordinate (no
-rendering; the rendered runs are ``experiments/close_loop.py``). Every dataset records ``t_s`` *and* ``temp_c``
+rendering; the rendered runs are ``studies/close_loop/close_loop.py``). Every dataset records ``t_s`` *and* ``temp_c``
 whatever the effect. Each effect's magnitude is scaled so that what it leaves after a perfect geometric-only
 calibration (noise-free data, seed 0's poses) is ``--size`` noise sigmas.
 
@@ -14,7 +14,7 @@ oracle's. The oracle is the true effect known exactly (the world's own centres w
 the geometry re-identified on the same noisy rows (``twin.evaluation.closeloop.oracle_delta_fit``). Clean seeds:
 the false-alarm rate, and whether the extended model equals the geometric one.
 
-    python experiments/close_loop_sensitivity.py --seeds 20 --out results/close_loop_sensitivity.json
+    python studies/close_loop/sensitivity.py --seeds 20 --out studies/close_loop/results/close_loop_sensitivity.json
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def main() -> int:
     ap.add_argument("--per-station", type=int, default=40)
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--world", default="experiments/world_default.toml")
-    ap.add_argument("--out", default="results/close_loop_sensitivity.json")
+    ap.add_argument("--out", default="studies/close_loop/results/close_loop_sensitivity.json")
     args = ap.parse_args()
     sigma = args.sigma_mm * 1e-3
     world = World.from_config(load_world_config(args.world))
@@ -118,7 +118,7 @@ def main() -> int:
     world.effects = []
     # plans depend on the stations and the seed, not on the effect: one per seed, shared by every case
     plans = {seed: plan_poses(world, args.per_station, seed=seed) for seed in range(max(args.seeds, args.clean_seeds) + 1)}
-    out: dict = {"command": "python experiments/close_loop_sensitivity.py " + " ".join(
+    out: dict = {"command": "python studies/close_loop/sensitivity.py " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
         "sigma_mm": args.sigma_mm, "per_station": args.per_station, "rows": int(len(plans[0].q)),
         "definition": __doc__.split("\n\n")[1] + " " + __doc__.split("\n\n")[2], "cases": {}}

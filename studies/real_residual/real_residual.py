@@ -1,6 +1,6 @@
 """What the real robot's residual is made of (issue 13, item 5).
 
-The separation paper's real-robot protocol (``experiments/separation_real.toml``: its Table 6 errors, 25 attitude
+The separation paper's real-robot protocol (``studies/real_residual/separation_real.toml``: its Table 6 errors, 25 attitude
 + 40 position calibration measurements, checks at 500-1000 mm) in the cheap ``truth_noise`` mode, with instrument
 noise, the robot's repeatability, backlash, gravity compliance, thermal warm-up and extra random geometric error
 (``twin.evaluation.realresidual``). Each combination runs over a few seeds; it is *consistent* when the seed-mean
@@ -9,7 +9,7 @@ from ``experiments/paper_targets_separation.toml``), judged on the paper-literal
 (``separation_paper``); ours (``separation``) is judged alongside. The best combination then runs the methods
 comparison (distance, full_pose, separation, separation_paper, default) over more seeds.
 
-    python experiments/real_residual.py --seeds 3 --comparison-seeds 20 --out results/real_residual
+    python studies/real_residual/real_residual.py --seeds 3 --comparison-seeds 20 --out studies/real_residual/results/real_residual
 """
 
 from __future__ import annotations
@@ -18,13 +18,19 @@ import argparse
 import json
 import math
 import time
+import os
+import sys
 import tomllib
 from dataclasses import asdict
 from pathlib import Path
 
-import twin  # noqa: F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))  # the repository root: `studies.*` and this checkout's `twin`
 
-from twin.evaluation.realresidual import (UNITS, EffectMagnitudes, aggregate_seeds, judge, paper_real_targets,
+import twin  # noqa: E402,F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
+from twin.benchio import provenance  # noqa: E402
+
+from studies.real_residual.realresidual import (UNITS, EffectMagnitudes, aggregate_seeds, judge, paper_real_targets,
                                           run_real_protocol, scan_point)
 from twin.evaluation.targets import read_targets
 
@@ -68,7 +74,7 @@ def _fmt(agg: dict, unit: str, phase: str) -> str:
 def write_markdown(path: Path, data: dict) -> None:
     paper = data["paper"]
     L = ["# What the real robot's residual is made of (issue 13, item 5)", "",
-         "The separation paper's real-robot protocol (`experiments/separation_real.toml`, Table 6 errors injected) "
+         "The separation paper's real-robot protocol (`studies/real_residual/separation_real.toml`, Table 6 errors injected) "
          "measured in `truth_noise` mode (true sphere centres + N(0, s²) per coordinate), with the effects below "
          "added to the world. Values: seed-mean ± seed-std of each statistic "
          f"({len(data['scan'][0]['seeds'])} seeds per row: {data['scan'][0]['seeds']}). A row is **consistent** "
@@ -119,7 +125,7 @@ def write_markdown(path: Path, data: dict) -> None:
     t = data["timings_s"]
     L += [f"CPU time of this process (summed over resumed runs): scan {t['scan']:.0f} s, comparison "
           f"{t.get('comparison', 0):.0f} s.",
-          "", "`python experiments/real_residual.py " + data["args"] + "`", ""]
+          "", "`python studies/real_residual/real_residual.py " + data["args"] + "`", ""]
     path.write_text("\n".join(L))
 
 
@@ -128,7 +134,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scanned combination")
     ap.add_argument("--comparison-seeds", type=int, default=20, help="seeds of the methods comparison (0: skip)")
     ap.add_argument("--limit", type=int, default=0, help="scan only the first N combinations (0: all)")
-    ap.add_argument("--out", default="results/real_residual", help="output stem (.json and .md are added)")
+    ap.add_argument("--out", default=str(HERE / "results" / "real_residual"), help="output stem (.json and .md are added)")
     ap.add_argument("--comparison-row", type=int, action="append", default=[],
                     help="also compare the methods on this scan row (repeatable)")
     ap.add_argument("--resume", action="store_true", help="reuse combinations already in the output JSON")
@@ -148,6 +154,7 @@ def main() -> None:
             argv.append(flag)
         elif v is not False:
             argv.append(f"{flag} {v}")
+    load_start = os.getloadavg()
     data: dict = {"paper": paper, "tol": 0.2, "protocol": str(PROTOCOL.name), "scan_methods": list(SCAN_METHODS),
                   "scan": [], "timings_s": {}, "args": " ".join(argv)}
     done, old = {}, {}
@@ -192,6 +199,7 @@ def main() -> None:
         data["timings_s"]["comparison"] = (old.get("timings_s", {}).get("comparison", 0.0)
                                            + old.get("timings_s", {}).get("comparison_reused", 0.0)
                                            + time.process_time() - t1)
+    data["provenance"] = provenance(load_start)
     out.with_suffix(".json").write_text(json.dumps(data, separators=(",", ":")))
     write_markdown(out.with_suffix(".md"), data)
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")

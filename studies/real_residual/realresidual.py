@@ -3,7 +3,7 @@ twin with non-geometric effects, repeatability, instrument noise and extra geome
 paper's Figures 13 and 15 read as measured data.
 
 Evaluation code (it builds worlds and reads their truth through the campaign). The protocol is a campaign
-config (``experiments/separation_real.toml``: Table 6 errors, 25 attitude + 40 position poses, checks at
+config (``studies/real_residual/separation_real.toml``: Table 6 errors, 25 attitude + 40 position poses, checks at
 500-1000 mm) measured in the cheap ``truth_noise`` mode (the world's true sphere centres + N(0, s^2) per
 coordinate, no rendering). :class:`EffectMagnitudes` names what is added to that world:
 
@@ -75,8 +75,8 @@ class EffectMagnitudes:
 
 
 def _repeatability_sigma_deg(rp_mm: float) -> float:
-    from ..robots import irb1200
-    from ..world.effects_shapes import repeatability_sigma
+    from twin.robots import irb1200
+    from twin.world.effects_shapes import repeatability_sigma
 
     q = np.random.default_rng(0).uniform(-1.0, 1.0, size=(16, 6))  # a fixed spread of configurations
     return float(np.degrees(repeatability_sigma(irb1200(), q, rp_mm * _MM)))
@@ -109,7 +109,7 @@ def campaign_raw(base: Mapping[str, Any], magnitudes: EffectMagnitudes, seed: in
         effects.append({"name": "thermal", "alpha_per_k": 2.3e-5, "temp_start_c": 20.0,
                         "temp_rise_k": float(m.thermal_rise_k), "tau_s": 1800.0})
     if m.compliance_softness:
-        from ..world.effects_catalogue import DEFAULT_STIFFNESS_NM_PER_RAD
+        from twin.world.effects_catalogue import DEFAULT_STIFFNESS_NM_PER_RAD
 
         effects.append({"name": "compliance",
                         "stiffness_nm_per_rad": [k / m.compliance_softness for k in DEFAULT_STIFFNESS_NM_PER_RAD],
@@ -133,9 +133,9 @@ def run_real_protocol(base: Mapping[str, Any], magnitudes: EffectMagnitudes, see
     """One campaign of the protocol ``base`` with ``magnitudes`` at ``seed``: ``{method: {unit: {phase: {stat:
     value}}}}`` (units ``angle_deg`` / ``position_mm``, phases ``before`` / ``after``, statistics mean / max /
     std of the measured check errors, deg and mm). A method the estimator lacks raises ``ValueError``."""
-    from .campaign import run_campaign
-    from .config import parse_campaign_config
-    from .executor import SerialExecutor
+    from twin.runner.campaign import run_campaign
+    from twin.runner.config import parse_campaign_config
+    from twin.runner.executor import SerialExecutor
 
     cfg = parse_campaign_config(campaign_raw(base, magnitudes, seed, methods))
     with tempfile.TemporaryDirectory(prefix="real_residual_") as d:

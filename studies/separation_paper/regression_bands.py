@@ -1,9 +1,9 @@
 """Regression bands: run a campaign config for N seeds and record each statistic's mean and spread.
 
-    python experiments/regression_bands.py experiments/separation_ci.toml --seeds 20 --section separation_ci
-    python experiments/regression_bands.py experiments/separation.toml --seeds 20 --section separation
+    python studies/separation_paper/regression_bands.py studies/separation_paper/separation_ci.toml --seeds 20 --section separation_ci
+    python studies/separation_paper/regression_bands.py experiments/separation.toml --seeds 20 --section separation
 
-Writes (replaces) one section of results/regression.json, with this command in it. Runs the seeds on local
+Writes (replaces) one section of studies/separation_paper/results/regression.json, with this command in it. Runs the seeds on local
 processes (--workers) or a Dask cluster (--dask ADDRESS); per-seed campaigns go to --work (resumable).
 """
 
@@ -14,22 +14,27 @@ import shlex
 import sys
 from pathlib import Path
 
-from twin.runner.campaign import run_repeats
-from twin.runner.config import load_campaign_config
-from twin.runner.executor import open_executor
-from twin.evaluation.regression import bands_from_repeats, update_regression_file
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))
+
+from twin.evaluation.regression import bands_from_repeats, update_regression_file  # noqa: E402
+from twin.runner.campaign import run_repeats  # noqa: E402
+from twin.runner.config import load_campaign_config  # noqa: E402
+from twin.runner.executor import open_executor  # noqa: E402
+
+BANDS = HERE / "results" / "regression.json"
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config")
     p.add_argument("--seeds", type=int, default=20, help="number of seeds (the config's seed and the next ones)")
-    p.add_argument("--section", required=True, help="section name in results/regression.json")
+    p.add_argument("--section", required=True, help="section name in studies/separation_paper/results/regression.json")
     p.add_argument("--quick", action="store_true")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--dask", default=None)
-    p.add_argument("--work", default="/scratch/regression", help="folder for the per-seed campaigns")
-    p.add_argument("--out", default=None, help="regression file (default results/regression.json)")
+    p.add_argument("--work", default=str(HERE / "work"), help="folder for the per-seed campaigns (default: the study's work/)")
+    p.add_argument("--out", default=str(BANDS), help="regression file (default: the study's results/regression.json)")
     a = p.parse_args()
     cfg = load_campaign_config(a.config, quick=a.quick)
     seeds = [cfg.seed + k for k in range(a.seeds)]

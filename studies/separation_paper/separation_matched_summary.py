@@ -1,10 +1,10 @@
 """Summary of the matched Figure 10/11 protocol over its 20 band seeds, beside the paper's numbers.
 
-    python experiments/separation_matched_summary.py
+    python studies/separation_paper/separation_matched_summary.py
 
-Reads results/regression.json (section separation_matched, written by
-`python experiments/regression_bands.py experiments/separation_matched.toml --seeds 20 --section separation_matched`)
-and the paper's targets (experiments/paper_targets_separation.toml); writes results/separation_matched/summary.md.
+Reads studies/separation_paper/results/regression.json (section separation_matched, written by
+`python studies/separation_paper/regression_bands.py studies/separation_paper/separation_matched.toml --seeds 20 --section separation_matched`)
+and the paper's targets (experiments/paper_targets_separation.toml); writes studies/separation_paper/results/separation_matched/summary.md.
 """
 
 from __future__ import annotations
@@ -13,20 +13,23 @@ import json
 import sys
 from pathlib import Path
 
-from twin.evaluation.regression import DEFAULT_PATH, detectable_factor
-from twin.evaluation.targets import read_targets
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
+from twin.evaluation.regression import detectable_factor  # noqa: E402
+from twin.evaluation.targets import read_targets  # noqa: E402
+
+BANDS = HERE / "results" / "regression.json"
 METHODS = ("distance", "full_pose", "separation", "separation_paper", "default")
 UNITS = (("angle_deg", "angle [deg]"), ("position_mm", "position [mm]"))
 
 
 def main() -> int:
-    b = json.loads(DEFAULT_PATH.read_text())["separation_matched"]
+    b = json.loads(BANDS.read_text())["separation_matched"]
     st = b["statistics"]
     fig10 = read_targets()["simulation"]["figure10"]
     n = len(b["seeds"])
-    L = ["# Separation paper, Figures 10-11, protocol matched (experiments/separation_matched.toml, truth_noise mode)", "",
+    L = ["# Separation paper, Figures 10-11, protocol matched (studies/separation_paper/separation_matched.toml, truth_noise mode)", "",
          f"{n} seeds ({b['seeds'][0]}..{b['seeds'][-1]}), from `{b['command']}` ({b['date']}). Mean over the seeds of each "
          "seed's statistic, [min, max] over seeds; `paper` = Figure 10 (separation method, one run; targets file).", ""]
     L += ["## Before compensation (the protocol match)", "", "| statistic | ours (20-seed mean) [min, max] | paper | ours / paper |",
@@ -68,7 +71,7 @@ def main() -> int:
           "| method | angle after-mean | position after-mean |", "|---|---|---|"]
     for m in METHODS:
         L.append(f"| {m} | " + " | ".join(f"x{detectable_factor(st[f'{m}.measured.{u}.after.mean'], 6, 0.99):.3f}" for u, _ in UNITS) + " |")
-    out = ROOT / "results" / "separation_matched" / "summary.md"
+    out = HERE / "results" / "separation_matched" / "summary.md"
     out.write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0

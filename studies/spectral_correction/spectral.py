@@ -48,16 +48,16 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy import linalg as sla
 
-from ..estimator.core import Prepared, prepare
-from ..estimator.identifiability import Identifiability, analyse_jacobian, preference_order
-from ..estimator.lm import LMSettings, levenberg_marquardt
-from ..estimator.paper_methods import EQ21_ANGLES, EQ22_LENGTHS
-from ..estimator.problem import Observations, ParamSpace, Residuals, make_pairs, pair_residuals
-from ..estimator.simulate import random_configurations, simulate_dataset
-from ..estimator.solvers import spectral_correction
-from ..presets import preset_deviation
-from ..robots import get_robot
-from ..transforms import pose6_to_transform
+from twin.estimator.core import Prepared, prepare
+from twin.estimator.identifiability import Identifiability, analyse_jacobian, preference_order
+from twin.estimator.lm import LMSettings, levenberg_marquardt
+from twin.estimator.paper_methods import EQ21_ANGLES, EQ22_LENGTHS
+from twin.estimator.problem import Observations, ParamSpace, Residuals, make_pairs, pair_residuals
+from twin.estimator.simulate import random_configurations, simulate_dataset
+from twin.estimator.solvers import spectral_correction
+from twin.presets import preset_deviation
+from twin.robots import get_robot
+from twin.transforms import pose6_to_transform
 
 __all__ = [
     "LINEAR_METHODS",
@@ -664,9 +664,9 @@ def plot_study(rows: Sequence[dict], path, *, units: str = "si") -> None:
     [um] and median length parameter error [um] (bars up to the 95th percentile), failure rate [%], and
     iterations of both steps (GN outer iterations; spectral: inner iterations), against the noise sigma, one
     line per method."""
-    from .report import _plt, _save_figure
+    from twin.evaluation.report import pyplot, save_figure
 
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.ticker import NullFormatter
 
     rows = [r for r in rows if r.get("units", "si") == units]
@@ -709,5 +709,5 @@ def plot_study(rows: Sequence[dict], path, *, units: str = "si") -> None:
             ax.grid(alpha=0.3)
         axes[3, j].set_xlabel("noise sigma per coordinate [mm]")
         axes[0, j].legend(fontsize=7)
-    _save_figure(plt, fig, path, "Spectral correction (eq. 33-36) vs plain / column-scaled least squares and LM, "
+    save_figure(plt, fig, path, "Spectral correction (eq. 33-36) vs plain / column-scaled least squares and LM, "
                                  "separation steps, median with bar to p95")

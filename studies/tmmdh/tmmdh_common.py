@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from twin.estimator.core import prepare  # noqa: E402
@@ -23,7 +23,7 @@ from twin.presets import preset_deviation  # noqa: E402
 from twin.robots import brtirus0707a  # noqa: E402
 from twin.transforms import matrix_to_rotvec, rotvec_to_matrix  # noqa: E402
 
-RESULTS = ROOT / "results"
+RESULTS = Path(__file__).resolve().parent / "results"
 MM = 1e-3
 
 

@@ -3,12 +3,12 @@
 poses. A run has converged when its parameters reproduce the noise-free poses to 1 um RMS (position). Our
 default estimator takes no start value (nominal model + closed-form registration of the base), so its map is
 flat by construction; it is run once and its error drawn over the whole grid. Writes
-results/tmmdh_convergence.json and results/tmmdh_convergence_{lm,clm,best}.png.
+studies/tmmdh/results/tmmdh_convergence.json and studies/tmmdh/results/tmmdh_convergence_{lm,clm,best}.png.
 
 Caps: LM at most 100 iterations (stop when the largest step < 1e-12); C-LM at most 20 cycles of two LM stages of
 at most 10 iterations each, a run leaving the loop once converged or when a cycle no longer lowers its cost.
 
-    python experiments/tmmdh_convergence.py [--grid 63]
+    python studies/tmmdh/tmmdh_convergence.py [--grid 63]
 """
 
 from __future__ import annotations

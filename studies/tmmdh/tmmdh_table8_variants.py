@@ -2,15 +2,15 @@
 
 Readings of "different preset parameters (theta1 and alpha2) ... a deviation vector added to the nominal
 parameters" (section 4.3): ``initial_value`` (the robot carries the Tables 4-5 presets; the fit starts from
-nominal + (Delta theta1, Delta alpha2); what experiments/tmmdh_convergence.py does) and ``preset`` (the robot of
+nominal + (Delta theta1, Delta alpha2); what studies/tmmdh/tmmdh_convergence.py does) and ``preset`` (the robot of
 each cell carries the Tables 4-5 presets plus (Delta theta1, Delta alpha2); every fit starts from nominal).
 Variants: LM and C-LM with our cumulative damping or the paper's bounded one, residuals in m or mm (rad),
 stop rules, and the paper's first-order orientation residual. All 37 parameters free, noise-free poses at the
 100 calibration configurations; converged = the fit reproduces its run's poses to 1 um RMS (position).
 The grid is subsampled (every ``--step``-th value of the 63-point grid over [-3.1, 3.1] rad) to keep the CPU
-time modest. Writes results/tmmdh_table8_variants.{json,md}.
+time modest. Writes studies/tmmdh/results/tmmdh_table8_variants.{json,md}.
 
-    python experiments/tmmdh_table8_variants.py [--step 2] [--render]
+    python studies/tmmdh/tmmdh_table8_variants.py [--step 2] [--render]
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def main() -> int:
 
 
 def render(res: dict) -> None:
-    """results/tmmdh_table8_variants.md from the study's JSON."""
+    """studies/tmmdh/results/tmmdh_table8_variants.md from the study's JSON."""
     tg, g, step = res["paper_table8"], res["grid_rad"], res["grid_step"]
     full = res.get("full_grid_initial_value")
     variants = list(res["readings"]["initial_value"])
@@ -81,7 +81,7 @@ def render(res: dict) -> None:
         L.append(f"| {label} | {pct('initial_value', v)} | {pct('preset', v)} | {pct('initial_value_nominal', v)} | "
                  f"{tg[m]['convergence_percent']} % |")
     if full:
-        L += ["", f"Full 63 x 63 grid, `initial_value` (results/tmmdh_convergence.json): LM {full['lm']:.2f} %, "
+        L += ["", f"Full 63 x 63 grid, `initial_value` (studies/tmmdh/results/tmmdh_convergence.json): LM {full['lm']:.2f} %, "
               f"C-LM {full['clm']:.2f} %."]
     L += ["", "## Variants", "", "| variant | method | damping | residual units | stop rule | orientation residual | steps | initial_value | preset | "
           "initial_value_nominal | time per start (initial_value) |", "|---|---|---|---|---|---|---|---|---|---|---|"]

@@ -1,11 +1,11 @@
 """TM-MDH paper, Tables 10-11 under three readings of its orientation noise "0.002 rad" (issue 13 item 4):
 per rotation-vector component, as the RMS norm of the rotation vector, and on each Z-Y-X Euler angle
-(experiments/tmmdh_common.dataset, twin.estimator.simulate.orientation_noise). Position noise 0.02 mm per
+(studies/tmmdh/tmmdh_common.dataset, twin.estimator.simulate.orientation_noise). Position noise 0.02 mm per
 coordinate throughout. The paper's method (C-LM with its bounded damping, unweighted residuals in mm and rad,
 31 parameters: ``clm_paper``) and our default estimator; flange-pose errors in the robot base frame on 100 test
-poses, ours beside the paper's Tables 10-11. Writes results/tmmdh_tables_10_11_noise.{json,md}.
+poses, ours beside the paper's Tables 10-11. Writes studies/tmmdh/results/tmmdh_tables_10_11_noise.{json,md}.
 
-    python experiments/tmmdh_tables_10_11_noise.py [--seeds 20]
+    python studies/tmmdh/tmmdh_tables_10_11_noise.py [--seeds 20]
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tmmdh_common as tc  # noqa: E402
-from tmmdh_tables_9_11 import NOISE, PAPER_EXCLUDED, _errors, _stats  # noqa: E402
+from tmmdh_tables_9_11 import NOISE, PAPER_EXCLUDED, pose_errors, error_stats  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -39,9 +39,9 @@ def run(reading: str, seed: int) -> dict:
     ds, _ = tc.dataset(q, noise=NOISE, seed=seed, orientation_reading=reading)
     prep = prepare(ds, use_given_bases=True)
     truth = tc.truth_model()
-    out = {"before": _errors(prep.nominal.with_frames(base2meas=np.eye(4), tool2flange=np.eye(4)), truth, q_test)}
+    out = {"before": pose_errors(prep.nominal.with_frames(base2meas=np.eye(4), tool2flange=np.eye(4)), truth, q_test)}
     for k, f in METHODS.items():
-        out[k] = _errors(prep.space.model(f(prep).x, prep.nominal, station=0), truth, q_test)
+        out[k] = pose_errors(prep.space.model(f(prep).x, prep.nominal, station=0), truth, q_test)
     return {k: v["flange_in_base"] for k, v in out.items()}
 
 
@@ -56,7 +56,7 @@ def main() -> int:
     for reading in ORIENTATION_NOISE_READINGS:
         per = [run(reading, s) for s in range(1, args.seeds + 1)]
         res["readings"][reading] = {
-            k: {"seed_1": {"position_mm": _stats(per[0][k]["position_mm"]), "orientation_rad": _stats(per[0][k]["orientation_rad"])},
+            k: {"seed_1": {"position_mm": error_stats(per[0][k]["position_mm"]), "orientation_rad": error_stats(per[0][k]["orientation_rad"])},
                 "mean_over_seeds": {"position_mm_mean": float(np.mean([np.mean(p[k]["position_mm"]) for p in per])),
                                     "orientation_rad_mean": float(np.mean([np.mean(p[k]["orientation_rad"]) for p in per])),
                                     "orientation_rad_mean_seed_range": [float(f([np.mean(p[k]["orientation_rad"]) for p in per]))

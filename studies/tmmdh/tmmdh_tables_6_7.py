@@ -1,8 +1,8 @@
 """TM-MDH paper, Tables 6 and 7: identification of the Table 4-5 presets from 100 noise-free 6-DOF poses with
 all 37 parameters (C-LM, 20 cycles), ours beside the paper's, with the couplings our identifiability
-analysis names. Writes results/tmmdh_tables_6_7.{json,md}.
+analysis names. Writes studies/tmmdh/results/tmmdh_tables_6_7.{json,md}.
 
-    python experiments/tmmdh_tables_6_7.py
+    python studies/tmmdh/tmmdh_tables_6_7.py
 """
 
 from __future__ import annotations

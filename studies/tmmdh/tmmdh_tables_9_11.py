@@ -1,9 +1,9 @@
 """TM-MDH paper, Tables 9-11: noise 0.02 mm / 0.002 rad; the "MDH" model (robot only, base and tool held at
 their nominal identity) against TM-MDH (the paper's C-LM with z, alpha, x', z', alpha', gamma' excluded, its
 section 4.2) and our default estimator; position and orientation errors on test poses, ours beside the
-paper's. Writes results/tmmdh_tables_9_11.{json,md}.
+paper's. Writes studies/tmmdh/results/tmmdh_tables_9_11.{json,md}.
 
-    python experiments/tmmdh_tables_9_11.py [--seeds 10]
+    python studies/tmmdh/tmmdh_tables_9_11.py [--seeds 10]
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ NOISE = (0.02e-3, 0.002)
 PAPER_EXCLUDED = ("base_z", "base_rz", "tool_x", "tool_z", "tool_rz", "tool_rx")
 
 
-def _errors(model, truth, q):
+def pose_errors(model, truth, q):
     """Position [mm] and orientation [rad] errors of the tool in the measurement frame and of the flange in the
     base frame (the paper's statistic), per test pose."""
     out = {}
@@ -40,7 +40,7 @@ def _errors(model, truth, q):
     return out
 
 
-def _stats(v):
+def error_stats(v):
     return {"mean": float(np.mean(v)), "max": float(np.max(v)), "min": float(np.min(v))}
 
 
@@ -61,7 +61,7 @@ def run_seed(seed: int):
     models = {"before": prep.nominal.with_frames(base2meas=np.eye(4), tool2flange=np.eye(4))}
     for k, ident in runs.items():
         models[k] = prep.space.model(ident.x, prep.nominal, station=0)
-    errs = {k: _errors(m, truth, q_test) for k, m in models.items()}
+    errs = {k: pose_errors(m, truth, q_test) for k, m in models.items()}
     devs = {k: tc.deviations_table(v.x, prep.x_nominal, prep.space.names) for k, v in runs.items()}
     cal = build_calibration(prep, runs["ours"], "best", {})
     return errs, devs, cal
@@ -81,7 +81,7 @@ def main() -> int:
     errs, devs, cal = first
     table = {}
     for frame in ("flange_in_base", "tool_in_meas"):
-        table[frame] = {k: {"position_mm": _stats(e[frame]["position_mm"]), "orientation_rad": _stats(e[frame]["orientation_rad"])}
+        table[frame] = {k: {"position_mm": error_stats(e[frame]["position_mm"]), "orientation_rad": error_stats(e[frame]["orientation_rad"])}
                         for k, e in errs.items()}
     seeds_mean = {}
     for k in ("before", "mdh", "tmmdh", "tmmdh_weighted", "lm_paper", "clm_paper", "ours"):

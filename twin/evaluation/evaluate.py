@@ -34,7 +34,7 @@ import numpy as np
 from ..dataset import Plate
 from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import RobotModel, flange2base
-from ..transforms import invert_transform, make_transform
+from ..transforms import invert_transform, kabsch, make_transform
 from .statistics import (
     absolute_pose_errors,
     euler_change_error,
@@ -43,7 +43,7 @@ from .statistics import (
     summarize,
 )
 
-__all__ = ["PairErrors", "MethodEvaluation", "evaluate_campaign", "parameter_comparison", "paper_orderings", "kabsch"]
+__all__ = ["PairErrors", "MethodEvaluation", "evaluate_campaign", "parameter_comparison", "paper_orderings"]
 
 _DEG = 180.0 / math.pi
 _MM = 1e3
@@ -136,16 +136,6 @@ def _pair_errors(kind: str, P_start, P_end, C_start, C_end, ok) -> np.ndarray:
     else:
         e[ok] = moved_distance_error(P_start[ok, :3, 3], P_end[ok, :3, 3], C_start[ok, :3, 3], C_end[ok, :3, 3])
     return e
-
-
-def kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """The rigid transform ``(4, 4)`` minimising ``sum |T a_i - b_i|^2`` for points ``(n, 3)``."""
-    ca, cb = A.mean(0), B.mean(0)
-    H = (A - ca).T @ (B - cb)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return make_transform(R, cb - R @ ca)
 
 
 def _summ(values: np.ndarray, scale: float) -> dict | None:
@@ -278,7 +268,8 @@ def evaluate_campaign(
             pos[ok], rot[ok] = absolute_pose_errors(P[ok], C_val[ok])
             absolute[f"absolute_{phase}_position"], absolute[f"absolute_{phase}_rotation"] = pos, rot
             if ok.sum() >= 3:
-                T = kabsch(P[ok, :3, 3], C_val[ok, :3, 3])
+                R, t = kabsch(P[ok, :3, 3], C_val[ok, :3, 3])
+                T = make_transform(R, t)
                 Pa = T @ P[ok]
                 pa, ra = np.full(len(ok), np.nan), np.full(len(ok), np.nan)
                 pa[ok], ra[ok] = absolute_pose_errors(Pa, C_val[ok])

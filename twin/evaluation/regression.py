@@ -1,4 +1,4 @@
-"""Regression bands of the campaign statistics (``results/regression.json``).
+"""Regression bands of the campaign statistics (``studies/separation_paper/results/regression.json``).
 
 :func:`bands_from_repeats` turns a Monte-Carlo run (:func:`twin.runner.campaign.run_repeats`) into bands:
 for each tracked statistic its mean, sample std, min and max over the seeds, and for each of the paper's
@@ -35,12 +35,9 @@ from ..benchio import atomic_write_text
 from .report import clean_json
 from .statistics import flatten_numbers
 
-__all__ = ["tracked_statistics", "bands_from_repeats", "check_against_bands", "update_regression_file", "DEFAULT_PATH",
+__all__ = ["tracked_statistics", "bands_from_repeats", "check_against_bands", "update_regression_file",
            "PREDICTION_STATISTICS", "prediction_band", "detectable_factor", "check_prediction", "literal_orderings",
            "pairwise_orderings", "check_pairwise", "pooled_after_means"]
-
-DEFAULT_PATH = Path(__file__).resolve().parents[2] / "results" / "regression.json"
-
 
 def tracked_statistics(methods_summary: Mapping[str, Any]) -> dict[str, float]:
     """The statistics the bands track, from ``results['methods']`` (dotted path -> value)."""
@@ -298,9 +295,9 @@ def pooled_after_means(runs: list[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def update_regression_file(section: str, data: Mapping[str, Any], path: str | os.PathLike | None = None) -> Path:
-    """Replace one configuration's section of ``results/regression.json`` (others untouched), under a lock."""
-    p = Path(path) if path else DEFAULT_PATH
+def update_regression_file(section: str, data: Mapping[str, Any], path: str | os.PathLike) -> Path:
+    """Replace one configuration's section of the regression file ``path`` (others untouched), under a lock."""
+    p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     lock = p.with_suffix(".lock")
     with open(lock, "w") as lf:
