@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, project_points
+from ..camera import CameraIntrinsics, discs_in_image, project_points
 from ..dataset import Plate
 from ..kinematics import (
     IKSolutions,
@@ -208,11 +208,7 @@ def plate_in_view(
         idx = np.flatnonzero(front)
         uv = project_points(spheres[idx].reshape(-1, 3), cam.base2cam, cam.intrinsics).reshape(-1, 3, 2)
         rad = (cam.intrinsics.fx * r / z.reshape(-1, 3)[idx]) + opt.margin_px
-        w, h = cam.intrinsics.width, cam.intrinsics.height
-        inside = (
-            (uv[..., 0] - rad >= 0) & (uv[..., 0] + rad <= w - 1) & (uv[..., 1] - rad >= 0) & (uv[..., 1] + rad <= h - 1)
-        ).all(axis=1)
-        ok[idx] &= inside
+        ok[idx] &= discs_in_image(uv, rad, cam.intrinsics.width, cam.intrinsics.height).all(axis=1)
     return ok
 
 

@@ -25,7 +25,7 @@ import cv2
 import mujoco
 import numpy as np
 
-from ..camera import CameraIntrinsics, mujoco_to_opencv_cam2world, project_points
+from ..camera import CameraIntrinsics, discs_in_image, mujoco_to_opencv_cam2world, project_points
 from ..dataset import Plate, default_plate
 from ..kinematics import N_JOINTS, RobotModel, UnreachableError, closest_branch, inverse_kinematics_closed_form
 from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz, pose6_to_transform, rotvec_to_matrix
@@ -844,13 +844,7 @@ class World:
             except UnreachableError:
                 continue
             spheres = self.true_spheres_meas(q, station)
-            uvl, uvr = self.project_spheres(spheres, station)
-            ok = True
-            for uv in (uvl, uvr):
-                if np.any(uv[:, 0] < margin + r_px) or np.any(uv[:, 0] > w - 1 - margin - r_px):
-                    ok = False
-                if np.any(uv[:, 1] < margin + r_px) or np.any(uv[:, 1] > h - 1 - margin - r_px):
-                    ok = False
+            ok = all(discs_in_image(uv, margin + r_px, w, h).all() for uv in self.project_spheres(spheres, station))
             if ok and not self.spheres_occluded(q, station):
                 out.append(q)
         return np.array(out)
