@@ -171,7 +171,7 @@ def convergence_study(n_grid: int = 63, chunk: int = 256, methods=("lm", "clm"),
 
 
 # ------------------------------------------------------------------------------------------------
-# Table 8 under two readings of the grid, and variants of the solver (issue 13 item 4)
+# Table 8 under three readings of the grid, and variants of the solver
 # ------------------------------------------------------------------------------------------------
 
 READINGS = ("initial_value", "preset", "initial_value_nominal")
@@ -179,9 +179,10 @@ READINGS = ("initial_value", "preset", "initial_value_nominal")
 # name -> (method, damping, units, stop); units "si" (m, rad) or "mm_rad"; stop: LM "tol" (largest step < 1e-12,
 # at most 100 iterations) or "iter20" (at most 20 iterations); C-LM "data" (leave once the fit reproduces the
 # measured positions to 1 um RMS; 20 cycles) or "cycles" (no data rule: 20 cycles, or a cycle without progress);
-# optional fifth and sixth entries: the orientation residual, "log" (default) or the paper's "first_order"
-# (sin(angle) axis), and the step rule, "always" (the paper's Step 3, default) or "improve" (a step that raises
-# the cost is rejected; with the paper's bounded damping the retry uses mu0 * lam again)
+# optional fifth to seventh entries: the orientation residual, "log" (default) or the paper's "first_order"
+# (sin(angle) axis); the step rule, "always" (the paper's Step 3, default) or "improve" (a step that raises
+# the cost is rejected; with the paper's bounded damping the retry uses mu0 * lam again); the damping factor lam
+# (default 10; the paper's section 3.2 allows 2.5 <= lam <= 10)
 VARIANTS = {
     "lm": ("lm", "cumulative", "si", "tol"),
     "lm_paper": ("lm", "paper", "si", "tol"),
@@ -197,6 +198,8 @@ VARIANTS = {
     "clm_paper_first_order": ("clm", "paper", "mm_rad", "data", "first_order"),
     "lm_paper_reject": ("lm", "paper", "si", "tol", "log", "improve"),
     "clm_paper_reject": ("clm", "paper", "mm_rad", "data", "log", "improve"),
+    "lm_paper_lam2.5": ("lm", "paper", "si", "tol", "log", "always", 2.5),
+    "clm_paper_lam2.5": ("clm", "paper", "mm_rad", "data", "log", "always", 2.5),
 }
 
 
@@ -236,6 +239,7 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
     method, damping, units, stop_rule, *rest = VARIANTS[variant]
     rot = rest[0] if rest else "log"
     accept = rest[1] if len(rest) > 1 else "always"
+    lam = float(rest[2]) if len(rest) > 2 else LM_SETTINGS.lam
     sig_p = MM if units == "mm_rad" else 1.0
     t0 = time.perf_counter()
     Xs, its = [], []
@@ -244,11 +248,11 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
         Xc = pb.starts(X0[c0:c0 + chunk])
         free = pb.free(np.ones(sp.size, dtype=bool))
         if method == "lm":
-            st = replace(LM_SETTINGS, damping=damping, accept=accept,
+            st = replace(LM_SETTINGS, damping=damping, accept=accept, lam=lam,
                          max_iter=20 if stop_rule == "iter20" else LM_SETTINGS.max_iter)
             r = levenberg_marquardt(pb, Xc, free, settings=st)
         else:
-            st = replace(CLM_STAGE, damping=damping, accept=accept)
+            st = replace(CLM_STAGE, damping=damping, accept=accept, lam=lam)
             stop = (lambda X, pb=pb: pb.position_rms(X) <= CONVERGED_M) if stop_rule == "data" else None
             r = cross_identification(pb, pb, Xc, free, np.r_[~sp.is_length, False], n_cycles=CLM_CYCLES,
                                      settings_orientation=st, settings_full=st, stop=stop)
@@ -259,7 +263,7 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
     ep = np.concatenate([e for _, e in Xs])
     conv = ep <= CONVERGED_M
     n = int(round(np.sqrt(X0.shape[0])))
-    return {"method": method, "damping": damping, "units": units, "stop": stop_rule, "rotation_residual": rot, "accept": accept,
+    return {"method": method, "damping": damping, "lam": lam, "units": units, "stop": stop_rule, "rotation_residual": rot, "accept": accept,
             "converged_percent": float(100 * conv.mean()), "time_total_s": el, "time_per_run_s": el / X0.shape[0],
             "iterations_median": float(np.median(np.concatenate(its))),
             "converged": conv.astype(int).reshape(n, n).tolist()}
