@@ -1,4 +1,4 @@
-"""The C-LM stop rule of the TM-MDH convergence study reads the measurements, never the truth (issue 13)."""
+"""The C-LM stop rule of the TM-MDH convergence study reads the measurements, never the truth."""
 
 import inspect
 import sys

@@ -1,4 +1,4 @@
-"""`twin diagnose` on world effects of other shapes than its candidates, against the oracle (issue 12).
+"""`twin diagnose` on world effects of other shapes than its candidates, against the oracle.
 
 The world's effects (written as world code: ``twin/world/effects_catalogue.py``, ``effects_shapes.py``), the
 default stations' camera-visible poses, the world's true sphere centres plus N(0, sigma^2) per coordinate (no
@@ -21,11 +21,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 import time
 from pathlib import Path
 
-import twin  # noqa: F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
-import numpy as np
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))  # the repository root: this checkout's `twin`
+
+import twin  # noqa: E402,F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
+import numpy as np  # noqa: E402
+
+from twin.benchio import provenance  # noqa: E402
 
 from twin.diagnosis import diagnose
 from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, synthetic_dataset
@@ -109,11 +116,13 @@ def main() -> int:
     ap.add_argument("--sigma-mm", type=float, default=0.002, help="sphere-centre noise per coordinate [mm]")
     ap.add_argument("--per-station", type=int, default=40)
     ap.add_argument("--cases", default=",".join(CASES))
-    ap.add_argument("--world", default="experiments/world_default.toml")
-    ap.add_argument("--out", default="studies/close_loop/results/close_loop_sensitivity.json")
+    ap.add_argument("--world", default="experiments/world_default.toml", help="relative to the repository root")
+    ap.add_argument("--out", default="studies/close_loop/results/close_loop_sensitivity.json",
+                    help="relative to the repository root")
     args = ap.parse_args()
+    load_start = os.getloadavg()
     sigma = args.sigma_mm * 1e-3
-    world = World.from_config(load_world_config(args.world))
+    world = World.from_config(load_world_config(ROOT / args.world))
     t0 = time.time()
     world.effects = []
     # plans depend on the stations and the seed, not on the effect: one per seed, shared by every case
@@ -174,7 +183,8 @@ def main() -> int:
               f"{summ['named_exact']} traced {summ['traced']} after/oracle median {summ['after_over_oracle']['median']:.3f} "
               f"max {summ['after_over_oracle']['max']:.3f}", flush=True)
     out["seconds"] = time.time() - t0
-    p = Path(args.out)
+    out["provenance"] = provenance(load_start)
+    p = ROOT / args.out
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(json.dumps(out, indent=1, default=float) + "\n")
     _table(out, p.with_suffix(".md"))

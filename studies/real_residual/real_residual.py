@@ -1,4 +1,4 @@
-"""What the real robot's residual is made of (issue 13, item 5).
+"""What the real robot's residual is made of.
 
 The separation paper's real-robot protocol (``studies/real_residual/separation_real.toml``: its Table 6 errors, 25 attitude
 + 40 position calibration measurements, checks at 500-1000 mm) in the cheap ``truth_noise`` mode, with instrument
@@ -73,7 +73,7 @@ def _fmt(agg: dict, unit: str, phase: str) -> str:
 
 def write_markdown(path: Path, data: dict) -> None:
     paper = data["paper"]
-    L = ["# What the real robot's residual is made of (issue 13, item 5)", "",
+    L = ["# What the real robot's residual is made of", "",
          "The separation paper's real-robot protocol (`studies/real_residual/separation_real.toml`, Table 6 errors injected) "
          "measured in `truth_noise` mode (true sphere centres + N(0, s²) per coordinate), with the effects below "
          "added to the world. Values: seed-mean ± seed-std of each statistic "
@@ -134,14 +134,15 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scanned combination")
     ap.add_argument("--comparison-seeds", type=int, default=20, help="seeds of the methods comparison (0: skip)")
     ap.add_argument("--limit", type=int, default=0, help="scan only the first N combinations (0: all)")
-    ap.add_argument("--out", default=str(HERE / "results" / "real_residual"), help="output stem (.json and .md are added)")
+    ap.add_argument("--out", default="studies/real_residual/results/real_residual",
+                    help="output stem (.json and .md are added), relative to the repository root")
     ap.add_argument("--comparison-row", type=int, action="append", default=[],
                     help="also compare the methods on this scan row (repeatable)")
     ap.add_argument("--resume", action="store_true", help="reuse combinations already in the output JSON")
     args = ap.parse_args()
     base = tomllib.loads(PROTOCOL.read_text())
     paper = paper_real_targets(read_targets())
-    out = Path(args.out)
+    out = HERE.parents[1] / args.out
     out.parent.mkdir(parents=True, exist_ok=True)
     seeds = list(range(1, args.seeds + 1))
     points = grid()[: args.limit or None]

@@ -1,4 +1,4 @@
-"""What the real robot's residual is made of (issue 13, item 5): the separation paper's real-robot protocol on a
+"""What the real robot's residual is made of: the separation paper's real-robot protocol on a
 twin with non-geometric effects, repeatability, instrument noise and extra geometric error, scored against the
 paper's Figures 13 and 15 read as measured data.
 

@@ -1,5 +1,5 @@
 """Spectral correction measured: the separation paper's linear solver (eq. 33-36) beside plain and
-column-scaled least squares and Levenberg-Marquardt, on the paper's separation steps (issue 13, item 3).
+column-scaled least squares and Levenberg-Marquardt, on the paper's separation steps.
 
 The identification problem is the separation method as ``twin.estimator.paper_methods.identify_separation``
 implements it, rebuilt here so that the linear solver of each Gauss-Newton step can be swapped:

@@ -1,4 +1,4 @@
-"""Spectral correction measured (issue 13, item 3): the separation paper's spectral-correction iteration
+"""Spectral correction measured: the separation paper's spectral-correction iteration
 (eq. 33-36) beside plain normal equations, SVD least squares, column-scaled least squares and
 Levenberg-Marquardt, on the paper's two separation steps, over noise levels, seeds and four scenarios
 (``twin.evaluation.spectral_study``). Simulated data as the paper's own simulation (true sphere centres plus
@@ -49,7 +49,8 @@ def main(argv=None) -> int:
                     help="cap of the spectral iteration per Gauss-Newton step (the project's default)")
     ap.add_argument("--mm-scenarios", nargs="*", default=["narrow", "with_d2"], choices=SCENARIOS,
                     help="scenarios run a second time with the solvers in mm and rad")
-    ap.add_argument("--out", default=str(HERE / "results" / "spectral_correction"), help="output path without extension")
+    ap.add_argument("--out", default="studies/spectral_correction/results/spectral_correction",
+                    help="output path without extension, relative to the repository root")
     a = ap.parse_args(argv)
     t0, load_start = time.perf_counter(), os.getloadavg()
     recs = study([n * 1e-3 for n in a.noise_mm], tuple(range(a.seeds)), a.scenarios, METHODS, n_pairs=a.pairs,
@@ -59,7 +60,7 @@ def main(argv=None) -> int:
                       n_pairs=a.pairs, spectral_iterations=a.spectral_iterations, units="mm",
                       progress=lambda s: print("mm:", s, flush=True))
     rows = summarise(recs)
-    out = Path(a.out)
+    out = HERE.parents[1] / a.out
     out.parent.mkdir(parents=True, exist_ok=True)
     settings = {"noise_mm": a.noise_mm, "seeds": a.seeds, "scenarios": a.scenarios, "methods": list(METHODS),
                 "pairs": a.pairs, "mm_scenarios": a.mm_scenarios, "spectral_iterations": a.spectral_iterations, "max_outer_iterations": 50,

@@ -24,6 +24,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small batched matrices: th
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tmmdh_common as tc  # noqa: E402
 
+from twin.benchio import provenance  # noqa: E402
+
 import numpy as np  # noqa: E402
 
 
@@ -66,6 +68,7 @@ def plot(grid, Z, title, path, vmin=-13, vmax=-1):
 
 
 def main() -> int:
+    load_start = os.getloadavg()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grid", type=int, default=63)
     ap.add_argument("--quiet", action="store_true")
@@ -87,7 +90,7 @@ def main() -> int:
              tc.RESULTS / f"tmmdh_convergence_{m}.png")
     Zb = np.full((grid.size, grid.size), res["best"]["position_rms_m"])
     plot(grid, Zb, "our default: no start value, flat map (one run)", tc.RESULTS / "tmmdh_convergence_best.png")
-    (tc.RESULTS / "tmmdh_convergence.json").write_text(json.dumps(res) + "\n")
+    (tc.RESULTS / "tmmdh_convergence.json").write_text(json.dumps({**res, "provenance": provenance(load_start)}) + "\n")
     lm, clm, b = res["lm"], res["clm"], res["best"]
     md = [
         "# TM-MDH paper, Table 8 and Figure 6: convergence from 63 x 63 initial values", "",

@@ -1,4 +1,4 @@
-"""TM-MDH paper, Tables 10-11 under three readings of its orientation noise "0.002 rad" (issue 13 item 4):
+"""TM-MDH paper, Tables 10-11 under three readings of its orientation noise "0.002 rad":
 per rotation-vector component, as the RMS norm of the rotation vector, and on each Z-Y-X Euler angle
 (studies/tmmdh/tmmdh_common.dataset, twin.estimator.simulate.orientation_noise). Position noise 0.02 mm per
 coordinate throughout. The paper's method (C-LM with its bounded damping, unweighted residuals in mm and rad,
@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tmmdh_common as tc  # noqa: E402
+
+from twin.benchio import provenance  # noqa: E402
 from tmmdh_tables_9_11 import NOISE, PAPER_EXCLUDED, pose_errors, error_stats  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -46,6 +49,7 @@ def run(reading: str, seed: int) -> dict:
 
 
 def main() -> int:
+    load_start = os.getloadavg()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     args = ap.parse_args()
@@ -66,7 +70,7 @@ def main() -> int:
     res["time_s"] = time.perf_counter() - t0
     res["paper"] = {"table10_mm": tg["table10_mm"], "table11_rad": tg["table11_rad"]}
     tc.RESULTS.mkdir(exist_ok=True)
-    (tc.RESULTS / "tmmdh_tables_10_11_noise.json").write_text(json.dumps(res, indent=2) + "\n")
+    (tc.RESULTS / "tmmdh_tables_10_11_noise.json").write_text(json.dumps({**res, "provenance": provenance(load_start)}, indent=2) + "\n")
     p10, p11 = tg["table10_mm"]["tmmdh"], tg["table11_rad"]["tmmdh"]
     desc = {"rotvec": "0.002 rad per rotation-vector component (RMS angle 0.0035 rad)",
             "norm": "0.002 rad RMS norm of the rotation vector (0.00115 rad per component)",

@@ -8,11 +8,14 @@ analysis names. Writes studies/tmmdh/results/tmmdh_tables_6_7.{json,md}.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import tmmdh_common as tc  # noqa: E402
+
+from twin.benchio import provenance  # noqa: E402
 
 from twin.estimator.core import prepare  # noqa: E402
 from twin.estimator.methods import build_calibration, identify_best  # noqa: E402
@@ -21,6 +24,7 @@ from twin.evaluation.targets import target_value, unscored_targets  # noqa: E402
 
 
 def main() -> int:
+    load_start = os.getloadavg()
     tg = tc.targets()
     q = tc.poses(100, seed=1)
     ds, _ = tc.dataset(q)
@@ -73,7 +77,7 @@ def main() -> int:
         "validation_rms_position_mm": {k: c.residuals["calibration_all"]["position_mm"]["rms"] for k, c in cals.items()},
     }
     tc.RESULTS.mkdir(exist_ok=True)
-    (tc.RESULTS / "tmmdh_tables_6_7.json").write_text(json.dumps(res, indent=2) + "\n")
+    (tc.RESULTS / "tmmdh_tables_6_7.json").write_text(json.dumps({**res, "provenance": provenance(load_start)}, indent=2) + "\n")
 
     lines = ["# TM-MDH paper, Tables 6-7: identification without noise (37 parameters)", "",
              res["setup"] + ".", "",

@@ -1,4 +1,4 @@
-"""World effects of other shapes than the diagnosis' candidates (issue 12): what a held-out campaign may hold.
+"""World effects of other shapes than the diagnosis' candidates: what a held-out campaign may hold.
 
 Each is written as physics of the world, not as a regressor of the diagnosis: effects on one joint or one link
 only, couplings between joints, a hysteresis that follows the size of the last move, a link that grows with a
