@@ -78,11 +78,9 @@ def pipeline_section(quick: bool = False, poses: int = 12) -> dict:
             task = PoseTask(key, int(plan.pose_id[i]), plan.q[i], str(plan.station[i]), pose_seed(cfg.seed, key),
                             plan.q[i - 1] if i > 0 else None)
             # bare MuJoCo: same model and scene, both cameras
-            world._place(np.asarray(task.q, dtype=float), backend.station_index[task.station])
+            world.place(np.asarray(task.q, dtype=float), backend.station_index[task.station])
             t = time.perf_counter()
-            for cam in world._cam_ids:
-                bare_renderer.update_scene(world.data, camera=cam, scene_option=world._opt_pairs)
-                bare_renderer.render()
+            world.render_bare(bare_renderer)
             bare = time.perf_counter() - t
             spent["detect"] = 0.0
             t = time.perf_counter()

@@ -310,6 +310,21 @@ class World:
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)
 
+    def place(self, q_actual: np.ndarray, station: int = 0) -> None:
+        """Put the twin at actual joints ``q_actual`` ``(6,)`` [rad] with the rig at ``station`` (MuJoCo state only:
+        no effect is evaluated, nothing is recorded), for :meth:`render_bare`."""
+        self._place(q_actual, self._check_station(station))
+
+    def render_bare(self, renderer: mujoco.Renderer) -> list[np.ndarray]:
+        """MuJoCo's own render of both cameras at the current placement (:meth:`place`) with ``renderer`` (a
+        ``mujoco.Renderer`` of :attr:`model`): no image formation (no windows, distortion or noise). The reference
+        cost of a render, for benchmarks."""
+        out = []
+        for cam in self._cam_ids:
+            renderer.update_scene(self.data, camera=cam, scene_option=self._opt_pairs)
+            out.append(renderer.render())
+        return out
+
     def true_spheres_meas(self, q_actual: np.ndarray, station: int) -> np.ndarray:
         """True sphere centres ``(3, 3)`` [m] (rows p0, p1, p2) in ``station``'s measurement frame."""
         station = self._check_station(station)
