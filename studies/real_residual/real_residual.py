@@ -3,7 +3,7 @@
 The separation paper's real-robot protocol (``studies/real_residual/separation_real.toml``: its Table 6 errors, 25 attitude
 + 40 position calibration measurements, checks at 500-1000 mm) in the cheap ``truth_noise`` mode, with instrument
 noise, the robot's repeatability, backlash, gravity compliance, thermal warm-up and extra random geometric error
-(``twin.evaluation.realresidual``). Each combination runs over a few seeds; it is *consistent* when the seed-mean
+(``studies/real_residual/realresidual.py``). Each combination runs over a few seeds; it is *consistent* when the seed-mean
 of the before and after means of Figures 13 (angle) and 15 (position) all lie within 20 % of the paper's (read
 from ``experiments/paper_targets_separation.toml``), judged on the paper-literal separation method
 (``separation_paper``); ours (``separation``) is judged alongside. The best combination then runs the methods

@@ -1,7 +1,7 @@
 """Spectral correction measured: the separation paper's spectral-correction iteration
 (eq. 33-36) beside plain normal equations, SVD least squares, column-scaled least squares and
 Levenberg-Marquardt, on the paper's two separation steps, over noise levels, seeds and four scenarios
-(``twin.evaluation.spectral_study``). Simulated data as the paper's own simulation (true sphere centres plus
+(``studies/spectral_correction/spectral.py``). Simulated data as the paper's own simulation (true sphere centres plus
 N(0, sigma^2) per coordinate), no rendering.
 
     python studies/spectral_correction/spectral_study.py --out studies/spectral_correction/results/spectral_correction
