@@ -61,10 +61,19 @@ def instrument_errors(run_dir: Path) -> dict:
             "targets": {"sphere_rms_mm": 0.005, "sphere_max_mm": 0.015, "orientation_mean_deg": 0.003}}
 
 
+def _where(path: Path) -> str:
+    """``path`` relative to the repository, or a note that it lies outside (no machine path in a results file)."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        return str(path.resolve().relative_to(root))
+    except ValueError:
+        return "a folder outside the repository (not kept)"
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="experiments/separation.toml")
-    p.add_argument("--out", default="/scratch/bench_campaign")
+    p.add_argument("--out", default="results/runs/bench_campaign", help="campaign folder (git-ignored)")
     p.add_argument("--from", dest="from_", default=None, help="record this results.json instead of running")
     a = p.parse_args()
     load_before = os.getloadavg()
@@ -81,7 +90,7 @@ def main() -> int:
     sums = r["worker_time_sums_s"]
     data = {
         "config": r["config"].get("name"),
-        "results": str(res_path),
+        "results": _where(res_path),
         "command_wall_s": wall,
         "campaign_total_s": r["timings_s"]["total_s"],
         "phases_s": r["timings_s"],

@@ -1,6 +1,6 @@
 """Start-up of the command line -> the ``cli`` section of results/benchmark.json.
 
-Target (issue 15): ``twin --help`` and an argument error in <= 0.5 s (heavy imports deferred to the
+Target: ``twin --help`` and an argument error in <= 0.5 s (heavy imports deferred to the
 subcommand that needs them). Median of ``--runs`` fresh processes each.
 
     python experiments/bench_cli.py [--runs 7]
@@ -39,7 +39,7 @@ def main() -> int:
     args = ap.parse_args()
     exe = shutil.which("twin", path=str(Path(sys.executable).parent)) or "twin"
     data = {
-        "target": f"twin --help and an argument error <= {TARGET_S} s (issue 15)",
+        "target": f"twin --help and an argument error <= {TARGET_S} s",
         "help": _time([exe, "--help"], args.runs),
         "argument_error": _time([exe, "calibrate"], args.runs),
         "load_average_1_5_15": list(os.getloadavg()),

@@ -146,7 +146,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--skip-convergence", action="store_true",
-                    help="reuse results/tmmdh_convergence.json instead of running the study")
+                    help="reuse studies/tmmdh/results/tmmdh_convergence.json instead of running the study")
     args = ap.parse_args()
     cases = []
     for n in (50, 100):
@@ -158,7 +158,7 @@ def main() -> int:
     print(json.dumps(sp, indent=1))
     if args.skip_convergence:
         conv = json.loads((tc.RESULTS / "tmmdh_convergence.json").read_text())
-        source = "results/tmmdh_convergence.json (experiments/tmmdh_convergence.py)"
+        source = "studies/tmmdh/results/tmmdh_convergence.json (studies/tmmdh/tmmdh_convergence.py)"
     else:
         t0 = time.perf_counter()
         conv = tc.convergence_study(n_grid=63, progress=None)

@@ -1,4 +1,4 @@
-"""Benchmark of the instrument (issue 4): 3D sphere-centre error, plate orientation error and time per pair.
+"""Benchmark of the instrument: 3D sphere-centre error, plate orientation error and time per pair.
 
 Protocol: the twin (MuJoCo, full 2592 x 1944 resolution, Gaussian sensor noise of 2 grey levels) renders
 its ChArUco board views; the instrument calibrates the rig from them; the twin renders plate poses from all

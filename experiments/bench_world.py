@@ -38,10 +38,9 @@ def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ..
     world.capture(q, 0, record=False)  # warm-up: creates the world's renderer, uploads textures
     w, h = world.image_size
     renderers = {s: mujoco.Renderer(world.model, s * h, s * w) for s in bare_scales}  # MuJoCo's own renderer
-    world._place(q, 0)
+    world.place(q, 0)
     for r in renderers.values():
-        r.update_scene(world.data, camera=world._cam_ids[0], scene_option=world._opt_pairs)
-        r.render()  # warm-up
+        world.render_bare(r)  # warm-up
     bare: dict[int, list[float]] = {s: [] for s in bare_scales}
     full, measure = [], []
     il, ir = world.true_intrinsics()
@@ -49,9 +48,7 @@ def _bench(world: World, q: np.ndarray, repeats: int, bare_scales: tuple[int, ..
     for _ in range(repeats):
         for s, r in renderers.items():
             t = time.perf_counter()
-            for cam in world._cam_ids:
-                r.update_scene(world.data, camera=cam, scene_option=world._opt_pairs)
-                r.render()
+            world.render_bare(r)
             bare[s].append(time.perf_counter() - t)
         t = time.perf_counter()
         left, right = world.render_pair(q, 0)

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from twin.dataset import Dataset
-from twin.evaluation.config import parse_campaign_config
-from twin.evaluation.methods import MethodResult
-from twin.evaluation.pipeline import TruthNoiseBackend
+from twin.runner.config import parse_campaign_config
+from twin.runner.methods import MethodResult
+from twin.runner.measure import TruthNoiseBackend
 from twin.kinematics import point_jacobian, tool2meas
 from twin.transforms import pose6_to_transform, transform_to_pose6
 

@@ -5,18 +5,24 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "twin"
 
-# layer -> packages/modules it must not import
+# layer -> packages/modules it must not import. The runner orchestrates every layer (plan -> measure -> identify ->
+# diagnose -> compensate -> evaluate); nothing in a layer imports it, the commands, or a study.
+ABOVE = ("twin.runner", "twin.commands", "studies", "experiments")
 FORBIDDEN = {
-    "foundation": ("twin.world", "twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2"),
-    "world": ("twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "rerun"),
-    "instrument": ("twin.world", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun"),
-    "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2"),
-    "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", "mujoco", "rerun", "cv2"),
+    "foundation": ("twin.world", "twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
+    "world": ("twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "rerun") + ABOVE,
+    "instrument": ("twin.world", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun") + ABOVE,
+    "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
+    "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
+    "evaluation": ABOVE,
+    "runner": ("twin.commands", "studies", "experiments", "rerun"),
 }
 FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
               "mocap"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}
+# the packages whose modules must not import another module's private (_name) names
+PUBLIC_FACES = ("world", "instrument", "evaluation", "runner", "commands", "foundation")
 RERUN_MODULE = "twin/evaluation/recording.py"
 
 
@@ -66,6 +72,27 @@ def test_layers_import_only_upstream():
     assert _violations() == []
 
 
+def _private_imports(packages=PUBLIC_FACES):
+    """``from module import _name`` of another module, in the modules of ``packages``."""
+    bad = []
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT)
+        pkg = "foundation" if len(rel.parts) == 1 else rel.parts[0]
+        if pkg not in packages:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__"):
+                        bad.append(f"{path.relative_to(ROOT.parent)} imports {node.module}.{a.name}")
+    return bad
+
+
+def test_no_module_imports_private_names():
+    """The world, instrument, evaluation, runner, commands and foundation modules use each other's public names only."""
+    assert _private_imports() == []
+
+
 def test_checker_catches_a_forbidden_import(tmp_path, monkeypatch):
     """The checker itself flags an estimator module that imports the world (so the test above can fail)."""
     fake = tmp_path / "twin"
@@ -77,3 +104,13 @@ def test_checker_catches_a_forbidden_import(tmp_path, monkeypatch):
     assert any("imports twin.world" in v for v in found)
     assert any(v.endswith("imports mujoco") for v in found)
     assert not any("ok.py" in v for v in found)
+
+
+def test_checker_catches_a_private_import_and_an_upward_import(tmp_path, monkeypatch):
+    """The checkers flag ``from .x import _y`` in a public face and an evaluation module importing the runner."""
+    fake = tmp_path / "twin"
+    (fake / "evaluation").mkdir(parents=True)
+    (fake / "evaluation" / "up.py").write_text("from twin.runner import campaign\nfrom .report import _clean\n")
+    monkeypatch.setattr(__import__(__name__), "ROOT", fake)
+    assert any("imports twin.runner.campaign" in v for v in _violations())
+    assert any("_clean" in v for v in _private_imports())

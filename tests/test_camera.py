@@ -51,3 +51,21 @@ def test_project_points_principal_point_and_scaling():
     assert (half.width, half.height) == (1296, 972)
     p = np.array([[0.01, -0.02, 0.7]])
     assert np.allclose((project_points(p, np.eye(4), intr) + 0.5) / 2 - 0.5, project_points(p, np.eye(4), half))
+
+
+def test_discs_in_image_against_sampled_disc_boundaries():
+    """A disc is inside exactly when every point of its boundary lies within [0, width-1] x [0, height-1] (the
+    boundary sampled densely, including its four extreme points)."""
+    from twin.camera import discs_in_image
+
+    rng = np.random.default_rng(2)
+    w, h = 64, 48
+    uv = rng.uniform(-5, 70, size=(400, 2))
+    r = rng.uniform(0.0, 12.0, size=400)
+    t = np.linspace(0, 2 * np.pi, 721)  # every 0.5 deg, 0/90/180/270 deg included
+    bx = uv[:, :1] + r[:, None] * np.cos(t)
+    by = uv[:, 1:] + r[:, None] * np.sin(t)
+    oracle = np.all((bx >= -1e-9) & (bx <= w - 1 + 1e-9) & (by >= -1e-9) & (by <= h - 1 + 1e-9), axis=1)
+    got = discs_in_image(uv, r, w, h)
+    assert got.shape == (400,) and 50 < got.sum() < 350
+    np.testing.assert_array_equal(got, oracle)

@@ -1,4 +1,4 @@
-"""Tests of twin.evaluation.config and twin.evaluation.plan: campaign configs and pose plans."""
+"""Tests of twin.runner.config and twin.runner.plan: campaign configs and pose plans."""
 
 import tomllib
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twin.evaluation.config import load_campaign_config, parse_campaign_config
-from twin.evaluation.plan import make_plan, pose_seed
+from twin.runner.config import load_campaign_config, parse_campaign_config
+from twin.runner.plan import make_plan, pose_seed
 from twin.kinematics import flange2base
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -144,7 +144,7 @@ def test_bad_motion_keys_are_refused_naming_them(key, value, message):
 
 def test_matched_config_is_the_paper_protocol_with_local_motions():
     """separation_matched.toml: truth_noise, 25 + 25 local motion pairs, 40 turning moves of 50/60/80/100 mm, five methods."""
-    c = load_campaign_config(ROOT / "experiments" / "separation_matched.toml")
+    c = load_campaign_config(ROOT / "studies" / "separation_paper" / "separation_matched.toml")
     g = {x.name: x for x in c.groups}
     assert c.measurement.mode == "truth_noise" and c.measurement.noise_position == pytest.approx(1e-5)
     assert (g["calibration"].count, g["compensation"].count, g["distance"].count) == (25, 25, 40)

@@ -12,11 +12,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _campaign_helpers import SMALL_TOML, reference_full_pose, small_config  # noqa: E402
 
 from twin.dataset import Joints, read_dataset, write_joints_csv
-from twin.evaluation.campaign import run_campaign, visit_contexts
-from twin.evaluation.config import parse_campaign_config
-from twin.evaluation.pipeline import PoseTask, TruthNoiseBackend, backend_spec_for
-from twin.evaluation.plan import make_plan, pose_seed
-from twin.evaluation.store import PoseStore
+from twin.runner.campaign import run_campaign, visit_contexts
+from twin.runner.config import parse_campaign_config
+from twin.runner.measure import PoseTask, TruthNoiseBackend, backend_spec_for
+from twin.runner.plan import make_plan, pose_seed
+from twin.runner.store import PoseStore
 from twin.world import World
 from twin.world.effects import contexts_for_sequence
 

@@ -15,11 +15,11 @@ from _campaign_helpers import SMALL_TOML, reference_full_pose  # noqa: E402
 
 import twin.instrument
 from twin.dataset import read_dataset
-from twin.evaluation.campaign import run_campaign, visit_contexts
-from twin.evaluation.config import parse_campaign_config
-from twin.evaluation.pipeline import ImageBackend, PoseTask, backend_spec_for
-from twin.evaluation.plan import make_plan, pose_seed
-from twin.evaluation.store import PoseStore
+from twin.runner.campaign import run_campaign, visit_contexts
+from twin.runner.config import parse_campaign_config
+from twin.runner.measure import ImageBackend, PoseTask, backend_spec_for
+from twin.runner.plan import make_plan, pose_seed
+from twin.runner.store import PoseStore
 
 IMPL = {"full_pose": reference_full_pose}
 THERMAL = [{"name": "thermal", "source": "profile", "temp_start_c": 20.0, "temp_rise_k": 10.0, "tau_s": 300.0}]

@@ -1,4 +1,4 @@
-"""Tests of twin.evaluation.campaign: a small seeded campaign end to end, resume, and the executors."""
+"""Tests of twin.runner.campaign: a small seeded campaign end to end, resume, and the executors."""
 
 import json
 import os
@@ -12,8 +12,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _campaign_helpers import reference_full_pose, small_config  # noqa: E402
 
 from twin.dataset import read_dataset
-from twin.evaluation.campaign import run_campaign, run_repeats
-from twin.evaluation.executor import SerialExecutor, aggregate, open_executor, run_tasks
+from twin.runner.campaign import run_campaign, run_repeats
+from twin.evaluation.statistics import aggregate
+from twin.runner.executor import SerialExecutor, open_executor, run_tasks
 
 IMPL = {"full_pose": reference_full_pose}
 COUNTING = "_campaign_helpers:CountingBackend"
@@ -139,8 +140,8 @@ def test_a_motion_is_compensated_as_a_whole(tmp_path):
     """When one end of a motion cannot be compensated (joint limit), both ends keep their nominal commands."""
     import dataclasses
 
-    from twin.evaluation.plan import make_plan
-    from twin.evaluation.store import PoseStore
+    from twin.runner.plan import make_plan
+    from twin.runner.store import PoseStore
 
     cfg = small_config()
     plan = make_plan(cfg)
@@ -202,7 +203,7 @@ def test_compensated_pose_is_measured_again_when_its_command_changed(tmp_path):
     n_after = len(read_dataset(tmp_path / "after" / "full_pose").q)
     assert int((tmp_path / "work" / "count.txt").read_text()) == n_after > 0
     after = read_dataset(tmp_path / "after" / "full_pose")
-    from twin.evaluation.store import PoseStore
+    from twin.runner.store import PoseStore
 
     store = PoseStore(tmp_path / "work" / "poses")
     for pid, q in zip(after.pose_id, after.q):  # the spheres of each row were measured at that row's command

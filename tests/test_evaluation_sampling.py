@@ -1,11 +1,11 @@
-"""Tests of twin.evaluation.sampling: configurations the station sees, motion pairs, fixed-distance moves."""
+"""Tests of twin.runner.sampling: configurations the station sees, motion pairs, fixed-distance moves."""
 
 import numpy as np
 import pytest
 
 from twin.camera import CameraIntrinsics, project_points
 from twin.dataset import default_plate
-from twin.evaluation.sampling import (
+from twin.runner.sampling import (
     SamplingError,
     SamplingOptions,
     look_at_cam2base,

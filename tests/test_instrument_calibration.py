@@ -20,7 +20,7 @@ L2R = W2R @ invert_transform(W2L)
 SPEC = BoardSpec()  # the rig.toml board: 11 x 8 squares of 18 mm, 13.5 mm markers, DICT_5X5_100
 
 
-def _board_pair(rng, z, tilt):
+def board_pair(rng, z, tilt):
     cvb = SPEC.cv_board()
     centre = np.array([rng.uniform(-0.02, 0.02), rng.uniform(-0.015, 0.015), z])
     Rb = rotvec_to_matrix(np.array([rng.uniform(-tilt, tilt), rng.uniform(-tilt, tilt), rng.uniform(-0.3, 0.3)]))
@@ -33,7 +33,7 @@ def _board_pair(rng, z, tilt):
 @pytest.fixture(scope="module")
 def board_pairs():
     rng = np.random.default_rng(7)
-    return [_board_pair(rng, z, 0.55) for z in np.linspace(0.6, 0.95, 12)]
+    return [board_pair(rng, z, 0.55) for z in np.linspace(0.6, 0.95, 12)]
 
 
 @pytest.fixture(scope="module")

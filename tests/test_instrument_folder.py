@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from test_instrument_calibration import LEFT, RIGHT, W2L, W2R, _board_pair
+from test_instrument_calibration import LEFT, RIGHT, W2L, W2R, board_pair
 from twin.cli import main
 from twin.dataset import Joints, default_plate, read_dataset, write_joints_csv
 from twin.instrument.calibration import StereoCalibration
@@ -47,7 +47,7 @@ def image_folder(tmp_path_factory):
     (root / "pairs").mkdir()
     rng = np.random.default_rng(11)
     for k, z in enumerate(np.linspace(0.6, 0.95, 8)):
-        il, ir = _board_pair(rng, z, 0.55)
+        il, ir = board_pair(rng, z, 0.55)
         cv2.imwrite(str(root / "board" / f"{k:03d}_left.png"), il)
         cv2.imwrite(str(root / "board" / f"{k:03d}_right.png"), ir)
     poses = [([0.0, 0.0, 0.72], [0.1, 0.0, 0.2]), ([0.01, 0.01, 0.8], [-0.2, 0.1, -0.5]),

@@ -110,8 +110,8 @@ def test_validation_errors_measure_distance_and_angle():
 def test_growth_campaign_config_has_the_asked_number_of_poses():
     """The resized separation campaign of the growth figures plans exactly the asked number of poses."""
     from experiments.peers.growth import campaign_raw
-    from twin.evaluation.config import parse_campaign_config
-    from twin.evaluation.plan import make_plan
+    from twin.runner.config import parse_campaign_config
+    from twin.runner.plan import make_plan
 
     cfg = parse_campaign_config(campaign_raw(16))
     assert cfg.measurement.mode == "truth_noise" and cfg.methods == ("default",)

@@ -1,19 +1,22 @@
-"""Tests of twin.evaluation.realresidual: the real-protocol residual scan (issue 13, item 5)."""
+"""Tests of the real-residual study (studies/real_residual): the real-protocol residual scan."""
 
 import json
+import sys
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from twin.evaluation.config import parse_campaign_config
-from twin.evaluation.realresidual import (EffectMagnitudes, aggregate_seeds, campaign_raw, judge, paper_real_targets,
-                                          run_real_protocol, scan_point)
-from twin.evaluation.targets import read_targets
-
 ROOT = Path(__file__).resolve().parents[1]
-BASE = tomllib.loads((ROOT / "experiments" / "separation_real.toml").read_text())
+sys.path.insert(0, str(ROOT))
+
+from studies.real_residual.realresidual import (EffectMagnitudes, aggregate_seeds, campaign_raw, judge,  # noqa: E402
+                                               paper_real_targets, run_real_protocol, scan_point)
+from twin.evaluation.targets import read_targets  # noqa: E402
+from twin.runner.config import parse_campaign_config  # noqa: E402
+
+BASE = tomllib.loads((ROOT / "studies" / "real_residual" / "separation_real.toml").read_text())
 PAPER = paper_real_targets(read_targets())
 
 
@@ -94,7 +97,7 @@ def test_effect_magnitudes_reject_negative_sizes():
 def test_zero_effects_reproduce_the_geometric_only_real_protocol():
     """With no effects and near-zero noise, the campaign seed gives the committed images run's 'before' means on the
     world's truth (same plan, same Table 6 truth, no instrument) and leaves almost nothing after separation."""
-    ref = json.loads((ROOT / "results" / "separation_real" / "results.json").read_text())
+    ref = json.loads((ROOT / "studies" / "real_residual" / "results" / "separation_real" / "results.json").read_text())
     want = ref["methods"]["separation"]["truth"]
     got = run_real_protocol(BASE, EffectMagnitudes(noise_mm=0.001), int(ref["seed"]), ("separation",))["separation"]
     for u in ("angle_deg", "position_mm"):

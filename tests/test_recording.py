@@ -105,17 +105,18 @@ def test_encode_image_lossless_round_trips():
 
 
 def test_campaign_recording_reads_back(tmp_path):
-    """A campaign's own recording holds its stations, models, measured spheres and one residual per evaluated motion."""
+    """A campaign's own recording holds its stations, models, measured spheres, one residual per evaluated motion and
+    the diagnosis' verdict of its dataset (with the errors before and after)."""
     import sys
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _campaign_helpers import reference_full_pose, small_config
 
-    from twin.evaluation.campaign import run_campaign
-    from twin.evaluation.store import PoseStore
+    from twin.runner.campaign import run_campaign
+    from twin.runner.store import PoseStore
 
-    run = run_campaign(small_config(outputs={"recording": True, "figures": False}), tmp_path,
+    run = run_campaign(small_config(outputs={"recording": True, "figures": False}, diagnosis={"enabled": True}), tmp_path,
                        implementations={"full_pose": reference_full_pose})
     ents = read_recording(run.files["recording"])
     for p in ("/world/stations/front/left", "/world/stations/left/right", "/world/robot/nominal/links",
@@ -127,3 +128,7 @@ def test_campaign_recording_reads_back(tmp_path):
     pos = column(ents["/world/stations/front/measured/spheres"], "Points3D:positions")
     stored = PoseStore(tmp_path / "work" / "poses").read("m/00000")
     np.testing.assert_allclose(pos[0], np.array([s for s in stored.spheres if s is not None]), atol=1e-6)
+    verdict = column(ents["/diagnosis/verdict"], "TextDocument:text")[0][0]
+    d = run.results["diagnosis"]
+    assert "Diagnosis of the campaign's dataset" in verdict and f"p = {d['p_value']:.3g}" in verdict
+    assert f"{d['before']['position_mm']['rms']:.4f}" in verdict and f"{d['after']['position_mm']['rms']:.4f}" in verdict

@@ -1,4 +1,4 @@
-"""Regression of the matched Figure 10/11 protocol (experiments/separation_matched.toml, truth_noise mode):
+"""Regression of the matched Figure 10/11 protocol (studies/separation_paper/separation_matched.toml, truth_noise mode):
 seeds that did not build the bands, against prediction bands tight enough to catch a 20 % worsening."""
 
 import copy
@@ -8,15 +8,16 @@ from pathlib import Path
 
 import pytest
 
-from twin.evaluation.campaign import run_repeats
-from twin.evaluation.config import load_campaign_config
-from twin.evaluation.executor import open_executor
+from twin.runner.campaign import run_repeats
+from twin.runner.config import load_campaign_config
+from twin.runner.executor import open_executor
 from twin.evaluation.regression import check_prediction, detectable_factor
 from twin.evaluation.targets import read_targets
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "experiments" / "separation_matched.toml"
-BANDS = ROOT / "results" / "regression.json"
+STUDY = ROOT / "studies" / "separation_paper"
+CONFIG = STUDY / "separation_matched.toml"
+BANDS = STUDY / "results" / "regression.json"
 SECTION = "separation_matched"
 # Six seeds outside the band seeds (20230601..20230620): the prediction band is for the mean of 6 new seeds
 # (with 4, a 20 % worse distance-only angle mean of seeds 20230701-04 stays 3 % under its limit: their mean lies
@@ -37,14 +38,14 @@ DETECTABLE = ({(m, "angle_deg") for m in METHODS if m != "separation_paper"}
 
 def _bands():
     data = json.loads(BANDS.read_text())
-    assert SECTION in data, f"results/regression.json has no {SECTION} section: run the command in {CONFIG.name}"
+    assert SECTION in data, f"studies/separation_paper/results/regression.json has no {SECTION} section: run the command in {CONFIG.name}"
     return data[SECTION]
 
 
 def test_bands_come_from_20_seeds_of_this_config_and_not_the_test_seeds():
     """The bands were made by regression_bands.py on separation_matched.toml over 20 seeds, none a test seed."""
     b = _bands()
-    assert "experiments/separation_matched.toml" in b["command"] and "--seeds 20" in b["command"]
+    assert "studies/separation_paper/separation_matched.toml" in b["command"] and "--seeds 20" in b["command"]
     assert len(b["seeds"]) == 20 and not set(NEW_SEEDS) & set(b["seeds"])
     assert all(s["n"] == 20 for s in b["statistics"].values())
 

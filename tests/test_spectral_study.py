@@ -1,11 +1,16 @@
-"""The spectral-correction study: its solvers, its problem and its failure rule."""
+"""The spectral-correction study (studies/spectral_correction): its solvers, its problem and its failure rule."""
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from twin.estimator.problem import pair_residuals
-from twin.estimator.solvers import gauss_newton, spectral_correction
-from twin.evaluation.spectral_study import (
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from twin.estimator.problem import pair_residuals  # noqa: E402
+from twin.estimator.solvers import gauss_newton, spectral_correction  # noqa: E402
+from studies.spectral_correction.spectral import (  # noqa: E402
     FitResult,
     gauss_newton_fit,
     markdown_table,

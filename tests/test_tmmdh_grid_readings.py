@@ -8,7 +8,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from experiments import tmmdh_common as C  # noqa: E402
+from studies.tmmdh import tmmdh_common as C  # noqa: E402
 
 G = np.array([0.0, 0.5])
 

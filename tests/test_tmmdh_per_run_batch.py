@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from experiments import tmmdh_common as C  # noqa: E402
+from studies.tmmdh import tmmdh_common as C  # noqa: E402
 from twin.estimator.core import prepare  # noqa: E402
 from twin.estimator.lm import LMSettings, PerRunPoseBatch, PoseBatch, levenberg_marquardt  # noqa: E402
 from twin.kinematics import tool2meas  # noqa: E402

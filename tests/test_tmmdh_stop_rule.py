@@ -1,4 +1,4 @@
-"""The C-LM stop rule of the TM-MDH convergence study reads the measurements, never the truth (issue 13)."""
+"""The C-LM stop rule of the TM-MDH convergence study reads the measurements, never the truth."""
 
 import inspect
 import sys
@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from experiments import tmmdh_common as C  # noqa: E402
+from studies.tmmdh import tmmdh_common as C  # noqa: E402
 from twin.estimator.core import prepare  # noqa: E402
 from twin.estimator.lm import PoseBatch  # noqa: E402
 

@@ -1,6 +1,7 @@
 """Tests of twin.transforms (rotation vectors, SE(3), Euler angles)."""
 
 import numpy as np
+import pytest
 
 from twin.transforms import (
     euler_zyx_from_matrix,
@@ -68,3 +69,43 @@ def test_quaternion_round_trip():
     rng = np.random.default_rng(4)
     R = rotvec_to_matrix(_random_rotvecs(rng, 100))
     assert np.allclose(quat_wxyz_to_matrix(matrix_to_quat_wxyz(R)), R, atol=1e-12)
+
+
+def test_kabsch_recovers_rigid_transforms_in_a_batch():
+    """The rigid fit of rotated and shifted points returns the rotations and translations that made them."""
+    from twin.transforms import kabsch
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(4, 10, 3))
+    R = rotvec_to_matrix(rng.normal(size=(4, 3)))
+    t = rng.normal(size=(4, 3))
+    B = np.einsum("bij,bmj->bmi", R, A) + t[:, None]
+    Rk, tk = kabsch(A, B)
+    np.testing.assert_allclose(Rk, R, atol=1e-12)
+    np.testing.assert_allclose(tk, t, atol=1e-12)
+
+
+def test_kabsch_weights_and_reflection_guard():
+    """A zero-weight outlier does not move the fit, and mirrored points still give a rotation (det +1)."""
+    from twin.transforms import kabsch
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(8, 3))
+    R = rotvec_to_matrix(np.array([0.2, 0.5, -0.3]))
+    B = A @ R.T
+    B[0] += 10.0
+    w = np.ones(8)
+    w[0] = 0.0
+    Rk, tk = kabsch(A, B, w)
+    np.testing.assert_allclose(Rk, R, atol=1e-12)
+    np.testing.assert_allclose(tk, 0.0, atol=1e-12)
+    Rm, _ = kabsch(A, A * np.array([1.0, 1.0, -1.0]))
+    assert np.linalg.det(Rm) == pytest.approx(1.0)
+
+
+def test_kabsch_refuses_mismatched_points():
+    """Point sets of different shapes are refused, naming both shapes."""
+    from twin.transforms import kabsch
+
+    with pytest.raises(ValueError, match=r"\(5, 3\) and \(4, 3\)"):
+        kabsch(np.zeros((5, 3)), np.zeros((4, 3)))

@@ -559,8 +559,8 @@ def test_campaign_dataset_carries_no_effect_but_truth_does(tmp_path):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _campaign_helpers import SMALL_TOML, reference_full_pose  # noqa: E402
 
-    from twin.evaluation.campaign import run_campaign
-    from twin.evaluation.config import parse_campaign_config
+    from twin.runner.campaign import run_campaign
+    from twin.runner.config import parse_campaign_config
 
     raw = tomllib.loads(SMALL_TOML)
     # backlash needs the command history, which this campaign runner does not pass yet: left out here

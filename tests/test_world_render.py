@@ -374,3 +374,24 @@ def test_render_board_at_a_given_pose(world):
     assert np.sqrt(np.mean(err**2)) < 0.2
     with pytest.raises(ValueError, match="board2meas"):
         world.render_board(np.eye(3), 0)
+
+
+def test_bare_render_shows_the_placed_robot(world):
+    """World.place + render_bare: MuJoCo's own render of both cameras, RGB at the image size, which changes when
+    the robot is placed elsewhere (what the benchmarks time against the full image formation)."""
+    import mujoco
+
+    q = world.visible_configurations(0, 1, seed=2)[0]
+    w, h = world.image_size
+    r = mujoco.Renderer(world.model, h, w)
+    try:
+        world.place(q, 0)
+        a = world.render_bare(r)
+        world.place(q + np.deg2rad([10, 0, 0, 0, 0, 0]), 0)
+        b = world.render_bare(r)
+    finally:
+        r.close()
+    assert len(a) == 2 and a[0].shape == (h, w, 3) and a[0].dtype == np.uint8
+    assert np.abs(a[0].astype(int) - b[0].astype(int)).mean() > 0.5
+    with pytest.raises(ValueError, match="station"):
+        world.place(q, 99)

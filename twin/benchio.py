@@ -1,4 +1,5 @@
-"""``results/benchmark.json``: one top-level section per area; each benchmark rewrites only its own."""
+"""Results files: ``results/benchmark.json`` (one top-level section per area; each benchmark rewrites only its
+own), the ``provenance`` block every results file carries, and atomic writes."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import platform
 from pathlib import Path
 from typing import Any
 
-__all__ = ["update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES"]
 
 DEFAULT_PATH = Path(__file__).resolve().parent.parent / "results" / "benchmark.json"
 
@@ -67,6 +68,23 @@ def provenance(load_at_start: tuple[float, float, float] | list[float] | None = 
     if load_at_start is not None:
         out["load_average_at_start_1_5_15"] = [round(float(x), 2) for x in load_at_start]
     return out
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and an atomic rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_write_bytes`)."""
+    atomic_write_bytes(path, text.encode())
 
 
 def read_benchmark(path: str | os.PathLike | None = None) -> dict[str, Any]:

@@ -25,6 +25,7 @@ __all__ = [
     "focal_px_from_fovy",
     "fovy_deg_from_focal_px",
     "project_points",
+    "discs_in_image",
     "distort_normalized",
     "undistort_normalized",
 ]
@@ -145,3 +146,13 @@ def project_points(points_world: np.ndarray, world2cam: np.ndarray, intr: Camera
         raise ValueError("points_world: some points are behind the camera (z <= 0 in the camera frame)")
     xy = distort_normalized(Pc[:, :2] / Pc[:, 2:3], intr.dist)
     return np.stack([intr.fx * xy[:, 0] + intr.cx, intr.fy * xy[:, 1] + intr.cy], axis=-1)
+
+
+def discs_in_image(uv: np.ndarray, radius_px: np.ndarray | float, width: int, height: int) -> np.ndarray:
+    """Which discs lie wholly inside a ``width`` x ``height`` image: centres ``uv`` ``(..., 2)`` [px], radii
+    ``radius_px`` (broadcast to ``uv[..., 0]``) [px] -- a sphere's image with a margin. The one test of "the
+    camera sees it" of the planners and of the world: ``r <= u <= width - 1 - r`` and ``r <= v <= height - 1 - r``."""
+    uv = np.asarray(uv, dtype=float)
+    r = np.broadcast_to(np.asarray(radius_px, dtype=float), uv.shape[:-1])
+    u, v = uv[..., 0], uv[..., 1]
+    return (u - r >= 0) & (u + r <= width - 1) & (v - r >= 0) & (v + r <= height - 1)

@@ -26,6 +26,7 @@ __all__ = [
     "quat_wxyz_to_matrix",
     "matrix_to_quat_wxyz",
     "rotation_angle_between",
+    "kabsch",
 ]
 
 _EPS = 1e-12
@@ -198,3 +199,33 @@ def rotation_angle_between(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
     """Geodesic angle [rad] between rotation matrices ``(..., 3, 3)``: ``|log(Ra^T Rb)|``."""
     M = np.swapaxes(np.asarray(Ra), -1, -2) @ np.asarray(Rb)
     return np.linalg.norm(matrix_to_rotvec(M), axis=-1)
+
+
+def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid fit: ``(R, t)`` minimising ``sum_k w_k |R A_k + t - B_k|^2`` over points ``(..., m, 3)`` [m]
+    (batched over the leading shape; ``w`` ``(..., m)``, default 1).
+
+    Kabsch/Umeyama without scale: the weighted centroids ``a``, ``b`` fix ``t = b - R a``; with the SVD of the
+    cross-covariance ``H = sum_k w_k (A_k - a)(B_k - b)^T = U S V^T``, ``R = V diag(1, 1, d) U^T`` with
+    ``d = sign(det(V U^T))`` (the reflection guard; ``d = 1`` when the points are degenerate).
+    """
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    if A.shape != B.shape or A.ndim < 2 or A.shape[-1] != 3:
+        raise ValueError(f"A and B must be points of the same shape (..., m, 3), got {A.shape} and {B.shape}")
+    if w is None:
+        w = np.ones(A.shape[:-1])
+    w = np.broadcast_to(np.asarray(w, dtype=float), A.shape[:-1])
+    ws = w.sum(axis=-1, keepdims=True)
+    ca = np.einsum("...m,...mi->...i", w, A) / ws
+    cb = np.einsum("...m,...mi->...i", w, B) / ws
+    H = np.einsum("...m,...mi,...mj->...ij", w, A - ca[..., None, :], B - cb[..., None, :])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1.0
+    D[..., 1, 1] = 1.0
+    D[..., 2, 2] = np.where(d == 0, 1.0, d)
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    t = cb - np.einsum("...ij,...j->...i", R, ca)
+    return R, t

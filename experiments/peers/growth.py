@@ -5,7 +5,7 @@
   time (median of ``repeats`` runs) and peak traced memory (``tracemalloc``, NumPy's buffers included, in a
   separate run so tracing does not slow the timed ones). Linear growth shows as a constant time per pose and a
   log-log slope near 1.
-* **Campaign**: ``twin.evaluation.campaign.run_campaign`` on the separation campaign
+* **Campaign**: ``twin.runner.campaign.run_campaign`` on the separation campaign
   (``experiments/separation.toml``) resized to 100 and 1000 measured poses (half calibration, half validation
   motion pairs, compensation and re-measurement of the validation half, our default method), with the
   ``truth_noise`` backend (the paper's own simulation: no images, so the figure is the runner's own cost; a
@@ -14,7 +14,7 @@
   peak memory is its resident-set high-water mark (``VmHWM``), next to the resident set after imports; the
   workers' figure is ``getrusage(RUSAGE_CHILDREN).ru_maxrss``, an upper bound (Linux carries ``ru_maxrss``
   across fork + exec, so a spawned worker reports at least its parent's resident set at spawn time; the same
-  made ``RUSAGE_SELF`` report the benchmark process's own 950 MiB in a first run). Poses are streamed to disk one by one (``twin.evaluation.store``), so memory should stay flat.
+  made ``RUSAGE_SELF`` report the benchmark process's own 950 MiB in a first run). Poses are streamed to disk one by one (``twin.runner.store``), so memory should stay flat.
 * **Monte-Carlo throughput**: ``run_repeats`` (one whole campaign per seed, 80 poses, ``truth_noise``) for the
   same seeds on one in-process worker, two local processes, and a two-worker Dask ``LocalCluster``:
   campaigns per minute, and the sum of the campaigns' own wall times over the executor's wall time (the
@@ -116,8 +116,8 @@ def _campaign_child(n_poses: int, workers: int) -> None:
     """Entry point of the fresh interpreter that runs one campaign and prints its figures as JSON."""
     import resource
 
-    from twin.evaluation.campaign import run_campaign
-    from twin.evaluation.config import parse_campaign_config
+    from twin.runner.campaign import run_campaign
+    from twin.runner.config import parse_campaign_config
 
     cfg = parse_campaign_config(campaign_raw(n_poses, workers))
     base = _rss_mib()
@@ -159,9 +159,9 @@ def campaign_growth(poses=CAMPAIGN_POSES, workers: int = 2) -> dict:
 
 def monte_carlo_throughput(seeds: int = 4, n_poses: int = 40) -> dict:
     """Campaigns per minute for the same seeds on 1 worker, 2 local processes and a 2-worker Dask cluster."""
-    from twin.evaluation.campaign import run_repeats
-    from twin.evaluation.config import parse_campaign_config
-    from twin.evaluation.executor import open_executor
+    from twin.runner.campaign import run_repeats
+    from twin.runner.config import parse_campaign_config
+    from twin.runner.executor import open_executor
 
     cfg = parse_campaign_config(campaign_raw(n_poses, workers=1, name="growth-montecarlo"))
     seed_list = list(range(1, seeds + 1))
@@ -207,7 +207,7 @@ def monte_carlo_throughput(seeds: int = 4, n_poses: int = 40) -> dict:
 def growth_section(quick: bool = False, repeats: int = 5) -> dict:
     try:
         import twin.estimator  # noqa: F401
-        import twin.evaluation.campaign  # noqa: F401
+        import twin.runner.campaign  # noqa: F401
     except ImportError as e:
         return {"missing": f"estimator / runner not available ({e}); nothing measured"}
     t0 = time.perf_counter()

@@ -1,7 +1,7 @@
 """The ``pipeline`` section: what one measured pose costs in a rendered campaign, stage by stage, against
 MuJoCo's bare rendering of the same two images (the limit for a rendered twin).
 
-The campaign's own measurement backend is used (``twin.evaluation.pipeline``, ``images`` mode, the
+The campaign's own measurement backend is used (``twin.runner.measure``, ``images`` mode, the
 ``experiments/separation.toml`` campaign at full resolution), on the first poses of its plan:
 
 * ``bare_render``: ``mujoco.Renderer.update_scene`` + ``render()`` for both cameras of the same scene (as the
@@ -38,10 +38,10 @@ def pipeline_section(quick: bool = False, poses: int = 12) -> dict:
     try:
         import twin  # noqa: F401  (MUJOCO_GL before mujoco)
         import mujoco
-        from twin.evaluation.config import load_campaign_config
-        from twin.evaluation.pipeline import PoseTask, backend_spec_for, get_backend
-        from twin.evaluation.plan import make_plan, pose_seed
-        from twin.evaluation.store import PoseStore
+        from twin.runner.config import load_campaign_config
+        from twin.runner.measure import PoseTask, backend_spec_for, get_backend
+        from twin.runner.plan import make_plan, pose_seed
+        from twin.runner.store import PoseStore
         import twin.instrument.measure as instrument_measure
     except ImportError as e:
         return {"missing": f"world / instrument / runner modules not available ({e}); nothing measured"}
@@ -78,11 +78,9 @@ def pipeline_section(quick: bool = False, poses: int = 12) -> dict:
             task = PoseTask(key, int(plan.pose_id[i]), plan.q[i], str(plan.station[i]), pose_seed(cfg.seed, key),
                             plan.q[i - 1] if i > 0 else None)
             # bare MuJoCo: same model and scene, both cameras
-            world._place(np.asarray(task.q, dtype=float), backend.station_index[task.station])
+            world.place(np.asarray(task.q, dtype=float), backend.station_index[task.station])
             t = time.perf_counter()
-            for cam in world._cam_ids:
-                bare_renderer.update_scene(world.data, camera=cam, scene_option=world._opt_pairs)
-                bare_renderer.render()
+            world.render_bare(bare_renderer)
             bare = time.perf_counter() - t
             spent["detect"] = 0.0
             t = time.perf_counter()

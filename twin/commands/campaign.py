@@ -1,7 +1,9 @@
-"""``twin campaign CONFIG --out DIR``: world -> instrument -> dataset -> estimator -> evaluation.
+"""``twin campaign CONFIG --out DIR``: the runner's stages plan -> measure -> identify -> diagnose -> compensate ->
+evaluate on one campaign config.
 
-Thin: parses the arguments, runs :func:`twin.evaluation.campaign.run_campaign` (or ``run_repeats`` with
-``--repeats``), shows progress bars and the comparison table, writes results. See ``docs/runner.md``.
+Thin: parses the arguments, runs :func:`twin.runner.campaign.run_campaign` (or ``run_repeats`` with
+``--repeats``), shows progress bars, the comparison table and the diagnosis, writes results. See
+``docs/runner.md``.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-HELP = "run a calibration campaign from a TOML config (experiments/*.toml): measure, identify, compensate, evaluate"
+HELP = "run a calibration campaign from a TOML config (experiments/*.toml): plan, measure, identify, diagnose, compensate, evaluate"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -81,9 +83,9 @@ def _rich_tables(results: dict, source: str = "measured") -> list:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from twin.evaluation.campaign import run_campaign, run_repeats
-    from twin.evaluation.config import load_campaign_config, parse_campaign_config
-    from twin.evaluation.executor import open_executor
+    from twin.runner.campaign import run_campaign, run_repeats
+    from twin.runner.config import load_campaign_config, parse_campaign_config
+    from twin.runner.executor import open_executor
     from twin.evaluation.report import write_results
 
     console = Console()
@@ -156,6 +158,10 @@ def run(args: argparse.Namespace) -> int:
                       highlight=False)
     for c in run_.results["orderings"]:
         console.print(f"  paper's claim: {c['claim']}: {'holds' if c['holds'] else 'DOES NOT HOLD'} here")
+    if run_.results.get("diagnosis") is not None:
+        from twin.runner.outputs import diagnosis_table
+
+        console.print(diagnosis_table(run_.results["diagnosis"]), markup=False, highlight=False)
     if run_.results["methods_unavailable"]:
         for m, why in run_.results["methods_unavailable"].items():
             console.print(f"  [yellow]method {m} not run[/yellow]: {why}")

@@ -8,8 +8,8 @@ Two sources of images, one measurement path:
   (``--world CONFIG.toml``, ``--joints JOINTS.csv`` or ``--poses N``); ``--keep-images DIR`` also writes
   them as an image folder. The truth of the rendered poses goes to a separate file (``--truth``).
 
-Either way the rig is calibrated from the board views (never read from the world) and the dataset is
-written row by row.
+Either way the rig is calibrated from the board views (never read from the world). With ``--render`` this is
+the runner's measure stage (:func:`twin.runner.rendered.measure_rendered`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _progress(args):
-    def cb(k, row, m):
+    def cb(k, row, m=None):
         if not args.quiet and (row.status or k % 10 == 0):
             tail = f"  {row.status}" if row.status else ""
             print(f"pose {row.pose_id}: {'complete' if not row.status else 'partial'}{tail}", file=sys.stderr)
@@ -92,70 +92,26 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_render(args: argparse.Namespace) -> int:
-    """Render with the twin (world layer; allowed here: commands sit outside the layers) and measure."""
-    import numpy as np
+    """Render with the twin and measure: the runner's measure stage (``twin.runner.rendered``)."""
+    import tomllib
 
-    from ..dataset import Joints, read_joints_csv
-    from ..instrument.calibration import BoardSpec, StereoCalibration, calibrate_stereo
-    from ..instrument.folder import CALIBRATION_FILE, measure_to_dataset, read_plate_toml
-    from ..world import World, WorldConfig, load_world_config
-    from ..world.effects import EffectContext
-    from ..world.images import ImageFolderWriter
+    from ..dataset import read_joints_csv
+    from ..instrument.folder import read_plate_toml
+    from ..runner.rendered import measure_rendered
+    from ..world import load_world_config
 
-    cfg = load_world_config(args.world) if args.world else WorldConfig.from_dict({})
-    world = World(cfg)
-    plate = read_plate_toml(args.plate) if args.plate else world.nominal_plate
-    keep = args.keep_images
-    # the world's own image-folder writer: the kept folder is exactly what `twin render` writes
-    writer = ImageFolderWriter(keep, world.rig_info()) if keep is not None else None
-    if args.calib:
-        calib = StereoCalibration.load(args.calib)
-    else:
-        views = world.render_board_views(args.board_views)
-        if writer is not None:
-            for v in views:
-                writer.add_board_view(v.left, v.right)
-        board = BoardSpec.from_table(world.rig_info()["board"])
-        calib = calibrate_stereo([(v.left, v.right) for v in views], board, names=[f"{v.index:03d}" for v in views])
-    if args.joints:
-        joints = read_joints_csv(args.joints)
-    else:
-        q = world.visible_configurations(args.station, args.poses, seed=args.seed)
-        joints = Joints(np.arange(len(q)), q, station=np.array([str(args.station)] * len(q), dtype=object))
-    stations = [world.station_index(s) for s in joints.station] if joints.station is not None else [0] * len(joints.pose_id)
-
-    def context(k):
-        # time and temperature of the row drive the world's history-dependent effects (as `twin render`)
-        if joints.t_s is None and joints.temp_c is None:
-            return None
-        return EffectContext(
-            t_s=float(joints.t_s[k]) if joints.t_s is not None else 0.0,
-            temp_c=float(joints.temp_c[k]) if joints.temp_c is not None else 20.0,
-            pose_index=k, station=stations[k],
-        )
-
-    def pairs():
-        for k, pid in enumerate(joints.pose_id):
-            cap = world.capture(joints.q[k], station=stations[k], context=context(k), pose_id=int(pid))
-            if writer is not None:
-                writer.add_pair(
-                    int(pid), joints.q[k], cap.left, cap.right, station=joints.station[k] if joints.station is not None else None,
-                    set=joints.set[k] if joints.set is not None else None,
-                    temp_c=float(joints.temp_c[k]) if joints.temp_c is not None else None,
-                    t_s=float(joints.t_s[k]) if joints.t_s is not None else None,
-                )
-            yield cap.left, cap.right
-
-    robot = args.robot or (cfg.robot if isinstance(cfg.robot, str) else "irb1200")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    calib.save(out / CALIBRATION_FILE)
-    summary = measure_to_dataset(
-        out, joints, pairs(), calib, plate, robot=robot, bias_correction=not args.no_bias_correction,
-        provenance=args.provenance or f"twin measure --render (world seed {cfg.seed})", on_row=_progress(args),
+    world: dict = {}
+    if args.world:
+        load_world_config(args.world)  # a bad file or key is named here
+        data = tomllib.loads(Path(args.world).read_text())
+        world = data["world"] if isinstance(data.get("world"), dict) else data
+    truth = args.truth or (Path(args.out).parent / "truth.json")
+    summary = measure_rendered(
+        world, args.out, joints=read_joints_csv(args.joints) if args.joints else None, poses=args.poses,
+        station=args.station, seed=args.seed, plate=read_plate_toml(args.plate) if args.plate else None,
+        calibration_file=args.calib, board_views=args.board_views, bias_correction=not args.no_bias_correction,
+        keep_images=args.keep_images, truth=truth, robot=args.robot, provenance=args.provenance,
+        on_row=_progress(args),
     )
-    truth = args.truth or (out.parent / "truth.json")
-    world.write_truth(truth)
-    world.close()
     print(f"truth of the rendered poses: {truth}", file=sys.stderr)
     return _report(summary)

@@ -1,13 +1,15 @@
 """Evaluation: the only layer that reads truth and estimates together (``docs/runner.md``).
 
 * :mod:`.statistics` -- the separation paper's statistics (moved-distance error, eq. 25/43 angle error,
-  absolute pose errors, max/mean/RMS/std, improvement);
-* :mod:`.config`, :mod:`.sampling`, :mod:`.plan` -- campaign configs and pose plans in the cameras' view;
-* :mod:`.pipeline` -- measurement backends (world renders + instrument measures, or the paper's truth+noise);
-* :mod:`.methods` -- the adapter to the estimator's identification methods and compensation;
-* :mod:`.executor`, :mod:`.store` -- local processes or Dask behind one interface; atomic per-pose results;
-* :mod:`.campaign` -- a campaign end to end (and Monte-Carlo repeats); :mod:`.evaluate` -- its statistics;
+  absolute pose errors, max/mean/RMS/std, improvement) and their aggregation over seeds;
+* :mod:`.evaluate` -- a campaign's statistics per method, measured and on the world's truth, and the paper's
+  claims;
 * :mod:`.report`, :mod:`.targets`, :mod:`.regression` -- tables beside the paper's targets, figures,
-  results.json, regression bands;
-* :mod:`.recording` -- the Rerun recording, the only module of the project that imports ``rerun``.
+  results.json, regression (prediction) bands;
+* :mod:`.closeloop` -- the truth beside a diagnosis: synthetic datasets from the world's effects, effect sizes,
+  the oracle fit, the true model's error;
+* :mod:`.recording` -- the Rerun recording, the only module of the project that imports ``rerun``;
+  :mod:`.images` -- the images it (and the runner's resume store) keeps, encoded.
+
+The runner (:mod:`twin.runner`) drives a campaign through the layers and hands its truth to this one.
 """

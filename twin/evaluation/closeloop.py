@@ -5,7 +5,8 @@ Evaluation code (it reads the world's truth). Two ways to make a dataset with an
 * :func:`synthetic_dataset` — the world's true sphere centres (effects applied by the world: compliance by
   MuJoCo statics, backlash from the command history, thermal from the campaign's time, ...) plus Gaussian
   noise at the instrument's measured level; no images. For tests and the detection-rate sweep.
-* the rendered path — a campaign through images and the instrument (``experiments/close_loop.py``).
+* the rendered path — the runner's measure stage through images and the instrument (the close-loop study,
+  ``studies/close_loop/``).
 
 Plans (:func:`plan_poses`) follow what a real campaign can do: configurations the cameras see at each
 station, measured station by station, every ``repeats_every``-th pose measured twice in a row (the noise
@@ -20,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..dataset import Dataset, default_plate, robot_from_spec
+from ..transforms import kabsch
 
 __all__ = ["Plan", "plan_poses", "synthetic_dataset", "effect_size", "true_model_error", "truth_effects",
            "effect_delta", "oracle_delta_fit"]
@@ -124,14 +126,15 @@ def effect_size(world_with_effect, plan: Plan, sigma: float, **kw) -> float:
     return float(cal.residuals["validation"]["position_mm"]["rms"] * _MM / np.sqrt(3) / sigma)
 
 
-def true_model_error(ds: Dataset, caps: list) -> dict[str, Any]:
-    """Validation error of the true model (geometry + effects): its predictions are the true centres. The
-    true centres are in the true camera frame; a measured dataset is in the instrument's estimated frame, so
-    each station's true centres are first brought over by the rigid fit of the calibration rows (the frame
-    difference is what every calibration absorbs in ``base2meas``). What is left is the instrument's error."""
-    from ..estimator.problem import kabsch
-
-    true = np.stack([c.spheres_meas for c in caps])
+def true_model_error(ds: Dataset, true_spheres: np.ndarray) -> dict[str, Any]:
+    """Validation error of the true model (geometry + effects): its predictions are the true centres
+    ``true_spheres`` ``(n, 3, 3)`` [m] of the dataset's rows. The true centres are in the true camera frame; a
+    measured dataset is in the instrument's estimated frame, so each station's true centres are first brought
+    over by the rigid fit of the calibration rows (the frame difference is what every calibration absorbs in
+    ``base2meas``). What is left is the instrument's error."""
+    true = np.asarray(true_spheres, dtype=float)
+    if true.shape != ds.spheres.shape:
+        raise ValueError(f"true_spheres must have the dataset's sphere shape {ds.spheres.shape}, got {true.shape}")
     aligned = true.copy()
     st = ds.station_ids
     for s in np.unique(st):

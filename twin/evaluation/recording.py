@@ -13,6 +13,8 @@ Layout of the recording (entity paths), all 3D in the robot base frame ("world",
   on request), with ``centres`` (detected sphere centres) and ``outlines`` (detected outlines) as 2D overlays.
 * ``residuals/<method>/<name>`` -- per-pose residuals as time series.
 * ``log`` -- text log (rejected measurements, warnings).
+* ``diagnosis/verdict`` -- when the campaign diagnosed its dataset: the residual, the terms found (the robot's,
+  the instrument's) and the error before and after, as a Markdown document.
 
 Everything per pose is on the ``pose`` sequence timeline (the pose index in measurement order). A default
 blueprint (3D view, both images, residual plots, log) is stored in the file so it opens in a useful layout.
@@ -34,7 +36,7 @@ import rerun.blueprint as rrb
 
 from ..camera import CameraIntrinsics
 from ..transforms import matrix_to_quat_wxyz
-from .store import encode_image
+from .images import encode_image
 
 __all__ = ["CameraView", "StationView", "CampaignRecording", "encode_image", "default_blueprint"]
 
@@ -84,8 +86,13 @@ def _transform(T: np.ndarray) -> rr.Transform3D:
     return rr.Transform3D(translation=T[:3, 3], quaternion=rr.Quaternion(xyzw=[q[1], q[2], q[3], q[0]]))
 
 
-def default_blueprint(methods: Sequence[str] = ()) -> rrb.Blueprint:
-    """3D view of the cell on the left, the two images on the right, residuals and the log below."""
+def default_blueprint(methods: Sequence[str] = (), diagnosis: bool = False) -> rrb.Blueprint:
+    """3D view of the cell on the left, the two images on the right, residuals and the log below (and, with
+    ``diagnosis``, the diagnosis' verdict beside the log)."""
+    bottom = [rrb.TimeSeriesView(origin="residuals", name="residuals per pose"),
+              rrb.TextLogView(origin="log", name="log")]
+    if diagnosis:
+        bottom.append(rrb.TextDocumentView(origin="diagnosis/verdict", name="diagnosis of the dataset"))
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
@@ -96,11 +103,7 @@ def default_blueprint(methods: Sequence[str] = ()) -> rrb.Blueprint:
                 ),
                 column_shares=[3, 2],
             ),
-            rrb.Horizontal(
-                rrb.TimeSeriesView(origin="residuals", name="residuals per pose"),
-                rrb.TextLogView(origin="log", name="log"),
-                column_shares=[3, 2],
-            ),
+            rrb.Horizontal(*bottom, column_shares=[3, 2, 2][: len(bottom)]),
             row_shares=[3, 1],
         ),
         rrb.TimePanel(state="collapsed"),
@@ -120,13 +123,14 @@ class CampaignRecording:
         methods: Sequence[str] = (),
         lossless: bool = False,
         jpeg_quality: int = 85,
+        diagnosis: bool = False,
     ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.lossless = lossless
         self.jpeg_quality = jpeg_quality
         self._rec = rr.RecordingStream(application_id, recording_id=recording_id or self.path.stem)
-        self._rec.save(str(self.path), default_blueprint=default_blueprint(methods))
+        self._rec.save(str(self.path), default_blueprint=default_blueprint(methods, diagnosis))
         self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._stations: dict[str, StationView] = {}
         self._closed = False
@@ -225,6 +229,10 @@ class CampaignRecording:
     def log_text(self, text: str, level: str = "INFO") -> None:
         """A line of the text log (``level`` one of TRACE, DEBUG, INFO, WARN, ERROR, CRITICAL)."""
         self._rec.log("log", rr.TextLog(text, level=getattr(rr.TextLogLevel, level.upper())))
+
+    def log_diagnosis(self, markdown: str) -> None:
+        """The diagnosis' verdict on the campaign's dataset (a Markdown document at ``diagnosis/verdict``, static)."""
+        self._rec.log("diagnosis/verdict", rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
 
     # --- end -----------------------------------------------------------------------------------
     def close(self) -> Path:

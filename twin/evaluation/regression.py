@@ -1,6 +1,6 @@
-"""Regression bands of the campaign statistics (``results/regression.json``).
+"""Regression bands of the campaign statistics (``studies/separation_paper/results/regression.json``).
 
-:func:`bands_from_repeats` turns a Monte-Carlo run (:func:`twin.evaluation.campaign.run_repeats`) into bands:
+:func:`bands_from_repeats` turns a Monte-Carlo run (:func:`twin.runner.campaign.run_repeats`) into bands:
 for each tracked statistic its mean, sample std, min and max over the seeds, and for each of the paper's
 ordering claims the fraction of seeds where it holds. Two band kinds:
 
@@ -31,16 +31,13 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-from .executor import flatten_numbers
-from .report import _clean
-from .store import atomic_write_text
+from ..benchio import atomic_write_text
+from .report import clean_json
+from .statistics import flatten_numbers
 
-__all__ = ["tracked_statistics", "bands_from_repeats", "check_against_bands", "update_regression_file", "DEFAULT_PATH",
+__all__ = ["tracked_statistics", "bands_from_repeats", "check_against_bands", "update_regression_file",
            "PREDICTION_STATISTICS", "prediction_band", "detectable_factor", "check_prediction", "literal_orderings",
            "pairwise_orderings", "check_pairwise", "pooled_after_means"]
-
-DEFAULT_PATH = Path(__file__).resolve().parents[2] / "results" / "regression.json"
-
 
 def tracked_statistics(methods_summary: Mapping[str, Any]) -> dict[str, float]:
     """The statistics the bands track, from ``results['methods']`` (dotted path -> value)."""
@@ -225,7 +222,8 @@ def detectable_factor(band: Mapping[str, Any], n_new: int = 1, confidence: float
 
 
 def check_prediction(runs: list[Mapping[str, Any]], bands: Mapping[str, Any], n_new: int | None = None,
-                     confidence: float | Mapping[str, float] = 0.99, required_fraction: float = 0.95) -> dict[str, list]:
+                     confidence: float | Mapping[str, float] = 0.99, required_fraction: float = 0.95,
+                     orderings: bool = True) -> dict[str, list]:
     """``prediction`` band check of ``runs`` (results.json dicts of seeds NOT among the band seeds): the
     statistics whose mean over the runs (geometric for the after-compensation errors) passes its one-sided
     limit, statistics missing, and the orderings (the paper's claims and the pairwise method orderings) that
@@ -235,7 +233,8 @@ def check_prediction(runs: list[Mapping[str, Any]], bands: Mapping[str, Any], n_
     ``confidence`` is one per-statistic level or a mapping by statistic (``"mean"``, ``"max"``,
     ``"improvement_percent"``): with many statistics, a family of ``m`` checks at level ``c`` each raises a
     false alarm for unchanged code with probability up to ``m (1 - c)``; a caller keeps the after-means tight
-    (the statistic a worsening must fail) and the maxima and improvements at a higher level."""
+    (the statistic a worsening must fail) and the maxima and improvements at a higher level. ``orderings=False``
+    checks the statistics only (a single new seed cannot test an ordering that fails in one band seed in 20)."""
 
     import numpy as np
 
@@ -266,6 +265,8 @@ def check_prediction(runs: list[Mapping[str, Any]], bands: Mapping[str, Any], n_
             bad = value < limit
         if bad:
             outside.append({"statistic": name, "value": value, "limit": limit, "kind": kind})
+    if not orderings:
+        return {"outside": outside, "missing": missing, "failed_claims": []}
     pooled = pooled_after_means(runs)
     failed_claims = []
     from .evaluate import paper_orderings
@@ -298,15 +299,15 @@ def pooled_after_means(runs: list[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def update_regression_file(section: str, data: Mapping[str, Any], path: str | os.PathLike | None = None) -> Path:
-    """Replace one configuration's section of ``results/regression.json`` (others untouched), under a lock."""
-    p = Path(path) if path else DEFAULT_PATH
+def update_regression_file(section: str, data: Mapping[str, Any], path: str | os.PathLike) -> Path:
+    """Replace one configuration's section of the regression file ``path`` (others untouched), under a lock."""
+    p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     lock = p.with_suffix(".lock")
     with open(lock, "w") as lf:
         fcntl.flock(lf, fcntl.LOCK_EX)
         current = json.loads(p.read_text()) if p.exists() else {"schema_version": 1}
-        current[section] = _clean(dict(data))
+        current[section] = clean_json(dict(data))
         atomic_write_text(p, json.dumps(current, indent=1, sort_keys=True) + "\n")
     try:
         lock.unlink()

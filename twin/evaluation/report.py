@@ -14,7 +14,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .store import atomic_write_text
+from ..benchio import atomic_write_text
 from .targets import scored_value, target_value
 
 __all__ = [
@@ -27,6 +27,9 @@ __all__ = [
     "paper_parameter_value",
     "paper_parameter_path",
     "render_parameter_table",
+    "clean_json",
+    "pyplot",
+    "save_figure",
 ]
 
 RESULTS_SCHEMA_VERSION = 1
@@ -39,14 +42,14 @@ METHOD_LABELS = {
 }
 
 
-def _clean(x: Any) -> Any:
+def clean_json(x: Any) -> Any:
     """JSON-safe: numpy to Python, non-finite floats to None."""
     if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
+        return {str(k): clean_json(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
+        return [clean_json(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _clean(x.tolist())
+        return clean_json(x.tolist())
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(float(x)) else None
     if isinstance(x, (np.integer,)):
@@ -61,7 +64,7 @@ def _clean(x: Any) -> Any:
 def write_results(path: str | os.PathLike, results: Mapping[str, Any]) -> Path:
     """Write ``results.json`` atomically (``schema_version`` first; ``docs/formats.md``)."""
     p = Path(path)
-    body = {"schema_version": RESULTS_SCHEMA_VERSION, **_clean(dict(results))}
+    body = {"schema_version": RESULTS_SCHEMA_VERSION, **clean_json(dict(results))}
     atomic_write_text(p, json.dumps(body, indent=1, sort_keys=False) + "\n")
     return p
 
@@ -191,7 +194,8 @@ def render_parameter_table(params: Mapping[str, Mapping[str, Mapping[str, Any]]]
 # Figures (matplotlib, Agg, PNG)
 # ------------------------------------------------------------------------------------------------
 
-def _plt():
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (PNG files, no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -200,7 +204,7 @@ def _plt():
     return plt
 
 
-def _save_figure(plt, fig, path: str | os.PathLike, title: str) -> Path:
+def save_figure(plt, fig, path: str | os.PathLike, title: str) -> Path:
     """Title, tight layout, write the PNG (creating its folder), close the figure; the path written."""
     if title:
         fig.suptitle(title)
@@ -216,7 +220,7 @@ def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before
                   *, method_label: str = "separation", title: str = "") -> Path:
     """The paper's Figure 10 in style: (a) angle error per compensation pair before/after [deg]; (b) position
     error per distance test before/after [mm], tests grouped by commanded distance."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     ax = axes[0]
     x = np.arange(1, len(angle_before) + 1)
@@ -242,13 +246,13 @@ def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before
     ax.set_title("(b) position (moved-distance) error", pad=14)
     ax.legend()
     ax.grid(alpha=0.3)
-    return _save_figure(plt, fig, path, title)
+    return save_figure(plt, fig, path, title)
 
 
 def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray], pos_after: Mapping[str, np.ndarray],
                   *, title: str = "") -> Path:
     """The paper's Figure 11 in style: per method, (a) angle error and (b) position error after compensation."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     markers = {"distance": "^-", "full_pose": "s-", "separation": "o-", "separation_paper": "v-", "default": "d--"}
     for ax, data, ylabel, name in ((axes[0], angle_after, "angle error [deg]", "(a) angle error after compensation"),
@@ -260,4 +264,4 @@ def plot_figure11(path: str | os.PathLike, angle_after: Mapping[str, np.ndarray]
         ax.set_title(name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save_figure(plt, fig, path, title)
+    return save_figure(plt, fig, path, title)

@@ -21,6 +21,7 @@ Definitions (``docs/conventions.md``, separation paper sections 2.1.4 and 3.1):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -35,6 +36,8 @@ __all__ = [
     "euler_change",
     "euler_change_error",
     "absolute_pose_errors",
+    "flatten_numbers",
+    "aggregate",
 ]
 
 
@@ -159,3 +162,38 @@ def absolute_pose_errors(T_actual, T_target) -> tuple[np.ndarray, np.ndarray]:
     pos = np.linalg.norm(A[:, :3, 3] - B[:, :3, 3], axis=1)
     rot = rotation_angle_between(A[:, :3, :3], B[:, :3, :3])
     return pos, rot
+
+
+def flatten_numbers(d: Any, prefix: str = "") -> dict[str, float]:
+    """Numeric leaves of nested dicts as ``{"a.b.c": value}`` (booleans and strings skipped)."""
+    out: dict[str, float] = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(flatten_numbers(v, f"{prefix}.{k}" if prefix else str(k)))
+    elif isinstance(d, (int, float, np.integer, np.floating)) and not isinstance(d, bool):
+        out[prefix] = float(d)
+    return out
+
+
+def aggregate(results: Iterable[dict]) -> dict[str, dict[str, float]]:
+    """Mean and spread of every numeric statistic over repeats: ``{path: {n, mean, std, min, max}}``.
+
+    A statistic missing from some repeats is aggregated over those that have it (``n`` says how many).
+    """
+    flat = [flatten_numbers(r) for r in results]
+    if not flat:
+        raise ValueError("results is empty: nothing to aggregate")
+    keys = sorted(set().union(*flat))
+    out: dict[str, dict[str, float]] = {}
+    for k in keys:
+        v = np.array([f[k] for f in flat if k in f and np.isfinite(f[k])], dtype=float)
+        if v.size == 0:
+            continue
+        out[k] = {
+            "n": int(v.size),
+            "mean": float(v.mean()),
+            "std": float(v.std(ddof=1)) if v.size > 1 else 0.0,
+            "min": float(v.min()),
+            "max": float(v.max()),
+        }
+    return out

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dataset import Plate
-from ..transforms import euler_zyx_from_matrix
+from ..transforms import euler_zyx_from_matrix, kabsch
 
 __all__ = [
     "PlateFit",
@@ -48,18 +48,12 @@ class PlateFit:
 
 def plate_pose_from_spheres(centres, plate: Plate) -> PlateFit:
     """Plate pose from three measured centres ``(3, 3)`` [m] (rows p0, p1, p2) by a least-squares rigid fit
-    (Kabsch/Umeyama without scale): ``min_{R,t} sum_i |R s_i + t - p_i|^2`` with ``s_i`` the nominal
-    centres. The centroid fixes ``t``; ``R = U diag(1, 1, det(U V^T)) V^T`` from the SVD of the
-    cross-covariance ``sum (p_i - p_bar)(s_i - s_bar)^T = U S V^T``.
+    (:func:`twin.transforms.kabsch`): ``min_{R,t} sum_i |R s_i + t - p_i|^2`` with ``s_i`` the nominal
+    centres.
     """
     p = _centres(centres)
     s = np.asarray(plate.spheres_flange, float)
-    pm, sm = p.mean(axis=0), s.mean(axis=0)
-    H = (p - pm).T @ (s - sm)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    t = pm - R @ sm
+    R, t = kabsch(s, p)
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = t

@@ -28,6 +28,9 @@ __all__ = [
     "PlateConfig",
     "WorldConfig",
     "load_world_config",
+    "check_keys",
+    "table_number",
+    "table_vector",
     "default_stations",
     "errors_from_edge_units",
     "MAX_SUPERSAMPLE",
@@ -42,13 +45,15 @@ MAX_SUPERSAMPLE = 4
 MAX_WINDOW_SUPERSAMPLE = 8
 
 
-def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    """``ValueError`` naming the table ``where`` and every key of ``table`` outside ``allowed``."""
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
 
 
-def _num(table: Mapping[str, Any], key: str, default: float, where: str, *, positive=False, nonneg=False) -> float:
+def table_number(table: Mapping[str, Any], key: str, default: float, where: str, *, positive=False, nonneg=False) -> float:
+    """``table[key]`` (``default`` when absent) as a finite float; ``ValueError`` naming ``where.key`` otherwise."""
     v = table.get(key, default)
     try:
         x = float(v)
@@ -60,7 +65,8 @@ def _num(table: Mapping[str, Any], key: str, default: float, where: str, *, posi
     return x
 
 
-def _vector(v: Any, n: int, where: str) -> np.ndarray:
+def table_vector(v: Any, n: int, where: str) -> np.ndarray:
+    """``v`` as ``n`` finite floats; ``ValueError`` naming ``where`` otherwise."""
     try:
         a = np.asarray(v, dtype=float).reshape(-1)
     except (TypeError, ValueError):
@@ -89,18 +95,18 @@ class StationConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], index: int) -> "StationConfig":
         where = f"world.stations[{index}]"
-        _check_keys(d, {"name", "target_mm", "azimuth_deg", "elevation_deg", "roll_deg", "standoff_mm"}, where)
+        check_keys(d, {"name", "target_mm", "azimuth_deg", "elevation_deg", "roll_deg", "standoff_mm"}, where)
         if "target_mm" not in d:
             raise ValueError(f"{where}: missing 'target_mm' (the point the rig converges on, robot base frame)")
         standoff = None
         if "standoff_mm" in d:
-            standoff = _num(d, "standoff_mm", 0, where, positive=True) * _MM
+            standoff = table_number(d, "standoff_mm", 0, where, positive=True) * _MM
         return cls(
             name=str(d.get("name", index)),
-            target=_vector(d["target_mm"], 3, f"{where}.target_mm") * _MM,
-            azimuth=_num(d, "azimuth_deg", 0.0, where) * _DEG,
-            elevation=_num(d, "elevation_deg", 0.0, where) * _DEG,
-            roll=_num(d, "roll_deg", 0.0, where) * _DEG,
+            target=table_vector(d["target_mm"], 3, f"{where}.target_mm") * _MM,
+            azimuth=table_number(d, "azimuth_deg", 0.0, where) * _DEG,
+            elevation=table_number(d, "elevation_deg", 0.0, where) * _DEG,
+            roll=table_number(d, "roll_deg", 0.0, where) * _DEG,
             standoff=standoff,
         )
 
@@ -158,33 +164,33 @@ class RigConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RigConfig":
         where = "world.rig"
-        _check_keys(d, {"baseline_mm", "standoff_mm", "vergence_deg", "width_px", "height_px", "pixel_um",
+        check_keys(d, {"baseline_mm", "standoff_mm", "vergence_deg", "width_px", "height_px", "pixel_um",
                         "focal_mm", "backdrop_behind_mm", "backdrop", "placement_sigma_mm",
                         "placement_sigma_deg", "camera_mount_sigma_mm", "camera_mount_sigma_deg"}, where)
         tol = {}
         for key, default, lim in (("placement_sigma_mm", 3.0, 100.0), ("placement_sigma_deg", 0.2, 5.0),
                                   ("camera_mount_sigma_mm", 0.2, 10.0), ("camera_mount_sigma_deg", 0.05, 2.0)):
-            v = _num(d, key, default, where, nonneg=True)
+            v = table_number(d, key, default, where, nonneg=True)
             if v > lim:
                 raise ValueError(f"{where}.{key} must be within 0..{lim} (a placement tolerance, 1 sigma), got {v!r}")
             tol[key] = v
-        vergence = None if "vergence_deg" not in d else _num(d, "vergence_deg", 0, where) * _DEG
+        vergence = None if "vergence_deg" not in d else table_number(d, "vergence_deg", 0, where) * _DEG
         backdrop = bool(d.get("backdrop", True))
-        standoff = _num(d, "standoff_mm", 700.0, where, positive=True) * _MM
+        standoff = table_number(d, "standoff_mm", 700.0, where, positive=True) * _MM
         if not 0.2 <= standoff <= 3.0:
             raise ValueError(f"{where}.standoff_mm must be within 200..3000 mm, got {d.get('standoff_mm')!r}")
         w, h = int(d.get("width_px", 2592)), int(d.get("height_px", 1944))
         if w <= 0 or h <= 0:
             raise ValueError(f"{where}: width_px/height_px must be positive, got {w}x{h}")
         return cls(
-            baseline=_num(d, "baseline_mm", 250.0, where, positive=True) * _MM,
+            baseline=table_number(d, "baseline_mm", 250.0, where, positive=True) * _MM,
             standoff=standoff,
             vergence=vergence,
             width_px=w,
             height_px=h,
-            pixel_size=_num(d, "pixel_um", 2.2, where, positive=True) * 1e-6,
-            focal_length=_num(d, "focal_mm", 16.0, where, positive=True) * _MM,
-            backdrop_behind=(_num(d, "backdrop_behind_mm", 300.0, where, positive=True) * _MM) if backdrop else None,
+            pixel_size=table_number(d, "pixel_um", 2.2, where, positive=True) * 1e-6,
+            focal_length=table_number(d, "focal_mm", 16.0, where, positive=True) * _MM,
+            backdrop_behind=(table_number(d, "backdrop_behind_mm", 300.0, where, positive=True) * _MM) if backdrop else None,
             placement_sigma=tol["placement_sigma_mm"] * _MM,
             placement_sigma_rot=tol["placement_sigma_deg"] * _DEG,
             camera_mount_sigma=tol["camera_mount_sigma_mm"] * _MM,
@@ -232,12 +238,12 @@ class RenderConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "RenderConfig":
         where = "world.render"
-        _check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "window_arc_px",
+        check_keys(d, {"scale", "supersample", "window_supersample", "window_margin_px", "window_arc_px",
                         "frame_subsample", "noise_sigma", "distortion", "distortion_left", "distortion_right",
                         "principal_offset_px", "principal_offset_left_px", "principal_offset_right_px",
                         "key_light_azimuth_deg", "key_light_elevation_deg", "key_light", "key_ambient",
                         "headlight", "ambient"}, where)
-        scale = _num(d, "scale", 1.0, where, positive=True)
+        scale = table_number(d, "scale", 1.0, where, positive=True)
         if scale > 1.0:
             raise ValueError(f"{where}.scale must be in (0, 1] (a fraction of the sensor resolution), got {scale!r}")
         ss = d.get("supersample", 1)
@@ -257,18 +263,18 @@ class RenderConfig:
                              f"and supersample = 1 (got {ss}): without windows every outline would be sampled coarsely")
         dl = dr = None
         if "distortion" in d:
-            dl = dr = tuple(_vector(d["distortion"], 5, f"{where}.distortion"))
+            dl = dr = tuple(table_vector(d["distortion"], 5, f"{where}.distortion"))
         if "distortion_left" in d:
-            dl = tuple(_vector(d["distortion_left"], 5, f"{where}.distortion_left"))
+            dl = tuple(table_vector(d["distortion_left"], 5, f"{where}.distortion_left"))
         if "distortion_right" in d:
-            dr = tuple(_vector(d["distortion_right"], 5, f"{where}.distortion_right"))
+            dr = tuple(table_vector(d["distortion_right"], 5, f"{where}.distortion_right"))
         pl = pr = None
         if "principal_offset_px" in d:
-            pl = pr = tuple(_vector(d["principal_offset_px"], 2, f"{where}.principal_offset_px"))
+            pl = pr = tuple(table_vector(d["principal_offset_px"], 2, f"{where}.principal_offset_px"))
         if "principal_offset_left_px" in d:
-            pl = tuple(_vector(d["principal_offset_left_px"], 2, f"{where}.principal_offset_left_px"))
+            pl = tuple(table_vector(d["principal_offset_left_px"], 2, f"{where}.principal_offset_left_px"))
         if "principal_offset_right_px" in d:
-            pr = tuple(_vector(d["principal_offset_right_px"], 2, f"{where}.principal_offset_right_px"))
+            pr = tuple(table_vector(d["principal_offset_right_px"], 2, f"{where}.principal_offset_right_px"))
         for name, v in (("principal_offset", pl), ("principal_offset", pr)):
             if v is not None and max(abs(x) for x in v) > 100:
                 raise ValueError(f"{where}.{name}_px must be within +-100 px, got {v!r}")
@@ -276,20 +282,20 @@ class RenderConfig:
             scale=scale,
             supersample=int(ss),
             window_supersample=int(ws),
-            window_margin_px=_num(d, "window_margin_px", 4.0, where, nonneg=True),
-            window_arc_px=_num(d, "window_arc_px", 48.0, where, positive=True),
+            window_margin_px=table_number(d, "window_margin_px", 4.0, where, nonneg=True),
+            window_arc_px=table_number(d, "window_arc_px", 48.0, where, positive=True),
             frame_subsample=int(fs),
-            noise_sigma=_num(d, "noise_sigma", 2.0, where, nonneg=True),
+            noise_sigma=table_number(d, "noise_sigma", 2.0, where, nonneg=True),
             distortion_left=dl if dl is not None else _DEFAULT_DIST_LEFT,
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,
             principal_offset_left=pl if pl is not None else _DEFAULT_PP_LEFT,
             principal_offset_right=pr if pr is not None else _DEFAULT_PP_RIGHT,
-            key_light_azimuth=_num(d, "key_light_azimuth_deg", 40.0, where) * _DEG,
-            key_light_elevation=_num(d, "key_light_elevation_deg", 25.0, where) * _DEG,
-            key_light=_num(d, "key_light", 0.55, where, nonneg=True),
-            key_ambient=_num(d, "key_ambient", 0.10, where, nonneg=True),
-            headlight=_num(d, "headlight", 0.35, where, nonneg=True),
-            ambient=_num(d, "ambient", 0.12, where, nonneg=True),
+            key_light_azimuth=table_number(d, "key_light_azimuth_deg", 40.0, where) * _DEG,
+            key_light_elevation=table_number(d, "key_light_elevation_deg", 25.0, where) * _DEG,
+            key_light=table_number(d, "key_light", 0.55, where, nonneg=True),
+            key_ambient=table_number(d, "key_ambient", 0.10, where, nonneg=True),
+            headlight=table_number(d, "headlight", 0.35, where, nonneg=True),
+            ambient=table_number(d, "ambient", 0.12, where, nonneg=True),
         )
 
 
@@ -320,7 +326,7 @@ class BoardConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "BoardConfig":
         where = "world.board"
-        _check_keys(d, {"type", "squares_x", "squares_y", "square_mm", "marker_mm", "dictionary",
+        check_keys(d, {"type", "squares_x", "squares_y", "square_mm", "marker_mm", "dictionary",
                         "texture_px_per_square", "margin_mm", "thickness_mm", "views", "distance_min_mm",
                         "distance_max_mm", "max_tilt_deg", "max_roll_deg", "min_corners"}, where)
         if d.get("type", "charuco") != "charuco":
@@ -328,12 +334,12 @@ class BoardConfig:
         sx, sy = int(d.get("squares_x", 11)), int(d.get("squares_y", 8))
         if sx < 3 or sy < 3:
             raise ValueError(f"{where}: squares_x/squares_y must be >= 3, got {sx}x{sy}")
-        square = _num(d, "square_mm", 18.0, where, positive=True) * _MM
-        marker = _num(d, "marker_mm", 13.5, where, positive=True) * _MM
+        square = table_number(d, "square_mm", 18.0, where, positive=True) * _MM
+        marker = table_number(d, "marker_mm", 13.5, where, positive=True) * _MM
         if marker >= square:
             raise ValueError(f"{where}.marker_mm must be smaller than square_mm, got {marker / _MM} >= {square / _MM}")
-        dmin = _num(d, "distance_min_mm", 500.0, where, positive=True) * _MM
-        dmax = _num(d, "distance_max_mm", 1000.0, where, positive=True) * _MM
+        dmin = table_number(d, "distance_min_mm", 500.0, where, positive=True) * _MM
+        dmax = table_number(d, "distance_max_mm", 1000.0, where, positive=True) * _MM
         if dmax < dmin:
             raise ValueError(f"{where}: distance_max_mm {dmax / _MM} < distance_min_mm {dmin / _MM}")
         ppsq = int(d.get("texture_px_per_square", 256))
@@ -346,12 +352,12 @@ class BoardConfig:
             marker=marker,
             dictionary=str(d.get("dictionary", "DICT_5X5_100")),
             texture_px_per_square=ppsq,
-            margin=_num(d, "margin_mm", 12.0, where, nonneg=True) * _MM,
-            thickness=_num(d, "thickness_mm", 4.0, where, positive=True) * _MM,
+            margin=table_number(d, "margin_mm", 12.0, where, nonneg=True) * _MM,
+            thickness=table_number(d, "thickness_mm", 4.0, where, positive=True) * _MM,
             views=int(d.get("views", 24)),
             distance_range=(dmin, dmax),
-            max_tilt=_num(d, "max_tilt_deg", 40.0, where, nonneg=True) * _DEG,
-            max_roll=_num(d, "max_roll_deg", 30.0, where, nonneg=True) * _DEG,
+            max_tilt=table_number(d, "max_tilt_deg", 40.0, where, nonneg=True) * _DEG,
+            max_roll=table_number(d, "max_roll_deg", 30.0, where, nonneg=True) * _DEG,
             min_corners=int(d.get("min_corners", 20)),
         )
 
@@ -371,18 +377,18 @@ class PlateConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "PlateConfig":
         where = "world.plate"
-        _check_keys(d, {"translation_sigma_mm", "rotation_sigma_deg", "error", "sphere_sigma_mm"}, where)
+        check_keys(d, {"translation_sigma_mm", "rotation_sigma_deg", "error", "sphere_sigma_mm"}, where)
         err = np.zeros(6)
         if "error" in d:
             e = d["error"]
-            _check_keys(e, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, f"{where}.error")
+            check_keys(e, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, f"{where}.error")
             err = np.array([float(e.get(k, 0.0)) for k in ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")])
             err = err * np.array([_MM] * 3 + [_DEG] * 3)
         return cls(
-            translation_sigma=_num(d, "translation_sigma_mm", 0.05, where, nonneg=True) * _MM,
-            rotation_sigma=_num(d, "rotation_sigma_deg", 0.05, where, nonneg=True) * _DEG,
+            translation_sigma=table_number(d, "translation_sigma_mm", 0.05, where, nonneg=True) * _MM,
+            rotation_sigma=table_number(d, "rotation_sigma_deg", 0.05, where, nonneg=True) * _DEG,
             error_pose6=err,
-            sphere_sigma=_num(d, "sphere_sigma_mm", 0.0, where, nonneg=True) * _MM,
+            sphere_sigma=table_number(d, "sphere_sigma_mm", 0.0, where, nonneg=True) * _MM,
         )
 
 
@@ -442,7 +448,7 @@ class WorldConfig:
         if "world" in cfg and isinstance(cfg["world"], Mapping):
             cfg = cfg["world"]
         where = "world"
-        _check_keys(cfg, {"robot", "preset", "errors", "random_errors", "mount", "plate", "rig", "stations",
+        check_keys(cfg, {"robot", "preset", "errors", "random_errors", "mount", "plate", "rig", "stations",
                           "render", "board", "effects", "seed"}, where)
         robot = cfg.get("robot", "irb1200")
         if isinstance(robot, str) and robot not in ROBOTS:
@@ -461,9 +467,9 @@ class WorldConfig:
         nominal = nominal_robot_from_spec(robot)
         errors = errors_from_edge_units(cfg.get("errors", {}) or {}, nominal.layout, "world.errors")
         rnd = cfg.get("random_errors", {}) or {}
-        _check_keys(rnd, {"length_sigma_mm", "angle_sigma_deg"}, "world.random_errors")
+        check_keys(rnd, {"length_sigma_mm", "angle_sigma_deg"}, "world.random_errors")
         mount = cfg.get("mount", {}) or {}
-        _check_keys(mount, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, "world.mount")
+        check_keys(mount, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, "world.mount")
         mount6 = np.array([float(mount.get(k, 0.0)) for k in ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")])
         mount6 = mount6 * np.array([_MM] * 3 + [_DEG] * 3)
         stations_raw = cfg.get("stations")
@@ -487,8 +493,8 @@ class WorldConfig:
             robot=robot if isinstance(robot, str) else dict(robot),
             preset=preset,
             errors=errors,
-            random_length_sigma=_num(rnd, "length_sigma_mm", 0.0, "world.random_errors", nonneg=True) * _MM,
-            random_angle_sigma=_num(rnd, "angle_sigma_deg", 0.0, "world.random_errors", nonneg=True) * _DEG,
+            random_length_sigma=table_number(rnd, "length_sigma_mm", 0.0, "world.random_errors", nonneg=True) * _MM,
+            random_angle_sigma=table_number(rnd, "angle_sigma_deg", 0.0, "world.random_errors", nonneg=True) * _DEG,
             mount_pose6=mount6,
             plate=PlateConfig.from_dict(cfg.get("plate", {}) or {}),
             rig=RigConfig.from_dict(cfg.get("rig", {}) or {}),

@@ -40,7 +40,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel
-from .config import _num  # the one validator of numbers in world TOML tables
+from .config import table_number  # the one validator of numbers in world TOML tables
 from .effects import BaseEffect, ConstantJointOffset, EffectContext, SceneState, as_effect
 
 __all__ = [
@@ -76,7 +76,7 @@ DEFAULT_GEAR_RATIOS = (121.0, 121.0, 101.0, 81.0, 81.0, 51.0)
 # Config-table helpers (mm/deg at the edge, SI out)
 # ------------------------------------------------------------------------------------------------
 
-def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
     unknown = sorted(set(table) - allowed - {"name", "type"})
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -209,7 +209,7 @@ class Compliance(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "Compliance":
         where = "world.effects (compliance)"
-        _check_keys(t, {"stiffness_nm_per_rad", "payload_kg", "payload_com_mm"}, where)
+        check_keys(t, {"stiffness_nm_per_rad", "payload_kg", "payload_com_mm"}, where)
         com = t.get("payload_com_mm", (0.0, 0.0, 0.0))
         try:
             com = np.asarray(com, dtype=float).reshape(3) * _MM
@@ -218,7 +218,7 @@ class Compliance(BaseEffect):
         return cls(
             _per_joint(t.get("stiffness_nm_per_rad", DEFAULT_STIFFNESS_NM_PER_RAD), f"{where}.stiffness_nm_per_rad",
                        positive=True),
-            _num(t, "payload_kg", 0.0, where, nonneg=True),
+            table_number(t, "payload_kg", 0.0, where, nonneg=True),
             com,
         )
 
@@ -305,7 +305,7 @@ class Backlash(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "Backlash":
         where = "world.effects (backlash)"
-        _check_keys(t, {"half_clearance_deg", "initial_sign"}, where)
+        check_keys(t, {"half_clearance_deg", "initial_sign"}, where)
         return cls(_per_joint(t.get("half_clearance_deg", 0.005), f"{where}.half_clearance_deg", nonneg=True) * _DEG,
                    t.get("initial_sign", 1.0))
 
@@ -374,7 +374,7 @@ class CyclicError(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "CyclicError":
         where = "world.effects (cyclic)"
-        _check_keys(t, {"amplitude_deg", "order", "phase_deg", "angle", "gear_ratio"}, where)
+        check_keys(t, {"amplitude_deg", "order", "phase_deg", "angle", "gear_ratio"}, where)
         return cls(
             _per_joint(t.get("amplitude_deg", 0.005), f"{where}.amplitude_deg", rows=True) * _DEG,
             _per_joint(t.get("order", 2.0), f"{where}.order", rows=True, positive=True),
@@ -414,7 +414,7 @@ class GearRatio(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "GearRatio":
         where = "world.effects (gear_ratio)"
-        _check_keys(t, {"ratio"}, where)
+        check_keys(t, {"ratio"}, where)
         if "ratio" not in t:
             return cls()
         return cls(_per_joint(t["ratio"], f"{where}.ratio", positive=True))
@@ -445,8 +445,8 @@ class Coupling(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "Coupling":
         where = "world.effects (coupling)"
-        _check_keys(t, {"coefficient", "driving_joint", "driven_joint"}, where)
-        return cls(_num(t, "coefficient", 1e-3, where), t.get("driving_joint", 5), t.get("driven_joint", 6))
+        check_keys(t, {"coefficient", "driving_joint", "driven_joint"}, where)
+        return cls(table_number(t, "coefficient", 1e-3, where), t.get("driving_joint", 5), t.get("driven_joint", 6))
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         out = q.copy()
@@ -505,15 +505,15 @@ class ThermalGrowth(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "ThermalGrowth":
         where = "world.effects (thermal)"
-        _check_keys(t, {"alpha_per_k", "temp_ref_c", "source", "temp_start_c", "temp_rise_k", "tau_s",
+        check_keys(t, {"alpha_per_k", "temp_ref_c", "source", "temp_start_c", "temp_rise_k", "tau_s",
                         "include_tool"}, where)
         inc = t.get("include_tool", False)
         if not isinstance(inc, bool):
             raise ValueError(f"{where}.include_tool must be true or false, got {inc!r}")
         return cls(
-            _num(t, "alpha_per_k", 2.3e-5, where), _num(t, "temp_ref_c", 20.0, where),
-            source=str(t.get("source", "profile")), temp_start_c=_num(t, "temp_start_c", 20.0, where),
-            temp_rise_k=_num(t, "temp_rise_k", 8.0, where), tau_s=_num(t, "tau_s", 1800.0, where, positive=True),
+            table_number(t, "alpha_per_k", 2.3e-5, where), table_number(t, "temp_ref_c", 20.0, where),
+            source=str(t.get("source", "profile")), temp_start_c=table_number(t, "temp_start_c", 20.0, where),
+            temp_rise_k=table_number(t, "temp_rise_k", 8.0, where), tau_s=table_number(t, "tau_s", 1800.0, where, positive=True),
             include_tool=inc,
         )
 
@@ -572,7 +572,7 @@ class SphereOutOfRound(BaseEffect):
     @classmethod
     def from_table(cls, t: Mapping[str, Any]) -> "SphereOutOfRound":
         where = "world.effects (sphere_out_of_round)"
-        _check_keys(t, {"sphere", "semi_axis_delta_mm"}, where)
+        check_keys(t, {"sphere", "semi_axis_delta_mm"}, where)
         try:
             d = np.asarray(t.get("semi_axis_delta_mm", (0.03, 0.0, -0.03)), dtype=float).reshape(3) * _MM
         except (TypeError, ValueError):
@@ -604,7 +604,7 @@ def _python_effect(t: Mapping[str, Any]) -> Any:
     ``f(q, context) -> q``) used as is; with ``args`` (or when it is a class) it is called with them (SI) and
     must return one. It is imported in every process that builds the world."""
     where = "world.effects (python)"
-    _check_keys(t, {"callable", "args"}, where)
+    check_keys(t, {"callable", "args"}, where)
     target = t.get("callable")
     if not isinstance(target, str) or ":" not in target:
         raise ValueError(f"{where}.callable must be 'module:attribute', got {target!r}")
@@ -625,7 +625,7 @@ def _python_effect(t: Mapping[str, Any]) -> Any:
 
 EFFECT_TYPES: dict[str, Callable[[Mapping[str, Any]], Any]] = {
     "constant_joint_offset": lambda t: (
-        _check_keys(t, {"offsets_deg"}, "world.effects (constant_joint_offset)"),
+        check_keys(t, {"offsets_deg"}, "world.effects (constant_joint_offset)"),
         ConstantJointOffset(_per_joint(t["offsets_deg"], "world.effects (constant_joint_offset).offsets_deg") * _DEG),
     )[1],
     "compliance": Compliance.from_table,

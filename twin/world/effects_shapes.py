@@ -1,4 +1,4 @@
-"""World effects of other shapes than the diagnosis' candidates (issue 12): what a held-out campaign may hold.
+"""World effects of other shapes than the diagnosis' candidates: what a held-out campaign may hold.
 
 Each is written as physics of the world, not as a regressor of the diagnosis: effects on one joint or one link
 only, couplings between joints, a hysteresis that follows the size of the last move, a link that grows with a
@@ -35,8 +35,8 @@ import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel, link_frames
 from ..transforms import pose6_to_transform
-from .config import _check_keys, _num
-from .config import _vector as _config_vector
+from .config import check_keys, table_number
+from .config import table_vector as config_vector
 from .effects import BaseEffect, EffectContext
 
 __all__ = ["JointPolynomial", "JointProduct", "MoveLag", "LinkGrowth", "BaseShift", "PlateFlex", "Repeatability",
@@ -47,13 +47,13 @@ _MM = 1e-3
 
 
 def _keys(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    _check_keys(t, allowed | {"name", "type"}, where)
+    check_keys(t, allowed | {"name", "type"}, where)
 
 
 def _number(t: Mapping[str, Any], key: str, default: float | None, where: str, *, positive: bool = False) -> float:
     if default is None and key not in t:
         raise ValueError(f"{where}: missing {key!r}")
-    return _num(t, key, 0.0 if default is None else default, where, positive=positive)
+    return table_number(t, key, 0.0 if default is None else default, where, positive=positive)
 
 
 def _joint(v: Any, what: str) -> int:
@@ -62,11 +62,11 @@ def _joint(v: Any, what: str) -> int:
     return int(v)
 
 
-def _vector(t: Mapping[str, Any], key: str, n: int, where: str, default=None) -> np.ndarray:
+def table_vector(t: Mapping[str, Any], key: str, n: int, where: str, default=None) -> np.ndarray:
     v = t.get(key, default)
     if np.ndim(v) == 0 and v is not None and n > 1:
         v = [v] * n
-    return _config_vector(v, n, f"{where}.{key}")
+    return config_vector(v, n, f"{where}.{key}")
 
 
 class JointPolynomial(BaseEffect):
@@ -128,7 +128,7 @@ class JointProduct(BaseEffect):
         _keys(t, {"target_joint", "joints", "coefficient_deg_per_rad2", "centres_deg"}, where)
         return cls(t.get("target_joint"), list(t.get("joints", [])),
                    _number(t, "coefficient_deg_per_rad2", None, where) * _DEG,
-                   _vector(t, "centres_deg", 2, where, [0.0, 0.0]) * _DEG)
+                   table_vector(t, "centres_deg", 2, where, [0.0, 0.0]) * _DEG)
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         out = q.copy()
@@ -158,7 +158,7 @@ class MoveLag(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "MoveLag":
         where = "world.effects (move_lag)"
         _keys(t, {"lag_deg", "width_deg"}, where)
-        return cls(_vector(t, "lag_deg", N_JOINTS, where) * _DEG, _number(t, "width_deg", 3.0, where, positive=True) * _DEG)
+        return cls(table_vector(t, "lag_deg", N_JOINTS, where) * _DEG, _number(t, "width_deg", 3.0, where, positive=True) * _DEG)
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         seq = context.command_sequence()
@@ -247,8 +247,8 @@ class BaseShift(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "BaseShift":
         where = "world.effects (base_shift)"
         _keys(t, {"at_s", "shift_mm", "rotate_deg"}, where)
-        return cls(_number(t, "at_s", None, where), _vector(t, "shift_mm", 3, where) * _MM,
-                   _vector(t, "rotate_deg", 3, where, [0.0, 0.0, 0.0]) * _DEG)
+        return cls(_number(t, "at_s", None, where), table_vector(t, "shift_mm", 3, where) * _MM,
+                   table_vector(t, "rotate_deg", 3, where, [0.0, 0.0, 0.0]) * _DEG)
 
     def geometry(self, robot: RobotModel, context: EffectContext) -> RobotModel:
         if context.t_s < self.at_s:
@@ -317,7 +317,7 @@ class Repeatability(BaseEffect):
         _keys(t, {"sigma_deg", "seed"}, where)
         if "sigma_deg" not in t:
             raise ValueError(f"{where}: missing 'sigma_deg'")
-        return cls(_vector(t, "sigma_deg", N_JOINTS, where) * _DEG, t.get("seed", 0))
+        return cls(table_vector(t, "sigma_deg", N_JOINTS, where) * _DEG, t.get("seed", 0))
 
     def offsets(self, context: EffectContext) -> np.ndarray:
         """The joint offsets ``(6,)`` [rad] of the measurement ``context.pose_index``."""
