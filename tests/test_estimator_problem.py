@@ -11,7 +11,7 @@ from twin.estimator.chain import Chain
 from twin.estimator.problem import (
     Observations,
     ParamSpace,
-    _station_eval,
+    station_eval,
     absolute_residuals,
     kabsch,
     make_pairs,
@@ -35,7 +35,7 @@ def _setup(make, seed=1, n=16):
     # measurements equal to the predictions at x1 (zero residual: the Jacobian is then exact)
     pts, _ = predict_points(space, x1, q, st, plate.spheres_flange)
     seen = rng.random((n, 3)) > 0.15
-    R, p, _ = _station_eval(space, x1, q, st, False)
+    R, p, _ = station_eval(space, x1, q, st, False)
     common = dict(q=q, station=st, station_names=("0", "1"), pose_id=np.arange(n), spheres_tool=plate.spheres_flange,
                   sigma_position=1e-5, sigma_orientation=1e-4)
     sph = Observations(kind="spheres", spheres=np.where(seen[..., None], pts, np.nan), seen=seen, **common)

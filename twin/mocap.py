@@ -37,7 +37,7 @@ import numpy as np
 
 from .dataset import Dataset, DatasetError, Plate, write_dataset
 from .kinematics import RobotModel, flange2base
-from .transforms import invert_transform, make_transform, matrix_to_rotvec
+from .transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
@@ -159,7 +159,7 @@ def marker_geometry(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for _ in range(5):  # Procrustes mean: align every row onto the current mean shape, average
         aligned = []
         for k in range(n):
-            R, t = _kabsch(P[k], shape + 0.0)
+            R, t = kabsch(P[k], shape + 0.0)
             aligned.append(P[k] @ R.T + t)
         shape = np.mean(aligned, axis=0)
         shape -= shape.mean(axis=0)
@@ -176,19 +176,9 @@ def marker_geometry(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     body = (shape - shape[0]) @ Rb  # points in the body frame
     poses = np.empty((n, 4, 4))
     for k in range(n):
-        R, t = _kabsch(body, P[k])
+        R, t = kabsch(body, P[k])
         poses[k] = make_transform(R, t)
     return body, poses
-
-
-def _kabsch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid (R, t) minimising sum |R A_k + t - B_k|^2 over points ``(m, 3)`` (with the reflection guard)."""
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    H = (A - ca).T @ (B - cb)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca
 
 
 def hand_eye(flange2base_T: np.ndarray, tool2meas_T: np.ndarray, *, min_angle: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
@@ -228,7 +218,7 @@ def hand_eye(flange2base_T: np.ndarray, tool2meas_T: np.ndarray, *, min_angle: f
     pts = np.concatenate([np.zeros((1, 3)), 0.1 * np.eye(3)])
     pred = np.concatenate([(F[k] @ Y)[:3, :3] @ pts.T + (F[k] @ Y)[:3, 3:4] for k in range(n)], axis=1).T
     meas = np.concatenate([M[k][:3, :3] @ pts.T + M[k][:3, 3:4] for k in range(n)], axis=1).T
-    R, t = _kabsch(pred, meas)
+    R, t = kabsch(pred, meas)
     return make_transform(R, t), Y
 
 

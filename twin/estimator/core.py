@@ -294,9 +294,9 @@ def residual_stats(space: ParamSpace, x: np.ndarray, obs: Observations) -> dict[
         pred, _ = predict_points(space, x, obs.q, obs.station, obs.spheres_tool)
         e = np.linalg.norm(obs.spheres - pred, axis=-1)[obs.seen]
         return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / _MM)}
-    from .problem import _station_eval
+    from .problem import station_eval
 
-    R, p, _ = _station_eval(space, x, obs.q, obs.station, False)
+    R, p, _ = station_eval(space, x, obs.q, obs.station, False)
     ep = np.linalg.norm(obs.pose_p - p, axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(R, -1, -2)), axis=-1)
     return {"n_rows": obs.n, "position_mm": _stats(ep / _MM), "orientation_deg": _stats(er / _DEG)}
@@ -323,9 +323,9 @@ def predicted_error(space: ParamSpace, x: np.ndarray, cov: np.ndarray, obs: Obse
         v = np.einsum("pkcn,pq,qkcn->nk", Jk, cov, Jk)  # (n, 3) summed over coordinates
         v = v[obs.seen]
         return {"position_mm": float(np.sqrt(np.mean(v)) / _MM)}
-    from .problem import _station_eval
+    from .problem import station_eval
 
-    _, _, J = _station_eval(space, x, obs.q, obs.station, True)
+    _, _, J = station_eval(space, x, obs.q, obs.station, True)
     vp = np.einsum("pcn,pq,qcn->n", J[:, :3], cov, J[:, :3])
     vr = np.einsum("pcn,pq,qcn->n", J[:, 3:], cov, J[:, 3:])
     return {"position_mm": float(np.sqrt(np.mean(vp)) / _MM), "orientation_deg": float(np.sqrt(np.mean(vr)) / _DEG)}

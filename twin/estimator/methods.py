@@ -368,12 +368,12 @@ def _synthetic_like(space: ParamSpace, x: np.ndarray, obs: Observations) -> Obse
     """Observations of the same kind as ``obs`` predicted by ``x`` (only the Jacobian is used)."""
     from dataclasses import replace
 
-    from .problem import _station_eval, predict_points
+    from .problem import station_eval, predict_points
 
     if obs.kind == "spheres":
         pts, _ = predict_points(space, x, obs.q, obs.station, obs.spheres_tool)
         return replace(obs, spheres=pts, seen=np.ones((obs.n, 3), bool))
-    R, p, _ = _station_eval(space, x, obs.q, obs.station, False)
+    R, p, _ = station_eval(space, x, obs.q, obs.station, False)
     return replace(obs, pose_R=R, pose_p=p)
 
 

@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, distort_normalized
+from ..camera import CameraIntrinsics, discs_in_image, distort_normalized
 from ..dataset import Plate
 from ..kinematics import (
     RobotModel,
@@ -184,7 +184,7 @@ def visibility(
         rad_px = intr.fx * r_s / np.maximum(z, 1e-9)
         m = options.margin_px + rad_px
         inside = (z > 0.05) & np.all(np.isfinite(uv), axis=-1)
-        inside &= (uv[..., 0] >= m) & (uv[..., 0] <= intr.width - 1 - m) & (uv[..., 1] >= m) & (uv[..., 1] <= intr.height - 1 - m)
+        inside &= discs_in_image(uv, m, intr.width, intr.height)
         ok_img &= np.all(inside, axis=1)
     reason[(reason == "") & ~ok_img] = "image"
     normal = T[:, :3, 2]

@@ -34,6 +34,7 @@ from ..dataset import Dataset
 from ..kinematics import RobotModel
 from ..transforms import (
     euler_zyx_from_matrix,
+    kabsch,
     matrix_to_rotvec,
     pose6_to_transform,
     transform_to_pose6,
@@ -50,7 +51,8 @@ __all__ = [
     "pair_residuals",
     "make_pairs",
     "plate_pose_from_spheres",
-    "kabsch",
+    "station_eval",
+    "kabsch",  # the foundation's rigid fit (twin.transforms), re-exported for the estimator's callers
 ]
 
 MeasurementKind = Literal["spheres", "pose"]
@@ -258,29 +260,6 @@ class Observations:
         )
 
 
-def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid ``(R, t)`` minimising ``sum w_k |R A_k + t - B_k|^2`` over points ``(..., m, 3)`` (batched;
-    Kabsch/Umeyama without scale, with the reflection guard)."""
-    A = np.asarray(A, dtype=float)
-    B = np.asarray(B, dtype=float)
-    if w is None:
-        w = np.ones(A.shape[:-1])
-    w = np.broadcast_to(np.asarray(w, dtype=float), A.shape[:-1])
-    ws = w.sum(axis=-1, keepdims=True)
-    ca = np.einsum("...m,...mi->...i", w, A) / ws
-    cb = np.einsum("...m,...mi->...i", w, B) / ws
-    H = np.einsum("...m,...mi,...mj->...ij", w, A - ca[..., None, :], B - cb[..., None, :])
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
-    D = np.zeros(H.shape)
-    D[..., 0, 0] = 1.0
-    D[..., 1, 1] = 1.0
-    D[..., 2, 2] = np.where(d == 0, 1.0, d)
-    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    t = cb - np.einsum("...ij,...j->...i", R, ca)
-    return R, t
-
-
 def plate_pose_from_spheres(spheres_meas: np.ndarray, spheres_tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Plate (tool) poses ``(R (n, 3, 3), p (n, 3))`` in the measurement frame from measured points
     ``(n, K, 3)`` and the marker geometry ``(K, 3)`` in the tool frame."""
@@ -386,7 +365,7 @@ def _cross_soa(v: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.stack([v1 * w[:, 2] - v2 * w[:, 1], v2 * w[:, 0] - v0 * w[:, 2], v0 * w[:, 1] - v1 * w[:, 0]], axis=1)
 
 
-def _station_eval(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, jacobian: bool):
+def station_eval(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, jacobian: bool):
     """Per-row tool poses ``R (n, 3, 3)``, ``p (n, 3)`` in the rows' measurement frames and, with
     ``jacobian``, ``J (P, 6, n)`` over the whole space (parameter-major)."""
     n = q.shape[0]
@@ -414,7 +393,7 @@ def predict_points(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.
                    jacobian: bool = False):
     """Points fixed in the tool frame ``(k, 3)`` [m] seen in the rows' measurement frames: ``(n, k, 3)``,
     and with ``jacobian`` their Jacobian ``(P, k, 3, n)``."""
-    R, p, J = _station_eval(space, x, q, station, jacobian)
+    R, p, J = station_eval(space, x, q, station, jacobian)
     v = np.einsum("nij,kj->nki", R, points_tool)  # (n, k, 3): R s_k
     pts = p[:, None, :] + v
     if not jacobian:
@@ -452,7 +431,7 @@ def absolute_residuals(
         if jacobian:
             J = (Jk / obs.sigma_position)[:, mask].T
         return Residuals(r=r, J=J, row=rows[mask], block=np.zeros(r.size, dtype=int))
-    R, p, Jp = _station_eval(space, x, obs.q, obs.station, jacobian)
+    R, p, Jp = station_eval(space, x, obs.q, obs.station, jacobian)
     blocks = []
     if part in ("full", "position"):
         blocks.append(0)
@@ -571,7 +550,7 @@ def pair_residuals(
         raise ValueError(f"{kind} residuals need pose observations: pass obs.as_poses() and pairs of its rows")
     sig = np.sqrt(2.0) * obs.sigma_orientation
     if kind == "rotation_change":
-        R, p, Jp = _station_eval(space, x, obs.q, obs.station, jacobian)
+        R, p, Jp = station_eval(space, x, obs.q, obs.station, jacobian)
         Qm = np.swapaxes(obs.pose_R[i], -1, -2) @ obs.pose_R[j]
         Qp = np.swapaxes(R[i], -1, -2) @ R[j]
         e = matrix_to_rotvec(Qm @ np.swapaxes(Qp, -1, -2)) / sig  # (k, 3)
