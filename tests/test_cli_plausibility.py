@@ -1,4 +1,4 @@
-"""Refusing what cannot be right in `twin predict`, `twin compensate` and `twin export` (issue 15): joints in
+"""Refusing what cannot be right in `twin predict`, `twin compensate` and `twin export`: joints in
 radians or beyond the limits, targets in the wrong units or out of reach, a calibration written with --force."""
 
 import csv

@@ -1,4 +1,4 @@
-"""`twin --help` builds its parser without importing numpy, scipy, mujoco, cv2 or rerun (issue 15: <= 0.5 s)."""
+"""`twin --help` builds its parser without importing numpy, scipy, mujoco, cv2 or rerun (the start-up target, <= 0.5 s, is a benchmark)."""
 
 import subprocess
 import sys

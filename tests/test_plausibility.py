@@ -1,4 +1,4 @@
-"""Refusing what cannot be right (issue 15): the usual mistakes on a valid dataset, through `twin calibrate`."""
+"""Refusing what cannot be right: the usual mistakes on a valid dataset, through `twin calibrate`."""
 
 import csv
 import json
