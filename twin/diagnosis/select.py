@@ -140,15 +140,19 @@ class _Problem:
         return _structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
 
 
-def _chi2_logsf(x: float, k: int) -> float:
-    """``log P(chi2(k) > x)``, finite where scipy's underflows to ``-inf`` (large ``x``: the leading term of
-    the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
-    v = float(stats.chi2.logsf(x, k))
-    if np.isfinite(v):
-        return v
+def chi2_logsf(x, k):
+    """``log P(chi2(k) > x)`` (scalars or arrays), finite where scipy's underflows to ``-inf`` (large ``x``: the
+    leading term of the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
     from scipy.special import gammaln
 
-    return float(-x / 2 + (k / 2 - 1) * np.log(x / 2) - gammaln(k / 2))
+    x, k = np.asarray(x, float), np.asarray(k, float)
+    v = np.asarray(stats.chi2.logsf(x, k), float)
+    bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
+    if np.any(bad):
+        xb, kb = np.broadcast_to(x, v.shape)[bad], np.broadcast_to(k, v.shape)[bad]
+        v = v.copy()
+        v[bad] = -xb / 2 + (kb / 2 - 1) * np.log(xb / 2) - gammaln(kb / 2)
+    return float(v) if v.ndim == 0 else v
 
 
 def _raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
@@ -177,56 +181,67 @@ def _screenable(a: Atom) -> bool:
     return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
 
 
-def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes, chunk: int = 600) -> np.ndarray:
+def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
     """Pool-adjusted log p-values ``(len(atoms),)`` of single-column-times-feature atoms, batched: columns
     scaled to unit norm, projected off the current model, directions below 1 % of a unit column dropped
-    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``."""
+    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``.
+
+    An atom's columns are ``E[m, k] = b[m] F[row(m), k]`` (``b`` the model column of its place, ``F`` its
+    features), so every product over the residuals is a product over the rows with per-row aggregates of
+    ``b``: ``E^T E = F^T diag(w) F`` with ``w = sum_row b^2``, ``Q^T E = (sum_row Q b)^T F``,
+    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``."""
+    from scipy import sparse
+
     from .extend import param_weights
 
     x = fit.z[: prob.prep.space.size]
     Jg = rc.J[:, : prob.prep.space.size]
-    base_cache: dict[tuple, np.ndarray] = {}
-    coords = None
-    out = np.full(len(atoms), np.inf)
     swk = sw[keep]
     rows = rc.row[keep]
-    for c0 in range(0, len(atoms), chunk):
-        part = atoms[c0:c0 + chunk]
-        cols, owner = [], []
-        for i, a in enumerate(part):
-            key = (a.place, a.target)
-            b = base_cache.get(key)
-            if b is None:
-                if a.place == "scale":
-                    if coords is None:
-                        x_, phis = fit.model_cal.split(fit.z)
-                        coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis)) * fit.model_cal._f
-                    b = coords
-                else:
-                    b = (Jg @ param_weights(prob.prep.space, x, a))[:, 0]
-                b = b[keep] * swk
-                base_cache[key] = b
-            F = prob.features(a)[prob.rows_cal][rows]
-            cols.append(b[:, None] * F)
-            owner += [i] * F.shape[1]
-        E = np.concatenate(cols, axis=1)
-        nrm = np.linalg.norm(E, axis=0)
-        E = E / np.where(nrm > 0, nrm, 1.0)
-        Ep = E - Q @ (Q.T @ E)
-        owner = np.asarray(owner)
-        er = Ep.T @ r
-        for i in range(len(part)):
-            idx = np.flatnonzero(owner == i)
-            if not np.any(nrm[idx] > 0):
-                continue
-            G = Ep[:, idx].T @ Ep[:, idx]
+    n = prob.obs_cal.n
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Qtr = Q.T @ r
+    coords = None
+    groups: dict[tuple, list[int]] = {}
+    for i, a in enumerate(atoms):
+        groups.setdefault((a.place, a.target), []).append(i)
+    logp = np.full(len(atoms), np.inf)
+    for (place, _), ids in groups.items():
+        if place == "scale":
+            if coords is None:
+                _, phis = fit.model_cal.split(fit.z)
+                coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis)) * fit.model_cal._f
+            b = coords
+        else:
+            b = (Jg @ param_weights(prob.prep.space, x, atoms[ids[0]]))[:, 0]
+        b = b[keep] * swk
+        w = S @ (b * b)  # (n,)
+        Qb = S @ (Q * b[:, None])  # (n, p)
+        br = S @ (b * r)  # (n,)
+        by_width: dict[int, list[int]] = {}
+        for i in ids:
+            by_width.setdefault(len(atoms[i].features), []).append(i)
+        for K, gi in by_width.items():
+            F = np.stack([prob.features(atoms[i])[prob.rows_cal] for i in gi], axis=1)  # (n, g, K)
+            g = len(gi)
+            F2 = F.reshape(n, g * K)
+            nrm = np.sqrt(np.maximum(w @ (F2 * F2), 0.0)).reshape(g, K)
+            scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
+            QtE = (Qb.T @ F2).reshape(-1, g, K).transpose(1, 0, 2) * scale[:, None, :]  # (g, p, K)
+            Ft = F.transpose(1, 2, 0)  # (g, K, n)
+            EtE = ((Ft * w) @ Ft.transpose(0, 2, 1)) * scale[:, :, None] * scale[:, None, :]
+            G = EtE - QtE.transpose(0, 2, 1) @ QtE
+            er = (br @ F2).reshape(g, K) * scale - (Qtr @ QtE)
+            has = np.any(nrm > 0, axis=1)
             lam, V = np.linalg.eigh(G)
-            ok = lam > 1e-4  # singular value above 1 % of a unit column
-            if not np.any(ok):
-                continue
-            d = float(np.sum((V[:, ok].T @ er[idx]) ** 2 / lam[ok]))
-            out[c0 + i] = _chi2_logsf(d, int(ok.sum())) + np.log(pool_sizes[part[i].pool])
-    return out
+            ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
+            proj = np.einsum("gij,gi->gj", V, er)
+            d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
+            k = ok.sum(axis=1)
+            fine = k > 0
+            gi = np.asarray(gi)
+            logp[gi[fine]] = chi2_logsf(d[fine], k[fine])
+    return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
 
 
 def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
@@ -261,7 +276,7 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
         fitted = Ep @ psi
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
-        logp = _chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
         out.append(_Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
     return out
 
@@ -484,7 +499,7 @@ def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tu
             psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             Ck = C[np.ix_(idx, idx)]
             d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
-            lp = _chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            lp = chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
             if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
                 worst = (lp, k)
         if worst is not None:
@@ -613,7 +628,7 @@ def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank:
     psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
     fitted = Ep @ psi
     d = float(fitted @ fitted)
-    if _chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+    if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
     return _Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
 
