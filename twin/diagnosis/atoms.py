@@ -50,6 +50,7 @@ __all__ = [
     "catalogue_atoms",
     "generic_atoms",
     "approach_unknown",
+    "history_signs",
 ]
 
 _DEG = np.pi / 180.0
@@ -148,7 +149,7 @@ def _channel(ctx: RowContext, name: str) -> np.ndarray:
     raise ValueError(f"unknown feature channel {name!r}")
 
 
-def _signs(ctx: RowContext) -> np.ndarray:
+def history_signs(ctx: RowContext) -> np.ndarray:
     """Approach signs ``(n, 6)``, 0 where the state is unknown (before a joint's first move after the start
     or a recorded restart)."""
     n = len(ctx.q)
@@ -217,19 +218,19 @@ def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
     """Backlash as a play operator on the commanded joint ``j`` with half clearance ``h`` [rad]: the output
     ``o_k = clip(o_{k-1}, u_k - h, u_k + h)`` lags the command ``u``; the feature is ``(o - u) / h`` in [-1, 1]
     (-1 after a move up by more than ``2 h``, +1 after one down; moves within the clearance do not switch it).
-    The state is unknown (0) after the start or a restart until the joint has moved by ``2 h``."""
+    After the start or a restart the output is only known to lie within ``[u - h, u + h]``; the moves since
+    narrow that interval (each end passes through the operator) and the feature reads its middle: 0 at the
+    start, the exact play once the joint has travelled ``2 h`` one way, and continuous in ``h`` in between."""
     q, reset = _history(ctx)
     u = q[:, j - 1]
     out = np.zeros(len(u))
-    o, lo, hi = u[0], u[0], u[0]  # output and the range travelled since the last reset
+    lo = hi = u[0]
     for k in range(len(u)):
         if reset[k]:
-            o, lo, hi = u[k], u[k], u[k]
-            out[k] = 0.0
-            continue
-        o = min(max(o, u[k] - h), u[k] + h)
-        lo, hi = min(lo, u[k]), max(hi, u[k])
-        out[k] = (o - u[k]) / h if hi - lo >= 2 * h else 0.0
+            lo, hi = u[k] - h, u[k] + h
+        else:
+            lo, hi = min(max(lo, u[k] - h), u[k] + h), min(max(hi, u[k] - h), u[k] + h)
+        out[k] = (0.5 * (lo + hi) - u[k]) / h
     return out[-len(ctx.q):]
 
 
@@ -270,7 +271,7 @@ def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
 def approach_unknown(ctx: RowContext) -> np.ndarray:
     """Rows ``(n,)`` where some joint that moves during the campaign has an unknown approach direction (after
     the start or a restart, until it moves): history-dependent terms cannot be predicted there."""
-    s = _signs(ctx)
+    s = history_signs(ctx)
     moves = np.ptp(ctx.q, axis=0) > 0
     return np.any((s == 0) & moves[None, :], axis=1)
 
@@ -292,7 +293,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = (_channel(ctx, a) - f["c"][0]) / f["h"][0] * (_channel(ctx, b) - f["c"][1]) / f["h"][1]
         elif kind == "sign":
             if "signs" not in cache:
-                cache["signs"] = _signs(ctx)
+                cache["signs"] = history_signs(ctx)
             out[:, k] = cache["signs"][:, f["j"] - 1]
         elif kind == "grav":
             if "grav" not in cache:

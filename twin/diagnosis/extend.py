@@ -170,6 +170,11 @@ class ExtendedModel:
         G = self.field_grid(a)
         return G[self._elem_row, self._sph, :, self._crd] / obs.sigma_position
 
+    def scale_column(self, obs: Observations) -> np.ndarray:
+        """Whitened column ``(m,)`` of the measurement scale: the measured coordinates in residual order over the
+        noise of their axis (the derivative of a scale ``p -> p (1 + s)``)."""
+        return self._coords(obs) * self._f
+
     def _coords(self, obs: Observations) -> np.ndarray:
         """Measured coordinates in residual order, divided by sigma (the derivative of a scale)."""
         v = np.transpose(obs.spheres, (1, 2, 0))

@@ -7,7 +7,7 @@ the measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from dataclasses import replace as _rep
 
 import numpy as np
@@ -20,7 +20,12 @@ from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, reduced_basis
 from .floor import NoiseFloor
 
-__all__ = ["StructureTest", "CATALOGUE_MARGIN"]
+__all__ = [
+    "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
+    "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
+    "smooth_confirm", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
+    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS",
+]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
 CATALOGUE_SHARE = 0.05  # ... or beyond this share of the named term's evidence when both act at the same place
@@ -40,7 +45,7 @@ class StructureTest:
 
 
 
-def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFloor) -> StructureTest:
+def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFloor) -> StructureTest:
     """``T = r^T (I + Jv C Jv^T)^-1 r`` with ``C = (Jc^T Jc)^-1`` (whitened units)."""
     m = r.size
     H = Jc.T @ Jc
@@ -57,17 +62,17 @@ def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseF
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
 
-def _row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     ss = np.bincount(row, weights=r**2, minlength=n)
     cnt = np.bincount(row, minlength=n)
     return np.sqrt(ss / np.maximum(cnt, 1)), cnt
 
 
-def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
+def gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
     """Rows ``(n,)`` bool whose whitened misfit is beyond both the floor's ``1e-6/n`` quantile and
     ``median + 8 MAD`` of the rows; none when more than ``max(2, max_fraction n)`` rows are (that is
     structure, not a few gross rows)."""
-    e, cnt = _row_rms(r, row, n)
+    e, cnt = row_rms(r, row, n)
     has = cnt > 0
     if has.sum() < 5:
         return np.zeros(n, dtype=bool)
@@ -83,24 +88,39 @@ def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float =
 
 
 @dataclass
-class _Fit:
+class Fit:
+    """A fitted extended model: the chosen atoms ``[(Atom, basis)]``, the extended vector ``z``, its free
+    entries, the weighted calibration ``chi2``, and the model on the calibration and the confirmation rows."""
+
     chosen: list  # [(Atom, basis)]
     z: np.ndarray
     free: np.ndarray
     chi2: float
     model_cal: ExtendedModel
     model_val: ExtendedModel
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
-class _Problem:
-    """Everything the selection rounds share: observations, rows, features, weights."""
+class Problem:
+    """Everything the selection rounds share: observations, rows, features, weights.
 
-    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray):
+    Three blocks of rows: ``cal`` (the model is fitted on them), ``val`` (the *confirmation* rows: the
+    structure test and the held-out checks that choose the terms) and ``rep`` (the *report* rows: before/after
+    are measured on them and nothing else; ``None`` when there are too few held-out rows for a separate block,
+    then the report is on the confirmation rows). ``cal``, ``val``, ``rep`` index ``prep.obs``."""
+
+    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray, *,
+                 val: np.ndarray | None = None, rep: np.ndarray | None = None):
         self.prep = prep
+        val = prep.val if val is None else np.asarray(val, int)
+        self.val_idx = val
+        self.rep_idx = None if rep is None else np.asarray(rep, int)
         self.obs_cal = prep.obs_cal.with_sigma(floor.sigma)
-        self.obs_val = prep.obs_val.with_sigma(floor.sigma)
+        self.obs_val = prep.obs.subset(val).with_sigma(floor.sigma)
         self.rows_cal = prep.rows[prep.cal]
-        self.rows_val = prep.rows[prep.val]
+        self.rows_val = prep.rows[val]
+        self.obs_rep = None if rep is None else prep.obs.subset(self.rep_idx).with_sigma(floor.sigma)
+        self.rows_rep = None if rep is None else prep.rows[self.rep_idx]
         self.ctx = ctx
         self.free_geo = free_geo
         self.floor = floor
@@ -110,6 +130,7 @@ class _Problem:
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
 
     def features(self, atom: Atom) -> np.ndarray:
+        """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
         key = repr(atom.features)
         F = self._F.get(key)
         if F is None:
@@ -117,27 +138,37 @@ class _Problem:
             self._F[key] = F
         return F
 
-    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> _Fit:
-        tc = [AtomTerm(a, self.features(a)[self.rows_cal], B) for a, B in chosen]
-        tv = [AtomTerm(a, self.features(a)[self.rows_val], B) for a, B in chosen]
-        ax = self.floor.axis_sigma
-        mc = ExtendedModel(self.prep.space, self.obs_cal, tc, ax)
-        mv = ExtendedModel(self.prep.space, self.obs_val, tv, ax)
-        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in tc] if z_eff is None else z_eff))
+    def model(self, chosen: list, block: str) -> ExtendedModel:
+        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
+        obs, rows = {"cal": (self.obs_cal, self.rows_cal), "val": (self.obs_val, self.rows_val),
+                     "rep": (self.obs_rep, self.rows_rep)}[block]
+        if obs is None:
+            raise ValueError(f"block {block!r}: this problem has no such rows")
+        terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
+        return ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+
+    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> Fit:
+        """Gauss-Newton over the free geometry and the atoms' reduced coordinates on the calibration rows
+        (gross rows at weight 0), from ``x0`` and ``z_eff`` (zero for new atoms)."""
+        mc, mv = self.model(chosen, "cal"), self.model(chosen, "val")
+        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in mc.terms] if z_eff is None else z_eff))
         free = np.concatenate([self.free_geo, np.arange(self.prep.space.size, mc.size)]).astype(int)
         # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
         gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=self.w_cal, max_iter=30, xtol=1e-11,
                           stage="extended")
         res = mc.residuals(gn.x, jacobian=False)
         rr = res.r * np.sqrt(self.w_cal[res.row])
-        return _Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+        return Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
 
-    def test(self, fit: _Fit) -> StructureTest:
-        rv = fit.model_val.residuals(fit.z)
+    def test(self, fit: Fit, model: ExtendedModel | None = None, keep: np.ndarray | None = None) -> StructureTest:
+        """The structure test of ``fit`` on the confirmation rows (or on ``model``'s rows, ``keep`` of them)."""
+        mv = fit.model_val if model is None else model
+        keep = self.keep_val if model is None else keep
+        rv = mv.residuals(fit.z)
         rc = fit.model_cal.residuals(fit.z)
-        kv = self.keep_val[rv.row]
+        kv = np.ones(rv.r.size, bool) if keep is None else keep[rv.row]
         Jc = rc.J[:, fit.free] * np.sqrt(self.w_cal[rc.row])[:, None]
-        return _structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
+        return structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
 
 
 def chi2_logsf(x, k):
@@ -155,14 +186,14 @@ def chi2_logsf(x, k):
     return float(v) if v.ndim == 0 else v
 
 
-def _raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
+def raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
     x, phis = model.split(z)
     obs = model.effective_obs(phis)
     return model.columns(AtomTerm(atom, F, np.eye(F.shape[1])), x, obs, res)
 
 
 @dataclass
-class _Scored:
+class Scored:
     atom: Atom
     basis: np.ndarray
     Ep: np.ndarray  # projected reduced columns (m_cal_kept, r)
@@ -181,7 +212,7 @@ def _screenable(a: Atom) -> bool:
     return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
 
 
-def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
+def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
     """Pool-adjusted log p-values ``(len(atoms),)`` of single-column-times-feature atoms, batched: columns
     scaled to unit norm, projected off the current model, directions below 1 % of a unit column dropped
     (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``.
@@ -210,7 +241,7 @@ def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, po
         if place == "scale":
             if coords is None:
                 _, phis = fit.model_cal.split(fit.z)
-                coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis)) * fit.model_cal._f
+                coords = fit.model_cal.scale_column(fit.model_cal.effective_obs(phis))
             b = coords
         else:
             b = (Jg @ param_weights(prob.prep.space, x, atoms[ids[0]]))[:, 0]
@@ -244,18 +275,42 @@ def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, po
     return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
 
 
-def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
-                 exact_top: int = 40) -> list[_Scored]:
+@dataclass(frozen=True)
+class ScoringBasis:
+    """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
+    square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
+    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it."""
+
+    rc: object
+    sw: np.ndarray
+    keep: np.ndarray
+    Q: np.ndarray
+    r: np.ndarray
+
+
+def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
+    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit)."""
+    key = ("basis", id(prob.w_cal))
+    got = fit.cache.get(key)
+    if got is None:
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        keep = sw > 0
+        A = (rc.J[:, fit.free] * sw[:, None])[keep]
+        Q, _ = np.linalg.qr(A)
+        r = (rc.r * sw)[keep]
+        r = r - Q @ (Q.T @ r)
+        got = fit.cache[key] = ScoringBasis(rc, sw, keep, Q, r)
+    return got
+
+
+def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
+                exact_top: int = 40) -> list[Scored]:
     """Linearised evidence of the atoms against the current fit (see the module docstring). The catalogue
     and the broad atoms are scored exactly; the many small dictionary atoms are screened in batches and only
     the ``exact_top`` strongest of them scored exactly."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
-    Q, _ = np.linalg.qr(A)
-    r = (rc.r * sw)[keep]
-    r = r - Q @ (Q.T @ r)
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
     screen = [a for a in atoms if a.pool != "catalogue" and _screenable(a)]
     exact = [a for a in atoms if not (a.pool != "catalogue" and _screenable(a))]
     if screen:
@@ -266,7 +321,7 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
         F = prob.features(a)[prob.rows_cal]
         if not np.any(F):
             continue
-        E = _raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
+        E = raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
         B = reduced_basis(E, Q=Q, max_rank=6)
         if B.shape[1] == 0:
             continue
@@ -277,11 +332,11 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
         logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
-        out.append(_Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
+        out.append(Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
     return out
 
 
-def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
+def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
     """Atoms in the order to try: by pool-adjusted evidence, except that a broad atom (``>= broad_dim``
     reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
     explain more within the same number of parameters (a broad atom collects a little of several effects;
@@ -314,7 +369,7 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     return order
 
 
-def _nested(small: _Scored, big: _Scored, share: float = 0.99) -> bool:
+def _nested(small: Scored, big: Scored, share: float = 0.99) -> bool:
     """Whether ``small``'s projected columns lie (to ``share`` of their norm) within ``big``'s span."""
     if small.basis.shape[1] >= big.basis.shape[1] or small.Ep.shape != (big.Ep.shape[0], small.Ep.shape[1]):
         return False
@@ -323,7 +378,7 @@ def _nested(small: _Scored, big: _Scored, share: float = 0.99) -> bool:
     return tot > 0 and float(np.sum((Qb.T @ small.Ep) ** 2)) >= share * tot
 
 
-def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Scored]:
+def _prefer_nested(order: list[Scored], alpha_select: float = 0.01) -> list[Scored]:
     """When the leading atom's features contain those of a smaller significant atom at the same place (a product
     group holds the linear terms of its joints; a cubic holds the quadratic and the linear), the smallest such
     atom goes first: what the larger one adds beyond it must then earn its own place in a later round (its
@@ -343,7 +398,7 @@ def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Sc
     return order if best is None else [best] + [s for s in order if s is not best]
 
 
-def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
+def _omp_gain(small: list[Scored], budget: int, pool: int = 60) -> float:
     """Calibration ``Delta chi2`` that small atoms reach together within ``budget`` parameters: greedy
     orthogonal matching pursuit over their projected columns on the residual they were scored against (the
     ``pool`` strongest atoms)."""
@@ -377,19 +432,17 @@ def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
     return gain
 
 
-def _confirm(prob: _Problem, fit: _Fit, s: _Scored, z_min: float) -> tuple[float, float, bool]:
+def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> tuple[float, float, bool]:
     """Held-out check of a scored atom: ``z``, ``z`` without the most favourable row, and whether the
     held-out residual norm drops."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    sb = scoring_basis(prob, fit)
+    A = (sb.rc.J[:, fit.free] * sb.sw[:, None])[sb.keep]
     # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
     beta_A = -np.linalg.lstsq(A, s.E @ s.psi, rcond=None)[0]
     rv = fit.model_val.residuals(fit.z)
     kv = prob.keep_val[rv.row]
     Fv = prob.features(s.atom)[prob.rows_val]
-    Ev = _raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
+    Ev = raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
     u = (Ev @ s.psi + rv.J[:, fit.free] @ beta_A)[kv]
     r = rv.r[kv]
     nu = float(np.linalg.norm(u))
@@ -407,7 +460,7 @@ NEIGHBOURS = 4  # rows a neighbour smoother averages
 JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
 
 
-def _row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
+def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
     """Whitened residuals ``(m,)`` as ``(n, 9)`` per row (sphere-major, x y z), NaN where not measured."""
     obs = model.obs
     shape = (3, 3, obs.n)
@@ -417,7 +470,7 @@ def _row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
     return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
 
 
-def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
     """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
 
     Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
@@ -430,8 +483,8 @@ def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
     within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
-    Rc = _row_blocks(fit.model_cal, rc.r)
-    Rv = _row_blocks(fit.model_val, rv.r)
+    Rc = row_blocks(fit.model_cal, rc.r)
+    Rv = row_blocks(fit.model_val, rv.r)
     Rc[prob.w_cal <= 0] = np.nan
     Rv[~prob.keep_val] = np.nan
     qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
@@ -459,7 +512,7 @@ def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
                                                               for v in out.values()), "smoothers": out}
 
 
-def _covariance(J: np.ndarray) -> np.ndarray:
+def covariance(J: np.ndarray) -> np.ndarray:
     """``(J^T J)^+`` of whitened columns, column-scaled first (geometric and effect columns differ by many
     orders of magnitude: an unscaled pseudo-inverse truncates the small ones)."""
     d = np.linalg.norm(J, axis=0)
@@ -468,14 +521,14 @@ def _covariance(J: np.ndarray) -> np.ndarray:
     return d[:, None] * np.linalg.pinv(Js.T @ Js, rcond=1e-12) * d[None, :]
 
 
-def _update_gross(prob: _Problem, fit: _Fit) -> None:
+def update_gross(prob: Problem, fit: Fit) -> None:
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
-    prob.w_cal = (~_gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
+    prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
-    prob.keep_val = ~_gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+    prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
 
 
-def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
+def psi_init(fit: Fit, chosen: list) -> list[np.ndarray]:
     """Start values of the reduced coordinates: the current fit's for atoms already in, zero for new ones."""
     prev = {t.atom.key: fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             for k, t in enumerate(fit.model_cal.terms)}
@@ -483,7 +536,7 @@ def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
             else np.zeros(B.shape[1]) for a, B in chosen]
 
 
-def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tuple[_Fit, list[Atom]]:
+def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple[Fit, list[Atom]]:
     """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
     dropped: list[Atom] = []
     changed = True
@@ -491,7 +544,7 @@ def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tu
         changed = False
         rc = fit.model_cal.residuals(fit.z)
         sw = np.sqrt(prob.w_cal[rc.row])
-        C = _covariance(rc.J[:, fit.free] * sw[:, None])
+        C = covariance(rc.J[:, fit.free] * sw[:, None])
         pos = {int(f): k for k, f in enumerate(fit.free)}
         worst = None
         for k, (a, B) in enumerate(fit.chosen):
@@ -506,12 +559,12 @@ def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tu
             k = worst[1]
             dropped.append(fit.chosen[k][0])
             chosen = [c for i, c in enumerate(fit.chosen) if i != k]
-            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, _psi_init(fit, chosen))
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
             changed = True
     return fit, dropped
 
 
-def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
+def alternatives(best: Scored, scored: list[Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
     """Atoms the data cannot tell apart from ``best``: they reproduce >= ``share`` of its fitted residual and
     their evidence is within ``e^log_evidence`` of it."""
     f = best.fitted
@@ -533,32 +586,44 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
 
 
 
-def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """Each scored sign backlash (the offset follows the direction of the last move) replaced by the backlash as
+    a play operator with the half clearance that explains most (``PLAY_HALF_DEG``, then refined), when that
+    explains significantly more: beyond ``chi2_1`` at 1 % / the number of clearances tried, on at least 3
+    calibration rows where the two differ (rows after a move shorter than the clearance, which does not switch
+    the side). Both are the one backlash of that joint, so they compete as one candidate: a joint with a
+    clearance and short moves is not left to an unnamed function of its last move."""
+    from .atoms import PLAY_HALF_DEG, play_backlash
+
+    out = []
+    for s in scored:
+        if s.atom.family != "backlash" or {f.get("kind") for f in s.atom.features} != {"sign"}:
+            out.append(s)
+            continue
+        j = s.atom.features[0]["j"]
+        trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
+                            exact_top=len(PLAY_HALF_DEG))
+        top = max(trial, key=lambda t: t.dchi2, default=None)
+        better = top is not None and top.dchi2 - s.dchi2 >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        if better:
+            f_sign = prob.features(s.atom)[prob.rows_cal, 0]
+            f_play = prob.features(top.atom)[prob.rows_cal, 0]
+            better = int(np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5)) >= 3
+        out.append(top if better else s)
+    return out
+
+
+def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
     grid); a time constant (``exp``, ``lag``), a move width (``lastmove``), a clearance (``play``) or a period
-    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice. Other atoms come back as they
-    are."""
+    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice, then to the maximum of the
+    evidence within the last grid step (bounded scalar search: a play's clearance must be right to a fraction of
+    a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
+    come back as they are."""
     kinds = {f.get("kind") for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
-    if kinds == {"sign"} and s.atom.family == "backlash":
-        # the clearance as a play operator (short moves do not switch the side): one more parameter, kept only
-        # when it explains significantly more (a sign is the play's limit for moves much longer than it)
-        from .atoms import PLAY_HALF_DEG, play_backlash
-
-        j = s.atom.features[0]["j"]
-        trial = _score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
-                             exact_top=len(PLAY_HALF_DEG))
-        top = max(trial, key=lambda t: t.dchi2, default=None)
-        if top is None or top.dchi2 - s.dchi2 < stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1):
-            return s
-        # the two differ only on rows after moves shorter than the clearance: a few of them must carry it
-        f_sign = prob.features(s.atom)[prob.rows_cal, 0]
-        f_play = prob.features(top.atom)[prob.rows_cal, 0]
-        if np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5) < 3:
-            return s
-        s, kinds = top, {"play"}
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
         return _refine_order(prob, fit, s, pool_sizes)
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
@@ -578,48 +643,101 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
     for span in (span_max, span_max ** 0.25):
         vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
         trial = [_with_constant(best.atom, key, v) for v in vals]
-        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
         v0 = next(f[key] for f in best.atom.features if key in f)
-    return best
+    return _polish(prob, fit, best, key, span_max ** (0.25 * 0.25), pool_sizes)
 
 
-def _refine_order(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def polish_in_fit(prob: Problem, fit: Fit, k: int, key: str, ratio: float = 1.05) -> Fit:
+    """The kept atom ``k`` of ``fit`` with its constant ``key`` moved to the minimum of the calibration chi2 of the
+    whole model refitted (Gauss-Newton, the joint terms applied exactly), within a factor ``ratio`` of its value
+    (bounded Brent search on its log, to 1e-4 of it). The linearised evidence that placed it is biased at the
+    noise level when the effect is large (a 0.3 deg clearance moves the plate ~4 mm: its second-order term is
+    ~10 um), and a clearance must be right to a fraction of a per cent."""
+    from scipy.optimize import minimize_scalar
+
+    atom, B = fit.chosen[k]
+    v0 = next(f[key] for f in atom.features if key in f)
+    x = fit.z[: prob.prep.space.size]
+    best = [fit]
+
+    def cost(u: float) -> float:
+        chosen = list(fit.chosen)
+        chosen[k] = (_with_constant(atom, key, v0 * np.exp(u)), B)
+        f = prob.fit(x, chosen, _psi_like(fit, chosen))
+        if f.chi2 < best[0].chi2:
+            best[0] = f
+        return f.chi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _psi_like(fit: Fit, chosen: list) -> list[np.ndarray]:
+    """Start values: the fit's reduced coordinates position by position (a term whose constant changed keeps
+    its coefficients)."""
+    return [fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]].copy() for k in range(len(chosen))]
+
+
+def _polish(prob: Problem, fit: Fit, s: Scored, key: str, ratio: float, pool_sizes: dict[str, int],
+            make=None) -> Scored:
+    """``s`` with its constant ``key`` moved to the maximum of the calibration evidence within a factor ``ratio``
+    of its value (bounded Brent search on the log of the constant, to 1e-4 of it); ``make(atom, v)`` builds the
+    atom with the constant ``v`` (default: :func:`_with_constant`)."""
+    from scipy.optimize import minimize_scalar
+
+    make = make or (lambda atom, v: _with_constant(atom, key, v))
+    v0 = next(f[key] for f in s.atom.features if key in f)
+    best = [s]
+
+    def cost(u: float) -> float:
+        got = score_atoms(prob, fit, [make(s.atom, v0 * np.exp(u))], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _with_order(atom: Atom, k: float) -> Atom:
+    """A scanned cyclic atom with its order (cycles per joint turn) set to ``k``; channel and label to match."""
+    k0 = atom.features[0]["k"]
+    feats = tuple(dict(f, k=float(k)) for f in atom.features)
+    ch = atom.features[0]["ch"]
+    return _rep(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
+                label=atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"), meta=dict(atom.meta, order=float(k)))
+
+
+def _refine_order(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A scanned cyclic order (half-order grid) moved to the order that explains most within half a grid step
-    (a stage's ratio need not be a half-integer), zoomed twice."""
+    (a stage's ratio need not be a half-integer), zoomed twice, then polished within the last grid step."""
     best = s
     for half in (0.25, 0.06):
         k0 = best.atom.features[0]["k"]
-        trial = []
-        for k in k0 + np.linspace(-half, half, 9):
-            if k <= 0 or k == k0:
-                continue
-            feats = tuple(dict(f, k=float(k)) for f in best.atom.features)
-            ch = best.atom.features[0]["ch"]
-            trial.append(_rep(best.atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
-                              label=best.atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"),
-                              meta=dict(best.atom.meta, order=float(k))))
-        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        trial = [_with_order(best.atom, k) for k in k0 + np.linspace(-half, half, 9) if k > 0 and k != k0]
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
-    return best
+    k0 = best.atom.features[0]["k"]
+    return _polish(prob, fit, best, "k", 1.0 + 0.015 / k0, pool_sizes, make=_with_order)
 
 
-def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank: int = 18) -> _Scored:
+def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int = 18) -> Scored:
     """An accepted atom was scored on at most 6 directions (a broad atom must not fit noise); its further
     directions above 1 % of a unit column are kept when together they add significant calibration evidence
     (``chi2_sf(Delta chi2_more - Delta chi2, extra) < alpha_select``): a frame swaying in time moves along its
     six axes with a sine and a cosine, twelve directions."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
-    Q, _ = np.linalg.qr(A)
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q = sb.rc, sb.sw, sb.keep, sb.Q
     F = prob.features(s.atom)[prob.rows_cal]
-    E = _raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    E = raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
     B = reduced_basis(E, Q=Q, max_rank=max_rank)
     if B.shape[1] <= s.basis.shape[1]:
         return s
@@ -630,7 +748,7 @@ def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank:
     d = float(fitted @ fitted)
     if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
-    return _Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
+    return Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
 
 
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
@@ -647,7 +765,7 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
     return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
 
 
-def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
     neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
     f0 = next(f for f in s.atom.features if f.get("kind") == "step")
@@ -663,6 +781,6 @@ def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, in
         feats = tuple(dict(f, at=float(v)) if f.get("kind") == "step" else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
         trial.append(_rep(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
-    scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
+    scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
     best = max(scored, key=lambda t: t.dchi2, default=None)
     return best if best is not None and best.dchi2 > s.dchi2 else s
