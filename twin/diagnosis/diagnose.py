@@ -447,13 +447,15 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
             break
-        z, zm, better = confirm(prob, fit, s, z_min)
+        c = confirm(prob, fit, s, z_min)
         implausible = _implausible(prob, s)
-        ok = z > z_min and zm > z_min and better and implausible is None
-        sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), z,
-                            "kept" if ok else ("not confirmed on held-out rows" if not (z > z_min) else
-                                               "held-out gain rests on one row" if not (zm > z_min) else
-                                               "held-out error not reduced" if not better else implausible))
+        ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
+        sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
+                            "kept" if ok else ("not confirmed on held-out rows" if not (c.z > z_min) else
+                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
+                                               "held-out error not reduced" if not c.better else
+                                               "the nearest rows in time predict the held-out rows as well (a wander, "
+                                               "not a term of time)" if c.local else implausible))
         out.scores.append(sc)
         if callback:
             callback(sc)

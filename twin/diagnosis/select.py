@@ -23,7 +23,7 @@ from .floor import NoiseFloor
 __all__ = [
     "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
     "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
-    "smooth_confirm", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
+    "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
     "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS",
 ]
 
@@ -432,9 +432,31 @@ def _omp_gain(small: list[Scored], budget: int, pool: int = 60) -> float:
     return gain
 
 
-def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> tuple[float, float, bool]:
-    """Held-out check of a scored atom: ``z``, ``z`` without the most favourable row, and whether the
-    held-out residual norm drops."""
+def time_only(atom: Atom) -> bool:
+    """Whether an atom's features are functions of the time channel alone (a drift, a step, a transient, an
+    oscillation in ``t_s`` or the row order, on any place)."""
+    kinds = {f.get("kind") for f in atom.features} - {"const"}
+    return bool(kinds) and kinds <= {"pow", "step", "exp", "sin", "cos"} and all(
+        f.get("ch") in ("t_s", "row") for f in atom.features if f.get("kind") != "const")
+
+
+@dataclass(frozen=True)
+class Confirmation:
+    """The held-out check of a scored atom on the confirmation rows: ``z``, ``z`` without the most favourable row,
+    whether the held-out residual norm drops (``better``), and for an atom of time alone, whether the mean
+    residual of the nearest calibration rows in time predicts those rows at least as well (``local``: a wander
+    of the cell correlated over a few rows, which a drift, a step or an oscillation fitted to this campaign
+    follows only by chance and which does not continue into later rows)."""
+
+    z: float
+    z_without_best_row: float
+    better: bool
+    local: bool = False
+
+
+def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
+    """Held-out check of a scored atom (:class:`Confirmation`); its prediction ``u`` on the confirmation rows is
+    linearised, the geometry re-adjusting to it."""
     sb = scoring_basis(prob, fit)
     A = (sb.rc.J[:, fit.free] * sb.sw[:, None])[sb.keep]
     # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
@@ -443,17 +465,25 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> tuple[float, fl
     kv = prob.keep_val[rv.row]
     Fv = prob.features(s.atom)[prob.rows_val]
     Ev = raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
-    u = (Ev @ s.psi + rv.J[:, fit.free] @ beta_A)[kv]
+    u_all = Ev @ s.psi + rv.J[:, fit.free] @ beta_A
+    u = u_all[kv]
     r = rv.r[kv]
     nu = float(np.linalg.norm(u))
     if nu <= 0:
-        return 0.0, 0.0, False
+        return Confirmation(0.0, 0.0, False)
     srms = float(np.sqrt(np.mean(r**2)))
     contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
     z = float(r @ u) / (nu * srms)
     z_minus = float(r @ u - contrib.max()) / (nu * srms)
-    better = float(np.sum((r - u) ** 2)) < float(r @ r)
-    return z, z_minus, better
+    err_term = float(np.sum((r - u) ** 2))
+    better = err_term < float(r @ r)
+    local = False
+    if time_only(s.atom):
+        U, Rv = neighbour_predictions(prob, fit)["time"]
+        Ut = row_blocks(fit.model_val, u_all)
+        ok = np.isfinite(Rv) & np.isfinite(U) & np.isfinite(Ut)
+        local = float(np.sum((Rv - U)[ok] ** 2)) <= float(np.sum((Rv - Ut)[ok] ** 2))
+    return Confirmation(z, z_minus, better, local)
 
 
 NEIGHBOURS = 4  # rows a neighbour smoother averages
@@ -470,17 +500,15 @@ def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
     return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
 
 
-def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
-    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
-
-    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
-    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
-    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
-    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
-    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
-    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
-    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
-    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per smoother (``joints``, ``time``): the mean whitened residual ``(n_v, 9)`` of the ``NEIGHBOURS`` nearest
+    calibration rows of each confirmation row (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``;
+    time: ``t_s``, else the row order; rows with the same commanded joints excluded: a repeat shares the visit's
+    error), and the confirmation rows' own residual ``(n_v, 9)`` (NaN where not measured or gross)."""
+    key = ("neighbours", id(prob.w_cal), id(prob.keep_val))
+    got = fit.cache.get(key)
+    if got is not None:
+        return got
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     Rc = row_blocks(fit.model_cal, rc.r)
@@ -500,6 +528,24 @@ def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
         nb = np.argsort(D, axis=1)[:, :k]
         with np.errstate(invalid="ignore"):
             U = np.nanmean(Rc[nb], axis=1)  # (n_v, 9)
+        out[name] = (U, Rv)
+    fit.cache[key] = out
+    return out
+
+
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
+
+    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
+    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
+    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
+    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
+    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
+    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
+    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
+    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+    out = {}
+    for name, (U, Rv) in neighbour_predictions(prob, fit).items():
         c = np.nansum(Rv * U, axis=1)
         ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
         c = c[ok_rows]
