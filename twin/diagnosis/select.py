@@ -192,17 +192,33 @@ def raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, 
     return model.columns(AtomTerm(atom, F, np.eye(F.shape[1])), x, obs, res)
 
 
-@dataclass
 class Scored:
-    atom: Atom
-    basis: np.ndarray
-    Ep: np.ndarray  # projected reduced columns (m_cal_kept, r)
-    E: np.ndarray  # reduced columns (m_cal_kept, r)
-    psi: np.ndarray
-    dchi2: float
-    logp_adj: float
-    fitted: np.ndarray  # Ep psi
-    r: np.ndarray  # the residual it was scored against (projected off the current model)
+    """An atom scored against a fit: its reduced ``basis`` ``(K, r)``, coefficients ``psi`` ``(r,)``, calibration
+    evidence ``dchi2`` and pool-adjusted ``logp_adj``, the residual ``r`` it was scored against (projected off the
+    current model, kept residuals), and on demand its reduced columns ``E`` ``(m_kept, r)``, their part ``Ep``
+    beyond the current model and the fitted residual ``fitted = Ep psi``."""
+
+    def __init__(self, atom: Atom, basis: np.ndarray, psi: np.ndarray, dchi2: float, logp_adj: float, r: np.ndarray,
+                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None):
+        self.atom, self.basis, self.psi, self.dchi2, self.logp_adj, self.r = atom, basis, psi, dchi2, logp_adj, r
+        self._E, self._Ep, self._columns, self._Q = E, Ep, columns, Q
+
+    @property
+    def E(self) -> np.ndarray:
+        if self._E is None:
+            self._E = self._columns() @ self.basis
+        return self._E
+
+    @property
+    def Ep(self) -> np.ndarray:
+        if self._Ep is None:
+            E = self.E
+            self._Ep = E - self._Q @ (self._Q.T @ E)
+        return self._Ep
+
+    @property
+    def fitted(self) -> np.ndarray:
+        return self.Ep @ self.psi
 
 
 def _screenable(a: Atom) -> bool:
@@ -316,8 +332,10 @@ def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str
     if screen:
         lp = _screen(prob, fit, screen, rc, keep, sw, Q, r, pool_sizes)
         exact += [screen[i] for i in np.argsort(lp)[:exact_top] if np.isfinite(lp[i])]
-    out = []
-    for a in exact:
+    products = [a for a in exact if _product(a)]
+    others = [a for a in exact if not _product(a)]
+    out = _score_products(prob, fit, products, sb, pool_sizes) if products else []
+    for a in others:
         F = prob.features(a)[prob.rows_cal]
         if not np.any(F):
             continue
@@ -332,8 +350,86 @@ def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
         logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
-        out.append(Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
-    return out
+        out.append(Scored(a, B, psi, d, logp, r, E=EB, Ep=Ep))
+    order = {id(a): i for i, a in enumerate(exact)}
+    return sorted(out, key=lambda s: order[id(s.atom)])
+
+
+def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis, pool_sizes: dict[str, int], *,
+                    rel_tol: float = 1e-2, max_rank: int = 6) -> list[Scored]:
+    """The exact score (as :func:`twin.diagnosis.extend.reduced_basis` and least squares on the reduced columns)
+    of atoms whose columns are products ``E[m, k c + j] = F[row(m), k] base[m, j]``, through per-row aggregates of
+    their base: ``E^T E = sum_row F F^T (x) W`` with ``W = sum_row base base^T``, ``Q^T E = sum_row (Q^T base) F``,
+    ``E^T r = sum_row F (base^T r)``. The reduced basis is the eigenvectors of the column-scaled projected Gram
+    matrix ``D (E^T E - (Q^T E)^T Q^T E) D`` whose singular values (square roots) pass ``rel_tol`` (at most
+    ``max_rank``), and ``Delta chi2 = sum (v^T D (E^T r - (Q^T E)^T Q^T r))^2 / lambda``. The columns themselves
+    are built only for the atoms whose ``Ep`` is asked for."""
+    from scipy import sparse
+
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
+    x = fit.z[: prob.prep.space.size]
+    model = fit.model_cal
+    obs = model.effective_obs(model.split(fit.z)[1])
+    rows = rc.row[keep]
+    n = prob.obs_cal.n
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Qtr = Q.T @ r
+    groups: dict[tuple, list[Atom]] = {}
+    for a in atoms:
+        groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
+    pending = []
+    for key, members in groups.items():
+        base = model.product_base(members[0], x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
+        c = base.shape[1]
+        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
+        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
+        Br = S @ (base * r[:, None])  # (n, c)
+        by_width: dict[int, list[Atom]] = {}
+        for a in members:
+            by_width.setdefault(len(a.features), []).append(a)
+        for K, grp in by_width.items():
+            F = np.stack([prob.features(a)[prob.rows_cal] for a in grp], axis=1)  # (n, g, K)
+            if members[0].place == "plate" and not members[0].varying_plate:
+                F = np.ones_like(F)
+            g = len(grp)
+            KC = K * c
+            EtE = np.einsum("ngk,ngl,ncd->gkcld", F, F, W, optimize=True).reshape(g, KC, KC)
+            QtE = np.einsum("npc,ngk->gpkc", QB, F, optimize=True).reshape(g, Q.shape[1], KC)
+            Etr = np.einsum("nc,ngk->gkc", Br, F, optimize=True).reshape(g, KC)
+            nrm = np.sqrt(np.maximum(np.einsum("gii->gi", EtE), 0.0))  # (g, KC)
+            has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
+            D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
+            G = (EtE - QtE.transpose(0, 2, 1) @ QtE) * D[:, :, None] * D[:, None, :]
+            e = (Etr - np.einsum("gpk,p->gk", QtE, Qtr)) * D
+            lam, V = np.linalg.eigh(G)
+            lam, V = lam[:, ::-1], V[:, :, ::-1]  # descending
+            sv = np.sqrt(np.maximum(lam, 0.0))
+            rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
+            for i, a in enumerate(grp):
+                rk = int(rks[i])
+                if rk == 0 or not np.any(F[:, i]) or not np.any(has[i]):
+                    continue
+                Vr = V[i][:, :rk]
+                proj = Vr.T @ e[i]
+                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
+    if not pending:
+        return []
+    logp = chi2_logsf(np.array([p[3] for p in pending]), np.array([p[4] for p in pending]))
+    return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
+                   columns=_column_maker(prob, fit, a, rc, keep, sw))
+            for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
+
+
+def _product(a: Atom) -> bool:
+    """Whether an atom's columns are its features times model columns (:meth:`ExtendedModel.product_base`)."""
+    return not (a.place == "field" or (a.place == "param" and a.target == "base_along"))
+
+
+def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
+    def make() -> np.ndarray:
+        F = prob.features(atom)[prob.rows_cal]
+        return raw_columns(fit.model_cal, atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    return make
 
 
 def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
@@ -794,7 +890,7 @@ def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int
     d = float(fitted @ fitted)
     if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
-    return Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
+    return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
 
 
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
