@@ -7,6 +7,7 @@ the measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from dataclasses import replace as _rep
 
@@ -125,17 +126,33 @@ class Problem:
         self.free_geo = free_geo
         self.floor = floor
         self._F: dict[str, np.ndarray] = {}
+        self._Fc: dict[str, np.ndarray] = {}
+        self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
 
+    def _key(self, atom: Atom) -> str:
+        key = self._keys.get(atom)
+        if key is None:
+            key = self._keys[atom] = repr(atom.features)
+        return key
+
     def features(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
-        key = repr(atom.features)
+        key = self._key(atom)
         F = self._F.get(key)
         if F is None:
             F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
             self._F[key] = F
+        return F
+
+    def features_cal(self, atom: Atom) -> np.ndarray:
+        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached)."""
+        key = self._key(atom)
+        F = self._Fc.get(key)
+        if F is None:
+            F = self._Fc[key] = self.features(atom)[self.rows_cal]
         return F
 
     def model(self, chosen: list, block: str) -> ExtendedModel:
@@ -269,7 +286,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
         for i in ids:
             by_width.setdefault(len(atoms[i].features), []).append(i)
         for K, gi in by_width.items():
-            F = np.stack([prob.features(atoms[i])[prob.rows_cal] for i in gi], axis=1)  # (n, g, K)
+            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=1)  # (n, g, K)
             g = len(gi)
             F2 = F.reshape(n, g * K)
             nrm = np.sqrt(np.maximum(w @ (F2 * F2), 0.0)).reshape(g, K)
@@ -388,19 +405,19 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
         for a in members:
             by_width.setdefault(len(a.features), []).append(a)
         for K, grp in by_width.items():
-            F = np.stack([prob.features(a)[prob.rows_cal] for a in grp], axis=1)  # (n, g, K)
-            if members[0].place == "plate" and not members[0].varying_plate:
-                F = np.ones_like(F)
+            F = np.stack([prob.features_cal(a) for a in grp], axis=1)  # (n, g, K)
             g = len(grp)
-            KC = K * c
-            EtE = np.einsum("ngk,ngl,ncd->gkcld", F, F, W, optimize=True).reshape(g, KC, KC)
-            QtE = np.einsum("npc,ngk->gpkc", QB, F, optimize=True).reshape(g, Q.shape[1], KC)
-            Etr = np.einsum("nc,ngk->gkc", Br, F, optimize=True).reshape(g, KC)
-            nrm = np.sqrt(np.maximum(np.einsum("gii->gi", EtE), 0.0))  # (g, KC)
+            KC, p = K * c, Q.shape[1]
+            FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
+            EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+            F2 = F.reshape(n, g * K)
+            QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+            Etr = (F2.T @ Br).reshape(g, KC)
+            nrm = np.sqrt(np.maximum(np.diagonal(EtE, axis1=1, axis2=2), 0.0))  # (g, KC)
             has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
             D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
             G = (EtE - QtE.transpose(0, 2, 1) @ QtE) * D[:, :, None] * D[:, None, :]
-            e = (Etr - np.einsum("gpk,p->gk", QtE, Qtr)) * D
+            e = (Etr - Qtr @ QtE) * D
             lam, V = np.linalg.eigh(G)
             lam, V = lam[:, ::-1], V[:, :, ::-1]  # descending
             sv = np.sqrt(np.maximum(lam, 0.0))
