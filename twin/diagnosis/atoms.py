@@ -46,6 +46,7 @@ from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regr
 __all__ = [
     "Atom",
     "play_backlash",
+    "hinge_atom",
     "feature_values",
     "catalogue_atoms",
     "generic_atoms",
@@ -62,6 +63,8 @@ MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
+HINGE_POINTS = 9  # angles (deciles of a joint's range) past which a one-sided pull may start (then refined)
+HINGE_POWERS = (1, 2)  # the pull grows linearly (a spring) or with the square of the overtravel
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
@@ -316,6 +319,9 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
             out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+        elif kind == "hinge":
+            # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
+            out[:, k] = (np.clip(f["side"] * (_channel(ctx, f["ch"]) - f["at"]), 0.0, None) / f["h"]) ** f["p"]
         elif kind == "stepin":
             out[:, k] = _steps_in(ctx)[:, f["j"] - 1]
         elif kind == "heat":
@@ -388,6 +394,17 @@ def play_backlash(j: int, h: float) -> Atom:
     return Atom("backlash", "joint", f"theta{j}", ({"kind": "play", "j": j, "h": float(h)},), f"play j{j} half {hd:.3g} deg",
                 f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",
                 "catalogue", (j,))
+
+
+def hinge_atom(j: int, at: float, side: int, p: int, h: float) -> Atom:
+    """Joint ``j``'s angle growing as ``(max(0, side (q_j - at)) / h)^p`` [``at`` rad, ``h`` rad a scale]: zero on one
+    side of the angle ``at``, a power of the overtravel past it (a cable or hose going taut and pulling)."""
+    ad = np.rad2deg(at)
+    rel = f"q{j} - {ad:.4g} deg" if side > 0 else f"{ad:.4g} deg - q{j}"
+    ch = f"max(0, {rel})" + ("" if p == 1 else f"^{p}")
+    return Atom("unnamed", "joint", f"theta{j}", ({"kind": "hinge", "ch": f"q{j}", "at": float(at), "side": int(side),
+                                                  "p": int(p), "h": float(h)},), ch,
+                f"unnamed: joint {j} angle varies with {ch} (a pull past an angle)", "generic", (j,))
 
 
 def _nominal_length(model: RobotModel, name: str) -> float:
@@ -660,6 +677,16 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for ch, fs, _ in cell_feats:
             fs = (({"kind": "const"},) if place == "scale" else ()) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic"))
+    # a pull that starts past an angle (a cable or dress pack going taut): zero on one side of the angle, a power of
+    # the overtravel beyond it, on the joint itself; the angle on the deciles of the joint's range (then refined)
+    for j in range(1, N_JOINTS + 1):
+        x = q[:, j - 1]
+        if np.ptp(x) < 1e-6:
+            continue
+        for at in np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2)[1:-1]):
+            for side in (1, -1):
+                for pw in HINGE_POWERS:
+                    atoms.append(hinge_atom(j, float(at), side, pw, float(max(0.5 * np.ptp(x), 1e-9))))
     # the flange stops short of (or beyond) its target along its last move (settling): a displacement in the
     # base frame along the direction of the last Cartesian move
     tcp = [0.0, 0.0, 0.0] if plate_spheres is None else np.mean(np.asarray(plate_spheres, float), axis=0).tolist()

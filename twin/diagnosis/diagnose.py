@@ -674,7 +674,8 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
     named ones (a quadratic before the harmonics it stands for), try the catalogue's shapes of that variable
     alone (harmonics 1-3, the gear ratio, the scanned orders already kept) in place of the unnamed term: when
-    they predict the held-out rows as well (within 2 %), the named explanation is kept, and the unnamed shape it
+    they predict the confirmation rows as well (within 2 %) with no more parameters at that joint than the unnamed
+    shape and the named terms kept with it, the named explanation is kept, and the unnamed shape it
     replaced is reported as the alternative the data cannot tell from it (over a joint's range a few harmonics
     follow any smooth shape: the name is the simpler reading, not a proof). Returns the fit, notes and those
     alternatives."""
@@ -701,7 +702,11 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
         alt, _ = backward(prob, alt, alpha_select, sizes)
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
         e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        if e_alt <= 1.02 * e_now:
+        # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
+        # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
+        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and _single_joint_variable(c) == var)
+        n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) == var)
+        if e_alt <= 1.02 * e_now and n_alt <= n_now:
             notes.append(f"'{a.label}' replaced by the catalogue's shapes of {var} on joint {target[5:]} "
                          f"({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they predict the "
                          f"held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")

@@ -783,6 +783,8 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     kinds = {f.get("kind") for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
+    if kinds == {"hinge"}:
+        return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
         return _refine_order(prob, fit, s, pool_sizes)
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
@@ -922,6 +924,34 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
     return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
+
+
+def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A one-sided pull found past a decile of its joint's range moved to the angle that explains most between the
+    neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
+    from scipy.optimize import minimize_scalar
+
+    from .atoms import HINGE_POINTS, hinge_atom
+
+    f0 = s.atom.features[0]
+    j = int(f0["ch"][1:])
+    x = prob.ctx.q[:, j - 1]
+    grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
+    k = int(np.argmin(np.abs(grid - f0["at"])))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = [s]
+
+    def cost(at: float) -> float:
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"])], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    if hi > lo:
+        minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-5})
+    return best[0]
 
 
 def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
