@@ -39,7 +39,7 @@ from ..estimator.core import Prepared, prepare
 from ..estimator.methods import build_calibration, identify_best
 from ..estimator.problem import kabsch
 from ..transforms import matrix_to_rotvec
-from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs
+from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
@@ -848,7 +848,7 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             value, value_sd, vunit = size["rms_mm"], None, "mm RMS (translation)"
         else:
             value, value_sd, vunit = float(np.linalg.norm(phi) * fac), None, unit
-        entry = {**a.spec(), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+        entry = {**a.spec(), "features": with_records(a.features, prob.ctx), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
                  "value": value, "value_sd": value_sd, "value_unit": vunit,
                  "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
                  "entry_chi2": (entry_chi2 or {}).get(a.key, wald),
