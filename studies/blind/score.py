@@ -5,7 +5,8 @@
 BATCH_DIR holds one folder per campaign (`dataset/`, `key/`; format in docs/formats.md, "Blind campaigns").
 Writes OUT/results.json (per campaign: verdict, terms, trace, before/after/oracle on the diagnosis' report rows and
 on the test block; the package versions, CPU and load it ran under) and OUT/summary.md; per-campaign work folders
-go to OUT/work/ (git-ignored).
+go to OUT/work/ (git-ignored). The user's commands (`twin diagnose`, `twin predict`) run through `twin.cli.main` in
+the workers (the same code as on the command line, without an interpreter's start-up per command).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ def _one(args: tuple[str, str]) -> dict:
     campaign, work = args
     t = time.time()
     try:
-        r = score_campaign(campaign, work)
+        r = score_campaign(campaign, work, in_process=True)
     except Exception as exc:  # a failure of the scorer is a result too (named, never hidden)
         r = {"name": Path(campaign).name, "category": "?", "error": f"scorer: {type(exc).__name__}: {exc}"}
     r["seconds"] = round(time.time() - t, 1)

@@ -83,8 +83,8 @@ DEFAULT_HOLDOUT = 0.3  # held-out fraction without a 'set' column (and no holdou
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
-REPORT_EVERY = 3  # every third held-out visit is a report row (the others confirm the terms)
-REPORT_MIN_VISITS = 9  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
+REPORT_EVERY = 5  # every fifth held-out visit is a report row (the others confirm the terms: they need the power)
+REPORT_MIN_VISITS = 20  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
 
 
 @dataclass(frozen=True)
@@ -342,7 +342,7 @@ def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, every: int =
     unknown = approach_unknown(ctx)
     is_rep = np.isin(visit[vrow], list(rep_visits)) & ~unknown[vrow]
     return HeldOut(val[~is_rep], val[is_rep],
-                   f"every {every}rd held-out visit in measurement order (a visit: consecutive rows with the same "
+                   f"every {every}th held-out visit in measurement order (a visit: consecutive rows with the same "
                    "commanded joints and station), rows with an unknown approach history excluded; the other "
                    "held-out rows confirm the terms")
 

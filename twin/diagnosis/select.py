@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, field
-from dataclasses import replace as _rep
+from dataclasses import replace as replace_atom
 
 import numpy as np
 from scipy import stats
@@ -871,7 +871,7 @@ def _with_order(atom: Atom, k: float) -> Atom:
     k0 = atom.features[0]["k"]
     feats = tuple(dict(f, k=float(k)) for f in atom.features)
     ch = atom.features[0]["ch"]
-    return _rep(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
+    return replace_atom(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
                 label=atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"), meta=dict(atom.meta, order=float(k)))
 
 
@@ -923,7 +923,7 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
         o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
-    return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
+    return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
 
 
 def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
@@ -969,7 +969,7 @@ def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int])
     for v in cands:
         feats = tuple(dict(f, at=float(v)) if f.get("kind") == "step" else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
-        trial.append(_rep(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
+        trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
     best = max(scored, key=lambda t: t.dchi2, default=None)
     return best if best is not None and best.dchi2 > s.dchi2 else s
