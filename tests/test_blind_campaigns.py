@@ -41,8 +41,32 @@ def _campaigns():
 
 
 CAMPAIGNS = _campaigns()
-# campaigns that miss a target with the current diagnosis: (generator, key name) -> the target missed
-KNOWN_MISSES: dict[tuple[str, str], str] = {}
+# campaigns that miss a target with the current diagnosis (studies/blind/results): (generator, key name) -> the
+# targets missed
+KNOWN_MISSES: dict[tuple[str, str], str] = {
+    ('a', 'hA11'): "not traced; extra names ['compliance']",
+    ('a', 'hA18'): 'not traced',
+    ('a', 'hA19'): "not traced; extra names ['compliance']",
+    ('b', 'b04'): 'later rows after/oracle 1.93 > 1.5',
+    ('b', 'b17'): "not traced; extra names ['thermal']; named ['coupling', 'thermal'] not ['coupling']",
+    ('b', 'b22'): "not traced; extra names ['compliance', 'cyclic']",
+    ('b', 'b28'): "extra names ['cyclic']; named ['compliance', 'cyclic'] not ['compliance']",
+    ('c', 'c06'): "extra names ['cyclic']; named ['compliance', 'cyclic'] not ['compliance']",
+    ('c', 'c08'): 'not traced; report after/oracle 4.81 > 1.5; later rows after/oracle 3.50 > 1.5',
+    ('c', 'c23'): "extra names ['plate_geometry']; later rows after/oracle 1.83 > 1.5",
+    ('c', 'c27'): "extra names ['gear_ratio']; named ['cyclic', 'gear_ratio'] not ['cyclic']",
+    ('d', 'd04'): "extra names ['compliance', 'cyclic']; report after/oracle 1.79 > 1.5; later rows after/oracle 2.16 > 1.5",
+    ('d', 'd09'): "not structured; named [] not ['cyclic']",
+    ('d', 'd14'): "not traced; named [] not ['compliance']",
+    ('d', 'd18'): "not structured; named [] not ['compliance']",
+    ('d', 'd25'): "not traced; extra names ['compliance']; named ['backlash', 'compliance'] not ['backlash']",
+    ('d', 'd28'): "extra names ['cyclic']; named ['backlash', 'cyclic', 'compliance'] not ['compliance', 'backlash']",
+    ('d', 'd30'): 'not traced',
+    ('e', 'e09'): "not traced; extra names ['cyclic']; named ['coupling', 'cyclic'] not ['coupling']",
+    ('e', 'e10'): "extra names ['cyclic']",
+    ('e', 'e13'): 'report after/oracle 1.54 > 1.5; later rows after/oracle 1.87 > 1.5',
+    ('e', 'e19'): 'not traced',
+}
 
 
 def _params():

@@ -43,6 +43,7 @@ def main() -> int:
     agg = {}
     groups = {r["batch"]: [r] for r in rows}
     groups["current"] = [r for r in rows if not r["batch"].endswith("_first_pass")]
+    groups["first_passes"] = [r for r in rows if r["batch"].endswith("_first_pass")]
     for name, rs in groups.items():
         def tot(cat, key):
             return sum((r.get(cat) or {}).get(key) or 0 for r in rs)
