@@ -393,3 +393,46 @@ def test_a_pose_dataset_is_diagnosed_through_virtual_points(tmp_path):
         out.append({"seed": seed, "named": res.effects == ("cyclic",) and any("virtual spheres" in n for n in res.notes),
                     "noise": ext < 1.2 * np.sqrt(3) * 5e-6 and geo > 3 * ext})
     H.tally(out, named=(9, SEEDS), noise=(9, SEEDS))
+
+
+def test_held_out_rows_split_by_visit_into_confirmation_and_report():
+    """The held-out rows split in two disjoint blocks covering them: every fifth held-out visit is a report row
+    (a repeat in the block of its visit), no report row with an unknown approach history."""
+    from twin.diagnosis import split_held_out
+    from twin.diagnosis.atoms import approach_unknown
+    from twin.estimator.core import prepare
+
+    ds, _ = H.make_dataset(seed=0, n=120)
+    prep = prepare(ds, noise_position=H.SIGMA)
+    ctx = row_context(ds)
+    held = split_held_out(ds, prep, ctx)
+    conf, rep = set(prep.rows[held.confirmation].tolist()), set(prep.rows[held.report].tolist())
+    assert not conf & rep and conf | rep == set(prep.rows[prep.val].tolist())
+    visits = {}
+    for r in sorted(conf | rep):
+        visits.setdefault(tuple(np.round(ds.q[r], 9)), set()).add(r in rep)
+    assert all(len(v) == 1 for v in visits.values())  # a visit's rows in one block
+    n_visits = len(visits)
+    assert len([v for v in visits.values() if True in v]) == pytest.approx(n_visits / 5, abs=1)
+    assert not approach_unknown(ctx)[sorted(rep)].any()
+
+
+@pytest.mark.slow
+def test_the_named_steps_called_alone_give_what_diagnose_gives():
+    """prepare_diagnosis -> fit_geometry -> the test -> atom_pool -> select_terms -> report_before_after, called one
+    by one, keep the terms and report the after that diagnose does."""
+    from twin.diagnosis import diagnose as run
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis, report_before_after, select_terms
+
+    ds, _ = H.make_dataset(seed=7, n=100, effect=H.backlash())
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    assert prob.test(base).p_value < 0.01
+    pool, sizes = atom_pool(setup)
+    sel = select_terms(prob, base, pool, sizes)
+    base = prob.fit(base.z[: setup.prep.space.size], [])
+    rep = report_before_after(prob, base, sel.fit)
+    res = run(ds)
+    assert [a.label for a, _ in sel.fit.chosen] == [a["label"] for a in res.atoms]
+    assert rep["after"] == res.after and rep["before"] == res.before
