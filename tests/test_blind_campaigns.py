@@ -80,7 +80,9 @@ def _params():
 def _batch(tmp_path_factory, gen: str) -> Path:
     """Generator ``gen``'s batch, written once per test session and shared by the test workers (a directory made
     atomically is the lock; the others wait for the 'done' marker)."""
-    root = tmp_path_factory.getbasetemp().parent / "blind-campaigns"
+    base = tmp_path_factory.getbasetemp()
+    # this session's folder: with test workers, the parent of each worker's folder; alone, the session's own
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "blind-campaigns"
     root.mkdir(exist_ok=True)
     out, done, lock = root / f"batch{gen.upper()}", root / f"batch{gen.upper()}.done", root / f"batch{gen.upper()}.lock"
     try:
