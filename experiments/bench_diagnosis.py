@@ -12,7 +12,9 @@ Timed, median of ``--runs`` runs each (after one warm-up run of the library call
 * ``library``: ``twin.diagnosis.diagnose(dataset)`` on the dataset in memory, and the writing phases
   (``write_diagnosis`` with plots, ``record_diagnosis``);
 * ``cli``: ``twin diagnose DATASET --out DIR`` end to end in a fresh process (start-up, imports, reading,
-  diagnosis, JSON, plots, recording), peak resident memory of that process.
+  diagnosis, JSON, plots, recording), peak resident memory of that process;
+* ``steps``: where one ``diagnose`` spends its time, by its named steps and the scoring inside them (cProfile
+  cumulative times of one run: the profiler's overhead included, shares are what matter).
 
     python experiments/bench_diagnosis.py [--runs 5]
 """
@@ -40,7 +42,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 import _diagnosis_helpers as H  # noqa: E402  (the synthetic generator of the diagnosis tests)
 
-from twin.benchio import update_benchmark_section  # noqa: E402
+from twin.benchio import provenance, update_benchmark_section  # noqa: E402
 from twin.dataset import read_dataset, write_dataset  # noqa: E402
 from twin.diagnosis import diagnose, diagnosis_dict, write_diagnosis  # noqa: E402
 from twin.evaluation.recording import record_diagnosis  # noqa: E402
@@ -86,6 +88,31 @@ def _median_timing(f, runs: int) -> dict:
             "cpu_median_s": float(np.median(cpu)), "runs_s": [float(w) for w in wall]}
 
 
+STEPS = ("prepare_diagnosis", "fit_geometry", "atom_pool", "select_terms", "selection_round", "score_atoms",
+         "_screen", "_score_products", "confirm", "refine", "prefer_play", "backward", "_named_shapes", "decide",
+         "report_before_after", "describe_terms", "_series")
+
+
+def _steps(ds) -> dict:
+    """Cumulative seconds of ``diagnose``'s named steps (and the scoring inside them) over one profiled run."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    diagnose(ds)
+    prof.disable()
+    st = pstats.Stats(prof).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
+    total = max(v[3] for (f, _, n), v in st.items() if n == "diagnose" and f.endswith("diagnose.py"))
+    out = {"diagnose_profiled_s": total}
+    for name in STEPS:
+        hits = [(v[1], v[3]) for (f, _, n), v in st.items() if n == name and "twin/diagnosis" in f.replace("\\", "/")]
+        if hits:
+            out[name] = {"calls": int(sum(c for c, _ in hits)), "cumulative_s": float(sum(t for _, t in hits)),
+                         "share": float(sum(t for _, t in hits) / total)}
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5, help="timed runs of each measurement (>= 5 for the record)")
@@ -114,6 +141,7 @@ def main() -> int:
         verdict = diagnosis_dict(res)
         rec_t = _median_timing(lambda: record_diagnosis(work / "lib_out" / "diagnosis.rrd", res.series, verdict),
                                args.runs)
+        steps = _steps(ds)
         tracemalloc.start()
         diagnose(ds)
         _, traced_peak = tracemalloc.get_traced_memory()
@@ -166,6 +194,7 @@ def main() -> int:
                     "before_rms_mm": res.before["position_mm"]["rms"], "after_rms_mm": res.after["position_mm"]["rms"],
                     "candidates_scored": len(res.scores)},
         "runs": args.runs,
+        "steps": steps,
         "library": {
             "diagnose": lib,
             "read_dataset": read_t,
@@ -183,6 +212,7 @@ def main() -> int:
             "files": cli_files,
             "recording_mb": rrd_mb,
         },
+        "provenance": provenance(load_start),
         "load_average_1_5_15": load_start,
         "load_average_end": list(os.getloadavg()),
         "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),

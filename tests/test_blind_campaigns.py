@@ -1,69 +1,146 @@
-"""Regression on blind campaigns: `twin diagnose` against the answer keys of five generators written blind to it.
+"""Every blind campaign of the five generators (studies/blind): `twin diagnose` against its answer key.
 
-The generators (`experiments/blind/generator_a` .. `generator_e`) were written by other sessions from the public
-documentation only (they do not import `twin`); the diagnosis was then improved on what they exposed, so these
-campaigns are a regression guard, not an exam (the exam scores are in `results/blind/`). Each campaign here
-checks the targets of its category, on the held-out rows: clean -> no structure claimed; catalogue -> the
-expected names, the effect traced, after <= 1.2x the oracle; outside -> structured, traced, <= 1.5x; both effect
-categories also <= 1.5x the oracle on the rows measured after the campaign.
+The generators (`studies/blind/generators/generator_a` .. `generator_e`) were written by other sessions from the
+public documentation only (they do not import `twin`); the diagnosis was then improved on what they exposed, so
+these campaigns are a regression guard, not an exam (the exam scores are the first passes in
+`studies/blind/results/`). Each campaign is found by its answer key's name and checked against the targets of its
+category, on the diagnosis' report rows (held out and used for nothing else) and on the rows measured after the
+campaign: clean -> no structure, no name; catalogue and mixed -> structured, every effect traced, exactly the
+key's names, after <= 1.2x the oracle; outside -> structured, traced, no catalogue name, after <= 1.5x; every
+effect category <= 1.5x the oracle after the campaign. A campaign that misses a target today is a strict xfail
+(KNOWN_MISSES, with the target it misses): when it is fixed the test fails until it is taken off the list.
+Campaigns whose extended model reads the order of the moves, a lagged temperature, the motion heat or the row
+order also predict every held-out row alone as inside the whole file (except rows flagged as lacking history).
 """
 
+import json
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from twin.evaluation.blind import score_campaign
+STUDY = Path(__file__).resolve().parent.parent / "studies" / "blind"
+sys.path.insert(0, str(STUDY))
+from blind_scoring import alone_and_in_file, score_campaign  # noqa: E402
+from run import GENERATORS  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent / "experiments" / "blind"
-CASES = {
-    # generator: (seed, {label: folder}, the generator's own --only arguments for those folders)
-    "generator_a": (1, {"coupling_q4_drives_j5": "hA06", "lens_distortion_residual": "hA14",
-                        "clean_repeatability_no_repeats": "hA20", "thermal_d4_lagged": "hA22",
-                        "camera_mount_drift": "hA26"}, None),
-    "generator_b": (7, {"O9_loose_sphere": "b01", "O2_depth_bias_inline": "b10", "M3_grazing_bias_plus_cyclic_j5": "b13",
-                        "M1_hvac_plus_backlash_j1": "b14", "K6_clean_repeatability_static_los2": "b19",
-                        "O8_cartesian_lag": "b20", "C1_compliance_j23_payload_restart": "b29"}, None),
-    # generator C selects by its internal tags, generator D by its spec indices, E by folder names (folder names are a seeded
-    # permutation of them; the test checks the folders exist)
-    "generator_c": (11, {"O2_stereo_bar_warm_up": "c19"}, ["--only", "O2"]),
-    "generator_d": (23, {"decentering_left_lens": "d01", "compliance_payload_depth_heavy_noise": "d05",
-                         "clean_depth_heavy_noise": "d07", "thermal_plus_gear_ratio": "d08",
-                         "rig_knocked_in_a_pause": "d13"}, ["--only", "23", "7", "1", "26", "19"]),
-    "generator_e": (31, {"thermal_door_open_plus_mount_drift": "e14", "clean_depth_heavy_unstated": "e25",
-                         "tripod_knocked_in_a_pause": "e28"}, ["--only", "e14", "e25", "e28"]),
-}
-PARAMS = [(g, folder) for g, (_, labels, _) in CASES.items() for folder in labels.values()]
+from twin.dataset import read_joints_csv  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def batches(tmp_path_factory):
-    out = tmp_path_factory.mktemp("blind")
-    for gen, (seed, labels, only) in CASES.items():
-        only = only if only is not None else ["--only", ",".join(labels)]
-        subprocess.run([sys.executable, str(ROOT / gen / "make_all.py"), "--out", str(out / gen), "--seed", str(seed),
-                        *only], check=True, capture_output=True)
-        missing = [f for f in labels.values() if not (out / gen / f / "key" / "key.json").exists()]
-        assert not missing, f"{gen} did not write {missing}"
+def _campaigns():
+    """(generator, the key's name, category) of every campaign the committed scores list."""
+    out = []
+    for gen in GENERATORS:
+        res = json.loads((STUDY / "results" / f"batch{gen.upper()}" / "results.json").read_text())
+        out += [(gen, c["key_name"], c["category"]) for c in res["campaigns"]]
     return out
 
 
+CAMPAIGNS = _campaigns()
+# campaigns that miss a target with the current diagnosis (studies/blind/results): (generator, key name) -> the
+# targets missed
+KNOWN_MISSES: dict[tuple[str, str], str] = {
+    ('a', 'hA11'): "not traced; extra names ['compliance']",
+    ('a', 'hA18'): 'not traced',
+    ('a', 'hA19'): "not traced; extra names ['compliance']",
+    ('b', 'b04'): 'later rows after/oracle 1.93 > 1.5',
+    ('b', 'b17'): "not traced; extra names ['thermal']; named ['coupling', 'thermal'] not ['coupling']",
+    ('b', 'b22'): "not traced; extra names ['compliance', 'cyclic']",
+    ('b', 'b28'): "extra names ['cyclic']; named ['compliance', 'cyclic'] not ['compliance']",
+    ('c', 'c06'): "extra names ['cyclic']; named ['compliance', 'cyclic'] not ['compliance']",
+    ('c', 'c08'): 'not traced; report after/oracle 4.81 > 1.5; later rows after/oracle 3.50 > 1.5',
+    ('c', 'c23'): "extra names ['plate_geometry']; later rows after/oracle 1.83 > 1.5",
+    ('c', 'c27'): "extra names ['gear_ratio']; named ['cyclic', 'gear_ratio'] not ['cyclic']",
+    ('d', 'd04'): "extra names ['compliance', 'cyclic']; report after/oracle 1.79 > 1.5; later rows after/oracle 2.16 > 1.5",
+    ('d', 'd09'): "not structured; named [] not ['cyclic']",
+    ('d', 'd14'): "not traced; named [] not ['compliance']",
+    ('d', 'd18'): "not structured; named [] not ['compliance']",
+    ('d', 'd25'): "not traced; extra names ['compliance']; named ['backlash', 'compliance'] not ['backlash']",
+    ('d', 'd28'): "extra names ['cyclic']; named ['backlash', 'cyclic', 'compliance'] not ['compliance', 'backlash']",
+    ('d', 'd30'): 'not traced',
+    ('e', 'e09'): "not traced; extra names ['cyclic']; named ['coupling', 'cyclic'] not ['coupling']",
+    ('e', 'e10'): "extra names ['cyclic']",
+    ('e', 'e13'): 'report after/oracle 1.54 > 1.5; later rows after/oracle 1.87 > 1.5',
+    ('e', 'e19'): 'not traced',
+}
+
+
+def _params():
+    out = []
+    for gen, name, cat in CAMPAIGNS:
+        marks = [pytest.mark.xfail(strict=True, reason=KNOWN_MISSES[(gen, name)])] if (gen, name) in KNOWN_MISSES else []
+        out.append(pytest.param(gen, name, cat, marks=marks, id=f"{gen}-{name}"))
+    return out
+
+
+def _batch(tmp_path_factory, gen: str) -> Path:
+    """Generator ``gen``'s batch, written once per test session and shared by the test workers (a directory made
+    atomically is the lock; the others wait for the 'done' marker)."""
+    base = tmp_path_factory.getbasetemp()
+    # this session's folder: with test workers, the parent of each worker's folder; alone, the session's own
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "blind-campaigns"
+    root.mkdir(exist_ok=True)
+    out, done, lock = root / f"batch{gen.upper()}", root / f"batch{gen.upper()}.done", root / f"batch{gen.upper()}.lock"
+    try:
+        lock.mkdir()
+    except FileExistsError:
+        t0 = time.time()
+        while not done.exists():
+            if time.time() - t0 > 600:
+                raise TimeoutError(f"waited 600 s for another worker to write {out}")
+            time.sleep(0.5)
+        return out
+    subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out", str(out),
+                    "--seed", str(GENERATORS[gen])], check=True, capture_output=True)
+    done.touch()
+    return out
+
+
+def _folder(batch: Path, name: str) -> Path:
+    found = [p.parent.parent for p in batch.glob("*/key/key.json") if json.loads(p.read_text()).get("name") == name]
+    assert len(found) == 1, f"{batch.name}: {len(found)} campaigns named {name!r}"
+    return found[0]
+
+
+ORDERED = ("sign", "play", "lastmove", "stepin", "cartdir", "lag", "heat")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("gen,folder", PARAMS)
-def test_blind_campaign_meets_its_category_targets(batches, tmp_path, gen, folder):
-    """The diagnosis meets the targets of the campaign's category on held-out rows (module docstring)."""
-    r = score_campaign(batches / gen / folder, tmp_path)
+@pytest.mark.parametrize("gen,name,category", _params())
+def test_blind_campaign_meets_its_category_targets(tmp_path_factory, tmp_path, gen, name, category):
+    """The diagnosis meets the targets of the campaign's category (module docstring), and a held-out row predicted
+    alone reads what it reads inside the whole file."""
+    folder = _folder(_batch(tmp_path_factory, gen), name)
+    r = score_campaign(folder, tmp_path, in_process=True)
     assert "error" not in r, r.get("error")
-    v = r["validation"]
-    if r["category"] == "clean":
-        assert not r["structured"] and r["effects"] == []
-        return
-    assert r["structured"] and r["trace"]["all_traced"], r["terms"]
-    if r["category"] in ("catalogue", "mixed"):
-        assert r["named_right"], (r["expected_names"], r["effects"])
-        assert v["after_over_oracle"] <= 1.2
+    assert r["category"] == category
+    v, t = r["report"], r["test"]
+    if category == "clean":
+        assert not r["structured"] and r["effects"] == [], (r["effects"], r["terms"])
     else:
-        assert v["after_over_oracle"] <= 1.5
-    # the rows measured after the campaign (the effect continuing in time, the workspace wider)
-    assert r["test"]["after_over_oracle"] <= 1.5
+        assert r["structured"] and r["trace"]["all_traced"], r["terms"]
+        assert r["extra_names"] == [], (r["expected_names"], r["effects"])
+        if category in ("catalogue", "mixed"):
+            assert r["named_right"], (r["expected_names"], r["effects"])
+            assert v["after_over_oracle"] <= 1.2, v
+        else:
+            assert r["effects"] == [], r["effects"]
+            assert v["after_over_oracle"] <= 1.5, v
+        # the rows measured after the campaign (the effect continuing in time, the workspace wider)
+        assert t["after_over_oracle"] <= 1.5, t
+    # prediction does not depend on which other rows are in the file (a row alone, inside the whole sequence)
+    cal = json.loads((tmp_path / "diagnosis" / "calibration.json").read_text())
+    feats = [f for e in cal.get("effects", []) for f in e["features"]]
+    if any(f.get("kind") in ORDERED or f.get("ch") == "row" for f in feats):
+        joints = read_joints_csv(tmp_path / "sequence_joints.csv")
+        d = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
+        held = np.isin(joints.pose_id, d["rows"]["confirmation"] + d["rows"]["report"])
+        got = alone_and_in_file(tmp_path / "diagnosis" / "calibration.json", joints, np.flatnonzero(held))
+        same = np.all(np.abs(np.nan_to_num(got["alone"] - got["in_file"])) < 1e-9, axis=(1, 2))
+        assert np.all(same | got["flagged"]), f"{int(np.sum(~same & ~got['flagged']))} rows differ unflagged"
+        if not any(f.get("kind") in ORDERED[:5] for f in feats):
+            assert not got["flagged"].any()  # no order-dependent term: nothing to flag

@@ -2,7 +2,9 @@
 
 Effects are injected undeclared (nothing about them reaches the dataset but the commanded joints, the row
 order and, for thermal growth, the recorded temperature). Sizes are >= 3x the noise after a perfect
-geometric-only calibration (``effect_size``)."""
+geometric-only calibration (``effect_size``). A selection outcome is tested over 10 seeds with a stated pass
+rate; before/after are the diagnosis' report rows, the oracle the estimator's geometry re-identified with the
+true effect known exactly (:func:`_diagnosis_helpers.oracle_rms`)."""
 
 import numpy as np
 import pytest
@@ -11,6 +13,8 @@ import _diagnosis_helpers as H
 from twin.dataset import read_dataset, write_dataset
 from twin.diagnosis import DiagnosisError, diagnose, noise_floor, read_diagnosis, row_context, write_diagnosis
 from twin.estimator import calibrate
+
+SEEDS = 10
 
 
 def effect_size(effect, **kw):
@@ -64,11 +68,14 @@ def test_plate_floor_sees_pose_to_pose_error_that_repeats_miss():
 
 
 def test_without_a_set_column_a_seeded_fraction_is_held_out_and_said():
-    """Without a set column (and no holdout) diagnosis holds out a seeded 30 % of the rows and says so."""
+    """Without a set column (and no holdout) diagnosis holds out a seeded 30 % of the rows and says so; they are
+    split into confirmation and report rows."""
     ds, _ = H.make_dataset(seed=0, n=60)
     res = diagnose(H._replace(ds, set=None), generic=False)
     assert any("no 'set' column: held out a seeded random 30 %" in n for n in res.notes)
-    assert res.before["n_rows"] == pytest.approx(0.3 * ds.n, abs=1)
+    held = len(res.rows["confirmation"]) + len(res.rows["report"])
+    assert held == pytest.approx(0.3 * ds.n, abs=1)
+    assert res.before["n_rows"] == len(res.rows["report"]) > 0
 
 
 def test_a_set_column_without_validation_rows_is_refused():
@@ -103,79 +110,107 @@ def test_clean_data_raise_few_false_alarms():
     ],
 )
 def test_each_joint_effect_is_detected_named_and_removed(name, effect):
-    """An undeclared joint effect of >= 3x the noise is detected, named, and the extended model's validation
-    error comes within 1.2x of the error of the true model (geometry + effect) on the same rows."""
+    """An undeclared joint effect of >= 3x the noise is detected and named alone (>= 9/10 seeds), before is
+    beyond 2x the oracle (>= 9/10) and the extended model's report-row error within 1.2x of the oracle's (median
+    over the seeds)."""
     assert effect_size(effect) >= 3.0
-    ds, _ = H.make_dataset(seed=3, effect=effect)
-    res = diagnose(ds)
-    assert res.structured and res.effects == (name,)
-    clean, _ = H.make_dataset(seed=3)  # same noise draw, no effect: what the true model achieves
-    floor = diagnose(clean).before["position_mm"]["rms"]
-    assert res.after["position_mm"]["rms"] <= 1.2 * floor
-    assert res.before["position_mm"]["rms"] > 2.0 * floor
+    out = []
+    for seed in range(3, 3 + SEEDS):
+        ds, truth = H.make_dataset(seed=seed, n=160, effect=effect)
+        res = diagnose(ds)
+        oracle = H.oracle_rms(ds, truth["delta"], res.held_out["report_pose_ids"])
+        out.append({"seed": seed, "named": res.structured and res.effects == (name,),
+                    "visible": res.before["position_mm"]["rms"] > 2.0 * oracle,
+                    "ratio": res.after["position_mm"]["rms"] / oracle})
+    H.tally(out, named=(9, SEEDS), visible=(9, SEEDS), ratio=("median<=", 1.2))
 
 
 @pytest.mark.slow
 def test_thermal_growth_against_recorded_temperature():
-    """Link lengths growing with a recorded temperature drift are found as 'thermal'."""
-    n = 200
+    """Link lengths growing with a recorded temperature drift are found as 'thermal' of all lengths with the
+    expansion coefficient within 20 % (>= 9/10 seeds)."""
+    n = 160
     temp = np.linspace(20.0, 32.0, n)
     scale = 23e-6 * (temp - 20.0) * 1.0  # aluminium-like expansion of every link
-    eff = ("lengths", scale)
-    ds, _ = H.make_dataset(seed=4, n=n, effect=eff, temp=temp)
-    res = diagnose(ds)
-    assert res.structured and res.effects == ("thermal",)
-    (atom,) = [a for a in res.atoms if a["family"] == "thermal"]
-    assert atom["target"] == "all_lengths" and atom["values"][0] == pytest.approx(23e-6, rel=0.2)
+    out = []
+    for seed in range(4, 4 + SEEDS):
+        ds, _ = H.make_dataset(seed=seed, n=n, effect=("lengths", scale), temp=temp)
+        res = diagnose(ds)
+        th = [a for a in res.atoms if a["family"] == "thermal"]
+        out.append({"seed": seed, "named": res.structured and res.effects == ("thermal",) and len(th) == 1
+                    and th[0]["target"] == "all_lengths" and th[0]["values"][0] == pytest.approx(23e-6, rel=0.2)})
+    H.tally(out, named=(9, SEEDS))
 
 
 @pytest.mark.slow
 def test_thermal_drift_in_time_without_temperature():
-    """Without temp_c, a warm-up drift of the link lengths in time (t_s) is still found as 'thermal'."""
-    n = 200
+    """Without temp_c, a warm-up drift of the link lengths in time (t_s) is still found as 'thermal' (>= 9/10
+    seeds)."""
+    n = 160
     t_s = np.linspace(0.0, 3600.0, n)
     scale = 23e-6 * 10.0 * (1.0 - np.exp(-t_s / 1200.0))
-    ds, _ = H.make_dataset(seed=9, n=n, effect=("lengths", scale), t_s=t_s)
-    res = diagnose(ds)
-    assert res.structured and res.effects == ("thermal",)
+    out = []
+    for seed in range(9, 9 + SEEDS):
+        ds, _ = H.make_dataset(seed=seed, n=n, effect=("lengths", scale), t_s=t_s)
+        res = diagnose(ds)
+        out.append({"seed": seed, "named": res.structured and res.effects == ("thermal",)})
+    H.tally(out, named=(9, SEEDS))
 
 
 @pytest.mark.slow
 def test_sphere_off_its_nominal_plate_position_is_plate_geometry():
-    """One sphere 46 um off its nominal place (not a rigid motion of the plate) is named plate_geometry."""
-    off = np.zeros((3, 3))
-    off[2] = [30e-6, -30e-6, 20e-6]
-    ds, _ = H.make_dataset(seed=8, plate_offset=off)
-    res = diagnose(ds)
-    assert res.structured and res.effects == ("plate_geometry",)
-    d = np.zeros((3, 3))
-    for a in res.atoms:
-        d[int(a["target"][6:])] += a["values"]
-    # only the non-rigid part is identifiable: the distances between spheres must match the truth
+    """One sphere 46 um off its nominal place (not a rigid motion of the plate) is named plate_geometry and the
+    inter-sphere distances recovered within 5 um (>= 9/10 seeds; only the non-rigid part is identifiable)."""
     from twin.dataset import default_plate
 
+    off = np.zeros((3, 3))
+    off[2] = [30e-6, -30e-6, 20e-6]
     s0 = default_plate().spheres_flange
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        true_d = np.linalg.norm((s0[i] + off[i]) - (s0[j] + off[j]))
-        est_d = np.linalg.norm((s0[i] + d[i]) - (s0[j] + d[j]))
-        assert abs(est_d - true_d) < 5e-6
+    out = []
+    for seed in range(8, 8 + SEEDS):
+        ds, _ = H.make_dataset(seed=seed, n=160, plate_offset=off)
+        res = diagnose(ds)
+        d = np.zeros((3, 3))
+        for a in res.atoms:
+            if a["family"] == "plate_geometry":
+                d[int(a["target"][6:])] += a["values"]
+        err = max(abs(np.linalg.norm((s0[i] + d[i]) - (s0[j] + d[j])) - np.linalg.norm((s0[i] + off[i]) - (s0[j] + off[j])))
+                  for i, j in ((0, 1), (0, 2), (1, 2)))
+        out.append({"seed": seed, "named": res.structured and res.effects == ("plate_geometry",), "distances": err < 5e-6})
+    H.tally(out, named=(9, SEEDS), distances=(9, SEEDS))
+
+
+@pytest.mark.slow
+def _excess_by_estimator(ds, sigma):
+    """The extra scatter per coordinate [mm] beyond ``sigma`` [m] that the estimator's geometric calibration
+    leaves on the held-out rows (estimator code only): sqrt(rms^2 - sigma^2) of its residual per coordinate."""
+    cal = calibrate(ds)
+    rms = cal.residuals["validation"]["position_mm"]["rms"] / np.sqrt(3)
+    return float(np.sqrt(max(rms**2 - (sigma / 1e-3) ** 2, 0.0)))
 
 
 @pytest.mark.slow
 def test_unpredictable_excess_is_reported_not_claimed(tmp_path):
     """An effect nothing here can predict (theta2 ~ sin(7 q3 + 3 q4), no term, no neighbour): no structure is
-    claimed, the excess is reported with its size, the model stays geometric, the files say so."""
-    ds, _ = H.make_dataset(seed=5, effect=H.outside())
-    res = diagnose(ds)
-    assert not res.structured and res.effects == () and res.atoms == ()
-    u = res.unexplained
-    assert u is not None and not u["predictable"] and u["whitened_rms"] > 3
-    assert u["excess_sigma_mm"] == pytest.approx(res.noise.sigma / 1e-3 * np.sqrt(u["whitened_rms"] ** 2 - 1))
-    assert res.after == res.before
-    paths = write_diagnosis(res, tmp_path)
-    d = read_diagnosis(paths["diagnosis"])
-    assert d["structured"] is False and d["unexplained"]["predictable"] is False
-    assert (tmp_path / "residual_vs_joints.png").stat().st_size > 10_000
+    claimed, the model stays geometric (>= 9/10 seeds), the excess is reported within 25 % of what the
+    estimator's geometric fit leaves beyond the noise (>= 9/10), the files say so."""
+    out = []
+    for seed in range(5, 5 + SEEDS):
+        ds, _ = H.make_dataset(seed=seed, n=160, effect=H.outside())
+        res = diagnose(ds)
+        u = res.unexplained
+        quiet = not res.structured and res.effects == () and res.atoms == ()
+        out.append({"seed": seed, "quiet": quiet and u is not None and not u["predictable"],
+                    "size": u is not None and u["excess_sigma_mm"] == pytest.approx(_excess_by_estimator(ds, H.SIGMA),
+                                                                                     rel=0.25)})
+        if quiet:
+            assert res.after == res.before
+        if seed == 5:
+            paths = write_diagnosis(res, tmp_path)
+            d = read_diagnosis(paths["diagnosis"])
+            assert d["structured"] is res.structured and d["unexplained"]["predictable"] is u["predictable"]
+            assert (tmp_path / "residual_vs_joints.png").stat().st_size > 10_000
+    H.tally(out, quiet=(9, SEEDS), size=(9, SEEDS))
 
 
 def _with_repeatability(ds, sigma_m, sigma_rad, seed):
@@ -193,43 +228,62 @@ def _with_repeatability(ds, sigma_m, sigma_rad, seed):
 
 @pytest.mark.slow
 def test_repeatability_beyond_the_floor_is_not_structure():
-    """Per-visit random displacements 1.6x the instrument noise, no repeats to see them: the excess is reported
-    (within 25 % of its true size) but no structure is claimed."""
-    ds, _ = H.make_dataset(seed=8, n=200, repeats_every=10**9)
-    res = diagnose(_with_repeatability(ds, 8e-6, 3e-5, seed=3))
-    assert res.test_before.p_value < 1e-6  # the excess is real
-    assert not res.structured and res.atoms == ()
-    assert res.unexplained["excess_sigma_mm"] == pytest.approx(0.0083, rel=0.25)
+    """Per-visit random displacements 1.6x the instrument noise, no repeats to see them: the excess is real (p <
+    1e-6) and reported within 25 % of the injected displacements' RMS per coordinate, but no structure is
+    claimed (>= 9/10 seeds)."""
+    out = []
+    for seed in range(8, 8 + SEEDS):
+        ds, _ = H.make_dataset(seed=seed, n=200, repeats_every=10**9)
+        moved = _with_repeatability(ds, 8e-6, 3e-5, seed=seed + 100)
+        injected = float(np.sqrt(np.nanmean((moved.spheres - ds.spheres) ** 2))) / 1e-3
+        res = diagnose(moved)
+        u = res.unexplained
+        out.append({"seed": seed, "real": res.test_before.p_value < 1e-6,
+                    "quiet": not res.structured and res.atoms == (),
+                    "size": u is not None and u["excess_sigma_mm"] == pytest.approx(injected, rel=0.25)})
+    H.tally(out, real=(9, SEEDS), quiet=(9, SEEDS), size=(9, SEEDS))
 
 
 @pytest.mark.slow
 def test_structure_no_term_holds_is_predicted_from_time_neighbours():
     """A fast random wander of the measurement frame in time (correlated over a few rows: no polynomial, step,
-    transient or period follows it) is called structure because the nearest rows in time predict held-out rows."""
+    transient or period follows it) is called structure because the nearest rows in time predict held-out rows,
+    and no term is kept (>= 9/10 seeds)."""
     from scipy.ndimage import gaussian_filter1d
 
     ds, _ = H.make_dataset(seed=7, n=200)
     t = np.arange(ds.n) * 12.0
-    wander = gaussian_filter1d(np.random.default_rng(70).standard_normal(ds.n), 1.0)
-    sph = ds.spheres.copy()
-    sph[:, :, 2] += 0.015e-3 * (wander / wander.std())[:, None]
-    res = diagnose(H._replace(ds, t_s=t, spheres=sph))
-    assert res.structured and res.atoms == ()
-    assert res.unexplained["predictable"] and res.unexplained["by"] == "time"
-    assert any("predictable from the nearest rows in time" in n for n in res.notes)
+    out = []
+    for seed in range(70, 70 + SEEDS):
+        wander = gaussian_filter1d(np.random.default_rng(seed).standard_normal(ds.n), 1.0)
+        sph = ds.spheres.copy()
+        sph[:, :, 2] += 0.015e-3 * (wander / wander.std())[:, None]
+        res = diagnose(H._replace(ds, t_s=t, spheres=sph))
+        u = res.unexplained or {}
+        out.append({"seed": seed, "no_term": res.atoms == (),
+                    "by_time": res.structured and u.get("predictable") and u.get("by") == "time"
+                    and any("predictable from the nearest rows in time" in n for n in res.notes)})
+    H.tally(out, no_term=(9, SEEDS), by_time=(9, SEEDS))
 
 
 @pytest.mark.slow
 def test_compliance_and_backlash_together_are_both_found():
-    """Two effects at once (compliance + backlash) are both named."""
+    """Two effects at once (compliance + backlash) are both named and nothing else (>= 9/10 seeds), median
+    after/oracle <= 1.2."""
     both = lambda q, m: H.backlash()(H.compliance(1.5)(q, m), m)  # noqa: E731
-    ds, _ = H.make_dataset(seed=6, effect=both)
-    res = diagnose(ds)
-    assert set(res.effects) == {"compliance", "backlash"}
+    out = []
+    for seed in range(6, 6 + SEEDS):
+        ds, truth = H.make_dataset(seed=seed, n=160, effect=both)
+        res = diagnose(ds)
+        out.append({"seed": seed, "named": set(res.effects) == {"compliance", "backlash"},
+                    "ratio": res.after["position_mm"]["rms"] / H.oracle_rms(ds, truth["delta"],
+                                                                             res.held_out["report_pose_ids"])})
+    H.tally(out, named=(9, SEEDS), ratio=("median<=", 1.2))
 
 
 def test_cli_writes_diagnosis_files(tmp_path, capsys):
-    """twin diagnose on a dataset folder writes the three JSON files the design card pins."""
+    """twin diagnose on a dataset folder writes the three JSON files the design card pins, and prints the verdict
+    and the before/after of diagnosis.json (the report rows, said so)."""
     from twin.cli import main
 
     ds, _ = H.make_dataset(seed=7, n=80, effect=H.backlash())
@@ -237,11 +291,10 @@ def test_cli_writes_diagnosis_files(tmp_path, capsys):
     assert read_dataset(tmp_path / "ds").n == ds.n
     assert main(["diagnose", str(tmp_path / "ds"), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
     d = read_diagnosis(tmp_path / "out" / "diagnosis.json")
-    assert d["effects"] == ["backlash"]
     assert (tmp_path / "out" / d["calibration"]).exists() and (tmp_path / "out" / d["calibration_geometric"]).exists()
-    for k in ("mean", "rms", "max"):
-        assert d["after"]["position_mm"][k] < d["before"]["position_mm"][k]
-    assert "structured: True" in capsys.readouterr().out
+    assert d["held_out"]["before_after_on"] == "report" and d["before"]["n_rows"] == d["held_out"]["n_report_rows"]
+    out = capsys.readouterr().out
+    assert f"structured: {d['structured']}" in out and f"{d['after']['position_mm']['rms']:.5f}" in out
 
 
 def test_stated_noise_larger_than_repeats_becomes_the_floor():
@@ -289,26 +342,26 @@ def test_stated_noise_is_spread_over_the_axes_as_the_data_show():
 
 @pytest.mark.slow
 def test_clean_anisotropic_instrument_with_a_stated_average_raises_no_alarm():
-    """The same depth-heavy instrument stating its average error per coordinate: no alarm in at least 4 of 5
+    """The same depth-heavy instrument stating its average error per coordinate: no alarm in at least 9 of 10
     seeds (the floor is spread over the axes as the data show)."""
     rms = float(np.sqrt(np.mean(np.square([1e-6, 1e-6, 4e-6]))))
-    alarms = sum(diagnose(H._replace(_anisotropic(20 + s), noise_position=rms)).structured for s in range(5))
+    alarms = sum(diagnose(H._replace(_anisotropic(20 + s), noise_position=rms)).structured for s in range(SEEDS))
     assert alarms <= 1
 
 
 @pytest.mark.slow
 def test_clean_anisotropic_instrument_raises_no_alarm():
-    """A depth-heavy instrument and no effect: no alarm in at least 4 of 5 seeds (an isotropic floor from the
+    """A depth-heavy instrument and no effect: no alarm in at least 9 of 10 seeds (an isotropic floor from the
     distances would see only the lateral error and call the depth noise structure)."""
-    alarms = sum(diagnose(_anisotropic(20 + s)).structured for s in range(5))
+    alarms = sum(diagnose(_anisotropic(20 + s)).structured for s in range(SEEDS))
     assert alarms <= 1
 
 
 @pytest.mark.slow
 def test_a_pose_dataset_is_diagnosed_through_virtual_points(tmp_path):
     """A 6-DOF instrument's poses (x y z rx ry rz, no spheres) with an undeclared cyclic error on joint 2: read
-    as three points of the tool frame, the error is named, and the extended calibration predicts the measured
-    validation poses to the noise (the geometric one does not)."""
+    as three points of the tool frame, the error is named (>= 9/10 seeds), and the extended calibration predicts
+    the measured report-row poses to the noise where the geometric one does not (>= 9/10)."""
     from twin.dataset import read_dataset
     from twin.diagnosis.apply import predict_extended
     from twin.estimator.simulate import simulate_dataset
@@ -316,24 +369,70 @@ def test_a_pose_dataset_is_diagnosed_through_virtual_points(tmp_path):
     from twin.robots import irb1200
     from twin.transforms import pose6_to_transform
 
-    rng = np.random.default_rng(5)
     nom = irb1200()
     true = nom.perturbed(preset_deviation("separation_tables_2_4")).with_frames(
         base2meas=pose6_to_transform(np.array([0.2, -0.1, 1.1, 2.0, -0.3, 0.4])))
-    q = H.configurations(rng, 220, nom)
-    ds, _ = simulate_dataset(true, H.cyclic(amp_deg=0.01, joint=2, k=2)(q, nom), robot_spec="irb1200", nominal=nom,
-                             kind="pose", noise_position=5e-6, noise_orientation=2e-5, rng=rng)
-    sets = np.array(["validation" if k % 3 == 2 else "calibration" for k in range(len(q))], dtype=object)
-    write_dataset(tmp_path / "ds", H._replace(ds, q=q, set=sets))
-    ds = read_dataset(tmp_path / "ds")
-    res = diagnose(ds)
-    assert res.effects == ("cyclic",) and any("virtual spheres" in n for n in res.notes)
-    val = ds.set == "validation"
+    out = []
+    for seed in range(5, 5 + SEEDS):
+        rng = np.random.default_rng(seed)
+        q = H.configurations(rng, 220, nom)
+        ds, _ = simulate_dataset(true, H.cyclic(amp_deg=0.01, joint=2, k=2)(q, nom), robot_spec="irb1200",
+                                 nominal=nom, kind="pose", noise_position=5e-6, noise_orientation=2e-5, rng=rng)
+        sets = np.array(["validation" if k % 3 == 2 else "calibration" for k in range(len(q))], dtype=object)
+        write_dataset(tmp_path / f"ds{seed}", H._replace(ds, q=q, set=sets))
+        ds = read_dataset(tmp_path / f"ds{seed}")
+        res = diagnose(ds)
+        rows = np.isin(ds.pose_id, res.held_out["report_pose_ids"])
+        ctx = row_context(ds)
+
+        def pose_rms(pred):
+            return np.sqrt(np.mean(np.sum((pred.pose[rows, :3, 3] - ds.pose[rows, :3, 3]) ** 2, axis=1)))
+
+        ext = pose_rms(predict_extended(res.calibration, ctx, ds.station_ids))
+        geo = pose_rms(res.calibration_geometric.predict(ds.q, ds.station_ids))
+        out.append({"seed": seed, "named": res.effects == ("cyclic",) and any("virtual spheres" in n for n in res.notes),
+                    "noise": ext < 1.2 * np.sqrt(3) * 5e-6 and geo > 3 * ext})
+    H.tally(out, named=(9, SEEDS), noise=(9, SEEDS))
+
+
+def test_held_out_rows_split_by_visit_into_confirmation_and_report():
+    """The held-out rows split in two disjoint blocks covering them: every fifth held-out visit is a report row
+    (a repeat in the block of its visit), no report row with an unknown approach history."""
+    from twin.diagnosis import split_held_out
+    from twin.diagnosis.atoms import approach_unknown
+    from twin.estimator.core import prepare
+
+    ds, _ = H.make_dataset(seed=0, n=120)
+    prep = prepare(ds, noise_position=H.SIGMA)
     ctx = row_context(ds)
+    held = split_held_out(ds, prep, ctx)
+    conf, rep = set(prep.rows[held.confirmation].tolist()), set(prep.rows[held.report].tolist())
+    assert not conf & rep and conf | rep == set(prep.rows[prep.val].tolist())
+    visits = {}
+    for r in sorted(conf | rep):
+        visits.setdefault(tuple(np.round(ds.q[r], 9)), set()).add(r in rep)
+    assert all(len(v) == 1 for v in visits.values())  # a visit's rows in one block
+    n_visits = len(visits)
+    assert len([v for v in visits.values() if True in v]) == pytest.approx(n_visits / 5, abs=1)
+    assert not approach_unknown(ctx)[sorted(rep)].any()
 
-    def pose_rms(pred):
-        return np.sqrt(np.mean(np.sum((pred.pose[val, :3, 3] - ds.pose[val, :3, 3]) ** 2, axis=1)))
 
-    ext = pose_rms(predict_extended(res.calibration, ctx, ds.station_ids))
-    geo = pose_rms(res.calibration_geometric.predict(ds.q, ds.station_ids))
-    assert ext < 1.2 * np.sqrt(3) * 5e-6 and geo > 3 * ext
+@pytest.mark.slow
+def test_the_named_steps_called_alone_give_what_diagnose_gives():
+    """prepare_diagnosis -> fit_geometry -> the test -> atom_pool -> select_terms -> report_before_after, called one
+    by one, keep the terms and report the after that diagnose does."""
+    from twin.diagnosis import diagnose as run
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis, report_before_after, select_terms
+
+    ds, _ = H.make_dataset(seed=7, n=100, effect=H.backlash())
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    assert prob.test(base).p_value < 0.01
+    pool, sizes = atom_pool(setup)
+    sel = select_terms(prob, base, pool, sizes)
+    base = prob.fit(base.z[: setup.prep.space.size], [])
+    rep = report_before_after(prob, base, sel.fit)
+    res = run(ds)
+    assert [a.label for a, _ in sel.fit.chosen] == [a["label"] for a in res.atoms]
+    assert rep["after"] == res.after and rep["before"] == res.before

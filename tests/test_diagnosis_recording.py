@@ -42,10 +42,12 @@ def test_diagnosis_recording_has_the_documented_entity_paths(diagnosed):
 
 
 def test_before_after_series_have_one_value_per_held_out_row(diagnosed):
-    """Before/after/floor series hold one value per validation row, on the pose timeline at the dataset row."""
+    """Before/after/floor series hold one value per validation row (confirmation and report rows), on the pose
+    timeline at the dataset row; before/after count the report rows."""
     ds, d, ents = diagnosed
     val_rows = np.flatnonzero(ds.set == "validation")
-    assert d["before"]["n_rows"] == val_rows.size
+    assert d["before"]["n_rows"] == d["held_out"]["n_report_rows"] == len(d["rows"]["report"])
+    assert sorted(d["rows"]["report"] + d["rows"]["confirmation"]) == sorted(ds.pose_id[val_rows].tolist())
     for name in ("before", "after", "noise_floor"):
         assert _scalars(ents, f"/diagnosis/residual/{name}").size == val_rows.size, name
     poses = column(ents["/diagnosis/residual/before"], "pose")
@@ -66,12 +68,16 @@ def test_each_term_of_the_extended_model_is_plotted_per_held_out_row(diagnosed):
 
 
 def test_series_values_agree_with_diagnosis_json(diagnosed):
-    """The floor equals diagnosis.json's; the per-row RMS series pool to its before/after position RMS."""
-    _, d, ents = diagnosed
+    """The floor equals diagnosis.json's; the per-row RMS series of the report rows pool to its before/after
+    position RMS."""
+    ds, d, ents = diagnosed
     floor = _scalars(ents, "/diagnosis/residual/noise_floor")
     assert np.all(floor == d["noise_floor"]["position_mm"])
+    rows = column(ents["/diagnosis/residual/before"], "pose")
+    report = np.isin(ds.pose_id[rows], d["held_out"]["report_pose_ids"])
+    assert report.sum() == d["before"]["n_rows"]
     for tag in ("before", "after"):
-        e = _scalars(ents, f"/diagnosis/residual/{tag}")
+        e = _scalars(ents, f"/diagnosis/residual/{tag}")[report]
         # per row: RMS over the 9 sphere coordinates; diagnosis.json: RMS over spheres of the 3-D error norm
         assert np.sqrt(3.0 * np.mean(e**2)) == pytest.approx(d[tag]["position_mm"]["rms"], rel=1e-9), tag
     assert d["effects"] == ["backlash"]

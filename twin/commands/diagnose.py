@@ -65,7 +65,11 @@ def run(args: argparse.Namespace) -> int:
               f"{d['delta_chi2_chosen']:.0f}; the data cannot tell them apart)", file=out)
     for n in res.notes:
         print(f"note: {n}", file=out)
-    print("validation error        before             after", file=out)
+    h = res.held_out
+    rows = (f"{h.get('n_report_rows')} report rows, held out and used for nothing else"
+            if h.get("before_after_on") == "report" else "the confirmation rows (too few held-out rows for a report block)")
+    print(f"held-out error on {rows}", file=out)
+    print("                        before             after", file=out)
     for key, unit in (("position_mm", "mm"), ("orientation_deg", "deg")):
         if key in b:
             for stat in ("mean", "rms", "max"):

@@ -37,10 +37,17 @@ def run(args) -> int:
         # where the robot stood before the first row is not in the file: history-dependent terms (backlash)
         # read 0 until each joint has moved (as the diagnosis read its rows)
         ctx = RowContext(q=j.q, q_start=None, temp_c=j.temp_c, t_s=j.t_s, station=j.station,
-                         history_reset=row_resets(len(j.q), j.t_s))
+                         history_reset=row_resets(len(j.q), j.t_s), pose_id=j.pose_id)
         pred = predict_extended(cal, ctx, j.station)
         print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "
               "(rows in file order; approach directions unknown until each joint moves)")
+        from ..diagnosis.apply import history_unknown_rows
+
+        lack = j.pose_id[history_unknown_rows(cal, ctx)]
+        if lack.size:
+            print(f"warning: {lack.size} row(s) lack the history an order-dependent term needs (the joint had not moved "
+                  f"since the first row of the file or a restart); that term reads 0 there: pose_id {lack[:20].tolist()}"
+                  + (" ..." if lack.size > 20 else ""))
     else:
         pred = cal.predict(j.q, j.station)
     write_pred_csv(args.out, j.pose_id, pred, station=j.station)

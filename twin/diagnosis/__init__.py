@@ -21,6 +21,7 @@ from .diagnose import (
     history_resets,
     noise_floor,
     row_context,
+    split_held_out,
 )
 from .report import DIAGNOSIS_SCHEMA_VERSION, diagnosis_dict, read_diagnosis, write_diagnosis
 
@@ -46,5 +47,6 @@ __all__ = [
     "noise_floor",
     "read_diagnosis",
     "row_context",
+    "split_held_out",
     "write_diagnosis",
 ]

@@ -5,7 +5,10 @@ Each stored effect is an atom (:mod:`twin.diagnosis.atoms`) with its features' c
 first row's approach unknown unless ``q_start`` is given) and their channels (``temp_c``, ``t_s``,
 ``station``). Joint atoms change the commanded joints exactly; length, parameter and scale atoms act to
 first order through the parameter Jacobian of the predicted points (as in the fit); plate atoms move the
-sphere centres in the plate frame.
+sphere centres in the plate frame. A row's prediction does not depend on which other rows are given, except for
+the terms that need the order of the moves (:func:`history_unknown_rows` says which rows lacked it): a lagged
+temperature and the motion heat continue the campaign's record by ``t_s``, a term in the row order numbers the
+campaign's rows by their pose ids.
 """
 
 from __future__ import annotations
@@ -18,11 +21,12 @@ from ..estimator.calibration import Calibration, Prediction
 from ..estimator.compensation import CompensationResult, compensation
 from ..estimator.problem import ParamSpace, predict_points
 from ..transforms import matrix_to_rotvec
-from .atoms import Atom, feature_values
+from .atoms import Atom, feature_values, history_unknown
 from .candidates import RowContext
 from .extend import param_weights
 
-__all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended"]
+__all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
+           "history_unknown_rows"]
 
 
 def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
@@ -72,6 +76,14 @@ def effective_joints(cal: Calibration, ctx: RowContext) -> np.ndarray:
         if a.place == "joint":
             q[:, int(a.target[5:]) - 1] += feature_values(a.features, ctx, cal.nominal, cache) @ phi
     return q
+
+
+def history_unknown_rows(cal: Calibration, ctx: RowContext) -> np.ndarray:
+    """Rows ``(n,)`` whose prediction lacks the history one of the calibration's terms needs (an approach
+    direction, the last move: the joint has not moved since the first row given or a restart), so that term
+    reads its unknown state there (0). Terms of time or temperature never do: they read the rows' own ``t_s`` and
+    ``temp_c``, a lag or the motion heat continuing the campaign's record."""
+    return history_unknown([a.features for a, _ in effect_atoms(cal)], ctx)
 
 
 def _plate(cal: Calibration) -> Calibration:

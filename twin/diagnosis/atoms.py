@@ -46,10 +46,14 @@ from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regr
 __all__ = [
     "Atom",
     "play_backlash",
+    "hinge_atom",
     "feature_values",
     "catalogue_atoms",
     "generic_atoms",
     "approach_unknown",
+    "history_signs",
+    "history_unknown",
+    "with_records",
 ]
 
 _DEG = np.pi / 180.0
@@ -61,6 +65,8 @@ MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
+HINGE_POINTS = 9  # angles (deciles of a joint's range) past which a one-sided pull may start (then refined)
+HINGE_POWERS = (1, 2)  # the pull grows linearly (a spring) or with the square of the overtravel
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
 COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)  # features that depend on the order of the rows (their state can be unknown)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
@@ -148,7 +154,27 @@ def _channel(ctx: RowContext, name: str) -> np.ndarray:
     raise ValueError(f"unknown feature channel {name!r}")
 
 
-def _signs(ctx: RowContext) -> np.ndarray:
+def _row_channel(ctx: RowContext, f: dict) -> np.ndarray:
+    """The row order of a feature in ``row``: with the campaign's pose ids recorded (``f["record_pose_id"]``) and the
+    rows' pose ids known, a campaign row reads its place in the campaign and any other row continues the count
+    after the campaign's last (in the order given); otherwise the rows' positions in the order given."""
+    rec = f.get("record_pose_id")
+    if rec is None or ctx.pose_id is None:
+        return _channel(ctx, "row")
+    index = {int(p): k for k, p in enumerate(rec)}
+    pid = np.asarray(ctx.pose_id).astype(np.int64)
+    out = np.array([index.get(int(p), -1) for p in pid], dtype=float)
+    new = out < 0
+    out[new] = len(rec) + np.arange(int(new.sum()))
+    return out
+
+
+def _ch(ctx: RowContext, f: dict, name: str | None = None) -> np.ndarray:
+    name = f["ch"] if name is None else name
+    return _row_channel(ctx, f) if name == "row" else _channel(ctx, name)
+
+
+def history_signs(ctx: RowContext) -> np.ndarray:
     """Approach signs ``(n, 6)``, 0 where the state is unknown (before a joint's first move after the start
     or a recorded restart)."""
     n = len(ctx.q)
@@ -203,8 +229,11 @@ def _motion_heat(ctx: RowContext, tau: float, joints: tuple[int, ...] = (1, 2, 3
     """Heat the motors of ``joints`` put into the arm with its motion, through a first-order lag of time
     constant ``tau`` [s]: each move adds their joint travel ``sum_j |dq_j|`` [rad], which decays with ``tau``
     over ``t_s`` (``h_k = h_{k-1} exp(-dt / tau) + travel_k``) [rad]. Needs ``t_s``."""
-    t = _channel(ctx, "t_s")
-    travel = np.abs(_steps_in(ctx)[:, [j - 1 for j in joints]]).sum(axis=1)
+    return _heat_series(_channel(ctx, "t_s"), _steps_in(ctx), tau, joints)
+
+
+def _heat_series(t: np.ndarray, steps: np.ndarray, tau: float, joints) -> np.ndarray:
+    travel = np.abs(steps[:, [j - 1 for j in joints]]).sum(axis=1)
     h = np.empty(len(t))
     acc = 0.0
     for k in range(len(t)):
@@ -213,23 +242,74 @@ def _motion_heat(ctx: RowContext, tau: float, joints: tuple[int, ...] = (1, 2, 3
     return h
 
 
+def _merge_record(t_rec: np.ndarray, t_new: np.ndarray, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The campaign's record of row times ``t_rec`` (in its measurement order) merged with the times of the rows
+    given ``t_new``: a given row within ``tol`` [s] of a recorded time *is* that recorded row. Returns the merged
+    order (indices into ``concat(t_rec, new rows)``, the record first at equal times), which given rows are new,
+    and each given row's position in the merged order."""
+    t_rec = np.asarray(t_rec, float)
+    t_new = np.asarray(t_new, float)
+    srt = np.argsort(t_rec, kind="stable")
+    pos = np.clip(np.searchsorted(t_rec[srt], t_new), 0, max(len(t_rec) - 1, 0))
+    near = [srt[np.clip(pos + d, 0, len(t_rec) - 1)] for d in (-1, 0)] if len(t_rec) else []
+    match = np.full(len(t_new), -1)
+    for cand in near:
+        ok = (match < 0) & (np.abs(t_rec[cand] - t_new) <= tol)
+        match[ok] = cand[ok]
+    new = match < 0
+    t_all = np.concatenate([t_rec, t_new[new]])
+    order = np.argsort(t_all, kind="stable")
+    where = np.empty(len(t_all), int)
+    where[order] = np.arange(len(t_all))
+    at = np.where(new, 0, match)
+    at[new] = len(t_rec) + np.arange(int(new.sum()))
+    return order, new, where[at]
+
+
+def _recorded_lag(f: dict, ctx: RowContext) -> np.ndarray:
+    """A lagged channel on the given rows, continuing the campaign's record ``f["record"]`` (its times and channel
+    values): the rows are placed among the recorded ones by ``t_s``, so that a row alone, a subset or rows after
+    the campaign read the lag the campaign's own sequence gives."""
+    rec = f["record"]
+    t_new, x_new = _channel(ctx, "t_s"), _channel(ctx, f["ch"])
+    order, new, at = _merge_record(rec["t_s"], t_new)
+    t_all = np.concatenate([np.asarray(rec["t_s"], float), t_new[new]])[order]
+    x_all = np.concatenate([np.asarray(rec["x"], float), x_new[new]])[order]
+    return _lagged(x_all, t_all, f["tau"])[at]
+
+
+def _recorded_heat(f: dict, ctx: RowContext) -> np.ndarray:
+    """Motion heat on the given rows, continuing the campaign's record ``f["record"]`` (times, commanded joints,
+    rows where its history restarted), merged by ``t_s`` as :func:`_recorded_lag` does."""
+    rec = f["record"]
+    t_new = _channel(ctx, "t_s")
+    order, new, at = _merge_record(rec["t_s"], t_new)
+    t_all = np.concatenate([np.asarray(rec["t_s"], float), t_new[new]])[order]
+    q_all = np.concatenate([np.asarray(rec["q"], float).reshape(-1, N_JOINTS), np.asarray(ctx.q, float)[new]])[order]
+    reset = np.concatenate([np.asarray(rec["reset"], bool), np.zeros(int(new.sum()), bool)])[order]
+    reset[0] = True
+    steps = np.vstack([np.zeros((1, N_JOINTS)), np.diff(q_all, axis=0)])
+    steps[reset] = 0.0
+    return _heat_series(t_all, steps, f["tau"], tuple(f.get("joints", (1, 2, 3, 4, 5, 6))))[at]
+
+
 def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
     """Backlash as a play operator on the commanded joint ``j`` with half clearance ``h`` [rad]: the output
     ``o_k = clip(o_{k-1}, u_k - h, u_k + h)`` lags the command ``u``; the feature is ``(o - u) / h`` in [-1, 1]
     (-1 after a move up by more than ``2 h``, +1 after one down; moves within the clearance do not switch it).
-    The state is unknown (0) after the start or a restart until the joint has moved by ``2 h``."""
+    After the start or a restart the output is only known to lie within ``[u - h, u + h]``; the moves since
+    narrow that interval (each end passes through the operator) and the feature reads its middle: 0 at the
+    start, the exact play once the joint has travelled ``2 h`` one way, and continuous in ``h`` in between."""
     q, reset = _history(ctx)
     u = q[:, j - 1]
     out = np.zeros(len(u))
-    o, lo, hi = u[0], u[0], u[0]  # output and the range travelled since the last reset
+    lo = hi = u[0]
     for k in range(len(u)):
         if reset[k]:
-            o, lo, hi = u[k], u[k], u[k]
-            out[k] = 0.0
-            continue
-        o = min(max(o, u[k] - h), u[k] + h)
-        lo, hi = min(lo, u[k]), max(hi, u[k])
-        out[k] = (o - u[k]) / h if hi - lo >= 2 * h else 0.0
+            lo, hi = u[k] - h, u[k] + h
+        else:
+            lo, hi = min(max(lo, u[k] - h), u[k] + h), min(max(hi, u[k] - h), u[k] + h)
+        out[k] = (0.5 * (lo + hi) - u[k]) / h
     return out[-len(ctx.q):]
 
 
@@ -267,10 +347,55 @@ def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     return y
 
 
+def with_records(features, ctx: RowContext) -> list[dict]:
+    """``features`` (dicts) with what evaluating them on other rows needs from the campaign they were fitted on:
+    a lagged channel and the motion heat carry the campaign's record (times, channel values, joints, restarts),
+    a term in the row order the campaign's pose ids (:func:`feature_values` merges new rows with the record), so
+    that a row's prediction does not depend on which other rows are in the file."""
+    out = []
+    for f in features:
+        f = dict(f)
+        kind = f.get("kind")
+        if kind == "lag" and ctx.t_s is not None:
+            f["record"] = {"t_s": np.asarray(ctx.t_s, float).tolist(), "x": _channel(ctx, f["ch"]).tolist()}
+        elif kind == "heat" and ctx.t_s is not None:
+            reset = np.zeros(len(ctx.q), bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool)
+            f["record"] = {"t_s": np.asarray(ctx.t_s, float).tolist(), "q": np.asarray(ctx.q, float).tolist(),
+                           "reset": reset.tolist()}
+        if f.get("ch") == "row" and ctx.pose_id is not None:
+            f["record_pose_id"] = np.asarray(ctx.pose_id).astype(int).tolist()
+        if kind == "gated":
+            f["f"] = with_records([f["f"]], ctx)[0]
+        out.append(f)
+    return out
+
+
+HISTORY_FEATURES = ("sign", "play", "lastmove", "stepin", "cartdir")  # need the order of the moves
+
+
+def history_unknown(features_list, ctx: RowContext) -> np.ndarray:
+    """Rows ``(n,)`` where a term that needs the order of the moves (an approach direction, the last move, a
+    play, the direction of the last Cartesian move: ``HISTORY_FEATURES``) lacks its history: its joint has not
+    moved since the first row given or a restart (for the Cartesian direction: no joint has). ``features_list``:
+    one feature tuple per term."""
+    s = history_signs(ctx)
+    out = np.zeros(len(ctx.q), bool)
+    for feats in features_list:
+        for f in feats:
+            kind = f.get("kind")
+            if kind not in HISTORY_FEATURES:
+                continue
+            if kind == "cartdir":
+                out |= np.all(s == 0, axis=1)
+            else:
+                out |= s[:, int(f["j"]) - 1] == 0
+    return out
+
+
 def approach_unknown(ctx: RowContext) -> np.ndarray:
     """Rows ``(n,)`` where some joint that moves during the campaign has an unknown approach direction (after
     the start or a restart, until it moves): history-dependent terms cannot be predicted there."""
-    s = _signs(ctx)
+    s = history_signs(ctx)
     moves = np.ptp(ctx.q, axis=0) > 0
     return np.any((s == 0) & moves[None, :], axis=1)
 
@@ -283,16 +408,16 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
     for k, f in enumerate(features):
         kind = f.get("kind")
         if kind == "pow":
-            out[:, k] = ((_channel(ctx, f["ch"]) - f["c"]) / f["h"]) ** f["p"]
+            out[:, k] = ((_ch(ctx, f) - f["c"]) / f["h"]) ** f["p"]
         elif kind in ("sin", "cos"):
-            x = f["k"] * _channel(ctx, f["ch"])
+            x = f["k"] * _ch(ctx, f)
             out[:, k] = np.sin(x) if kind == "sin" else np.cos(x)
         elif kind == "prod":
             a, b = f["ch"]
             out[:, k] = (_channel(ctx, a) - f["c"][0]) / f["h"][0] * (_channel(ctx, b) - f["c"][1]) / f["h"][1]
         elif kind == "sign":
             if "signs" not in cache:
-                cache["signs"] = _signs(ctx)
+                cache["signs"] = history_signs(ctx)
             out[:, k] = cache["signs"][:, f["j"] - 1]
         elif kind == "grav":
             if "grav" not in cache:
@@ -314,14 +439,17 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 cache["gdir"] = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
-            out[:, k] = (_channel(ctx, f["ch"]) >= f["at"]).astype(float)
+            out[:, k] = (_ch(ctx, f) >= f["at"]).astype(float)
+        elif kind == "hinge":
+            # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
+            out[:, k] = (np.clip(f["side"] * (_channel(ctx, f["ch"]) - f["at"]), 0.0, None) / f["h"]) ** f["p"]
         elif kind == "stepin":
             out[:, k] = _steps_in(ctx)[:, f["j"] - 1]
         elif kind == "heat":
             joints = tuple(f.get("joints", (1, 2, 3, 4, 5, 6)))
-            key = ("heat", f["tau"], joints)
+            key = ("heat", f["tau"], joints, "record" in f)
             if key not in cache:
-                cache[key] = _motion_heat(ctx, f["tau"], joints)
+                cache[key] = _recorded_heat(f, ctx) if "record" in f else _motion_heat(ctx, f["tau"], joints)
             out[:, k] = cache[key] / f["h"]  # a scale fixed on the rows the atom was built on
         elif kind == "settle":
             st = np.asarray(ctx.station).astype(str) if ctx.station is not None else None
@@ -335,7 +463,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 out[:, k] *= st == str(f["only"])
         elif kind == "gated":
             # an inner feature that acts from a moment on (a payload added at a restart)
-            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * (_channel(ctx, f["ch"]) >= f["at"])
+            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * (_ch(ctx, f) >= f["at"])
         elif kind == "play":
             key = ("play", f["j"], f["h"])
             if key not in cache:
@@ -348,11 +476,12 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache[key][:, f["axis"]]
         elif kind == "exp":
             # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
-            out[:, k] = -np.expm1(-(_channel(ctx, f["ch"]) - f["t0"]) / f["tau"])
+            out[:, k] = -np.expm1(-(_ch(ctx, f) - f["t0"]) / f["tau"])
         elif kind == "lag":
             # the channel seen through a first-order lag of time constant tau (a link's temperature follows
             # the air's): exact for a channel constant between rows, started at the first row's value
-            out[:, k] = (_lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"]) - f["c"]) / f.get("h", 1.0)
+            lag = _recorded_lag(f, ctx) if "record" in f else _lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"])
+            out[:, k] = (lag - f["c"]) / f.get("h", 1.0)
         elif kind == "station":
             if ctx.station is None:
                 raise ValueError("this effect term depends on the station: the rows need a station column")
@@ -382,11 +511,22 @@ def _norm(x: np.ndarray) -> tuple[float, float]:
 
 def play_backlash(j: int, h: float) -> Atom:
     """Joint ``j``'s backlash as a play operator with half clearance ``h`` [rad] (moves shorter than the
-    clearance do not switch the side): tried when a backlash atom is kept (:func:`twin.diagnosis.select._refine`)."""
+    clearance do not switch the side): it competes with the sign backlash (:func:`twin.diagnosis.select.prefer_play`)."""
     hd = np.rad2deg(h)
     return Atom("backlash", "joint", f"theta{j}", ({"kind": "play", "j": j, "h": float(h)},), f"play j{j} half {hd:.3g} deg",
                 f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",
                 "catalogue", (j,))
+
+
+def hinge_atom(j: int, at: float, side: int, p: int, h: float) -> Atom:
+    """Joint ``j``'s angle growing as ``(max(0, side (q_j - at)) / h)^p`` [``at`` rad, ``h`` rad a scale]: zero on one
+    side of the angle ``at``, a power of the overtravel past it (a cable or hose going taut and pulling)."""
+    ad = np.rad2deg(at)
+    rel = f"q{j} - {ad:.4g} deg" if side > 0 else f"{ad:.4g} deg - q{j}"
+    ch = f"max(0, {rel})" + ("" if p == 1 else f"^{p}")
+    return Atom("unnamed", "joint", f"theta{j}", ({"kind": "hinge", "ch": f"q{j}", "at": float(at), "side": int(side),
+                                                  "p": int(p), "h": float(h)},), ch,
+                f"unnamed: joint {j} angle varies with {ch} (a pull past an angle)", "generic", (j,))
 
 
 def _nominal_length(model: RobotModel, name: str) -> float:
@@ -659,6 +799,16 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for ch, fs, _ in cell_feats:
             fs = (({"kind": "const"},) if place == "scale" else ()) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic"))
+    # a pull that starts past an angle (a cable or dress pack going taut): zero on one side of the angle, a power of
+    # the overtravel beyond it, on the joint itself; the angle on the deciles of the joint's range (then refined)
+    for j in range(1, N_JOINTS + 1):
+        x = q[:, j - 1]
+        if np.ptp(x) < 1e-6:
+            continue
+        for at in np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2)[1:-1]):
+            for side in (1, -1):
+                for pw in HINGE_POWERS:
+                    atoms.append(hinge_atom(j, float(at), side, pw, float(max(0.5 * np.ptp(x), 1e-9))))
     # the flange stops short of (or beyond) its target along its last move (settling): a displacement in the
     # base frame along the direction of the last Cartesian move
     tcp = [0.0, 0.0, 0.0] if plate_spheres is None else np.mean(np.asarray(plate_spheres, float), axis=0).tolist()

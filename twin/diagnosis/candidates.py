@@ -45,7 +45,8 @@ class RowContext:
     started (``None``: unknown); ``temp_c`` ``(n,)`` [deg C] and ``t_s`` ``(n,)`` [s] or None; ``station``
     ``(n,)`` names or None; ``history_reset`` ``(n,)`` bool: rows whose approach is unknown (the first row
     without a known ``q_start``, a recorded restart), or None; ``session_start`` ``(n,)`` bool: rows that
-    start a session (the first, after a long gap in time or a recorded restart), or None.
+    start a session (the first, after a long gap in time or a recorded restart), or None; ``pose_id`` ``(n,)``
+    the rows' pose ids, or None (a term in the row order numbers a campaign's rows by them).
     """
 
     q: np.ndarray
@@ -55,6 +56,7 @@ class RowContext:
     station: np.ndarray | None = None
     history_reset: np.ndarray | None = None
     session_start: np.ndarray | None = None
+    pose_id: np.ndarray | None = None
 
 
 def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None, unknown: np.ndarray | None = None) -> np.ndarray:

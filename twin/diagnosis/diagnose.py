@@ -1,38 +1,29 @@
 """Diagnosis: is there structure beyond the noise floor, what explains it, how much does adding it help.
 
-Reads only a dataset (and optionally an existing geometric calibration). The procedure
-(``docs/diagnosis.md`` has the reasoning):
+Reads only a dataset (and optionally an existing geometric calibration). :func:`diagnose` is a sequence of
+named steps, each a function of this module (``docs/diagnosis.md`` has the reasoning):
 
-1. **Noise floor** from what a user can measure: consecutive repeats of one configuration (pooled variance:
-   the sensor noise) *and* the plate's rigid geometry (the three inter-sphere distances are constant, so
-   their spread over the campaign is the instrument's pose-to-pose error: ``var(d) = 2 sigma^2`` for
-   independent isotropic centre errors), optionally a stated figure (``dataset.toml [noise] position_mm``,
-   an artifact measurement). The floor is the largest of them; never the world's truth.
-2. **Geometric fit** on the calibration rows (the estimator's default, noise fixed to the floor).
-3. **Rows.** Rows with unknown history (the first row, a gap in ``t_s``, a recorded restart) start an unknown
-   approach state: history-dependent terms read 0 there. Gross rows (a per-row misfit beyond both the
-   floor's ``1e-6 / n`` quantile and ``median + 8 MAD`` of the rows, at most 2 % of the rows) are
-   down-weighted to zero and listed: no single row vetoes or elects an effect.
-4. **Test** on the validation rows: ``T = r^T (I + J C J^T)^-1 r`` (whitened; ``C`` the parameter covariance),
-   ``chi2(m)`` with a stated floor, ``(T/m) ~ F(m, nu)`` with an estimated one.
-5. **Sparse selection** (only when the test fires): forward selection over *atoms*
-   (:mod:`twin.diagnosis.atoms`; the named catalogue and the unnamed dictionary compete in every round).
-   Each atom is reduced to what the geometry cannot absorb; its calibration evidence is
-   ``Delta chi2 = |P r|^2`` (``P`` the projector on its reduced columns, ``r`` the current residual) with
-   ``p = chi2_sf(Delta chi2, rank)``, Bonferroni-adjusted by the size of its pool (the generic dictionary is
-   ~50x larger than the catalogue, which therefore wins ties). The best atom is kept only if (a)
-   ``p_adj < alpha_select`` and (b) its linearised prediction ``u`` on the held-out rows correlates with their
-   residual: ``z = r_v . u / (|u| rms(r_v)) > z_min`` (self-normalised, so a floor off by a factor does not
-   elect an atom), also without the single most favourable row, and ``|r_v - u| < |r_v|``. Kept atoms are
-   refitted with the geometry (Gauss-Newton); a backward pass drops atoms that became redundant. Atoms the
-   data cannot separate from a chosen one (>= 90 % of its explained residual, evidence within ``e^5``) are
-   reported as alternatives.
-6. **Partial explanations** are kept: every confirmed atom stays in the model whether or not the remainder
-   passes the test; ``explained_fraction`` is ``(T_before - T_after) / (T_before - m)`` on the held-out rows.
-7. ``structured``: the test fires and something in the residual is predictable on held-out rows: an atom is
-   confirmed, or (no atom) the mean residual of the nearest calibration rows in joint space or in time predicts
-   the held-out residual (``_smooth_confirm``). An excess that nothing predicts is scatter that changes from
-   visit to visit (the robot's repeatability, a per-pose instrument error): reported in a note, not structure.
+1. :func:`prepare_diagnosis`: the **noise floor** from what a user can measure (repeats, the plate's rigid
+   geometry, a stated figure; never the world's truth), the **geometric fit** on the calibration rows, and the
+   held-out rows split into two blocks (:func:`split_held_out`): the *confirmation* rows (the structure test
+   and every held-out check that chooses a term) and the *report* rows (before/after are measured there and
+   nothing else).
+2. :func:`fit_geometry`: the geometric model refitted with gross rows down-weighted (a per-row misfit beyond both
+   the floor's ``1e-6 / n`` quantile and ``median + 8 MAD`` of the rows, at most 2 % of the rows).
+3. The **structure test** on the confirmation rows: ``T = r^T (I + J C J^T)^-1 r`` (whitened; ``C`` the
+   parameter covariance), ``chi2(m)`` with a stated floor, ``(T/m) ~ F(m, nu)`` with an estimated one.
+4. :func:`select_terms` (only when the test fires): forward selection over *atoms* (:func:`atom_pool`: the named
+   catalogue and the unnamed dictionary compete in every round, :func:`selection_round`), each reduced to what
+   the geometry cannot absorb, with calibration evidence ``Delta chi2 = |P r|^2``, Bonferroni-adjusted by the
+   size of its pool, kept when significant *and* confirmed on the confirmation rows (``z > z_min``, also
+   without the most favourable row, and the held-out residual drops); then a backward pass and the catalogue's
+   shapes of one joint variable in place of an unnamed one when they predict as well.
+5. :func:`decide`: ``structured`` when the test fires and something in the residual is predictable on held-out
+   rows: a term is confirmed, or (no term) the nearest calibration rows in joint space or in time predict it.
+6. :func:`report_before_after`: the errors and the structure test of the geometric and the extended model on
+   the report rows, which took no part in choosing or fitting the model (rows whose approach history is unknown
+   are left out: no model can predict a history-dependent term there).
+7. :func:`describe_terms` and :func:`name_effects`: every kept term in words, the catalogue families among them.
 """
 
 from __future__ import annotations
@@ -48,20 +39,35 @@ from ..estimator.core import Prepared, prepare
 from ..estimator.methods import build_calibration, identify_best
 from ..estimator.problem import kabsch
 from ..transforms import matrix_to_rotvec
-from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms
-from .candidates import EFFECT_VOCABULARY
+from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
+from .candidates import EFFECT_VOCABULARY, RowContext
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (StructureTest, _alternatives, _refine, _widen, _backward, _confirm, _smooth_confirm, _covariance, _Fit, _order, _Problem,
-                     _psi_init, _raw_columns, _row_rms, _score_atoms, _update_gross)
+from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
+                     order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
+                     smooth_confirm, update_gross, widen)
 
 __all__ = [
     "virtual_spheres",
     "CandidateScore",
     "DiagnosisResult",
     "EffectFit",
+    "HeldOut",
+    "Setup",
+    "Selection",
     "diagnose",
     "fit_with_effects",
+    "split_held_out",
+    "prepare_diagnosis",
+    "fit_geometry",
+    "atom_pool",
+    "selection_round",
+    "select_terms",
+    "decide",
+    "report_before_after",
+    "describe_terms",
+    "name_effects",
+    "error_stats",
     # re-exported: the floor and the test are part of what diagnose returns
     "NoiseFloor",
     "StructureTest",
@@ -77,6 +83,8 @@ DEFAULT_HOLDOUT = 0.3  # held-out fraction without a 'set' column (and no holdou
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
+REPORT_EVERY = 5  # every fifth held-out visit is a report row (the others confirm the terms: they need the power)
+REPORT_MIN_VISITS = 20  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
 
 
 @dataclass(frozen=True)
@@ -95,13 +103,17 @@ class CandidateScore:
 
 @dataclass(frozen=True, eq=False)
 class DiagnosisResult:
-    """What diagnosis found. ``before``/``after``: validation error statistics
-    ``{position_mm: {mean, rms, max}, orientation_deg: {mean, rms, max}}``; ``atoms``: every chosen term
-    (named and unnamed) in words with value and standard deviation; ``effects``: the catalogue families
-    among them; ``unnamed``: the chosen terms outside the catalogue; ``alternatives``: explanations the
-    data cannot tell apart from a chosen one; ``rows``: rows flagged (gross, unknown history); ``unexplained``:
-    when the test fired and no term was confirmed, the excess (whitened RMS, extra sigma per coordinate [mm]),
-    the neighbour smoothers' held-out ``z`` and whether they predict it (else None)."""
+    """What diagnosis found. ``before``/``after``: error statistics of the geometric and the extended model on
+    the *report* rows (held out, and used for nothing else; ``held_out`` says which rows and why)
+    ``{n_rows, position_mm: {mean, rms, max}, orientation_deg: {mean, rms, max}}``; ``p_value``,
+    ``test_before``, ``test_after``: the structure test on the *confirmation* rows (they chose the terms);
+    ``test_report``: ``{before, after}``, the same test on the report rows; ``explained``,
+    ``explained_fraction``: from ``test_report``; ``atoms``: every chosen term (named and unnamed) in words with
+    value and standard deviation; ``effects``: the catalogue families among them; ``unnamed``: the chosen terms
+    outside the catalogue; ``alternatives``: explanations the data cannot tell apart from a chosen one;
+    ``rows``: rows flagged (gross, unknown history) and the two held-out blocks; ``unexplained``: when the test
+    fired and no term was confirmed, the excess (whitened RMS, extra sigma per coordinate [mm]), the neighbour
+    smoothers' held-out ``z`` and whether they predict it (else None)."""
 
     structured: bool
     p_value: float
@@ -125,6 +137,49 @@ class DiagnosisResult:
     explained_fraction: float = 0.0
     rows: dict[str, Any] = field(default_factory=dict)
     unexplained: dict[str, Any] | None = None
+    held_out: dict[str, Any] = field(default_factory=dict)
+    test_report: dict[str, StructureTest | None] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """The held-out rows in two blocks (indices into ``prep.obs``): ``confirmation`` (the structure test and the
+    held-out checks that choose the terms) and ``report`` (before/after only; ``None`` when there were too few
+    held-out visits for a block of its own, then before/after are on the confirmation rows), and the rule."""
+
+    confirmation: np.ndarray
+    report: np.ndarray | None
+    rule: str
+
+
+@dataclass
+class Setup:
+    """What every step shares: the dataset (virtual spheres for a pose instrument), the floor, the prepared
+    rows, the geometric identification and calibration, the row context, the held-out blocks, the selection
+    problem (its row weights change as gross rows are found) and the notes so far."""
+
+    dataset: Dataset
+    virtual: bool
+    floor: NoiseFloor
+    prep: Prepared
+    x0: np.ndarray
+    geometric: Calibration
+    ctx: RowContext
+    held_out: HeldOut
+    problem: Problem
+    notes: list[str]
+
+
+@dataclass
+class Selection:
+    """The outcome of :func:`select_terms`: the extended fit (its ``chosen`` atoms), every candidate scored, the
+    alternatives of the kept terms, each kept term's calibration ``Delta chi2`` when it entered, and notes."""
+
+    fit: Fit
+    scores: list[CandidateScore] = field(default_factory=list)
+    alternatives: list[dict] = field(default_factory=list)
+    entry_chi2: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def _unmask(r: np.ndarray, model: ExtendedModel) -> np.ndarray:
@@ -141,10 +196,10 @@ def _stats(e: np.ndarray) -> dict[str, float]:
     return {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(e))}
 
 
-def _error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
-    """Validation error statistics: 3-D sphere-centre error [mm], and the plate orientation error [deg]
-    between rigid fits of the plate to the measured and to the predicted spheres (rows with all three);
-    ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
+def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
+    """Error statistics of ``model`` at ``z`` on its rows: 3-D sphere-centre error [mm], and the plate
+    orientation error [deg] between rigid fits of the plate to the measured and to the predicted spheres
+    (rows with all three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
     _, phis = model.split(z)
     obs = model.effective_obs(phis)
     res = model.residuals(z, jacobian=False)
@@ -183,7 +238,7 @@ def diagnose(
     q_start: np.ndarray | None = None,
     callback: Callable[[CandidateScore], None] | None = None,
 ) -> DiagnosisResult:
-    """Diagnose ``dataset`` (see the module docstring for the procedure and its statistics).
+    """Diagnose ``dataset`` (see the module docstring for the steps and their statistics).
 
     ``holdout``: without a ``set`` column, hold out this seeded random fraction for validation (default
     ``DEFAULT_HOLDOUT``, 30 %, said so in the notes).
@@ -193,15 +248,112 @@ def diagnose(
     ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
     when known (otherwise the first row's approach is unknown).
     """
-    if not isinstance(dataset, Dataset):
-        raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if not (0 < alpha < 0.5):
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha!r}")
     if not (0 < alpha_select < 0.5):
         raise ValueError(f"alpha_select must be in (0, 0.5), got {alpha_select!r}")
     if not (isinstance(max_effects, (int, np.integer)) and max_effects >= 0):
         raise ValueError(f"max_effects must be a non-negative integer, got {max_effects!r}")
+    setup = prepare_diagnosis(dataset, calibration=calibration, holdout=holdout, seed=seed, q_start=q_start)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    test0 = prob.test(base)
+    excess = test0.p_value < alpha
+    sel = Selection(base)
+    if excess and max_effects > 0:
+        pool, sizes = atom_pool(setup, generic=generic)
+        sel = select_terms(prob, base, pool, sizes, max_effects=max_effects, alpha_select=alpha_select, z_min=z_min,
+                           callback=callback)
+        # the geometric model again, under the gross rows of the final one
+        base = prob.fit(base.z[: setup.prep.space.size], [])
+        test0 = prob.test(base)
+    ext = sel.fit if sel.fit.chosen else None
+    structured, unexplained, notes_v = decide(prob, base, ext, test0, excess, z_min)
+    rep = report_before_after(prob, base, ext)
+    frac, explained, notes_r = 0.0, False, []
+    if ext is not None:
+        tb, ta = rep["test_before"], rep["test_after"]
+        explained = bool(structured and ta.p_value >= alpha)
+        ex = tb.statistic - tb.dof
+        frac = float(np.clip((tb.statistic - ta.statistic) / ex, 0.0, 1.0)) if ex > 0 else 1.0
+        if not explained:
+            notes_r.append(f"partial explanation: {100 * frac:.0f} % of the held-out excess (report rows) explained; "
+                           f"the remainder is still structured (p = {ta.p_value:.2g})")
+    use = ext if ext is not None else base
+    atoms_json, params = describe_terms(prob, use, base.chi2, sel.entry_chi2) if ext is not None else ([], {})
+    effects, unnamed, notes_n = name_effects(atoms_json)
+    rows = _rows_report(prob, setup)
+    notes = setup.notes + sel.notes + notes_v + notes_r + notes_n + [rep["note"]]
+    if rows["gross_validation"] or rows["gross_calibration"]:
+        notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
+                     f"validation {rows['gross_validation']}")
+    geo = setup.geometric
+    extended = replace(geo, method="best+effects" if ext is not None else geo.method,
+                       x=use.z[: setup.prep.space.size] if ext is not None else geo.x, effects=tuple(atoms_json))
+    return DiagnosisResult(
+        structured=structured,
+        p_value=float(test0.p_value),
+        alpha=alpha,
+        test_before=test0,
+        test_after=prob.test(ext) if ext is not None else None,
+        effects=effects,
+        effect_parameters=params,
+        explained=explained,
+        before=rep["before"],
+        after=rep["after"],
+        noise=setup.floor,
+        scores=tuple(sel.scores),
+        calibration_geometric=geo,
+        calibration=extended,
+        series=_series(prob, base, use),
+        notes=tuple(notes),
+        atoms=tuple(atoms_json),
+        unnamed=unnamed,
+        alternatives=tuple(sel.alternatives),
+        explained_fraction=frac,
+        rows=rows,
+        unexplained=unexplained,
+        held_out=rep["held_out"],
+        test_report={"before": rep["test_before"], "after": rep["test_after"]},
+    )
+
+
+def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, every: int = REPORT_EVERY,
+                   min_visits: int = REPORT_MIN_VISITS) -> HeldOut:
+    """The held-out rows ``prep.val`` in two blocks. A *visit* is a run of consecutive dataset rows with the same
+    commanded joints and station (a repeat shares its visit's error, so a visit stays in one block); every
+    ``every``-th held-out visit in measurement order is a report row, the others confirmation rows, so both
+    blocks span the campaign in time and in the workspace. Report rows whose approach history is unknown (the
+    first rows, after a restart: :func:`twin.diagnosis.atoms.approach_unknown`) go to the confirmation block:
+    no model can predict a history-dependent term there. With fewer than ``min_visits`` held-out visits there is
+    no report block (``report`` None)."""
+    q = np.round(np.asarray(ds.q, float), 9)
+    st = np.asarray(ds.station_ids)
+    new = np.ones(ds.n, bool)
+    new[1:] = np.any(q[1:] != q[:-1], axis=1) | (st[1:] != st[:-1])
+    visit = np.cumsum(new)
+    val = np.asarray(prep.val, int)
+    vrow = prep.rows[val]
+    uniq = list(dict.fromkeys(visit[vrow].tolist()))
+    if len(uniq) < min_visits:
+        return HeldOut(val, None, f"fewer than {min_visits} held-out visits ({len(uniq)}): before/after are on the "
+                                  "rows that also confirmed the terms (no separate report block)")
+    rep_visits = set(uniq[every - 1::every])
+    unknown = approach_unknown(ctx)
+    is_rep = np.isin(visit[vrow], list(rep_visits)) & ~unknown[vrow]
+    return HeldOut(val[~is_rep], val[is_rep],
+                   f"every {every}th held-out visit in measurement order (a visit: consecutive rows with the same "
+                   "commanded joints and station), rows with an unknown approach history excluded; the other "
+                   "held-out rows confirm the terms")
+
+
+def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = None, holdout: float | None = None,
+                      seed: int = 0, q_start: np.ndarray | None = None) -> Setup:
+    """Step 1: the floor, the rows (split, held-out blocks), the geometric identification and the problem."""
+    if not isinstance(dataset, Dataset):
+        raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     virtual = not dataset.has_spheres
+    notes: list[str] = []
     if virtual:
         # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
         dataset, note_virtual = virtual_spheres(dataset)
@@ -215,7 +367,7 @@ def diagnose(
     elif not np.any(dataset.set == "validation"):
         raise DiagnosisError("diagnosis needs held-out rows: the 'set' column has no 'validation' rows")
     floor = noise_floor(dataset, plate=not virtual)
-    notes: list[str] = [f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}"]
+    notes.append(f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}")
     if virtual:
         notes.append(note_virtual)
     if default_holdout:
@@ -229,105 +381,159 @@ def diagnose(
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
     geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM})
     ctx = row_context(dataset, q_start)
+    held = split_held_out(dataset, prep, ctx)
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
-    prob = _Problem(prep, floor, ctx, free_geo)
+    prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report)
+    return Setup(dataset, virtual, floor, prep, np.asarray(ident.x, float), geo, ctx, held, prob, notes)
 
-    # gross rows of the geometric fit (calibration: weight 0; validation: left out of test and statistics)
-    fit = prob.fit(ident.x, [])
-    _update_gross(prob, fit)
-    fit = prob.fit(fit.z[: prep.space.size], [])
-    base_fit = fit
-    test0 = prob.test(base_fit)
-    before = _error_stats(base_fit.model_val, base_fit.z, prob.keep_val)
-    excess = test0.p_value < alpha
 
-    scores: list[CandidateScore] = []
-    alternatives: list[dict] = []
+def fit_geometry(prob: Problem, x0: np.ndarray) -> Fit:
+    """Step 2: the geometric model fitted on the calibration rows, refitted once its gross rows are down-weighted
+    (calibration: weight 0; confirmation rows: left out of the test)."""
+    fit = prob.fit(x0, [])
+    update_gross(prob, fit)
+    return prob.fit(fit.z[: prob.prep.space.size], [])
+
+
+def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[str, int]]:
+    """The atoms selection draws from (the catalogue, the cyclic scan, and with ``generic`` the dictionary) and
+    the size of each pool (its Bonferroni factor)."""
+    prep, ctx, ds = setup.prep, setup.ctx, setup.dataset
+    length_names = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
+    cat = catalogue_atoms(prep.nominal, ctx, length_names)
+    pool = list(cat)
+    if generic:
+        pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
+        pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=None if setup.virtual else ds.spheres,
+                              plate_spheres=ds.plate.spheres_flange)
+    if setup.virtual:
+        pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
+    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
+    return pool, sizes
+
+
+def _slot(atom: Atom) -> str:
+    """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
+    occupies its own key."""
+    return f"backlash:{atom.target}" if atom.family == "backlash" else atom.key
+
+
+@dataclass
+class Round:
+    """One forward round: the accepted candidate (or None), the candidates tried with their decisions, every
+    atom scored, the keys rejected, and whether a named atom was rejected for an unphysical size."""
+
+    accepted: Scored | None
+    scores: list[CandidateScore]
+    scored: list[Scored]
+    rejected: list[str]
+    unphysical: bool
+
+
+def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
+                    alpha_select: float, z_min: float, tries: int = 3,
+                    callback: Callable[[CandidateScore], None] | None = None) -> Round:
+    """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
+    operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
+    ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
+    confirmation rows and of a physical size is accepted."""
+    scored = prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes)
+    out = Round(None, [], scored, [], False)
+    if not scored:
+        return out
+    for s in order_candidates(scored)[:tries]:
+        logp_adj = s.logp_adj
+        if logp_adj >= np.log(alpha_select):
+            out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
+                                             float("nan"), "not significant on the calibration rows"))
+            break
+        c = confirm(prob, fit, s, z_min)
+        implausible = _implausible(prob, s)
+        ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
+        sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
+                            "kept" if ok else ("not confirmed on held-out rows" if not (c.z > z_min) else
+                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
+                                               "held-out error not reduced" if not c.better else
+                                               "the nearest rows in time predict the held-out rows as well (a wander, "
+                                               "not a term of time)" if c.local else implausible))
+        out.scores.append(sc)
+        if callback:
+            callback(sc)
+        if ok:
+            out.accepted = s
+            break
+        out.rejected.append(s.atom.key)
+        out.unphysical |= implausible is not None
+    return out
+
+
+def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int], *, max_effects: int = 16,
+                 alpha_select: float = 0.01, z_min: float = 3.0,
+                 callback: Callable[[CandidateScore], None] | None = None) -> Selection:
+    """Step 4: forward rounds (:func:`selection_round`) from the geometric ``fit``: an accepted atom is refined
+    (its continuous constant), widened (its further directions when they add evidence), added and the model
+    refitted; then the backward pass and the catalogue's shapes of one joint variable (:func:`_named_shapes`)."""
+    sel = Selection(fit)
     chosen: list = []
-    entry_chi2: dict[str, float] = {}
-    test = test0
-    if excess and max_effects > 0:
-        length_names = [n for n in prep.space.names[: prep.space.n_robot]
-                        if n.rstrip("0123456789") in ("d", "a")]
-        cat = catalogue_atoms(prep.nominal, ctx, length_names)
-        pool = list(cat)
-        if generic:
-            pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
-            pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=None if virtual else dataset.spheres,
-                                  plate_spheres=dataset.plate.spheres_flange)
-        if virtual:
-            pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
-        sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
-        rejected: set[str] = set()
-        entry_chi2: dict[str, float] = {}
-        rnd, kept = 0, 0
-        while kept < max_effects and rnd < 4 * max_effects:
-            rnd += 1
-            remaining = [a for a in pool if a.key not in rejected and a.key not in {c.key for c, _ in chosen}]
-            scored = _score_atoms(prob, fit, remaining, sizes)
-            if not scored:
-                break
-            order = _order(scored)
-            accepted = None
-            unphysical = False
-            for s in order[:3]:
-                logp_adj = s.logp_adj
-                if logp_adj >= np.log(alpha_select):
-                    scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), float("nan"),
-                                                 "not significant on the calibration rows"))
-                    break
-                z, zm, better = _confirm(prob, fit, s, z_min)
-                implausible = _implausible(prob, s)
-                ok = z > z_min and zm > z_min and better and implausible is None
-                sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), z,
-                                    "kept" if ok else ("not confirmed on held-out rows" if not (z > z_min) else
-                                                       "held-out gain rests on one row" if not (zm > z_min) else
-                                                       "held-out error not reduced" if not better else implausible))
-                scores.append(sc)
-                if callback:
-                    callback(sc)
-                if ok:
-                    accepted = s
-                    break
-                rejected.add(s.atom.key)
-                unphysical |= implausible is not None
-            if accepted is None:
-                if unphysical:
-                    continue  # named atoms of an unphysical size are out: the next round scores the rest
-                break
-            refined = _refine(prob, fit, accepted, sizes)
-            accepted = _widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
-            kept += 1
-            alternatives += _alternatives(accepted, scored)
-            chosen.append((accepted.atom, accepted.basis))
-            entry_chi2[accepted.atom.key] = accepted.dchi2
-            z_eff = _psi_init(fit, chosen)
-            fit = prob.fit(fit.z[: prep.space.size], chosen, z_eff)
-            _update_gross(prob, fit)
-        if chosen:
-            fit, dropped = _backward(prob, fit, alpha_select, sizes)
-            for a in dropped:
-                notes.append(f"dropped in the backward pass (redundant once the others are in): {a.label}")
-            fit, swapped, alts = _named_shapes(prob, fit, pool, sizes, alpha_select)
-            notes += swapped
-            alternatives = [d for d in alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
-            _update_gross(prob, fit)
-            fit = prob.fit(fit.z[: prep.space.size], fit.chosen, _psi_init(fit, fit.chosen))
-            test = prob.test(fit)
-        chosen = fit.chosen
-        base_fit = prob.fit(base_fit.z[: prep.space.size], [])
-        test0 = prob.test(base_fit)
-        before = _error_stats(base_fit.model_val, base_fit.z, prob.keep_val)
+    rejected: set[str] = set()
+    taken: set[str] = set()
+    rnd, kept = 0, 0
+    P = prob.prep.space.size
+    while kept < max_effects and rnd < 4 * max_effects:
+        rnd += 1
+        remaining = [a for a in pool if a.key not in rejected and _slot(a) not in taken]
+        r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
+                            callback=callback)
+        sel.scores += r.scores
+        rejected.update(r.rejected)
+        if r.accepted is None:
+            if r.unphysical:
+                continue  # named atoms of an unphysical size are out: the next round scores the rest
+            break
+        accepted = r.accepted
+        taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
+        refined = refine(prob, fit, accepted, sizes)
+        accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
+        taken.add(_slot(accepted.atom))
+        kept += 1
+        sel.alternatives += alternatives(accepted, r.scored)
+        chosen.append((accepted.atom, accepted.basis))
+        sel.entry_chi2[accepted.atom.key] = accepted.dchi2
+        fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
+        update_gross(prob, fit)
+        if any(f.get("kind") == "play" for f in accepted.atom.features):
+            # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
+            # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
+            fit = polish_in_fit(prob, fit, len(chosen) - 1, "h")
+            chosen = list(fit.chosen)
+            update_gross(prob, fit)
+    if chosen:
+        fit, dropped = backward(prob, fit, alpha_select, sizes)
+        for a in dropped:
+            sel.notes.append(f"dropped in the backward pass (redundant once the others are in): {a.label}")
+        fit, swapped, alts = _named_shapes(prob, fit, pool, sizes, alpha_select)
+        sel.notes += swapped
+        sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
+        update_gross(prob, fit)
+        fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
+    sel.fit = fit
+    return sel
 
-    confirmed = bool(chosen)
-    # without a confirmed term, structure must still be predictable: from the nearest calibration rows in joint
-    # space or in time. An excess that nothing predicts is scatter that changes from visit to visit (the robot's
-    # repeatability, a per-pose instrument error), however large: reported, not called structure.
+
+def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, excess: bool,
+           z_min: float) -> tuple[bool, dict | None, list[str]]:
+    """Step 5: ``structured`` when the test fired (``excess``) and something in the residual is predictable on the
+    confirmation rows: a confirmed term (``ext``), or, without one, the nearest calibration rows in joint space or
+    in time (:func:`twin.diagnosis.select.smooth_confirm`). An excess that nothing predicts is scatter that
+    changes from visit to visit (the robot's repeatability, a per-pose instrument error), however large:
+    reported (``unexplained``), not called structure. Returns ``(structured, unexplained, notes)``."""
+    notes: list[str] = []
+    confirmed = ext is not None
     unexplained = None
     if excess and not confirmed:
-        smooth = _smooth_confirm(prob, base_fit, z_min)
+        smooth = smooth_confirm(prob, base, z_min)
         w = test0.whitened_rms
-        unexplained = {"whitened_rms": w, "excess_sigma_mm": floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / _MM,
+        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / _MM,
                        "predictable": smooth["confirmed"], "by": smooth["by"] if smooth["confirmed"] else None,
                        "smoothers": smooth["smoothers"]}
     structured = bool(excess and (confirmed or unexplained["predictable"]))
@@ -343,22 +549,44 @@ def diagnose(
         notes.append(f"the residual is predictable from the nearest rows in {by} (z = "
                      f"{unexplained['smoothers'][unexplained['by']]['z']:.2f} on held-out rows) and no term of the "
                      "catalogue or the dictionary explains it")
-    explained = bool(structured and confirmed and test.p_value >= alpha)
-    frac = 0.0
-    if confirmed:
-        ex = test0.statistic - test0.dof
-        frac = float(np.clip((test0.statistic - test.statistic) / ex, 0.0, 1.0)) if ex > 0 else 1.0
-        if not explained:
-            notes.append(f"partial explanation: {100 * frac:.0f} % of the held-out excess explained; the remainder is "
-                         f"still structured (p = {test.p_value:.2g})")
-    use = fit if confirmed else base_fit
-    after = _error_stats(use.model_val, use.z, prob.keep_val) if confirmed else before
-    atoms_json, params = _atom_report(prob, use, base_fit.chi2, entry_chi2) if confirmed else ([], {})
-    # every kept atom stays in the model; the named effects are the families of the atoms that explained at
-    # least MINOR_RMS of the floor (RMS per residual) when they entered
-    # a named shape of one joint variable (a harmonic, a ratio, a coupling) kept beside a non-minor unnamed
-    # function of the same variable at the same joint is part of one shape the catalogue does not name (a
-    # one-sided pull of a cable past some angle took a quadratic and a 1st harmonic of q5 on a blind campaign)
+    return structured, unexplained, notes
+
+
+def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, Any]:
+    """Step 6: errors and structure tests of the geometric (``base``) and the extended model (``ext``, or the
+    geometric one) on the report rows, which took no part in choosing or fitting the model (gross rows of the
+    final model left out alike). Without a report block, on the confirmation rows, and ``held_out`` says so."""
+    use = ext if ext is not None else base
+    if prob.obs_rep is not None:
+        block = "report"
+        mb, mu = prob.model([], "rep"), prob.model(use.chosen, "rep")
+        r = mu.residuals(use.z, jacobian=False)
+        keep = ~gross_rows(r.r, r.row, mu.obs.n)
+        rows = prob.rows_rep
+    else:
+        block = "confirmation"
+        mb, mu, keep, rows = base.model_val, use.model_val, prob.keep_val, prob.rows_val
+    before = error_stats(mb, base.z, keep)
+    after = error_stats(mu, use.z, keep) if ext is not None else before
+    tb = prob.test(base, mb, keep)
+    ta = prob.test(ext, mu, keep) if ext is not None else None
+    pid = prob.prep.dataset.pose_id
+    held = {"before_after_on": block, "n_confirmation_rows": int(prob.obs_val.n),
+            "n_report_rows": int(keep.sum()), "report_pose_ids": [int(pid[i]) for i in rows[keep]],
+            "gross_report_pose_ids": [int(pid[i]) for i in rows[~keep]]}
+    note = (f"before/after on {int(keep.sum())} report rows, held out and used for nothing else (the terms were chosen "
+            f"on the calibration rows and confirmed on {prob.obs_val.n} other held-out rows)" if block == "report" else
+            f"before/after on the {int(keep.sum())} held-out rows that also confirmed the terms (too few held-out "
+            "visits for a separate report block): optimistic")
+    return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
+
+
+def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, ...], list[str]]:
+    """Step 7b: the catalogue families of the non-minor named terms (``effects``), the non-minor unnamed terms, and
+    notes. A named shape of one joint variable kept beside a non-minor unnamed function of the same variable at
+    the same joint is one shape the catalogue does not name (a one-sided pull of a cable past some angle took a
+    quadratic and a 1st harmonic of q5); measurement-side terms describe the instrument or the cell."""
+    notes: list[str] = []
     merged = _merged_into_unnamed(atoms_json)
     for a, u in merged:
         notes.append(f"'{a['label']}' is reported with '{u['label']}' as one function of "
@@ -376,41 +604,7 @@ def diagnose(
     if instrument:
         notes.append("terms on the measurement side (scale, field or frame of the measurements) describe the instrument or "
                      f"the cell, not the robot: {'; '.join(instrument)}")
-    rows = _rows_report(prob, prep, dataset)
-    if rows["gross_validation"] or rows["gross_calibration"]:
-        notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
-                     f"validation {rows['gross_validation']}")
-    extended = replace(
-        geo,
-        method="best+effects" if confirmed else geo.method,
-        x=use.z[: prep.space.size] if confirmed else geo.x,
-        effects=tuple(atoms_json),
-    )
-    series = _series(base_fit, use, prob)
-    return DiagnosisResult(
-        structured=structured,
-        p_value=float(test0.p_value),
-        alpha=alpha,
-        test_before=test0,
-        test_after=test if confirmed else None,
-        effects=effects,
-        effect_parameters=params,
-        explained=explained,
-        before=before,
-        after=after,
-        noise=floor,
-        scores=tuple(scores),
-        calibration_geometric=geo,
-        calibration=extended,
-        series=series,
-        notes=tuple(notes),
-        atoms=tuple(atoms_json),
-        unnamed=unnamed,
-        alternatives=tuple(alternatives),
-        explained_fraction=frac,
-        rows=rows,
-        unexplained=unexplained,
-    )
+    return effects, unnamed, notes
 
 
 # ------------------------------------------------------------------------------------------------
@@ -447,7 +641,7 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
                  "the plate's own terms and the plate-distance floor do not apply")
 
 
-def _implausible(prob: _Problem, s) -> str | None:
+def _implausible(prob: Problem, s) -> str | None:
     """Why a named (catalogue) atom's fitted size is not physical for its family, or None: thermal growth of more
     than ``THERMAL_MAX`` over the rows (a short link's huge growth stands for something else: on a blind
     campaign 3,500 ppm of a4 took the place of a joint offset jumping at restarts), a joint error beyond
@@ -475,12 +669,13 @@ def _single_joint_variable(a: Atom) -> str | None:
     return ch if ch.startswith("q") else None
 
 
-def _named_shapes(prob: _Problem, fit: _Fit, pool: list[Atom], sizes: dict,
-                  alpha_select: float) -> tuple[_Fit, list[str], list[dict]]:
+def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
+                  alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
     named ones (a quadratic before the harmonics it stands for), try the catalogue's shapes of that variable
     alone (harmonics 1-3, the gear ratio, the scanned orders already kept) in place of the unnamed term: when
-    they predict the held-out rows as well (within 2 %), the named explanation is kept, and the unnamed shape it
+    they predict the confirmation rows as well (within 2 %) with no more parameters at that joint than the unnamed
+    shape and the named terms kept with it, the named explanation is kept, and the unnamed shape it
     replaced is reported as the alternative the data cannot tell from it (over a joint's range a few harmonics
     follow any smooth shape: the name is the simpler reading, not a proof). Returns the fit, notes and those
     alternatives."""
@@ -495,19 +690,23 @@ def _named_shapes(prob: _Problem, fit: _Fit, pool: list[Atom], sizes: dict,
         if not named_here:
             continue
         keep = [(c, B) for c, B in fit.chosen if c is not a]
-        base = prob.fit(fit.z[: prob.prep.space.size], keep, _psi_init(fit, keep))
+        base = prob.fit(fit.z[: prob.prep.space.size], keep, psi_init(fit, keep))
         have = {c.key for c, _ in keep}
         cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) == var
                  and c.key not in have]
-        scored = _score_atoms(prob, base, cands, sizes, exact_top=len(cands)) if cands else []
+        scored = score_atoms(prob, base, cands, sizes, exact_top=len(cands)) if cands else []
         trial = keep + [(s.atom, s.basis) for s in scored if s.logp_adj < np.log(alpha_select)]
         if len(trial) == len(keep):
             continue
-        alt = prob.fit(base.z[: prob.prep.space.size], trial, _psi_init(base, trial))
-        alt, _ = _backward(prob, alt, alpha_select, sizes)
-        e_alt = _error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-        e_now = _error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        if e_alt <= 1.02 * e_now:
+        alt = prob.fit(base.z[: prob.prep.space.size], trial, psi_init(base, trial))
+        alt, _ = backward(prob, alt, alpha_select, sizes)
+        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
+        # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
+        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and _single_joint_variable(c) == var)
+        n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) == var)
+        if e_alt <= 1.02 * e_now and n_alt <= n_now:
             notes.append(f"'{a.label}' replaced by the catalogue's shapes of {var} on joint {target[5:]} "
                          f"({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they predict the "
                          f"held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
@@ -567,7 +766,7 @@ def _place_unit(a: Atom) -> tuple[str, float]:
     return "deg", 1 / _DEG
 
 
-def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
+def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
                  entry_chi2: dict[str, float] | None = None) -> tuple[list[dict], dict[str, Any]]:
     """Every chosen atom: full parameters ``phi = B psi`` with standard deviations, its effect on its place
     over the calibration rows, words, its unique share of the explained calibration chi2 (Wald
@@ -577,7 +776,7 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
     rc = fit.model_cal.residuals(fit.z)
     sw = np.sqrt(prob.w_cal[rc.row])
     J = rc.J[:, fit.free] * sw[:, None]
-    C = _covariance(J)
+    C = covariance(J)
     pos = {int(f): k for k, f in enumerate(fit.free)}
     _, phis = fit.model_cal.split(fit.z)
     out: list[dict] = []
@@ -649,7 +848,7 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
             value, value_sd, vunit = size["rms_mm"], None, "mm RMS (translation)"
         else:
             value, value_sd, vunit = float(np.linalg.norm(phi) * fac), None, unit
-        entry = {**a.spec(), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+        entry = {**a.spec(), "features": with_records(a.features, prob.ctx), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
                  "value": value, "value_sd": value_sd, "value_unit": vunit,
                  "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
                  "entry_chi2": (entry_chi2 or {}).get(a.key, wald),
@@ -661,57 +860,81 @@ def _atom_report(prob: _Problem, fit: _Fit, chi2_base: float | None = None,
     return out, params
 
 
-def _rows_report(prob: _Problem, prep: Prepared, ds: Dataset) -> dict[str, Any]:
-    pid = ds.pose_id
+def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
+    pid = setup.dataset.pose_id
+    prep = setup.prep
     gc = prep.rows[prep.cal][prob.w_cal == 0]
-    gv = prep.rows[prep.val][~prob.keep_val]
+    gv = prob.rows_val[~prob.keep_val]
     reset = np.flatnonzero(approach_unknown(prob.ctx))
+    rep = [] if prob.rows_rep is None else [int(pid[i]) for i in prob.rows_rep]
     return {"gross_calibration": [int(pid[i]) for i in gc], "gross_validation": [int(pid[i]) for i in gv],
             "unknown_history": [int(pid[i]) for i in reset],
             "unknown_history_rule": "rows where a joint that moves has not moved since the start, a gap in t_s or "
                                     "a recorded restart: history-dependent terms read 0 there",
-            "rule": "per-row misfit beyond the floor's 1e-6/n quantile and median + 8 MAD (at most 2 % of rows)"}
+            "rule": "per-row misfit beyond the floor's 1e-6/n quantile and median + 8 MAD (at most 2 % of rows)",
+            "confirmation": [int(pid[i]) for i in prob.rows_val], "report": rep,
+            "held_out_rule": setup.held_out.rule}
 
 
-def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
-    """Per validation row: residual norms before/after [mm] and the most telling variables."""
-    from .atoms import _signs
-
-    rows_val = prob.rows_val
-    out: dict[str, np.ndarray] = {"dataset_row": rows_val, "pose_id": prob.prep.dataset.pose_id[rows_val]}
-    for tag, f in (("before", base), ("after", ext)):
-        r = f.model_val.residuals(f.z, jacobian=False)
-        e, _ = _row_rms(f.model_val.unwhiten(r.r), r.row, f.model_val.obs.n)
-        out[f"residual_rms_mm_{tag}"] = e / _MM
+def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
+    """Per held-out row (confirmation and report rows, in dataset order): residual norms before/after [mm], the
+    block it belongs to, each term of the extended model, and the most telling variables."""
+    blocks = [("confirmation", prob.rows_val, base.model_val, ext.model_val)]
+    if prob.obs_rep is not None:
+        blocks.append(("report", prob.rows_rep, prob.model([], "rep"), prob.model(ext.chosen, "rep")))
+    rows_all = np.concatenate([b[1] for b in blocks])
+    order = np.argsort(rows_all, kind="stable")
+    rows_val = rows_all[order]
+    out: dict[str, np.ndarray] = {"dataset_row": rows_val, "pose_id": prob.prep.dataset.pose_id[rows_val],
+                                  "block": np.concatenate([[name] * len(r) for name, r, _, _ in blocks])[order]}
+    for tag, idx in (("before", 2), ("after", 3)):
+        z = base.z if tag == "before" else ext.z
+        e_all = []
+        for b in blocks:
+            m = b[idx]
+            r = m.residuals(z, jacobian=False)
+            e, _ = row_rms(m.unwhiten(r.r), r.row, m.obs.n)
+            e_all.append(e / _MM)
+        out[f"residual_rms_mm_{tag}"] = np.concatenate(e_all)[order]
     # each term of the extended model on the held-out rows, in its place's display unit
-    _, phis = ext.model_val.split(ext.z)
     terms = {}
-    for t, phi in zip(ext.model_val.terms, phis):
-        unit, fac = _place_unit(t.atom)
-        if t.atom.place == "param" and t.atom.target in ("tool", "base"):
-            v = np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
+    for k in range(len(ext.chosen)):
+        vals = []
+        for b in blocks:
+            m = b[3]
+            t = m.terms[k]
+            phi = m.split(ext.z)[1][k]
+            vals.append(_term_values(m, t, phi))
+        unit, _ = _place_unit(ext.chosen[k][0])
+        a = ext.chosen[k][0]
+        if a.place == "param" and a.target in ("tool", "base"):
             unit = "mm (translation)"
-        elif t.atom.place == "plate":
-            v = np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
-        elif t.atom.target == "base_along":
-            v = np.linalg.norm(t.F, axis=1) * phi[0] / _MM
-        elif t.atom.place == "field":
-            obs = ext.model_val.obs
-            disp = np.linalg.norm(np.einsum("nskc,k->nsc", ext.model_val.field_grid(t.atom) * t.F[:, None, :, None], phi),
-                                  axis=2)
-            v = np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / _MM
-        else:
-            v = (t.F @ phi) * fac
-        terms[t.atom.label] = {"value": v, "unit": unit, "channel": t.atom.channel}
+        terms[a.label] = {"value": np.concatenate(vals)[order], "unit": unit, "channel": a.channel}
     out["terms"] = terms
     ctx = prob.ctx
     out["q_deg"] = ctx.q[rows_val] / _DEG
-    out["approach_sign"] = _signs(ctx)[rows_val]
+    out["approach_sign"] = history_signs(ctx)[rows_val]
     if ctx.temp_c is not None:
         out["temp_c"] = ctx.temp_c[rows_val]
     if ctx.t_s is not None:
         out["t_s"] = ctx.t_s[rows_val]
     return out
+
+
+def _term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
+    """One term of an extended model on its rows ``(n,)``, in its place's display unit."""
+    _, fac = _place_unit(t.atom)
+    if t.atom.place == "param" and t.atom.target in ("tool", "base"):
+        return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
+    if t.atom.place == "plate":
+        return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
+    if t.atom.target == "base_along":
+        return np.linalg.norm(t.F, axis=1) * phi[0] / _MM
+    if t.atom.place == "field":
+        obs = model.obs
+        disp = np.linalg.norm(np.einsum("nskc,k->nsc", model.field_grid(t.atom) * t.F[:, None, :, None], phi), axis=2)
+        return np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / _MM
+    return (t.F @ phi) * fac
 
 
 # ------------------------------------------------------------------------------------------------
@@ -720,7 +943,7 @@ def _series(base: _Fit, ext: _Fit, prob: _Problem) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True)
 class EffectFit:
-    """A given extended model fitted without selection: validation errors of the geometric-only and of the
+    """A given extended model fitted without selection: report-row errors of the geometric-only and of the
     extended model (``{n_rows, position_mm: {...}, orientation_deg: {...}}``), the structure test of each,
     and the atom parameters."""
 
@@ -735,20 +958,19 @@ class EffectFit:
 def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = None, seed: int = 0,
                      q_start: np.ndarray | None = None) -> EffectFit:
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
-    from the geometry kept) on the calibration rows, and report on the validation rows. An entry may also be
-    a catalogue family's name: every atom of that family (per joint, per link)."""
+    from the geometry kept) on the calibration rows, and report on the report rows :func:`diagnose` would use
+    (:func:`split_held_out`; the confirmation rows when there is no report block). An entry may also be a
+    catalogue family's name: every atom of that family (per joint, per link)."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:
         raise DiagnosisError("fit_with_effects needs held-out rows: a 'set' column or holdout=FRACTION")
-    floor = noise_floor(dataset)
-    prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=holdout or 0.0, seed=seed)
-    ident = identify_best(prep, alpha=1e-6)
-    ctx = row_context(dataset, q_start)
-    # a catalogue family given by name stands for all its atoms
     bad = [a for a in atoms if not isinstance(a, (Atom, str))]
     if bad:
         raise ValueError(f"atoms must be twin.diagnosis.atoms.Atom or catalogue family names, got {bad[0]!r}")
+    setup = prepare_diagnosis(dataset, holdout=holdout, seed=seed, q_start=q_start)
+    prep, ctx, prob = setup.prep, setup.ctx, setup.problem
+    # a catalogue family given by name stands for all its atoms
     fams = {a for a in atoms if isinstance(a, str)}
     if fams:
         unknown = fams - set(EFFECT_VOCABULARY)
@@ -757,23 +979,25 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         lengths = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, lengths) if a.family in fams and a.target != "all_lengths"]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
-    prob = _Problem(prep, floor, ctx, np.flatnonzero(np.array(ident.status) == "identified"))
-    base = prob.fit(ident.x, [])
+    base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)
     Q, _ = np.linalg.qr(rc.J[:, base.free])
     chosen = []
     for a in atoms:
-        E = _raw_columns(base.model_cal, a, prob.features(a)[prob.rows_cal], base.z, rc)
+        E = raw_columns(base.model_cal, a, prob.features(a)[prob.rows_cal], base.z, rc)
         chosen.append((a, reduced_basis(E, Q=Q, rel_tol=1e-6, max_rank=40)))
-    fit = prob.fit(ident.x, chosen)
-    _, params = _atom_report(prob, fit)
+    fit = prob.fit(setup.x0, chosen)
+    _, params = describe_terms(prob, fit)
+    block = "rep" if prob.obs_rep is not None else "val"
+    mb, mf = prob.model([], block), prob.model(chosen, block)
+    keep = np.ones(mb.obs.n, bool)
     return EffectFit(
-        before=_error_stats(base.model_val, base.z),
-        after=_error_stats(fit.model_val, fit.z),
-        test_before=prob.test(base),
-        test_after=prob.test(fit),
+        before=error_stats(mb, base.z),
+        after=error_stats(mf, fit.z),
+        test_before=prob.test(base, mb, keep),
+        test_after=prob.test(fit, mf, keep),
         effect_parameters=params,
-        noise=floor,
+        noise=setup.floor,
     )
 
 

@@ -128,23 +128,36 @@ class ExtendedModel:
                 sph[int(t.atom.target[6:])] += phi
         return replace(self.obs, q=q, spheres_tool=sph)
 
+    def product_base(self, atom: Atom, x: np.ndarray, obs: Observations, res: Residuals) -> np.ndarray | None:
+        """The whitened model columns ``(m, c)`` an atom's features multiply, when its columns are products
+        ``E[m, k c + j] = F[row(m), k] base[m, j]`` (joint, length, parameter, frame, plate and scale atoms); None
+        for the others (a displacement along the last move, a field)."""
+        a = atom
+        if a.place in ("joint", "length", "param"):
+            if a.target == "base_along":
+                return None
+            return res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
+        if a.place == "plate":
+            return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]  # (m, 3)
+        if a.place == "scale":
+            return (self._coords(obs) * self._f)[:, None]
+        if a.place == "field":
+            return None
+        raise ValueError(f"unknown atom place {a.place!r}")
+
     def columns(self, t: AtomTerm, x: np.ndarray, obs: Observations, res: Residuals) -> np.ndarray:
         """Whitened raw columns ``(m, K)`` of one term at the current point."""
         a = t.atom
         Fr = t.F[res.row]  # (m, K_f)
-        if a.place in ("joint", "length", "param"):
-            base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
-            if a.target == "base_along":
-                return np.sum(Fr * base, axis=1, keepdims=True)  # along the row's direction, one coefficient
-            return (Fr[:, :, None] * base[:, None, :]).reshape(len(res.r), -1)
-        if a.place == "plate":
-            P = self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]  # (m, 3)
-            return P if not a.varying_plate else (Fr[:, :, None] * P[:, None, :]).reshape(len(res.r), -1)
-        if a.place == "scale":
-            return Fr * (self._coords(obs) * self._f)[:, None]
+        if a.place == "param" and a.target == "base_along":
+            base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 3)
+            return np.sum(Fr * base, axis=1, keepdims=True)  # along the row's direction, one coefficient
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
-        raise ValueError(f"unknown atom place {a.place!r}")
+        base = self.product_base(a, x, obs, res)
+        if a.place == "plate" and not a.varying_plate:
+            return base
+        return (Fr[:, :, None] * base[:, None, :]).reshape(len(res.r), -1)
 
     def field_grid(self, a: Atom) -> np.ndarray:
         """``G_k`` ``(n, 3 spheres, K, 3)`` of a field atom at every row's measured sphere centres (zero where a
@@ -169,6 +182,11 @@ class ExtendedModel:
         """``G_k`` at each residual's measured point, its coordinate, divided by sigma ``(m, K)``."""
         G = self.field_grid(a)
         return G[self._elem_row, self._sph, :, self._crd] / obs.sigma_position
+
+    def scale_column(self, obs: Observations) -> np.ndarray:
+        """Whitened column ``(m,)`` of the measurement scale: the measured coordinates in residual order over the
+        noise of their axis (the derivative of a scale ``p -> p (1 + s)``)."""
+        return self._coords(obs) * self._f
 
     def _coords(self, obs: Observations) -> np.ndarray:
         """Measured coordinates in residual order, divided by sigma (the derivative of a scale)."""

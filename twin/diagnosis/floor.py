@@ -311,5 +311,6 @@ def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
         station=ds.station_ids.copy() if ds.station is not None else None,
         history_reset=reset,
         session_start=row_resets(ds.n, ds.t_s, ds.status, gaps=True),
+        pose_id=np.asarray(ds.pose_id).copy(),
     )
 

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from .candidates import EFFECT_VOCABULARY
-from .diagnose import DiagnosisResult, StructureTest
+from .diagnose import DiagnosisResult
+from .select import StructureTest
 
 __all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis"]
 
@@ -63,6 +64,9 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
                            "structured when p < alpha (the false-alarm rate)",
             "before": _test(res.test_before),
             "after": _test(res.test_after),
+            "rows": "confirmation",
+            "report": {"before": _test(res.test_report.get("before")), "after": _test(res.test_report.get("after")),
+                       "rows": res.held_out.get("before_after_on", "confirmation")},
         },
         "effects": list(res.effects),
         "explained": res.explained,
@@ -80,6 +84,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
             "source": res.noise.source,
             "components": res.noise.components,
         },
+        "held_out": res.held_out,
         "rows": res.rows,
         "unexplained": res.unexplained,
         "candidates": [

@@ -7,8 +7,9 @@ the measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from dataclasses import replace as _rep
+import weakref
+from dataclasses import dataclass, field
+from dataclasses import replace as replace_atom
 
 import numpy as np
 from scipy import stats
@@ -20,7 +21,12 @@ from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, reduced_basis
 from .floor import NoiseFloor
 
-__all__ = ["StructureTest", "CATALOGUE_MARGIN"]
+__all__ = [
+    "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
+    "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
+    "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
+    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS",
+]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
 CATALOGUE_SHARE = 0.05  # ... or beyond this share of the named term's evidence when both act at the same place
@@ -40,7 +46,7 @@ class StructureTest:
 
 
 
-def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFloor) -> StructureTest:
+def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFloor) -> StructureTest:
     """``T = r^T (I + Jv C Jv^T)^-1 r`` with ``C = (Jc^T Jc)^-1`` (whitened units)."""
     m = r.size
     H = Jc.T @ Jc
@@ -57,17 +63,17 @@ def _structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseF
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
 
-def _row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     ss = np.bincount(row, weights=r**2, minlength=n)
     cnt = np.bincount(row, minlength=n)
     return np.sqrt(ss / np.maximum(cnt, 1)), cnt
 
 
-def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
+def gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 0.02) -> np.ndarray:
     """Rows ``(n,)`` bool whose whitened misfit is beyond both the floor's ``1e-6/n`` quantile and
     ``median + 8 MAD`` of the rows; none when more than ``max(2, max_fraction n)`` rows are (that is
     structure, not a few gross rows)."""
-    e, cnt = _row_rms(r, row, n)
+    e, cnt = row_rms(r, row, n)
     has = cnt > 0
     if has.sum() < 5:
         return np.zeros(n, dtype=bool)
@@ -83,91 +89,153 @@ def _gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float =
 
 
 @dataclass
-class _Fit:
+class Fit:
+    """A fitted extended model: the chosen atoms ``[(Atom, basis)]``, the extended vector ``z``, its free
+    entries, the weighted calibration ``chi2``, and the model on the calibration and the confirmation rows."""
+
     chosen: list  # [(Atom, basis)]
     z: np.ndarray
     free: np.ndarray
     chi2: float
     model_cal: ExtendedModel
     model_val: ExtendedModel
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
-class _Problem:
-    """Everything the selection rounds share: observations, rows, features, weights."""
+class Problem:
+    """Everything the selection rounds share: observations, rows, features, weights.
 
-    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray):
+    Three blocks of rows: ``cal`` (the model is fitted on them), ``val`` (the *confirmation* rows: the
+    structure test and the held-out checks that choose the terms) and ``rep`` (the *report* rows: before/after
+    are measured on them and nothing else; ``None`` when there are too few held-out rows for a separate block,
+    then the report is on the confirmation rows). ``cal``, ``val``, ``rep`` index ``prep.obs``."""
+
+    def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray, *,
+                 val: np.ndarray | None = None, rep: np.ndarray | None = None):
         self.prep = prep
+        val = prep.val if val is None else np.asarray(val, int)
+        self.val_idx = val
+        self.rep_idx = None if rep is None else np.asarray(rep, int)
         self.obs_cal = prep.obs_cal.with_sigma(floor.sigma)
-        self.obs_val = prep.obs_val.with_sigma(floor.sigma)
+        self.obs_val = prep.obs.subset(val).with_sigma(floor.sigma)
         self.rows_cal = prep.rows[prep.cal]
-        self.rows_val = prep.rows[prep.val]
+        self.rows_val = prep.rows[val]
+        self.obs_rep = None if rep is None else prep.obs.subset(self.rep_idx).with_sigma(floor.sigma)
+        self.rows_rep = None if rep is None else prep.rows[self.rep_idx]
         self.ctx = ctx
         self.free_geo = free_geo
         self.floor = floor
         self._F: dict[str, np.ndarray] = {}
+        self._Fc: dict[str, np.ndarray] = {}
+        self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
 
+    def _key(self, atom: Atom) -> str:
+        key = self._keys.get(atom)
+        if key is None:
+            key = self._keys[atom] = repr(atom.features)
+        return key
+
     def features(self, atom: Atom) -> np.ndarray:
-        key = repr(atom.features)
+        """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
+        key = self._key(atom)
         F = self._F.get(key)
         if F is None:
             F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
             self._F[key] = F
         return F
 
-    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> _Fit:
-        tc = [AtomTerm(a, self.features(a)[self.rows_cal], B) for a, B in chosen]
-        tv = [AtomTerm(a, self.features(a)[self.rows_val], B) for a, B in chosen]
-        ax = self.floor.axis_sigma
-        mc = ExtendedModel(self.prep.space, self.obs_cal, tc, ax)
-        mv = ExtendedModel(self.prep.space, self.obs_val, tv, ax)
-        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in tc] if z_eff is None else z_eff))
+    def features_cal(self, atom: Atom) -> np.ndarray:
+        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached)."""
+        key = self._key(atom)
+        F = self._Fc.get(key)
+        if F is None:
+            F = self._Fc[key] = self.features(atom)[self.rows_cal]
+        return F
+
+    def model(self, chosen: list, block: str) -> ExtendedModel:
+        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
+        obs, rows = {"cal": (self.obs_cal, self.rows_cal), "val": (self.obs_val, self.rows_val),
+                     "rep": (self.obs_rep, self.rows_rep)}[block]
+        if obs is None:
+            raise ValueError(f"block {block!r}: this problem has no such rows")
+        terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
+        return ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+
+    def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> Fit:
+        """Gauss-Newton over the free geometry and the atoms' reduced coordinates on the calibration rows
+        (gross rows at weight 0), from ``x0`` and ``z_eff`` (zero for new atoms)."""
+        mc, mv = self.model(chosen, "cal"), self.model(chosen, "val")
+        z0 = np.concatenate([x0] + ([np.zeros(t.r) for t in mc.terms] if z_eff is None else z_eff))
         free = np.concatenate([self.free_geo, np.arange(self.prep.space.size, mc.size)]).astype(int)
         # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
         gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=self.w_cal, max_iter=30, xtol=1e-11,
                           stage="extended")
         res = mc.residuals(gn.x, jacobian=False)
         rr = res.r * np.sqrt(self.w_cal[res.row])
-        return _Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+        return Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
 
-    def test(self, fit: _Fit) -> StructureTest:
-        rv = fit.model_val.residuals(fit.z)
+    def test(self, fit: Fit, model: ExtendedModel | None = None, keep: np.ndarray | None = None) -> StructureTest:
+        """The structure test of ``fit`` on the confirmation rows (or on ``model``'s rows, ``keep`` of them)."""
+        mv = fit.model_val if model is None else model
+        keep = self.keep_val if model is None else keep
+        rv = mv.residuals(fit.z)
         rc = fit.model_cal.residuals(fit.z)
-        kv = self.keep_val[rv.row]
+        kv = np.ones(rv.r.size, bool) if keep is None else keep[rv.row]
         Jc = rc.J[:, fit.free] * np.sqrt(self.w_cal[rc.row])[:, None]
-        return _structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
+        return structure_test(rv.r[kv], rv.J[kv][:, fit.free], Jc, self.floor)
 
 
-def _chi2_logsf(x: float, k: int) -> float:
-    """``log P(chi2(k) > x)``, finite where scipy's underflows to ``-inf`` (large ``x``: the leading term of
-    the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
-    v = float(stats.chi2.logsf(x, k))
-    if np.isfinite(v):
-        return v
+def chi2_logsf(x, k):
+    """``log P(chi2(k) > x)`` (scalars or arrays), finite where scipy's underflows to ``-inf`` (large ``x``: the
+    leading term of the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
     from scipy.special import gammaln
 
-    return float(-x / 2 + (k / 2 - 1) * np.log(x / 2) - gammaln(k / 2))
+    x, k = np.asarray(x, float), np.asarray(k, float)
+    v = np.asarray(stats.chi2.logsf(x, k), float)
+    bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
+    if np.any(bad):
+        xb, kb = np.broadcast_to(x, v.shape)[bad], np.broadcast_to(k, v.shape)[bad]
+        v = v.copy()
+        v[bad] = -xb / 2 + (kb / 2 - 1) * np.log(xb / 2) - gammaln(kb / 2)
+    return float(v) if v.ndim == 0 else v
 
 
-def _raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
+def raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
     x, phis = model.split(z)
     obs = model.effective_obs(phis)
     return model.columns(AtomTerm(atom, F, np.eye(F.shape[1])), x, obs, res)
 
 
-@dataclass
-class _Scored:
-    atom: Atom
-    basis: np.ndarray
-    Ep: np.ndarray  # projected reduced columns (m_cal_kept, r)
-    E: np.ndarray  # reduced columns (m_cal_kept, r)
-    psi: np.ndarray
-    dchi2: float
-    logp_adj: float
-    fitted: np.ndarray  # Ep psi
-    r: np.ndarray  # the residual it was scored against (projected off the current model)
+class Scored:
+    """An atom scored against a fit: its reduced ``basis`` ``(K, r)``, coefficients ``psi`` ``(r,)``, calibration
+    evidence ``dchi2`` and pool-adjusted ``logp_adj``, the residual ``r`` it was scored against (projected off the
+    current model, kept residuals), and on demand its reduced columns ``E`` ``(m_kept, r)``, their part ``Ep``
+    beyond the current model and the fitted residual ``fitted = Ep psi``."""
+
+    def __init__(self, atom: Atom, basis: np.ndarray, psi: np.ndarray, dchi2: float, logp_adj: float, r: np.ndarray,
+                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None):
+        self.atom, self.basis, self.psi, self.dchi2, self.logp_adj, self.r = atom, basis, psi, dchi2, logp_adj, r
+        self._E, self._Ep, self._columns, self._Q = E, Ep, columns, Q
+
+    @property
+    def E(self) -> np.ndarray:
+        if self._E is None:
+            self._E = self._columns() @ self.basis
+        return self._E
+
+    @property
+    def Ep(self) -> np.ndarray:
+        if self._Ep is None:
+            E = self.E
+            self._Ep = E - self._Q @ (self._Q.T @ E)
+        return self._Ep
+
+    @property
+    def fitted(self) -> np.ndarray:
+        return self.Ep @ self.psi
 
 
 def _screenable(a: Atom) -> bool:
@@ -177,81 +245,118 @@ def _screenable(a: Atom) -> bool:
     return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
 
 
-def _screen(prob: _Problem, fit: _Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes, chunk: int = 600) -> np.ndarray:
+def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
     """Pool-adjusted log p-values ``(len(atoms),)`` of single-column-times-feature atoms, batched: columns
     scaled to unit norm, projected off the current model, directions below 1 % of a unit column dropped
-    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``."""
+    (eigenvalues of the small Gram matrices), ``Delta chi2 = sum (v^T E^T r)^2 / lambda``.
+
+    An atom's columns are ``E[m, k] = b[m] F[row(m), k]`` (``b`` the model column of its place, ``F`` its
+    features), so every product over the residuals is a product over the rows with per-row aggregates of
+    ``b``: ``E^T E = F^T diag(w) F`` with ``w = sum_row b^2``, ``Q^T E = (sum_row Q b)^T F``,
+    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``."""
+    from scipy import sparse
+
     from .extend import param_weights
 
     x = fit.z[: prob.prep.space.size]
     Jg = rc.J[:, : prob.prep.space.size]
-    base_cache: dict[tuple, np.ndarray] = {}
-    coords = None
-    out = np.full(len(atoms), np.inf)
     swk = sw[keep]
     rows = rc.row[keep]
-    for c0 in range(0, len(atoms), chunk):
-        part = atoms[c0:c0 + chunk]
-        cols, owner = [], []
-        for i, a in enumerate(part):
-            key = (a.place, a.target)
-            b = base_cache.get(key)
-            if b is None:
-                if a.place == "scale":
-                    if coords is None:
-                        x_, phis = fit.model_cal.split(fit.z)
-                        coords = fit.model_cal._coords(fit.model_cal.effective_obs(phis)) * fit.model_cal._f
-                    b = coords
-                else:
-                    b = (Jg @ param_weights(prob.prep.space, x, a))[:, 0]
-                b = b[keep] * swk
-                base_cache[key] = b
-            F = prob.features(a)[prob.rows_cal][rows]
-            cols.append(b[:, None] * F)
-            owner += [i] * F.shape[1]
-        E = np.concatenate(cols, axis=1)
-        nrm = np.linalg.norm(E, axis=0)
-        E = E / np.where(nrm > 0, nrm, 1.0)
-        Ep = E - Q @ (Q.T @ E)
-        owner = np.asarray(owner)
-        er = Ep.T @ r
-        for i in range(len(part)):
-            idx = np.flatnonzero(owner == i)
-            if not np.any(nrm[idx] > 0):
-                continue
-            G = Ep[:, idx].T @ Ep[:, idx]
+    n = prob.obs_cal.n
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Qtr = Q.T @ r
+    coords = None
+    groups: dict[tuple, list[int]] = {}
+    for i, a in enumerate(atoms):
+        groups.setdefault((a.place, a.target), []).append(i)
+    logp = np.full(len(atoms), np.inf)
+    for (place, _), ids in groups.items():
+        if place == "scale":
+            if coords is None:
+                _, phis = fit.model_cal.split(fit.z)
+                coords = fit.model_cal.scale_column(fit.model_cal.effective_obs(phis))
+            b = coords
+        else:
+            b = (Jg @ param_weights(prob.prep.space, x, atoms[ids[0]]))[:, 0]
+        b = b[keep] * swk
+        w = S @ (b * b)  # (n,)
+        Qb = S @ (Q * b[:, None])  # (n, p)
+        br = S @ (b * r)  # (n,)
+        by_width: dict[int, list[int]] = {}
+        for i in ids:
+            by_width.setdefault(len(atoms[i].features), []).append(i)
+        for K, gi in by_width.items():
+            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=1)  # (n, g, K)
+            g = len(gi)
+            F2 = F.reshape(n, g * K)
+            nrm = np.sqrt(np.maximum(w @ (F2 * F2), 0.0)).reshape(g, K)
+            scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
+            QtE = (Qb.T @ F2).reshape(-1, g, K).transpose(1, 0, 2) * scale[:, None, :]  # (g, p, K)
+            Ft = F.transpose(1, 2, 0)  # (g, K, n)
+            EtE = ((Ft * w) @ Ft.transpose(0, 2, 1)) * scale[:, :, None] * scale[:, None, :]
+            G = EtE - QtE.transpose(0, 2, 1) @ QtE
+            er = (br @ F2).reshape(g, K) * scale - (Qtr @ QtE)
+            has = np.any(nrm > 0, axis=1)
             lam, V = np.linalg.eigh(G)
-            ok = lam > 1e-4  # singular value above 1 % of a unit column
-            if not np.any(ok):
-                continue
-            d = float(np.sum((V[:, ok].T @ er[idx]) ** 2 / lam[ok]))
-            out[c0 + i] = _chi2_logsf(d, int(ok.sum())) + np.log(pool_sizes[part[i].pool])
-    return out
+            ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
+            proj = np.einsum("gij,gi->gj", V, er)
+            d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
+            k = ok.sum(axis=1)
+            fine = k > 0
+            gi = np.asarray(gi)
+            logp[gi[fine]] = chi2_logsf(d[fine], k[fine])
+    return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
 
 
-def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
-                 exact_top: int = 40) -> list[_Scored]:
+@dataclass(frozen=True)
+class ScoringBasis:
+    """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
+    square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
+    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it."""
+
+    rc: object
+    sw: np.ndarray
+    keep: np.ndarray
+    Q: np.ndarray
+    r: np.ndarray
+
+
+def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
+    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit)."""
+    key = ("basis", id(prob.w_cal))
+    got = fit.cache.get(key)
+    if got is None:
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        keep = sw > 0
+        A = (rc.J[:, fit.free] * sw[:, None])[keep]
+        Q, _ = np.linalg.qr(A)
+        r = (rc.r * sw)[keep]
+        r = r - Q @ (Q.T @ r)
+        got = fit.cache[key] = ScoringBasis(rc, sw, keep, Q, r)
+    return got
+
+
+def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str, int], *,
+                exact_top: int = 40) -> list[Scored]:
     """Linearised evidence of the atoms against the current fit (see the module docstring). The catalogue
     and the broad atoms are scored exactly; the many small dictionary atoms are screened in batches and only
     the ``exact_top`` strongest of them scored exactly."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
-    Q, _ = np.linalg.qr(A)
-    r = (rc.r * sw)[keep]
-    r = r - Q @ (Q.T @ r)
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
     screen = [a for a in atoms if a.pool != "catalogue" and _screenable(a)]
     exact = [a for a in atoms if not (a.pool != "catalogue" and _screenable(a))]
     if screen:
         lp = _screen(prob, fit, screen, rc, keep, sw, Q, r, pool_sizes)
         exact += [screen[i] for i in np.argsort(lp)[:exact_top] if np.isfinite(lp[i])]
-    out = []
-    for a in exact:
+    products = [a for a in exact if _product(a)]
+    others = [a for a in exact if not _product(a)]
+    out = _score_products(prob, fit, products, sb, pool_sizes) if products else []
+    for a in others:
         F = prob.features(a)[prob.rows_cal]
         if not np.any(F):
             continue
-        E = _raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
+        E = raw_columns(fit.model_cal, a, F, fit.z, rc)[keep] * sw[keep][:, None]
         B = reduced_basis(E, Q=Q, max_rank=6)
         if B.shape[1] == 0:
             continue
@@ -261,12 +366,90 @@ def _score_atoms(prob: _Problem, fit: _Fit, atoms: list[Atom], pool_sizes: dict[
         fitted = Ep @ psi
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
-        logp = _chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
-        out.append(_Scored(a, B, Ep, EB, psi, d, logp, fitted, r))
-    return out
+        logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        out.append(Scored(a, B, psi, d, logp, r, E=EB, Ep=Ep))
+    order = {id(a): i for i, a in enumerate(exact)}
+    return sorted(out, key=lambda s: order[id(s.atom)])
 
 
-def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
+def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis, pool_sizes: dict[str, int], *,
+                    rel_tol: float = 1e-2, max_rank: int = 6) -> list[Scored]:
+    """The exact score (as :func:`twin.diagnosis.extend.reduced_basis` and least squares on the reduced columns)
+    of atoms whose columns are products ``E[m, k c + j] = F[row(m), k] base[m, j]``, through per-row aggregates of
+    their base: ``E^T E = sum_row F F^T (x) W`` with ``W = sum_row base base^T``, ``Q^T E = sum_row (Q^T base) F``,
+    ``E^T r = sum_row F (base^T r)``. The reduced basis is the eigenvectors of the column-scaled projected Gram
+    matrix ``D (E^T E - (Q^T E)^T Q^T E) D`` whose singular values (square roots) pass ``rel_tol`` (at most
+    ``max_rank``), and ``Delta chi2 = sum (v^T D (E^T r - (Q^T E)^T Q^T r))^2 / lambda``. The columns themselves
+    are built only for the atoms whose ``Ep`` is asked for."""
+    from scipy import sparse
+
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
+    x = fit.z[: prob.prep.space.size]
+    model = fit.model_cal
+    obs = model.effective_obs(model.split(fit.z)[1])
+    rows = rc.row[keep]
+    n = prob.obs_cal.n
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Qtr = Q.T @ r
+    groups: dict[tuple, list[Atom]] = {}
+    for a in atoms:
+        groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
+    pending = []
+    for key, members in groups.items():
+        base = model.product_base(members[0], x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
+        c = base.shape[1]
+        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
+        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
+        Br = S @ (base * r[:, None])  # (n, c)
+        by_width: dict[int, list[Atom]] = {}
+        for a in members:
+            by_width.setdefault(len(a.features), []).append(a)
+        for K, grp in by_width.items():
+            F = np.stack([prob.features_cal(a) for a in grp], axis=1)  # (n, g, K)
+            g = len(grp)
+            KC, p = K * c, Q.shape[1]
+            FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
+            EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+            F2 = F.reshape(n, g * K)
+            QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+            Etr = (F2.T @ Br).reshape(g, KC)
+            nrm = np.sqrt(np.maximum(np.diagonal(EtE, axis1=1, axis2=2), 0.0))  # (g, KC)
+            has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
+            D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
+            G = (EtE - QtE.transpose(0, 2, 1) @ QtE) * D[:, :, None] * D[:, None, :]
+            e = (Etr - Qtr @ QtE) * D
+            lam, V = np.linalg.eigh(G)
+            lam, V = lam[:, ::-1], V[:, :, ::-1]  # descending
+            sv = np.sqrt(np.maximum(lam, 0.0))
+            rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
+            for i, a in enumerate(grp):
+                rk = int(rks[i])
+                if rk == 0 or not np.any(F[:, i]) or not np.any(has[i]):
+                    continue
+                Vr = V[i][:, :rk]
+                proj = Vr.T @ e[i]
+                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
+    if not pending:
+        return []
+    logp = chi2_logsf(np.array([p[3] for p in pending]), np.array([p[4] for p in pending]))
+    return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
+                   columns=_column_maker(prob, fit, a, rc, keep, sw))
+            for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
+
+
+def _product(a: Atom) -> bool:
+    """Whether an atom's columns are its features times model columns (:meth:`ExtendedModel.product_base`)."""
+    return not (a.place == "field" or (a.place == "param" and a.target == "base_along"))
+
+
+def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
+    def make() -> np.ndarray:
+        F = prob.features(atom)[prob.rows_cal]
+        return raw_columns(fit.model_cal, atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    return make
+
+
+def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
     """Atoms in the order to try: by pool-adjusted evidence, except that a broad atom (``>= broad_dim``
     reduced parameters: compliance, a whole frame) goes behind the small atoms when small atoms together
     explain more within the same number of parameters (a broad atom collects a little of several effects;
@@ -299,7 +482,7 @@ def _order(scored: list[_Scored], broad_dim: int = 4) -> list[_Scored]:
     return order
 
 
-def _nested(small: _Scored, big: _Scored, share: float = 0.99) -> bool:
+def _nested(small: Scored, big: Scored, share: float = 0.99) -> bool:
     """Whether ``small``'s projected columns lie (to ``share`` of their norm) within ``big``'s span."""
     if small.basis.shape[1] >= big.basis.shape[1] or small.Ep.shape != (big.Ep.shape[0], small.Ep.shape[1]):
         return False
@@ -308,7 +491,7 @@ def _nested(small: _Scored, big: _Scored, share: float = 0.99) -> bool:
     return tot > 0 and float(np.sum((Qb.T @ small.Ep) ** 2)) >= share * tot
 
 
-def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Scored]:
+def _prefer_nested(order: list[Scored], alpha_select: float = 0.01) -> list[Scored]:
     """When the leading atom's features contain those of a smaller significant atom at the same place (a product
     group holds the linear terms of its joints; a cubic holds the quadratic and the linear), the smallest such
     atom goes first: what the larger one adds beyond it must then earn its own place in a later round (its
@@ -328,7 +511,7 @@ def _prefer_nested(order: list[_Scored], alpha_select: float = 0.01) -> list[_Sc
     return order if best is None else [best] + [s for s in order if s is not best]
 
 
-def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
+def _omp_gain(small: list[Scored], budget: int, pool: int = 60) -> float:
     """Calibration ``Delta chi2`` that small atoms reach together within ``budget`` parameters: greedy
     orthogonal matching pursuit over their projected columns on the residual they were scored against (the
     ``pool`` strongest atoms)."""
@@ -362,37 +545,65 @@ def _omp_gain(small: list[_Scored], budget: int, pool: int = 60) -> float:
     return gain
 
 
-def _confirm(prob: _Problem, fit: _Fit, s: _Scored, z_min: float) -> tuple[float, float, bool]:
-    """Held-out check of a scored atom: ``z``, ``z`` without the most favourable row, and whether the
-    held-out residual norm drops."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+def time_only(atom: Atom) -> bool:
+    """Whether an atom's features are functions of the time channel alone (a drift, a step, a transient, an
+    oscillation in ``t_s`` or the row order, on any place)."""
+    kinds = {f.get("kind") for f in atom.features} - {"const"}
+    return bool(kinds) and kinds <= {"pow", "step", "exp", "sin", "cos"} and all(
+        f.get("ch") in ("t_s", "row") for f in atom.features if f.get("kind") != "const")
+
+
+@dataclass(frozen=True)
+class Confirmation:
+    """The held-out check of a scored atom on the confirmation rows: ``z``, ``z`` without the most favourable row,
+    whether the held-out residual norm drops (``better``), and for an atom of time alone, whether the mean
+    residual of the nearest calibration rows in time predicts those rows at least as well (``local``: a wander
+    of the cell correlated over a few rows, which a drift, a step or an oscillation fitted to this campaign
+    follows only by chance and which does not continue into later rows)."""
+
+    z: float
+    z_without_best_row: float
+    better: bool
+    local: bool = False
+
+
+def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
+    """Held-out check of a scored atom (:class:`Confirmation`); its prediction ``u`` on the confirmation rows is
+    linearised, the geometry re-adjusting to it."""
+    sb = scoring_basis(prob, fit)
+    A = (sb.rc.J[:, fit.free] * sb.sw[:, None])[sb.keep]
     # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
     beta_A = -np.linalg.lstsq(A, s.E @ s.psi, rcond=None)[0]
     rv = fit.model_val.residuals(fit.z)
     kv = prob.keep_val[rv.row]
     Fv = prob.features(s.atom)[prob.rows_val]
-    Ev = _raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
-    u = (Ev @ s.psi + rv.J[:, fit.free] @ beta_A)[kv]
+    Ev = raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
+    u_all = Ev @ s.psi + rv.J[:, fit.free] @ beta_A
+    u = u_all[kv]
     r = rv.r[kv]
     nu = float(np.linalg.norm(u))
     if nu <= 0:
-        return 0.0, 0.0, False
+        return Confirmation(0.0, 0.0, False)
     srms = float(np.sqrt(np.mean(r**2)))
     contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
     z = float(r @ u) / (nu * srms)
     z_minus = float(r @ u - contrib.max()) / (nu * srms)
-    better = float(np.sum((r - u) ** 2)) < float(r @ r)
-    return z, z_minus, better
+    err_term = float(np.sum((r - u) ** 2))
+    better = err_term < float(r @ r)
+    local = False
+    if time_only(s.atom):
+        U, Rv = neighbour_predictions(prob, fit)["time"]
+        Ut = row_blocks(fit.model_val, u_all)
+        ok = np.isfinite(Rv) & np.isfinite(U) & np.isfinite(Ut)
+        local = float(np.sum((Rv - U)[ok] ** 2)) <= float(np.sum((Rv - Ut)[ok] ** 2))
+    return Confirmation(z, z_minus, better, local)
 
 
 NEIGHBOURS = 4  # rows a neighbour smoother averages
 JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
 
 
-def _row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
+def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
     """Whitened residuals ``(m,)`` as ``(n, 9)`` per row (sphere-major, x y z), NaN where not measured."""
     obs = model.obs
     shape = (3, 3, obs.n)
@@ -402,21 +613,19 @@ def _row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
     return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
 
 
-def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
-    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
-
-    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
-    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
-    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
-    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
-    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
-    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
-    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
-    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per smoother (``joints``, ``time``): the mean whitened residual ``(n_v, 9)`` of the ``NEIGHBOURS`` nearest
+    calibration rows of each confirmation row (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``;
+    time: ``t_s``, else the row order; rows with the same commanded joints excluded: a repeat shares the visit's
+    error), and the confirmation rows' own residual ``(n_v, 9)`` (NaN where not measured or gross)."""
+    key = ("neighbours", id(prob.w_cal), id(prob.keep_val))
+    got = fit.cache.get(key)
+    if got is not None:
+        return got
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
-    Rc = _row_blocks(fit.model_cal, rc.r)
-    Rv = _row_blocks(fit.model_val, rv.r)
+    Rc = row_blocks(fit.model_cal, rc.r)
+    Rv = row_blocks(fit.model_val, rv.r)
     Rc[prob.w_cal <= 0] = np.nan
     Rv[~prob.keep_val] = np.nan
     qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
@@ -432,6 +641,24 @@ def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
         nb = np.argsort(D, axis=1)[:, :k]
         with np.errstate(invalid="ignore"):
             U = np.nanmean(Rc[nb], axis=1)  # (n_v, 9)
+        out[name] = (U, Rv)
+    fit.cache[key] = out
+    return out
+
+
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
+
+    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
+    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
+    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
+    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
+    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
+    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
+    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
+    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+    out = {}
+    for name, (U, Rv) in neighbour_predictions(prob, fit).items():
         c = np.nansum(Rv * U, axis=1)
         ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
         c = c[ok_rows]
@@ -444,7 +671,7 @@ def _smooth_confirm(prob: _Problem, fit: _Fit, z_min: float) -> dict:
                                                               for v in out.values()), "smoothers": out}
 
 
-def _covariance(J: np.ndarray) -> np.ndarray:
+def covariance(J: np.ndarray) -> np.ndarray:
     """``(J^T J)^+`` of whitened columns, column-scaled first (geometric and effect columns differ by many
     orders of magnitude: an unscaled pseudo-inverse truncates the small ones)."""
     d = np.linalg.norm(J, axis=0)
@@ -453,14 +680,14 @@ def _covariance(J: np.ndarray) -> np.ndarray:
     return d[:, None] * np.linalg.pinv(Js.T @ Js, rcond=1e-12) * d[None, :]
 
 
-def _update_gross(prob: _Problem, fit: _Fit) -> None:
+def update_gross(prob: Problem, fit: Fit) -> None:
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
-    prob.w_cal = (~_gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
+    prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
-    prob.keep_val = ~_gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+    prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
 
 
-def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
+def psi_init(fit: Fit, chosen: list) -> list[np.ndarray]:
     """Start values of the reduced coordinates: the current fit's for atoms already in, zero for new ones."""
     prev = {t.atom.key: fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             for k, t in enumerate(fit.model_cal.terms)}
@@ -468,7 +695,7 @@ def _psi_init(fit: _Fit, chosen: list) -> list[np.ndarray]:
             else np.zeros(B.shape[1]) for a, B in chosen]
 
 
-def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tuple[_Fit, list[Atom]]:
+def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple[Fit, list[Atom]]:
     """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
     dropped: list[Atom] = []
     changed = True
@@ -476,7 +703,7 @@ def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tu
         changed = False
         rc = fit.model_cal.residuals(fit.z)
         sw = np.sqrt(prob.w_cal[rc.row])
-        C = _covariance(rc.J[:, fit.free] * sw[:, None])
+        C = covariance(rc.J[:, fit.free] * sw[:, None])
         pos = {int(f): k for k, f in enumerate(fit.free)}
         worst = None
         for k, (a, B) in enumerate(fit.chosen):
@@ -484,19 +711,19 @@ def _backward(prob: _Problem, fit: _Fit, alpha_select: float, sizes: dict) -> tu
             psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             Ck = C[np.ix_(idx, idx)]
             d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
-            lp = _chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            lp = chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
             if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
                 worst = (lp, k)
         if worst is not None:
             k = worst[1]
             dropped.append(fit.chosen[k][0])
             chosen = [c for i, c in enumerate(fit.chosen) if i != k]
-            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, _psi_init(fit, chosen))
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
             changed = True
     return fit, dropped
 
 
-def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
+def alternatives(best: Scored, scored: list[Scored], *, share: float = 0.9, log_evidence: float = 5.0) -> list[dict]:
     """Atoms the data cannot tell apart from ``best``: they reproduce >= ``share`` of its fitted residual and
     their evidence is within ``e^log_evidence`` of it."""
     f = best.fitted
@@ -518,32 +745,46 @@ def _alternatives(best: _Scored, scored: list[_Scored], *, share: float = 0.9, l
 
 
 
-def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """Each scored sign backlash (the offset follows the direction of the last move) replaced by the backlash as
+    a play operator with the half clearance that explains most (``PLAY_HALF_DEG``, then refined), when that
+    explains significantly more: beyond ``chi2_1`` at 1 % / the number of clearances tried, on at least 3
+    calibration rows where the two differ (rows after a move shorter than the clearance, which does not switch
+    the side). Both are the one backlash of that joint, so they compete as one candidate: a joint with a
+    clearance and short moves is not left to an unnamed function of its last move."""
+    from .atoms import PLAY_HALF_DEG, play_backlash
+
+    out = []
+    for s in scored:
+        if s.atom.family != "backlash" or {f.get("kind") for f in s.atom.features} != {"sign"}:
+            out.append(s)
+            continue
+        j = s.atom.features[0]["j"]
+        trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
+                            exact_top=len(PLAY_HALF_DEG))
+        top = max(trial, key=lambda t: t.dchi2, default=None)
+        better = top is not None and top.dchi2 - s.dchi2 >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        if better:
+            f_sign = prob.features(s.atom)[prob.rows_cal, 0]
+            f_play = prob.features(top.atom)[prob.rows_cal, 0]
+            better = int(np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5)) >= 3
+        out.append(top if better else s)
+    return out
+
+
+def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
     grid); a time constant (``exp``, ``lag``), a move width (``lastmove``), a clearance (``play``) or a period
-    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice. Other atoms come back as they
-    are."""
+    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice, then to the maximum of the
+    evidence within the last grid step (bounded scalar search: a play's clearance must be right to a fraction of
+    a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
+    come back as they are."""
     kinds = {f.get("kind") for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
-    if kinds == {"sign"} and s.atom.family == "backlash":
-        # the clearance as a play operator (short moves do not switch the side): one more parameter, kept only
-        # when it explains significantly more (a sign is the play's limit for moves much longer than it)
-        from .atoms import PLAY_HALF_DEG, play_backlash
-
-        j = s.atom.features[0]["j"]
-        trial = _score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
-                             exact_top=len(PLAY_HALF_DEG))
-        top = max(trial, key=lambda t: t.dchi2, default=None)
-        if top is None or top.dchi2 - s.dchi2 < stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1):
-            return s
-        # the two differ only on rows after moves shorter than the clearance: a few of them must carry it
-        f_sign = prob.features(s.atom)[prob.rows_cal, 0]
-        f_play = prob.features(top.atom)[prob.rows_cal, 0]
-        if np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5) < 3:
-            return s
-        s, kinds = top, {"play"}
+    if kinds == {"hinge"}:
+        return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
         return _refine_order(prob, fit, s, pool_sizes)
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
@@ -563,48 +804,101 @@ def _refine(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -
     for span in (span_max, span_max ** 0.25):
         vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
         trial = [_with_constant(best.atom, key, v) for v in vals]
-        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
         v0 = next(f[key] for f in best.atom.features if key in f)
-    return best
+    return _polish(prob, fit, best, key, span_max ** (0.25 * 0.25), pool_sizes)
 
 
-def _refine_order(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def polish_in_fit(prob: Problem, fit: Fit, k: int, key: str, ratio: float = 1.05) -> Fit:
+    """The kept atom ``k`` of ``fit`` with its constant ``key`` moved to the minimum of the calibration chi2 of the
+    whole model refitted (Gauss-Newton, the joint terms applied exactly), within a factor ``ratio`` of its value
+    (bounded Brent search on its log, to 1e-4 of it). The linearised evidence that placed it is biased at the
+    noise level when the effect is large (a 0.3 deg clearance moves the plate ~4 mm: its second-order term is
+    ~10 um), and a clearance must be right to a fraction of a per cent."""
+    from scipy.optimize import minimize_scalar
+
+    atom, B = fit.chosen[k]
+    v0 = next(f[key] for f in atom.features if key in f)
+    x = fit.z[: prob.prep.space.size]
+    best = [fit]
+
+    def cost(u: float) -> float:
+        chosen = list(fit.chosen)
+        chosen[k] = (_with_constant(atom, key, v0 * np.exp(u)), B)
+        f = prob.fit(x, chosen, _psi_like(fit, chosen))
+        if f.chi2 < best[0].chi2:
+            best[0] = f
+        return f.chi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _psi_like(fit: Fit, chosen: list) -> list[np.ndarray]:
+    """Start values: the fit's reduced coordinates position by position (a term whose constant changed keeps
+    its coefficients)."""
+    return [fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]].copy() for k in range(len(chosen))]
+
+
+def _polish(prob: Problem, fit: Fit, s: Scored, key: str, ratio: float, pool_sizes: dict[str, int],
+            make=None) -> Scored:
+    """``s`` with its constant ``key`` moved to the maximum of the calibration evidence within a factor ``ratio``
+    of its value (bounded Brent search on the log of the constant, to 1e-4 of it); ``make(atom, v)`` builds the
+    atom with the constant ``v`` (default: :func:`_with_constant`)."""
+    from scipy.optimize import minimize_scalar
+
+    make = make or (lambda atom, v: _with_constant(atom, key, v))
+    v0 = next(f[key] for f in s.atom.features if key in f)
+    best = [s]
+
+    def cost(u: float) -> float:
+        got = score_atoms(prob, fit, [make(s.atom, v0 * np.exp(u))], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _with_order(atom: Atom, k: float) -> Atom:
+    """A scanned cyclic atom with its order (cycles per joint turn) set to ``k``; channel and label to match."""
+    k0 = atom.features[0]["k"]
+    feats = tuple(dict(f, k=float(k)) for f in atom.features)
+    ch = atom.features[0]["ch"]
+    return replace_atom(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
+                label=atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"), meta=dict(atom.meta, order=float(k)))
+
+
+def _refine_order(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A scanned cyclic order (half-order grid) moved to the order that explains most within half a grid step
-    (a stage's ratio need not be a half-integer), zoomed twice."""
+    (a stage's ratio need not be a half-integer), zoomed twice, then polished within the last grid step."""
     best = s
     for half in (0.25, 0.06):
         k0 = best.atom.features[0]["k"]
-        trial = []
-        for k in k0 + np.linspace(-half, half, 9):
-            if k <= 0 or k == k0:
-                continue
-            feats = tuple(dict(f, k=float(k)) for f in best.atom.features)
-            ch = best.atom.features[0]["ch"]
-            trial.append(_rep(best.atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
-                              label=best.atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"),
-                              meta=dict(best.atom.meta, order=float(k))))
-        scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        trial = [_with_order(best.atom, k) for k in k0 + np.linspace(-half, half, 9) if k > 0 and k != k0]
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
-    return best
+    k0 = best.atom.features[0]["k"]
+    return _polish(prob, fit, best, "k", 1.0 + 0.015 / k0, pool_sizes, make=_with_order)
 
 
-def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank: int = 18) -> _Scored:
+def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int = 18) -> Scored:
     """An accepted atom was scored on at most 6 directions (a broad atom must not fit noise); its further
     directions above 1 % of a unit column are kept when together they add significant calibration evidence
     (``chi2_sf(Delta chi2_more - Delta chi2, extra) < alpha_select``): a frame swaying in time moves along its
     six axes with a sine and a cosine, twelve directions."""
-    rc = fit.model_cal.residuals(fit.z)
-    sw = np.sqrt(prob.w_cal[rc.row])
-    keep = sw > 0
-    A = (rc.J[:, fit.free] * sw[:, None])[keep]
-    Q, _ = np.linalg.qr(A)
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q = sb.rc, sb.sw, sb.keep, sb.Q
     F = prob.features(s.atom)[prob.rows_cal]
-    E = _raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    E = raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
     B = reduced_basis(E, Q=Q, max_rank=max_rank)
     if B.shape[1] <= s.basis.shape[1]:
         return s
@@ -613,9 +907,9 @@ def _widen(prob: _Problem, fit: _Fit, s: _Scored, alpha_select: float, max_rank:
     psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
     fitted = Ep @ psi
     d = float(fitted @ fitted)
-    if _chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+    if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
-    return _Scored(s.atom, B, Ep, EB, psi, d, s.logp_adj, fitted, s.r)
+    return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
 
 
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
@@ -629,10 +923,38 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
         o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
-    return _rep(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
+    return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
 
 
-def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, int]) -> _Scored:
+def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A one-sided pull found past a decile of its joint's range moved to the angle that explains most between the
+    neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
+    from scipy.optimize import minimize_scalar
+
+    from .atoms import HINGE_POINTS, hinge_atom
+
+    f0 = s.atom.features[0]
+    j = int(f0["ch"][1:])
+    x = prob.ctx.q[:, j - 1]
+    grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
+    k = int(np.argmin(np.abs(grid - f0["at"])))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = [s]
+
+    def cost(at: float) -> float:
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"])], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    if hi > lo:
+        minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-5})
+    return best[0]
+
+
+def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
     neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
     f0 = next(f for f in s.atom.features if f.get("kind") == "step")
@@ -647,7 +969,7 @@ def _refine_step(prob: _Problem, fit: _Fit, s: _Scored, pool_sizes: dict[str, in
     for v in cands:
         feats = tuple(dict(f, at=float(v)) if f.get("kind") == "step" else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
-        trial.append(_rep(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
-    scored = _score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
+        trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
+    scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
     best = max(scored, key=lambda t: t.dchi2, default=None)
     return best if best is not None and best.dchi2 > s.dchi2 else s
