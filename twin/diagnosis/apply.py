@@ -165,7 +165,7 @@ def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | No
     d = _first_order(c, ctx, sp, st_idx, q_eff, c.spheres_tool, known)
     spheres = pred.spheres + d
     # the plate pose follows the moved spheres (rigid fit of the plate to them)
-    from ..estimator.problem import kabsch
+    from ..transforms import kabsch
 
     A = np.broadcast_to(c.spheres_tool, spheres.shape)
     R, t = kabsch(A, spheres)

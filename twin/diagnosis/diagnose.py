@@ -37,7 +37,7 @@ from ..dataset import Dataset
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare
 from ..estimator.methods import build_calibration, identify_best
-from ..estimator.problem import kabsch
+from ..transforms import kabsch
 from ..transforms import matrix_to_rotvec
 from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
 from .candidates import EFFECT_VOCABULARY, RowContext

@@ -174,7 +174,7 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarra
         us.append(v[keep] / d[keep, None])
         devs.append(d[keep] - d[keep].mean())
         var_iso.append(mad**2 / 2)
-    from ..estimator.problem import kabsch
+    from ..transforms import kabsch
 
     R, t = kabsch(np.broadcast_to(ds.plate.spheres_flange, P.shape), P)
     P_fit = np.einsum("nij,sj->nsi", R, ds.plate.spheres_flange) + t[:, None, :]
