@@ -1,7 +1,9 @@
-"""Every figure listed in tests/readme_figures.toml is in README.md and equals, as rounded there, the value
-its result file holds (a regenerated result with a stale README sentence fails)."""
+"""Every figure on the README and on the pages listed in tests/readme_figures.toml comes from a committed result
+file: each quoted passage is on its page, and each number in it, as a whole token, equals the value its file
+holds as the page rounds it; on README.md, no number stands outside a declared passage."""
 
 import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -9,6 +11,16 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 TABLE = tomllib.loads((ROOT / "tests" / "readme_figures.toml").read_text())["figure"]
+
+# A number as a reader sees one: optional sign, digits, decimals, exponent, possibly followed by "x" (a ratio).
+# Not a piece of a word, name or version (IRB-1200, q2, p0_x, v0.41, 4.0.0, 2x2), so that a figure is matched
+# whole and never as a part of another token.
+NUMBER = re.compile(r"(?<![\w.])(?<!\w-)[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?(?=x\b|[^\w.]|\.(?!\d)|$)")
+
+
+def numbers(text: str) -> list[str]:
+    """The number tokens of ``text``, in order."""
+    return [m.group(0) for m in NUMBER.finditer(text)]
 
 
 def _lookup(d, key):
@@ -27,15 +39,72 @@ def _lookup(d, key):
     return d
 
 
-def _format(fmt: str, v) -> str:
-    s = fmt.format(v)
-    return s.replace("%", " %") if fmt.endswith("%}") else s
+def _expected(v: dict) -> str:
+    """The token a value entry stands for: a literal (with its reason) or a file's value formatted."""
+    if "literal" in v:
+        assert v.get("why"), f"literal {v['literal']!r} needs a 'why'"
+        return v["literal"]
+    value = _lookup(json.loads((ROOT / v["file"]).read_text()), v["key"])
+    if "scale" in v:
+        value = value * v["scale"]
+    return v["fmt"].format(value)
 
 
-@pytest.mark.parametrize("fig", TABLE, ids=[f["key"] for f in TABLE])
-def test_readme_figure_matches_its_result_file(fig):
-    """The quoted sentence is in the README and holds the file's value as the README rounds it."""
-    readme = (ROOT / "README.md").read_text()
-    assert fig["quote"] in readme, f"README no longer says {fig['quote']!r}"
-    value = _lookup(json.loads((ROOT / fig["file"]).read_text()), fig["key"])
-    assert _format(fig["fmt"], value) in fig["quote"], (fig["file"], fig["key"], value, fig["quote"])
+def _page_text(page: str) -> str:
+    return (ROOT / page).read_text()
+
+
+def _id(fig) -> str:
+    return f"{fig.get('page', 'README.md')}:{fig['quote'][:60]}"
+
+
+@pytest.mark.parametrize("fig", TABLE, ids=[_id(f) for f in TABLE])
+def test_each_number_of_a_quoted_passage_is_its_files_value(fig):
+    """The passage is on its page and its number tokens are, one for one and in order, the declared values."""
+    page = fig.get("page", "README.md")
+    assert fig["quote"] in _page_text(page), f"{page} no longer says {fig['quote']!r}"
+    got = numbers(fig["quote"])
+    want = [_expected(v) for v in fig["values"]]
+    assert got == want, f"{page}: numbers {got} in {fig['quote']!r}, files say {want}"
+
+
+def _uncovered(text: str, quotes: list[str]) -> list[str]:
+    """Numbers of ``text`` outside code and link targets that lie in no quoted passage."""
+    covered = [False] * len(text)
+    for q in quotes:
+        start = 0
+        while (i := text.find(q, start)) >= 0:
+            covered[i:i + len(q)] = [True] * len(q)
+            start = i + 1
+    for pat in (r"```.*?```", r"`[^`\n]*`", r"\]\([^)]*\)"):  # code blocks, inline code, link targets
+        for m in re.finditer(pat, text, flags=re.S):
+            covered[m.start():m.end()] = [True] * (m.end() - m.start())
+    out = []
+    for m in NUMBER.finditer(text):
+        if not all(covered[m.start():m.end()]):
+            line = text.count("\n", 0, m.start()) + 1
+            out.append(f"line {line}: {m.group(0)!r} in {text.splitlines()[line - 1].strip()[:90]!r}")
+    return out
+
+
+def test_every_number_on_the_readme_is_declared():
+    """No number on README.md stands outside a passage whose numbers are checked against a result file."""
+    quotes = [f["quote"] for f in TABLE if f.get("page", "README.md") == "README.md"]
+    bad = _uncovered(_page_text("README.md"), quotes)
+    assert not bad, "README numbers without a declared source:\n" + "\n".join(bad)
+
+
+def test_number_tokens_are_whole():
+    """The tokeniser takes whole numbers: not the digits inside names, versions or larger numbers."""
+    assert numbers("IRB-1200 at 0.0047 mm, q2 and t_s, 9/10 seeds, p = 1.6e-15, 12.0 / 4.23") == \
+        ["0.0047", "9", "10", "1.6e-15", "12.0", "4.23"]
+    assert numbers("rerun v0.41, mujoco 4.0.0 and 2x2 windows, 3.1x the oracle.") == ["3.1"]
+
+
+def test_a_stale_figure_fails():
+    """A passage whose number differs from its file's value in the last printed digit is caught."""
+    fig = next(f for f in TABLE if any("file" in v for v in f["values"]))
+    v = next(v for v in fig["values"] if "file" in v)
+    token = _expected(v)
+    stale = token[:-1] + ("1" if token[-1] != "1" else "2")
+    assert stale != token and numbers(stale) != [token]
