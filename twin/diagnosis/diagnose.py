@@ -45,7 +45,7 @@ from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
                      order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
-                     smooth_confirm, update_gross, widen)
+                     smooth_confirm, time_only, update_gross, widen)
 
 __all__ = [
     "virtual_spheres",
@@ -448,6 +448,14 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                                              float("nan"), "not significant on the calibration rows"))
             break
         c = confirm(prob, fit, s, z_min)
+        if c.local and time_only(s.atom):
+            # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
+            # period), not at the coarse grid value it was found at: a slip between two grid times is a step
+            refined = refine(prob, fit, s, sizes)
+            if refined is not s:
+                c_refined = confirm(prob, fit, refined, z_min)
+                if not c_refined.local:
+                    s, c = refined, c_refined
         implausible = _implausible(prob, s)
         ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
         sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
