@@ -183,9 +183,9 @@ class Selection:
 
 
 def _unmask(r: np.ndarray, model: ExtendedModel) -> np.ndarray:
-    """Whitened sphere residuals back to ``(n, 3, 3)`` [m] (order of ``absolute_residuals``)."""
+    """Whitened point residuals back to ``(n, K, 3)`` [m] (order of ``absolute_residuals``)."""
     obs = model.obs
-    shape = (3, 3, obs.n)
+    shape = (obs.spheres.shape[1], 3, obs.n)
     mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
     tmp = np.zeros(shape)
     tmp[mask] = model.unwhiten(r)
@@ -197,19 +197,19 @@ def _stats(e: np.ndarray) -> dict[str, float]:
 
 
 def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
-    """Error statistics of ``model`` at ``z`` on its rows: 3-D sphere-centre error [mm], and the plate
-    orientation error [deg] between rigid fits of the plate to the measured and to the predicted spheres
-    (rows with all three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
+    """Error statistics of ``model`` at ``z`` on its rows: 3-D point error [mm], and the marker set's (plate's)
+    orientation error [deg] between rigid fits of it to the measured and to the predicted points (rows with all
+    of them, at least three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
     _, phis = model.split(z)
     obs = model.effective_obs(phis)
     res = model.residuals(z, jacobian=False)
-    diff = _unmask(res.r, model)  # measured - predicted (n, 3, 3) [m], zero where not seen
+    diff = _unmask(res.r, model)  # measured - predicted (n, K, 3) [m], zero where not seen
     rows = np.ones(obs.n, bool) if keep is None else keep
     seen = obs.seen & rows[:, None]
     e3 = np.linalg.norm(diff, axis=-1)[seen]
     out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
     full = seen.all(axis=1)
-    if full.any():
+    if full.any() and obs.spheres.shape[1] >= 3:
         meas = obs.spheres[full]
         pred = meas - diff[full]
         A = np.broadcast_to(model.obs.spheres_tool, meas.shape)
@@ -399,17 +399,44 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     """The atoms selection draws from (the catalogue, the cyclic scan, and with ``generic`` the dictionary) and
     the size of each pool (its Bonferroni factor)."""
     prep, ctx, ds = setup.prep, setup.ctx, setup.dataset
-    length_names = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
-    cat = catalogue_atoms(prep.nominal, ctx, length_names)
+    length_names = link_lengths(prep.nominal)
+    cat = catalogue_atoms(prep.nominal, ctx, length_names, n_points=ds.spheres.shape[1])
     pool = list(cat)
     if generic:
-        pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
-        pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=None if setup.virtual else ds.spheres,
-                              plate_spheres=ds.plate.spheres_flange)
+        pool += generic_atoms(prep.nominal, ctx, dictionary_parameters(prep.nominal), length_names, cat,
+                              points=None if setup.virtual else ds.spheres, plate_spheres=ds.plate.spheres_flange)
     if setup.virtual:
         pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
     sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
     return pool, sizes
+
+
+def link_lengths(model) -> list[str]:
+    """The link lengths thermal atoms may grow: ``d<i>``, ``a<i>`` of a 6R chain; the origin translation of each joint
+    of a ``"urdf"`` chain as a whole (``"<joint>.xyz"``)."""
+    if model.convention != "urdf":
+        return [n for n in model.structure.param_names if n.rstrip("0123456789") in ("d", "a")]
+    return [f"{j.name}.xyz" for j in model.structure.joints]
+
+
+def dictionary_parameters(model) -> list[str]:
+    """Structural parameters the unnamed dictionary lets vary (the joint offsets are the joint places): ``d``, ``a``,
+    ``alpha``, ``beta`` of a 6R chain; a ``"urdf"`` chain's origin translations and rotations, except the one that
+    moves like the joint itself (the rotation about a revolute joint's axis, the translation along a prismatic
+    one's, when the axis is a coordinate axis of the joint frame)."""
+    st = model.structure
+    if model.convention != "urdf":
+        return [n for n in st.param_names if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
+    out = []
+    for fam in ("x", "y", "z", "rx", "ry", "rz"):
+        for j in st.joints:
+            ax = np.abs(np.asarray(j.axis))
+            k = int(np.argmax(ax))
+            same = ("r" if j.kind == "revolute" else "") + "xyz"[k]
+            if fam == same and abs(ax[k] - 1.0) < 1e-12:
+                continue
+            out.append(f"{j.name}.{fam}")
+    return out
 
 
 def _slot(atom: Atom) -> str:

@@ -25,7 +25,7 @@ __all__ = [
     "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
     "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
     "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
-    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS",
+    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights",
 ]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
@@ -242,7 +242,8 @@ def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
     if len(a.features) > 4:
         return False
-    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
+    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along")
+                                                        and not a.target.startswith("tilt"))
 
 
 def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
@@ -439,7 +440,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
 
 def _product(a: Atom) -> bool:
     """Whether an atom's columns are its features times model columns (:meth:`ExtendedModel.product_base`)."""
-    return not (a.place == "field" or (a.place == "param" and a.target == "base_along"))
+    return not (a.place == "field" or (a.place == "param" and (a.target == "base_along" or a.target.startswith("tilt"))))
 
 
 def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
@@ -603,14 +604,23 @@ NEIGHBOURS = 4  # rows a neighbour smoother averages
 JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
 
 
+def joint_weights(n_joints: int) -> np.ndarray:
+    """Weights ``(N,)`` of the joints in the neighbours' distance: the last three (the wrist) ``0.3``, the others 1
+    (``JOINT_WEIGHTS`` for six joints)."""
+    w = np.ones(n_joints)
+    w[max(n_joints - 3, 0):] = 0.3
+    return w
+
+
 def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
-    """Whitened residuals ``(m,)`` as ``(n, 9)`` per row (sphere-major, x y z), NaN where not measured."""
+    """Whitened residuals ``(m,)`` as ``(n, 3 K)`` per row (point-major, x y z), NaN where not measured."""
     obs = model.obs
-    shape = (3, 3, obs.n)
+    K = obs.spheres.shape[1]
+    shape = (K, 3, obs.n)
     mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
     tmp = np.full(shape, np.nan)
     tmp[mask] = r
-    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
+    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 3 * K)
 
 
 def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -630,7 +640,7 @@ def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray
     Rv[~prob.keep_val] = np.nan
     qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
     scale = np.ptp(np.vstack([qc, qv]), axis=0)
-    w = JOINT_WEIGHTS / np.where(scale > 1e-9, scale, 1.0)
+    w = (JOINT_WEIGHTS if qc.shape[1] == 6 else joint_weights(qc.shape[1])) / np.where(scale > 1e-9, scale, 1.0)
     same = np.all(np.abs(qv[:, None, :] - qc[None, :, :]) < 1e-9, axis=2)
     t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
     out = {}
@@ -921,6 +931,8 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
         o, n = f"{old:.4g}", f"{v:.4g}"
     elif key == "k":
         o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
+    elif key == "w" and atom.channel.endswith(" mm)"):
+        o, n = f"{old * 1e3:.3g} mm", f"{v * 1e3:.3g} mm"  # a prismatic joint's move width
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
     return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
@@ -931,10 +943,12 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
     from scipy.optimize import minimize_scalar
 
-    from .atoms import HINGE_POINTS, hinge_atom
+    from .atoms import HINGE_POINTS, hinge_atom, joint_words
 
     f0 = s.atom.features[0]
     j = int(f0["ch"][1:])
+    model = prob.prep.nominal
+    prismatic = model.joint_kinds[j - 1] == "prismatic"
     x = prob.ctx.q[:, j - 1]
     grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
     k = int(np.argmin(np.abs(grid - f0["at"])))
@@ -942,7 +956,8 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     best = [s]
 
     def cost(at: float) -> float:
-        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"])], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"], prismatic=prismatic,
+                                                 words=joint_words(model, j))], pool_sizes, exact_top=1)
         if not got:
             return 0.0
         if got[0].dchi2 > best[0].dchi2:
