@@ -12,7 +12,13 @@ The vocabulary (families named in ``diagnosis.json``, ``docs/formats.md``):
 ``coupling``        wrist coupling ``dtheta_6 = c q_5``
 ``thermal``         link lengths growing with ``temp_c`` (or a cubic in ``t_s``), per link or all together
 ``plate_geometry``  a sphere off its nominal plate position (not a rigid motion of the plate)
+``tilt``            the support of a joint (or the robot's base) tilting about two axes of its frame under the
+                    gravity moment of everything it carries, from a chain's mass properties (a URDF's inertials):
+                    a column, a bearing, a mobile base on its wheels, a pedestal
 ==================  =====================================================================================
+
+With a chain's mass properties, ``compliance`` also has one-parameter atoms ``dq_i = c_i tau_i(q)`` whose load
+``tau_i`` (torque, or force along a prismatic joint) comes from the masses (:func:`gravity_torques`).
 
 Nothing here reads truth.
 """
@@ -36,7 +42,7 @@ __all__ = [
     "carried_moments",
 ]
 
-EFFECT_VOCABULARY = ("compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal", "plate_geometry")
+EFFECT_VOCABULARY = ("compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal", "plate_geometry", "tilt")
 GRAVITY = np.array([0.0, 0.0, -9.81])  # [m/s^2] in the robot base frame (base z up)
 
 

@@ -44,7 +44,9 @@ class NoiseFloor:
     """Measurement noise ``sigma`` [m] per sphere coordinate (RMS over the axes), per axis of the measurement
     frame ``axis_sigma`` ``(3,)`` [m] (None: isotropic), its degrees of freedom (``inf`` when stated), where
     it came from, how many repeat groups there were, and every estimate available (``components``:
-    ``repeats``, ``plate``, ``stated`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``)."""
+    ``repeats``, ``plate``, ``stated``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``);
+    ``lower_bound``: the floor is set by the instrument's marker noise alone (``marker_std``), which the robot's own
+    pose-to-pose scatter may exceed (no repeats measured it)."""
 
     sigma: float
     dof: float
@@ -52,6 +54,7 @@ class NoiseFloor:
     groups: int
     components: dict = field(default_factory=dict)
     axis_sigma: np.ndarray | None = None
+    lower_bound: bool = False
 
 
 def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
@@ -282,7 +285,7 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
                       "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
     if systematic is not None:
         components["plate"]["systematic"] = systematic
-    return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis)
+    return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
 
 
 MARKER_STD_COLUMN = "marker_std_mm"  # optional poses.csv column: the instrument's marker noise of the row [mm]

@@ -131,6 +131,10 @@ class Problem:
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
+        # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
+        # the geometric fit's residual variance per degree of freedom when the floor is only a lower bound of it
+        # (a motion-capture system's marker noise, below the robot's own pose-to-pose scatter)
+        self.evidence_scale = 1.0
 
     def _key(self, atom: Atom) -> str:
         key = self._keys.get(atom)
@@ -305,7 +309,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
             k = ok.sum(axis=1)
             fine = k > 0
             gi = np.asarray(gi)
-            logp[gi[fine]] = chi2_logsf(d[fine], k[fine])
+            logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
     return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
 
 
@@ -367,7 +371,7 @@ def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str
         fitted = Ep @ psi
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
-        logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        logp = chi2_logsf(d / prob.evidence_scale, B.shape[1]) + np.log(pool_sizes[a.pool])
         out.append(Scored(a, B, psi, d, logp, r, E=EB, Ep=Ep))
     order = {id(a): i for i, a in enumerate(exact)}
     return sorted(out, key=lambda s: order[id(s.atom)])
@@ -432,7 +436,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
                 pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
     if not pending:
         return []
-    logp = chi2_logsf(np.array([p[3] for p in pending]), np.array([p[4] for p in pending]))
+    logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
                    columns=_column_maker(prob, fit, a, rc, keep, sw))
             for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
@@ -721,7 +725,7 @@ def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple
             psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             Ck = C[np.ix_(idx, idx)]
             d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
-            lp = chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            lp = chi2_logsf(d / prob.evidence_scale, len(idx)) + np.log(sizes[a.pool])
             if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
                 worst = (lp, k)
         if worst is not None:
@@ -773,7 +777,7 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
         trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
-        better = top is not None and top.dchi2 - s.dchi2 >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
         if better:
             f_sign = prob.features(s.atom)[prob.rows_cal, 0]
             f_play = prob.features(top.atom)[prob.rows_cal, 0]
@@ -917,7 +921,7 @@ def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int
     psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
     fitted = Ep @ psi
     d = float(fitted @ fitted)
-    if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+    if chi2_logsf(max(d - s.dchi2, 0.0) / prob.evidence_scale, B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
     return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
 

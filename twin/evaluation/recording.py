@@ -316,6 +316,7 @@ TELLING_TIMELINES = {
     "coupling": ("q5_mdeg",),
     "thermal": ("temp_mdegC", "t_s"),
     "plate_geometry": ("q4_mdeg", "q5_mdeg", "q6_mdeg"),  # the wrist turns the plate in front of the camera
+    "tilt": ("pose",),  # the carried moment changes with the whole posture
 }
 
 
@@ -369,17 +370,18 @@ def record_diagnosis(
     """Write a diagnosis as an ``.rrd`` recording (no viewer needed); returns ``path``.
 
     ``series``: :attr:`twin.diagnosis.DiagnosisResult.series` (per held-out row: ``dataset_row``,
-    ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, 6)``,
-    ``approach_sign`` ``(n, 6)``, optional ``temp_c``/``t_s``, optional ``terms``: per term of the extended
+    ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, N)`` (deg; mm for a
+    prismatic joint), ``approach_sign`` ``(n, N)``, optional ``temp_c``/``t_s``, optional ``terms``: per term of the extended
     model ``{label: {value (n,), unit, channel}}``); ``verdict``: the content of ``diagnosis.json``
     (:func:`twin.diagnosis.diagnosis_dict`; ``structured``, ``p_value``, ``effects``, ``noise_floor``, ...).
 
     Entities (layout in ``docs/diagnosis.md``): ``diagnosis/residual/{before,after,noise_floor}``,
-    ``diagnosis/variables/q_deg/q1..q6``, ``diagnosis/variables/approach_sign/j1..j6``,
+    ``diagnosis/variables/q_deg/q1..qN``, ``diagnosis/variables/approach_sign/j1..jN``,
     ``diagnosis/variables/{temp_c,t_s}`` (when recorded), ``diagnosis/terms/term<k>`` (each term of the
     extended model), ``diagnosis/verdict`` (markdown) and
     ``diagnosis/log`` (text log). Every row is on the ``pose`` timeline (its row in the dataset, measurement
-    order) and on one timeline per variable (``q<j>_mdeg`` [millidegree], ``temp_mdegC`` [milli deg C],
+    order) and on one timeline per variable (``q<j>_mdeg`` [millidegree; micrometre for a prismatic joint],
+    ``temp_mdegC`` [milli deg C],
     ``t_s`` [s, duration]) so that the residual plots against any of them.
     """
     for key in ("dataset_row", "residual_rms_mm_before", "residual_rms_mm_after", "q_deg"):
@@ -392,14 +394,15 @@ def record_diagnosis(
     before = np.asarray(series["residual_rms_mm_before"], dtype=float)
     after = np.asarray(series["residual_rms_mm_after"], dtype=float)
     q_deg = np.asarray(series["q_deg"], dtype=float)
-    if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, 6):
+    nj = q_deg.shape[1] if q_deg.ndim == 2 else 0
+    if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, nj) or nj < 1:
         raise ValueError(f"series shapes disagree: dataset_row {rows.shape}, before {before.shape}, "
-                         f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, 6))")
+                         f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, N))")
     extra = {k: np.asarray(series[k], dtype=float) for k in ("temp_c", "t_s") if series.get(k) is not None}
     sign = None if series.get("approach_sign") is None else np.asarray(series["approach_sign"], dtype=float)
     for key, a, shape in [("residual_rms_mm_before", before, (n,)), ("residual_rms_mm_after", after, (n,)),
-                          ("q_deg", q_deg, (n, 6))] + [(k, a, (n,)) for k, a in extra.items()] + (
-                          [] if sign is None else [("approach_sign", sign, (n, 6))]):
+                          ("q_deg", q_deg, (n, nj))] + [(k, a, (n,)) for k, a in extra.items()] + (
+                          [] if sign is None else [("approach_sign", sign, (n, nj))]):
         if a.shape != shape:
             raise ValueError(f"series[{key!r}] must have shape {shape}, got {a.shape}")
         if not np.all(np.isfinite(a)):
@@ -421,7 +424,7 @@ def record_diagnosis(
     # One time column per timeline, shared by every per-row entity.
     indexes = [rr.TimeColumn("pose", sequence=rows)]
     timelines = ["pose"]
-    for j in range(6):
+    for j in range(nj):
         indexes.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[:, j] * 1e3).astype(np.int64)))
         timelines.append(f"q{j + 1}_mdeg")
     channels: list[str] = []
@@ -453,10 +456,10 @@ def record_diagnosis(
         rec.send_columns(f"{root}/residual/before", indexes, rr.Scalars.columns(scalars=before))
         rec.send_columns(f"{root}/residual/after", indexes, rr.Scalars.columns(scalars=after))
         rec.send_columns(f"{root}/residual/noise_floor", indexes, rr.Scalars.columns(scalars=np.full(n, float(floor))))
-        for j in range(6):
+        for j in range(nj):
             rec.send_columns(f"{root}/variables/q_deg/q{j + 1}", indexes, rr.Scalars.columns(scalars=q_deg[:, j]))
         if sign is not None:
-            for j in range(6):
+            for j in range(nj):
                 rec.log(f"{root}/variables/approach_sign/j{j + 1}", rr.SeriesPoints(marker_sizes=[2.0]), static=True)
                 rec.send_columns(f"{root}/variables/approach_sign/j{j + 1}", indexes,
                                  rr.Scalars.columns(scalars=sign[:, j]))
@@ -480,7 +483,7 @@ def record_diagnosis(
             (f"noise floor {floor} mm per coordinate", rr.TextLogLevel.INFO),
         ] + [(str(note), rr.TextLogLevel.INFO) for note in verdict.get("notes") or []]
         rec.set_time("pose", sequence=int(rows.min()))
-        for j in range(6):
+        for j in range(nj):
             rec.set_time(f"q{j + 1}_mdeg", sequence=int(np.round(q_deg[:, j].min() * 1e3)))
         if "temp_c" in channels:
             rec.set_time("temp_mdegC", sequence=int(np.round(np.min(extra["temp_c"]) * 1e3)))
