@@ -66,6 +66,10 @@ __all__ = [
     "decide",
     "report_before_after",
     "describe_terms",
+    "implausible_size",
+    "evidence_scale",
+    "link_lengths",
+    "dictionary_parameters",
     "name_effects",
     "error_stats",
     # re-exported: the floor and the test are part of what diagnose returns
@@ -709,6 +713,15 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
                   plate=Plate(ds.plate.sphere_diameter, pts), noise_position=noise)
     return out, (f"poses read as three points of the tool frame {L / _MM:.0f} mm along its axes (virtual spheres); "
                  "the plate's own terms and the plate-distance floor do not apply")
+
+
+def implausible_size(prob: Problem, atom: Atom, phi: np.ndarray) -> str | None:
+    """Why the named ``atom`` with the values ``phi`` ``(K,)`` (SI per unit of its features) has a size that is not
+    physical for its family (:func:`_implausible`'s rules), or None."""
+    from types import SimpleNamespace
+
+    phi = np.asarray(phi, dtype=float)
+    return _implausible(prob, SimpleNamespace(atom=atom, basis=np.eye(phi.size), psi=phi))
 
 
 def _implausible(prob: Problem, s) -> str | None:
