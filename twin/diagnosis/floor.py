@@ -308,7 +308,7 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
         except (TypeError, ValueError):
             v = float("nan")
         if not (np.isfinite(v) and v >= 0):
-            raise ValueError(f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]}) has {raw[k]!r}, expected a "
+            raise ValueError(f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]}) has {str(raw[k])!r}, expected a "
                              "finite number >= 0 [mm]")
         vals.append(v)
     if not vals:
