@@ -274,3 +274,31 @@ def test_figaroh_selection_spans_figaroh_s_own_thirty_parameters(tmp_path):
     assert np.sqrt(np.mean(e**2)) == pytest.approx(fig["validation"]["all"]["rmse"], abs=0.005)
     c0 = calibrate(ds, "best", level="full", robust=False)
     assert sum(s == "identified" for s in c0.status) == 33
+
+
+def test_the_real_campaign_runs_through_calibrate_diagnose_and_predict(imported, tmp_path, capsys):
+    """On the committed TIAGo campaign the user's commands run: twin calibrate, twin diagnose (the floor from the
+    rows' marker_std_mm, said so; the wrist's backlash kept, named) and twin predict with the extended calibration,
+    whose predictions equal the library's on the same rows (the session column restarts the history where the day
+    changes, in both)."""
+    import shutil
+
+    from twin.cli import main
+    from twin.diagnosis import read_diagnosis
+    from twin.diagnosis.apply import predict_extended
+    from twin.estimator import Calibration
+    from twin.estimator.files import read_pred_csv
+
+    shutil.copytree(imported.path, tmp_path / "ds")
+    assert main(["calibrate", str(tmp_path / "ds"), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
+    assert main(["diagnose", str(tmp_path / "ds"), "--out", str(tmp_path / "d"), "--catalogue-only", "--no-plots",
+                 "--no-recording"]) == 0
+    d = read_diagnosis(tmp_path / "d" / "diagnosis.json")
+    assert "marker_std" in d["noise_floor"]["components"] and "marker_std_mm" in d["noise_floor"]["source"]
+    assert any(a["label"].startswith("joint 7 (arm_6_joint) backlash") for a in d["atoms"])
+    assert main(["predict", str(tmp_path / "d" / "calibration.json"), str(tmp_path / "ds" / "poses.csv"), "--out",
+                 str(tmp_path / "pred.csv"), "--force"]) == 0
+    cli = read_pred_csv(tmp_path / "pred.csv")
+    lib = predict_extended(Calibration.load(tmp_path / "d" / "calibration.json"), row_context(imported),
+                           imported.station_ids).spheres
+    np.testing.assert_allclose(cli["spheres"], lib, atol=1e-8)

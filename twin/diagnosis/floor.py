@@ -319,14 +319,14 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
 SESSION_COLUMN = "session"  # optional poses.csv column: the recording session of the row (a day, a power cycle)
 
 
-def session_changes(ds: Dataset) -> np.ndarray | None:
-    """Rows ``(n,)`` bool where the ``session`` column changes value from the row before (the robot was restarted
-    between them: another day, a power cycle); None without the column."""
-    raw = ds.extra.get(SESSION_COLUMN)
+def session_changes(ds: Dataset | np.ndarray | None) -> np.ndarray | None:
+    """Rows ``(n,)`` bool where the ``session`` column (of a dataset, or the column itself ``(n,)``) changes value
+    from the row before (the robot was restarted between them: another day, a power cycle); None without it."""
+    raw = ds.extra.get(SESSION_COLUMN) if isinstance(ds, Dataset) else ds
     if raw is None:
         return None
     v = np.asarray(raw).astype(str)
-    out = np.zeros(ds.n, bool)
+    out = np.zeros(len(v), bool)
     out[1:] = v[1:] != v[:-1]
     return out
 
