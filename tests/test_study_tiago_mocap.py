@@ -62,3 +62,42 @@ def test_quoted_coefficient_ranges_match_the_results():
     assert len(arm3) == 12 and min(arm3) > 0
     assert f"({min(arm3):.2f}\n  to {max(arm3):.2f} mrad/Nm)" in text or f"({min(arm3):.2f} to {max(arm3):.2f} mrad/Nm)" in text
     assert f"from {min(tilt):.2f} to {max(tilt):.2f} mrad/Nm" in text
+
+
+def test_quoted_diagnosis_figures_match_the_diagnosis_results():
+    """The diagnosis sentences' figures (report rows before -> after, the other day's RMSE, the physical model's fits
+    both directions and without each term, the confirmed terms) are those of results/diagnosis.json."""
+    d = json.loads((STUDY / "results" / "diagnosis.json").read_text())
+    text = " ".join((STUDY / "README.md").read_text().split())
+    d0 = d["directions"][0]
+    runs = {(r["data"], r["direction"], r["generic"]): r for r in d["diagnose"]}
+    m1 = runs[("marker 1, FIGAROH's selection", d0, True)]
+    cat4 = runs[("four points", d0, False)]
+    gen4 = runs[("four points", d0, True)]
+    for r in (m1, cat4, gen4):
+        assert f"from {r['report_rows']['before']['rms']:.2f} to {r['report_rows']['after']['rms']:.2f}" in text or \
+            f"{r['report_rows']['before']['rms']:.2f} to {r['report_rows']['after']['rms']:.2f}" in text
+    for r in (m1, cat4, gen4):
+        g, e = r["other_day"]["geometric"]["marker1"]["all"]["rmse"], r["other_day"]["extended"]["marker1"]["all"]["rmse"]
+        assert f"{g:.2f} to {e:.2f}" in text
+    assert [t["label"] for t in m1["terms"]] == ["joint 7 (arm_6_joint) backlash (offset signed by the direction of its last move)"]
+    confirmed = [r["term"] for r in d["account"] if r["confirmed_on_the_other_day"]]
+    assert sorted(confirmed) == sorted(d["physical_model"]["terms"]) and len(confirmed) == 4
+    fits = d["physical_model"]["fits"]
+    for k, f in fits.items():
+        g, e = f["geometric"]["marker1"]["all"]["rmse"], f["extended"]["marker1"]["all"]["rmse"]
+        assert f"{g:.2f} to {e:.2f}" in text, k
+    for v in d["physical_model"]["without_each_term_marker1_rmse"].values():
+        assert f"{v:.2f}" in text
+
+
+def test_quoted_parameter_selection_figures_match_the_results():
+    """The FIGAROH-selection sentence (30 parameters, its validation figures, the training-day CV of both selections)
+    is the results'."""
+    res = _results()
+    text = " ".join((STUDY / "README.md").read_text().split())
+    row = next(r for r in res["rows"] if r["variant"] == "marker 1 only" and r["model"].endswith("FIGAROH's parameter selection"))
+    assert row["parameters"] == 30 and f"{row['validation']['all']['rmse']:.2f} / {row['validation']['all']['max']:.1f}" in text
+    for variant, v in res["parameter_selection_cv"].items():
+        for sel in ("ordered", "figaroh"):
+            assert f"{v[sel]['cv_6fold_rmse_mm']:.2f} / {v[sel]['cv_leave_one_out_rmse_mm']:.2f}" in text, (variant, sel)

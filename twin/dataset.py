@@ -805,7 +805,7 @@ def write_dataset(folder: str | os.PathLike, ds: Dataset) -> Path:
 # JOINTS.csv
 # ------------------------------------------------------------------------------------------------
 
-JOINTS_OPTIONAL = ("temp_c", "t_s", "station", "set")
+JOINTS_OPTIONAL = ("temp_c", "t_s", "station", "set", "session")
 
 
 @dataclass(frozen=True)
@@ -819,6 +819,7 @@ class Joints:
     t_s: np.ndarray | None = None
     station: np.ndarray | None = None
     set: np.ndarray | None = None
+    session: np.ndarray | None = None
 
 
 __all__.append("Joints")
@@ -848,7 +849,7 @@ __all__.append("read_csv_rows")
 
 def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) -> Joints:
     """Read ``JOINTS.csv`` (``pose_id``, the joints of ``robot`` (default ``q1..q6``) in degrees (millimetres for
-    a prismatic joint), optional ``temp_c, t_s, station, set``)."""
+    a prismatic joint), optional ``temp_c, t_s, station, set, session``)."""
     path = Path(path)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
     jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
@@ -881,6 +882,7 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
         t_s=fl("t_s"),
         station=np.array(chans["station"], dtype=object) if "station" in chans else None,
         set=np.array(chans["set"], dtype=object) if "set" in chans else None,
+        session=np.array(chans["session"], dtype=object) if "session" in chans else None,
     )
 
 

@@ -21,6 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--level", choices=["full", "offsets", "frames"], default=None,
                    help="best only: which robot parameters are estimated besides base and tool: full (every "
                         "geometric parameter, default), offsets (joint offsets only), frames (none)")
+    p.add_argument("--selection", choices=["ordered", "figaroh"], default=None,
+                   help="best, full level of a URDF chain: which identifiable parameters are estimated: ordered (every "
+                        "one, default) or figaroh (FIGAROH's full-parameter set reproduced: its structural QR, the first "
+                        "six base parameters replaced by the base frame, weakly excited directions dropped)")
     p.add_argument("--prior-mm", type=float, default=None,
                    help="best only: Gaussian prior sd [mm] on every robot length's deviation from nominal (MAP fit)")
     p.add_argument("--prior-mrad", type=float, default=None,
@@ -58,6 +62,10 @@ def _options(args) -> dict:
         if args.method != "best":
             raise ValueError("--level applies to --method best only")
         opts["level"] = args.level
+    if args.selection is not None:
+        if args.method != "best":
+            raise ValueError("--selection applies to --method best only")
+        opts["selection"] = args.selection
     prior = {k: v * 1e-3 for k, v in (("length", args.prior_mm), ("angle", args.prior_mrad),
                                        ("offset", args.prior_offset_mrad)) if v is not None}
     if prior:

@@ -17,6 +17,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="without a 'set' column: hold out this seeded random fraction for validation (default 0.3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out draw")
     p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
+    p.add_argument("--catalogue-only", action="store_true",
+                   help="select among the catalogue's named terms only (no unnamed dictionary)")
+    p.add_argument("--selection", choices=["ordered", "figaroh"], default=None,
+                   help="the geometric model's parameters on a URDF chain (as twin calibrate --selection)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-recording", action="store_true",
                    help="skip the Rerun recording DIR/diagnosis.rrd (open it with: rerun DIR/diagnosis.rrd)")
@@ -42,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     ds = plate.dataset
     cal = Calibration.load(args.calibration) if args.calibration else None
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
-                   max_effects=args.max_effects)
+                   max_effects=args.max_effects, generic=not args.catalogue_only,
+                   geometry=None if args.selection is None else {"selection": args.selection})
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
     if not args.no_recording:
         # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording

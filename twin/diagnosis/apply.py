@@ -68,7 +68,8 @@ def _check_ctx(cal: Calibration, ctx: RowContext) -> None:
 
 
 def effective_joints(cal: Calibration, ctx: RowContext) -> np.ndarray:
-    """Joints ``(n, 6)`` [rad] the robot is predicted to reach for the commanded ``ctx.q`` (joint atoms)."""
+    """Joints ``(n, N)`` [rad; m for a prismatic joint] the robot is predicted to reach for the commanded ``ctx.q``
+    (joint atoms)."""
     _check_ctx(cal, ctx)
     q = ctx.q.copy()
     cache: dict = {}
@@ -87,7 +88,7 @@ def history_unknown_rows(cal: Calibration, ctx: RowContext) -> np.ndarray:
 
 
 def _plate(cal: Calibration) -> Calibration:
-    off = np.zeros((3, 3))
+    off = np.zeros_like(np.asarray(cal.spheres_tool, dtype=float))
     for a, phi in effect_atoms(cal):
         if a.place == "plate" and not a.varying_plate:
             off[int(a.target[6:])] += phi
@@ -96,7 +97,7 @@ def _plate(cal: Calibration) -> Calibration:
 
 def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_station: np.ndarray,
                  q_eff: np.ndarray, spheres_tool: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Change ``(n, 3, 3)`` [m] of the predicted spheres from length, parameter and scale atoms."""
+    """Change ``(n, K, 3)`` [m] of the predicted points from length, parameter and scale atoms."""
     n = len(q_eff)
     d = np.zeros((n, len(spheres_tool), 3))
     fo = [(a, phi) for a, phi in effect_atoms(cal) if a.first_order]
@@ -140,6 +141,8 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
         c = W.shape[1]
         if a.target == "base_along":
             dx = F * phi[0]  # (n, 3): the displacement along the row's direction
+        elif a.target.startswith("tilt"):
+            dx = F * phi  # (n, 2): one rotation axis of the pivot per feature
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)
@@ -208,7 +211,9 @@ def compensate_extended(
     x = np.concatenate([cp.x[: cp.space.n_rt], np.zeros(6)])
     origin = np.zeros((1, 3))
     pts_tool = np.concatenate([origin, np.eye(3)])
-    theta = sp.family("theta")
+    theta = sp.family("joint")
+    signs = sp.chain.structure.joint_signs  # d(point) / d(joint) = sign * d(point) / d(its parameter)
+    N = len(theta)
     sub = replace(cp, effects=tuple(e for e in cal.effects if Atom.from_spec(e).place in ("joint", "length", "param")
                                     and Atom.from_spec(e).target != "base"))
     q_cmd = base.q.copy()
@@ -227,11 +232,12 @@ def compensate_extended(
         e_p = T[:, :3, 3] - o
         e_r = matrix_to_rotvec(T[:, :3, :3] @ np.swapaxes(R, 1, 2))
         # joint Jacobian of the tool origin and orientation: the theta columns of the parameter Jacobian
-        Jp = Jk[theta][:, 0]  # (6, 3, n)
-        Jax = Jk[theta][:, 1:] - Jk[theta][:, :1]  # (6, 3 axes, 3, n)
-        dq = np.empty((n, 6))
+        Jq = Jk[theta] * signs[:, None, None, None]
+        Jp = Jq[:, 0]  # (N, 3, n)
+        Jax = Jq[:, 1:] - Jq[:, :1]  # (N, 3 axes, 3, n)
+        dq = np.empty((n, N))
         for i in range(n):
-            Jfull = np.concatenate([Jp[:, :, i].T, _angular(Jax[:, :, :, i], R[i])], axis=0)  # (6, 6)
+            Jfull = np.concatenate([Jp[:, :, i].T, _angular(Jax[:, :, :, i], R[i])], axis=0)  # (6, N)
             dq[i] = np.linalg.lstsq(Jfull, np.concatenate([e_p[i], e_r[i]]), rcond=None)[0]
         q_cmd = q_cmd + dq
         step = float(np.max(np.abs(dq)))
@@ -243,7 +249,7 @@ def compensate_extended(
 
 
 def _angular(Jax: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Angular velocity Jacobian ``(3, 6)`` from the derivatives ``(6, 3 axes, 3)`` of the tool axes
+    """Angular velocity Jacobian ``(3, N)`` from the derivatives ``(N, 3 axes, 3)`` of the tool axes
     ``R e_k``: ``d(R e_k) = w x R e_k``, so ``w = 1/2 sum_k (R e_k) x d(R e_k)``."""
     w = np.zeros((3, Jax.shape[0]))
     for k in range(3):

@@ -40,8 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics import N_JOINTS, RobotModel, link_frames
-from .candidates import GRAVITY, RowContext, approach_signs, gravity_torque_regressor
+from ..kinematics import RobotModel, link_frames
+from .candidates import (GRAVITY, RowContext, approach_signs, carried_moments, gravity_torque_regressor,
+                         gravity_torques, has_masses)
 
 __all__ = [
     "Atom",
@@ -64,7 +65,7 @@ TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as f
 MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of their own
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
-WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint): wrist drive shafts pass through joints 4, 5
+WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint) of a 6R arm: wrist drive shafts pass through joints 4, 5
 HINGE_POINTS = 9  # angles (deciles of a joint's range) past which a one-sided pull may start (then refined)
 HINGE_POWERS = (1, 2)  # the pull grows linearly (a spring) or with the square of the overtravel
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
@@ -138,7 +139,7 @@ class Atom:
 def _channel(ctx: RowContext, name: str) -> np.ndarray:
     if name.startswith("q") and name[1:].isdigit():
         j = int(name[1:])
-        if not 1 <= j <= N_JOINTS:
+        if not 1 <= j <= ctx.q.shape[1]:
             raise ValueError(f"feature channel {name!r}: no such joint")
         return ctx.q[:, j - 1]
     if name == "t_s":
@@ -204,11 +205,12 @@ def _last_moves(ctx: RowContext) -> np.ndarray:
     """The last nonzero move ``(n, 6)`` [rad] of each joint before each row (0 while unknown: after the start
     or a restart, until the joint moves)."""
     q, reset = _history(ctx)
-    out = np.zeros((len(q), N_JOINTS))
-    last = np.zeros(N_JOINTS)
+    N = q.shape[1]
+    out = np.zeros((len(q), N))
+    last = np.zeros(N)
     for k in range(len(q)):
         if reset[k]:
-            last = np.zeros(N_JOINTS)
+            last = np.zeros(N)
         else:
             d = q[k] - q[k - 1]
             last = np.where(d != 0, d, last)
@@ -220,15 +222,16 @@ def _steps_in(ctx: RowContext) -> np.ndarray:
     """The move ``(n, 6)`` [rad] into each row from the one before (0 for the first row, a repeat, after a
     restart; from ``q_start`` when known)."""
     q, reset = _history(ctx)
-    d = np.vstack([np.zeros((1, N_JOINTS)), np.diff(q, axis=0)])
+    d = np.vstack([np.zeros((1, q.shape[1])), np.diff(q, axis=0)])
     d[reset] = 0.0
     return d[-len(ctx.q):]
 
 
-def _motion_heat(ctx: RowContext, tau: float, joints: tuple[int, ...] = (1, 2, 3, 4, 5, 6)) -> np.ndarray:
-    """Heat the motors of ``joints`` put into the arm with its motion, through a first-order lag of time
-    constant ``tau`` [s]: each move adds their joint travel ``sum_j |dq_j|`` [rad], which decays with ``tau``
-    over ``t_s`` (``h_k = h_{k-1} exp(-dt / tau) + travel_k``) [rad]. Needs ``t_s``."""
+def _motion_heat(ctx: RowContext, tau: float, joints: tuple[int, ...] | None = None) -> np.ndarray:
+    """Heat the motors of ``joints`` (1-based; default all) put into the arm with its motion, through a first-order
+    lag of time constant ``tau`` [s]: each move adds their joint travel ``sum_j |dq_j|`` [rad], which decays with
+    ``tau`` over ``t_s`` (``h_k = h_{k-1} exp(-dt / tau) + travel_k``) [rad]. Needs ``t_s``."""
+    joints = tuple(range(1, ctx.q.shape[1] + 1)) if joints is None else joints
     return _heat_series(_channel(ctx, "t_s"), _steps_in(ctx), tau, joints)
 
 
@@ -285,12 +288,13 @@ def _recorded_heat(f: dict, ctx: RowContext) -> np.ndarray:
     t_new = _channel(ctx, "t_s")
     order, new, at = _merge_record(rec["t_s"], t_new)
     t_all = np.concatenate([np.asarray(rec["t_s"], float), t_new[new]])[order]
-    q_all = np.concatenate([np.asarray(rec["q"], float).reshape(-1, N_JOINTS), np.asarray(ctx.q, float)[new]])[order]
+    N = ctx.q.shape[1]
+    q_all = np.concatenate([np.asarray(rec["q"], float).reshape(-1, N), np.asarray(ctx.q, float)[new]])[order]
     reset = np.concatenate([np.asarray(rec["reset"], bool), np.zeros(int(new.sum()), bool)])[order]
     reset[0] = True
-    steps = np.vstack([np.zeros((1, N_JOINTS)), np.diff(q_all, axis=0)])
+    steps = np.vstack([np.zeros((1, N)), np.diff(q_all, axis=0)])
     steps[reset] = 0.0
-    return _heat_series(t_all, steps, f["tau"], tuple(f.get("joints", (1, 2, 3, 4, 5, 6))))[at]
+    return _heat_series(t_all, steps, f["tau"], tuple(f.get("joints", range(1, N + 1))))[at]
 
 
 def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
@@ -432,6 +436,17 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
             Yg = cache["grav"]
             out[:, k] = sum(w * Yg[:, f["i"] - 1, kk - 1, c] for w, (kk, c) in zip(f["w"], f["cols"])) / f["h"]
+        elif kind == "torque":
+            # the gravity load of joint j from the chain's mass properties [N m, or N along a prismatic axis]
+            if "torque" not in cache:
+                cache["torque"] = gravity_torques(model, ctx.q)
+            out[:, k] = cache["torque"][:, f["j"] - 1] / f.get("h", 1.0)
+        elif kind == "moment":
+            # the gravity moment of what joint j carries about its origin (j = 0: the base), one axis of its frame
+            key = ("moment", f["j"])
+            if key not in cache:
+                cache[key] = carried_moments(model, ctx.q, int(f["j"]))
+            out[:, k] = cache[key][:, f["axis"]] / f.get("h", 1.0)
         elif kind == "gdir":
             if "gdir" not in cache:
                 fr = link_frames(model, ctx.q)
@@ -446,7 +461,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
         elif kind == "stepin":
             out[:, k] = _steps_in(ctx)[:, f["j"] - 1]
         elif kind == "heat":
-            joints = tuple(f.get("joints", (1, 2, 3, 4, 5, 6)))
+            joints = tuple(f.get("joints", range(1, ctx.q.shape[1] + 1)))
             key = ("heat", f["tau"], joints, "record" in f)
             if key not in cache:
                 cache[key] = _recorded_heat(f, ctx) if "record" in f else _motion_heat(ctx, f["tau"], joints)
@@ -518,20 +533,42 @@ def play_backlash(j: int, h: float) -> Atom:
                 "catalogue", (j,))
 
 
-def hinge_atom(j: int, at: float, side: int, p: int, h: float) -> Atom:
+def hinge_atom(j: int, at: float, side: int, p: int, h: float, *, prismatic: bool = False,
+               words: str | None = None) -> Atom:
     """Joint ``j``'s angle growing as ``(max(0, side (q_j - at)) / h)^p`` [``at`` rad, ``h`` rad a scale]: zero on one
-    side of the angle ``at``, a power of the overtravel past it (a cable or hose going taut and pulling)."""
-    ad = np.rad2deg(at)
-    rel = f"q{j} - {ad:.4g} deg" if side > 0 else f"{ad:.4g} deg - q{j}"
+    side of the angle ``at``, a power of the overtravel past it (a cable or hose going taut and pulling). A
+    prismatic joint's position likewise ([m]); ``words``: the joint in words (default ``j``)."""
+    ad, unit = (at * 1e3, "mm") if prismatic else (np.rad2deg(at), "deg")
+    rel = f"q{j} - {ad:.4g} {unit}" if side > 0 else f"{ad:.4g} {unit} - q{j}"
     ch = f"max(0, {rel})" + ("" if p == 1 else f"^{p}")
+    what = "position varies with {} (a pull past a position)" if prismatic else "angle varies with {} (a pull past an angle)"
     return Atom("unnamed", "joint", f"theta{j}", ({"kind": "hinge", "ch": f"q{j}", "at": float(at), "side": int(side),
                                                   "p": int(p), "h": float(h)},), ch,
-                f"unnamed: joint {j} angle varies with {ch} (a pull past an angle)", "generic", (j,))
+                f"unnamed: joint {words or j} {what.format(ch)}", "generic", (j,))
 
 
 def _nominal_length(model: RobotModel, name: str) -> float:
-    """The nominal value [m] of length parameter ``name`` (``"a3"``, ``"d4"``) of ``model``."""
+    """The nominal value [m] of length parameter ``name`` of ``model`` (``"a3"``, ``"d4"``; a ``"urdf"`` chain's
+    ``"<joint>.xyz"``: the length of the joint's origin translation)."""
+    if name.endswith(".xyz"):
+        j = name[: -len(".xyz")]
+        return float(np.linalg.norm([model.params[model.layout.index(f"{j}.{c}")] for c in "xyz"]))
     return float(model.params[model.layout.index(name)])
+
+
+def joint_words(model: RobotModel, j: int) -> str:
+    """How a joint is named in words: ``"3"`` on the 6R robots, ``"3 (arm_2_joint)"`` on a named chain."""
+    return str(j) if model.convention != "urdf" else f"{j} ({model.joint_names[j - 1]})"
+
+
+def wrist_couplings(model: RobotModel) -> tuple[tuple[int, int], ...]:
+    """``(driven, driving)`` 1-based joint pairs whose drives may be coupled: the last three joints of the chain
+    when they are revolute (a wrist whose drive shafts pass through the joints before; a 6R arm's 5-4, 6-4, 6-5)."""
+    N = model.n_joints
+    if N < 3 or any(model.joint_kinds[j] != "revolute" for j in range(N - 3, N)):
+        return ()
+    a, b, c = N - 2, N - 1, N
+    return ((b, a), (c, a), (c, b))
 
 
 def _session_starts(ctx: RowContext) -> list[tuple[str, float]]:
@@ -557,18 +594,26 @@ def _time_features(ctx: RowContext, ch: str) -> list[dict]:
 
 
 def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
-                    harmonic_orders: tuple[int, ...] = (1, 2, 3)) -> list[Atom]:
-    """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``."""
+                    harmonic_orders: tuple[int, ...] = (1, 2, 3), n_points: int = 3) -> list[Atom]:
+    """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``
+    (``n_points``: the points of the marker set, one ``plate_geometry`` atom each). Any serial chain: its joints
+    by index (``theta<j>``, ``q<j>``, 1-based) and in words by name (:func:`joint_words`); harmonics, cyclic
+    scans and the wrist couplings for revolute joints only; with the chain's mass properties (a URDF's
+    inertials), compliance under the gravity load they give and the tilt of each joint's support (and of the
+    base) under the gravity moment it carries."""
     atoms: list[Atom] = []
+    N = model.n_joints
+    jw = lambda j: joint_words(model, j)  # noqa: E731
+    revolute = [k == "revolute" for k in model.joint_kinds]
     # compliance: dtheta_i = c_i tau_i(q), tau_i linear in the mass moments (m_k, h_k = m_k c_k) of links
     # k >= i. The linear relaxation has up to 24 columns per joint; with a generic prior on the moments
     # (masses of one order, centres of mass ~0.1 m off the link frames) the torques a real arm can have
     # lie close to the leading COMPLIANCE_RANK principal shapes of the prior-weighted columns on these rows:
     # the atom keeps those (a broad atom would collect a little of every other effect).
     Y = gravity_torque_regressor(model, ctx.q)
-    for i in range(1, N_JOINTS + 1):
+    for i in range(1, N + 1):
         cols, prior = [], []
-        for k in range(i, N_JOINTS + 1):
+        for k in range(i, N + 1):
             for c in range(4):
                 cols.append([k, c])
                 prior.append(1.0 if c == 0 else COM_PRIOR_M)
@@ -583,34 +628,61 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                           "h": float(sv[j] / np.sqrt(len(M)))} for j in range(a, min(b, rk)))
 
         atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(0, COMPLIANCE_RANK), f"gravity torque of joint {i}",
-                          f"joint {i} compliance under gravity", "catalogue", (i,)))
+                          f"joint {jw(i)} compliance under gravity", "catalogue", (i,)))
         for tch, at in _session_starts(ctx):
             # a payload added (or a brake set) at a restart changes the torque from then on
             atoms.append(Atom("compliance", "joint", f"theta{i}",
                               tuple({"kind": "gated", "f": f, "ch": tch, "at": at} for f in shapes(0, COMPLIANCE_RANK)),
                               f"gravity torque of joint {i} from {tch} >= {at:.6g}",
-                              f"joint {i} compliance under gravity, changed at the restart ({tch} >= {at:.6g})",
+                              f"joint {jw(i)} compliance under gravity, changed at the restart ({tch} >= {at:.6g})",
                               "catalogue", (i,)))
         if rk > COMPLIANCE_RANK:
             # the further shapes (a payload, wrist masses): a broad atom, tried after the small ones
             atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(COMPLIANCE_RANK, 3 * COMPLIANCE_RANK),
                               f"gravity torque of joint {i} (further shapes)",
-                              f"joint {i} compliance under gravity, further torque shapes", "catalogue", (i,)))
-    for j in range(1, N_JOINTS + 1):
+                              f"joint {jw(i)} compliance under gravity, further torque shapes", "catalogue", (i,)))
+    if has_masses(model):
+        # with the chain's mass properties the load is known: one stiffness per joint, dq_i = c_i tau_i(q)
+        tau = gravity_torques(model, ctx.q)
+        for i in range(1, N + 1):
+            t = tau[:, i - 1]
+            if np.ptp(t) <= 1e-9 * max(1.0, float(np.max(np.abs(t)))):
+                continue  # a constant load (a vertical lift carries the same weight everywhere): the offset holds it
+            what = "force along it" if model.joint_kinds[i - 1] == "prismatic" else "torque about it"
+            atoms.append(Atom("compliance", "joint", f"theta{i}", ({"kind": "torque", "j": i, "h": 1.0},),
+                              f"gravity load of joint {i} (URDF masses)",
+                              f"joint {jw(i)} compliance under gravity (the {what} from the URDF masses)",
+                              "catalogue", (i,)))
+        # the support of a joint (a column, a bearing, the base on its wheels or a pedestal) tilting about two
+        # axes of its frame under the gravity moment of everything it carries, one compliance per axis
+        for i in range(0, N + 1):
+            M = carried_moments(model, ctx.q, i)
+            feats = tuple({"kind": "moment", "j": i, "axis": a, "h": 1.0} for a in (0, 1)
+                          if np.ptp(M[:, a]) > 1e-9 * max(1.0, float(np.max(np.abs(M[:, a])))))
+            if len(feats) < 2:
+                continue
+            where = ("the robot's base tilting about its horizontal axes" if i == 0 else
+                     f"the support of joint {jw(i)} tilting about its x and y axes")
+            atoms.append(Atom("tilt", "param", f"tilt{i}", feats, f"gravity moment carried by {'the base' if i == 0 else f'joint {i}'}",
+                              f"{where} under the gravity moment it carries (URDF masses)", "catalogue",
+                              (i,) if i else ()))
+    for j in range(1, N + 1):
         atoms.append(Atom("backlash", "joint", f"theta{j}", ({"kind": "sign", "j": j},), f"approach_sign_j{j}",
-                          f"joint {j} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
-        for k in harmonic_orders:
-            atoms.append(Atom("cyclic", "joint", f"theta{j}",
-                              ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
-                              f"sin/cos({k} q{j})", f"joint {j}, {_ORD.get(k, f'{k}th')} harmonic", "catalogue", (j,),
-                              {"order": k}))
+                          f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        if revolute[j - 1]:
+            for k in harmonic_orders:
+                atoms.append(Atom("cyclic", "joint", f"theta{j}",
+                                  ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
+                                  f"sin/cos({k} q{j})", f"joint {jw(j)}, {_ORD.get(k, f'{k}th')} harmonic", "catalogue", (j,),
+                                  {"order": k}))
         atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
-                          f"q{j}", f"joint {j} gear-ratio error (theta_{j} grows with q{j})", "catalogue", (j,)))
+                          f"q{j}", f"joint {jw(j)} gear-ratio error (theta_{j} grows with q{j})" if revolute[j - 1] else
+                          f"joint {jw(j)} travel scale error (its offset grows with q{j})", "catalogue", (j,)))
     # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual),
     # and of a stage with a non-integer ratio (a belt, an intermediate gear), scanned on a half-order grid (a pool
     # of their own: its size enters the evidence threshold), the order refined when kept
-    for j in range(1, N_JOINTS + 1):
-        if np.ptp(ctx.q[:, j - 1]) < 1e-6:
+    for j in range(1, N + 1):
+        if np.ptp(ctx.q[:, j - 1]) < 1e-6 or not revolute[j - 1]:
             continue
         for k in np.arange(SCAN_ORDERS[0], SCAN_ORDERS[1] + 1e-9, SCAN_ORDERS[2]):
             k = float(k)
@@ -618,11 +690,11 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                 continue  # a period is evidence only where the rows see it repeat (1.5 periods over the range)
             atoms.append(Atom("cyclic", "joint", f"theta{j}",
                               ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
-                              f"sin/cos({k:.4g} q{j})", f"joint {j}, harmonic of order {k:.4g} (cycles per joint turn)",
+                              f"sin/cos({k:.4g} q{j})", f"joint {jw(j)}, harmonic of order {k:.4g} (cycles per joint turn)",
                               "scan", (j,), {"order": k}))
-    # wrist coupling: the drives of joints 5 and 6 pass through joint 4 (and 6's through 5): a coupling-ratio error
-    # turns the driven joint with the driving one
-    for jd, js in WRIST_COUPLINGS:
+    # wrist coupling: the drives of the last two joints pass through the one before (a 6R arm's 5 and 6 through 4,
+    # 6's through 5): a coupling-ratio error turns the driven joint with the driving one
+    for jd, js in wrist_couplings(model):
         atoms.append(Atom("coupling", "joint", f"theta{jd}", ({"kind": "pow", "ch": f"q{js}", "p": 1, "c": 0.0, "h": 1.0},),
                           f"q{js}", f"wrist coupling (theta{jd} follows q{js})", "catalogue", (js, jd)))
     # thermal growth: each link, and all links together, against temp_c (linear) or a cubic in t_s
@@ -653,7 +725,8 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
             # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
             heat = [{"kind": "heat", "tau": float(tau), "joints": js,
-                     "h": float(max(np.mean(_motion_heat(ctx, float(tau), tuple(js))), 1e-9))} for js in ([1, 2, 3], [4, 5, 6])]
+                     "h": float(max(np.mean(_motion_heat(ctx, float(tau), tuple(js))), 1e-9))}
+                    for js in (list(range(1, N - 2)), list(range(N - 2, N + 1))) if js]
             variants.append(((*heat,
                               {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}),
                              f"motion heat lagged {tau:.4g} s"))
@@ -664,7 +737,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             if abs(_nominal_length(model, L)) < MIN_THERMAL_LENGTH:
                 continue  # a link of nominal length ~0 (a2 of the IRB 1200) has no length to grow
             atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
-    for s in range(3):
+    for s in range(n_points):
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
     return atoms
@@ -675,12 +748,17 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                   plate_spheres: np.ndarray | None = None) -> list[Atom]:
     """The unnamed dictionary: every place against every smooth basis of every channel (module docstring).
     Atoms whose columns equal a catalogue atom's are left out (the catalogue names them). ``points``: the
-    measured sphere centres ``(n, 3, 3)`` [m] in the measurement frame (NaN where not seen), for the field
-    atoms' constants (none without them); ``plate_spheres`` ``(3, 3)`` [m]: the nominal sphere centres in the
-    plate frame (their plane's normal, for the field that follows the plate's tilt)."""
+    measured points ``(n, K, 3)`` [m] in the measurement frame (NaN where not seen), for the field
+    atoms' constants (none without them); ``plate_spheres`` ``(K, 3)`` [m]: the nominal points in the
+    plate frame (their plane's normal, for the field that follows the plate's tilt). Any serial chain: harmonics
+    of revolute joints only, a prismatic joint's move widths in millimetres."""
     q = ctx.q
+    N = model.n_joints
+    revolute = [k == "revolute" for k in model.joint_kinds]
+    jw = lambda j: joint_words(model, j)  # noqa: E731
+    couplings = wrist_couplings(model)
     feats: list[tuple[str, dict | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
-    for j in range(1, N_JOINTS + 1):
+    for j in range(1, N + 1):
         c, h = _norm(q[:, j - 1])
         if np.ptp(q[:, j - 1]) < 1e-6:
             continue
@@ -689,16 +767,20 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             # offset curve)
             feats.append((f"q{j}^{p}" if p > 1 else f"q{j}",
                           tuple({"kind": "pow", "ch": f"q{j}", "p": e, "c": c, "h": h} for e in range(1, p + 1)), (j,)))
-        for k in (1, 2, 3):
-            feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
+        if revolute[j - 1]:
+            for k in (1, 2, 3):
+                feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
         feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
         for w_deg in MOVE_WIDTHS_DEG:
             # hysteresis that follows the size of the last move (friction-like), on the joint angles only
-            feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
+            if revolute[j - 1]:
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
+            else:
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} mm)", {"kind": "lastmove", "j": j, "w": w_deg * 1e-3}, (j,)))
         # the step into this row (zero for a repeat): a joint still settling from the move it just made
         feats.append((f"step into the row j{j}", {"kind": "stepin", "j": j}, (j,)))
-    for a in range(1, N_JOINTS + 1):
-        for b in range(a + 1, N_JOINTS + 1):
+    for a in range(1, N + 1):
+        for b in range(a + 1, N + 1):
             if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
                 continue
             ca, ha = _norm(q[:, a - 1])
@@ -752,8 +834,9 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             k = 2 * np.pi * cyc / span
             cell_feats.append((f"sin/cos(2pi {tch}/{span / cyc:.4g})", ({"kind": "sin", "ch": tch, "k": float(k)},
                                                                         {"kind": "cos", "ch": tch, "k": float(k)}), ()))
-    places: list[tuple[str, str, str, tuple[int, ...]]] = [("joint", f"theta{j}", f"joint {j} angle", (j,))
-                                                           for j in range(1, N_JOINTS + 1)]
+    places: list[tuple[str, str, str, tuple[int, ...]]] = [
+        ("joint", f"theta{j}", f"joint {jw(j)} " + ("angle" if revolute[j - 1] else "position"), (j,))
+        for j in range(1, N + 1)]
     places += [("param", p, f"parameter {p}", ()) for p in param_names]
     places += [("param", "tool", "tool (plate) frame", ()), ("param", "base", "base (measurement) frame", ()),
                ("scale", "meas_scale", "measurement scale", ())]
@@ -773,7 +856,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             if place == "joint" and fs[0]["kind"] == "sign" and fs[0]["j"] == int(target[5:]):
                 continue  # = backlash
             if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and \
-                    (int(target[5:]), int(fs[0]["ch"][1:]) if fs[0]["ch"].startswith("q") else 0) in WRIST_COUPLINGS:
+                    (int(target[5:]), int(fs[0]["ch"][1:]) if fs[0]["ch"].startswith("q") else 0) in couplings:
                 continue  # = coupling
             if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow" \
                     and len(fs) <= (1 if fs[0]["ch"] == "temp_c" else 3):
@@ -801,21 +884,22 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic"))
     # a pull that starts past an angle (a cable or dress pack going taut): zero on one side of the angle, a power of
     # the overtravel beyond it, on the joint itself; the angle on the deciles of the joint's range (then refined)
-    for j in range(1, N_JOINTS + 1):
+    for j in range(1, N + 1):
         x = q[:, j - 1]
         if np.ptp(x) < 1e-6:
             continue
         for at in np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2)[1:-1]):
             for side in (1, -1):
                 for pw in HINGE_POWERS:
-                    atoms.append(hinge_atom(j, float(at), side, pw, float(max(0.5 * np.ptp(x), 1e-9))))
+                    atoms.append(hinge_atom(j, float(at), side, pw, float(max(0.5 * np.ptp(x), 1e-9)),
+                                            prismatic=not revolute[j - 1], words=jw(j)))
     # the flange stops short of (or beyond) its target along its last move (settling): a displacement in the
     # base frame along the direction of the last Cartesian move
     tcp = [0.0, 0.0, 0.0] if plate_spheres is None else np.mean(np.asarray(plate_spheres, float), axis=0).tolist()
     atoms.append(Atom("unnamed", "param", "base_along", tuple({"kind": "cartdir", "axis": a, "tcp": tcp} for a in range(3)),
                       "direction of the last Cartesian move", "unnamed: the flange is displaced along its last Cartesian move",
                       "generic"))
-    for sph in range(3):
+    for sph in range(0 if plate_spheres is None else len(plate_spheres)):
         # a sphere that moves on the plate with the direction of gravity (loose in its seat, a flexing holder)
         atoms.append(Atom("unnamed", "plate", f"sphere{sph}", tuple({"kind": "gdir", "axis": ax} for ax in range(3)),
                           "gravity_dir_flange", f"unnamed: sphere {sph} moves on the plate with the gravity direction",

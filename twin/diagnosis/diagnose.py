@@ -66,6 +66,10 @@ __all__ = [
     "decide",
     "report_before_after",
     "describe_terms",
+    "implausible_size",
+    "evidence_scale",
+    "link_lengths",
+    "dictionary_parameters",
     "name_effects",
     "error_stats",
     # re-exported: the floor and the test are part of what diagnose returns
@@ -82,6 +86,13 @@ _DEG = np.pi / 180.0
 DEFAULT_HOLDOUT = 0.3  # held-out fraction without a 'set' column (and no holdout given)
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
+# on the 6R industrial arms (cycloidal and harmonic drives)
+# [rad] the same for any other chain (a URDF's: service and mobile manipulators whose wrist and belt stages show up
+# to a degree of play; set after the TIAGo wrist's 0.63 deg backlash, confirmed on its other day, exceeded 0.5 deg)
+JOINT_MAX_CHAIN = 1.0 * np.pi / 180
+# [rad] largest variation over the rows of a deflection under a known load (compliance or a support's tilt under the
+# chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
+LOAD_MAX = 1.0 * np.pi / 180
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
 REPORT_EVERY = 5  # every fifth held-out visit is a report row (the others confirm the terms: they need the power)
 REPORT_MIN_VISITS = 20  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
@@ -183,9 +194,9 @@ class Selection:
 
 
 def _unmask(r: np.ndarray, model: ExtendedModel) -> np.ndarray:
-    """Whitened sphere residuals back to ``(n, 3, 3)`` [m] (order of ``absolute_residuals``)."""
+    """Whitened point residuals back to ``(n, K, 3)`` [m] (order of ``absolute_residuals``)."""
     obs = model.obs
-    shape = (3, 3, obs.n)
+    shape = (obs.spheres.shape[1], 3, obs.n)
     mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
     tmp = np.zeros(shape)
     tmp[mask] = model.unwhiten(r)
@@ -197,19 +208,19 @@ def _stats(e: np.ndarray) -> dict[str, float]:
 
 
 def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
-    """Error statistics of ``model`` at ``z`` on its rows: 3-D sphere-centre error [mm], and the plate
-    orientation error [deg] between rigid fits of the plate to the measured and to the predicted spheres
-    (rows with all three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
+    """Error statistics of ``model`` at ``z`` on its rows: 3-D point error [mm], and the marker set's (plate's)
+    orientation error [deg] between rigid fits of it to the measured and to the predicted points (rows with all
+    of them, at least three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
     _, phis = model.split(z)
     obs = model.effective_obs(phis)
     res = model.residuals(z, jacobian=False)
-    diff = _unmask(res.r, model)  # measured - predicted (n, 3, 3) [m], zero where not seen
+    diff = _unmask(res.r, model)  # measured - predicted (n, K, 3) [m], zero where not seen
     rows = np.ones(obs.n, bool) if keep is None else keep
     seen = obs.seen & rows[:, None]
     e3 = np.linalg.norm(diff, axis=-1)[seen]
     out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
     full = seen.all(axis=1)
-    if full.any():
+    if full.any() and obs.spheres.shape[1] >= 3:
         meas = obs.spheres[full]
         pred = meas - diff[full]
         A = np.broadcast_to(model.obs.spheres_tool, meas.shape)
@@ -236,6 +247,7 @@ def diagnose(
     z_min: float = 3.0,
     generic: bool = True,
     q_start: np.ndarray | None = None,
+    geometry: dict | None = None,
     callback: Callable[[CandidateScore], None] | None = None,
 ) -> DiagnosisResult:
     """Diagnose ``dataset`` (see the module docstring for the steps and their statistics).
@@ -246,7 +258,9 @@ def diagnose(
     ``max_effects``: most atoms kept. ``alpha_select``: family-wise false-selection rate per round (each pool
     Bonferroni-adjusted). ``z_min``: held-out confirmation threshold (terms and the neighbour smoothers).
     ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
-    when known (otherwise the first row's approach is unknown).
+    when known (otherwise the first row's approach is unknown). ``geometry``: options of the geometric
+    identification (:func:`twin.estimator.methods.identify_best`: ``level``, ``selection``; default the estimator's
+    own), e.g. ``{"selection": "figaroh"}``.
     """
     if not (0 < alpha < 0.5):
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha!r}")
@@ -254,11 +268,14 @@ def diagnose(
         raise ValueError(f"alpha_select must be in (0, 0.5), got {alpha_select!r}")
     if not (isinstance(max_effects, (int, np.integer)) and max_effects >= 0):
         raise ValueError(f"max_effects must be a non-negative integer, got {max_effects!r}")
-    setup = prepare_diagnosis(dataset, calibration=calibration, holdout=holdout, seed=seed, q_start=q_start)
+    setup = prepare_diagnosis(dataset, calibration=calibration, holdout=holdout, seed=seed, q_start=q_start,
+                              geometry=geometry)
     prob = setup.problem
     base = fit_geometry(prob, setup.x0)
     test0 = prob.test(base)
     excess = test0.p_value < alpha
+    if excess and setup.floor.lower_bound:
+        setup.notes.append(evidence_scale(prob, base))
     sel = Selection(base)
     if excess and max_effects > 0:
         pool, sizes = atom_pool(setup, generic=generic)
@@ -348,7 +365,7 @@ def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, every: int =
 
 
 def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = None, holdout: float | None = None,
-                      seed: int = 0, q_start: np.ndarray | None = None) -> Setup:
+                      seed: int = 0, q_start: np.ndarray | None = None, geometry: dict | None = None) -> Setup:
     """Step 1: the floor, the rows (split, held-out blocks), the geometric identification and the problem."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
@@ -376,15 +393,37 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=holdout or 0.0, seed=seed)
     if prep.val.size == 0:
         raise DiagnosisError("diagnosis needs held-out rows with measurements; none are usable")
-    ident = identify_best(prep, alpha=1e-6)
+    geo_opts = dict(geometry or {})
+    bad = sorted(set(geo_opts) - {"level", "selection"})
+    if bad:
+        raise ValueError(f"geometry: unknown options {bad}; known: level, selection")
+    # the outlier rule needs the scatter a correct model leaves: not against a floor that is only a lower bound of it
+    ident = identify_best(prep, alpha=1e-6, **({"robust": False} if floor.lower_bound else {}), **geo_opts)
+    if geo_opts:
+        notes.append("geometric model: " + ", ".join(f"{k} {v}" for k, v in sorted(geo_opts.items())))
     if calibration is not None:
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
-    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM})
+    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM, **geo_opts})
     ctx = row_context(dataset, q_start)
     held = split_held_out(dataset, prep, ctx)
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report)
     return Setup(dataset, virtual, floor, prep, np.asarray(ident.x, float), geo, ctx, held, prob, notes)
+
+
+def evidence_scale(prob: Problem, base: Fit) -> str:
+    """When the floor is only a lower bound of the scatter a correct model leaves (a motion-capture system's marker
+    noise: the robot's own pose-to-pose scatter is not in it), a term's calibration evidence is measured against
+    the geometric fit's residual scatter: ``prob.evidence_scale = max(1, chi2 / (m - p))`` on the kept calibration
+    residuals (``Delta chi2 / scale``; the structure test keeps the floor). Returns the note saying so."""
+    rc = base.model_cal.residuals(base.z, jacobian=False)
+    w = prob.w_cal[rc.row]
+    m = float(np.sum(w > 0))
+    dof = max(m - base.free.size, 1.0)
+    prob.evidence_scale = max(1.0, float(base.chi2) / dof)
+    return (f"the floor is a lower bound of the scatter (the marker noise, not the robot's pose-to-pose scatter): a "
+            f"term's evidence is measured against the geometric fit's residual scatter, {np.sqrt(prob.evidence_scale):.2f}x "
+            "the floor per coordinate")
 
 
 def fit_geometry(prob: Problem, x0: np.ndarray) -> Fit:
@@ -399,17 +438,44 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     """The atoms selection draws from (the catalogue, the cyclic scan, and with ``generic`` the dictionary) and
     the size of each pool (its Bonferroni factor)."""
     prep, ctx, ds = setup.prep, setup.ctx, setup.dataset
-    length_names = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
-    cat = catalogue_atoms(prep.nominal, ctx, length_names)
+    length_names = link_lengths(prep.nominal)
+    cat = catalogue_atoms(prep.nominal, ctx, length_names, n_points=ds.spheres.shape[1])
     pool = list(cat)
     if generic:
-        pnames = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
-        pool += generic_atoms(prep.nominal, ctx, pnames, length_names, cat, points=None if setup.virtual else ds.spheres,
-                              plate_spheres=ds.plate.spheres_flange)
+        pool += generic_atoms(prep.nominal, ctx, dictionary_parameters(prep.nominal), length_names, cat,
+                              points=None if setup.virtual else ds.spheres, plate_spheres=ds.plate.spheres_flange)
     if setup.virtual:
         pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
     sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
     return pool, sizes
+
+
+def link_lengths(model) -> list[str]:
+    """The link lengths thermal atoms may grow: ``d<i>``, ``a<i>`` of a 6R chain; the origin translation of each joint
+    of a ``"urdf"`` chain as a whole (``"<joint>.xyz"``)."""
+    if model.convention != "urdf":
+        return [n for n in model.structure.param_names if n.rstrip("0123456789") in ("d", "a")]
+    return [f"{j.name}.xyz" for j in model.structure.joints]
+
+
+def dictionary_parameters(model) -> list[str]:
+    """Structural parameters the unnamed dictionary lets vary (the joint offsets are the joint places): ``d``, ``a``,
+    ``alpha``, ``beta`` of a 6R chain; a ``"urdf"`` chain's origin translations and rotations, except the one that
+    moves like the joint itself (the rotation about a revolute joint's axis, the translation along a prismatic
+    one's, when the axis is a coordinate axis of the joint frame)."""
+    st = model.structure
+    if model.convention != "urdf":
+        return [n for n in st.param_names if n.rstrip("0123456789") in ("d", "a", "alpha", "beta")]
+    out = []
+    for fam in ("x", "y", "z", "rx", "ry", "rz"):
+        for j in st.joints:
+            ax = np.abs(np.asarray(j.axis))
+            k = int(np.argmax(ax))
+            same = ("r" if j.kind == "revolute" else "") + "xyz"[k]
+            if fam == same and abs(ax[k] - 1.0) < 1e-12:
+                continue
+            out.append(f"{j.name}.{fam}")
+    return out
 
 
 def _slot(atom: Atom) -> str:
@@ -649,13 +715,34 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
                  "the plate's own terms and the plate-distance floor do not apply")
 
 
+def implausible_size(prob: Problem, atom: Atom, phi: np.ndarray) -> str | None:
+    """Why the named ``atom`` with the values ``phi`` ``(K,)`` (SI per unit of its features) has a size that is not
+    physical for its family (:func:`_implausible`'s rules), or None."""
+    from types import SimpleNamespace
+
+    phi = np.asarray(phi, dtype=float)
+    return _implausible(prob, SimpleNamespace(atom=atom, basis=np.eye(phi.size), psi=phi))
+
+
 def _implausible(prob: Problem, s) -> str | None:
     """Why a named (catalogue) atom's fitted size is not physical for its family, or None: thermal growth of more
     than ``THERMAL_MAX`` over the rows (a short link's huge growth stands for something else: on a blind
     campaign 3,500 ppm of a4 took the place of a joint offset jumping at restarts), a joint error beyond
-    ``JOINT_MAX``. Unnamed atoms make no physical claim and are not checked."""
+    ``JOINT_MAX`` (``JOINT_MAX_CHAIN`` on a ``"urdf"`` chain), a deflection under the chain's own weight varying by
+    more than ``LOAD_MAX``. Unnamed atoms make no physical claim and are not checked."""
     a = s.atom
     if a.pool == "generic":
+        return None
+    if any(f.get("kind") in ("torque", "moment") for f in a.features):
+        # a deflection under the load the chain's masses give: its variation over the rows (the constant part is
+        # the geometry's), per axis for a tilt
+        F = prob.features(a)[prob.rows_cal]
+        phi = s.basis @ s.psi
+        eff = F * phi if a.place == "param" else (F @ phi)[:, None]
+        dev = float(np.max(np.abs(eff - eff.mean(axis=0)))) if eff.size else 0.0
+        if dev > LOAD_MAX:
+            return (f"implausible for {a.family} under the chain's own weight: {dev / _DEG:.3f} deg of variation over the "
+                    f"rows (more than {LOAD_MAX / _DEG:.1f} deg)")
         return None
     eff = prob.features(a)[prob.rows_cal] @ (s.basis @ s.psi) if a.place in ("length", "joint") else None
     if eff is None or eff.size == 0:
@@ -663,8 +750,9 @@ def _implausible(prob: Problem, s) -> str | None:
     if a.place == "length" and float(np.ptp(eff)) > THERMAL_MAX:
         return (f"implausible for thermal growth: {np.ptp(eff) * 1e6:.0f} ppm over the rows (more than "
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
-    if a.place == "joint" and float(np.max(np.abs(eff))) > JOINT_MAX:
-        return f"implausible for {a.family}: {np.max(np.abs(eff)) / _DEG:.3f} deg (more than {JOINT_MAX / _DEG:.1f} deg)"
+    cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
+    if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
+        return f"implausible for {a.family}: {np.max(np.abs(eff)) / _DEG:.3f} deg (more than {cap / _DEG:.1f} deg)"
     return None
 
 
@@ -804,6 +892,14 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         if a.place == "param" and a.target == "base_along":
             size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
             words = f"{phi[0] / _MM:+.5f} +- {sd[0] / _MM:.5f} mm along the direction of its last move"
+        elif a.place == "param" and a.target.startswith("tilt"):
+            tilt = F * phi  # (n, axes) [rad]: one compliance per axis of the pivot frame
+            rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
+            axes = [("xyz"[f["axis"]]) for f in a.features]
+            size = {"rms": rms * fac, "sd": None, "unit": unit,
+                    "compliance_mrad_per_nm": (phi * 1e3).tolist(), "compliance_sd_mrad_per_nm": (sd * 1e3).tolist()}
+            words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
+                     + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
         elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
             size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
@@ -850,6 +946,8 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             value, value_sd, vunit = size["amplitude"], size["amplitude_sd"], unit
         elif len(phi) == 1 and a.place not in ("plate", "field"):
             value, value_sd, vunit = float(phi[0] * fac), float(sd[0] * fac), f"{unit} per unit of {a.channel}"
+        elif "compliance_mrad_per_nm" in size:
+            value, value_sd, vunit = size["rms"], None, f"{unit} RMS tilt"
         elif "rms" in size:
             value, value_sd, vunit = size["rms"], size["sd"], f"{unit} RMS"
         elif "rms_mm" in size:
@@ -860,7 +958,8 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
                  "value": value, "value_sd": value_sd, "value_unit": vunit,
                  "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
                  "entry_chi2": (entry_chi2 or {}).get(a.key, wald),
-                 "minor": bool(np.sqrt((entry_chi2 or {}).get(a.key, wald) / max(J.shape[0], 1)) < MINOR_RMS),
+                 "minor": bool(np.sqrt((entry_chi2 or {}).get(a.key, wald) / prob.evidence_scale / max(J.shape[0], 1))
+                               < MINOR_RMS),
                  "size": size, "text": f"{a.label}: {words}",
                  "unit": "SI per unit of each feature: rad (joint), relative (length, scale), m (plate), m or rad (param)"}
         out.append(entry)
@@ -920,7 +1019,8 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
         terms[a.label] = {"value": np.concatenate(vals)[order], "unit": unit, "channel": a.channel}
     out["terms"] = terms
     ctx = prob.ctx
-    out["q_deg"] = ctx.q[rows_val] / _DEG
+    # deg, mm for a prismatic joint
+    out["q_deg"] = ctx.q[rows_val] / np.where(prob.prep.nominal.is_prismatic, _MM, _DEG)
     out["approach_sign"] = history_signs(ctx)[rows_val]
     if ctx.temp_c is not None:
         out["temp_c"] = ctx.temp_c[rows_val]
@@ -938,6 +1038,8 @@ def _term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
         return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
     if t.atom.target == "base_along":
         return np.linalg.norm(t.F, axis=1) * phi[0] / _MM
+    if t.atom.place == "param" and t.atom.target.startswith("tilt"):
+        return np.linalg.norm(t.F * phi, axis=1) * fac
     if t.atom.place == "field":
         obs = model.obs
         disp = np.linalg.norm(np.einsum("nskc,k->nsc", model.field_grid(t.atom) * t.F[:, None, :, None], phi), axis=2)
@@ -961,14 +1063,17 @@ class EffectFit:
     test_after: StructureTest
     effect_parameters: dict[str, Any]
     noise: NoiseFloor
+    calibration_geometric: Calibration | None = None
+    calibration: Calibration | None = None
 
 
 def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = None, seed: int = 0,
-                     q_start: np.ndarray | None = None) -> EffectFit:
+                     q_start: np.ndarray | None = None, geometry: dict | None = None) -> EffectFit:
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
     from the geometry kept) on the calibration rows, and report on the report rows :func:`diagnose` would use
     (:func:`split_held_out`; the confirmation rows when there is no report block). An entry may also be a
-    catalogue family's name: every atom of that family (per joint, per link)."""
+    catalogue family's name: every atom of that family (per joint, per link). Returns also the geometric and
+    the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:
@@ -976,7 +1081,7 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
     bad = [a for a in atoms if not isinstance(a, (Atom, str))]
     if bad:
         raise ValueError(f"atoms must be twin.diagnosis.atoms.Atom or catalogue family names, got {bad[0]!r}")
-    setup = prepare_diagnosis(dataset, holdout=holdout, seed=seed, q_start=q_start)
+    setup = prepare_diagnosis(dataset, holdout=holdout, seed=seed, q_start=q_start, geometry=geometry)
     prep, ctx, prob = setup.prep, setup.ctx, setup.problem
     # a catalogue family given by name stands for all its atoms
     fams = {a for a in atoms if isinstance(a, str)}
@@ -984,8 +1089,8 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:
             raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
-        lengths = [n for n in prep.space.names[: prep.space.n_robot] if n.rstrip("0123456789") in ("d", "a")]
-        cat = [a for a in catalogue_atoms(prep.nominal, ctx, lengths) if a.family in fams and a.target != "all_lengths"]
+        cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
+               if a.family in fams and a.target != "all_lengths"]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)
@@ -995,7 +1100,10 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         E = raw_columns(base.model_cal, a, prob.features(a)[prob.rows_cal], base.z, rc)
         chosen.append((a, reduced_basis(E, Q=Q, rel_tol=1e-6, max_rank=40)))
     fit = prob.fit(setup.x0, chosen)
-    _, params = describe_terms(prob, fit)
+    atoms_json, params = describe_terms(prob, fit)
+    P = prep.space.size
+    geo = replace(setup.geometric, x=base.z[:P])
+    ext = replace(setup.geometric, method="best+effects", x=fit.z[:P], effects=tuple(atoms_json))
     block = "rep" if prob.obs_rep is not None else "val"
     mb, mf = prob.model([], block), prob.model(chosen, block)
     keep = np.ones(mb.obs.n, bool)
@@ -1006,8 +1114,11 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         test_after=prob.test(fit, mf, keep),
         effect_parameters=params,
         noise=setup.floor,
+        calibration_geometric=geo,
+        calibration=ext,
     )
 
 
 # Vocabulary check at import: every catalogue name is documented.
-assert set(EFFECT_VOCABULARY) == {"compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal", "plate_geometry"}
+assert set(EFFECT_VOCABULARY) == {"compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal", "plate_geometry",
+                                  "tilt"}

@@ -28,7 +28,7 @@ import numpy as np
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
 from .atoms import Atom
 
-__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights"]
+__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,20 +48,68 @@ class AtomTerm:
         return self.basis.shape[1]
 
 
+def joint_index(space: ParamSpace, target: str) -> tuple[int, float]:
+    """The parameter a joint atom's target (``"theta<j>"``, 1-based) moves, and the sign with which the
+    commanded joint enters it (a joint atom adds to the commanded joint)."""
+    st = space.chain.structure
+    if st.convention != "urdf":
+        return space.index(target), 1.0
+    j = int(target[5:])
+    return space.index(st.joint_params[j - 1]), float(st.joint_signs[j - 1])
+
+
+def length_indices(space: ParamSpace, target: str) -> np.ndarray:
+    """Indices of the lengths a length atom's target grows: ``"all_lengths"`` (every ``d``/``a``; every origin
+    translation of a ``"urdf"`` chain), one length (``"a2"``) or one joint's origin translation
+    (``"<joint>.xyz"``, its three components together)."""
+    if target == "all_lengths":
+        fams = ("d", "a") if space.chain.structure.convention != "urdf" else ("x", "y", "z")
+        return np.concatenate([space.family(f) for f in fams])
+    if target.endswith(".xyz"):
+        j = target[: -len(".xyz")]
+        return np.array([space.index(f"{j}.{c}") for c in "xyz"])
+    return np.array([space.index(target)])
+
+
+def tilt_weights(space: ParamSpace, x: np.ndarray, target: str) -> np.ndarray:
+    """``(P, 2)``: the parameter directions of a rotation about the x and y axes of a tilt's pivot frame (target
+    ``"tilt<i>"``): for a joint ``i >= 1`` of a ``"urdf"`` chain its origin rotations ``rx``, ``ry`` (rotations about
+    the axes of its origin frame, through its origin); for ``i = 0`` a rotation of the robot's base about its own
+    x and y axes through its origin, i.e. of every station's ``base2meas`` on the right: ``R exp([d]) = R(r + dr)``
+    with ``dr = J_r(r)^-1 d`` (``J_r(r) = J_l(r)^T``, :func:`twin.transforms.left_jacobian_so3`)."""
+    i = int(target[4:])
+    w = np.zeros((space.size, 2))
+    if i == 0:
+        from ..transforms import left_jacobian_so3
+
+        for k in range(len(space.stations)):
+            sl = space.base_slice(k)
+            Jr_inv = np.linalg.inv(left_jacobian_so3(x[sl.start + 3:sl.stop]).T)
+            w[sl.start + 3:sl.stop, :] = Jr_inv[:, :2]
+        return w
+    name = space.chain.structure.joint_names[i - 1]
+    w[space.index(f"{name}.rx"), 0] = 1.0
+    w[space.index(f"{name}.ry"), 1] = 1.0
+    return w
+
+
 def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
     """``(P, c)``: the parameter-space direction(s) an atom's place moves per unit of one feature
-    (``c = 6`` for the tool/base frames, else 1)."""
+    (``c = 6`` for the tool/base frames, ``c = 2`` for a tilt (one per feature, :func:`tilt_weights`), else 1)."""
     P = space.size
     t = atom.target
     if atom.place == "joint":
         w = np.zeros((P, 1))
-        w[space.index(t), 0] = 1.0
+        idx, sign = joint_index(space, t)
+        w[idx, 0] = sign
         return w
     if atom.place == "length":
         w = np.zeros((P, 1))
-        idx = np.concatenate([space.family("d"), space.family("a")]) if t == "all_lengths" else [space.index(t)]
+        idx = length_indices(space, t)
         w[idx, 0] = x[idx]
         return w
+    if atom.place == "param" and t.startswith("tilt"):
+        return tilt_weights(space, x, t)
     if atom.place == "param":
         if t == "tool":
             w = np.zeros((P, 6))
@@ -99,10 +147,11 @@ class ExtendedModel:
         self.terms = list(terms)
         # per-axis noise of the measurement frame: residual c is whitened by axis_sigma[c] instead of the
         # observations' scalar sigma (a stereo instrument is worse in depth)
-        shape = (3, 3, obs.n)
+        K = obs.spheres.shape[1]
+        shape = (K, 3, obs.n)
         mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
         self._crd = np.broadcast_to(np.arange(3)[None, :, None], shape)[mask]
-        self._sph = np.broadcast_to(np.arange(3)[:, None, None], shape)[mask]
+        self._sph = np.broadcast_to(np.arange(K)[:, None, None], shape)[mask]
         self._elem_row = np.broadcast_to(np.arange(obs.n)[None, None, :], shape)[mask]
         self._field_cache: dict[str, np.ndarray] = {}
         self._f = (np.ones(self._crd.size) if axis_sigma is None
@@ -134,7 +183,7 @@ class ExtendedModel:
         for the others (a displacement along the last move, a field)."""
         a = atom
         if a.place in ("joint", "length", "param"):
-            if a.target == "base_along":
+            if a.target == "base_along" or a.target.startswith("tilt"):
                 return None
             return res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
         if a.place == "plate":
@@ -152,6 +201,9 @@ class ExtendedModel:
         if a.place == "param" and a.target == "base_along":
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 3)
             return np.sum(Fr * base, axis=1, keepdims=True)  # along the row's direction, one coefficient
+        if a.place == "param" and a.target.startswith("tilt"):
+            # one rotation axis of the pivot per feature (the moment about that axis): a diagonal compliance
+            return Fr * (res.J[:, : self.space.size] @ param_weights(self.space, x, a))
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
         base = self.product_base(a, x, obs, res)
@@ -160,19 +212,20 @@ class ExtendedModel:
         return (Fr[:, :, None] * base[:, None, :]).reshape(len(res.r), -1)
 
     def field_grid(self, a: Atom) -> np.ndarray:
-        """``G_k`` ``(n, 3 spheres, K, 3)`` of a field atom at every row's measured sphere centres (zero where a
-        sphere was not seen; the view fields take each row's plate normal from its measured spheres)."""
+        """``G_k`` ``(n, points, K, 3)`` of a field atom at every row's measured points (zero where a point was not
+        seen; the view fields take each row's plate normal from its measured points)."""
         key = repr(a.features)
         G = self._field_cache.get(key)
         if G is None:
             from .field import field_values, plate_normals, station_mask
 
             obs = self.obs
-            pts = np.where(obs.seen[..., None], obs.spheres, np.array([0.0, 0.0, 1.0]))  # (n, 3, 3)
+            K = obs.spheres.shape[1]
+            pts = np.where(obs.seen[..., None], obs.spheres, np.array([0.0, 0.0, 1.0]))  # (n, K, 3)
             n_tool = next((f["n_tool"] for f in a.features if "n_tool" in f), None)
             nrm = None if n_tool is None else np.repeat(
-                plate_normals(obs.spheres, obs.seen, obs.spheres_tool, n_tool), 3, axis=0)
-            G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(obs.n, 3, len(a.features), 3)
+                plate_normals(obs.spheres, obs.seen, obs.spheres_tool, n_tool), K, axis=0)
+            G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(obs.n, K, len(a.features), 3)
             G = np.where(obs.seen[:, :, None, None], G, 0.0)
             G = G * station_mask(a.features, np.asarray(obs.station_names)[obs.station])[:, None, :, None]
             self._field_cache[key] = G
@@ -227,9 +280,10 @@ class ExtendedModel:
         pts = np.concatenate([np.zeros((1, 3)), np.eye(3)])
         P, _ = predict_points(self.space, x, obs.q, obs.station, pts)
         R = np.swapaxes(P[:, 1:] - P[:, :1], 1, 2)  # (n, 3, 3): columns are the tool axes
-        shape = (3, 3, obs.n)
+        K = obs.spheres.shape[1]
+        shape = (K, 3, obs.n)
         mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
-        sph = np.broadcast_to(np.arange(3)[:, None, None], shape)[mask]
+        sph = np.broadcast_to(np.arange(K)[:, None, None], shape)[mask]
         crd = np.broadcast_to(np.arange(3)[None, :, None], shape)[mask]
         E = np.zeros((res.r.size, 3))
         sel = sph == sphere

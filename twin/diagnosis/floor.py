@@ -18,6 +18,7 @@ The floor per axis is the largest estimate available; its scalar ``sigma`` is th
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,7 +26,9 @@ import numpy as np
 from ..dataset import Dataset
 from .candidates import RowContext
 
-__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "history_resets", "row_resets", "row_context"]
+__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
+           "history_resets",
+           "row_resets", "row_context"]
 
 _MM = 1e-3
 ANISOTROPY_MIN = 1.5  # a stated figure is spread over the axes only when they differ by this factor or more
@@ -41,7 +44,9 @@ class NoiseFloor:
     """Measurement noise ``sigma`` [m] per sphere coordinate (RMS over the axes), per axis of the measurement
     frame ``axis_sigma`` ``(3,)`` [m] (None: isotropic), its degrees of freedom (``inf`` when stated), where
     it came from, how many repeat groups there were, and every estimate available (``components``:
-    ``repeats``, ``plate``, ``stated`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``)."""
+    ``repeats``, ``plate``, ``stated``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``);
+    ``lower_bound``: the floor is set by the instrument's marker noise alone (``marker_std``), which the robot's own
+    pose-to-pose scatter may exceed (no repeats measured it)."""
 
     sigma: float
     dof: float
@@ -49,6 +54,7 @@ class NoiseFloor:
     groups: int
     components: dict = field(default_factory=dict)
     axis_sigma: np.ndarray | None = None
+    lower_bound: bool = False
 
 
 def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
@@ -63,7 +69,7 @@ def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
         if j - k >= 2:
             block = ds.spheres[k:j]
             seen = ds.sphere_seen[k:j]
-            for s in range(3):
+            for s in range(block.shape[1]):
                 rows = seen[:, s]
                 if rows.sum() >= 2:
                     v = block[rows, s]
@@ -93,7 +99,7 @@ def _row_regressors(ds: Dataset, full: np.ndarray) -> np.ndarray:
 
 def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.ndarray], rows: np.ndarray,
                           alpha: float = 0.01) -> tuple[list[np.ndarray], list[np.ndarray], dict | None]:
-    # P (n_full, 3, 3): the plate's nominal sphere centres rigidly fitted to each row's measured ones
+    # P (n_full, K, 3): the plate's nominal sphere centres rigidly fitted to each row's measured ones
     """Remove from the distance deviations what varies systematically, when an F-test finds it (``p < alpha``):
     with the plate's place in the measurement field (the instrument's distortion or a scale changing with depth
     moves the three distances together with the place; :mod:`twin.diagnosis.field`; only in a line-of-sight
@@ -106,7 +112,9 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
              if field_applicable(P) else ())
     cols, ys = [], []
     nr = rows.shape[1]
-    for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+    pairs = _pairs(P.shape[1])
+    npair = len(pairs)
+    for k, (a, b) in enumerate(pairs):
         # the fields at the rigid fit of the nominal plate (P is that): evaluated at the measured centres, a
         # field close to a scale would reproduce the measured distance, noise and all, and empty the floor
         pa, pb = P[keep[k], a], P[keep[k], b]
@@ -115,9 +123,9 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
         C = (np.einsum("mkc,mc->mk", field_values(feats, pa) - field_values(feats, pb), u) if feats
              else np.zeros((len(u), 0)))
         # the pair's own constant and its own response to the row regressors
-        own = np.zeros((len(u), 3 * (1 + nr)))
+        own = np.zeros((len(u), npair * (1 + nr)))
         own[:, k] = 1.0
-        own[:, 3 + k * nr:3 + (k + 1) * nr] = rows[keep[k]]
+        own[:, npair + k * nr:npair + (k + 1) * nr] = rows[keep[k]]
         cols.append(np.hstack([own, C]))
         ys.append(dev[k])
     A, y = np.vstack(cols), np.concatenate(ys)
@@ -129,7 +137,7 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     Q = Q[:, :rank]
     fit = Q @ (Q.T @ y)
     res = y - fit
-    n, p3 = len(y), 3  # three pair constants
+    n, p3 = len(y), npair  # the pairs' constants
     ss0 = float(np.sum((y - y0) ** 2))
     ss1 = float(res @ res)
     dfn, dfd = rank - p3, n - rank
@@ -151,20 +159,26 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
                        "parameters": dfn}
 
 
+def _pairs(K: int) -> list[tuple[int, int]]:
+    """The pairs of a marker set's ``K`` points, in order (``(0, 1), (0, 2), (1, 2)`` for the plate)."""
+    return list(itertools.combinations(range(K), 2))
+
+
 def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarray] | None:
-    """Per-axis centre error ``(3,)`` [m] from the spread of the three inter-sphere distances over the
-    campaign (module docstring), its degrees of freedom, the systematic variation of the distances over
-    the measurement field that was taken out first (None if none was found) and each axis' lever ``(3,)`` (the
-    mean squared component of the distances' directions along it: how well the axis is measured); None with
-    fewer than 10 complete rows."""
+    """Per-axis centre error ``(3,)`` [m] from the spread of the inter-point distances of the marker set (the
+    plate's three inter-sphere distances) over the campaign (module docstring), its degrees of freedom, the
+    systematic variation of the distances over the measurement field that was taken out first (None if none was
+    found) and each axis' lever ``(3,)`` (the mean squared component of the distances' directions along it: how
+    well the axis is measured); None with fewer than 10 complete rows or fewer than two points."""
     from scipy.optimize import nnls
 
     full = ds.sphere_seen.all(axis=1)
-    if full.sum() < 10:
+    K = ds.spheres.shape[1]
+    if full.sum() < 10 or K < 2:
         return None
     P = ds.spheres[full]
     keeps, devs, us, var_iso = [], [], [], []
-    for a, b in ((0, 1), (0, 2), (1, 2)):
+    for a, b in _pairs(K):
         v = P[:, a] - P[:, b]
         d = np.linalg.norm(v, axis=1)
         dev = d - np.median(d)
@@ -187,8 +201,10 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarra
     # an axis the distances barely point along is not measured: it gets at least the isotropic figure
     lever = X.mean(axis=0) / 2
     s2 = np.where((lever < 0.01) | (s2 <= 0), np.maximum(s2, iso), s2)
-    # three distances of one row share their spheres: about two independent values per row
-    return np.sqrt(s2), float(2 * (full.sum() - 1)), systematic, lever
+    # three distances of one row share their spheres: about two independent values per row (K points: the
+    # 3 K - 6 distances of a rigid set, one value for a pair)
+    per_row = 2 if K == 3 else max(3 * K - 6, 1)
+    return np.sqrt(s2), float(per_row * (full.sum() - 1)), systematic, lever
 
 
 def _stated_axes(sig: float, pl: tuple | None) -> tuple[np.ndarray, str]:
@@ -240,6 +256,11 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     if stated_ok and ds.noise_position is not None:
         stated, how = _stated_axes(float(ds.noise_position), pl)
         comps["stated"] = (stated, float("inf"), f"dataset.toml [noise] position_mm (stated){how}")
+    ms = marker_noise(ds)
+    if ms is not None:
+        comps["marker_std"] = (np.full(3, ms[0]), float("inf"),
+                               f"the rows' {MARKER_STD_COLUMN} column (the instrument's per-row marker noise, RMS over "
+                               f"{ms[1]} rows)")
     if not comps:
         raise DiagnosisError(
             "diagnosis needs the measurement noise floor: repeat some configurations (measure the same commanded "
@@ -264,15 +285,60 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
                       "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
     if systematic is not None:
         components["plate"]["systematic"] = systematic
-    return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis)
+    return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
+
+
+MARKER_STD_COLUMN = "marker_std_mm"  # optional poses.csv column: the instrument's marker noise of the row [mm]
+
+
+def marker_noise(ds: Dataset) -> tuple[float, int] | None:
+    """The noise per point coordinate [m] a motion-capture system reports per row (column ``marker_std_mm``: the
+    standard deviation of the markers over the row's averaging window), as the RMS over the rows with points,
+    and the number of those rows; None without the column. An upper bound of the averaged point's noise (the
+    window averages many samples), and what a rigid body's virtual points cannot give: their distances are
+    constant by construction. ``ValueError`` naming the row when a value is not a finite number >= 0."""
+    raw = ds.extra.get(MARKER_STD_COLUMN)
+    if raw is None:
+        return None
+    rows = ds.sphere_seen.any(axis=1) if ds.has_spheres else ds.pose_seen
+    vals = []
+    for k in np.flatnonzero(rows):
+        try:
+            v = float(raw[k])
+        except (TypeError, ValueError):
+            v = float("nan")
+        if not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]}) has {str(raw[k])!r}, expected a "
+                             "finite number >= 0 [mm]")
+        vals.append(v)
+    if not vals:
+        return None
+    return float(np.sqrt(np.mean(np.square(vals)))) * _MM, len(vals)
+
+
+SESSION_COLUMN = "session"  # optional poses.csv column: the recording session of the row (a day, a power cycle)
+
+
+def session_changes(ds: Dataset | np.ndarray | None) -> np.ndarray | None:
+    """Rows ``(n,)`` bool where the ``session`` column (of a dataset, or the column itself ``(n,)``) changes value
+    from the row before (the robot was restarted between them: another day, a power cycle); None without it."""
+    raw = ds.extra.get(SESSION_COLUMN) if isinstance(ds, Dataset) else ds
+    if raw is None:
+        return None
+    v = np.asarray(raw).astype(str)
+    out = np.zeros(len(v), bool)
+    out[1:] = v[1:] != v[:-1]
+    return out
 
 
 def history_resets(ds: Dataset) -> np.ndarray:
-    """Rows ``(n,)`` bool whose approach history is unknown: the first row and rows whose ``status`` says
-    restart/home/power. A pause alone (a gap in ``t_s``) keeps the robot where it stood: its history goes on
-    (a blind campaign's joint offset that followed the last move across a pause was mispredicted at 1.5x its
-    oracle when pauses reset it)."""
-    return row_resets(ds.n, ds.t_s, ds.status)
+    """Rows ``(n,)`` bool whose approach history is unknown: the first row, rows whose ``status`` says
+    restart/home/power and rows that start another ``session`` (a column naming the recording session). A pause
+    alone (a gap in ``t_s``) keeps the robot where it stood: its history goes on (a blind campaign's joint offset
+    that followed the last move across a pause was mispredicted at 1.5x its oracle when pauses reset it)."""
+    out = row_resets(ds.n, ds.t_s, ds.status)
+    ch = session_changes(ds)
+    return out if ch is None else out | ch
 
 
 def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None = None, *, gaps: bool = False,
@@ -297,6 +363,14 @@ def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None 
     return out
 
 
+def _session_starts(ds: Dataset) -> np.ndarray:
+    """Rows ``(n,)`` that start a session: the first, after a long gap in ``t_s`` or a recorded restart
+    (:func:`row_resets` with gaps), where the ``session`` column changes."""
+    out = row_resets(ds.n, ds.t_s, ds.status, gaps=True)
+    ch = session_changes(ds)
+    return out if ch is None else out | ch
+
+
 def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
     """Every row of the dataset in measurement order, with its auxiliary channels and unknown-history rows
     (``q_start``: where the robot stood before the first row, when known)."""
@@ -310,7 +384,7 @@ def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
         t_s=None if ds.t_s is None else ds.t_s.copy(),
         station=ds.station_ids.copy() if ds.station is not None else None,
         history_reset=reset,
-        session_start=row_resets(ds.n, ds.t_s, ds.status, gaps=True),
+        session_start=_session_starts(ds),
         pose_id=np.asarray(ds.pose_id).copy(),
     )
 

@@ -25,7 +25,7 @@ __all__ = [
     "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
     "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
     "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
-    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS",
+    "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights",
 ]
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
@@ -131,6 +131,10 @@ class Problem:
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
+        # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
+        # the geometric fit's residual variance per degree of freedom when the floor is only a lower bound of it
+        # (a motion-capture system's marker noise, below the robot's own pose-to-pose scatter)
+        self.evidence_scale = 1.0
 
     def _key(self, atom: Atom) -> str:
         key = self._keys.get(atom)
@@ -242,7 +246,8 @@ def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
     if len(a.features) > 4:
         return False
-    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along"))
+    return a.place in ("joint", "length", "scale") or (a.place == "param" and a.target not in ("tool", "base", "base_along")
+                                                        and not a.target.startswith("tilt"))
 
 
 def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool_sizes) -> np.ndarray:
@@ -304,7 +309,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
             k = ok.sum(axis=1)
             fine = k > 0
             gi = np.asarray(gi)
-            logp[gi[fine]] = chi2_logsf(d[fine], k[fine])
+            logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
     return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
 
 
@@ -366,7 +371,7 @@ def score_atoms(prob: Problem, fit: Fit, atoms: list[Atom], pool_sizes: dict[str
         fitted = Ep @ psi
         d = float(fitted @ fitted)
         # log of the pool-adjusted p-value (smaller is stronger); chi2.logsf stays finite where sf underflows
-        logp = chi2_logsf(d, B.shape[1]) + np.log(pool_sizes[a.pool])
+        logp = chi2_logsf(d / prob.evidence_scale, B.shape[1]) + np.log(pool_sizes[a.pool])
         out.append(Scored(a, B, psi, d, logp, r, E=EB, Ep=Ep))
     order = {id(a): i for i, a in enumerate(exact)}
     return sorted(out, key=lambda s: order[id(s.atom)])
@@ -431,7 +436,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
                 pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
     if not pending:
         return []
-    logp = chi2_logsf(np.array([p[3] for p in pending]), np.array([p[4] for p in pending]))
+    logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
                    columns=_column_maker(prob, fit, a, rc, keep, sw))
             for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
@@ -439,7 +444,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
 
 def _product(a: Atom) -> bool:
     """Whether an atom's columns are its features times model columns (:meth:`ExtendedModel.product_base`)."""
-    return not (a.place == "field" or (a.place == "param" and a.target == "base_along"))
+    return not (a.place == "field" or (a.place == "param" and (a.target == "base_along" or a.target.startswith("tilt"))))
 
 
 def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
@@ -603,14 +608,23 @@ NEIGHBOURS = 4  # rows a neighbour smoother averages
 JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
 
 
+def joint_weights(n_joints: int) -> np.ndarray:
+    """Weights ``(N,)`` of the joints in the neighbours' distance: the last three (the wrist) ``0.3``, the others 1
+    (``JOINT_WEIGHTS`` for six joints)."""
+    w = np.ones(n_joints)
+    w[max(n_joints - 3, 0):] = 0.3
+    return w
+
+
 def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
-    """Whitened residuals ``(m,)`` as ``(n, 9)`` per row (sphere-major, x y z), NaN where not measured."""
+    """Whitened residuals ``(m,)`` as ``(n, 3 K)`` per row (point-major, x y z), NaN where not measured."""
     obs = model.obs
-    shape = (3, 3, obs.n)
+    K = obs.spheres.shape[1]
+    shape = (K, 3, obs.n)
     mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
     tmp = np.full(shape, np.nan)
     tmp[mask] = r
-    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 9)
+    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 3 * K)
 
 
 def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -630,7 +644,7 @@ def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray
     Rv[~prob.keep_val] = np.nan
     qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
     scale = np.ptp(np.vstack([qc, qv]), axis=0)
-    w = JOINT_WEIGHTS / np.where(scale > 1e-9, scale, 1.0)
+    w = (JOINT_WEIGHTS if qc.shape[1] == 6 else joint_weights(qc.shape[1])) / np.where(scale > 1e-9, scale, 1.0)
     same = np.all(np.abs(qv[:, None, :] - qc[None, :, :]) < 1e-9, axis=2)
     t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
     out = {}
@@ -711,7 +725,7 @@ def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple
             psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
             Ck = C[np.ix_(idx, idx)]
             d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
-            lp = chi2_logsf(d, len(idx)) + np.log(sizes[a.pool])
+            lp = chi2_logsf(d / prob.evidence_scale, len(idx)) + np.log(sizes[a.pool])
             if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
                 worst = (lp, k)
         if worst is not None:
@@ -763,7 +777,7 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
         trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
-        better = top is not None and top.dchi2 - s.dchi2 >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
         if better:
             f_sign = prob.features(s.atom)[prob.rows_cal, 0]
             f_play = prob.features(top.atom)[prob.rows_cal, 0]
@@ -907,7 +921,7 @@ def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int
     psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
     fitted = Ep @ psi
     d = float(fitted @ fitted)
-    if chi2_logsf(max(d - s.dchi2, 0.0), B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+    if chi2_logsf(max(d - s.dchi2, 0.0) / prob.evidence_scale, B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
         return s
     return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
 
@@ -921,6 +935,8 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
         o, n = f"{old:.4g}", f"{v:.4g}"
     elif key == "k":
         o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
+    elif key == "w" and atom.channel.endswith(" mm)"):
+        o, n = f"{old * 1e3:.3g} mm", f"{v * 1e3:.3g} mm"  # a prismatic joint's move width
     else:
         o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
     return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
@@ -931,10 +947,12 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
     from scipy.optimize import minimize_scalar
 
-    from .atoms import HINGE_POINTS, hinge_atom
+    from .atoms import HINGE_POINTS, hinge_atom, joint_words
 
     f0 = s.atom.features[0]
     j = int(f0["ch"][1:])
+    model = prob.prep.nominal
+    prismatic = model.joint_kinds[j - 1] == "prismatic"
     x = prob.ctx.q[:, j - 1]
     grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
     k = int(np.argmin(np.abs(grid - f0["at"])))
@@ -942,7 +960,8 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     best = [s]
 
     def cost(at: float) -> float:
-        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"])], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"], prismatic=prismatic,
+                                                 words=joint_words(model, j))], pool_sizes, exact_top=1)
         if not got:
             return 0.0
         if got[0].dchi2 > best[0].dchi2:

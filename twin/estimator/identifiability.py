@@ -31,7 +31,8 @@ from typing import Literal, Sequence
 import numpy as np
 from scipy import linalg as sla
 
-__all__ = ["Combination", "Identifiability", "analyse_jacobian", "preference_order"]
+__all__ = ["Combination", "Identifiability", "analyse_jacobian", "preference_order", "FigarohSelection",
+           "figaroh_full_selection", "figaroh_joint_names"]
 
 
 @dataclass(frozen=True)
@@ -264,3 +265,130 @@ def analyse_jacobian(
         tol=tol,
         order=order,
     )
+
+
+# ------------------------------------------------------------------------------------------------
+# FIGAROH's full-parameter selection, reproduced on our parameterisation
+# ------------------------------------------------------------------------------------------------
+
+FIGAROH_TOL_QR = 1e-6  # FIGAROH's structural QR tolerance on |diag R| (absolute, unscaled regressor)
+FIGAROH_TOL_EFFECT = 1e-6  # FIGAROH drops regressor columns below this norm ("no effect")
+FIGAROH_TOL_ABSORBED = 1e-4  # FIGAROH's data-level tolerance on the orthogonal part of a unit column
+FIGAROH_COMPONENTS = ("px", "py", "pz", "phix", "phiy", "phiz")
+
+
+def figaroh_joint_names(model, joint: int) -> tuple[str, ...]:
+    """Our parameter for each of FIGAROH's six placement errors of joint ``joint`` (0-based) of a ``"urdf"`` chain,
+    in FIGAROH's order ``d_px, d_py, d_pz, d_phix, d_phiy, d_phiz``. FIGAROH moves a joint placement ``M`` to
+    ``M SE3(exp(phi), p)`` (translation in the joint's origin frame, rotation vector on the right); ours is
+    ``Trans(x, y, z) R RotX RotY RotZ`` (translation in the parent frame): its rotations are ours to first order,
+    its translation ``p_k`` is our translation along ``R[:, k]`` (named by the axis it lies along, exact when the
+    origin's rotation maps axes onto axes). The rotation about a revolute joint's own axis is its offset."""
+    j = model.structure.joints[joint]
+    R = j.origin[:3, :3]
+    ax = np.abs(np.asarray(j.axis))
+    k_ax = int(np.argmax(ax)) if abs(ax.max() - 1.0) < 1e-9 else -1
+    out = []
+    for k in range(3):
+        out.append(f"{j.name}.{'xyz'[int(np.argmax(np.abs(R[:, k])))]}")
+    for k in range(3):
+        out.append(f"{j.name}.offset" if (j.kind == "revolute" and k == k_ax) else f"{j.name}.r{'xyz'[k]}")
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class FigarohSelection:
+    """FIGAROH's full-parameter set on our parameterisation: ``structural`` (the base parameters of its QR on random
+    configurations, in chain order, as FIGAROH names them), ``as_base_frame`` (the first six of them, which FIGAROH
+    replaces by the base frame), ``absorbed`` (dropped on the data: within ``FIGAROH_TOL_ABSORBED`` of the frames
+    and the parameters before them), ``kept`` (our names of what is estimated, frames included)."""
+
+    structural: tuple[str, ...]
+    as_base_frame: tuple[str, ...]
+    absorbed: tuple[str, ...]
+    kept: tuple[str, ...]
+
+
+def figaroh_full_selection(model, J_data: np.ndarray, names: Sequence[str], frames: Sequence[str], *,
+                           n_samples: int, orientation: bool, seed: int = 0) -> FigarohSelection:
+    """FIGAROH's (1.0.2) choice of the parameters of its ``full_params`` level, step by step, on our
+    parameterisation of a ``"urdf"`` chain (``model``: its nominal model):
+
+    1. the structural regressor: the end link's position (and orientation when the measurements see it,
+       ``orientation``) w.r.t. the six placement errors of every joint (:func:`figaroh_joint_names`), at
+       ``n_samples`` configurations drawn uniformly within the joint limits (``[-pi, pi]`` for a revolute joint
+       whose range exceeds a turn; ``np.random.default_rng(seed)``), base and tool known, unscaled (m and rad);
+    2. columns of norm below ``FIGAROH_TOL_EFFECT`` dropped; LAPACK's column-pivoted QR
+       (``scipy.linalg.qr(pivoting=True)``), rank = the pivots with ``|R_kk| > FIGAROH_TOL_QR``, the base
+       parameters taken in column (chain) order;
+    3. the *first six* of them replaced by the base frame (FIGAROH's ``add_base_name``: "the leading base
+       parameters carry the base frame"), so they are not estimated as joint errors;
+    4. on the data, ``J_data`` ``(m, len(names))`` at the start (nominal robot, registered base): columns scaled to
+       unit norm, the frames (``frames``, always kept) first, then the joint parameters in that order; a column is
+       dropped when its part orthogonal to those kept before is below ``FIGAROH_TOL_ABSORBED``
+       (``select_identifiable_parameters``).
+
+    Steps 1-2 give the set of a generic design (any random draw); step 3 drops six directions the base frame does
+    not all absorb, and step 4 the directions these configurations barely excite: together FIGAROH's implicit
+    regularisation by truncation."""
+    from scipy import linalg as sla
+
+    from ..kinematics import pose_jacobian
+
+    if model.convention != "urdf":
+        raise ValueError(f"figaroh selection: model {model.name!r} is not a 'urdf' chain")
+    names = list(names)
+    rng = np.random.default_rng(seed)
+    lo = np.asarray(model.q_min, float).copy()
+    hi = np.asarray(model.q_max, float).copy()
+    wide = (~model.is_prismatic) & (hi - lo > 2 * np.pi)
+    lo[wide], hi[wide] = -np.pi, np.pi
+    q = rng.uniform(lo, hi, (int(n_samples), model.n_joints))
+    m0 = model.with_frames(np.eye(4), np.eye(4))
+    Jp = pose_jacobian(m0, q, frame="base")  # (n, 6, P)
+    rows = Jp if orientation else Jp[:, :3]
+    W = np.transpose(rows, (1, 0, 2)).reshape(-1, Jp.shape[2])  # component-major, as FIGAROH stacks them
+    lay = m0.layout
+    cols, fnames, ours = [], [], []
+    for i, j in enumerate(model.structure.joints):
+        R = j.origin[:3, :3]
+        txyz = W[:, [lay.index(f"{j.name}.{c}") for c in "xyz"]] @ R  # FIGAROH's translation in the origin frame
+        mapped = figaroh_joint_names(model, i)
+        for k in range(3):
+            cols.append(txyz[:, k])
+        for k in range(3):
+            cols.append(W[:, lay.index(mapped[3 + k])])
+        fnames += [f"d_{c}_{j.name}" for c in FIGAROH_COMPONENTS]
+        ours += list(mapped)
+    A = np.stack(cols, axis=1)
+    effect = np.linalg.norm(A, axis=0) >= FIGAROH_TOL_EFFECT
+    A, fnames, ours = A[:, effect], [n for n, e in zip(fnames, effect) if e], [n for n, e in zip(ours, effect) if e]
+    _, Rq, piv = sla.qr(A, pivoting=True, mode="economic")
+    rank = int(np.sum(np.abs(np.diag(Rq)) > FIGAROH_TOL_QR))
+    base = sorted(piv[:rank].tolist())
+    structural = [fnames[b] for b in base]
+    as_base = structural[:6]
+    joint_ours = [ours[b] for b in base[6:]]
+    # step 4: the data's unit columns, frames first
+    pos = {n: k for k, n in enumerate(names)}
+    order = [n for n in frames] + [n for n in joint_ours if n in pos]
+    basis = np.zeros((J_data.shape[0], 0))
+    kept, absorbed = [], []
+    for n in order:
+        col = J_data[:, pos[n]]
+        nrm = float(np.linalg.norm(col))
+        res = 0.0
+        if nrm > 0:
+            r = col / nrm
+            for _ in range(2):
+                r = r - basis @ (basis.T @ r)
+            res = float(np.linalg.norm(r))
+        if n in frames or res > FIGAROH_TOL_ABSORBED:
+            kept.append(n)
+            if res > FIGAROH_TOL_ABSORBED:
+                basis = np.column_stack([basis, r / res])
+        else:
+            absorbed.append(n)
+    fig_of = {o: f for o, f in zip([ours[b] for b in base], structural)}
+    return FigarohSelection(tuple(structural), tuple(as_base), tuple(fig_of.get(n, n) for n in absorbed),
+                            tuple(kept))

@@ -85,6 +85,7 @@ def identify_best(
     alpha: float = 1e-3,
     level: str = "full",
     prior: dict[str, float] | None = None,
+    selection: str = "ordered",
     callback: Callable[[TraceEntry], None] | None = None,
 ) -> Identified:
     """Our estimator: statistically weighted, column-scaled, robust, start-independent.
@@ -107,9 +108,20 @@ def identify_best(
     identified robot parameter from its nominal value (joint offsets only with ``"offset"``; base and tool
     never). The rows and the noise are settled without it (steps 3-4); a final fit on the inlier rows adds the
     rows ``(x - x_nominal) / sd`` and the covariance becomes the posterior ``(J^T W J + diag(1/sd^2))^-1``.
+
+    ``selection`` (which parameters step 2 estimates): ``"ordered"`` every identifiable one (the ordered
+    rank-revealing pass); ``"figaroh"`` (a ``"urdf"`` chain at ``level="full"``) FIGAROH's full-parameter set
+    reproduced on our parameterisation (:func:`~twin.estimator.identifiability.figaroh_full_selection`: its
+    structural QR on random configurations, the first six base parameters replaced by the base frame, the
+    directions these configurations barely excite dropped), the others held at nominal.
     """
     space = prep.space
     obs = prep.obs_cal
+    if selection not in SELECTIONS:
+        raise ValueError(f"selection must be one of {SELECTIONS}, got {selection!r}")
+    if selection == "figaroh" and (level != "full" or space.chain.structure.convention != "urdf"):
+        raise ValueError(f"selection 'figaroh' is FIGAROH's full-parameter level of a URDF chain: it needs level='full' "
+                         f"and a 'urdf' chain, got level={level!r} on a {space.chain.structure.convention!r} chain")
     cand = candidates(space, error_model, level)
     check_design(obs, int(cand.sum()))
     x0 = prep.x_nominal.copy()
@@ -118,7 +130,19 @@ def identify_best(
     ida = analyse_jacobian(res0.J, space.names, candidates=cand_names, order=preference_order(cand_names, gauge))
     free = ida.mask(space.names)
     free_full = np.zeros(space.size, dtype=bool)
-    free_full[[space.index(n) for n in ida.identifiable]] = True
+    selected = ida.identifiable
+    sel_extra: dict = {}
+    if selection == "figaroh":
+        from .identifiability import figaroh_full_selection
+
+        frames = [n for n in ida.identifiable if n.startswith(("base_", "tool_"))]
+        orientation = obs.kind == "pose" or obs.spheres.shape[1] > 1
+        fs = figaroh_full_selection(prep.nominal, res0.J, space.names, frames, n_samples=obs.n, orientation=orientation)
+        selected = tuple(n for n in space.names if n in set(fs.kept) and n in set(cand_names))
+        sel_extra = {"selection": {"rule": "figaroh", "structural": list(fs.structural),
+                                   "as_base_frame": list(fs.as_base_frame), "absorbed": list(fs.absorbed),
+                                   "estimated": list(selected)}}
+    free_full[[space.index(n) for n in selected]] = True
     free_idx = np.flatnonzero(free_full)
     check_design(obs, int(free_idx.size))
     given_p = prep.noise_given["position"]
@@ -211,11 +235,12 @@ def identify_best(
         trace=tuple(trace),
         notes=tuple(notes),
         extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge,
-               "level": level, **({"prior": {k: float(v) for k, v in prior.items()}} if prior else {})},
+               "level": level, **({"prior": {k: float(v) for k, v in prior.items()}} if prior else {}), **sel_extra},
     )
 
 
 PRIOR_KEYS = ("length", "angle", "offset")
+SELECTIONS = ("ordered", "figaroh")
 
 
 def prior_sd(space: ParamSpace, prior: dict[str, float], cand: np.ndarray) -> np.ndarray:

@@ -316,6 +316,7 @@ TELLING_TIMELINES = {
     "coupling": ("q5_mdeg",),
     "thermal": ("temp_mdegC", "t_s"),
     "plate_geometry": ("q4_mdeg", "q5_mdeg", "q6_mdeg"),  # the wrist turns the plate in front of the camera
+    "tilt": ("pose",),  # the carried moment changes with the whole posture
 }
 
 
@@ -369,17 +370,18 @@ def record_diagnosis(
     """Write a diagnosis as an ``.rrd`` recording (no viewer needed); returns ``path``.
 
     ``series``: :attr:`twin.diagnosis.DiagnosisResult.series` (per held-out row: ``dataset_row``,
-    ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, 6)``,
-    ``approach_sign`` ``(n, 6)``, optional ``temp_c``/``t_s``, optional ``terms``: per term of the extended
+    ``residual_rms_mm_before``/``_after`` [mm, RMS per sphere coordinate], ``q_deg`` ``(n, N)`` (deg; mm for a
+    prismatic joint), ``approach_sign`` ``(n, N)``, optional ``temp_c``/``t_s``, optional ``terms``: per term of the extended
     model ``{label: {value (n,), unit, channel}}``); ``verdict``: the content of ``diagnosis.json``
     (:func:`twin.diagnosis.diagnosis_dict`; ``structured``, ``p_value``, ``effects``, ``noise_floor``, ...).
 
     Entities (layout in ``docs/diagnosis.md``): ``diagnosis/residual/{before,after,noise_floor}``,
-    ``diagnosis/variables/q_deg/q1..q6``, ``diagnosis/variables/approach_sign/j1..j6``,
+    ``diagnosis/variables/q_deg/q1..qN``, ``diagnosis/variables/approach_sign/j1..jN``,
     ``diagnosis/variables/{temp_c,t_s}`` (when recorded), ``diagnosis/terms/term<k>`` (each term of the
     extended model), ``diagnosis/verdict`` (markdown) and
     ``diagnosis/log`` (text log). Every row is on the ``pose`` timeline (its row in the dataset, measurement
-    order) and on one timeline per variable (``q<j>_mdeg`` [millidegree], ``temp_mdegC`` [milli deg C],
+    order) and on one timeline per variable (``q<j>_mdeg`` [millidegree; micrometre for a prismatic joint],
+    ``temp_mdegC`` [milli deg C],
     ``t_s`` [s, duration]) so that the residual plots against any of them.
     """
     for key in ("dataset_row", "residual_rms_mm_before", "residual_rms_mm_after", "q_deg"):
@@ -392,14 +394,15 @@ def record_diagnosis(
     before = np.asarray(series["residual_rms_mm_before"], dtype=float)
     after = np.asarray(series["residual_rms_mm_after"], dtype=float)
     q_deg = np.asarray(series["q_deg"], dtype=float)
-    if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, 6):
+    nj = q_deg.shape[1] if q_deg.ndim == 2 else 0
+    if before.shape != (n,) or after.shape != (n,) or q_deg.shape != (n, nj) or nj < 1:
         raise ValueError(f"series shapes disagree: dataset_row {rows.shape}, before {before.shape}, "
-                         f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, 6))")
+                         f"after {after.shape}, q_deg {q_deg.shape} (expected (n,), (n,), (n,), (n, N))")
     extra = {k: np.asarray(series[k], dtype=float) for k in ("temp_c", "t_s") if series.get(k) is not None}
     sign = None if series.get("approach_sign") is None else np.asarray(series["approach_sign"], dtype=float)
     for key, a, shape in [("residual_rms_mm_before", before, (n,)), ("residual_rms_mm_after", after, (n,)),
-                          ("q_deg", q_deg, (n, 6))] + [(k, a, (n,)) for k, a in extra.items()] + (
-                          [] if sign is None else [("approach_sign", sign, (n, 6))]):
+                          ("q_deg", q_deg, (n, nj))] + [(k, a, (n,)) for k, a in extra.items()] + (
+                          [] if sign is None else [("approach_sign", sign, (n, nj))]):
         if a.shape != shape:
             raise ValueError(f"series[{key!r}] must have shape {shape}, got {a.shape}")
         if not np.all(np.isfinite(a)):
@@ -421,7 +424,7 @@ def record_diagnosis(
     # One time column per timeline, shared by every per-row entity.
     indexes = [rr.TimeColumn("pose", sequence=rows)]
     timelines = ["pose"]
-    for j in range(6):
+    for j in range(nj):
         indexes.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[:, j] * 1e3).astype(np.int64)))
         timelines.append(f"q{j + 1}_mdeg")
     channels: list[str] = []
@@ -453,10 +456,10 @@ def record_diagnosis(
         rec.send_columns(f"{root}/residual/before", indexes, rr.Scalars.columns(scalars=before))
         rec.send_columns(f"{root}/residual/after", indexes, rr.Scalars.columns(scalars=after))
         rec.send_columns(f"{root}/residual/noise_floor", indexes, rr.Scalars.columns(scalars=np.full(n, float(floor))))
-        for j in range(6):
+        for j in range(nj):
             rec.send_columns(f"{root}/variables/q_deg/q{j + 1}", indexes, rr.Scalars.columns(scalars=q_deg[:, j]))
         if sign is not None:
-            for j in range(6):
+            for j in range(nj):
                 rec.log(f"{root}/variables/approach_sign/j{j + 1}", rr.SeriesPoints(marker_sizes=[2.0]), static=True)
                 rec.send_columns(f"{root}/variables/approach_sign/j{j + 1}", indexes,
                                  rr.Scalars.columns(scalars=sign[:, j]))
@@ -480,7 +483,7 @@ def record_diagnosis(
             (f"noise floor {floor} mm per coordinate", rr.TextLogLevel.INFO),
         ] + [(str(note), rr.TextLogLevel.INFO) for note in verdict.get("notes") or []]
         rec.set_time("pose", sequence=int(rows.min()))
-        for j in range(6):
+        for j in range(nj):
             rec.set_time(f"q{j + 1}_mdeg", sequence=int(np.round(q_deg[:, j].min() * 1e3)))
         if "temp_c" in channels:
             rec.set_time("temp_mdegC", sequence=int(np.round(np.min(extra["temp_c"]) * 1e3)))
@@ -495,3 +498,111 @@ def record_diagnosis(
 
 
 __all__ += ["record_diagnosis", "diagnosis_blueprint", "TELLING_TIMELINES"]
+
+
+# ------------------------------------------------------------------------------------------------
+# A measured campaign: robot, measured and predicted points, residual per posture
+# ------------------------------------------------------------------------------------------------
+
+CAMPAIGN_ROOT = "campaign"
+_MEASURED_COLOUR = (30, 30, 30)
+
+
+def record_measured_campaign(
+    path: str | os.PathLike,
+    *,
+    joint_origins_m: np.ndarray,
+    measured_m: np.ndarray,
+    predicted_m: Mapping[str, np.ndarray],
+    posture_ids: np.ndarray,
+    groups: Sequence[str],
+    summary_markdown: str = "",
+    application_id: str = "twin-measured-campaign",
+) -> Path:
+    """Write a measured campaign as an ``.rrd`` recording (no viewer needed); returns ``path``.
+
+    Per posture ``k`` (``n`` in all), on the ``posture`` sequence timeline (``posture_ids`` ``(n,)``, e.g. the
+    dataset's pose ids), in the measurement frame [m]:
+
+    * ``campaign/robot``: the robot as line segments between its joint frames' origins, ``joint_origins_m``
+      ``(n, F, 3)`` (base, every joint, flange: the chain of the URDF);
+    * ``campaign/points/measured``: the measured points ``measured_m`` ``(n, K, 3)`` (black; NaN where not seen);
+    * ``campaign/points/<model>``: the points each model predicts, ``predicted_m[model]`` ``(n, K, 3)`` (e.g.
+      ``geometric`` and ``extended``: before and after), with ``campaign/error/<model>`` the segments from each
+      predicted point to its measured one;
+    * ``campaign/residual/<model>``: the RMS of the 3-D point error of the posture [mm], a time series;
+    * ``campaign/group``: the posture's group (``groups[k]``: training, replayed, new in range, outside), text;
+    * ``campaign/summary``: ``summary_markdown`` (static).
+
+    ``ValueError`` naming the argument when shapes disagree or values are not finite (the robot, the measured
+    points where seen, the predictions)."""
+    J = np.asarray(joint_origins_m, dtype=float)
+    M = np.asarray(measured_m, dtype=float)
+    ids = np.asarray(posture_ids)
+    if J.ndim != 3 or J.shape[2] != 3 or J.shape[1] < 2:
+        raise ValueError(f"joint_origins_m must have shape (n, F >= 2, 3), got {J.shape}")
+    n = J.shape[0]
+    if M.ndim != 3 or M.shape[0] != n or M.shape[2] != 3:
+        raise ValueError(f"measured_m must have shape ({n}, K, 3), got {M.shape}")
+    if ids.shape != (n,):
+        raise ValueError(f"posture_ids must have shape ({n},), got {ids.shape}")
+    if len(groups) != n:
+        raise ValueError(f"groups must have {n} entries, got {len(groups)}")
+    if not np.all(np.isfinite(J)):
+        raise ValueError("joint_origins_m holds non-finite values")
+    if not predicted_m:
+        raise ValueError("predicted_m must name at least one model's predicted points")
+    seen = np.all(np.isfinite(M), axis=2)  # (n, K)
+    preds = {}
+    for name, P in predicted_m.items():
+        P = np.asarray(P, dtype=float)
+        if P.shape != M.shape or not np.all(np.isfinite(P)):
+            raise ValueError(f"predicted_m[{name!r}] must be finite with shape {M.shape}, got {P.shape}")
+        preds[str(name)] = P
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(application_id, recording_id=f"{path.parent.name}/{path.stem}")
+    names = list(preds)
+    blueprint = rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin=CAMPAIGN_ROOT, name="robot, measured and predicted points"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin=f"{CAMPAIGN_ROOT}/residual", name="point error per posture [mm]"),
+                rrb.TextDocumentView(origin=f"{CAMPAIGN_ROOT}/summary", name="summary"),
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(state="expanded", timeline="posture"),
+        collapse_panels=False,
+    )
+    rec.save(str(path), default_blueprint=blueprint)
+    root = CAMPAIGN_ROOT
+    colours = [_BEFORE_COLOUR, _AFTER_COLOUR] + [tuple(int(c) for c in v) for v in MODEL_COLOURS.values()]
+    try:
+        rec.log(root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if summary_markdown:
+            rec.log(f"{root}/summary", rr.TextDocument(summary_markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+        for m, name in enumerate(names):
+            rec.log(f"{root}/residual/{name}", rr.SeriesLines(colors=[colours[m % len(colours)]], names=[name]),
+                    static=True)
+        for k in range(n):
+            rec.set_time("posture", sequence=int(ids[k]))
+            rec.log(f"{root}/robot", rr.LineStrips3D([J[k]], colors=[(120, 120, 120)], radii=[0.004]))
+            rec.log(f"{root}/robot/joints", rr.Points3D(J[k], colors=[(90, 90, 90)], radii=[0.008]))
+            mk = M[k][seen[k]]
+            rec.log(f"{root}/points/measured", rr.Points3D(mk, colors=[_MEASURED_COLOUR], radii=[0.004]))
+            rec.log(f"{root}/group", rr.TextLog(str(groups[k])))
+            for m, name in enumerate(names):
+                P = preds[name][k][seen[k]]
+                col = colours[m % len(colours)]
+                rec.log(f"{root}/points/{name}", rr.Points3D(P, colors=[col], radii=[0.003]))
+                rec.log(f"{root}/error/{name}", rr.LineStrips3D(np.stack([P, mk], axis=1), colors=[col], radii=[0.001]))
+                e = np.linalg.norm(P - mk, axis=1)
+                rec.log(f"{root}/residual/{name}", rr.Scalars(float(np.sqrt(np.mean(e**2))) * 1e3 if e.size else 0.0))
+    finally:
+        rec.flush(timeout_sec=60.0)
+        rec.disconnect()
+    return path
+
+
+__all__ += ["record_measured_campaign"]
