@@ -75,18 +75,34 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="experiments/separation.toml")
     p.add_argument("--out", default="results/runs/bench_campaign", help="campaign folder (git-ignored)")
+    p.add_argument("--runs", type=int, default=3, help="fresh runs of the campaign (each renders everything)")
     p.add_argument("--from", dest="from_", default=None, help="record this results.json instead of running")
     a = p.parse_args()
+    if a.runs < 1:
+        raise SystemExit(f"--runs must be >= 1, got {a.runs}")
     load_before = os.getloadavg()
+    runs = []
+    wall = None
     if a.from_:
         res_path = Path(a.from_)
-        wall = None
+        r = json.loads(res_path.read_text())
+        runs.append({"campaign_total_s": r["timings_s"]["total_s"], "command_wall_s": None,
+                     "load_average_start": r.get("machine", {}).get("load_average_start"),
+                     "load_average_end": r.get("machine", {}).get("load_average_end")})
     else:
-        t = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "twin.cli", "campaign", a.config, "--out", a.out, "--restart"], check=True)
-        wall = time.perf_counter() - t
         res_path = Path(a.out) / "results.json"
+        for _ in range(a.runs):
+            load0 = [round(x, 2) for x in os.getloadavg()]
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "twin.cli", "campaign", a.config, "--out", a.out, "--restart"],
+                           check=True)
+            wall = time.perf_counter() - t
+            r = json.loads(res_path.read_text())
+            runs.append({"campaign_total_s": round(r["timings_s"]["total_s"], 2), "command_wall_s": round(wall, 2),
+                         "load_average_start": load0, "load_average_end": [round(x, 2) for x in os.getloadavg()]})
+            print(runs[-1], flush=True)
     r = json.loads(res_path.read_text())
+    totals = [x["campaign_total_s"] for x in runs]
     n_meas = r["counts"]["poses"] + r["counts"]["compensated_measurements"]
     sums = r["worker_time_sums_s"]
     data = {

@@ -98,3 +98,19 @@ def test_killed_campaign_resumes_with_the_same_dataset(tmp_path):
     subprocess.run(_twin(str(cfg), "--out", str(res)), check=True, env=env, capture_output=True, timeout=600)
     assert _renders(res) - before == n - finished
     assert (res / "dataset" / "poses.csv").read_bytes() == (ref / "dataset" / "poses.csv").read_bytes()
+
+
+def test_resumed_campaign_keeps_the_true_board_views(tmp_path):
+    """A finished campaign run again (nothing left to render) writes truth.json with the board poses its stereo
+    calibration came from, as the first run wrote them."""
+    import json
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY)
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    out = tmp_path / "run"
+    subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=env, capture_output=True, timeout=600)
+    first = json.loads((out / "truth.json").read_text())["board_views"]
+    assert len(first) == 8
+    subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=env, capture_output=True, timeout=600)
+    assert json.loads((out / "truth.json").read_text())["board_views"] == first

@@ -58,14 +58,21 @@ def _id(fig) -> str:
     return f"{fig.get('page', 'README.md')}:{fig['quote'][:60]}"
 
 
+def problems(fig: dict, text: str | None = None) -> list[str]:
+    """What is wrong with one declared passage: absent from its page, or its numbers not its files' values."""
+    page = fig.get("page", "README.md")
+    text = _page_text(page) if text is None else text
+    if fig["quote"] not in text:
+        return [f"{page} no longer says {fig['quote']!r}"]
+    got = numbers(fig["quote"])
+    want = [tok for v in fig["values"] for tok in numbers(_expected(v))]  # a value such as "29/29" is two tokens
+    return [] if got == want else [f"{page}: numbers {got} in {fig['quote']!r}, files say {want}"]
+
+
 @pytest.mark.parametrize("fig", TABLE, ids=[_id(f) for f in TABLE])
 def test_each_number_of_a_quoted_passage_is_its_files_value(fig):
     """The passage is on its page and its number tokens are, one for one and in order, the declared values."""
-    page = fig.get("page", "README.md")
-    assert fig["quote"] in _page_text(page), f"{page} no longer says {fig['quote']!r}"
-    got = numbers(fig["quote"])
-    want = [_expected(v) for v in fig["values"]]
-    assert got == want, f"{page}: numbers {got} in {fig['quote']!r}, files say {want}"
+    assert problems(fig) == []
 
 
 def _uncovered(text: str, quotes: list[str]) -> list[str]:
@@ -102,9 +109,18 @@ def test_number_tokens_are_whole():
 
 
 def test_a_stale_figure_fails():
-    """A passage whose number differs from its file's value in the last printed digit is caught."""
+    """A passage whose last number differs from its file's value in the last printed digit is caught."""
     fig = next(f for f in TABLE if any("file" in v for v in f["values"]))
-    v = next(v for v in fig["values"] if "file" in v)
-    token = _expected(v)
-    stale = token[:-1] + ("1" if token[-1] != "1" else "2")
-    assert stale != token and numbers(stale) != [token]
+    token = numbers(fig["quote"])[-1]
+    stale_token = token[:-1] + ("1" if token[-1] != "1" else "2")
+    i = fig["quote"].rindex(token)
+    stale = {**fig, "quote": fig["quote"][:i] + stale_token + fig["quote"][i + len(token):]}
+    assert problems(stale, text=stale["quote"]) != []
+
+
+def test_a_number_outside_every_passage_is_reported():
+    """A figure on the page that no declared passage covers is found; code and link targets are not figures."""
+    text = "We reach 3.5 mm here, see [it](studies/x_2/README.md) and `twin calibrate --prior-mm 0.5`.\n"
+    bad = _uncovered(text, [])
+    assert len(bad) == 1 and bad[0].startswith("line 1: '3.5'")
+    assert _uncovered(text, ["reach 3.5 mm"]) == []

@@ -47,7 +47,8 @@ def term_side(term: Mapping[str, Any]) -> str:
 def diagnosis_summary(res) -> dict[str, Any]:
     """The verdict of ``twin.diagnosis.diagnose`` on the campaign's dataset, for results.json: structured and
     its p-value, the noise floor [mm per coordinate], the catalogue effects, every term with its side (robot or
-    instrument), and the validation error before (geometric model) and after (extended model)."""
+    instrument), and the error before (geometric model) and after (extended model) on the rows the diagnosis
+    names in ``held_out`` (its report rows: held out, used neither to choose nor to fit the model)."""
     terms = [{"text": str(a.get("text", a.get("label", ""))), "side": term_side(a)} for a in getattr(res, "atoms", ())]
     return {
         "structured": bool(res.structured),
@@ -60,6 +61,7 @@ def diagnosis_summary(res) -> dict[str, Any]:
         "instrument_terms": [t["text"] for t in terms if t["side"] == "instrument"],
         "before": res.before,
         "after": res.after,
+        "held_out": dict(getattr(res, "held_out", None) or {}),
         "notes": list(getattr(res, "notes", ())),
         "files": "diagnosis/diagnosis.json",
     }
@@ -72,6 +74,14 @@ def _err(block: Mapping[str, Any] | None) -> str:
     return f"mean {pos['mean']:.4f}, rms {pos['rms']:.4f}, max {pos['max']:.4f}"
 
 
+def _rows_said(d: Mapping[str, Any]) -> str:
+    """Which rows before/after are measured on, in words."""
+    h = d.get("held_out") or {}
+    if h.get("before_after_on") == "report":
+        return f"on {h.get('n_report_rows', '?')} report rows (held out, used neither to choose nor to fit the model)"
+    return f"on the {h.get('before_after_on', 'validation')} rows"
+
+
 def diagnosis_table(d: Mapping[str, Any]) -> str:
     """The diagnosis block of ``table.txt``."""
     lines = [
@@ -82,7 +92,7 @@ def diagnosis_table(d: Mapping[str, Any]) -> str:
         "instrument terms (measurement side: the instrument or the cell, not the robot): "
         + ("; ".join(d["instrument_terms"]) if d["instrument_terms"] else "none"),
         f"catalogue effects: {', '.join(d['effects']) if d['effects'] else 'none'}",
-        f"validation sphere-centre error [mm]: before (geometric model) {_err(d['before'])}; "
+        f"sphere-centre error [mm] {_rows_said(d)}: before (geometric model) {_err(d['before'])}; "
         f"after (extended model) {_err(d['after'])}",
     ]
     return "\n".join(lines)
@@ -95,7 +105,7 @@ def diagnosis_markdown(d: Mapping[str, Any]) -> str:
              f"(p = {d['p_value']:.3g}, alpha = {d['alpha']:g}), noise floor {d['noise_floor_mm']:.5f} mm per coordinate",
              f"* robot terms: **{'; '.join(d['robot_terms']) if d['robot_terms'] else 'none'}**",
              f"* instrument terms (the measurement side): {'; '.join(d['instrument_terms']) if d['instrument_terms'] else 'none'}",
-             f"* validation sphere-centre error before (geometric model): {_err(d['before'])} mm",
+             f"* sphere-centre error {_rows_said(d)}, before (geometric model): {_err(d['before'])} mm",
              f"* after (extended model): {_err(d['after'])} mm"]
     if d.get("notes"):
         lines += ["", "## Notes", ""] + [f"* {n}" for n in d["notes"]]

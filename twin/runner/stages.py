@@ -22,9 +22,11 @@ the state carries goes to evaluate and report alone.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -123,8 +125,18 @@ def measure(state: CampaignState, rt: Runtime) -> CampaignState:
     )
     _write_dataset(out / "dataset", state, np.arange(p.n), before,
                    f"twin campaign {cfg.name}, seed {cfg.seed}{' (quick)' if cfg.quick else ''}")
-    write_truth(out / "truth.json", backend.truth_record([before[int(i)] for i in p.pose_id]))
+    write_truth(out / "truth.json", _with_earlier_board_views(
+        backend.truth_record([before[int(i)] for i in p.pose_id]), out / "truth.json"))
     return replace(state, dataset=read_dataset(out / "dataset"), dataset_sha256=dataset_fingerprint(out / "dataset"))
+
+
+def _with_earlier_board_views(record: dict, path: Path) -> dict:
+    """A resumed campaign loads its stereo calibration instead of rendering the board again: the true board poses
+    of the views that calibration came from stay those of the run that rendered them (its truth file)."""
+    if record.get("board_views") or not path.exists():
+        return record
+    earlier = json.loads(path.read_text()).get("board_views") or []
+    return {**record, "board_views": earlier}
 
 
 def identify(state: CampaignState, rt: Runtime) -> CampaignState:
