@@ -18,9 +18,18 @@ TABLE = tomllib.loads((ROOT / "tests" / "readme_figures.toml").read_text())["fig
 NUMBER = re.compile(r"(?<![\w.])(?<!\w-)[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?(?=x\b|[^\w.]|\.(?!\d)|$)")
 
 
+# A number right after one of these words names a part of a paper or page, not a measured figure.
+REFERENCE = re.compile(r"(?:Figures?|Fig\.|Tables?|[Ss]ections?|eq\.)\s+$")
+
+
+def _figures(text: str):
+    """The number matches of ``text`` that are figures (not references to a table, figure or section)."""
+    return [m for m in NUMBER.finditer(text) if not REFERENCE.search(text[max(0, m.start() - 12):m.start()])]
+
+
 def numbers(text: str) -> list[str]:
     """The number tokens of ``text``, in order."""
-    return [m.group(0) for m in NUMBER.finditer(text)]
+    return [m.group(0) for m in _figures(text)]
 
 
 def _lookup(d, key):
@@ -45,6 +54,11 @@ def _expected(v: dict) -> str:
         assert v.get("why"), f"literal {v['literal']!r} needs a 'why'"
         return v["literal"]
     value = _lookup(json.loads((ROOT / v["file"]).read_text()), v["key"])
+    if "where" in v:  # the one element of a list whose fields match, found by its names, never by its position
+        hits = [x for x in value if all(x.get(k) == w for k, w in v["where"].items())
+                and not any(k in x for k in v.get("absent", ()))]
+        assert len(hits) == 1, f"{v['file']}:{v['key']}: {len(hits)} elements match {v['where']}"
+        value = _lookup(hits[0], v["then"])
     if "scale" in v:
         value = value * v["scale"]
     return v["fmt"].format(value)
@@ -87,7 +101,7 @@ def _uncovered(text: str, quotes: list[str]) -> list[str]:
         for m in re.finditer(pat, text, flags=re.S):
             covered[m.start():m.end()] = [True] * (m.end() - m.start())
     out = []
-    for m in NUMBER.finditer(text):
+    for m in _figures(text):
         if not all(covered[m.start():m.end()]):
             line = text.count("\n", 0, m.start()) + 1
             out.append(f"line {line}: {m.group(0)!r} in {text.splitlines()[line - 1].strip()[:90]!r}")
@@ -106,6 +120,7 @@ def test_number_tokens_are_whole():
     assert numbers("IRB-1200 at 0.0047 mm, q2 and t_s, 9/10 seeds, p = 1.6e-15, 12.0 / 4.23") == \
         ["0.0047", "9", "10", "1.6e-15", "12.0", "4.23"]
     assert numbers("rerun v0.41, mujoco 4.0.0 and 2x2 windows, 3.1x the oracle.") == ["3.1"]
+    assert numbers("the paper's Figure 10 and Tables 9-11 give 0.0197") == ["0.0197"]
 
 
 def test_a_stale_figure_fails():
