@@ -333,9 +333,9 @@ def session_changes(ds: Dataset | np.ndarray | None) -> np.ndarray | None:
 
 def history_resets(ds: Dataset) -> np.ndarray:
     """Rows ``(n,)`` bool whose approach history is unknown: the first row, rows whose ``status`` says
-    restart/home/power and rows that start another ``session`` (a column naming the recording session). A pause
-    alone (a gap in ``t_s``) keeps the robot where it stood: its history goes on (a blind campaign's joint offset
-    that followed the last move across a pause was mispredicted at 1.5x its oracle when pauses reset it)."""
+    a restart, homing or power cycle, and rows that start another ``session`` (a column naming the recording
+    session). A pause alone (a gap in ``t_s``) keeps the robot where it stood, so its approach history goes on
+    across the pause."""
     out = row_resets(ds.n, ds.t_s, ds.status)
     ch = session_changes(ds)
     return out if ch is None else out | ch
