@@ -36,9 +36,12 @@ def _row(name: str, s: dict) -> dict:
 
 
 def main() -> int:
-    rows = []
+    rows, provenance = [], {}
     for p in sorted(ROOT.glob("*/results.json")):
-        rows.append(_row(p.parent.name, json.loads(p.read_text())["summary"]))
+        res = json.loads(p.read_text())
+        rows.append(_row(p.parent.name, res["summary"]))
+        # each batch's own record (versions, CPU, load); the first passes predate the record: null
+        provenance[p.parent.name] = res.get("provenance")
     # the README's table: per batch and for all current scores together
     agg = {}
     groups = {r["batch"]: [r] for r in rows}
@@ -58,8 +61,8 @@ def main() -> int:
             "effects_extra_names": f"{sum(tot(c, 'extra_names') for c in effect_cats)}/"
                                    f"{sum(tot(c, 'n') for c in effect_cats)}",
         }
-    (ROOT / "overview.json").write_text(json.dumps({"batches": {r["batch"]: r for r in rows}, "aggregate": agg},
-                                                   indent=1) + "\n")
+    (ROOT / "overview.json").write_text(json.dumps({"batches": {r["batch"]: r for r in rows}, "aggregate": agg,
+                                                    "provenance": provenance}, indent=1) + "\n")
     lines = ["# Blind campaigns: every batch", "",
              "First passes are blind scores (the diagnosis as it stood when the batch arrived); the others are the",
              "current code on the same batches, after it was improved on them. Per category: campaigns; errors; structured;",

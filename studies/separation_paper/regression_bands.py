@@ -10,6 +10,7 @@ processes (--workers) or a Dask cluster (--dask ADDRESS); per-seed campaigns go 
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
+from twin.benchio import provenance  # noqa: E402
 from twin.evaluation.regression import bands_from_repeats, update_regression_file  # noqa: E402
 from twin.runner.campaign import run_repeats  # noqa: E402
 from twin.runner.config import load_campaign_config  # noqa: E402
@@ -36,6 +38,7 @@ def main() -> int:
     p.add_argument("--work", default=str(HERE / "work"), help="folder for the per-seed campaigns (default: the study's work/)")
     p.add_argument("--out", default=str(BANDS), help="regression file (default: the study's results/regression.json)")
     a = p.parse_args()
+    load_start = os.getloadavg()
     cfg = load_campaign_config(a.config, quick=a.quick)
     seeds = [cfg.seed + k for k in range(a.seeds)]
     kind = "dask" if a.dask else "process"
@@ -44,6 +47,7 @@ def main() -> int:
                           progress=lambda ph, d, n: print(f"{ph}: {d}/{n}", flush=True))
     command = "python " + " ".join(shlex.quote(x) for x in sys.argv)
     data = bands_from_repeats(rep, command, a.config)
+    data["provenance"] = provenance(load_start)
     path = update_regression_file(a.section, data, a.out)
     print(f"wrote section {a.section!r} of {path}")
     for claim, e in rep["orderings"].items():
