@@ -859,10 +859,12 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         alt, _ = backward(prob, alt, alpha_select, sizes)
         if {c.family for c, _ in alt.chosen if c.pool == "catalogue"} & {a.family}:
             continue
+        new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        if not new:
+            continue  # nothing of the other family survived the backward pass: the term stays
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
         e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
         if e_alt <= 1.02 * e_now:
-            new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
             notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
                          f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
             for c in new:
