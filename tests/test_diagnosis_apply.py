@@ -115,14 +115,14 @@ def _alone_and_in_file(cal, ds, rows):
     """Predictions of ``rows`` each predicted alone and inside the whole file, as `twin predict` reads a JOINTS.csv
     (its t_s, temp_c, station and pose ids; the history restarting at the file's first row), and the rows the
     prediction alone flags as lacking their history."""
+    from twin.dataset import Joints
     from twin.diagnosis.apply import history_unknown_rows
-    from twin.diagnosis.candidates import RowContext
-    from twin.diagnosis.floor import row_resets
+    from twin.diagnosis.floor import joints_context
+
+    joints = Joints(pose_id=ds.pose_id, q=ds.q, temp_c=ds.temp_c, t_s=ds.t_s, station=ds.station_ids)
 
     def ctx(idx):
-        t = None if ds.t_s is None else ds.t_s[idx]
-        return RowContext(q=ds.q[idx], temp_c=None if ds.temp_c is None else ds.temp_c[idx], t_s=t,
-                          station=ds.station_ids[idx], history_reset=row_resets(len(idx), t), pose_id=ds.pose_id[idx])
+        return joints_context(joints, idx)
 
     every = np.arange(ds.n)
     full = predict_extended(cal, ctx(every), ds.station_ids).spheres[rows]
@@ -191,3 +191,19 @@ def test_rows_lacking_a_channel_the_model_needs_are_refused(tmp_path):
     cal = Calibration.load(tmp_path / "calibration.json")
     with pytest.raises(ValueError, match="'t_s'"):
         predict_extended(cal, replace(row_context(ds), t_s=None), ds.station_ids)
+
+
+def test_joints_context_reads_a_subset_as_a_file_of_its_own():
+    """A JOINTS.csv's rows read as `twin predict` reads them: a subset's first row and every session change have an
+    unknown history, the channels are the subset's own rows in order."""
+    from twin.dataset import Joints
+    from twin.diagnosis.floor import joints_context
+
+    j = Joints(pose_id=np.arange(6), q=np.arange(36.0).reshape(6, 6), temp_c=np.linspace(20, 25, 6),
+               t_s=np.arange(6) * 10.0, session=np.array(["a", "a", "a", "b", "b", "b"]))
+    ctx = joints_context(j)
+    assert ctx.history_reset.tolist() == [True, False, False, True, False, False]
+    sub = joints_context(j, np.array([4, 5]))
+    assert sub.history_reset.tolist() == [True, False]
+    assert sub.t_s.tolist() == [40.0, 50.0] and sub.pose_id.tolist() == [4, 5] and sub.q[0, 0] == 24.0
+    assert sub.station is None

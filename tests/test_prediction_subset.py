@@ -15,7 +15,7 @@ import pytest
 from twin.cli import main as twin_main
 
 ROOT = Path(__file__).resolve().parents[1]
-COLS = [f"{c}" for c in ("pose_id", "q1", "q2", "q3", "q4", "q5", "q6")]
+COLS = ["pose_id", "q1", "q2", "q3", "q4", "q5", "q6"]
 
 
 def _write_joints(path: Path, table: dict[str, np.ndarray], rows: np.ndarray) -> Path:

@@ -261,17 +261,13 @@ def alone_and_in_file(cal_path: str | os.PathLike, joints: Joints, rows: np.ndar
     alone flags as lacking the history an order-dependent term needs: ``{alone, in_file (k, 3, 3) [m], flagged
     (k,)}``."""
     from twin.diagnosis.apply import history_unknown_rows, predict_extended
-    from twin.diagnosis.candidates import RowContext
-    from twin.diagnosis.floor import row_resets
+    from twin.diagnosis.floor import joints_context
     from twin.estimator import Calibration
 
     cal = Calibration.load(cal_path)
 
     def ctx(idx):
-        t = None if joints.t_s is None else joints.t_s[idx]
-        return RowContext(q=joints.q[idx], temp_c=None if joints.temp_c is None else joints.temp_c[idx], t_s=t,
-                          station=None if joints.station is None else joints.station[idx],
-                          history_reset=row_resets(len(idx), t), pose_id=joints.pose_id[idx])
+        return joints_context(joints, idx)
 
     def station(idx):
         return None if joints.station is None else joints.station[idx]

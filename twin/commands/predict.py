@@ -30,16 +30,11 @@ def run(args) -> int:
     if cal.effects:
         # an extended calibration (from twin diagnose): apply its effects to the rows in this order
         from ..diagnosis.apply import predict_extended
-        from ..diagnosis.candidates import RowContext
-
-        from ..diagnosis.floor import row_resets, session_changes
+        from ..diagnosis.floor import joints_context
 
         # where the robot stood before the first row is not in the file: history-dependent terms (backlash)
         # read 0 until each joint has moved (as the diagnosis read its rows), and again where the session changes
-        reset = row_resets(len(j.q), j.t_s)
-        ch = session_changes(j.session)
-        ctx = RowContext(q=j.q, q_start=None, temp_c=j.temp_c, t_s=j.t_s, station=j.station,
-                         history_reset=reset if ch is None else reset | ch, pose_id=j.pose_id)
+        ctx = joints_context(j)
         pred = predict_extended(cal, ctx, j.station)
         print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "
               "(rows in file order; approach directions unknown until each joint moves)")

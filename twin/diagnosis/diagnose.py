@@ -769,6 +769,29 @@ def _single_joint_variable(a: Atom) -> str | None:
     return ch if ch.startswith("q") else None
 
 
+def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict, alpha_select: float,
+               admit: Callable[[Fit, Scored], bool] | None = None) -> tuple[Fit, float, float] | None:
+    """The model ``fit`` with its term ``a`` replaced by the candidates ``cands`` that are significant on the fit
+    without it (``logp_adj < alpha_select``) and pass ``admit(fit_without_a, scored)``, refitted and through the
+    backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows' position RMS [mm] of the
+    alternative and of ``fit``; None when no candidate enters."""
+    if not cands:
+        return None
+    P = prob.prep.space.size
+    keep = [(c, B) for c, B in fit.chosen if c is not a]
+    base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+    scored = score_atoms(prob, base, cands, sizes, exact_top=len(cands))
+    new = [(sc.atom, sc.basis) for sc in scored
+           if sc.logp_adj < np.log(alpha_select) and (admit is None or admit(base, sc))]
+    if not new:
+        return None
+    alt = prob.fit(base.z[:P], keep + new, psi_init(base, keep + new))
+    alt, _ = backward(prob, alt, alpha_select, sizes)
+    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    return alt, e_alt, e_now
+
+
 def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
                   alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
@@ -789,19 +812,13 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
         named_here = [c for c, _ in fit.chosen if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
         if not named_here:
             continue
-        keep = [(c, B) for c, B in fit.chosen if c is not a]
-        base = prob.fit(fit.z[: prob.prep.space.size], keep, psi_init(fit, keep))
-        have = {c.key for c, _ in keep}
+        have = {c.key for c, _ in fit.chosen if c is not a}
         cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) == var
                  and c.key not in have]
-        scored = score_atoms(prob, base, cands, sizes, exact_top=len(cands)) if cands else []
-        trial = keep + [(s.atom, s.basis) for s in scored if s.logp_adj < np.log(alpha_select)]
-        if len(trial) == len(keep):
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select)
+        if swap is None:
             continue
-        alt = prob.fit(base.z[: prob.prep.space.size], trial, psi_init(base, trial))
-        alt, _ = backward(prob, alt, alpha_select, sizes)
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        alt, e_alt, e_now = swap
         # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
         # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
         n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and _single_joint_variable(c) == var)
@@ -830,6 +847,13 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
     that joint over a plan's range: one cause is the simpler reading). Returns the fit, notes and alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
+
+    def admitted(base: Fit, sc: Scored) -> bool:
+        if _implausible(prob, sc) is not None:
+            return False
+        c = confirm(prob, base, sc, z_min)
+        return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
         if a.pool != "catalogue" or a.place != "joint" or a not in [c for c, _ in fit.chosen]:
@@ -837,33 +861,18 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         if sum(c.family == a.family for c in named) != 1:
             continue
         others = {c.family for c in named} - {a.family}
-        keep = [(c, B) for c, B in fit.chosen if c is not a]
-        have = {c.key for c, _ in keep}
+        have = {c.key for c, _ in fit.chosen if c is not a}
         cands = [c for c in pool if c.pool == "catalogue" and c.family in others and c.place == "joint"
                  and c.target == a.target and c.key not in have]
-        if not cands:
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted)
+        if swap is None:
             continue
-        base = prob.fit(fit.z[: prob.prep.space.size], keep, psi_init(fit, keep))
-        scored = score_atoms(prob, base, cands, sizes, exact_top=len(cands))
-        new_terms = []
-        for sc in scored:
-            if sc.logp_adj >= np.log(alpha_select) or _implausible(prob, sc) is not None:
-                continue
-            c = confirm(prob, base, sc, z_min)
-            if c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local:
-                new_terms.append((sc.atom, sc.basis))
-        if not new_terms:
-            continue
-        trial = keep + new_terms
-        alt = prob.fit(base.z[: prob.prep.space.size], trial, psi_init(base, trial))
-        alt, _ = backward(prob, alt, alpha_select, sizes)
+        alt, e_alt, e_now = swap
         if {c.family for c, _ in alt.chosen if c.pool == "catalogue"} & {a.family}:
             continue
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
         if not new:
             continue  # nothing of the other family survived the backward pass: the term stays
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
         if e_alt <= 1.02 * e_now:
             notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
                          f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")

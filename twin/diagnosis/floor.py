@@ -23,12 +23,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, Joints
 from .candidates import RowContext
 
 __all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
            "history_resets",
-           "row_resets", "row_context"]
+           "row_resets", "row_context", "joints_context"]
 
 _MM = 1e-3
 ANISOTROPY_MIN = 1.5  # a stated figure is spread over the axes only when they differ by this factor or more
@@ -388,3 +388,18 @@ def row_context(ds: Dataset, q_start: np.ndarray | None = None) -> RowContext:
         pose_id=np.asarray(ds.pose_id).copy(),
     )
 
+
+def joints_context(j: Joints, rows: np.ndarray | None = None) -> RowContext:
+    """The rows ``rows`` ``(k,)`` of a JOINTS.csv (indices into ``j``, in that order; default every row) as ``twin
+    predict`` reads them, as a file of their own: their channels, the first row's history unknown (where the robot
+    stood before it is not in the file) and again where the ``session`` column changes."""
+    idx = np.arange(len(j.pose_id)) if rows is None else np.asarray(rows, dtype=int)
+
+    def take(v):
+        return None if v is None else np.asarray(v)[idx]
+
+    t_s = take(j.t_s)
+    reset = row_resets(len(idx), t_s)
+    ch = session_changes(take(j.session))
+    return RowContext(q=np.asarray(j.q)[idx], q_start=None, temp_c=take(j.temp_c), t_s=t_s, station=take(j.station),
+                      history_reset=reset if ch is None else reset | ch, pose_id=np.asarray(j.pose_id)[idx])
