@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from twin.camera import CameraIntrinsics, project_points
-from twin.instrument.calibration import BoardSpec, StereoCalibration, calibrate_stereo, detect_board
+from twin.instrument.calibration import (
+    BoardSpec,
+    StereoCalibration,
+    calibrate_stereo,
+    calibrate_stereo_views,
+    detect_board,
+)
 from twin.instrument.geometry import pixels_to_rays, triangulate_rays
 from twin.instrument.synthetic import add_sensor_noise, look_at_world2cam, render_board
 from twin.transforms import invert_transform, make_transform, matrix_to_rotvec, rotvec_to_matrix
@@ -112,6 +118,30 @@ def test_calibration_json_round_trip(calib, tmp_path):
     assert back.left == calib.left and back.right == calib.right
     assert np.allclose(back.left2right, calib.left2right, atol=1e-12)
     assert back.views == calib.views and back.board == calib.board
+
+
+def test_calibration_from_found_corners_is_the_calibration_from_images(board_pairs, calib):
+    """calibrate_stereo_views on the corners detect_board finds (as workers hand them over) gives the calibration
+    of calibrate_stereo on the images (to OpenCV's own run-to-run jitter, ~1e-8 relative: its threads sum in
+    any order)."""
+    views = [(detect_board(a, SPEC), detect_board(b, SPEC)) for a, b in board_pairs]
+    h, w = board_pairs[0][0].shape
+    c = calibrate_stereo_views(views, (w, h), SPEC)
+    for got, want in ((c.left, calib.left), (c.right, calib.right)):
+        np.testing.assert_allclose([got.fx, got.fy, got.cx, got.cy, *got.dist],
+                                   [want.fx, want.fy, want.cx, want.cy, *want.dist], rtol=1e-7, atol=1e-8)
+    np.testing.assert_allclose(c.left2right, calib.left2right, rtol=0, atol=1e-9)
+    assert [(v.name, v.used, v.reason, v.corners_common) for v in c.views] == \
+        [(v.name, v.used, v.reason, v.corners_common) for v in calib.views]
+
+
+def test_calibration_from_corners_refuses_bad_input(board_pairs):
+    """Views that are not (left, right) BoardView pairs, or a bad image size, are ValueErrors naming them."""
+    views = [(detect_board(a, SPEC), detect_board(b, SPEC)) for a, b in board_pairs[:6]]
+    with pytest.raises(ValueError, match=r"views\[2\]"):
+        calibrate_stereo_views(views[:2] + [(views[2][0],)] + views[3:], (1296, 972), SPEC)
+    with pytest.raises(ValueError, match="image_size"):
+        calibrate_stereo_views(views, (0, 972), SPEC)
 
 
 def test_too_few_views_raise():

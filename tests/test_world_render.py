@@ -395,3 +395,42 @@ def test_bare_render_shows_the_placed_robot(world):
     assert np.abs(a[0].astype(int) - b[0].astype(int)).mean() > 0.5
     with pytest.raises(ValueError, match="station"):
         world.place(q, 99)
+
+
+def test_remap_interpolates_float_tables_exactly():
+    """cv2.remap with float32 tables interpolates at the tables' exact positions (no 1/32-px fixed point): the
+    world's distortion and windows rely on it."""
+    src = np.tile(np.arange(64, dtype=np.float32) * 7.0, (8, 1))
+    x = np.float32(10.0) + np.linspace(0.0, 1.0, 97, dtype=np.float32)[None, :].repeat(4, 0)
+    y = np.full_like(x, 3.0)
+    out = cv2.remap(src, x, y, cv2.INTER_LINEAR)
+    assert np.abs(out - 7.0 * x).max() < 1e-3  # fixed-point tables would be up to 7/64 = 0.11 off
+
+
+def test_noise_differs_between_images_without_correlation(world):
+    """Each image's sensor noise has the configured sigma and zero mean, one seed gives one noise image, and the
+    noise of two images is not correlated pixel by pixel."""
+    former = world._get_former()
+    sigma = world.config.render.noise_sigma
+    a = former._noise_image(sigma, 11).astype(float)
+    b = former._noise_image(sigma, 12).astype(float)
+    assert a.shape == (world.image_size[1], world.image_size[0])
+    assert np.array_equal(a, former._noise_image(sigma, 11))
+    for n in (a, b):
+        assert abs(n.mean()) < 0.01 and abs(n.std() - sigma) < 0.01
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.005
+    # nor shifted by a row or a column: neighbouring samples of the stream are independent
+    assert abs(np.corrcoef(a[1:].ravel(), a[:-1].ravel())[0, 1]) < 0.005
+    assert abs(np.corrcoef(a[:, 1:].ravel(), a[:, :-1].ravel())[0, 1]) < 0.005
+
+
+def test_board_views_drawn_one_by_one_are_the_views(world):
+    """Board views drawn one at a time from board_view_poses (in any order, as workers do) are the images of
+    render_board_views, whatever was drawn before."""
+    views = world.render_board_views(2, seed=21)
+    poses = world.board_view_poses(2, seed=21)
+    world.capture(world.visible_configurations(0, 1, seed=5)[0], 0, record=False)  # something else in between
+    for view, (T, seed) in zip(reversed(views), reversed(poses)):
+        again = world.render_board(T, 0, noise_seed=seed, record=False)
+        np.testing.assert_array_equal(view.board2meas, T)
+        assert np.array_equal(view.left, again.left) and np.array_equal(view.right, again.right)

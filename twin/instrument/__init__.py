@@ -5,7 +5,15 @@ views, never read from the world. Everything is pure (arrays in, results out); `
 image-folder reader and the dataset writer around it. See ``docs/instrument.md``.
 """
 
-from .calibration import BoardSpec, BoardView, StereoCalibration, ViewReport, calibrate_stereo, detect_board
+from .calibration import (
+    BoardSpec,
+    BoardView,
+    StereoCalibration,
+    ViewReport,
+    calibrate_stereo,
+    calibrate_stereo_views,
+    detect_board,
+)
 from .detect import DetectorConfig, SphereImage, detect_spheres
 from .folder import (
     MeasureSummary,
@@ -26,6 +34,7 @@ __all__ = [
     "StereoCalibration",
     "ViewReport",
     "calibrate_stereo",
+    "calibrate_stereo_views",
     "detect_board",
     "DetectorConfig",
     "SphereImage",

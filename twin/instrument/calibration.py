@@ -36,6 +36,7 @@ __all__ = [
     "StereoCalibration",
     "detect_board",
     "calibrate_stereo",
+    "calibrate_stereo_views",
     "CALIBRATION_SCHEMA_VERSION",
 ]
 
@@ -313,27 +314,64 @@ def calibrate_stereo(
     images, or whose reprojection RMS is an outlier (above ``max(outlier_factor * median, max_view_rms_px)``)
     are rejected and reported in ``views`` with the reason. Raises ``ValueError`` if fewer than
     ``min_views`` views remain. ``dist_model`` chooses which of OpenCV's coefficients are estimated
-    (``"k1k2p1p2"`` by default: k3 fixed at zero, which a narrow lens does not constrain).
+    (``"k1k2p1p2"`` by default: k3 fixed at zero, which a narrow lens does not constrain). The corners of each
+    image are found by :func:`detect_board`, then :func:`calibrate_stereo_views` does the rest.
     """
     pairs = list(board_pairs)
     if len(pairs) < min_views:
         raise ValueError(f"board_pairs: need at least {min_views} views, got {len(pairs)}")
+    sizes = set()
+    det = cv2.aruco.CharucoDetector(board.cv_board())
+    views = []
+    for il, ir in pairs:
+        views.append((detect_board(il, board, min_corners=min_corners, _detector=det),
+                      detect_board(ir, board, min_corners=min_corners, _detector=det)))
+        for im in (il, ir):
+            a = np.asarray(im)
+            if a.ndim >= 2:
+                sizes.add((a.shape[1], a.shape[0]))
+    if len(sizes) != 1:
+        raise ValueError(f"board_pairs: images differ in size: {sorted(sizes)}")
+    return calibrate_stereo_views(views, sizes.pop(), board, names=names, min_corners=min_corners,
+                                  min_views=min_views, max_view_rms_px=max_view_rms_px, outlier_factor=outlier_factor,
+                                  dist_model=dist_model, fix_aspect_ratio=fix_aspect_ratio, _what="board_pairs")
+
+
+def calibrate_stereo_views(
+    views: Sequence[tuple[BoardView, BoardView]],
+    image_size: tuple[int, int],
+    board: BoardSpec,
+    *,
+    names: Sequence[str] | None = None,
+    min_corners: int = 12,
+    min_views: int = 6,
+    max_view_rms_px: float = 0.5,
+    outlier_factor: float = 3.0,
+    dist_model: str = "k1k2p1p2",
+    fix_aspect_ratio: bool = False,
+    _what: str = "views",
+) -> StereoCalibration:
+    """:func:`calibrate_stereo` from the board corners already found in each image (:func:`detect_board` of the
+    left and the right image of each view, e.g. in other processes): ``views`` ``[(left, right), ...]``,
+    ``image_size`` ``(width, height)`` [px] of every image. The same result as :func:`calibrate_stereo` on the
+    images."""
+    pairs = list(views)
+    if len(pairs) < min_views:
+        raise ValueError(f"views: need at least {min_views} views, got {len(pairs)}")
+    for k, pair in enumerate(pairs):
+        if len(pair) != 2 or not all(isinstance(v, BoardView) for v in pair):
+            raise ValueError(f"views[{k}]: expected a (left, right) pair of BoardView, got {pair!r}")
+    size = tuple(int(x) for x in image_size)
+    if len(size) != 2 or min(size) <= 0:
+        raise ValueError(f"image_size must be (width, height) > 0 [px], got {image_size!r}")
     names = list(names) if names is not None else [f"{k:03d}" for k in range(len(pairs))]
     if len(names) != len(pairs):
         raise ValueError(f"names: {len(names)} names for {len(pairs)} board views")
     flags = _dist_flags(dist_model)
     if fix_aspect_ratio:
         flags |= cv2.CALIB_FIX_ASPECT_RATIO
-    sizes = set()
-    det = cv2.aruco.CharucoDetector(board.cv_board())
     views_l, views_r, reasons = [], [], []
-    for k, (il, ir) in enumerate(pairs):
-        vl = detect_board(il, board, min_corners=min_corners, _detector=det)
-        vr = detect_board(ir, board, min_corners=min_corners, _detector=det)
-        for im in (il, ir):
-            a = np.asarray(im)
-            if a.ndim >= 2:
-                sizes.add((a.shape[1], a.shape[0]))
+    for vl, vr in pairs:
         why = []
         if not vl.ok:
             why.append(f"left: {vl.reason}")
@@ -342,9 +380,6 @@ def calibrate_stereo(
         views_l.append(vl)
         views_r.append(vr)
         reasons.append("; ".join(why))
-    if len(sizes) != 1:
-        raise ValueError(f"board_pairs: images differ in size: {sorted(sizes)}")
-    size = sizes.pop()
 
     # ---- each camera alone (views where that camera saw the board), with outlier rejection
     def mono(views):
@@ -353,7 +388,7 @@ def calibrate_stereo(
         for _ in range(3):
             if len(use) < min_views:
                 raise ValueError(
-                    f"board_pairs: only {len(use)} usable board views (need {min_views}); reasons: "
+                    f"{_what}: only {len(use)} usable board views (need {min_views}); reasons: "
                     + "; ".join(f"{names[k]}: {r}" for k, r in enumerate(reasons) if r)
                 )
             obj = [views[k].object_points.astype(np.float32) for k in use]
@@ -394,7 +429,7 @@ def calibrate_stereo(
     for _ in range(3):
         if len(use) < min_views:
             raise ValueError(
-                f"board_pairs: only {len(use)} views usable for the stereo calibration (need {min_views}); reasons: "
+                f"{_what}: only {len(use)} views usable for the stereo calibration (need {min_views}); reasons: "
                 + "; ".join(f"{names[k]}: {r}" for k, r in enumerate(reasons) if r)
             )
         obj = [common[k][0].astype(np.float32) for k in use]

@@ -44,7 +44,7 @@ from ..dataset import DatasetWriter, Plate, PoseRow
 from ..evaluation.images import encode_image
 from ..transforms import invert_transform
 from .config import CampaignConfig
-from .executor import run_tasks, worker_identity
+from .executor import SerialExecutor, run_tasks, worker_identity
 from .store import MemoryStore, PoseResult, PoseStore
 
 __all__ = [
@@ -56,6 +56,7 @@ __all__ = [
     "ImageBackend",
     "get_backend",
     "measure_pose",
+    "board_view_corners",
     "measure_tasks",
     "backend_spec_for",
     "setup_from_campaign",
@@ -159,8 +160,9 @@ class StationTruth:
 
 
 class MeasurementBackend(Protocol):
-    def prepare(self) -> None:
-        """One-off work per run, in the main process (e.g. stereo calibration); cached on disk."""
+    def prepare(self, executor: cf.Executor | None = None) -> None:
+        """One-off work per run, from the main process (e.g. stereo calibration; ``executor`` may take parts of
+        it); cached on disk."""
 
     def measure(self, task: PoseTask) -> PoseResult:
         """Measure one pose."""
@@ -203,7 +205,7 @@ class _WorldBackend:
         self.plate = self.setup.plate if self.setup.plate is not None else self.world.nominal_plate
         self.seconds_per_pose = self.setup.seconds_per_pose
 
-    def prepare(self) -> None:
+    def prepare(self, executor: cf.Executor | None = None) -> None:
         if self.spec.work_dir is not None:
             Path(self.spec.work_dir).mkdir(parents=True, exist_ok=True)
 
@@ -327,9 +329,16 @@ class ImageBackend(_WorldBackend):
         self.keep_images = self.setup.keep_images != "none"
         self.keep_after = self.setup.keep_images == "all"
         self.image_sink: Callable[..., None] | None = None
+        self._board = None
 
-    def prepare(self) -> None:
-        from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo
+    def prepare(self, executor: cf.Executor | None = None) -> None:
+        """Load the run's stereo calibration, or draw the board views, find their corners and calibrate.
+
+        ``executor``: where the views are drawn and their corners found, one task per view (the processes that
+        measure the poses next build their world meanwhile); without one, or with an image sink (which wants
+        the images here), in this process. Each view's pose and noise come from the board seed alone
+        (:meth:`twin.world.World.board_view_poses`), so the calibration is the same either way."""
+        from ..instrument import BoardSpec, StereoCalibration, calibrate_stereo_views
 
         super().prepare()
         if self.setup.calibration_file is not None:
@@ -338,17 +347,34 @@ class ImageBackend(_WorldBackend):
         if self.calib_path is not None and self.calib_path.exists():
             self._calib = StereoCalibration.load(self.calib_path)
             return
-        views = self.world.render_board_views(self.setup.board_views, seed=self.setup.board_seed)
-        if self.image_sink is not None:
-            for v in views:
-                self.image_sink("board", v.index, v.left, v.right)
+        items = []
+        for T, seed in self.world.board_view_poses(self.setup.board_views, seed=self.setup.board_seed):
+            items.append((self.world.record_board_view(T), T, seed))
+        if executor is None or isinstance(executor, SerialExecutor) or self.image_sink is not None:
+            found = [self._board_view(item) for item in items]
+        else:
+            found = run_tasks(executor, board_view_corners, items, args=(self.spec,))
         board = BoardSpec.from_table(self.world.rig_info()["board"])
-        calib = calibrate_stereo([(v.left, v.right) for v in views], board, names=[f"{v.index:03d}" for v in views])
+        calib = calibrate_stereo_views([(left, right) for _, left, right in found], self.world.image_size, board,
+                                       names=[f"{k:03d}" for k, _, _ in found])
         if self.calib_path is not None:
             tmp = self.calib_path.with_name(self.calib_path.name + ".tmp.json")
             calib.save(tmp)
             os.replace(tmp, self.calib_path)
         self._calib = calib
+
+    def _board_view(self, item: tuple[int, np.ndarray, int]) -> tuple[int, Any, Any]:
+        """Draw board view ``item`` = ``(index, board2meas, noise seed)`` (not recorded: the caller did) and find
+        its corners in both images (:func:`twin.instrument.detect_board`); hand the images to the image sink."""
+        from ..instrument import BoardSpec, detect_board
+
+        k, T, seed = item
+        view = self.world.render_board(np.asarray(T, dtype=float), 0, noise_seed=int(seed), record=False)
+        if self.image_sink is not None:
+            self.image_sink("board", k, view.left, view.right)
+        if self._board is None:
+            self._board = BoardSpec.from_table(self.world.rig_info()["board"])
+        return k, detect_board(view.left, self._board), detect_board(view.right, self._board)
 
     @property
     def calibration(self):
@@ -443,6 +469,12 @@ def get_backend(spec: BackendSpec):
 def measure_pose(spec: BackendSpec, task: PoseTask) -> PoseResult:
     """Worker entry point: measure one pose with the (cached) backend of ``spec``."""
     return get_backend(spec).measure(task)
+
+
+def board_view_corners(spec: BackendSpec, item: tuple[int, np.ndarray, int]) -> tuple[int, Any, Any]:
+    """Worker entry point: draw board view ``item`` = ``(index, board2meas, noise seed)`` with the (cached) image
+    backend of ``spec`` and find its corners (:meth:`ImageBackend._board_view`)."""
+    return get_backend(spec)._board_view(item)
 
 
 def setup_from_campaign(cfg: CampaignConfig) -> InstrumentSetup:

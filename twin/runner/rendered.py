@@ -79,7 +79,7 @@ def measure_rendered(
 
     if writer is not None:
         backend.image_sink = sink
-    backend.prepare()  # the board views first (the world's image-noise sequence starts with them)
+    backend.prepare()  # the stereo calibration first (board views drawn here: the image sink wants them)
     if joints is None:
         q = w.visible_configurations(station, poses, seed=seed)
         joints = Joints(np.arange(len(q)), q, station=np.array([str(station)] * len(q), dtype=object))

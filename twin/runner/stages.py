@@ -105,7 +105,7 @@ def measure(state: CampaignState, rt: Runtime) -> CampaignState:
     backend = get_backend(rt.spec)
     if cfg.measurement.mode == "images" and not (out / "work" / "stereo_calibration.json").exists():
         rt.log("rendering the board views and calibrating the stereo rig (once per campaign)")
-    backend.prepare()
+    backend.prepare(rt.executor)
     t_prepare = time.perf_counter() - t
     # Effect contexts in the robot's visit order (docs/runner.md, "Visit order"): the plan's rows first.
     ctx = visit_contexts(cfg, p.q, p.station)

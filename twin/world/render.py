@@ -1,10 +1,12 @@
 """Image formation: MuJoCo's ideal pinhole render -> greyscale -> lens distortion -> pixel integration -> noise.
 
-One ``mujoco.Renderer`` per image size, created once and reused (start-up costs ~0.5 s). Each camera
-keeps preallocated buffers and its remap tables, so the work around the renderer per image is a colour
-conversion, one ``cv2.remap`` (only when the true camera differs from the ideal pinhole), with
-supersampling one ``cv2.resize`` (block means), and one ``cv2.randn`` + saturating ``cv2.add``, which also
-rounds to 8 bits once, at the end.
+One GL context and offscreen buffer per image former, created once and reused (start-up costs ~0.5 s). Every
+image is assembled from *draws*: boxes of an ideal sampling grid of the camera, each drawn by MuJoCo through an
+off-axis frustum of the same camera into its own viewport of the offscreen buffer. The draws of one image are
+packed side by side into the buffer and read back together (one RGBA read: the GL's native format, a copy), so
+the rasteriser sees one batch and the read waits once. The work around the renderer per image is then a
+colour conversion, the distortion remap(s), the block means of supersampled pixels and one ``cv2.randn`` +
+saturating ``cv2.add``, which also rounds to 8 bits once, at the end.
 
 Supersampling (``render.supersample`` = ``s``): MuJoCo samples each pixel once, so outlines are staircases
 whose low-frequency error moves a fitted sphere centre by ~0.04 px. With ``s`` > 1 the renderer draws
@@ -14,20 +16,20 @@ pixel is the mean of its block, as a sensor pixel integrates light. Averaging fi
 averaged image afterwards was measured too: the bilinear remap at output resolution puts 0.03 px of centre
 error back (0.033 px against 0.011 px RMS).
 
-Target windows (``render.window_supersample`` = ``S``): the frame at ``s`` samples per pixel, and windows
-``(u0, v0, u1, v1)`` of the output image at ``S x S``: their samples lie on the whole ``S``-grid (the tables
-of :meth:`CameraPipeline.window_maps`, the same dither), MuJoCo draws only their source box through an
-off-axis frustum of the same camera (:meth:`ImageFormer.ideal_windows`), and their block means replace the
+Target windows (``render.window_supersample`` = ``S``): windows ``(u0, v0, u1, v1)`` of the output image at
+``S x S`` samples per pixel: their samples lie on the whole ``S``-grid (the tables of
+:meth:`CameraPipeline.window_tables`), MuJoCo draws only their source boxes, and their block means replace the
 frame's noise-free pixels before the noise: one whole image, equal inside each window to the full ``S x S``
-render up to GL rounding.
+render up to GL rounding. The frame under them is drawn at ``s`` samples per pixel, or at one sample per
+``k x k`` pixels (``render.frame_subsample`` = ``k``): then it is distorted on its own coarse grid and resized to
+the image bilinearly.
 
-Sub-pixel fidelity: resampling an 8-bit image to 8 bits loses shifts smaller than ~1/30 px (each pixel
-changes by less than half a grey level and rounds back), and ``cv2.remap`` quantizes source positions to
-1/32 px, which biases every feature the same way. So the resampling runs in float32 and its tables carry
-a fixed uniform dither of one quantum (+-1/64 px), which makes the quantization error zero-mean from
-pixel to pixel (a hash of the sample's position, so that windows get the frame's dither); the sensor noise
-then dithers the final rounding. Measured: the image of a known point
-agrees with the camera model to about 0.001 px (``tests/test_world_render.py``).
+Sub-pixel fidelity: resampling an 8-bit image to 8 bits loses shifts smaller than ~1/30 px (each pixel changes
+by less than half a grey level and rounds back), so the resampling runs in float32, with float32 tables:
+OpenCV 5's ``cv2.remap`` interpolates float tables exactly (bilinear weights from the position itself; its
+fixed-point tables would quantize positions to 1/32 px and bias every feature alike; checked in
+``tests/test_world_render.py``). The sensor noise then dithers the final 8-bit rounding. Measured: the image
+of a known point agrees with the camera model to about 0.001 px (``tests/test_world_render.py``).
 
 The distortion is applied by resampling: a true pixel ``(u, v)`` has normalized distorted coordinates
 ``((u - cx)/fx, (v - cy)/fy)``; undistorting them gives the ray, which the ideal render (focal length
@@ -38,6 +40,7 @@ bilinearly. On the sampling grid the same holds with ``s fx``, ``s cx + (s - 1)/
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -45,9 +48,7 @@ import cv2
 import mujoco
 import numpy as np
 
-from ..camera import CameraIntrinsics, undistort_normalized
-from scipy.interpolate import RectBivariateSpline
-
+from ..camera import CameraIntrinsics, distort_normalized, undistort_normalized
 from .rig import check_distortion_monotonic, distortion_maps, render_focal_px
 
 __all__ = ["CameraPipeline", "scene_option", "sampling_intrinsics"]
@@ -55,6 +56,18 @@ __all__ = ["CameraPipeline", "scene_option", "sampling_intrinsics"]
 # true projections): with 2x2 samples, bilinear 0.011 px RMS, bicubic 0.013 px; with one sample bicubic would
 # cut 0.042 px to 0.032 px and Lanczos-4 to 0.023 px (at 7x the remap time), see docs/world.md.
 _REMAP_INTERPOLATION = cv2.INTER_LINEAR
+# Node spacing [output px] of a camera's window lattice (:meth:`CameraPipeline._window_lattice`): bilinear
+# interpolation between nodes 4 px apart stays within 1e-4 sample of the exact inverse distortion (measured with
+# the default lenses at S = 4: 2.5e-5 px).
+_LATTICE_PX = 4
+# A box is drawn on its own when the union with another would add more than this many samples: what one more
+# draw costs llvmpipe here (the target's tessellated sphere and a flush of state) is about what this many
+# rasterised samples cost (CPU time, measured with 2 rasteriser threads).
+_DRAW_COST_SAMPLES = 16384
+# Offsets and row pitches (beyond the image width) of an image's sensor noise in the image former's noise stream
+# (:meth:`ImageFormer._noise_image`).
+_NOISE_OFFSETS = 1 << 22
+_NOISE_PITCHES = 1024
 
 
 def scene_option(groups: tuple[int, ...]) -> mujoco.MjvOption:
@@ -79,59 +92,55 @@ def sampling_intrinsics(intr: CameraIntrinsics, supersample: int) -> CameraIntri
                             s * intr.width, s * intr.height, intr.dist)
 
 
-def _hash_dither(seed: int, x0: int, y0: int, shape: tuple[int, int]) -> np.ndarray:
-    """A fixed uniform dither in ``[-1/64, 1/64)`` px ``shape`` float32 for the samples ``x0 + j``, ``y0 + i`` of
-    a sampling grid: a hash of (seed, column, row), so that any window of the grid gets the whole grid's values."""
-    ys = np.arange(y0, y0 + shape[0], dtype=np.uint32)[:, None]
-    xs = np.arange(x0, x0 + shape[1], dtype=np.uint32)[None, :]
-    with np.errstate(over="ignore"):
-        h = xs * np.uint32(0x9E3779B1) ^ ys * np.uint32(0x85EBCA77) ^ np.uint32(seed * 0xC2B2AE3D & 0xFFFFFFFF)
-        h ^= h >> np.uint32(16)  # murmur3's finalizer: every input bit reaches every output bit
-        h *= np.uint32(0x85EBCA6B)
-        h ^= h >> np.uint32(13)
-        h *= np.uint32(0xC2B2AE35)
-        h ^= h >> np.uint32(16)
-    return ((h >> np.uint32(8)).astype(np.float32) * np.float32(2.0**-24) - np.float32(0.5)) * np.float32(1.0 / 32.0)
+def _coarse_intrinsics(intr: CameraIntrinsics, k: int) -> CameraIntrinsics:
+    """The camera on a grid ``k`` times coarser than its pixels (``W/k x H/k``, same optics): coarse pixel ``U``
+    covers the pixels ``k*U .. k*U + k - 1``, centred at ``k*U + (k - 1)/2``, so ``f -> f/k``,
+    ``c -> (c + 0.5)/k - 0.5``."""
+    return CameraIntrinsics(intr.fx / k, intr.fy / k, (intr.cx + 0.5) / k - 0.5, (intr.cy + 0.5) / k - 0.5,
+                            intr.width // k, intr.height // k, intr.dist)
 
 
-def _dithered_fixed_point(name: str, map_x: np.ndarray, map_y: np.ndarray, x0: int, y0: int,
-                          shift: tuple[int, int] = (0, 0)) -> tuple[np.ndarray, np.ndarray]:
-    """``cv2.remap``'s fixed-point tables (``CV_16SC2``) of the float32 maps of the samples from ``(x0, y0)`` on,
-    each moved by the camera's fixed dither of one quantum and by ``-shift`` (a source box's origin) [px]."""
-    seed = sum(map(ord, name))
-    mx = map_x + _hash_dither(2 * seed, x0, y0, map_x.shape)
-    my = map_y + _hash_dither(2 * seed + 1, x0, y0, map_y.shape)
-    if shift != (0, 0):
-        mx -= np.float32(shift[0])
-        my -= np.float32(shift[1])
-    return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+def _interp_matrix(pos: np.ndarray, n_nodes: int) -> np.ndarray:
+    """``(len(pos), n_nodes)`` linear-interpolation weights of the positions ``pos`` (in node units, inside
+    ``[0, n_nodes - 1]``) on a regular lattice: two non-zeros per row, summing to 1."""
+    i = np.minimum(pos.astype(np.intp), n_nodes - 2)
+    a = pos - i
+    W = np.zeros((len(pos), n_nodes))
+    r = np.arange(len(pos))
+    W[r, i] = 1.0 - a
+    W[r, i + 1] = a
+    return W
 
 
-def _overlap_groups(boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
-    """Indices of ``boxes`` ``(x0, y0, x1, y1)`` grouped into connected sets of overlapping (or touching) boxes."""
-    parent = list(range(len(boxes)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, a in enumerate(boxes):
-        for j in range(i + 1, len(boxes)):
-            b = boxes[j]
-            if a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]:
-                parent[root(j)] = root(i)
-    groups: dict[int, list[int]] = {}
-    for i in range(len(boxes)):
-        groups.setdefault(root(i), []).append(i)
-    return list(groups.values())
+def _merge_boxes(boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
+    """Indices of ``boxes`` ``(x0, y0, x1, y1)`` grouped into draws: two draws become one while their bounding box
+    adds at most :data:`_DRAW_COST_SAMPLES` samples to theirs (greedy, cheapest union first)."""
+    groups = [[i] for i in range(len(boxes))]
+    b = np.array(boxes, dtype=np.int64).reshape(-1, 4)
+    while len(b) > 1:
+        x0 = np.minimum(b[:, None, 0], b[None, :, 0])
+        y0 = np.minimum(b[:, None, 1], b[None, :, 1])
+        x1 = np.maximum(b[:, None, 2], b[None, :, 2])
+        y1 = np.maximum(b[:, None, 3], b[None, :, 3])
+        area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+        extra = (x1 - x0) * (y1 - y0) - area[:, None] - area[None, :]
+        extra[np.tril_indices(len(b))] = np.iinfo(np.int64).max
+        i, j = np.unravel_index(np.argmin(extra), extra.shape)
+        if extra[i, j] > _DRAW_COST_SAMPLES:
+            break
+        b[i] = (x0[i, j], y0[i, j], x1[i, j], y1[i, j])
+        groups[i] += groups[j]
+        b = np.delete(b, j, axis=0)
+        del groups[j]
+    return groups
 
 
 @dataclass
 class CameraPipeline:
     """One camera's image formation: its true intrinsics, ideal render focal length, samples per pixel along
-    each axis and the remap tables on the sampling grid (``None``: the true camera is the ideal one)."""
+    each axis, and the frame's remap tables (``None``: no resampling needed). The tables map the output image's
+    pixels into the frame's sampling grid, or, with ``frame_subsample`` ``k`` > 1, the pixels of a ``k`` times
+    coarser image into the coarse render (the frame is then resized to the image)."""
 
     name: str
     intr: CameraIntrinsics
@@ -145,7 +154,7 @@ class CameraPipeline:
     def build(cls, name: str, intr: CameraIntrinsics, supersample: int = 1,
               frame_subsample: int = 1) -> "CameraPipeline":
         """``frame_subsample`` ``k`` > 1 (only with ``supersample`` 1): the frame's ideal render has ``W/k x H/k``
-        samples (the same field of view) and the tables map each output pixel into that coarser grid."""
+        samples (the same field of view), distorted on that coarse grid and resized to the image."""
         check_distortion_monotonic(intr)
         s, k = int(supersample), int(frame_subsample)
         if s != supersample or s < 1:
@@ -156,76 +165,102 @@ class CameraPipeline:
         if intr.width % k or intr.height % k:
             raise ValueError(f"frame_subsample {k} must divide the image size {intr.width}x{intr.height}")
         f_r = render_focal_px(intr)
-        # the ideal render on the sampling grid has focal length s * f_r: the same field of view
-        maps = distortion_maps(sampling_intrinsics(intr, s), s * f_r)
-        ideal = maps is None
         if k > 1:
-            if maps is None:
-                mx, my = np.meshgrid(np.arange(intr.width, dtype=np.float32), np.arange(intr.height, dtype=np.float32))
-                maps = (mx, my)
-            # a full-resolution ideal pixel x lies at (x + 0.5) / k - 0.5 in the k-times coarser ideal grid
-            maps = tuple(((m + np.float32(0.5)) / np.float32(k) - np.float32(0.5)).astype(np.float32) for m in maps)
-        if maps is not None:
-            # Dither of one quantum (cv2.remap works in 1/32 px), fixed per camera and sample (a hash of the
-            # sample's position, so that target windows get the same dither), then fixed-point tables.
-            maps = _dithered_fixed_point(name, maps[0], maps[1], 0, 0)
+            # the coarse image's pixels into the coarse ideal render (focal f_r / k): the same field of view
+            grid_intr = _coarse_intrinsics(intr, k)
+            maps = distortion_maps(grid_intr, f_r / k)
+        else:
+            # the ideal render on the sampling grid has focal length s * f_r: the same field of view
+            grid_intr = sampling_intrinsics(intr, s)
+            maps = distortion_maps(grid_intr, s * f_r)
+        ideal = maps is None  # scale-free: no distortion, centred, focal f_r at every grid scale
         return cls(name, intr, f_r, maps, s, k, ideal)
 
-    def window_maps(self, rect: tuple[int, int, int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
-        """Where each sample of the output window ``rect`` = ``(u0, v0, u1, v1)`` [px] lies in the ideal render's
-        sampling grid at ``s x s`` samples per pixel: two float32 ``(s*(v1-v0), s*(u1-u0))`` maps in that grid's
-        pixel coordinates (the whole grid: ``s*W x s*H``, focal ``s*f_r``, centre ``s*W/2 - 0.5``).
-
-        The same construction as the full-frame tables (:func:`twin.world.rig.distortion_maps`): the inverse
-        distortion solved on the whole grid's coarse lattice (every 16 samples, padded by two nodes) and the
-        same bicubic spline (:meth:`_lattice_splines`, built once), evaluated at the window's samples, or, in a
-        small window with ``s > 1``, at one sample per output pixel with linear interpolation between them.
-        """
-        u0, v0, u1, v1 = rect
-        xs = np.arange(s * u0, s * u1, dtype=float)
-        ys = np.arange(s * v0, s * v1, dtype=float)
-        if self.ideal:  # the true camera is the ideal one: the window's samples are the ideal grid's
-            mx, my = np.meshgrid(xs, ys)
-            return mx.astype(np.float32), my.astype(np.float32)
-        ccx, ccy = s * self.intr.width / 2 - 0.5, s * self.intr.height / 2 - 0.5
-        fr = s * self.f_render
-        sx, sy = self._lattice_splines(s)
-        if s == 1 or len(xs) * len(ys) > 250_000:
-            return ((sx(ys, xs) * fr + ccx).astype(np.float32), (sy(ys, xs) * fr + ccy).astype(np.float32))
-        # Why not the spline at every sample of a small window: fitpack's per-call cost makes it ~40 ms per
-        # stereo pair over a ring of windows. The spline at every s-th sample (one per output pixel, plus the
-        # far edge) and linear in between, in float64: the map's curvature over one pixel leaves < 1e-4 sample,
-        # far below the tables' 1/32-sample fixed point (large windows keep the spline: the gathers grow faster).
-        xc, yc = xs[::s], ys[::s]
-        xc, yc = np.append(xc, xc[-1] + s), np.append(yc, yc[-1] + s)
-        tx, ty = np.arange(len(xs)), np.arange(len(ys))
-        ix, iy = tx // s, ty // s
-        wx, wy = (tx % s) / s, ((ty % s) / s)[:, None]
-        out = []
-        for spline, cc in ((sx, ccx), (sy, ccy)):
-            m = spline(yc, xc) * fr + cc
-            m = m[:, ix] + (m[:, ix + 1] - m[:, ix]) * wx  # (len(yc), len(xs))
-            out.append((m[iy] + (m[iy + 1] - m[iy]) * wy).astype(np.float32))
-        return out[0], out[1]
-
-    def _lattice_splines(self, s: int) -> tuple[RectBivariateSpline, RectBivariateSpline]:
-        """The normalized ray ``(x, y)`` of every sample of the ``s``-grid as two bicubic splines on the coarse
-        lattice of :func:`twin.world.rig.distortion_maps` (nodes every 16 samples from -32 on), cached."""
-        cache = self.__dict__.setdefault("_splines", {})
+    def _window_lattice(self, s: int) -> np.ndarray:
+        """Where the ideal ``s``-grid shows the rays of a lattice of the true ``s``-grid: nodes every
+        :data:`_LATTICE_PX` output pixels (``s * _LATTICE_PX`` samples), from one spacing before the image to two
+        after it; ``(2, ny, nx)`` float64 ideal-grid coordinates x and y (node ``(i, j)`` at true sample
+        ``(s L (j - 1), s L (i - 1))``), cached per ``s``."""
+        cache = self.__dict__.setdefault("_lattices", {})
         if s not in cache:
             si = sampling_intrinsics(self.intr, s)
-            step = 16
-            us = np.arange(-2 * step, si.width + 2 * step + 1, step, dtype=float)
-            vs = np.arange(-2 * step, si.height + 2 * step + 1, step, dtype=float)
-            U, V = np.meshgrid(us, vs)
-            xy = undistort_normalized(np.stack([(U - si.cx) / si.fx, (V - si.cy) / si.fy], axis=-1), si.dist)
-            cache[s] = tuple(RectBivariateSpline(vs, us, xy[..., c], kx=3, ky=3) for c in (0, 1))
+            step = s * _LATTICE_PX
+            xs = np.arange(-1, -(-self.intr.width // _LATTICE_PX) + 3) * float(step)
+            ys = np.arange(-1, -(-self.intr.height // _LATTICE_PX) + 3) * float(step)
+            X, Y = np.meshgrid(xs, ys)
+            xy_d = np.stack([(X - si.cx) / si.fx, (Y - si.cy) / si.fy], axis=-1)
+            ray = undistort_normalized(xy_d, si.dist)
+            back = distort_normalized(ray, si.dist)
+            err = max(np.max(np.abs(back[..., 0] - xy_d[..., 0])) * si.fx, np.max(np.abs(back[..., 1] - xy_d[..., 1])) * si.fy)
+            if err > 1e-4:
+                raise ValueError(f"distortion {self.intr.dist} cannot be inverted over the image (residual {err:.2g} "
+                                 "samples)")
+            fr = s * self.f_render
+            cache[s] = np.stack([ray[..., 0] * fr + (s * self.intr.width / 2 - 0.5),
+                                 ray[..., 1] * fr + (s * self.intr.height / 2 - 0.5)])
         return cache[s]
+
+    def window_tables(self, rects: list[tuple[int, int, int, int]], s: int) -> "_WindowTables":
+        """The remap tables of the output windows ``rects`` ``(u0, v0, u1, v1)`` [px] at ``s x s`` samples per pixel:
+        for each window, where its samples (``s*(v1-v0) x s*(u1-u0)``) lie in the ideal render's ``s``-grid (the
+        whole grid: ``s*W x s*H``, focal ``s*f_r``, centre ``s*W/2 - 0.5``), and the source box of the ideal grid
+        that covers every bilinear neighbour (clipped to the grid, where the remap replicates the border as the
+        whole grid's does).
+
+        The map is the bilinear interpolation of :meth:`_window_lattice` (< 1e-4 sample from the exact inverse
+        distortion), one matrix product per window and coordinate: ``map = Wy @ N @ Wx^T`` with ``Wy``, ``Wx``
+        the interpolation weights of the window's rows and columns on the lattice block ``N``. The tables
+        themselves are made on demand, in their source box's coordinates (:meth:`_WindowTables.maps`)."""
+        return _WindowTables(self, rects, s)
 
     @property
     def fovy_deg(self) -> float:
         """Vertical field of view of the ideal render [deg]."""
         return float(np.rad2deg(2.0 * np.arctan(0.5 * self.intr.height / self.f_render)))
+
+
+class _WindowTables:
+    """The remap tables of a camera's windows at ``s x s`` samples (:meth:`CameraPipeline.window_tables`)."""
+
+    def __init__(self, cam: CameraPipeline, rects: list[tuple[int, int, int, int]], s: int):
+        self.cam, self.rects, self.s = cam, list(rects), int(s)
+        gw, gh = s * cam.intr.width, s * cam.intr.height
+        self.grid = (gw, gh)
+        self.boxes: list[tuple[int, int, int, int]] = []
+        self._parts: list[tuple] = []
+        if cam.ideal:  # the true camera is the ideal one: the window's samples are the ideal grid's
+            for u0, v0, u1, v1 in self.rects:
+                self.boxes.append((s * u0, s * v0, s * u1, s * v1))
+            return
+        lat = cam._window_lattice(s)  # (2, ny, nx)
+        step = float(s * _LATTICE_PX)
+        for u0, v0, u1, v1 in self.rects:
+            # lattice units (node j at sample s L (j - 1)); columns by gathers, rows by a product (Wy, small)
+            xs = np.arange(s * u0, s * u1, dtype=float) / step + 1.0
+            ys = np.arange(s * v0, s * v1, dtype=float) / step + 1.0
+            jy0 = int(ys[0])
+            Wy = _interp_matrix(ys - jy0, int(ys[-1]) + 2 - jy0)  # (hs, ny)
+            ix = xs.astype(np.intp)
+            ax = xs - ix
+            block = lat[:, jy0:jy0 + Wy.shape[1]]
+            T = block[:, :, ix] * (1.0 - ax) + block[:, :, ix + 1] * ax  # (2, ny, ws): the maps at the lattice rows
+            # the maps' range: each monotonic along its own axis (the distortion is checked monotonic), so the
+            # extremes lie on the window's first and last column (x) or row (y)
+            ex, ey = Wy @ T[0][:, [0, -1]], Wy[[0, -1]] @ T[1]
+            x0 = min(max(math.floor(ex.min()) - 1, 0), gw - 1)
+            y0 = min(max(math.floor(ey.min()) - 1, 0), gh - 1)
+            x1 = min(max(math.ceil(ex.max()) + 2, x0 + 1), gw)
+            y1 = min(max(math.ceil(ey.max()) + 2, y0 + 1), gh)
+            self.boxes.append((x0, y0, x1, y1))
+            self._parts.append((Wy, T))
+
+    def maps(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Window ``i``'s float32 maps ``(s*(v1-v0), s*(u1-u0))`` in the coordinates of its source box (origin
+        ``boxes[i][:2]``): small numbers, which float32 holds to ~1e-5 sample."""
+        Wy, T = self._parts[i]
+        x0, y0 = self.boxes[i][:2]
+        wy = Wy.astype(np.float32)
+        return wy @ (T[0] - x0).astype(np.float32), wy @ (T[1] - y0).astype(np.float32)
 
 
 def gl_max_renderbuffer_px() -> int | None:
@@ -240,44 +275,66 @@ def gl_max_renderbuffer_px() -> int | None:
 
 
 class _FrustumCuller:
-    """Leaves out of a window's draw the scene geoms whose bounding sphere lies wholly outside its frustum.
+    """Leaves out of a draw the scene geoms that lie wholly outside its frustum.
 
     Why: ``mjr_render`` sends every scene geom down the pipeline whatever the viewport shows, and on llvmpipe a
-    primitive sphere at ``quality numslices=128`` costs ~0.5 ms per draw against ~0.1 ms for the rest of a
-    small window; a geom outside the frustum produces no fragment (no shadows, no reflections here), so
-    leaving it out changes no pixel. A left-out geom gets ``mjGEOM_NONE``, which ``mjr_render`` skips;
-    :meth:`restore` puts the types back. Geoms without a model bounding radius (planes, decor) are always drawn.
+    primitive sphere at ``quality numslices=128`` costs ~0.2 ms per draw, the floor plane (drawn as a grid)
+    ~0.1 ms, against ~0.05 ms for the rest of a small window; a geom outside the frustum produces no fragment
+    (no shadows, no reflections here), so leaving it out changes no pixel. A geom is outside when its bounding
+    sphere is, or, for a finite plane (no bounding radius), when its four corners lie beyond one side of the
+    frustum. A left-out geom gets ``mjGEOM_NONE``, which ``mjr_render`` skips; :meth:`restore` puts the types
+    back. Infinite planes and geoms without a bounding radius are always drawn.
     """
 
     _NONE = int(mujoco.mjtGeom.mjGEOM_NONE)
+    _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
 
     def __init__(self, scene: mujoco.MjvScene):
         self._scene = scene
         n = int(scene.ngeom)
-        self._types = np.array([scene.geoms[i].type for i in range(n)], dtype=int)
-        self._pos = np.array([scene.geoms[i].pos for i in range(n)], dtype=float).reshape(n, 3)
-        self._rbound = np.array([scene.geoms[i].modelrbound for i in range(n)], dtype=float)
+        geoms = [scene.geoms[i] for i in range(n)]
+        self._types = np.array([g.type for g in geoms], dtype=int)
+        pos = np.array([g.pos for g in geoms], dtype=float).reshape(n, 3)
+        rbound = np.array([g.modelrbound for g in geoms], dtype=float)
         # mono rendering draws from the average of the two eye cameras (mjv_updateScene places them +-ipd/2 apart)
         cams = (scene.camera[0], scene.camera[1])
         fwd = np.mean([np.array(c.forward, dtype=float) for c in cams], axis=0)
         up = np.mean([np.array(c.up, dtype=float) for c in cams], axis=0)
-        d = self._pos - np.mean([np.array(c.pos, dtype=float) for c in cams], axis=0)
+        eye = np.mean([np.array(c.pos, dtype=float) for c in cams], axis=0)
         # camera coordinates: x right, y up, z along the view direction (depth)
-        self._xyz = np.stack([d @ np.cross(fwd, up), d @ up, d @ fwd], axis=1)
+        axes = np.stack([np.cross(fwd, up), up, fwd])
+        # the points tested: each bounded geom's centre with its bounding radius, then the four corners of each
+        # finite plane (size[0], size[1] half-extents along the geom's x and y axes) with radius 0
+        self._spheres = np.flatnonzero(rbound > 0)
+        self._planes = np.array([i for i, g in enumerate(geoms)
+                                 if self._types[i] == self._PLANE and g.size[0] > 0 and g.size[1] > 0], dtype=int)
+        pts, rad = [pos[self._spheres]], [rbound[self._spheres]]
+        for i in self._planes:
+            g = geoms[i]
+            mat = np.array(g.mat, dtype=float).reshape(3, 3)
+            ex, ey = mat[:, 0] * g.size[0], mat[:, 1] * g.size[1]
+            pts.append(pos[i] + np.array([ex + ey, ex - ey, -ex + ey, -ex - ey]))
+            rad.append(np.zeros(4))
+        xyz = (np.concatenate(pts) - eye) @ axes.T
+        self._xy = xyz[:, [0, 0, 1, 1]].T  # (4, N): the coordinate each side of the frustum bounds
+        self._z, self._rad = xyz[:, 2], np.concatenate(rad)
+        self._sign = np.array([1.0, -1.0, 1.0, -1.0])[:, None]
         self._culled = np.zeros(n, dtype=bool)
 
     def cull(self, left: float, right: float, bottom: float, top: float, near: float) -> None:
         """Draw only the geoms that may reach the frustum of the near-plane window ``[left, right] x [bottom,
         top]`` at depth ``near`` (scene camera units)."""
-        x, y, z = self._xyz.T
-        r = self._rbound
-
-        def outside(a: float, coord: np.ndarray, sign: float) -> np.ndarray:
-            # plane coord = a z through the eye: signed distance (inside > 0) below -r
-            return sign * (coord - a * z) / np.sqrt(1.0 + a * a) < -r
-
-        out = ((z + r < near) | outside(left / near, x, 1.0) | outside(right / near, x, -1.0)
-               | outside(bottom / near, y, 1.0) | outside(top / near, y, -1.0)) & (r > 0)
+        a = np.array([left, right, bottom, top])[:, None] / near
+        # each side's plane (coordinate = a z, through the eye): a point is beyond it when its signed distance
+        # (inside > 0) is below -radius; before the near plane when z + radius < near
+        beyond = np.empty((5, len(self._z)), dtype=bool)
+        np.less(self._sign * (self._xy - a * self._z) / np.sqrt(1.0 + a * a), -self._rad, out=beyond[:4])
+        np.less(self._z + self._rad, near, out=beyond[4])
+        ns = len(self._spheres)
+        out = np.zeros_like(self._culled)
+        out[self._spheres] = beyond[:, :ns].any(axis=0)
+        if len(self._planes):
+            out[self._planes] = beyond[:, ns:].reshape(5, -1, 4).all(axis=2).any(axis=0)
         for i in np.flatnonzero(out != self._culled):
             self._scene.geoms[i].type = self._NONE if out[i] else int(self._types[i])
         self._culled = out
@@ -289,7 +346,7 @@ class _FrustumCuller:
 
 
 class ImageFormer:
-    """Turns a scene into 8-bit greyscale images for a set of cameras, reusing one renderer.
+    """Turns a scene into 8-bit greyscale images for a set of cameras, reusing one GL context.
 
     ``supersample`` ``s``: MuJoCo renders ``s*width x s*height`` samples with the same field of view; lens
     distortion is applied on that sampling grid (each sample's ray goes through the lens model,
@@ -312,14 +369,13 @@ class ImageFormer:
         # the frame's sampling grid: s times the image (supersampling) or 1/k of it (a coarse frame under windows)
         self.render_width, self.render_height = s * self.width // k, s * self.height // k
         rw, rh = self.render_width, self.render_height
-        # the offscreen buffer: the frame's grid, and at least the image (windows are drawn in buffer-sized tiles)
+        # the offscreen buffer: the frame's grid, and at least the image (larger draws are split into tiles)
         self.buffer_width, self.buffer_height = max(rw, self.width), max(rh, self.height)
         if self.buffer_width > model.vis.global_.offwidth or self.buffer_height > model.vis.global_.offheight:
             raise ValueError(f"render {rw}x{rh} (image {self.width}x{self.height}, supersample {s}) exceeds the "
                              f"model's offscreen buffer {model.vis.global_.offwidth}x{model.vis.global_.offheight}")
-        # The same pieces mujoco.Renderer assembles (GL context, MjrContext on the offscreen buffer, MjvScene),
-        # kept here so that the pixels can be read without Renderer.render()'s extra flip of the RGB frame:
-        # the flip is done once on the 8-bit grey image instead.
+        # The pieces mujoco.Renderer assembles (GL context, MjrContext on the offscreen buffer, MjvScene), kept here
+        # to draw several viewports per read-back and to read the buffer in the GL's own format.
         try:
             self._gl = mujoco.GLContext(self.buffer_width, self.buffer_height)
             self._gl.make_current()
@@ -340,54 +396,43 @@ class ImageFormer:
             raise RuntimeError(f"MuJoCo could not create its offscreen buffer of {rw}x{rh} px ({exc})") from exc
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._con)
         self._scene = mujoco.MjvScene(model, maxgeom=10000)
-        self._rect = mujoco.MjrRect(0, 0, rw, rh)
         self._cam = mujoco.MjvCamera()
         self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED.value
-        self._rgb = np.empty((rh, rw, 3), dtype=np.uint8)
-        self._grey_flipped = np.empty((rh, rw), dtype=np.uint8)
-        self._grey = np.empty((rh, rw), dtype=np.uint8)
+        self._read = _Reader(self._con, self.buffer_width, self.buffer_height)
         self._f32 = np.empty((rh, rw), dtype=np.float32)
-        if s > 1:
-            self._warped = np.empty((rh, rw), dtype=np.float32)
-            self._mean = np.empty((self.height, self.width), dtype=np.float32)
-        elif k > 1:
-            self._warped = np.empty((self.height, self.width), dtype=np.float32)
+        self._full = np.empty((self.height, self.width), dtype=np.float32)
+        if s > 1 or k > 1:
+            self._warped = np.empty((self.height // k * s, self.width // k * s), dtype=np.float32)
         self._noise = np.empty((self.height, self.width), dtype=np.int16)
-        self._noise_f = np.empty((self.height, self.width), dtype=np.float32)
+        self._pool: np.ndarray | None = None
+        self._pool_sigma = 0.0
 
-    def ideal_grey(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
-        """The ideal pinhole render ``(s*H, s*W)`` uint8 on the sampling grid, row 0 at the top (a view into an
-        internal buffer)."""
-        if self._con is None:
-            raise RuntimeError("the image former was closed")
-        self._gl.make_current()
-        self._cam.fixedcamid = int(camera_id)
-        mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
-        mujoco.mjr_render(self._rect, self._scene, self._con)
-        mujoco.mjr_readPixels(self._rgb, None, self._rect, self._con)  # OpenGL rows: bottom row first
-        cv2.cvtColor(self._rgb, cv2.COLOR_RGB2GRAY, dst=self._grey_flipped)
-        cv2.flip(self._grey_flipped, 0, dst=self._grey)
-        return self._grey
-
-    def ideal_windows(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption,
-                      boxes: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
-        """The ideal pinhole renders of the boxes ``(x0, y0, x1, y1)`` (columns ``x0..x1-1``, rows ``y0..y1-1``, row
-        0 at the top) of the ideal sampling grid at ``s x s`` samples per pixel (``s*W x s*H``): ``(y1-y0, x1-x0)``
-        uint8 each, the same samples as the whole grid's render there (up to GL rounding).
+    def _draw(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption,
+              jobs: list[tuple[tuple[int, int, int, int], int, int]]) -> list[np.ndarray]:
+        """The ideal pinhole renders of ``jobs``: each a box ``(x0, y0, x1, y1)`` (columns ``x0..x1-1``, rows
+        ``y0..y1-1``, row 0 at the top) of an ideal sampling grid of ``gw x gh`` samples over the camera's whole
+        view; ``(y1-y0, x1-x0)`` uint8 each, the same samples as the whole grid's render there (up to GL rounding).
 
         Off-axis frustum of the same camera: after ``mjv_updateScene`` the scene camera's near-plane window
         (``frustum_center``, ``frustum_bottom``, ``frustum_top``, half-width from the viewport's aspect when
         ``frustum_width`` is 0) is narrowed to the box's share of the whole grid's, and the box is drawn into a
-        viewport of its own size, so each pixel centre maps to the same ray as in the whole grid. Boxes larger
-        than the offscreen buffer are drawn in tiles.
+        viewport of its own size, so each sample maps to the same ray as in the whole grid. The viewports of a
+        batch are packed into the offscreen buffer (shelves, tallest first) and read back together; boxes larger
+        than the buffer are drawn in tiles.
         """
         if self._con is None:
             raise RuntimeError("the image former was closed")
-        gw, gh = s * self.width, s * self.height
-        for box in boxes:
+        bw, bh = self.buffer_width, self.buffer_height
+        tiles = []  # (job, tile box)
+        for j, (box, gw, gh) in enumerate(jobs):
             x0, y0, x1, y1 = box
             if not (0 <= x0 < x1 <= gw and 0 <= y0 < y1 <= gh):
                 raise ValueError(f"box {box!r} is not inside the {gw}x{gh} sampling grid")
+            for ty in range(y0, y1, bh):
+                for tx in range(x0, x1, bw):
+                    tiles.append((j, (tx, ty, min(tx + bw, x1), min(ty + bh, y1))))
+        tiles.sort(key=lambda t: -(t[1][3] - t[1][1]))
+        outs = [np.empty((y1 - y0, x1 - x0), dtype=np.uint8) for (x0, y0, x1, y1), _, _ in jobs]
         self._gl.make_current()
         self._cam.fixedcamid = int(camera_id)
         # mjv_updateScene fills the scene cameras (mjr_render draws their average in mono): narrow their frustum
@@ -395,82 +440,58 @@ class ImageFormer:
         mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
         gl_cams = [self._scene.camera[0], self._scene.camera[1]]
         full = [(c.frustum_center, c.frustum_bottom, c.frustum_top) for c in gl_cams]
-        bw, bh = self.buffer_width, self.buffer_height  # the offscreen buffer
         culler = _FrustumCuller(self._scene)
-        outs = []
         try:
-            for x0, y0, x1, y1 in boxes:
-                out = np.empty((y1 - y0, x1 - x0), dtype=np.uint8)
-                outs.append(out)
-                for ty in range(y0, y1, bh):
-                    for tx in range(x0, x1, bw):
-                        w, h = min(bw, x1 - tx), min(bh, y1 - ty)
-                        for c, (cen, bot, top) in zip(gl_cams, full):
-                            height = top - bot
-                            half = 0.5 * gw / gh * height
-                            left = cen - half + tx / gw * 2 * half
-                            right = cen - half + (tx + w) / gw * 2 * half
-                            c.frustum_center = 0.5 * (left + right)
-                            c.frustum_width = 0.0  # half-width from the viewport aspect: (right - left) / 2
-                            c.frustum_top = top - ty / gh * height
-                            c.frustum_bottom = top - (ty + h) / gh * height
-                        rect = mujoco.MjrRect(0, 0, w, h)
-                        c0 = gl_cams[0]
-                        half_w = 0.5 * w / h * (c0.frustum_top - c0.frustum_bottom)
-                        culler.cull(c0.frustum_center - half_w, c0.frustum_center + half_w, c0.frustum_bottom,
-                                    c0.frustum_top, c0.frustum_near)
-                        mujoco.mjr_render(rect, self._scene, self._con)
-                        rgb = np.empty((h, w, 3), dtype=np.uint8)
-                        mujoco.mjr_readPixels(rgb, None, rect, self._con)  # bottom row first
-                        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-                        out[ty - y0:ty - y0 + h, tx - x0:tx - x0 + w] = grey[::-1]
+            placed: list[tuple[int, tuple[int, int, int, int], int, int]] = []  # (job, tile, px, py)
+            px = py = shelf = 0
+            for j, tile in tiles:
+                tx0, ty0, tx1, ty1 = tile
+                w, h = tx1 - tx0, ty1 - ty0
+                if px + w > bw:
+                    px, py, shelf = 0, py + shelf, 0
+                if py + h > bh:  # the buffer is full: read this batch back, start another
+                    self._read_batch(placed, py + shelf, outs, jobs)
+                    placed, px, py, shelf = [], 0, 0, 0
+                _, gw, gh = jobs[j]
+                for c, (cen, bot, top) in zip(gl_cams, full):
+                    height = top - bot
+                    half = 0.5 * gw / gh * height
+                    left = cen - half + tx0 / gw * 2 * half
+                    right = cen - half + tx1 / gw * 2 * half
+                    c.frustum_center = 0.5 * (left + right)
+                    c.frustum_width = 0.0  # half-width from the viewport aspect: (right - left) / 2
+                    c.frustum_top = top - ty0 / gh * height
+                    c.frustum_bottom = top - ty1 / gh * height
+                c0 = gl_cams[0]
+                half_w = 0.5 * w / h * (c0.frustum_top - c0.frustum_bottom)
+                culler.cull(c0.frustum_center - half_w, c0.frustum_center + half_w, c0.frustum_bottom,
+                            c0.frustum_top, c0.frustum_near)
+                mujoco.mjr_render(mujoco.MjrRect(px, py, w, h), self._scene, self._con)
+                placed.append((j, tile, px, py))
+                px += w
+                shelf = max(shelf, h)
+            self._read_batch(placed, py + shelf, outs, jobs)
         finally:
             culler.restore()
             for c, (cen, bot, top) in zip(gl_cams, full):
                 c.frustum_center, c.frustum_bottom, c.frustum_top = cen, bot, top
         return outs
 
-    def windows_analog(self, data: mujoco.MjData, camera_id: int, cam: CameraPipeline, option: mujoco.MjvOption,
-                       rects: list[tuple[int, int, int, int]], s: int) -> list[np.ndarray]:
-        """The noise-free output pixels ``(v1-v0, u1-u0)`` float32 of each image window ``(u0, v0, u1, v1)`` at
-        ``s x s`` samples per pixel: the ideal render of the samples' source box, distortion on the sampling
-        grid (the same dithered bilinear remap as the full frame), block means."""
-        gw, gh = s * self.width, s * self.height
-        maps, boxes = [], []
-        for rect in rects:
-            mx, my = cam.window_maps(rect, s)
-            # the source box: every bilinear neighbour of every sample (clipped to the grid: BORDER_REPLICATE
-            # there, as in the full frame)
-            x0 = int(np.clip(np.floor(mx.min()) - 1, 0, gw - 1))
-            y0 = int(np.clip(np.floor(my.min()) - 1, 0, gh - 1))
-            x1 = int(np.clip(np.ceil(mx.max()) + 2, x0 + 1, gw))
-            y1 = int(np.clip(np.ceil(my.max()) + 2, y0 + 1, gh))
-            maps.append((mx, my))
-            boxes.append((x0, y0, x1, y1))
-        # Why one draw per group of overlapping source boxes (a sphere's ring of windows, say) and not one per
-        # window: each mjr_render sends the target's whole tessellated sphere through llvmpipe (~0.5 ms) while
-        # the extra samples inside the group's bounding box cost ~5 ns each; the same frustum gives each sample
-        # the same ray either way.
-        groups = _overlap_groups(boxes)
-        group_boxes = [(min(boxes[i][0] for i in g), min(boxes[i][1] for i in g),
-                        max(boxes[i][2] for i in g), max(boxes[i][3] for i in g)) for g in groups]
-        drawn = self.ideal_windows(data, camera_id, option, group_boxes, s)
-        ideals: list[np.ndarray] = [np.empty(0)] * len(boxes)
-        for g, (gx0, gy0, _, _), img in zip(groups, group_boxes, drawn):
-            for i in g:
-                x0, y0, x1, y1 = boxes[i]
-                ideals[i] = img[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0]
-        out = []
-        for (u0, v0, u1, v1), (mx, my), (x0, y0, _, _), ideal in zip(rects, maps, boxes, ideals):
-            ideal = ideal.astype(np.float32)
-            if cam.ideal:
-                samples = ideal[s * v0 - y0:s * v1 - y0, s * u0 - x0:s * u1 - x0]
-            else:
-                # the full frame's dither at these samples, then the source box's origin
-                m1, m2 = _dithered_fixed_point(cam.name, mx, my, s * u0, s * v0, shift=(x0, y0))
-                samples = cv2.remap(ideal, m1, m2, _REMAP_INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
-            out.append(cv2.resize(samples, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA))
-        return out
+    def _read_batch(self, placed, rows: int, outs: list[np.ndarray], jobs) -> None:
+        """Read the drawn rows of the buffer and copy each placed tile into its job's image (flipped: GL rows
+        run bottom first)."""
+        if not placed:
+            return
+        grey = self._read(rows)
+        for j, (tx0, ty0, tx1, ty1), px, py in placed:
+            x0, y0 = jobs[j][0][:2]
+            w, h = tx1 - tx0, ty1 - ty0
+            outs[j][ty0 - y0:ty1 - y0, tx0 - x0:tx1 - x0] = grey[py:py + h, px:px + w][::-1]
+
+    def ideal_grey(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
+        """The ideal pinhole render ``(s*H/k, s*W/k)`` uint8 of the frame's sampling grid, row 0 at the top."""
+        rw, rh = self.render_width, self.render_height
+        return self._draw(data, camera_id, option, [((0, 0, rw, rh), rw, rh)])[0]
 
     def form(
         self,
@@ -494,9 +515,10 @@ class ImageFormer:
         float32 image before noise and 8-bit rounding (diagnostics).
 
         ``windows``: image rectangles ``(u0, v0, u1, v1)`` [px] formed at ``window_supersample`` x
-        ``window_supersample`` samples per pixel (:meth:`window_analog`) and pasted into the full frame's
-        noise-free image before the noise, so that the result is one whole image. Ignored when image effects
-        are given (they work on the whole ideal render of one sampling grid): the image is the full frame's.
+        ``window_supersample`` samples per pixel (:meth:`CameraPipeline.window_tables`) and pasted into the frame's
+        noise-free image before the noise, so that the result is one whole image; the frame and the windows'
+        boxes are drawn in one batch. Ignored when image effects are given (they work on the whole ideal render of
+        one sampling grid): the image is the full frame's.
         """
         if cam.supersample != self.supersample or cam.frame_subsample != self.frame_subsample:
             raise ValueError(f"camera {cam.name!r} was built for supersample {cam.supersample} / frame_subsample "
@@ -504,15 +526,30 @@ class ImageFormer:
         if image_effects and self.frame_subsample > 1:
             raise ValueError("image effects need the frame at full resolution: frame_subsample must be 1 with "
                              "image effects")
-        img = self.ideal_grey(data, camera_id, option)
-        shape = (self.render_height, self.render_width)
+        windows = tuple(windows) if not image_effects else ()
+        rw, rh = self.render_width, self.render_height
+        jobs = [((0, 0, rw, rh), rw, rh)]
+        tables, groups, group_boxes = None, [], []
+        if windows:
+            ws = int(window_supersample)
+            if ws < 1:
+                raise ValueError(f"window_supersample must be an integer >= 1, got {window_supersample!r}")
+            tables = cam.window_tables(list(windows), ws)
+            # Why merge only boxes whose union adds few samples: a draw costs about _DRAW_COST_SAMPLES rasterised
+            # samples, and a ring of arcs merged into one box would rasterise the sphere's whole disc.
+            groups = _merge_boxes(tables.boxes)
+            group_boxes = [(min(tables.boxes[i][0] for i in g), min(tables.boxes[i][1] for i in g),
+                            max(tables.boxes[i][2] for i in g), max(tables.boxes[i][3] for i in g)) for g in groups]
+            jobs += [(b, *tables.grid) for b in group_boxes]
+        drawn = self._draw(data, camera_id, option, jobs)
+        img = drawn[0]
+        shape = (rh, rw)
         for fx in image_effects:
             img = fx(img)
             if img.shape != shape or img.dtype != np.uint8:
                 raise ValueError(f"an image effect returned {img.shape} {img.dtype}, expected {shape} uint8 "
                                  f"(the ideal render on the sampling grid, supersample {self.supersample})")
-        windows = tuple(windows) if not image_effects else ()
-        if cam.maps is None and self.supersample == 1 and not windows:
+        if cam.maps is None and self.supersample == 1 and self.frame_subsample == 1 and not windows:
             if analog:
                 return img.astype(np.float32)
             out = img.copy()
@@ -521,32 +558,71 @@ class ImageFormer:
                 cv2.randn(self._noise, 0.0, float(noise_sigma))  # integer noise: img is integer already
                 cv2.add(out, self._noise, dst=out, dtype=cv2.CV_8U)
             return out
-        np.copyto(self._f32, img)
-        analog_img = self._f32
-        if cam.maps is not None:
-            dst = self._warped if (self.supersample > 1 or self.frame_subsample > 1) else None
-            analog_img = cv2.remap(self._f32, cam.maps[0], cam.maps[1], _REMAP_INTERPOLATION, dst=dst,
-                                   borderMode=cv2.BORDER_REPLICATE)
-        if self.supersample > 1:
-            # each output pixel: the mean of its s x s samples (INTER_AREA with an integer factor, exact in float32)
-            cv2.resize(analog_img, (self.width, self.height), dst=self._mean, interpolation=cv2.INTER_AREA)
-            analog_img = self._mean
+        analog_img = self._frame_analog(img, cam)
         if windows:
-            ws = int(window_supersample)
-            if ws < 1:
-                raise ValueError(f"window_supersample must be an integer >= 1, got {window_supersample!r}")
-            for (u0, v0, u1, v1), win in zip(windows, self.windows_analog(data, camera_id, cam, option,
-                                                                          list(windows), ws)):
-                analog_img[v0:v1, u0:u1] = win
+            for g, (gx0, gy0, _, _), ideal in zip(groups, group_boxes, drawn[1:]):
+                ideal = ideal.astype(np.float32)
+                for i in g:
+                    u0, v0, u1, v1 = tables.rects[i]
+                    x0, y0, x1, y1 = tables.boxes[i]
+                    if cam.ideal:
+                        samples = ideal[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0]
+                    else:
+                        # from the window's own source box on: every sample and its bilinear neighbours lie in
+                        # the box (the replicated border only where the box meets the grid's, as in a frame)
+                        mx, my = tables.maps(i)
+                        samples = cv2.remap(ideal[y0 - gy0:, x0 - gx0:], mx, my, _REMAP_INTERPOLATION,
+                                            borderMode=cv2.BORDER_REPLICATE)
+                    analog_img[v0:v1, u0:u1] = cv2.resize(samples, (u1 - u0, v1 - v0), interpolation=cv2.INTER_AREA)
         if analog:
             return analog_img.copy()
-        if noise_sigma > 0:
-            self._seed(noise_seed)
-            cv2.randn(self._noise_f, 0.0, float(noise_sigma))
-        else:
-            self._noise_f.fill(0.0)
+        if noise_sigma <= 0:
+            return cv2.add(analog_img, 0.0, dtype=cv2.CV_8U)  # rounds to nearest and saturates to 0..255
         # adds the noise, rounds to nearest and saturates to 0..255 in one pass
-        return cv2.add(analog_img, self._noise_f, dtype=cv2.CV_8U)
+        return cv2.add(analog_img, self._noise_image(float(noise_sigma), noise_seed), dtype=cv2.CV_8U)
+
+    def _frame_analog(self, img: np.ndarray, cam: CameraPipeline) -> np.ndarray:
+        """The frame's noise-free image ``(H, W)`` float32 (an internal buffer) from its ideal render ``img``:
+        distortion on the frame's grid, then block means (supersampling) or a bilinear resize (a coarse frame)."""
+        np.copyto(self._f32, img)
+        k, s = self.frame_subsample, self.supersample
+        if k == 1 and s == 1:
+            if cam.maps is None:
+                np.copyto(self._full, self._f32)
+            else:
+                cv2.remap(self._f32, cam.maps[0], cam.maps[1], _REMAP_INTERPOLATION, dst=self._full,
+                          borderMode=cv2.BORDER_REPLICATE)
+            return self._full
+        warped = self._f32
+        if cam.maps is not None:
+            warped = cv2.remap(self._f32, cam.maps[0], cam.maps[1], _REMAP_INTERPOLATION, dst=self._warped,
+                               borderMode=cv2.BORDER_REPLICATE)
+        # s > 1: each output pixel the mean of its s x s samples (INTER_AREA with an integer factor, exact in
+        # float32); k > 1: the coarse image resized bilinearly (pixel u at (u + 0.5)/k - 0.5 of the coarse grid)
+        cv2.resize(warped, (self.width, self.height), dst=self._full,
+                   interpolation=cv2.INTER_AREA if s > 1 else cv2.INTER_LINEAR)
+        return self._full
+
+    def _noise_image(self, sigma: float, noise_seed: int | None) -> np.ndarray:
+        """Sensor noise ``(H, W)`` float32 (a view), N(0, ``sigma``^2) i.i.d. over the pixels: rows of one long stream
+        of Gaussian samples (generated once per image former, the same in every process), read from an offset and
+        with a row pitch (``W`` to ``W`` + :data:`_NOISE_PITCHES` - 1) both drawn from ``noise_seed`` (random
+        without one).
+
+        Why a stream and not ``cv2.randn`` per image: a 5-Mpx image of Gaussian samples costs ~11 ms, a sixth of
+        a windowed image. Within an image the samples are distinct draws of the stream, as independent as
+        before. Two images share samples only at a shear of each other (another pitch) or at a shift of their
+        offsets' difference (the same pitch, 1 in 1024): a pixel's noise lands under an unrelated pixel of the
+        other image; two images read the very same samples with a chance of 1 in 4e9."""
+        w, h = self.width, self.height
+        if self._pool is None or self._pool_sigma != sigma:
+            self._pool = np.empty(h * (w + _NOISE_PITCHES) + _NOISE_OFFSETS, dtype=np.float32)
+            cv2.setRNGSeed(0x5EED)
+            cv2.randn(self._pool, 0.0, sigma)
+            self._pool_sigma = sigma
+        rng = np.random.default_rng(None if noise_seed is None else int(noise_seed) & 0xFFFFFFFF)
+        offset, pitch = int(rng.integers(_NOISE_OFFSETS)), w + int(rng.integers(_NOISE_PITCHES))
+        return self._pool[offset:offset + h * pitch].reshape(h, pitch)[:, :w]
 
     @staticmethod
     def _seed(noise_seed: int | None) -> None:
@@ -560,6 +636,37 @@ class ImageFormer:
             self._con.free()
             self._con = None
             self._gl.free()
+
+
+class _Reader:
+    """Reads the first ``rows`` rows of the offscreen buffer as greyscale ``(rows, width)`` uint8 (GL row order:
+    bottom first). RGBA is the GL's native read format here (a copy; RGB goes through a slower conversion);
+    with a multisampled buffer MuJoCo's own ``mjr_readPixels`` (which resolves it) is used."""
+
+    def __init__(self, con: mujoco.MjrContext, width: int, height: int):
+        self._con, self.width = con, width
+        self._gl = None
+        if not con.offSamples:
+            try:
+                from OpenGL import GL  # PyOpenGL: a dependency of mujoco's own GL back ends
+
+                self._gl = GL
+            except ImportError:  # pragma: no cover - depends on the installation
+                self._gl = None
+        self._buf = np.empty((height, width, 4 if self._gl is not None else 3), dtype=np.uint8)
+        self._grey = np.empty((height, width), dtype=np.uint8)
+
+    def __call__(self, rows: int) -> np.ndarray:
+        buf = self._buf[:rows]
+        if self._gl is not None:
+            GL = self._gl
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, self._con.offFBO)
+            GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)
+            GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+            GL.glReadPixels(0, 0, self.width, rows, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE, buf)
+            return cv2.cvtColor(buf, cv2.COLOR_RGBA2GRAY, dst=self._grey[:rows])
+        mujoco.mjr_readPixels(buf, None, mujoco.MjrRect(0, 0, self.width, rows), self._con)
+        return cv2.cvtColor(buf, cv2.COLOR_RGB2GRAY, dst=self._grey[:rows])
 
 
 __all__ += ["ImageFormer", "gl_max_renderbuffer_px"]

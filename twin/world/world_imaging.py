@@ -175,29 +175,51 @@ class WorldImaging:
         cap = self.capture(q_cmd, station, context, pose_id, noise_seed=noise_seed)
         return cap.left, cap.right
 
+    def board_view_poses(self, n: int | None = None, seed: int | None = None, station: int = 0
+                         ) -> list[tuple[np.ndarray, int]]:
+        """The board views :meth:`render_board_views` draws, without drawing or recording them: ``n`` (default
+        ``config.board.views``) pairs of the board's pose ``board2meas`` ``(4, 4)`` and the view's noise seed (for
+        :meth:`render_board`), from ``seed`` (default the world's) alone. So views can be drawn in any process
+        and in any order with the same images."""
+        n = self.config.board.views if n is None else int(n)
+        station = self._check_station(station)
+        base = self.config.seed if seed is None else int(seed)
+        rng = np.random.default_rng([base, 3])
+        c2w = self.true_cam2world(station)
+        w2c = (invert_transform(c2w[0]), invert_transform(c2w[1]))
+        poses = sample_board_poses(self.config.board, n, rng, w2c, self.true_intrinsics(), self._rig2world[station])
+        seeds = np.random.SeedSequence([base, 4]).generate_state(len(poses))
+        return [(w2c[0] @ T, int(s)) for T, s in zip(poses, seeds)]
+
     def render_board_views(self, n: int | None = None, seed: int | None = None, station: int = 0) -> list[BoardView]:
         """``n`` board views (default ``config.board.views``): both cameras at the same moment.
 
         Only views with at least ``config.board.min_corners`` interior corners inside both images are
         returned; parts of the board may fall outside an image (ChArUco copes). The arm and plate are
-        hidden. The true ``board2meas`` of each view joins :attr:`truth_board_views`.
+        hidden. The true ``board2meas`` of each view joins :attr:`truth_board_views`. Poses and noise come from
+        ``seed`` alone (:meth:`board_view_poses`).
         """
-        n = self.config.board.views if n is None else int(n)
-        station = self._check_station(station)
-        rng = np.random.default_rng([self.config.seed, 3] if seed is None else [seed, 3])
-        c2w = self.true_cam2world(station)
-        w2c = (invert_transform(c2w[0]), invert_transform(c2w[1]))
-        poses = sample_board_poses(self.config.board, n, rng, w2c, self.true_intrinsics(), self._rig2world[station])
-        return [self.render_board(w2c[0] @ T, station) for T in poses]
+        return [self.render_board(T, station, noise_seed=s) for T, s in self.board_view_poses(n, seed, station)]
+
+    def record_board_view(self, board2meas: np.ndarray) -> int:
+        """Add a board view's true ``board2meas`` ``(4, 4)`` to :attr:`truth_board_views` (for a view drawn
+        elsewhere with ``record=False``); returns its index there."""
+        T = np.asarray(board2meas, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"board2meas must be a finite (4, 4) transform, got {board2meas!r}")
+        index = len(self.truth_board_views)
+        self.truth_board_views.append((index, T.copy()))
+        return index
 
     def render_board(self, board2meas: np.ndarray, station: int = 0, *, noise: bool = True,
-                     record: bool = True) -> BoardView:
+                     record: bool = True, noise_seed: int | None = None) -> BoardView:
         """Both cameras' images of the board at ``board2meas`` ``(4, 4)`` (board frame -> the station's
         measurement frame, i.e. the left camera, OpenCV axes), arm and plate hidden.
 
         Any pose is drawn, seen or not (:meth:`render_board_views` samples poses both cameras see). With
         ``record`` the pose joins :attr:`truth_board_views` (the view's ``index`` is its position there; -1
-        otherwise); ``noise=False`` leaves out the sensor noise.
+        otherwise); ``noise=False`` leaves out the sensor noise; ``noise_seed`` makes the noise a function of
+        (world seed, ``noise_seed``) alone (by default it follows the world's own image counter).
         """
         station = self._check_station(station)
         T = np.asarray(board2meas, dtype=float)
@@ -210,13 +232,11 @@ class WorldImaging:
             self.data.mocap_quat[k] = matrix_to_quat_wxyz(board2world[:3, :3])
             self._place(self.data.qpos[self._qadr].copy(), station)
             windows = self.board_windows(T, station) if self.config.render.window_supersample >= 1 else None
-            left, right = self._form_pair(self._opt_board, None, noise=noise, windows=windows)
+            left, right = self._form_pair(self._opt_board, None, noise=noise, windows=windows,
+                                          pair_seed=None if noise_seed is None else int(noise_seed))
         finally:
             self._hide("board")
-        index = -1
-        if record:
-            index = len(self.truth_board_views)
-            self.truth_board_views.append((index, T.copy()))
+        index = self.record_board_view(T) if record else -1
         return BoardView(index, left, right, T.copy())
 
     def render_probe(self, point_meas: np.ndarray, station: int = 0, camera: str = "left", *,
