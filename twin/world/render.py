@@ -106,33 +106,47 @@ def _interp_matrix(pos: np.ndarray, n_nodes: int) -> np.ndarray:
     i = np.minimum(pos.astype(np.intp), n_nodes - 2)
     a = pos - i
     W = np.zeros((len(pos), n_nodes))
-    r = np.arange(len(pos))
-    W[r, i] = 1.0 - a
-    W[r, i + 1] = a
+    flat = W.reshape(-1)
+    k = np.arange(len(pos)) * n_nodes + i
+    flat[k] = 1.0 - a
+    flat[k + 1] = a
     return W
 
 
 def _merge_boxes(boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
     """Indices of ``boxes`` ``(x0, y0, x1, y1)`` grouped into draws: two draws become one while their bounding box
     adds at most :data:`_DRAW_COST_SAMPLES` samples to theirs (greedy, cheapest union first)."""
-    groups = [[i] for i in range(len(boxes))]
+    n = len(boxes)
+    groups = [[i] for i in range(n)]
+    if n < 2:
+        return groups
     b = np.array(boxes, dtype=np.int64).reshape(-1, 4)
-    while len(b) > 1:
-        x0 = np.minimum(b[:, None, 0], b[None, :, 0])
-        y0 = np.minimum(b[:, None, 1], b[None, :, 1])
-        x1 = np.maximum(b[:, None, 2], b[None, :, 2])
-        y1 = np.maximum(b[:, None, 3], b[None, :, 3])
+    alive = np.ones(n, dtype=bool)
+
+    def extra_with(i: int) -> np.ndarray:
+        """Samples the union of box ``i`` with each box adds to the two (``inf`` for itself and merged boxes)."""
+        w = np.maximum(b[:, 2], b[i, 2]) - np.minimum(b[:, 0], b[i, 0])
+        h = np.maximum(b[:, 3], b[i, 3]) - np.minimum(b[:, 1], b[i, 1])
         area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-        extra = (x1 - x0) * (y1 - y0) - area[:, None] - area[None, :]
-        extra[np.tril_indices(len(b))] = np.iinfo(np.int64).max
-        i, j = np.unravel_index(np.argmin(extra), extra.shape)
-        if extra[i, j] > _DRAW_COST_SAMPLES:
+        e = (w * h - area - area[i]).astype(float)
+        e[i] = np.inf
+        e[~alive] = np.inf
+        return e
+
+    extra = np.stack([extra_with(i) for i in range(n)])
+    while True:
+        k = int(np.argmin(extra))
+        i, j = divmod(k, n)
+        if not extra[i, j] <= _DRAW_COST_SAMPLES:
             break
-        b[i] = (x0[i, j], y0[i, j], x1[i, j], y1[i, j])
+        b[i] = (min(b[i, 0], b[j, 0]), min(b[i, 1], b[j, 1]), max(b[i, 2], b[j, 2]), max(b[i, 3], b[j, 3]))
         groups[i] += groups[j]
-        b = np.delete(b, j, axis=0)
-        del groups[j]
-    return groups
+        groups[j] = []
+        alive[j] = False
+        extra[j, :] = extra[:, j] = np.inf
+        extra[i, :] = extra_with(i)
+        extra[:, i] = extra[i, :]
+    return [g for g in groups if g]
 
 
 @dataclass
@@ -226,41 +240,60 @@ class _WindowTables:
         self.cam, self.rects, self.s = cam, list(rects), int(s)
         gw, gh = s * cam.intr.width, s * cam.intr.height
         self.grid = (gw, gh)
-        self.boxes: list[tuple[int, int, int, int]] = []
-        self._parts: list[tuple] = []
+        r = np.array(self.rects, dtype=np.int64).reshape(-1, 4) * s  # the windows' samples: x0, y0, x1, y1 (excl.)
         if cam.ideal:  # the true camera is the ideal one: the window's samples are the ideal grid's
-            for u0, v0, u1, v1 in self.rects:
-                self.boxes.append((s * u0, s * v0, s * u1, s * v1))
+            self.boxes = [tuple(int(v) for v in b) for b in r]
             return
-        lat = cam._window_lattice(s)  # (2, ny, nx)
-        step = float(s * _LATTICE_PX)
-        for u0, v0, u1, v1 in self.rects:
-            # lattice units (node j at sample s L (j - 1)); columns by gathers, rows by a product (Wy, small)
-            xs = np.arange(s * u0, s * u1, dtype=float) / step + 1.0
-            ys = np.arange(s * v0, s * v1, dtype=float) / step + 1.0
-            jy0 = int(ys[0])
-            Wy = _interp_matrix(ys - jy0, int(ys[-1]) + 2 - jy0)  # (hs, ny)
-            ix = xs.astype(np.intp)
-            ax = xs - ix
-            block = lat[:, jy0:jy0 + Wy.shape[1]]
-            T = block[:, :, ix] * (1.0 - ax) + block[:, :, ix + 1] * ax  # (2, ny, ws): the maps at the lattice rows
-            # the maps' range: each monotonic along its own axis (the distortion is checked monotonic), so the
-            # extremes lie on the window's first and last column (x) or row (y)
-            ex, ey = Wy @ T[0][:, [0, -1]], Wy[[0, -1]] @ T[1]
-            x0 = min(max(math.floor(ex.min()) - 1, 0), gw - 1)
-            y0 = min(max(math.floor(ey.min()) - 1, 0), gh - 1)
-            x1 = min(max(math.ceil(ex.max()) + 2, x0 + 1), gw)
-            y1 = min(max(math.ceil(ey.max()) + 2, y0 + 1), gh)
-            self.boxes.append((x0, y0, x1, y1))
-            self._parts.append((Wy, T))
+        self._lat = cam._window_lattice(s)
+        self._step = float(s * _LATTICE_PX)
+        # Each map is monotonic along its own axis (the distortion is checked monotonic), so its range over a window
+        # lies on the window's first and last column (x) or row (y): those samples of every window at once.
+        hs, ws = r[:, 3] - r[:, 1], r[:, 2] - r[:, 0]
+        cols_x = np.concatenate([np.stack([np.full(h, a), np.full(h, b - 1)], 1).ravel() for a, b, h in zip(r[:, 0], r[:, 2], hs)])
+        cols_y = np.concatenate([np.repeat(np.arange(a, b), 2) for a, b in zip(r[:, 1], r[:, 3])])
+        rows_x = np.concatenate([np.tile(np.arange(a, b), 2) for a, b in zip(r[:, 0], r[:, 2])])
+        rows_y = np.concatenate([np.repeat([a, b - 1], w) for a, b, w in zip(r[:, 1], r[:, 3], ws)])
+        ex = self._at(0, cols_x, cols_y)
+        ey = self._at(1, rows_x, rows_y)
+        ix, iy = np.cumsum(2 * hs)[:-1], np.cumsum(2 * ws)[:-1]
+        lo_x, hi_x = np.minimum.reduceat(ex, np.r_[0, ix]), np.maximum.reduceat(ex, np.r_[0, ix])
+        lo_y, hi_y = np.minimum.reduceat(ey, np.r_[0, iy]), np.maximum.reduceat(ey, np.r_[0, iy])
+        x0 = np.clip(np.floor(lo_x) - 1, 0, gw - 1).astype(np.int64)
+        y0 = np.clip(np.floor(lo_y) - 1, 0, gh - 1).astype(np.int64)
+        x1 = np.clip(np.ceil(hi_x) + 2, x0 + 1, gw).astype(np.int64)
+        y1 = np.clip(np.ceil(hi_y) + 2, y0 + 1, gh).astype(np.int64)
+        self.boxes = list(zip(x0.tolist(), y0.tolist(), x1.tolist(), y1.tolist()))
+
+    def _at(self, coord: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Map ``coord`` (0: x, 1: y) at the samples ``(x, y)`` of the true grid: bilinear on the lattice."""
+        fx, fy = x / self._step + 1.0, y / self._step + 1.0  # node j at sample s L (j - 1)
+        ix, iy = fx.astype(np.intp), fy.astype(np.intp)
+        ax, ay = fx - ix, fy - iy
+        lat = self._lat[coord]
+        top = lat[iy, ix] * (1.0 - ax) + lat[iy, ix + 1] * ax
+        bottom = lat[iy + 1, ix] * (1.0 - ax) + lat[iy + 1, ix + 1] * ax
+        return top * (1.0 - ay) + bottom * ay
 
     def maps(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Window ``i``'s float32 maps ``(s*(v1-v0), s*(u1-u0))`` in the coordinates of its source box (origin
-        ``boxes[i][:2]``): small numbers, which float32 holds to ~1e-5 sample."""
-        Wy, T = self._parts[i]
+        ``boxes[i][:2]``): small numbers, which float32 holds to ~1e-5 sample. Bilinear on the lattice, written
+        ``Wy @ N @ Wx^T`` (the interpolation weights of the window's rows and columns, the lattice block ``N``)."""
+        s, step = self.s, self._step
+        u0, v0, u1, v1 = self.rects[i]
         x0, y0 = self.boxes[i][:2]
-        wy = Wy.astype(np.float32)
-        return wy @ (T[0] - x0).astype(np.float32), wy @ (T[1] - y0).astype(np.float32)
+        fx = np.arange(s * u0, s * u1) / step + 1.0  # node j at sample s L (j - 1)
+        fy = np.arange(s * v0, s * v1) / step + 1.0
+        jx, jy = int(fx[0]), int(fy[0])
+        Wx = _interp_matrix(fx - jx, int(fx[-1]) + 2 - jx)
+        Wy = _interp_matrix(fy - jy, int(fy[-1]) + 2 - jy)
+        ny = Wy.shape[1]
+        block = self._lat[:, jy:jy + ny, jx:jx + Wx.shape[1]].reshape(2 * ny, -1)
+        T = block @ Wx.T  # (2 ny, ws): both maps at the lattice rows, every column
+        T[:ny] -= x0
+        T[ny:] -= y0
+        T = T.astype(np.float32)
+        Wy = Wy.astype(np.float32)
+        return Wy @ T[:ny], Wy @ T[ny:]
 
 
 def gl_max_renderbuffer_px() -> int | None:
