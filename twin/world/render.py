@@ -307,28 +307,67 @@ def gl_max_renderbuffer_px() -> int | None:
         return None
 
 
+@dataclass(frozen=True)
+class _Occluder:
+    """A flat opaque mesh (the plate's disc) as :class:`_FrustumCuller` uses it: in its geom's frame, the axis of
+    its thickness, the centre of its box (``geom_aabb``), its half-thickness and the radius of the largest circle
+    about that centre inside its outline [m]."""
+
+    geom: int
+    axis: int
+    centre: np.ndarray
+    half_thickness: float
+    inscribed_radius: float
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, geom: int) -> "_Occluder":
+        """The occluder of mesh geom ``geom`` (its vertices' convex outline across its thinnest box axis)."""
+        from scipy.spatial import ConvexHull
+
+        if model.geom_type[geom] != mujoco.mjtGeom.mjGEOM_MESH:
+            raise ValueError(f"occluder geom {geom} is not a mesh")
+        box = np.asarray(model.geom_aabb[geom], dtype=float)
+        axis = int(np.argmin(box[3:]))
+        mesh = int(model.geom_dataid[geom])
+        adr, num = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+        verts = np.asarray(model.mesh_vert[adr:adr + num], dtype=float) - box[:3]
+        flat = np.delete(verts, axis, axis=1)
+        hull = ConvexHull(flat)
+        # hull.equations: unit normal n and offset b with n.x + b <= 0 inside: the distance of the centre to a side is -b
+        radius = float(np.min(-hull.equations[:, 2]))
+        if not radius > 0:
+            raise ValueError(f"occluder geom {geom}: its outline does not surround its centre")
+        return cls(geom, axis, box[:3].copy(), float(box[3 + axis]), radius)
+
+
 class _FrustumCuller:
-    """Leaves out of a draw the scene geoms that lie wholly outside its frustum.
+    """Leaves out of a draw the scene geoms that cannot show in it.
 
     Why: ``mjr_render`` sends every scene geom down the pipeline whatever the viewport shows, and on llvmpipe a
     primitive sphere at ``quality numslices=128`` costs ~0.2 ms per draw, the floor plane (drawn as a grid)
-    ~0.1 ms, against ~0.05 ms for the rest of a small window; a geom outside the frustum produces no fragment
-    (no shadows, no reflections here), so leaving it out changes no pixel. A geom is outside when its bounding
-    sphere is, or, for a finite plane (no bounding radius), when its four corners lie beyond one side of the
-    frustum. A left-out geom gets ``mjGEOM_NONE``, which ``mjr_render`` skips; :meth:`restore` puts the types
-    back. Infinite planes and geoms without a bounding radius are always drawn.
+    ~0.1 ms, against ~0.05 ms for the rest of a small window, and a hidden geom drawn before what hides it costs
+    its fragments too; a geom that cannot show produces no visible fragment (no shadows, no reflections here), so
+    leaving it out changes no pixel. A geom cannot show when one of its bounding volumes (its bounding sphere; for a
+    mesh or a box also its box, the model's ``geom_aabb`` in the geom's frame; for a finite plane its rectangle) lies
+    wholly beyond one side of the frustum, or wholly behind the front face of an occluder (a flat opaque mesh:
+    the plate's disc) whose outline covers the whole frustum there (the frustum's four edges meet the face's plane
+    inside the circle inscribed in the outline). A left-out geom gets ``mjGEOM_NONE``, which ``mjr_render``
+    skips; :meth:`restore` puts the types back. Infinite planes and geoms without a bounding radius are always
+    drawn.
     """
 
     _NONE = int(mujoco.mjtGeom.mjGEOM_NONE)
     _PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
+    _MESH = int(mujoco.mjtGeom.mjGEOM_MESH)
+    # geoms whose model box (geom_aabb) bounds them as drawn: meshes and boxes (scene effects resize only spheres)
+    _BOXED = (int(mujoco.mjtGeom.mjGEOM_MESH), int(mujoco.mjtGeom.mjGEOM_BOX))
+    _OBJ_GEOM = int(mujoco.mjtObj.mjOBJ_GEOM)
 
-    def __init__(self, scene: mujoco.MjvScene):
+    def __init__(self, scene: mujoco.MjvScene, model: mujoco.MjModel, occluders: tuple[_Occluder, ...] = ()):
         self._scene = scene
         n = int(scene.ngeom)
         geoms = [scene.geoms[i] for i in range(n)]
         self._types = np.array([g.type for g in geoms], dtype=int)
-        pos = np.array([g.pos for g in geoms], dtype=float).reshape(n, 3)
-        rbound = np.array([g.modelrbound for g in geoms], dtype=float)
         # mono rendering draws from the average of the two eye cameras (mjv_updateScene places them +-ipd/2 apart)
         cams = (scene.camera[0], scene.camera[1])
         fwd = np.mean([np.array(c.forward, dtype=float) for c in cams], axis=0)
@@ -336,38 +375,80 @@ class _FrustumCuller:
         eye = np.mean([np.array(c.pos, dtype=float) for c in cams], axis=0)
         # camera coordinates: x right, y up, z along the view direction (depth)
         axes = np.stack([np.cross(fwd, up), up, fwd])
-        # the points tested: each bounded geom's centre with its bounding radius, then the four corners of each
-        # finite plane (size[0], size[1] half-extents along the geom's x and y axes) with radius 0
-        self._spheres = np.flatnonzero(rbound > 0)
-        self._planes = np.array([i for i, g in enumerate(geoms)
-                                 if self._types[i] == self._PLANE and g.size[0] > 0 and g.size[1] > 0], dtype=int)
-        pts, rad = [pos[self._spheres]], [rbound[self._spheres]]
-        for i in self._planes:
+        by_geom = {int(g.objid): i for i, g in enumerate(geoms) if g.objtype == self._OBJ_GEOM}
+        # bounding volumes: centre, three half-axis vectors (columns), radius, and the geom they bound
+        centres, halves, radii, owners = [], [], [], []
+        for i, g in enumerate(geoms):
+            pos = np.array(g.pos, dtype=float)
+            mat = np.array(g.mat, dtype=float).reshape(3, 3)  # columns: the geom's axes
+            if g.modelrbound > 0:
+                centres.append(pos)
+                halves.append(np.zeros((3, 3)))
+                radii.append(float(g.modelrbound))
+                owners.append(i)
+            if self._types[i] in self._BOXED and g.objtype == self._OBJ_GEOM and g.objid >= 0:
+                box = np.asarray(model.geom_aabb[g.objid], dtype=float)
+                centres.append(pos + mat @ box[:3])
+                halves.append(mat * box[3:])
+                radii.append(0.0)
+                owners.append(i)
+            elif self._types[i] == self._PLANE and g.size[0] > 0 and g.size[1] > 0:
+                centres.append(pos)
+                halves.append(mat * np.array([g.size[0], g.size[1], 0.0]))
+                radii.append(0.0)
+                owners.append(i)
+        self._c = (np.array(centres).reshape(-1, 3) - eye) @ axes.T
+        self._h = np.einsum("ij,kjl->kil", axes, np.array(halves).reshape(-1, 3, 3))
+        self._r = np.array(radii)
+        self._owner = np.array(owners, dtype=int)
+        # occluders seen from their front: the face towards the eye (centre, unit normal towards the eye), the
+        # inscribed radius, and which volumes lie wholly behind that face
+        self._faces = []
+        for occ in occluders:
+            i = by_geom.get(occ.geom)
+            if i is None or self._types[i] != self._MESH:
+                continue
             g = geoms[i]
             mat = np.array(g.mat, dtype=float).reshape(3, 3)
-            ex, ey = mat[:, 0] * g.size[0], mat[:, 1] * g.size[1]
-            pts.append(pos[i] + np.array([ex + ey, ex - ey, -ex + ey, -ex - ey]))
-            rad.append(np.zeros(4))
-        xyz = (np.concatenate(pts) - eye) @ axes.T
-        self._xy = xyz[:, [0, 0, 1, 1]].T  # (4, N): the coordinate each side of the frustum bounds
-        self._z, self._rad = xyz[:, 2], np.concatenate(rad)
-        self._sign = np.array([1.0, -1.0, 1.0, -1.0])[:, None]
+            centre = (np.array(g.pos, dtype=float) + mat @ occ.centre - eye) @ axes.T
+            normal = axes @ mat[:, occ.axis]
+            if normal @ centre > 0:  # make the normal point towards the eye (the origin)
+                normal = -normal
+            face = centre + occ.half_thickness * normal
+            if normal @ face >= 0:  # the eye within the slab: no front face
+                continue
+            # behind: the volume's nearest point to the face's plane, towards the eye, is still behind it
+            depth = (self._c - face) @ -normal - np.abs(np.einsum("kij,i->kj", self._h, normal)).sum(axis=1) - self._r
+            behind = depth > 0
+            behind[self._owner == i] = False
+            self._faces.append((face, normal, occ.inscribed_radius, behind))
         self._culled = np.zeros(n, dtype=bool)
 
     def cull(self, left: float, right: float, bottom: float, top: float, near: float) -> None:
-        """Draw only the geoms that may reach the frustum of the near-plane window ``[left, right] x [bottom,
+        """Draw only the geoms that may show in the frustum of the near-plane window ``[left, right] x [bottom,
         top]`` at depth ``near`` (scene camera units)."""
-        a = np.array([left, right, bottom, top])[:, None] / near
-        # each side's plane (coordinate = a z, through the eye): a point is beyond it when its signed distance
-        # (inside > 0) is below -radius; before the near plane when z + radius < near
-        beyond = np.empty((5, len(self._z)), dtype=bool)
-        np.less(self._sign * (self._xy - a * self._z) / np.sqrt(1.0 + a * a), -self._rad, out=beyond[:4])
-        np.less(self._z + self._rad, near, out=beyond[4])
-        ns = len(self._spheres)
+        # the frustum's sides (coordinate = a z through the eye) and its near plane (z = near), inward unit normals
+        a = np.array([left, right, bottom, top]) / near
+        sign = np.array([1.0, -1.0, 1.0, -1.0])
+        normals = np.zeros((5, 3))
+        normals[[0, 1], 0] = sign[:2]
+        normals[[2, 3], 1] = sign[2:]
+        normals[:4, 2] = -sign * a
+        normals[:4] /= np.sqrt(1.0 + a * a)[:, None]
+        normals[4, 2] = 1.0
+        offset = np.array([0.0, 0.0, 0.0, 0.0, -near])
+        # a volume is beyond a plane when even its farthest point inwards (centre + support of the box and sphere)
+        # lies outside
+        reach = self._c @ normals.T + offset + np.abs(np.einsum("kij,pi->kpj", self._h, normals)).sum(axis=2)
+        gone = (reach + self._r[:, None] < 0.0).any(axis=1)
+        if self._faces:
+            edges = np.array([[left, bottom, near], [right, bottom, near], [left, top, near], [right, top, near]])
+            for face, normal, radius, behind in self._faces:
+                t = (face @ normal) / (edges @ normal)  # where the frustum's edges meet the face's plane
+                if np.all(t > 0) and np.all(np.linalg.norm(t[:, None] * edges - face, axis=1) < radius):
+                    gone |= behind
         out = np.zeros_like(self._culled)
-        out[self._spheres] = beyond[:, :ns].any(axis=0)
-        if len(self._planes):
-            out[self._planes] = beyond[:, ns:].reshape(5, -1, 4).all(axis=2).any(axis=0)
+        np.logical_or.at(out, self._owner, gone)
         for i in np.flatnonzero(out != self._culled):
             self._scene.geoms[i].type = self._NONE if out[i] else int(self._types[i])
         self._culled = out
@@ -389,8 +470,10 @@ class ImageFormer:
     """
 
     def __init__(self, model: mujoco.MjModel, width: int, height: int, supersample: int = 1,
-                 frame_subsample: int = 1):
+                 frame_subsample: int = 1, occluders: tuple[int, ...] = ()):
         self.model = model
+        # flat opaque meshes (model geom ids) that hide what lies behind them from a draw they cover
+        self._occluders = tuple(_Occluder.of(model, int(g)) for g in occluders)
         self.width, self.height = int(width), int(height)
         s, k = int(supersample), int(frame_subsample)
         if s != supersample or s < 1:
@@ -473,7 +556,7 @@ class ImageFormer:
         mujoco.mjv_updateScene(self.model, data, option, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL.value, self._scene)
         gl_cams = [self._scene.camera[0], self._scene.camera[1]]
         full = [(c.frustum_center, c.frustum_bottom, c.frustum_top) for c in gl_cams]
-        culler = _FrustumCuller(self._scene)
+        culler = _FrustumCuller(self._scene, self.model, self._occluders)
         try:
             placed: list[tuple[int, tuple[int, int, int, int], int, int]] = []  # (job, tile, px, py)
             px = py = shelf = 0

@@ -16,7 +16,10 @@ from .effects import EffectContext, SceneState
 from .records import BoardView
 from .render import ImageFormer
 
-__all__ = ["WorldImaging"]
+__all__ = ["WorldImaging", "BOARD_WINDOW_PX"]
+
+# How far from each inner corner of a board view the window reaches in the image [px] (World.board_windows).
+BOARD_WINDOW_PX = 13.0
 
 
 class WorldImaging:
@@ -42,7 +45,9 @@ class WorldImaging:
     def _get_former(self) -> ImageFormer:
         if self._former is None:
             w, h = self.image_size
-            self._former = ImageFormer(self.model, w, h, self.config.render.supersample, self.frame_subsample)
+            disc = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, "plate_disc")
+            self._former = ImageFormer(self.model, w, h, self.config.render.supersample, self.frame_subsample,
+                                       occluders=(disc,) if disc >= 0 else ())
         return self._former
 
     def _noise_seed(self, pair_seed: int | None = None, camera: int = 0) -> int:
@@ -122,11 +127,15 @@ class WorldImaging:
     def board_windows(self, board2meas: np.ndarray, station: int = 0
                       ) -> tuple[tuple[tuple[int, int, int, int], ...], tuple[tuple[int, int, int, int], ...]]:
         """The target windows of a board view (per camera, as :meth:`target_windows`): one around each inner
-        chessboard corner, reaching a quarter square from it plus the margin.
+        chessboard corner, reaching :data:`BOARD_WINDOW_PX` from it in both images (at most a quarter square) plus
+        the margin.
 
-        What the instrument measures on a board view is the inner corners (sub-pixel corner refinement looks a
-        few pixels around each); the markers in between are found at one sample per pixel all the same. A
-        window per corner rather than one over the whole board: a quarter of the samples."""
+        What the instrument measures on a board view is the inner corners: OpenCV's ChArUco detector refines each
+        in a window of at most 21 x 21 px about its first estimate (two pixels short of the nearest marker corner);
+        the window, the gradients' pixel beyond it and 2 px for the first estimate's error are 13 px from the
+        corner. The markers in between are found at one sample per pixel all the same. Measured on make run's 24
+        views: the same calibration (reprojection RMS 0.042 px, focal lengths and principal points within their
+        scatter of the true ones) as with windows a quarter square wide, at 0.45 of the time per view."""
         station = self._check_station(station)
         T = np.asarray(board2meas, dtype=float)
         board2world = self.true_cam2world(station)[0] @ T
@@ -134,7 +143,12 @@ class WorldImaging:
         ii, jj = np.meshgrid(np.arange(1, b.squares_x), np.arange(1, b.squares_y))
         corners = np.stack([ii.ravel() * b.square, jj.ravel() * b.square, np.zeros(ii.size)], axis=1)
         corners_world = (board2world[:3, :3] @ corners.T).T + board2world[:3, 3]
-        return self.target_windows(corners_world, np.full(len(corners), 0.25 * b.square), station)
+        # the radius that reaches BOARD_WINDOW_PX in the image of the farther camera
+        depth = np.max([np.linalg.norm(corners_world - c2w[:3, 3], axis=1) for c2w in self.true_cam2world(station)],
+                       axis=0)
+        f = min(p.intr.fx for p in self._pipes)
+        radius = np.minimum(BOARD_WINDOW_PX * depth / f, 0.25 * b.square)
+        return self.target_windows(corners_world, radius, station)
 
     def _sphere_windows(self, station: int):
         if self.config.render.window_supersample < 1:
