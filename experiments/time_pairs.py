@@ -29,7 +29,8 @@ def main() -> int:
         raise SystemExit(f"--pairs must be >= 1, got {a.pairs}")
     if not a.config.is_file():
         raise SystemExit(f"config {a.config} is not a file")
-    import twin  # noqa: F401  (MUJOCO_GL before mujoco in the versions that set it; the CLI sets it otherwise)
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering through Mesa's EGL, before mujoco loads
+    import twin  # noqa: F401
     from twin.world import World
 
     raw = tomllib.loads(a.config.read_text())
