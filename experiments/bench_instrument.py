@@ -19,9 +19,9 @@ averaged like a real sensor's pixel integrates light, then the same noise) and `
 and board views drawn by the analytic ray tracer of ``twin.instrument.synthetic``: exact, anti-aliased
 sphere outlines).
 
-The main ``world`` row renders with the twin's target windows (``--window-supersample``, default 4: one
-sample per pixel, 4 x 4 in windows along the sphere outlines and around the board's corners, over a frame at
-one sample per 2 x 2 pixels (``--frame-subsample``), what ``make run`` renders);
+The main ``world`` row renders with the twin's target windows (``--window-supersample``, default 3: 3 x 3
+samples per pixel in windows along the sphere outlines and around the board's corners, over a frame at one
+sample per 4 x 4 pixels (``--frame-subsample``), what ``make run`` renders);
 ``world_full_frame`` is the same scene at one sample per pixel everywhere.
 ``--render-supersample N`` renders the main ``world`` row with the twin's own ``render.supersample = N``
 (N x N samples per pixel, distortion on the sampling grid, block means, then noise).
@@ -290,11 +290,11 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--render-supersample", type=int, default=1,
                     help="the twin's render.supersample for the main world row (samples per pixel along each axis)")
-    ap.add_argument("--window-supersample", type=int, default=4,
+    ap.add_argument("--window-supersample", type=int, default=3,
                     help="the twin's render.window_supersample for the main world row (0: no windows); the row "
                          "'world_full_frame' renders the same scene without windows")
-    ap.add_argument("--frame-subsample", type=int, default=2,
-                    help="with windows: the frame at one sample per k x k pixels (make run's setting: 2)")
+    ap.add_argument("--frame-subsample", type=int, default=4,
+                    help="with windows: the frame at one sample per k x k pixels (make run's setting: 4)")
     ap.add_argument("--no-msaa", action="store_true", help="skip the 4x multisampling what-if")
     ap.add_argument("--no-supersample", action="store_true", help="skip the 2x2 supersampled-rendering what-if")
     ap.add_argument("--no-analytic", action="store_true", help="skip the analytic-renderer row")

@@ -66,7 +66,8 @@ def _profile(pairs: int) -> dict:
         share = tt / cpu
         if share >= 0.01:
             where = os.path.basename(fname) if fname.startswith(("/", ".")) else fname
-            rows.append({"function": f"{where}:{line}({func})" if line else func, "calls_per_pair": round(ncalls / len(qs), 2),
+            rows.append({"function": f"{where}:{line}({func})" if line else func,
+                         "calls_per_pair": round(ncalls / len(qs), 2),
                          "own_cpu_s_per_pair": round(tt / len(qs), 4), "share": round(share, 3)})
     rows.sort(key=lambda r: -r["share"])
     return {"setting": world.get("render", {}), "pairs": len(qs), "pair_cpu_s": round(cpu / len(qs), 4),
@@ -79,8 +80,8 @@ def _profile(pairs: int) -> dict:
 def _time_pairs(tree: Path, config: Path, pairs: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.setdefault("MUJOCO_GL", "egl")
-    out = subprocess.run([sys.executable, str(ROOT / "experiments" / "time_pairs.py"), str(config), "--pairs", str(pairs)],
-                         check=True, capture_output=True, text=True, env=env, cwd=tree)
+    cmd = [sys.executable, str(ROOT / "experiments" / "time_pairs.py"), str(config), "--pairs", str(pairs)]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env, cwd=tree)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -107,7 +108,8 @@ def _compare(rev: str, rounds: int, pairs: int) -> dict:
 
     med = {code: {k: median(code, k) for k in ("pair_cpu_s", "pair_wall_s")} for code in (sha, "current")}
     return {"against": sha, "current": head, "rounds": rounds, "pairs": pairs, "runs": runs, "median": med,
-            "ratio_current_to_against": {k: round(med["current"][k] / med[sha][k], 3) for k in ("pair_cpu_s", "pair_wall_s")},
+            "ratio_current_to_against": {k: round(med["current"][k] / med[sha][k], 3)
+                                         for k in ("pair_cpu_s", "pair_wall_s")},
             "note": "experiments/time_pairs.py in a fresh process per run, each code with its own make run config "
                     "(experiments/separation.toml of that commit), alternating, the same pairs (seed 0 over the "
                     "stations); CPU time counts every thread"}

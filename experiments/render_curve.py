@@ -7,10 +7,11 @@ every setting) are rendered ``--noise`` times each with different noise seeds (t
 measured by the instrument with the world's *true* cameras (so that only image formation differs between
 settings): per pair the process CPU time (every thread) and wall time of ``World.capture``, and the 3-D error
 of each measured sphere centre against the truth (RMS, median and max [mm]; the RMS of a few hundred centres
-moves by ~10 % from one set of noise seeds to another: a few hard spheres dominate it). Writes the ``render_curve`` section of results/benchmark.json with the load average. The
+moves by ~10 % from one set of noise seeds to another: a few hard spheres dominate it). Writes the
+``render_curve`` section of results/benchmark.json with the load average. The
 estimated stereo calibration adds its own error on top (the campaign's ``instrument_on_dataset``).
 
-    .venv/bin/python experiments/render_curve.py [--per-station 10]
+    .venv/bin/python experiments/render_curve.py [--per-station 15] [--noise 2]
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ def main() -> int:
         render = {**make_run, "window_supersample": ws if ws > 1 else 0, "frame_subsample": k}
         w = World.from_config({"world": {**base, "render": render}})
         if qs is None:
-            qs = [(st, q) for st in range(len(w.station_names)) for q in w.visible_configurations(st, a.per_station, seed=11)]
+            qs = [(st, q) for st in range(len(w.station_names))
+                  for q in w.visible_configurations(st, a.per_station, seed=11)]
         il, ir = w.true_intrinsics()
         cal = StereoCalibration(il, ir, w.true_left2right(), 0.0, 0.0, 0.0)
         w.capture(qs[0][1], qs[0][0], record=False, noise_seed=0)  # warm-up: renderer, textures

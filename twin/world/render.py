@@ -205,7 +205,8 @@ class CameraPipeline:
             xy_d = np.stack([(X - si.cx) / si.fx, (Y - si.cy) / si.fy], axis=-1)
             ray = undistort_normalized(xy_d, si.dist)
             back = distort_normalized(ray, si.dist)
-            err = max(np.max(np.abs(back[..., 0] - xy_d[..., 0])) * si.fx, np.max(np.abs(back[..., 1] - xy_d[..., 1])) * si.fy)
+            err = max(np.max(np.abs(back[..., 0] - xy_d[..., 0])) * si.fx,
+                      np.max(np.abs(back[..., 1] - xy_d[..., 1])) * si.fy)
             if err > 1e-4:
                 raise ValueError(f"distortion {self.intr.dist} cannot be inverted over the image (residual {err:.2g} "
                                  "samples)")
@@ -249,7 +250,8 @@ class _WindowTables:
         # Each map is monotonic along its own axis (the distortion is checked monotonic), so its range over a window
         # lies on the window's first and last column (x) or row (y): those samples of every window at once.
         hs, ws = r[:, 3] - r[:, 1], r[:, 2] - r[:, 0]
-        cols_x = np.concatenate([np.stack([np.full(h, a), np.full(h, b - 1)], 1).ravel() for a, b, h in zip(r[:, 0], r[:, 2], hs)])
+        cols_x = np.concatenate([np.stack([np.full(h, a), np.full(h, b - 1)], 1).ravel()
+                                 for a, b, h in zip(r[:, 0], r[:, 2], hs)])
         cols_y = np.concatenate([np.repeat(np.arange(a, b), 2) for a, b in zip(r[:, 1], r[:, 3])])
         rows_x = np.concatenate([np.tile(np.arange(a, b), 2) for a, b in zip(r[:, 0], r[:, 2])])
         rows_y = np.concatenate([np.repeat([a, b - 1], w) for a, b, w in zip(r[:, 1], r[:, 3], ws)])
@@ -333,7 +335,7 @@ class _Occluder:
         verts = np.asarray(model.mesh_vert[adr:adr + num], dtype=float) - box[:3]
         flat = np.delete(verts, axis, axis=1)
         hull = ConvexHull(flat)
-        # hull.equations: unit normal n and offset b with n.x + b <= 0 inside: the distance of the centre to a side is -b
+        # hull.equations: unit normal n and offset b with n.x + b <= 0 inside: the centre's distance to a side is -b
         radius = float(np.min(-hull.equations[:, 2]))
         if not radius > 0:
             raise ValueError(f"occluder geom {geom}: its outline does not surround its centre")
