@@ -2,7 +2,8 @@
 next to MuJoCo's bare ``Renderer.update_scene`` + ``Renderer.render()`` for the same scene and cameras, with
 one sample per pixel, with ``render.supersample = 2`` (2 x 2 samples per pixel) and with
 ``render.window_supersample = 4`` (1 sample per pixel, 4 x 4 in windows along the sphere outlines and over the
-board), and the instrument's ``measure_pair`` on each rendered pair (render + measure against the bare render).
+board), with make run's render table (experiments/separation.toml), and the instrument's ``measure_pair`` on each
+rendered pair (render + measure against the bare render).
 
 Writes the ``world`` section of ``results/benchmark.json``. Bare and full renders are interleaved so that
 load from other processes on the machine hits both alike; figures are medians (and minima, the least
@@ -18,6 +19,8 @@ from __future__ import annotations
 import argparse
 import os
 import time
+import tomllib
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +29,8 @@ import mujoco
 from twin.benchio import update_benchmark_section
 from twin.instrument import StereoCalibration, measure_pair
 from twin.world import World
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _stats(x: list[float]) -> dict:
@@ -115,11 +120,13 @@ def main() -> int:
     out["board_view_pair_s_windows_4"] = _board_pair_s(w, args.board_views)
     w.close()
     t = time.perf_counter()
-    # make run's setting: 4 x 4 in the windows over a frame at one sample per 2 x 2 pixels
-    w = World.from_config({**base, "render": {"window_supersample": 4, "frame_subsample": 2}})
-    out["build_world_s_windows_4_frame_2"] = round(time.perf_counter() - t, 3)
-    out["windows_4_frame_2"] = _bench(w, q, args.repeats)
-    out["board_view_pair_s_windows_4_frame_2"] = _board_pair_s(w, args.board_views)
+    # make run's setting (experiments/separation.toml): 3 x 3 in the windows over a frame at one sample per 4 x 4
+    # pixels
+    make_run = tomllib.loads((ROOT / "experiments" / "separation.toml").read_text())["world"]["render"]
+    w = World.from_config({**base, "render": dict(make_run)})
+    out["build_world_s_make_run"] = round(time.perf_counter() - t, 3)
+    out["make_run"] = {"render": dict(make_run), **_bench(w, q, args.repeats)}
+    out["board_view_pair_s_make_run"] = _board_pair_s(w, args.board_views)
     w.close()
     d1, d2 = out["noise_and_distortion"], out["supersample_2"]
     out["windows_4_over_1"] = {"median": round(out["windows_4"]["pair_s"]["median"] / d1["pair_s"]["median"], 3),
@@ -134,10 +141,9 @@ def main() -> int:
                    "times the image width and height; ratio_to_bare_1x: pair_s over the bare render of the output size; "
                    "measure_pair_s: the instrument on that pair; render_plus_measure_ratio_to_bare_1x: "
                    "(pair_s + measure_pair_s) over the bare render, medians; windows_4: 4 x 4 samples per pixel in "
-                   "the target windows; windows_4_frame_2: the same over a frame rendered at one sample per 2 x 2 "
-                   "pixels (make run's setting)")
+                   "the target windows; make_run: make run's render table (experiments/separation.toml)")
     path = update_benchmark_section("world", out)
-    for k in ("noise_only", "noise_and_distortion", "supersample_2", "windows_4", "windows_4_frame_2"):
+    for k in ("noise_only", "noise_and_distortion", "supersample_2", "windows_4", "make_run"):
         d = out[k]
         extra = f", bare 2x {d['bare_pair_s_2x']['median']:.3f} s" if "bare_pair_s_2x" in d else ""
         print(f"{k}: {d['pair_s']['median']:.3f} s/pair vs bare {d['bare_pair_s_1x']['median']:.3f} s/pair "
