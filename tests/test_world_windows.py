@@ -249,3 +249,19 @@ def test_board_view_windows_equal_full_supersampled_render(worlds):
         assert np.mean(d1[inside] > 0) > 0.05  # the corners are sampled differently from the one-sample frame
         # GL rounding: a handful of samples on a texel edge flip (one sample of 16 is at most 16 levels)
         assert np.mean(d4 > 1) < 1e-4 and d4.max() <= 16 and np.mean(d4 > 0) < 0.01
+
+
+def test_culling_behind_the_plate_changes_no_pixel(worlds):
+    """Draws that leave out what the plate's disc hides (and what lies outside their frustum) give the very images
+    of draws that cull by frustum alone."""
+    ww = worlds["windows"]
+    former = ww._get_former()
+    assert former._occluders  # the plate's disc
+    for q in _poses(ww, 2):
+        a = ww.capture(q, 0, noise_seed=6, record=False)
+        occluders, former._occluders = former._occluders, ()
+        try:
+            b = ww.capture(q, 0, noise_seed=6, record=False)
+        finally:
+            former._occluders = occluders
+        assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)

@@ -135,7 +135,7 @@ class WorldImaging:
         the window, the gradients' pixel beyond it and 2 px for the first estimate's error are 13 px from the
         corner. The markers in between are found at one sample per pixel all the same. Measured on make run's 24
         views: the same calibration (reprojection RMS 0.042 px, focal lengths and principal points within their
-        scatter of the true ones) as with windows a quarter square wide, at 0.45 of the time per view."""
+        scatter of the true ones) as with windows a quarter square wide, in less than half the time per view."""
         station = self._check_station(station)
         T = np.asarray(board2meas, dtype=float)
         board2world = self.true_cam2world(station)[0] @ T
