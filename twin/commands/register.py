@@ -183,6 +183,9 @@ def run(args) -> int:
         print(f"  {rest.size} measured row(s) of other {what} not evaluated (not registered)")
     for n in notes:
         print(f"note: {n}")
+    if reg.session is not None and len(reg.session) > 1:
+        print(f"note: the rows used span sessions {list(reg.session)}: one frame was fitted to all of them; --session "
+              "registers one session's")
     if len(new.stations) > 1:
         print(f"note: the calibration holds stations {list(new.stations)}: give JOINTS.csv a 'station' column for "
               "`twin predict` to predict in a station's frame")

@@ -30,6 +30,7 @@ SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording sess
 _MM = 1e-3
 _DEG = np.pi / 180.0
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the Jacobian through a prediction function
+_XTOL_PREDICT = 1e-10  # [m] and [rad]: convergence step through a prediction function
 
 #: ``predict(calibration, rows) -> Prediction``: the prediction of the dataset rows ``rows`` ``(k,)`` (indices, in
 #: measurement order) by ``calibration``; how an extended calibration's effects enter (e.g. with
@@ -93,7 +94,7 @@ def register(
     safeguarding on the column-scaled Jacobian (:func:`~twin.estimator.solvers.gauss_newton`). The Jacobian is the
     estimator's analytic one (:func:`~twin.estimator.problem.absolute_residuals`) for a geometric calibration, and
     central differences of ``predict`` (step 1e-6 m / rad) otherwise: ``J_k = -(e(theta + h u_k) - e(theta - h
-    u_k)) / 2h``. Refused (``ValueError`` naming the cause): fewer scalar equations than the 6 (12) parameters, or
+    u_k)) / 2h`` (converged there when no parameter moves by 1e-10 m / rad: the prediction's rounding). Refused (``ValueError`` naming the cause): fewer scalar equations than the 6 (12) parameters, or
     rows that leave a combination of them undetermined (the rank-revealing analysis of the identifiability names
     it: e.g. the tool's rotation with one point per row, base and tool from rows at one configuration).
 
@@ -203,7 +204,9 @@ def register(
             f"rows: the {obs.n} rows given cannot determine {', '.join(ida.dropped)} "
             f"({'; '.join(c.describe() for c in ida.combinations)}); measure more varied configurations"
             + (" (the tool needs rows whose orientations differ about two axes)" if tool else ""))
-    gn = gauss_newton(fun, x0, free, res0=res0, max_iter=max_iter, stage="register")
+    # through a prediction function the residuals carry its rounding (~1e-12 m): a step below 1e-10 m / rad is none
+    gn = gauss_newton(fun, x0, free, res0=res0, max_iter=max_iter, stage="register",
+                      **({} if predict is None else {"xtol": _XTOL_PREDICT}))
     x = gn.x
     res = gn.residuals
     m, p = res.r.size, free.size
