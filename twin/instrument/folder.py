@@ -30,8 +30,10 @@ from ..dataset import (
     Joints,
     Plate,
     PoseRow,
+    open_text,
     read_dataset,
     read_joints_csv,
+    read_text,
     write_dataset_toml,
 )
 from .calibration import BoardSpec, StereoCalibration, calibrate_stereo
@@ -72,8 +74,7 @@ def read_rig_toml(path: str | os.PathLike) -> RigSpec:
     if not p.exists():
         raise ValueError(f"{p}: missing (an image folder holds rig.toml, joints.csv, board/ and pairs/)")
     try:
-        with open(p, "rb") as f:
-            d = tomllib.load(f)
+        d = tomllib.loads(read_text(p, ValueError))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
     if d.get("schema_version") != RIG_SCHEMA_VERSION:
@@ -94,8 +95,7 @@ def read_plate_toml(path: str | os.PathLike) -> Plate:
     """The ``[plate]`` table (``sphere_diameter_mm``, ``spheres_mm``) of a TOML file, e.g. a ``dataset.toml``."""
     p = Path(path)
     try:
-        with open(p, "rb") as f:
-            d = tomllib.load(f)
+        d = tomllib.loads(read_text(p, ValueError))
     except FileNotFoundError:
         raise ValueError(f"{p}: no such plate file") from None
     except tomllib.TOMLDecodeError as exc:
@@ -199,7 +199,7 @@ class MeasureSummary:
 
 def _read_pair_column(path: Path) -> np.ndarray | None:
     """The optional ``pair`` column of ``joints.csv`` (``twin.dataset.read_joints_csv`` leaves it out)."""
-    with open(path, newline="") as f:
+    with open_text(path, ValueError) as f:
         rows = list(csv.DictReader(f))
     if not rows or "pair" not in rows[0]:
         return None
