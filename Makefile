@@ -12,7 +12,7 @@ UV := $(TOOLS)/bin/uv
 STAMP := $(VENV)/.synced-$(shell cat pyproject.toml uv.lock | sha1sum | cut -c1-12)
 export UV_PYTHON_DOWNLOADS := never
 export MUJOCO_GL ?= egl
-# many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/__init__.py)
+# many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/runtime.py)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 # test workers: one per core (pytest-xdist)

@@ -18,6 +18,7 @@ FORBIDDEN = {
     "runner": ("twin.commands", "studies", "experiments", "rerun"),
 }
 FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
+              "resources", "runtime",
               "mocap"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}

@@ -48,6 +48,8 @@ __all__ = [
     "marker_columns",
     "joint_columns",
     "LENGTH_UNITS",
+    "read_text",
+    "open_text",
 ]
 
 SCHEMA_VERSION = 1
@@ -75,6 +77,21 @@ _DEG = math.pi / 180.0
 
 class DatasetError(ValueError):
     """A dataset that cannot be used as it is; the message names the file, row and column."""
+
+
+def read_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> str:
+    """The UTF-8 text of the file ``path``; a file that is not UTF-8 text raises ``error`` naming it (never a bare
+    ``UnicodeDecodeError``, which names no file). ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
+def open_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> io.StringIO:
+    """The file ``path`` as a text stream for :mod:`csv` (``newline=""``), decoded as :func:`read_text` does."""
+    return io.StringIO(read_text(path, error), newline="")
 
 
 @dataclass(frozen=True)
@@ -292,8 +309,7 @@ def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
 
 def _read_toml(path: Path) -> dict:
     try:
-        with open(path, "rb") as f:
-            meta = tomllib.load(f)
+        meta = tomllib.loads(read_text(path))
     except FileNotFoundError:
         raise DatasetError(f"{path}: missing (a dataset folder holds poses.csv and dataset.toml)") from None
     except tomllib.TOMLDecodeError as exc:
@@ -384,7 +400,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
 
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
-    with open(csv_path, newline="") as f:
+    with open_text(csv_path) as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
@@ -832,7 +848,7 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: missing")
-    with open(path, newline="") as f:
+    with open_text(path) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = list(reader)

@@ -35,7 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .dataset import Dataset, DatasetError, Plate, write_dataset
+from .dataset import Dataset, DatasetError, Plate, open_text, write_dataset
 from .kinematics import RobotModel, flange2base
 from .transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 
@@ -78,7 +78,7 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
         raise ValueError(f"marker_unit must be one of {sorted(LENGTH_UNITS)}, got {marker_unit!r}")
     if not path.is_file():
         raise DatasetError(f"{path}: no such mocap CSV")
-    with open(path, newline="") as f:
+    with open_text(path) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]

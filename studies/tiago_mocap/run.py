@@ -22,6 +22,10 @@ import time
 import tomllib
 from pathlib import Path
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import numpy as np
 
 HERE = Path(__file__).resolve().parent

@@ -531,10 +531,11 @@ def nominal_robot_from_spec(spec: Any) -> RobotModel:
 
 def load_world_config(path: str | os.PathLike) -> WorldConfig:
     """Read a TOML file holding a ``[world]`` table (a campaign config or ``experiments/world_default.toml``)."""
+    from ..dataset import read_text
+
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = tomllib.loads(read_text(path, ValueError))
     except FileNotFoundError:
         raise ValueError(f"{path}: world config file not found") from None
     except tomllib.TOMLDecodeError as exc:
