@@ -18,6 +18,7 @@ SUBCOMMANDS = (
     "measure",
     "import",
     "calibrate",
+    "register",
     "predict",
     "compensate",
     "diagnose",
