@@ -50,7 +50,7 @@ def import_days(tmp: Path, cfg: dict) -> dict:
     """The campaign imported four ways: ``(direction, variant)`` with ``variant`` ``"points"`` (the hand's four points)
     or ``"marker1"``; the training day's file first (measurement order)."""
     from twin.dataset import read_dataset
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     p = cfg["protocol"]
     data = ROOT / "data" / "tiago_mocap"

@@ -81,7 +81,7 @@ def run(ds, points, group, level: str, cv: bool = True) -> list[dict]:
 def main() -> int:
     from twin.benchio import provenance
     from twin.dataset import read_dataset
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     load = os.getloadavg()
     cfg = tomllib.loads((HERE / "config.toml").read_text())

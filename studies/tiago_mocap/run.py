@@ -307,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     load = os.getloadavg()
     from twin.benchio import provenance, update_benchmark_section
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     cfg = tomllib.loads((HERE / "config.toml").read_text())
     p = cfg["protocol"]
