@@ -116,20 +116,9 @@ def run(args) -> int:
     if cal.effects:
         # an extended calibration: its effects evaluated from the dataset's rows in measurement order (history
         # unknown at the first row and where the 'session' column changes: a new session starts anew)
-        from dataclasses import replace
+        from ..diagnosis.apply import dataset_predictor
 
-        from ..diagnosis import row_context
-        from ..diagnosis.apply import predict_extended
-
-        ctx = row_context(ds)
-        station = ds.station_ids
-
-        def predict(c, idx):
-            p = predict_extended(c, ctx, station)
-            return replace(p, spheres=p.spheres[idx], pose=p.pose[idx], frame=p.frame[idx], station=p.station[idx],
-                           sd_spheres=None if p.sd_spheres is None else p.sd_spheres[idx],
-                           sd_pose=None if p.sd_pose is None else p.sd_pose[idx])
-
+        predict = dataset_predictor(ds)
         print(f"applied effects: {'; '.join(str(e.get('label', e.get('family', '?'))) for e in cal.effects)} "
               "(rows in measurement order; approach directions unknown until each joint moves in the session)")
     try:

@@ -135,6 +135,8 @@ class Problem:
         # the geometric fit's residual variance per degree of freedom when the floor is only a lower bound of it
         # (a motion-capture system's marker noise, below the robot's own pose-to-pose scatter)
         self.evidence_scale = 1.0
+        # the confirmation rows are sessions the calibration rows do not contain (set by the diagnosis)
+        self.cross_session = False
 
     def _key(self, atom: Atom) -> str:
         key = self._keys.get(atom)
@@ -572,6 +574,21 @@ class Confirmation:
     local: bool = False
 
 
+def signed_rank_z(c: np.ndarray) -> float:
+    """Wilcoxon's signed-rank statistic of ``c`` ``(n,)`` as a normal score: ``(W+ - n (n + 1) / 4) / sqrt(n (n + 1)
+    (2 n + 1) / 24)``, ``W+`` the sum of the ranks of ``|c|`` over the positive entries (zeros dropped, ties at their
+    mean rank). ~N(0, 1) when the entries are independent and symmetric about zero; 0 for fewer than two."""
+    from scipy.stats import rankdata
+
+    c = np.asarray(c, float)
+    c = c[c != 0]
+    n = c.size
+    if n < 2:
+        return 0.0
+    w = float(rankdata(np.abs(c))[c > 0].sum())
+    return (w - n * (n + 1) / 4.0) / np.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
+
+
 def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     """Held-out check of a scored atom (:class:`Confirmation`); its prediction ``u`` on the confirmation rows is
     linearised, the geometry re-adjusting to it."""
@@ -589,10 +606,15 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     nu = float(np.linalg.norm(u))
     if nu <= 0:
         return Confirmation(0.0, 0.0, False)
-    srms = float(np.sqrt(np.mean(r**2)))
+    # per row c_k = r_k . u_k: under the null (u independent of the held-out residual) each is symmetric about zero
+    # and the rows are independent, whatever the residual's size and its correlation within a row (an unmodelled
+    # effect moves every coordinate of a row together: a coordinate-wise z would count them as independent and pass
+    # a chance correlation as a confirmation). The rank test of their sum (Wilcoxon's signed ranks, as a normal
+    # score) keeps that level and the power a few rows of large residual would take from a ratio of sums.
     contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
-    z = float(r @ u) / (nu * srms)
-    z_minus = float(r @ u - contrib.max()) / (nu * srms)
+    c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
+    z = signed_rank_z(c)
+    z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
     err_term = float(np.sum((r - u) ** 2))
     better = err_term < float(r @ r)
     local = False
@@ -600,7 +622,9 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
         U, Rv = neighbour_predictions(prob, fit)["time"]
         Ut = row_blocks(fit.model_val, u_all)
         ok = np.isfinite(Rv) & np.isfinite(U) & np.isfinite(Ut)
-        local = float(np.sum((Rv - U)[ok] ** 2)) <= float(np.sum((Rv - Ut)[ok] ** 2))
+        # strictly better: a change that happened before the held-out block is predicted alike by the term and by
+        # the last rows' state, and the term is the model that says so
+        local = float(np.sum((Rv - U)[ok] ** 2)) < float(np.sum((Rv - Ut)[ok] ** 2))
     return Confirmation(z, z_minus, better, local)
 
 
@@ -800,7 +824,8 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     if kinds == {"hinge"}:
         return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
-        return _refine_order(prob, fit, s, pool_sizes)
+        # an order off the whole cycles per joint turn only where terms are confirmed on another session
+        return _refine_order(prob, fit, s, pool_sizes) if prob.cross_session else s
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
     if any("tau" in f for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
         key = "tau"
