@@ -184,8 +184,8 @@ def test_a_drift_in_the_row_order_is_no_term_and_a_row_alone_says_it_lacks_its_a
 @pytest.mark.slow
 def test_rows_without_t_s_or_after_the_campaign_hold_the_state_it_ended_in(tmp_path):
     """A term in t_s (a camera bump) on rows without t_s (a new session whose time is not recorded) or after the
-    campaign's span reads the state the campaign ended in; a term without its recorded span (written before spans
-    were recorded) still needs t_s: a named error, not a silent geometric answer."""
+    campaign reads the state the campaign ended in; a term without its recorded span (written before spans were
+    recorded) still needs t_s: a named error, not a silent geometric answer."""
     from dataclasses import replace
 
     ds = _bumped()
@@ -223,3 +223,19 @@ def test_joints_context_reads_a_subset_as_a_file_of_its_own():
     assert sub.history_reset.tolist() == [True, False]
     assert sub.t_s.tolist() == [40.0, 50.0] and sub.pose_id.tolist() == [4, 5] and sub.q[0, 0] == 24.0
     assert sub.station is None
+
+
+def test_a_drift_goes_on_while_the_campaign_continues_and_holds_in_another_session():
+    """A linear drift in t_s fitted on 0-1000 s: rows up to one campaign's length after its end continue the drift,
+    rows further away (another session) and rows without t_s hold the state at its end."""
+    from dataclasses import replace
+
+    from twin.diagnosis.atoms import feature_values
+    from twin.diagnosis.candidates import RowContext
+    from twin.robots import irb1200
+
+    f = {"kind": "pow", "ch": "t_s", "p": 1, "c": 500.0, "h": 500.0, "t_span": [0.0, 1000.0]}
+    ctx = RowContext(q=np.zeros((4, 6)), t_s=np.array([500.0, 1500.0, 1999.0, 2500.0]))
+    v = feature_values((f,), ctx, irb1200())[:, 0]
+    assert v.tolist() == pytest.approx([0.0, 2.0, 2.998, 1.0])
+    assert feature_values((f,), replace(ctx, t_s=None), irb1200())[:, 0].tolist() == pytest.approx([1.0] * 4)

@@ -16,7 +16,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", help="a geometric calibration.json to start from")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
-                   help="without a 'set' column: hold out this fraction at the end of the campaign (default 0.3)")
+                   help="hold out this fraction at the end of the campaign (default: the 'set' column's share of "
+                        "validation rows, else 0.3; a 'set' column whose validation rows are the end of the campaign "
+                        "or whole sessions is used as it is)")
     p.add_argument("--seed", type=int, default=0, help="seed of the estimator's random draws")
     p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
     p.add_argument("--catalogue-only", action="store_true",

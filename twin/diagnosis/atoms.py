@@ -173,16 +173,21 @@ def _row_channel(ctx: RowContext, f: dict) -> np.ndarray:
 def _time(ctx: RowContext, f: dict) -> np.ndarray:
     """``t_s`` of the rows for a feature of time. A feature fitted on a campaign records its time span
     (``f["t_span"]``, :func:`with_records`). Rows without ``t_s`` (a new session whose time is not recorded) read the
-    state the campaign ended in. A polynomial drift, which grows without bound, holds the state the campaign ended
-    (or began) in outside its span; the bounded shapes (a step, a transient that settles, an oscillation) go on as
-    fitted, which for a transient is the state it settles to."""
+    state the campaign ended in. A polynomial drift, which grows without bound, goes on for rows that continue the
+    campaign (within as long again as the campaign lasted after its end, or before its start) and holds the state the
+    campaign ended (or began) in for rows further away: another session. The bounded shapes (a step, a transient that
+    settles, an oscillation) go on as fitted, which for a transient is the state it settles to."""
     span = f.get("t_span")
     if ctx.t_s is None:
         if span is None:
             raise ValueError("this effect term depends on t_s: the rows need a t_s column")
         return np.full(len(ctx.q), float(span[1]))
     t = np.asarray(ctx.t_s, float)
-    return t if span is None or f.get("kind") != "pow" else np.clip(t, float(span[0]), float(span[1]))
+    if span is None or f.get("kind") != "pow":
+        return t
+    t0, t1 = float(span[0]), float(span[1])
+    d = t1 - t0
+    return np.where(t > t1 + d, t1, np.where(t < t0 - d, t0, t))
 
 
 def _ch(ctx: RowContext, f: dict, name: str | None = None) -> np.ndarray:

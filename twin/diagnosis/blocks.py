@@ -12,14 +12,14 @@ next session). So the held-out rows are always a block of time that follows the 
   are the end of the campaign: whole sessions at the end when the ``session`` column gives a boundary near the
   held-out fraction, else the last fraction of the rows in measurement order (a visit, consecutive rows at the
   same commanded joints and station, is never split). The fraction is the ``set`` column's own share of
-  validation rows, or ``holdout`` (default :data:`HOLDOUT_DEFAULT`).
+  validation rows, or ``holdout`` (default :data:`HOLDOUT_DEFAULT`, 30 %).
 * A station (an instrument placement) whose every row is held out has no frame the fit could know: its first
   rows (:data:`REGISTER_ROWS`) register it and join the calibration rows, as a user re-registers a moved tracker.
 
 The held-out rows are then split in two contiguous blocks (:func:`confirm_and_report`): the *confirmation* block
 (earlier: the structure test and every check that chooses a term) and the *report* block (the last whole
-held-out session when there are several, else the last :data:`REPORT_FRACTION` of the held-out visits; before and
-after are measured there and nothing else). Rows are in measurement order (``docs/formats.md``): that order is the
+held-out session when there are several, else the last :data:`REPORT_FRACTION` (a fifth) of the held-out visits;
+before and after are measured there and nothing else). Rows are in measurement order (``docs/formats.md``): that order is the
 time axis, ``t_s`` or not.
 """
 
@@ -34,7 +34,7 @@ from ..dataset import Dataset
 __all__ = ["HOLDOUT_DEFAULT", "REPORT_FRACTION", "REPORT_MIN_VISITS", "REGISTER_ROWS", "HeldOutSets", "visits",
            "sessions", "held_out_sets", "confirm_and_report"]
 
-HOLDOUT_DEFAULT = 0.3  # held-out fraction of the rows when the dataset does not say
+HOLDOUT_DEFAULT = 0.3  # held-out fraction at the end of the campaign without a set column
 REPORT_FRACTION = 0.2  # the last fifth of the held-out visits report (the rest confirm: they need the power)
 REPORT_MIN_VISITS = 20  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
 REGISTER_ROWS = (10, 50)  # rows that register a station seen only in the held-out block: 10 % of its rows, in these bounds
@@ -114,8 +114,8 @@ def _suffix(ds: Dataset, frac: float, vis: np.ndarray, sess: np.ndarray) -> tupl
 
 def held_out_sets(ds: Dataset, holdout: float | None = None) -> HeldOutSets:
     """The calibration and validation rows of ``ds`` as blocks of time (module docstring). ``holdout``: the held-out
-    fraction when the dataset has no ``set`` column (default :data:`HOLDOUT_DEFAULT`); with a ``set`` column whose
-    validation rows interleave with its calibration rows, their share is kept and their place moved to the end."""
+    fraction at the end (default :data:`HOLDOUT_DEFAULT`); with a ``set`` column whose validation rows interleave
+    with its calibration rows, their share (or ``holdout`` when given), at the end instead."""
     if holdout is not None and not (0.05 <= holdout <= 0.8):
         raise ValueError(f"holdout must be in [0.05, 0.8], got {holdout!r}")
     n = ds.n
@@ -130,7 +130,7 @@ def held_out_sets(ds: Dataset, holdout: float | None = None) -> HeldOutSets:
                     + ", after every calibration row in time or in sessions of their own")
             source = "set column"
         else:
-            frac = float(is_val.mean())
+            frac = float(is_val.mean()) if holdout is None else float(holdout)
             is_val, how = _suffix(ds, frac, vis, sess)
             rule = (f"the dataset's 'set' column interleaves its validation rows with the calibration rows in time: "
                     f"held out instead the same share ({100 * frac:.0f} %) at the "

@@ -63,6 +63,20 @@ def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFl
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
 
+def fit_block_test(r: np.ndarray, n_free: int, floor: NoiseFloor) -> StructureTest:
+    """The whitened residual ``r`` of a fit on the rows that fit it (gross rows left out) against the floor:
+    ``T = r^T r`` with ``m - p`` degrees of freedom (``p = n_free`` parameters), ``chi2(m - p)`` with a stated
+    floor, ``(T / (m - p)) ~ F(m - p, nu)`` with an estimated one. A structure inside the block that fits (a change
+    in its middle) shows here even where the held-out block after it holds only one state of it."""
+    m = max(r.size - int(n_free), 1)
+    T = float(r @ r)
+    if np.isinf(floor.dof):
+        p, dist = float(stats.chi2.sf(T, m)), f"chi2({m})"
+    else:
+        p, dist = float(stats.f.sf(T / m, m, floor.dof)), f"F({m}, {int(floor.dof)})"
+    return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))) if r.size else 0.0, dist)
+
+
 def row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     ss = np.bincount(row, weights=r**2, minlength=n)
     cnt = np.bincount(row, minlength=n)
@@ -182,6 +196,11 @@ class Problem:
         res = mc.residuals(gn.x, jacobian=False)
         rr = res.r * np.sqrt(self.w_cal[res.row])
         return Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+
+    def test_fit_block(self, fit: Fit) -> StructureTest:
+        """:func:`fit_block_test` of ``fit`` on the calibration rows (gross rows at weight 0 left out)."""
+        rc = fit.model_cal.residuals(fit.z, jacobian=False)
+        return fit_block_test(rc.r[self.w_cal[rc.row] > 0], fit.free.size, self.floor)
 
     def test(self, fit: Fit, model: ExtendedModel | None = None, keep: np.ndarray | None = None) -> StructureTest:
         """The structure test of ``fit`` on the confirmation rows (or on ``model``'s rows, ``keep`` of them)."""
@@ -684,19 +703,43 @@ def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray
     return out
 
 
-def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
-    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
+def earlier_rows_prediction(prob: Problem, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+    """The time smoother of a block of held-out rows: each confirmation row's residual predicted by the mean
+    residual ``(n_v, 3 K)`` of the ``NEIGHBOURS`` confirmation rows measured before it (other visits only: a repeat
+    shares its visit's error; NaN for the first rows), and the rows' own residual. The held-out rows are a block of
+    time after the rows that fit: the calibration rows nearest in time are the same few for every one of them, and a
+    prediction shared by every row is no test. Under the null (noise independent from row to row) each ``c_k =
+    r_k . u_k`` has mean zero given the rows before it, so the self-normalised sum is still ~N(0, 1)."""
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    Rv = row_blocks(fit.model_val, rv.r)
+    Rv[~prob.keep_val] = np.nan
+    rows = prob.rows_val
+    qv = np.round(prob.ctx.q[rows], 9)
+    U = np.full_like(Rv, np.nan)
+    for k in range(len(rows)):
+        prev = [i for i in range(k - 1, -1, -1) if not np.array_equal(qv[i], qv[k]) and np.isfinite(Rv[i]).any()]
+        prev = prev[:NEIGHBOURS]
+        if prev:
+            with np.errstate(invalid="ignore"):
+                U[k] = np.nanmean(Rv[prev], axis=0)
+    return U, Rv
 
-    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
-    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
-    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
-    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
-    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
-    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
-    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
-    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the rows nearest to it, in joint space or in time?
+
+    Joint space: each confirmation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest
+    calibration rows (joints scaled by their spread and ``JOINT_WEIGHTS``), rows with the same commanded joints
+    excluded (a repeat shares the visit's error); the calibration residuals are independent of the held-out ones.
+    Time: by the confirmation rows measured just before it (:func:`earlier_rows_prediction`). A structure that is
+    smooth in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the
+    robot's repeatability, an instrument error per pose) does not. Under that null per confirmation row ``c_k =
+    r_k . u_k`` is zero-mean (given what predicts it), so ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever
+    the noise's size and its correlation within a row. Confirmed when ``z > z_min`` also without the most favourable
+    row (either smoother)."""
     out = {}
-    for name, (U, Rv) in neighbour_predictions(prob, fit).items():
+    smoothers = {"joints": neighbour_predictions(prob, fit)["joints"], "time": earlier_rows_prediction(prob, fit)}
+    for name, (U, Rv) in smoothers.items():
         c = np.nansum(Rv * U, axis=1)
         ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
         c = c[ok_rows]
