@@ -43,8 +43,9 @@ def _world_table(config_text: str) -> dict:
 
 
 def _profile(pairs: int) -> dict:
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering through Mesa's EGL, before mujoco loads
-    import twin  # noqa: F401
+    from twin.runtime import set_process_defaults
+
+    set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
     from twin.world import World
 
     world = _world_table(CONFIG.read_text())

@@ -22,7 +22,10 @@ import time
 import tomllib
 from pathlib import Path
 
-import numpy as np
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = [(4, 2), (4, 4), (3, 2), (3, 4), (2, 4), (1, 1)]  # (window_supersample, frame_subsample); (1, 1): no windows
@@ -35,7 +38,6 @@ def main() -> int:
     a = ap.parse_args()
     if a.per_station < 1 or a.noise < 1:
         raise SystemExit(f"--per-station and --noise must be >= 1, got {a.per_station}, {a.noise}")
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering through Mesa's EGL, before mujoco loads
     from twin.benchio import update_benchmark_section
     from twin.instrument import StereoCalibration, measure_pair
     from twin.world import World

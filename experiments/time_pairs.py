@@ -29,8 +29,10 @@ def main() -> int:
         raise SystemExit(f"--pairs must be >= 1, got {a.pairs}")
     if not a.config.is_file():
         raise SystemExit(f"config {a.config} is not a file")
-    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering through Mesa's EGL, before mujoco loads
-    import twin  # noqa: F401
+    # twin.runtime.PROCESS_DEFAULTS, spelled out: an earlier commit's twin may lack that module
+    for var, value in (("MUJOCO_GL", "egl"), ("OPENBLAS_NUM_THREADS", "1"), ("OMP_NUM_THREADS", "1"),
+                       ("MKL_NUM_THREADS", "1")):
+        os.environ.setdefault(var, value)  # before numpy or mujoco load
     from twin.world import World
 
     raw = tomllib.loads(a.config.read_text())
