@@ -127,6 +127,7 @@ class Problem:
         self.floor = floor
         self._F: dict[str, np.ndarray] = {}
         self._Fc: dict[str, np.ndarray] = {}
+        self._Fu: dict[str, tuple | None] = {}
         self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
@@ -158,6 +159,21 @@ class Problem:
         if F is None:
             F = self._Fc[key] = self.features(atom)[self.rows_cal]
         return F
+
+    def distinct_rows_cal(self, atom: Atom) -> tuple[np.ndarray, object] | None:
+        """The distinct feature rows ``(u, K)`` of an atom on the calibration rows and the sparse ``(u, n_cal)``
+        matrix summing a per-row quantity over the rows that share each, when there are at most half as many
+        distinct rows as rows (steps, indicators, sessions); else None (cached)."""
+        from scipy import sparse
+
+        key = self._key(atom)
+        if key not in self._Fu:
+            F = self.features_cal(atom)
+            Fu, inv = np.unique(F, axis=0, return_inverse=True)
+            n = F.shape[0]
+            self._Fu[key] = None if 2 * len(Fu) > n else (
+                Fu, sparse.csr_matrix((np.ones(n), (inv.ravel(), np.arange(n))), shape=(len(Fu), n)))
+        return self._Fu[key]
 
     def model(self, chosen: list, block: str) -> ExtendedModel:
         """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
@@ -411,13 +427,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
             by_width.setdefault(len(a.features), []).append(a)
         for K, grp in by_width.items():
             F = np.stack([prob.features_cal(a) for a in grp], axis=1)  # (n, g, K)
-            g = len(grp)
-            KC, p = K * c, Q.shape[1]
-            FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
-            EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
-            F2 = F.reshape(n, g * K)
-            QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
-            Etr = (F2.T @ Br).reshape(g, KC)
+            EtE, QtE, Etr = _product_grams_bounded(prob, grp, F, W, QB, Br)
             nrm = np.sqrt(np.maximum(np.diagonal(EtE, axis1=1, axis2=2), 0.0))  # (g, KC)
             has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
             D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
@@ -440,6 +450,54 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
                    columns=_column_maker(prob, fit, a, rc, keep, sw))
             for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
+
+
+PRODUCT_BATCH_MAX = 1 << 23  # elements of the per-row feature products one batch builds at once (64 MB)
+
+
+def _product_grams(F: np.ndarray, W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``E^T E`` ``(g, K c, K c)``, ``Q^T E`` ``(g, p, K c)`` and ``E^T r`` ``(g, K c)`` of a batch of product atoms
+    with features ``F`` ``(n, g, K)`` from the per-row aggregates of their base ``W`` ``(n, c, c)``, ``QB``
+    ``(n, p, c)``, ``Br`` ``(n, c)`` (:func:`_score_products`)."""
+    n, g, K = F.shape
+    c, p = W.shape[1], QB.shape[1]
+    KC = K * c
+    FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
+    EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+    F2 = F.reshape(n, g * K)
+    QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+    Etr = (F2.T @ Br).reshape(g, KC)
+    return EtE, QtE, Etr
+
+
+def _product_grams_bounded(prob: Problem, grp: list[Atom], F: np.ndarray, W: np.ndarray, QB: np.ndarray,
+                           Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_product_grams` with the per-row feature products of a batch held below ``PRODUCT_BATCH_MAX``
+    elements: a batch beyond it is split into smaller batches of atoms; an atom too wide alone (a step at each of
+    200 session starts) is evaluated on its distinct feature rows, the aggregates summed over the rows that share
+    one (``sum_row F F^T (x) W = sum_distinct F F^T (x) sum_its_rows W``), or else over blocks of rows."""
+    n, g, K = F.shape
+    if n * g * K * K <= PRODUCT_BATCH_MAX:
+        return _product_grams(F, W, QB, Br)
+    if n * K * K <= PRODUCT_BATCH_MAX:
+        step = max(1, PRODUCT_BATCH_MAX // (n * K * K))
+        parts = [_product_grams(F[:, i:i + step], W, QB, Br) for i in range(0, g, step)]
+        return tuple(np.concatenate(x, axis=0) for x in zip(*parts))
+    parts = []
+    for i, a in enumerate(grp):
+        distinct = prob.distinct_rows_cal(a)
+        if distinct is not None:
+            Fu, U = distinct
+            parts.append(_product_grams(Fu[:, None, :], (U @ W.reshape(n, -1)).reshape(-1, *W.shape[1:]),
+                                        (U @ QB.reshape(n, -1)).reshape(-1, *QB.shape[1:]), U @ Br))
+            continue
+        rows = max(1, PRODUCT_BATCH_MAX // (K * K))
+        acc = None
+        for s in range(0, n, rows):
+            got = _product_grams(F[s:s + rows, i:i + 1], W[s:s + rows], QB[s:s + rows], Br[s:s + rows])
+            acc = got if acc is None else tuple(x + y for x, y in zip(acc, got))
+        parts.append(acc)
+    return tuple(np.concatenate(x, axis=0) for x in zip(*parts))
 
 
 def _product(a: Atom) -> bool:
