@@ -233,12 +233,32 @@ class Scored:
     """An atom scored against a fit: its reduced ``basis`` ``(K, r)``, coefficients ``psi`` ``(r,)``, calibration
     evidence ``dchi2`` and pool-adjusted ``logp_adj``, the residual ``r`` it was scored against (projected off the
     current model, kept residuals), and on demand its reduced columns ``E`` ``(m_kept, r)``, their part ``Ep``
-    beyond the current model and the fitted residual ``fitted = Ep psi``."""
+    beyond the current model and the fitted residual ``fitted = Ep psi``. ``ep_norm2``: ``|Ep|_F^2`` when the
+    scoring knows it (the sum of the kept eigenvalues of the projected Gram matrix)."""
 
     def __init__(self, atom: Atom, basis: np.ndarray, psi: np.ndarray, dchi2: float, logp_adj: float, r: np.ndarray,
-                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None):
+                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None,
+                 ep_norm2: float | None = None):
         self.atom, self.basis, self.psi, self.dchi2, self.logp_adj, self.r = atom, basis, psi, dchi2, logp_adj, r
         self._E, self._Ep, self._columns, self._Q = E, Ep, columns, Q
+        self._ep_norm2 = ep_norm2
+        self._span: np.ndarray | None = None
+
+    def reduced_columns(self) -> np.ndarray:
+        """``E`` ``(m_kept, r)``, built without keeping it when it is not kept already (a test over many atoms)."""
+        return self._E if self._E is not None else self._columns() @ self.basis
+
+    def ep_norm2(self) -> float:
+        """``|Ep|_F^2``, the squared norm of the reduced columns beyond the current model."""
+        if self._ep_norm2 is None:
+            return float(np.sum(self.Ep**2))
+        return self._ep_norm2
+
+    def span(self) -> np.ndarray:
+        """An orthonormal basis ``(m_kept, r)`` of ``Ep`` (QR; kept)."""
+        if self._span is None:
+            self._span = np.linalg.qr(self.Ep)[0]
+        return self._span
 
     @property
     def E(self) -> np.ndarray:
@@ -443,13 +463,14 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
                     continue
                 Vr = V[i][:, :rk]
                 proj = Vr.T @ e[i]
-                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
+                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk,
+                                float(np.sum(lam[i, :rk]))))
     if not pending:
         return []
     logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
-                   columns=_column_maker(prob, fit, a, rc, keep, sw))
-            for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
+                   columns=_column_maker(prob, fit, a, rc, keep, sw), ep_norm2=ep2)
+            for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
 
 
 PRODUCT_BATCH_MAX = 1 << 23  # elements of the per-row feature products one batch builds at once (64 MB)
@@ -525,9 +546,11 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
         top = order[0]
         # "the same place": the same target, or a named atom whose columns lie within the unnamed one's (a joint-1
         # backlash is a rotation about base z, inside the base frame's six directions with the same sign)
-        same = [s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)
-                or _nested(s, top)]
-        cand = same[0] if same else (named[0] if named else None)
+        # the first such named atom in the order (the test is lazy: each _nested builds the atom's columns)
+        first_same = next((s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)
+                           or _nested(s, top)), None)
+        same = first_same is not None
+        cand = first_same if same else (named[0] if named else None)
         # at high signal-to-noise, effects not yet modelled leak a few per cent into any broader atom: the
         # margin grows with the evidence (5 % of it) for a named atom acting at the same place
         margin = max(CATALOGUE_MARGIN, CATALOGUE_SHARE * abs(cand.logp_adj)) if same else CATALOGUE_MARGIN
@@ -547,11 +570,12 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
 
 def _nested(small: Scored, big: Scored, share: float = 0.99) -> bool:
     """Whether ``small``'s projected columns lie (to ``share`` of their norm) within ``big``'s span."""
-    if small.basis.shape[1] >= big.basis.shape[1] or small.Ep.shape != (big.Ep.shape[0], small.Ep.shape[1]):
+    if small.basis.shape[1] >= big.basis.shape[1] or small.r.shape != big.r.shape:
         return False
-    Qb, _ = np.linalg.qr(big.Ep)
-    tot = float(np.sum(small.Ep**2))
-    return tot > 0 and float(np.sum((Qb.T @ small.Ep) ** 2)) >= share * tot
+    # big's span is orthogonal to the current model, so its product with small's projected columns Ep is its product
+    # with small's columns E (E - Ep lies in the model's span): no projection of small's columns is needed
+    tot = small.ep_norm2()
+    return tot > 0 and float(np.sum((big.span().T @ small.reduced_columns()) ** 2)) >= share * tot
 
 
 def _prefer_nested(order: list[Scored], alpha_select: float = 0.01) -> list[Scored]:
