@@ -295,34 +295,15 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     features), so every product over the residuals is a product over the rows with per-row aggregates of
     ``b``: ``E^T E = F^T diag(w) F`` with ``w = sum_row b^2``, ``Q^T E = (sum_row Q b)^T F``,
     ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``."""
-    from scipy import sparse
-
-    from .extend import param_weights
-
-    x = fit.z[: prob.prep.space.size]
-    Jg = rc.J[:, : prob.prep.space.size]
-    swk = sw[keep]
-    rows = rc.row[keep]
+    sb = scoring_basis(prob, fit)
     n = prob.obs_cal.n
-    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
     Qtr = Q.T @ r
-    coords = None
     groups: dict[tuple, list[int]] = {}
     for i, a in enumerate(atoms):
         groups.setdefault((a.place, a.target), []).append(i)
     logp = np.full(len(atoms), np.inf)
-    for (place, _), ids in groups.items():
-        if place == "scale":
-            if coords is None:
-                _, phis = fit.model_cal.split(fit.z)
-                coords = fit.model_cal.scale_column(fit.model_cal.effective_obs(phis))
-            b = coords
-        else:
-            b = (Jg @ param_weights(prob.prep.space, x, atoms[ids[0]]))[:, 0]
-        b = b[keep] * swk
-        w = S @ (b * b)  # (n,)
-        Qb = S @ (Q * b[:, None])  # (n, p)
-        br = S @ (b * r)  # (n,)
+    for ids in groups.values():
+        w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
         by_width: dict[int, list[int]] = {}
         for i in ids:
             by_width.setdefault(len(atoms[i].features), []).append(i)
@@ -353,13 +334,83 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
 class ScoringBasis:
     """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
     square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
-    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it."""
+    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it; ``cache``: what the
+    scoring derives from them once per place (:func:`_kept_base`, :func:`_row_aggregates`)."""
 
     rc: object
     sw: np.ndarray
     keep: np.ndarray
     Q: np.ndarray
     r: np.ndarray
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The calibration row of every kept residual ``(m_kept,)``."""
+        got = self.cache.get("rows")
+        if got is None:
+            got = self.cache["rows"] = self.rc.row[self.keep]
+        return got
+
+    @property
+    def sw_kept(self) -> np.ndarray:
+        """The square-root row weights of the kept residuals ``(m_kept,)``."""
+        got = self.cache.get("sw_kept")
+        if got is None:
+            got = self.cache["sw_kept"] = self.sw[self.keep]
+        return got
+
+    def row_sum(self, n: int):
+        """The sparse ``(n, m_kept)`` matrix summing the kept residuals per row (``n`` calibration rows)."""
+        got = self.cache.get(("row_sum", n))
+        if got is None:
+            from scipy import sparse
+
+            rows = self.rows
+            got = self.cache[("row_sum", n)] = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))),
+                                                                 shape=(n, len(rows)))
+        return got
+
+
+def _kept_base(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> np.ndarray:
+    """The whitened model columns a product atom's features multiply (:meth:`ExtendedModel.product_base`) on the
+    kept residuals ``(m_kept, c)``, unweighted; once per place and fit."""
+    key = ("base", atom.place, atom.target)
+    got = sb.cache.get(key)
+    if got is None:
+        model = fit.model_cal
+        obs = model.effective_obs(model.split(fit.z)[1])
+        got = sb.cache[key] = model.product_base(atom, fit.z[: prob.prep.space.size], obs, sb.rc)[sb.keep]
+    return got
+
+
+def _row_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tuple[np.ndarray, ...]:
+    """Per calibration row, the sums over its kept residuals of ``base base^T`` ``(n, c, c)``, ``Q base^T``
+    ``(n, p, c)`` and ``base r`` ``(n, c)`` (``base``: :func:`_kept_base` times the row weights); once per place and
+    fit."""
+    key = ("aggregates", atom.place, atom.target)
+    got = sb.cache.get(key)
+    if got is None:
+        base = _kept_base(prob, fit, sb, atom) * sb.sw_kept[:, None]  # (m, c)
+        S, Q, r = sb.row_sum(prob.obs_cal.n), sb.Q, sb.r
+        n, m, c = S.shape[0], base.shape[0], base.shape[1]
+        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(m, c * c)).reshape(n, c, c)
+        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(m, -1)).reshape(n, Q.shape[1], c)
+        Br = S @ (base * r[:, None])  # (n, c)
+        got = sb.cache[key] = (W, QB, Br)
+    return got
+
+
+def _screen_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tuple[np.ndarray, ...]:
+    """The single-column form of :func:`_row_aggregates` the screening uses: ``w`` ``(n,)``, ``Qb`` ``(n, p)``,
+    ``br`` ``(n,)``; once per place and fit."""
+    key = ("screen", atom.place, atom.target)
+    got = sb.cache.get(key)
+    if got is None:
+        b = _kept_base(prob, fit, sb, atom)[:, 0] * sb.sw_kept
+        S = sb.row_sum(prob.obs_cal.n)
+        got = sb.cache[key] = (S @ (b * b), S @ (sb.Q * b[:, None]), S @ (b * sb.r))
+    return got
 
 
 def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
@@ -422,26 +473,14 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     matrix ``D (E^T E - (Q^T E)^T Q^T E) D`` whose singular values (square roots) pass ``rel_tol`` (at most
     ``max_rank``), and ``Delta chi2 = sum (v^T D (E^T r - (Q^T E)^T Q^T r))^2 / lambda``. The columns themselves
     are built only for the atoms whose ``Ep`` is asked for."""
-    from scipy import sparse
-
-    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
-    x = fit.z[: prob.prep.space.size]
-    model = fit.model_cal
-    obs = model.effective_obs(model.split(fit.z)[1])
-    rows = rc.row[keep]
-    n = prob.obs_cal.n
-    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Q, r = sb.Q, sb.r
     Qtr = Q.T @ r
     groups: dict[tuple, list[Atom]] = {}
     for a in atoms:
         groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
     pending = []
-    for key, members in groups.items():
-        base = model.product_base(members[0], x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
-        c = base.shape[1]
-        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
-        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
-        Br = S @ (base * r[:, None])  # (n, c)
+    for members in groups.values():
+        W, QB, Br = _row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
         by_width: dict[int, list[Atom]] = {}
         for a in members:
             by_width.setdefault(len(a.features), []).append(a)
@@ -469,7 +508,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
         return []
     logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
-                   columns=_column_maker(prob, fit, a, rc, keep, sw), ep_norm2=ep2)
+                   columns=_column_maker(prob, fit, a, sb), ep_norm2=ep2)
             for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
 
 
@@ -526,10 +565,17 @@ def _product(a: Atom) -> bool:
     return not (a.place == "field" or (a.place == "param" and (a.target == "base_along" or a.target.startswith("tilt"))))
 
 
-def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
+def _column_maker(prob: Problem, fit: Fit, atom: Atom, sb: ScoringBasis):
+    """The weighted raw columns ``(m_kept, K c)`` of a product atom on the kept residuals, on demand: its features
+    on each residual's row times the place's model columns (:meth:`ExtendedModel.columns`)."""
     def make() -> np.ndarray:
-        F = prob.features(atom)[prob.rows_cal]
-        return raw_columns(fit.model_cal, atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+        base = _kept_base(prob, fit, sb, atom)
+        if atom.place == "plate" and not atom.varying_plate:
+            E = base
+        else:
+            Fr = prob.features_cal(atom)[sb.rows]
+            E = (Fr[:, :, None] * base[:, None, :]).reshape(len(base), -1)
+        return E * sb.sw_kept[:, None]
     return make
 
 
