@@ -128,6 +128,7 @@ class Problem:
         self._F: dict[str, np.ndarray] = {}
         self._Fc: dict[str, np.ndarray] = {}
         self._Fu: dict[str, tuple | None] = {}
+        self._newest_basis: weakref.ref | None = None  # the scoring basis that keeps its per-place quantities
         self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
@@ -153,11 +154,15 @@ class Problem:
         return F
 
     def features_cal(self, atom: Atom) -> np.ndarray:
-        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached)."""
+        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached; the values on every row are
+        kept only when :meth:`features` asks for them: most atoms are only ever scored on the calibration rows)."""
         key = self._key(atom)
         F = self._Fc.get(key)
         if F is None:
-            F = self._Fc[key] = self.features(atom)[self.rows_cal]
+            F_all = self._F.get(key)
+            if F_all is None:
+                F_all = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
+            F = self._Fc[key] = F_all[self.rows_cal]
         return F
 
     def distinct_rows_cal(self, atom: Atom) -> tuple[np.ndarray, object] | None:
@@ -403,21 +408,21 @@ def _row_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tu
 
 def _screen_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tuple[np.ndarray, ...]:
     """The single-column form of :func:`_row_aggregates` the screening uses: ``w`` ``(n,)``, ``Qb`` ``(n, p)``,
-    ``br`` ``(n,)``; once per place and fit."""
-    key = ("screen", atom.place, atom.target)
-    got = sb.cache.get(key)
-    if got is None:
-        b = _kept_base(prob, fit, sb, atom)[:, 0] * sb.sw_kept
-        S = sb.row_sum(prob.obs_cal.n)
-        got = sb.cache[key] = (S @ (b * b), S @ (sb.Q * b[:, None]), S @ (b * sb.r))
-    return got
+    ``br`` ``(n,)``."""
+    W, QB, Br = _row_aggregates(prob, fit, sb, atom)
+    return W[:, 0, 0], QB[:, :, 0], Br[:, 0]
 
 
 def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
-    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit)."""
+    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit). Only the
+    newest basis keeps its per-place quantities (the selection scores against its latest fit; an older basis
+    derives them again when asked)."""
     key = ("basis", id(prob.w_cal))
     got = fit.cache.get(key)
     if got is None:
+        old = prob._newest_basis() if prob._newest_basis is not None else None
+        if old is not None:
+            old.cache.clear()
         rc = fit.model_cal.residuals(fit.z)
         sw = np.sqrt(prob.w_cal[rc.row])
         keep = sw > 0
@@ -426,6 +431,7 @@ def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
         r = (rc.r * sw)[keep]
         r = r - Q @ (Q.T @ r)
         got = fit.cache[key] = ScoringBasis(rc, sw, keep, Q, r)
+        prob._newest_basis = weakref.ref(got)
     return got
 
 
