@@ -129,6 +129,8 @@ class Problem:
         self._Fc: dict[str, np.ndarray] = {}
         self._Fu: dict[str, tuple | None] = {}
         self._newest_basis: weakref.ref | None = None  # the scoring basis that keeps its per-place quantities
+        self._orders: dict = {}
+        self._store: _ColumnStore | None = None
         self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
@@ -164,6 +166,25 @@ class Problem:
                 F_all = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
             F = self._Fc[key] = F_all[self.rows_cal]
         return F
+
+    def channel_order_cal(self, ch: str) -> tuple[np.ndarray, np.ndarray]:
+        """The calibration rows in the order of a channel's values (stable) and the sorted values (cached)."""
+        key = ("order", ch)
+        got = self._orders.get(key)
+        if got is None:
+            from .atoms import _ch
+
+            v = np.asarray(_ch(self.ctx, {"ch": ch}), dtype=float)[self.rows_cal]
+            order = np.argsort(v, kind="stable")
+            got = self._orders[key] = (order, v[order])
+        return got
+
+    def column_store(self, atoms: list[Atom]) -> "_ColumnStore | None":
+        """The store of the feature sets the screening multiplies most (:class:`_ColumnStore`), built from the
+        first large call (the whole pool) and kept; None until then."""
+        if self._store is None and len(atoms) >= _ColumnStore.MIN_ATOMS:
+            self._store = _ColumnStore(self, atoms)
+        return self._store
 
     def distinct_rows_cal(self, atom: Atom) -> tuple[np.ndarray, object] | None:
         """The distinct feature rows ``(u, K)`` of an atom on the calibration rows and the sparse ``(u, n_cal)``
@@ -283,6 +304,61 @@ class Scored:
         return self.Ep @ self.psi
 
 
+class _ColumnStore:
+    """The screened pool's feature sets on the calibration rows, stored once however many places use them: one
+    block ``(n, K, g)`` per width ``K`` and per group of places sharing the sets (the dictionary's sets act on every
+    place; a scanned order or a joint's own shapes on one), so that a place multiplies its per-row aggregates with
+    contiguous blocks instead of a copy of its atoms' features. The calibration-row features of the stored sets
+    (:meth:`Problem.features_cal`) become views of the blocks. One-step atoms are left out (suffix sums)."""
+
+    MIN_ATOMS = 200
+
+    def __init__(self, prob: Problem, atoms: list[Atom]):
+        users: dict[str, set] = {}
+        rep: dict[str, Atom] = {}
+        for a in atoms:
+            if _single_step(a):
+                continue
+            key = prob._key(a)
+            users.setdefault(key, set()).add((a.place, a.target))
+            rep.setdefault(key, a)
+        by_block: dict[tuple, list[str]] = {}
+        for key, places in users.items():
+            by_block.setdefault((frozenset(places), len(rep[key].features)), []).append(key)
+        self.blocks: list[tuple[frozenset, np.ndarray]] = []
+        self.index: dict[str, tuple[int, int]] = {}
+        for (places, K), keys in by_block.items():
+            F = np.stack([prob.features_cal(rep[k]) for k in keys], axis=2)  # (n, K, g)
+            b = len(self.blocks)
+            self.blocks.append((places, F))
+            for j, k in enumerate(keys):
+                self.index[k] = (b, j)
+                prob._Fc[k] = F[:, :, j]
+
+    def has(self, key: str) -> bool:
+        return key in self.index
+
+    def stats(self, place: tuple, keys: list[str], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+        """:func:`_block_stats` of the stored sets ``keys`` against one place's aggregates (every set of a block
+        the place uses is multiplied: the blocks are what the places share)."""
+        need: dict[int, list[tuple[int, int]]] = {}
+        for i, k in enumerate(keys):
+            b, j = self.index[k]
+            need.setdefault(b, []).append((i, j))
+        out: list = [None] * len(keys)
+        for b, items in need.items():
+            F = self.blocks[b][1]
+            if 4 * len(items) < F.shape[2]:  # a few sets of a large block: those alone
+                got = _block_stats(F[:, :, [j for _, j in items]], w, Qb, br)
+                for (i, _), st in zip(items, got):
+                    out[i] = st
+                continue
+            got = _block_stats(F, w, Qb, br)
+            for i, j in items:
+                out[i] = got[j]
+        return out
+
+
 def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
     if len(a.features) > 4:
@@ -299,40 +375,101 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     An atom's columns are ``E[m, k] = b[m] F[row(m), k]`` (``b`` the model column of its place, ``F`` its
     features), so every product over the residuals is a product over the rows with per-row aggregates of
     ``b``: ``E^T E = F^T diag(w) F`` with ``w = sum_row b^2``, ``Q^T E = (sum_row Q b)^T F``,
-    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``."""
+    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``. The products over
+    the rows are taken per feature set, not per atom: on the column store's blocks of the sets the places share
+    (:class:`_ColumnStore`), and for a step in time (``1[t >= a]``, one per session start) as the sum of the
+    aggregates over the rows from ``a`` on (suffix sums in the order of the channel)."""
     sb = scoring_basis(prob, fit)
-    n = prob.obs_cal.n
     Qtr = Q.T @ r
+    store = prob.column_store(atoms)
     groups: dict[tuple, list[int]] = {}
     for i, a in enumerate(atoms):
         groups.setdefault((a.place, a.target), []).append(i)
     logp = np.full(len(atoms), np.inf)
-    for ids in groups.values():
+    stats: dict[int, list] = {}  # width K -> [(atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,))]
+    for (place, target), ids in groups.items():
         w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
-        by_width: dict[int, list[int]] = {}
+        steps, stored, rest = [], [], []
         for i in ids:
+            if _single_step(atoms[i]):
+                steps.append(i)
+            elif store is not None and store.has(prob._key(atoms[i])):
+                stored.append(i)
+            else:
+                rest.append(i)
+        if steps:
+            for i, got in zip(steps, _step_stats(prob, [atoms[i] for i in steps], w, Qb, br)):
+                stats.setdefault(1, []).append((i, *got))
+        if stored:
+            got = store.stats((place, target), [prob._key(atoms[i]) for i in stored], w, Qb, br)
+            for i, st in zip(stored, got):
+                stats.setdefault(len(atoms[i].features), []).append((i, *st))
+        by_width: dict[int, list[int]] = {}
+        for i in rest:
             by_width.setdefault(len(atoms[i].features), []).append(i)
         for K, gi in by_width.items():
-            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=1)  # (n, g, K)
-            g = len(gi)
-            F2 = F.reshape(n, g * K)
-            nrm = np.sqrt(np.maximum(w @ (F2 * F2), 0.0)).reshape(g, K)
-            scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
-            QtE = (Qb.T @ F2).reshape(-1, g, K).transpose(1, 0, 2) * scale[:, None, :]  # (g, p, K)
-            Ft = F.transpose(1, 2, 0)  # (g, K, n)
-            EtE = ((Ft * w) @ Ft.transpose(0, 2, 1)) * scale[:, :, None] * scale[:, None, :]
-            G = EtE - QtE.transpose(0, 2, 1) @ QtE
-            er = (br @ F2).reshape(g, K) * scale - (Qtr @ QtE)
-            has = np.any(nrm > 0, axis=1)
-            lam, V = np.linalg.eigh(G)
-            ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
-            proj = np.einsum("gij,gi->gj", V, er)
-            d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
-            k = ok.sum(axis=1)
-            fine = k > 0
-            gi = np.asarray(gi)
-            logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
+            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=2)  # (n, K, g)
+            for i, st in zip(gi, _block_stats(F, w, Qb, br)):
+                stats.setdefault(K, []).append((i, *st))
+    for K, rows in stats.items():
+        gi = np.array([t[0] for t in rows])
+        nrm = np.sqrt(np.maximum(np.array([t[1] for t in rows]), 0.0))  # (g, K)
+        EtE = np.array([t[2] for t in rows])  # (g, K, K)
+        QtE = np.array([t[3] for t in rows])  # (g, p, K)
+        Etr = np.array([t[4] for t in rows])  # (g, K)
+        scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
+        QtE = QtE * scale[:, None, :]
+        EtE = EtE * scale[:, :, None] * scale[:, None, :]
+        G = EtE - QtE.transpose(0, 2, 1) @ QtE
+        er = Etr * scale - (Qtr @ QtE)
+        has = np.any(nrm > 0, axis=1)
+        lam, V = np.linalg.eigh(G)
+        ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
+        proj = np.einsum("gij,gi->gj", V, er)
+        d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
+        k = ok.sum(axis=1)
+        fine = k > 0
+        logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
     return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
+
+
+def _single_step(a: Atom) -> bool:
+    """An atom of one feature, a step ``1[ch >= at]`` in a channel."""
+    return len(a.features) == 1 and a.features[0].get("kind") == "step"
+
+
+def _block_stats(F: np.ndarray, w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+    """The products over the rows of feature sets ``F`` ``(n, K, g)`` with the per-row aggregates, per set:
+    ``sum w F_k^2`` ``(K,)``, ``sum w F_k F_l`` ``(K, K)``, ``Qb^T F`` ``(p, K)`` and ``br^T F`` ``(K,)``."""
+    n, K, g = F.shape
+    QtE = np.stack([Qb.T @ F[:, k, :] for k in range(K)], axis=2)  # (p, g, K)
+    Etr = np.stack([br @ F[:, k, :] for k in range(K)], axis=1)  # (g, K)
+    EtE = np.empty((g, K, K))
+    for k in range(K):
+        Fw = F[:, k, :] * w[:, None]
+        for m in range(k, K):
+            EtE[:, k, m] = EtE[:, m, k] = np.einsum("ng,ng->g", Fw, F[:, m, :])
+    nrm2 = np.diagonal(EtE, axis1=1, axis2=2)
+    return [(nrm2[i], EtE[i], QtE[:, i, :], Etr[i]) for i in range(g)]
+
+
+def _step_stats(prob: Problem, steps: list[Atom], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+    """:func:`_block_stats` of one-step atoms ``1[ch >= at]``: sums of the aggregates over the rows with
+    ``ch >= at``, read off suffix sums in the channel's order (one pass over the rows for all the steps)."""
+    out: list = [None] * len(steps)
+    by_ch: dict[str, list[int]] = {}
+    for i, a in enumerate(steps):
+        by_ch.setdefault(a.features[0]["ch"], []).append(i)
+    for ch, idx in by_ch.items():
+        order, v = prob.channel_order_cal(ch)
+        A = np.concatenate([w[order, None], Qb[order], br[order, None]], axis=1)  # (n, p + 2)
+        suf = np.zeros((len(order) + 1, A.shape[1]))
+        suf[:-1] = np.cumsum(A[::-1], axis=0)[::-1]
+        at = np.array([steps[i].features[0]["at"] for i in idx], dtype=float)
+        pos = np.searchsorted(v, at, side="left")
+        for i, s in zip(idx, suf[pos]):
+            out[i] = (s[:1], s[:1].reshape(1, 1), s[1:-1, None], s[-1:])
+    return out
 
 
 @dataclass(frozen=True)
