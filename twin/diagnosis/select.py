@@ -167,6 +167,15 @@ class Problem:
             F = self._Fc[key] = F_all[self.rows_cal]
         return F
 
+    def inner_features_cal(self, inner: tuple) -> np.ndarray:
+        """Values ``(n_cal, K)`` of the features inside gated features (:func:`_gate`) on the calibration rows
+        (cached)."""
+        key = ("inner", repr(inner))
+        got = self._orders.get(key)
+        if got is None:
+            got = self._orders[key] = feature_values(inner, self.ctx, self.prep.nominal, self._cache)[self.rows_cal]
+        return got
+
     def channel_order_cal(self, ch: str) -> tuple[np.ndarray, np.ndarray]:
         """The calibration rows in the order of a channel's values (stable) and the sorted values (cached)."""
         key = ("order", ch)
@@ -624,12 +633,33 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     pending = []
     for members in groups.values():
         W, QB, Br = _row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
-        by_width: dict[int, list[Atom]] = {}
+        items: dict[int, list] = {}  # K -> [(atom, E^T E, Q^T E, E^T r, any feature nonzero)]
+        families: dict[tuple, list[Atom]] = {}
+        rest: list[Atom] = []
         for a in members:
+            gate = _gate(a)
+            if gate is None:
+                rest.append(a)
+            else:
+                families.setdefault((gate[0], repr(gate[2])), []).append(a)
+        for fam in families.values():
+            if len(fam) * W.shape[0] < GATE_SUFFIX_MIN:  # a small family: as every other atom
+                rest += fam
+                continue
+            for a, st in zip(fam, _gate_grams(prob, fam, W, QB, Br)):
+                items.setdefault(len(a.features), []).append((a, *st))
+        by_width: dict[int, list[Atom]] = {}
+        for a in rest:
             by_width.setdefault(len(a.features), []).append(a)
         for K, grp in by_width.items():
             F = np.stack([prob.features_cal(a) for a in grp], axis=1)  # (n, g, K)
             EtE, QtE, Etr = _product_grams_bounded(prob, grp, F, W, QB, Br)
+            nonzero = np.any(F != 0, axis=(0, 2))
+            items.setdefault(K, []).extend(zip(grp, EtE, QtE, Etr, nonzero))
+        for K, it in items.items():
+            grp = [t[0] for t in it]
+            EtE, QtE, Etr = np.array([t[1] for t in it]), np.array([t[2] for t in it]), np.array([t[3] for t in it])
+            nonzero = [bool(t[4]) for t in it]
             nrm = np.sqrt(np.maximum(np.diagonal(EtE, axis1=1, axis2=2), 0.0))  # (g, KC)
             has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
             D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
@@ -641,7 +671,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
             rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
             for i, a in enumerate(grp):
                 rk = int(rks[i])
-                if rk == 0 or not np.any(F[:, i]) or not np.any(has[i]):
+                if rk == 0 or not nonzero[i] or not np.any(has[i]):
                     continue
                 Vr = V[i][:, :rk]
                 proj = Vr.T @ e[i]
@@ -653,6 +683,48 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
                    columns=_column_maker(prob, fit, a, sb), ep_norm2=ep2)
             for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
+
+
+GATE_SUFFIX_MIN = 1 << 20  # atoms x rows from which a family acting from different moments is summed by suffixes
+
+
+def _gate(a: Atom) -> tuple[str, float, tuple] | None:
+    """``(channel, at, inner features)`` of an atom that acts from a moment on: one step ``1[ch >= at]`` (no inner
+    features), or features all gated at the same ``ch >= at`` (a compliance changed at a restart); else None."""
+    fs = a.features
+    if len(fs) == 1 and fs[0].get("kind") == "step":
+        return fs[0]["ch"], float(fs[0]["at"]), ()
+    if fs and all(f.get("kind") == "gated" for f in fs):
+        ch, at = fs[0]["ch"], fs[0]["at"]
+        if all(f["ch"] == ch and f["at"] == at for f in fs):
+            return ch, float(at), tuple(f["f"] for f in fs)
+    return None
+
+
+def _gate_grams(prob: Problem, family: list[Atom], W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> list:
+    """:func:`_product_grams` of atoms that differ only in the moment they act from (:func:`_gate`: the same
+    channel and inner features): the per-row products of their inner features with the aggregates summed over the
+    rows from each moment on, read off suffix sums in the channel's order (one pass over the rows for the family).
+    Per atom ``(E^T E, Q^T E, E^T r, whether a feature is nonzero)``."""
+    ch, _, inner = _gate(family[0])
+    order, v = prob.channel_order_cal(ch)
+    n = len(order)
+    Fo = np.ones((n, 1)) if not inner else prob.inner_features_cal(inner)[order]  # (n, K)
+    K, c, p = Fo.shape[1], W.shape[1], QB.shape[1]
+    KC = K * c
+    A = ((Fo[:, :, None] * Fo[:, None, :]).reshape(n, K * K, 1) * W[order].reshape(n, 1, c * c)).reshape(n, -1)
+    B = (Fo[:, :, None, None] * QB[order][:, None, :, :]).reshape(n, K * p * c)
+    C = (Fo[:, :, None] * Br[order][:, None, :]).reshape(n, K * c)
+    X = np.concatenate([A, B, C, np.any(Fo != 0, axis=1)[:, None].astype(float)], axis=1)
+    suf = np.zeros((n + 1, X.shape[1]))
+    suf[:-1] = np.cumsum(X[::-1], axis=0)[::-1]
+    S = suf[np.searchsorted(v, np.array([_gate(a)[1] for a in family]), side="left")]
+    g = len(family)
+    a0, a1, a2 = K * K * c * c, K * K * c * c + K * p * c, K * K * c * c + K * p * c + K * c
+    EtE = S[:, :a0].reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+    QtE = S[:, a0:a1].reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+    Etr = S[:, a1:a2].reshape(g, KC)
+    return list(zip(EtE, QtE, Etr, S[:, a2] > 0))
 
 
 PRODUCT_BATCH_MAX = 1 << 23  # elements of the per-row feature products one batch builds at once (64 MB)
