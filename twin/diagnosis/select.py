@@ -546,7 +546,15 @@ def _row_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tu
         S, Q, r = sb.row_sum(prob.obs_cal.n), sb.Q, sb.r
         n, m, c = S.shape[0], base.shape[0], base.shape[1]
         W = (S @ (base[:, :, None] * base[:, None, :]).reshape(m, c * c)).reshape(n, c, c)
-        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(m, -1)).reshape(n, Q.shape[1], c)
+        # Q times one base column at a time, in a buffer kept with the basis (a frame's six columns at once would
+        # be an (m, p, 6) temporary)
+        buf = sb.cache.get("buffer")
+        if buf is None:
+            buf = sb.cache["buffer"] = np.empty_like(Q)
+        QB = np.empty((n, Q.shape[1], c))
+        for j in range(c):
+            np.multiply(Q, base[:, j:j + 1], out=buf)
+            QB[:, :, j] = S @ buf
         Br = S @ (base * r[:, None])  # (n, c)
         got = sb.cache[key] = (W, QB, Br)
     return got
