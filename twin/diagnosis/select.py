@@ -314,10 +314,10 @@ class Scored:
 
 
 class _ColumnStore:
-    """The screened pool's feature sets on the calibration rows, stored once however many places use them: one
-    block ``(n, K, g)`` per width ``K`` and per group of places sharing the sets (the dictionary's sets act on every
-    place; a scanned order or a joint's own shapes on one), so that a place multiplies its per-row aggregates with
-    contiguous blocks instead of a copy of its atoms' features. The calibration-row features of the stored sets
+    """The screened pool's feature sets on the calibration rows, stored once however many places use them: per
+    width ``K``, one block ``(n, K, g)`` of the sets several places use (the dictionary's) and one per place of the
+    sets only it uses (a scanned order, a joint's own shapes), so that a place multiplies its per-row aggregates
+    with a few contiguous blocks instead of a copy of its atoms' features. The calibration-row features of the stored sets
     (:meth:`Problem.features_cal`) become views of the blocks. One-step atoms are left out (suffix sums)."""
 
     MIN_ATOMS = 200
@@ -331,9 +331,14 @@ class _ColumnStore:
             key = prob._key(a)
             users.setdefault(key, set()).add((a.place, a.target))
             rep.setdefault(key, a)
+        # per width, one block of the sets several places use (a place multiplies the whole block: the few sets a
+        # place lacks, its own joint's polynomial on a joint, cost less than many small blocks) and one block per
+        # place of the sets only it uses (a scanned order)
+        everyone = frozenset().union(*users.values())
         by_block: dict[tuple, list[str]] = {}
         for key, places in users.items():
-            by_block.setdefault((frozenset(places), len(rep[key].features)), []).append(key)
+            who = frozenset(places) if len(places) == 1 else everyone
+            by_block.setdefault((who, len(rep[key].features)), []).append(key)
         self.blocks: list[tuple[frozenset, np.ndarray]] = []
         self.index: dict[str, tuple[int, int]] = {}
         for (places, K), keys in by_block.items():
@@ -455,9 +460,8 @@ def _block_stats(F: np.ndarray, w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -
     Etr = np.stack([br @ F[:, k, :] for k in range(K)], axis=1)  # (g, K)
     EtE = np.empty((g, K, K))
     for k in range(K):
-        Fw = F[:, k, :] * w[:, None]
         for m in range(k, K):
-            EtE[:, k, m] = EtE[:, m, k] = np.einsum("ng,ng->g", Fw, F[:, m, :])
+            EtE[:, k, m] = EtE[:, m, k] = np.einsum("n,ng,ng->g", w, F[:, k, :], F[:, m, :])
     nrm2 = np.diagonal(EtE, axis1=1, axis2=2)
     return [(nrm2[i], EtE[i], QtE[:, i, :], Etr[i]) for i in range(g)]
 
