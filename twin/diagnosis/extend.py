@@ -156,6 +156,7 @@ class ExtendedModel:
         self._field_cache: dict[str, np.ndarray] = {}
         self._f = (np.ones(self._crd.size) if axis_sigma is None
                    else (obs.sigma_position / np.asarray(axis_sigma, dtype=float))[self._crd])
+        self._f_one = bool(np.all(self._f == 1.0))  # an isotropic floor: whitening by the axes changes nothing
         sizes = [t.r for t in self.terms]
         self.offsets = np.concatenate([[space.size], space.size + np.cumsum(sizes)]).astype(int)
         self.size = int(self.offsets[-1])
@@ -254,8 +255,9 @@ class ExtendedModel:
         first_order = [t.atom.first_order for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
-        res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,
-                        block=res.block)
+        if not self._f_one:
+            res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,
+                            block=res.block)
         r = res.r
         cols = []
         for t, phi, fo in zip(self.terms, phis, first_order):

@@ -112,9 +112,9 @@ def gauss_newton(
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
-        J = res.J[:, idx]
+        J = res.J[:, idx]  # a copy: scaled in place below
         if sw is not None:
-            J = J * sw[:, None]
+            J *= sw[:, None]
         if linear_solver == "spectral":
             dx_f = spectral_correction(J.T @ J, J.T @ r, max_iter=spectral_iterations).x
             x_new = x.copy()
@@ -135,7 +135,8 @@ def gauss_newton(
         if D is None:
             nrm = np.linalg.norm(J, axis=0)
             D = 1.0 / np.where(nrm > 0, nrm, 1.0)
-        A = J * D
+        J *= D
+        A = J
         H = A.T @ A
         g = A.T @ r
         while True:
