@@ -515,17 +515,6 @@ class ScoringBasis:
             got = self.cache["sw_kept"] = self.sw[self.keep]
         return got
 
-    def row_sum(self, n: int):
-        """The sparse ``(n, m_kept)`` matrix summing the kept residuals per row (``n`` calibration rows)."""
-        got = self.cache.get(("row_sum", n))
-        if got is None:
-            from scipy import sparse
-
-            rows = self.rows
-            got = self.cache[("row_sum", n)] = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))),
-                                                                 shape=(n, len(rows)))
-        return got
-
 
 def _kept_base(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> np.ndarray:
     """The whitened model columns a product atom's features multiply (:meth:`ExtendedModel.product_base`) on the
@@ -547,20 +536,45 @@ def _row_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tu
     got = sb.cache.get(key)
     if got is None:
         base = _kept_base(prob, fit, sb, atom) * sb.sw_kept[:, None]  # (m, c)
-        S, Q, r = sb.row_sum(prob.obs_cal.n), sb.Q, sb.r
-        n, m, c = S.shape[0], base.shape[0], base.shape[1]
-        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(m, c * c)).reshape(n, c, c)
-        # Q times one base column at a time, in a buffer kept with the basis (a frame's six columns at once would
-        # be an (m, p, 6) temporary)
-        buf = sb.cache.get("buffer")
-        if buf is None:
-            buf = sb.cache["buffer"] = np.empty_like(Q)
-        QB = np.empty((n, Q.shape[1], c))
-        for j in range(c):
-            np.multiply(Q, base[:, j:j + 1], out=buf)
-            QB[:, :, j] = S @ buf
-        Br = S @ (base * r[:, None])  # (n, c)
+        slot, rows, Qg, rg = _row_slots(prob, sb)
+        kmax, n, p = Qg.shape
+        c = base.shape[1]
+        bg = np.zeros((kmax, n, c))
+        bg[slot, rows] = base
+        # each row's sum over its residuals in their order, one slot at a time (a padded slot adds an exact 0)
+        W = np.zeros((n, c, c))
+        QB = np.zeros((n, p, c))
+        Br = np.zeros((n, c))
+        tmp = np.empty((n, p))
+        for k in range(kmax):
+            W += bg[k][:, :, None] * bg[k][:, None, :]
+            for j in range(c):
+                np.multiply(Qg[k], bg[k, :, j:j + 1], out=tmp)
+                QB[:, :, j] += tmp
+            Br += bg[k] * rg[k][:, None]
         got = sb.cache[key] = (W, QB, Br)
+    return got
+
+
+def _row_slots(prob: Problem, sb: ScoringBasis) -> tuple[np.ndarray, ...]:
+    """The kept residuals laid out by calibration row: each one's slot (its place among its row's residuals, in
+    their order) and row ``(m_kept,)``, and ``Q`` ``(kmax, n, p)`` and ``r`` ``(kmax, n)`` in that layout (zero in
+    the slots a row does not fill); once per basis."""
+    got = sb.cache.get("slots")
+    if got is None:
+        rows = sb.rows
+        n = prob.obs_cal.n
+        order = np.argsort(rows, kind="stable")
+        counts = np.bincount(rows, minlength=n)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        slot = np.empty(len(rows), dtype=int)
+        slot[order] = np.arange(len(rows)) - start[rows[order]]
+        kmax = int(counts.max(initial=0))
+        Qg = np.zeros((kmax, n, sb.Q.shape[1]))
+        Qg[slot, rows] = sb.Q
+        rg = np.zeros((kmax, n))
+        rg[slot, rows] = sb.r
+        got = sb.cache["slots"] = (slot, rows, Qg, rg)
     return got
 
 
