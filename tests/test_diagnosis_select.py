@@ -181,3 +181,25 @@ def test_model_column_picked_from_the_jacobian_is_the_product_with_it(problem):
         got, want = _times_weights(J, w), J[:, : w.shape[0]] @ w
         assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want)), a.target
         assert got.flags["C_CONTIGUOUS"]
+
+
+def test_tail_sums_are_the_sums_from_each_position_on():
+    """Sums of the rows from each position on, with repeated positions, the first row and past the last row."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(50, 4))
+    pos = np.array([7, 0, 50, 7, 49, 23, 23])
+    got = S._tail_sums(X, pos)
+    want = np.array([X[p:].sum(axis=0) for p in pos])
+    _close(got, want, np.array([np.abs(X[p:]).sum(axis=0) for p in pos]), 1e-13)
+
+
+def test_leading_eigenpairs_of_a_wide_gram_matrix_are_the_full_decompositions():
+    """For a wide projected Gram matrix, the leading eigenvalues equal the full decomposition's and their
+    eigenvectors span the same directions."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(S.WIDE_EIGH_MIN + 20, 900))
+    G = (A @ A.T / 900)[None]
+    lam, V = S._leading_eigh(G, 6)
+    full, U = np.linalg.eigh(G[0])
+    np.testing.assert_allclose(lam[0], full[::-1][:6], rtol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(V[0] * U[:, ::-1][:, :6], axis=0)), 1.0, rtol=1e-9)

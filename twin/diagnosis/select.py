@@ -452,6 +452,20 @@ def _single_step(a: Atom) -> bool:
     return len(a.features) == 1 and a.features[0].get("kind") == "step"
 
 
+def _tail_sums(X: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """``S[i] = sum_{j >= pos[i]} X[j]`` ``(len(pos), X.shape[1])`` for rows ``X`` ``(n, d)`` (0 for ``pos[i] = n``):
+    the sums between consecutive distinct positions, accumulated from the last."""
+    n = X.shape[0]
+    out = np.zeros((len(pos), X.shape[1]))
+    inside = pos < n
+    if not np.any(inside):
+        return out
+    up = np.unique(pos[inside])
+    tails = np.cumsum(np.add.reduceat(X, up, axis=0)[::-1], axis=0)[::-1]
+    out[inside] = tails[np.searchsorted(up, pos[inside])]
+    return out
+
+
 def _block_stats(F: np.ndarray, w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
     """The products over the rows of feature sets ``F`` ``(n, K, g)`` with the per-row aggregates, per set:
     ``sum w F_k^2`` ``(K,)``, ``sum w F_k F_l`` ``(K, K)``, ``Qb^T F`` ``(p, K)`` and ``br^T F`` ``(K,)``."""
@@ -476,11 +490,8 @@ def _step_stats(prob: Problem, steps: list[Atom], w: np.ndarray, Qb: np.ndarray,
     for ch, idx in by_ch.items():
         order, v = prob.channel_order_cal(ch)
         A = np.concatenate([w[order, None], Qb[order], br[order, None]], axis=1)  # (n, p + 2)
-        suf = np.zeros((len(order) + 1, A.shape[1]))
-        suf[:-1] = np.cumsum(A[::-1], axis=0)[::-1]
         at = np.array([steps[i].features[0]["at"] for i in idx], dtype=float)
-        pos = np.searchsorted(v, at, side="left")
-        for i, s in zip(idx, suf[pos]):
+        for i, s in zip(idx, _tail_sums(A, np.searchsorted(v, at, side="left"))):
             out[i] = (s[:1], s[:1].reshape(1, 1), s[1:-1, None], s[-1:])
     return out
 
@@ -691,8 +702,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
             D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
             G = (EtE - QtE.transpose(0, 2, 1) @ QtE) * D[:, :, None] * D[:, None, :]
             e = (Etr - Qtr @ QtE) * D
-            lam, V = np.linalg.eigh(G)
-            lam, V = lam[:, ::-1], V[:, :, ::-1]  # descending
+            lam, V = _leading_eigh(G, max_rank)  # descending
             sv = np.sqrt(np.maximum(lam, 0.0))
             rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
             for i, a in enumerate(grp):
@@ -709,6 +719,27 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
                    columns=_column_maker(prob, fit, a, sb), ep_norm2=ep2)
             for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
+
+
+WIDE_EIGH_MIN = 400  # from this size on, only the leading eigenpairs of a projected Gram matrix are computed
+
+
+def _leading_eigh(G: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues ``(g, .)`` and eigenvectors ``(g, KC, .)`` of symmetric matrices ``G`` ``(g, KC, KC)`` in
+    descending order: all of them, or for matrices of ``WIDE_EIGH_MIN`` rows and more (a step at each of 200
+    session starts on a frame: 1,200 rows) the ``k`` leading ones alone, all the scoring uses."""
+    KC = G.shape[-1]
+    if KC < WIDE_EIGH_MIN or KC <= k:
+        lam, V = np.linalg.eigh(G)
+        return lam[:, ::-1], V[:, :, ::-1]
+    from scipy.linalg import eigh
+
+    lam = np.empty((len(G), k))
+    V = np.empty((len(G), KC, k))
+    for i, Gi in enumerate(G):
+        w, v = eigh(Gi, subset_by_index=[KC - k, KC - 1])
+        lam[i], V[i] = w[::-1], v[:, ::-1]
+    return lam, V
 
 
 GATE_SUFFIX_MIN = 1 << 20  # atoms x rows from which a family acting from different moments is summed by suffixes
@@ -742,9 +773,7 @@ def _gate_grams(prob: Problem, family: list[Atom], W: np.ndarray, QB: np.ndarray
     B = (Fo[:, :, None, None] * QB[order][:, None, :, :]).reshape(n, K * p * c)
     C = (Fo[:, :, None] * Br[order][:, None, :]).reshape(n, K * c)
     X = np.concatenate([A, B, C, np.any(Fo != 0, axis=1)[:, None].astype(float)], axis=1)
-    suf = np.zeros((n + 1, X.shape[1]))
-    suf[:-1] = np.cumsum(X[::-1], axis=0)[::-1]
-    S = suf[np.searchsorted(v, np.array([_gate(a)[1] for a in family]), side="left")]
+    S = _tail_sums(X, np.searchsorted(v, np.array([_gate(a)[1] for a in family]), side="left"))
     g = len(family)
     a0, a1, a2 = K * K * c * c, K * K * c * c + K * p * c, K * K * c * c + K * p * c + K * c
     EtE = S[:, :a0].reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
@@ -789,16 +818,27 @@ def _product_grams_bounded(prob: Problem, grp: list[Atom], F: np.ndarray, W: np.
         distinct = prob.distinct_rows_cal(a)
         if distinct is not None:
             Fu, U = distinct
-            parts.append(_product_grams(Fu[:, None, :], (U @ W.reshape(n, -1)).reshape(-1, *W.shape[1:]),
-                                        (U @ QB.reshape(n, -1)).reshape(-1, *QB.shape[1:]), U @ Br))
-            continue
-        rows = max(1, PRODUCT_BATCH_MAX // (K * K))
-        acc = None
-        for s in range(0, n, rows):
-            got = _product_grams(F[s:s + rows, i:i + 1], W[s:s + rows], QB[s:s + rows], Br[s:s + rows])
-            acc = got if acc is None else tuple(x + y for x, y in zip(acc, got))
-        parts.append(acc)
+            parts.append(_product_grams_wide(Fu, (U @ W.reshape(n, -1)).reshape(-1, *W.shape[1:]),
+                                             (U @ QB.reshape(n, -1)).reshape(-1, *QB.shape[1:]), U @ Br))
+        else:
+            parts.append(_product_grams_wide(F[:, i], W, QB, Br))
     return tuple(np.concatenate(x, axis=0) for x in zip(*parts))
+
+
+def _product_grams_wide(F: np.ndarray, W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_product_grams` of one atom with many features ``F`` ``(n, K)`` without the ``(n, K^2)`` products:
+    ``E^T E`` block by block of the base, ``F^T diag(W[:, i, j]) F``."""
+    n, K = F.shape
+    c, p = W.shape[1], QB.shape[1]
+    EtE = np.empty((K, c, K, c))
+    for i in range(c):
+        for j in range(i, c):
+            EtE[:, i, :, j] = (F * W[:, i, j, None]).T @ F
+            if j > i:
+                EtE[:, j, :, i] = EtE[:, i, :, j].T
+    QtE = (F.T @ QB.reshape(n, p * c)).reshape(K, p, c).transpose(1, 0, 2).reshape(p, K * c)
+    Etr = (F.T @ Br).reshape(K * c)
+    return EtE.reshape(1, K * c, K * c), QtE[None], Etr[None]
 
 
 def _product(a: Atom) -> bool:
