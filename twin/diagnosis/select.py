@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from dataclasses import replace as replace_atom
 
 import numpy as np
-from scipy import stats
 
+from ..estimator import distributions as dists
 from ..estimator.core import Prepared
 from ..estimator.solvers import gauss_newton
 from .atoms import Atom, feature_values
@@ -55,10 +55,10 @@ def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFl
     y = Jv.T @ r
     T = float(r @ r - y @ np.linalg.lstsq(M, y, rcond=None)[0]) if M.size else float(r @ r)
     if np.isinf(floor.dof):
-        p = float(stats.chi2.sf(T, m))
+        p = float(dists.chi2_sf(T, m))
         dist = f"chi2({m})"
     else:
-        p = float(stats.f.sf(T / m, m, floor.dof))
+        p = float(dists.f_sf(T / m, m, floor.dof))
         dist = f"F({m}, {int(floor.dof)})"
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
@@ -78,7 +78,7 @@ def gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 
     if has.sum() < 5:
         return np.zeros(n, dtype=bool)
     k = np.maximum(cnt, 1)
-    thr_floor = np.sqrt(stats.chi2.isf(1e-6 / max(n, 1), k) / k)
+    thr_floor = np.sqrt(dists.chi2_isf(1e-6 / max(n, 1), k) / k)
     med = float(np.median(e[has]))
     mad = 1.4826 * float(np.median(np.abs(e[has] - med)))
     bad = has & (e > thr_floor) & (e > med + 8 * max(mad, 0.05 * med))
@@ -249,7 +249,7 @@ def chi2_logsf(x, k):
     from scipy.special import gammaln
 
     x, k = np.asarray(x, float), np.asarray(k, float)
-    v = np.asarray(stats.chi2.logsf(x, k), float)
+    v = np.asarray(dists.chi2_logsf(x, k), float)
     bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
     if np.any(bad):
         xb, kb = np.broadcast_to(x, v.shape)[bad], np.broadcast_to(k, v.shape)[bad]
@@ -1186,7 +1186,7 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
         trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
-        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= dists.chi2_isf(0.01 / len(PLAY_HALF_DEG), 1)
         if better:
             f_sign = prob.features(s.atom)[prob.rows_cal, 0]
             f_play = prob.features(top.atom)[prob.rows_cal, 0]

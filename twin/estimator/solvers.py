@@ -13,8 +13,8 @@ from typing import Callable, Literal
 
 import numpy as np
 from scipy import linalg as sla
-from scipy import stats
 
+from .distributions import chi2_median, chi2_ppf
 from .problem import Residuals
 
 __all__ = [
@@ -282,7 +282,7 @@ def robust_scale(t: np.ndarray, dof: np.ndarray, mask: np.ndarray | None = None)
     ok = dof > 0 if mask is None else (dof > 0) & mask
     if not np.any(ok):
         return 1.0
-    med = stats.chi2.median(dof[ok])
+    med = chi2_median(dof[ok])
     return float(np.sqrt(np.median(t[ok] / med)))
 
 
@@ -350,7 +350,7 @@ def robust_fit(
         s = robust_scale(t, dof, base_mask)
         s_eff = max(1.0, s) if scale_known else s
         n_used = int(np.sum(dof > 0))
-        thr = s_eff**2 * stats.chi2.ppf(1.0 - alpha / max(n_used, 1), np.maximum(dof, 1))
+        thr = s_eff**2 * chi2_ppf(1.0 - alpha / max(n_used, 1), np.maximum(dof, 1))
         inl = (t <= thr) & (dof > 0)
         return inl, t, dof, thr, s
 
