@@ -12,9 +12,12 @@ UV := $(TOOLS)/bin/uv
 STAMP := $(VENV)/.synced-$(shell cat pyproject.toml uv.lock | sha1sum | cut -c1-12)
 export UV_PYTHON_DOWNLOADS := never
 export MUJOCO_GL ?= egl
-# many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/__init__.py)
+# many small linear-algebra problems: threaded BLAS only thrashes on 2 shared cores (see twin/runtime.py)
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
+# one BLAS kernel on every x86-64 machine: OpenBLAS picks its kernels by CPU (an AVX-512 machine's differ from an
+# AVX2 one's in the last bits), and the golden regression test asks for bit-identical 6R results
+export OPENBLAS_CORETYPE ?= Haswell
 # test workers: one per core (pytest-xdist)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 

@@ -38,7 +38,9 @@ import time
 import cv2
 import numpy as np
 
-import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import update_benchmark_section
 from twin.camera import CameraIntrinsics
 from twin.instrument import (

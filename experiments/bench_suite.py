@@ -18,6 +18,10 @@ import sys
 import time
 from pathlib import Path
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import numpy as np
 
 from twin.benchio import update_benchmark_section

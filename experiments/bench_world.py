@@ -21,7 +21,9 @@ import time
 
 import numpy as np
 
-import twin  # noqa: F401  (MUJOCO_GL=egl before mujoco)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import mujoco
 from twin.benchio import update_benchmark_section
 from twin.instrument import StereoCalibration, measure_pair

@@ -17,7 +17,9 @@ import os
 import pstats
 import time
 
-import twin  # noqa: F401  (MUJOCO_GL=egl before mujoco)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import update_benchmark_section
 from twin.world import World
 

@@ -97,12 +97,15 @@ def make_dataset(seed=0, n=200, effect=None, repeats_every=4, temp=None, t_s=Non
 
 def oracle_rms(ds, delta, pose_ids, sigma=None):
     """What the true effect known exactly achieves [mm]: the geometry re-identified by the estimator
-    (``twin.estimator.calibrate``, its default method, on the dataset's calibration rows of ``measured - delta``),
+    (``twin.estimator.calibrate``, its default method, on the calibration rows of ``measured - delta``: the rows
+    before the held-out block of time, as the diagnosis splits them, ``twin.diagnosis.blocks.held_out_sets``),
     predicting ``geometric + delta`` on the rows ``pose_ids``; RMS of the 3-D sphere-centre error over the
-    measured spheres. Estimator code and this file only: independent of the diagnosis."""
+    measured spheres. The estimator, the row split and this file only: independent of the diagnosis' choices."""
+    from twin.diagnosis.blocks import held_out_sets
     from twin.estimator import calibrate
 
-    cal = calibrate(_replace(ds, spheres=ds.spheres - delta), noise_position=sigma)
+    sets = held_out_sets(ds).set
+    cal = calibrate(_replace(ds, spheres=ds.spheres - delta, set=sets), noise_position=sigma)
     rows = np.isin(ds.pose_id, np.asarray(pose_ids))
     pred = cal.predict(ds.q[rows], ds.station_ids[rows] if ds.station is not None else None).spheres + delta[rows]
     e = np.linalg.norm(ds.spheres[rows] - pred, axis=-1)[ds.sphere_seen[rows]]

@@ -8,21 +8,25 @@ ROOT = Path(__file__).resolve().parent.parent / "twin"
 # layer -> packages/modules it must not import. The runner orchestrates every layer (plan -> measure -> identify ->
 # diagnose -> compensate -> evaluate); nothing in a layer imports it, the commands, or a study.
 ABOVE = ("twin.runner", "twin.commands", "studies", "experiments")
+# The importers (vendor files -> the dataset seam) sit at the edge beside the foundation: they write datasets, and
+# nothing behind the seam reads a vendor format.
+IMPORTERS = "twin.importers"
 FORBIDDEN = {
-    "foundation": ("twin.world", "twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
-    "world": ("twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "rerun") + ABOVE,
-    "instrument": ("twin.world", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun") + ABOVE,
-    "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
-    "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
-    "evaluation": ABOVE,
+    "foundation": ("twin.world", "twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", IMPORTERS, "mujoco", "rerun", "cv2") + ABOVE,
+    "importers": ("twin.world", "twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", "mujoco", "rerun", "cv2") + ABOVE,
+    "world": ("twin.instrument", "twin.estimator", "twin.diagnosis", "twin.evaluation", IMPORTERS, "rerun") + ABOVE,
+    "instrument": ("twin.world", "twin.estimator", "twin.diagnosis", "twin.evaluation", IMPORTERS, "mujoco", "rerun") + ABOVE,
+    "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", IMPORTERS, "mujoco", "rerun", "cv2") + ABOVE,
+    "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", IMPORTERS, "mujoco", "rerun", "cv2") + ABOVE,
+    "evaluation": (IMPORTERS,) + ABOVE,
     "runner": ("twin.commands", "studies", "experiments", "rerun"),
 }
 FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
-              "mocap"}
+              "resources", "runtime"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}
 # the packages whose modules must not import another module's private (_name) names
-PUBLIC_FACES = ("world", "instrument", "evaluation", "runner", "commands", "foundation")
+PUBLIC_FACES = ("world", "instrument", "evaluation", "runner", "commands", "foundation", "importers")
 RERUN_MODULE = "twin/evaluation/recording.py"
 
 
@@ -89,7 +93,8 @@ def _private_imports(packages=PUBLIC_FACES):
 
 
 def test_no_module_imports_private_names():
-    """The world, instrument, evaluation, runner, commands and foundation modules use each other's public names only."""
+    """The world, instrument, evaluation, runner, commands, importers and foundation modules use each other's public
+    names only."""
     assert _private_imports() == []
 
 
@@ -114,3 +119,19 @@ def test_checker_catches_a_private_import_and_an_upward_import(tmp_path, monkeyp
     monkeypatch.setattr(__import__(__name__), "ROOT", fake)
     assert any("imports twin.runner.campaign" in v for v in _violations())
     assert any("_clean" in v for v in _private_imports())
+
+
+def test_checker_keeps_the_importers_at_the_edge(tmp_path, monkeypatch):
+    """An importer that imports the estimator, and the estimator importing an importer, are both flagged; an
+    importer writing through the dataset seam is not."""
+    fake = tmp_path / "twin"
+    (fake / "importers").mkdir(parents=True)
+    (fake / "estimator").mkdir(parents=True)
+    (fake / "importers" / "leak.py").write_text("from ..estimator import calibrate\n")
+    (fake / "importers" / "ok.py").write_text("from ..dataset import write_dataset\nfrom ..urdf import read_urdf_chain\n")
+    (fake / "estimator" / "vendor.py").write_text("from twin.importers.columns import read_column_map\n")
+    monkeypatch.setattr(__import__(__name__), "ROOT", fake)
+    found = _violations()
+    assert any("leak.py (importers) imports twin.estimator" in v for v in found)
+    assert any("vendor.py (estimator) imports twin.importers" in v for v in found)
+    assert not any("ok.py" in v for v in found)

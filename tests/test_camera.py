@@ -69,3 +69,32 @@ def test_discs_in_image_against_sampled_disc_boundaries():
     got = discs_in_image(uv, r, w, h)
     assert got.shape == (400,) and 50 < got.sum() < 350
     np.testing.assert_array_equal(got, oracle)
+
+
+def test_spheres_in_view_is_projection_plus_disc_test():
+    """spheres_in_view(centres, intr, radius, margin) equals: every sphere in front, and project_points' pixels
+    with discs of fx*r/z + margin inside the image (discs_in_image), on random plate poses."""
+    from twin.camera import CameraIntrinsics, discs_in_image, project_points, spheres_in_view
+
+    intr = CameraIntrinsics(800.0, 805.0, 319.5, 239.5, 640, 480, (-0.1, 0.05, 0.001, -0.001, 0.0))
+    rng = np.random.default_rng(5)
+    centres = rng.uniform([-0.4, -0.3, 0.5], [0.4, 0.3, 1.2], size=(300, 1, 3)) + rng.normal(scale=0.05, size=(300, 3, 3))
+    r, margin = 0.0127, 20.0
+    got = spheres_in_view(centres, intr, radius=r, margin_px=margin, min_depth=0.05)
+    uv = project_points(centres.reshape(-1, 3), np.eye(4), intr).reshape(-1, 3, 2)
+    oracle = discs_in_image(uv, intr.fx * r / centres[..., 2] + margin, intr.width, intr.height).all(axis=1)
+    assert got.shape == (300,) and 30 < got.sum() < 270
+    np.testing.assert_array_equal(got, oracle)
+
+
+def test_spheres_in_view_rejects_a_sphere_behind_or_too_close():
+    """A plate with one sphere at or behind min_depth is out of view, wherever its pixel would fall."""
+    from twin.camera import CameraIntrinsics, spheres_in_view
+
+    intr = CameraIntrinsics.ideal(640, 480, 40.0)
+    plate = np.array([[0.0, 0.0, 0.7], [0.02, 0.0, 0.7], [0.0, 0.02, 0.7]])
+    assert spheres_in_view(plate, intr, radius=0.01)
+    for z in (0.05, 0.0, -0.7):
+        p = plate.copy()
+        p[1, 2] = z
+        assert not spheres_in_view(p, intr, radius=0.01, min_depth=0.05)

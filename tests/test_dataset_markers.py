@@ -15,7 +15,7 @@ from twin.dataset import DatasetError, Plate, read_dataset, write_dataset
 from twin.estimator import simulate_dataset
 from twin.estimator.plausibility import ImplausibleData, check_length_unit, check_plate_rows
 from twin.kinematics import flange2base, tool2meas
-from twin.mocap import hand_eye, import_mocap, marker_geometry
+from twin.importers.mocap import hand_eye, import_mocap, marker_geometry
 from twin.robots import joint_table
 from twin.transforms import pose6_to_transform
 from twin.urdf import UrdfError, read_urdf_chain

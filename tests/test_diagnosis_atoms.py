@@ -160,13 +160,14 @@ def test_clean_data_with_every_channel_recorded_raise_no_alarm():
 
 @pytest.mark.slow
 def test_one_gross_row_is_down_weighted_not_decisive():
-    """A single held-out row 30x off is listed as gross and does not make clean data structured (>= 9/10 seeds)."""
+    """A single held-out row 30x off (in the confirmation block, at 80 % of the campaign) is listed as gross and does
+    not make clean data structured (>= 9/10 seeds)."""
     from dataclasses import replace
 
     out = []
     for seed in range(60, 60 + SEEDS):
         ds, _ = _dataset(None, seed=seed, n=120)
-        k = int(np.flatnonzero(ds.set == "validation")[5])
+        k = int(0.8 * ds.n)
         sph = ds.spheres.copy()
         sph[k] += 30 * H.SIGMA
         res = diagnose(replace(ds, spheres=sph))
@@ -213,10 +214,12 @@ def test_wrist_coupling_of_joint5_with_joint4_is_named():
 @pytest.mark.slow
 def test_growth_with_a_lagged_temperature_is_thermal_with_its_time_constant():
     """All lengths grow with the links' temperature, which lags the recorded air temperature by tau = 1500 s:
-    named thermal on the lagged temperature with tau within 30 %, the remainder not structured (>= 9/10 seeds)."""
+    named thermal on the lagged temperature with tau within 30 %, the remainder not structured (>= 9/10 seeds). The
+    campaign lasts about three time constants, so that its first half (the rows that fit; the held-out rows are the
+    end of the campaign) sees the lag."""
     out = []
     for seed in range(80, 80 + SEEDS):
-        n = 160
+        n = 320
         m = n + n // 4
         rng = np.random.default_rng(seed)
         t = np.cumsum(rng.uniform(10, 15, m))

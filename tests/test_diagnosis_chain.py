@@ -34,7 +34,7 @@ def tiago():
 def imported(tmp_path_factory):
     """The committed campaign imported (its robot, marker set and dataset.toml), the template of the synthetic rows."""
     from twin.dataset import read_dataset
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     out = tmp_path_factory.mktemp("tiago") / "ds"
     import_mocap([(DATA / "qualisys_2021-11-30_static_postures.csv", "calibration"),
@@ -250,7 +250,7 @@ def test_figaroh_selection_spans_figaroh_s_own_thirty_parameters(tmp_path):
 
     from twin.dataset import read_dataset
     from twin.estimator import calibrate
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     res = json.loads((ROOT / "studies" / "tiago_mocap" / "results" / "results.json").read_text())
     fig = next(r for r in res["rows"] if r.get("tool", "").startswith("FIGAROH full"))

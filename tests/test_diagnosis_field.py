@@ -132,7 +132,8 @@ def test_stereo_bar_warming_up_is_traced_to_the_range_square_and_predicts_later_
     first row), simulated by exact triangulation: the kept field is the square of the range growing with a
     warm-up and no robot term is kept (>= 9/10 seeds), and the extended model predicts rows measured after the
     campaign (in a wider range of depths) within 2x of the noise-only error where the geometric model is off by
-    more than 5x (>= 9/10), at a median of 1.7x or better (measured 1.41-1.80x over these seeds, median 1.59x: the
+    more than 5x of it (>= 9/10; measured 8.7-12.8x: both models are refitted on every row of the campaign), at a
+    median of 1.7x or better (measured 1.28-1.90x over these seeds, median 1.58x: the
     field model is a first-order reading of the exact ray geometry, and small measurement-side terms fitted on
     the campaign's depths do not all carry to the wider ones)."""
     from twin.diagnosis import row_context
@@ -149,7 +150,7 @@ def test_stereo_bar_warming_up_is_traced_to_the_range_square_and_predicts_later_
         z = np.nanmean(ds.spheres[..., 2], axis=1)
         early = ds.t_s < 300.0 + 0.75 * 10.0 * n
         central = np.abs(z - np.median(z)) < np.quantile(np.abs(z - np.median(z)), 0.7)
-        res = diagnose(ds.subset(early & central))
+        res = diagnose(H._replace(ds.subset(early & central), set=None))  # its last 30 % held out by the diagnosis
         kept = [a for a in res.atoms if not a["minor"]]
         late = ds.subset(~early)
         pred = predict_extended(res.calibration, row_context(late), late.station_ids).spheres
@@ -159,5 +160,5 @@ def test_stereo_bar_warming_up_is_traced_to_the_range_square_and_predicts_later_
         floor = np.sqrt(3) * H.SIGMA
         out.append({"seed": seed, "traced": any("(a stereo rig's convergence off)" in a["label"] and "warms up" in a["label"]
                                                 for a in kept) and not any(a["place"] in ("joint", "length") for a in kept),
-                    "later": err <= 2.0 * floor < err_geo / 5, "later_ratio": float(err / floor)})
+                    "later": err <= 2.0 * floor and err_geo > 5 * floor, "later_ratio": float(err / floor)})
     H.tally(out, traced=(9, 10), later=(9, 10), later_ratio=("median<=", 1.7))

@@ -41,13 +41,18 @@ def test_diagnosis_recording_has_the_documented_entity_paths(diagnosed):
     assert "/diagnosis/variables/temp_c" not in ents  # not recorded in this dataset: not invented
 
 
+def _held_out_rows(ds, d):
+    """Dataset rows ``(k,)`` of the diagnosis' held-out block (confirmation and report rows), in order."""
+    return np.flatnonzero(np.isin(ds.pose_id, d["rows"]["report"] + d["rows"]["confirmation"]))
+
+
 def test_before_after_series_have_one_value_per_held_out_row(diagnosed):
-    """Before/after/floor series hold one value per validation row (confirmation and report rows), on the pose
-    timeline at the dataset row; before/after count the report rows."""
+    """Before/after/floor series hold one value per held-out row (confirmation and report rows, the diagnosis' block
+    of time), on the pose timeline at the dataset row; before/after count the report rows."""
     ds, d, ents = diagnosed
-    val_rows = np.flatnonzero(ds.set == "validation")
+    val_rows = _held_out_rows(ds, d)
     assert d["before"]["n_rows"] == d["held_out"]["n_report_rows"] == len(d["rows"]["report"])
-    assert sorted(d["rows"]["report"] + d["rows"]["confirmation"]) == sorted(ds.pose_id[val_rows].tolist())
+    assert val_rows.size == len(d["rows"]["report"]) + len(d["rows"]["confirmation"])
     for name in ("before", "after", "noise_floor"):
         assert _scalars(ents, f"/diagnosis/residual/{name}").size == val_rows.size, name
     poses = column(ents["/diagnosis/residual/before"], "pose")
@@ -58,7 +63,7 @@ def test_each_term_of_the_extended_model_is_plotted_per_held_out_row(diagnosed):
     """One terms/term<k> series per atom of diagnosis.json, one value per validation row; a backlash term
     takes two values (the clearance signed by the approach direction, 0 where the approach is unknown)."""
     ds, d, ents = diagnosed
-    n_val = int(np.sum(ds.set == "validation"))
+    n_val = _held_out_rows(ds, d).size
     assert len(d["atoms"]) >= 1
     for k, a in enumerate(d["atoms"]):
         v = _scalars(ents, f"/diagnosis/terms/term{k + 1}")
@@ -86,8 +91,8 @@ def test_series_values_agree_with_diagnosis_json(diagnosed):
 
 def test_variable_timelines_place_each_row_at_its_joint_angle(diagnosed):
     """On the q2_mdeg timeline each residual sits at its row's commanded q2 (the residual-vs-variable plot)."""
-    ds, _, ents = diagnosed
-    val_rows = np.flatnonzero(ds.set == "validation")
+    ds, d, ents = diagnosed
+    val_rows = _held_out_rows(ds, d)
     q2 = column(ents["/diagnosis/residual/before"], "q2_mdeg")
     np.testing.assert_array_equal(q2, np.round(np.rad2deg(ds.q[val_rows, 1]) * 1e3).astype(int))
     np.testing.assert_allclose(_scalars(ents, "/diagnosis/variables/t_s"), ds.t_s[val_rows])

@@ -164,3 +164,41 @@ def test_measure_to_dataset_in_memory_flags_bad_pairs(tmp_path):
     assert "image_size(right)" in ds.status[2] and not ds.sphere_seen[1:].any()
     assert np.allclose(ds.q, joints.q, atol=1e-12)
     assert "too many" in s.validation_error or "rows have fewer than three" in s.validation_error
+
+
+def test_runner_rows_and_folder_rows_come_from_one_writer(tmp_path):
+    """The runner's write_measured_dataset and the folder measurement's MeasuredRowsWriter write the same bytes
+    for the same rows, and tally the same summary (rows, complete rows, spheres, reasons by kind, times)."""
+    from twin.instrument.folder import MeasuredRowsWriter
+    from twin.runner.measure import write_measured_dataset
+    from twin.runner.store import PoseResult
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-1, 1, size=(3, 6))
+    c = rng.uniform(-0.1, 0.1, size=(3, 3, 3)) + [0, 0, 0.7]
+    spheres = [list(c[0]), [c[1, 0], None, c[1, 2]], [None, None, None]]
+    status = ["", "p1:epipolar(3.2px)", "p0:not_found;p1:occluded(left);p2:epipolar(12.0px)"]
+    cols = {"set": ["calibration", "validation", "validation"], "station": ["front", "left", "front"],
+            "pair": [0, 0, -1], "t_s": [0.0, 10.0, 20.0], "temp_c": [20.0, 20.5, 21.0]}
+    results = [PoseResult(key=f"m/{k:05d}", pose_id=k + 1, q=q[k], station=cols["station"][k], spheres=spheres[k],
+                          status=status[k], timings={"measure_s": 0.01 * (k + 1)}) for k in range(3)]
+    runner = write_measured_dataset(tmp_path / "a", results, q, **cols)
+    with MeasuredRowsWriter(tmp_path / "b", columns=list(cols)) as w:
+        for k in range(3):
+            w.write(k + 1, q[k], spheres[k], status[k], time_s=0.01 * (k + 1), **{n: v[k] for n, v in cols.items()})
+    assert (tmp_path / "a" / "poses.csv").read_bytes() == (tmp_path / "b" / "poses.csv").read_bytes()
+    header = (tmp_path / "a" / "poses.csv").read_text().splitlines()[0].split(",")
+    assert header[-6:] == ["set", "station", "pair", "temp_c", "t_s", "status"]
+    for tally in (runner, w):
+        assert (tally.n_rows, tally.n_complete, tally.n_spheres) == (3, 1, 5)
+        assert dict(tally.reasons) == {"epipolar": 2, "not_found": 1, "occluded(left)": 1}
+        assert tally.times == [0.01, 0.02, 0.03]
+
+
+def test_rows_writer_refuses_values_for_other_columns(tmp_path):
+    """A row must give a value for exactly the writer's columns (no column silently left empty)."""
+    from twin.instrument.folder import MeasuredRowsWriter
+
+    with MeasuredRowsWriter(tmp_path / "ds", columns=["set"]) as w:
+        with pytest.raises(ValueError, match="the writer's columns"):
+            w.write(1, np.zeros(6), [None] * 3, "p0:not_found;p1:not_found;p2:not_found", station="front")

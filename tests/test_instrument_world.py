@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from twin.cli import main  # twin first: it sets MUJOCO_GL=egl before mujoco is imported
+from twin.cli import main
 from twin.dataset import read_dataset
 from twin.instrument import BoardSpec, calibrate_stereo, measure_pair, plate_pose_from_spheres
 from twin.transforms import rotation_angle_between

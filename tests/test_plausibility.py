@@ -134,8 +134,8 @@ def test_implausible_data_is_a_value_error():
 
 
 def test_rows_of_two_stations_without_their_station_column_are_refused(tmp_path, capsys):
-    """Two camera stations' rows with the station column dropped fit badly whatever the noise estimate: the
-    residual is compared with the instrument's error seen in the plate distances and refused, named."""
+    """Two camera stations' rows with the station column dropped: the calibrated model misses a third of its rows
+    by a large fraction of the campaign's motion (whatever the outlier rule left out), refused with the cause named."""
     from test_cli_estimator import _hand_dataset
 
     _hand_dataset(tmp_path / "h", np.random.default_rng(21), n=40)
@@ -146,5 +146,56 @@ def test_rows_of_two_stations_without_their_station_column_are_refused(tmp_path,
         w.writeheader()
         w.writerows(rows)
     assert main(["calibrate", str(tmp_path / "h"), "--out", str(tmp_path / "cal"), "--quiet"]) == 2
-    assert "instrument's error seen in the plate" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the model cannot fit these data" in err and "without their 'station' column" in err
     assert not (tmp_path / "cal").exists()
+
+
+def test_swapped_joint_columns_are_still_refused(clean, tmp_path, capsys):
+    """q2 and q3 swapped in every row: the calibrated model misses its rows by a large part of their motion; exit 2
+    naming the likely cause, nothing written."""
+    def swap(k, r):
+        r["q2"], r["q3"] = r["q3"], r["q2"]
+
+    ds = _edit(clean, tmp_path / "swap23", swap)
+    assert main(["calibrate", str(ds), "--out", str(tmp_path / "cal"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "the model cannot fit these data" in err and "joint columns swapped" in err
+    assert not (tmp_path / "cal").exists()
+
+
+def test_a_robot_with_errors_beyond_its_geometry_calibrates_without_force(tmp_path, capsys):
+    """An IRB-1200 whose joints err by a function of the joints, 0.01 mm stated noise: the residual is about 70x the
+    noise; `twin calibrate` writes the calibration (exit 0, not forced), says so on stdout and in
+    details.beyond_geometry, and points to `twin diagnose`."""
+    from dataclasses import replace
+
+    from twin.dataset import write_dataset
+    from twin.estimator.simulate import random_configurations, simulate_dataset
+    from twin.robots import get_robot
+
+    from _estimator_helpers import camera_base, random_truth
+
+    rng = np.random.default_rng(31)
+    truth = random_truth("irb1200", rng)
+    q = random_configurations(get_robot("irb1200"), 120, rng)
+    q_actual = q + np.deg2rad(0.12) * np.sin(2 * q) + np.deg2rad(0.08) * np.cos(q[:, [1]])
+    sets = np.array((["calibration"] * 3 + ["validation"]) * 30, dtype=object)
+    ds, _ = simulate_dataset(truth, q_actual, robot_spec="irb1200", base2meas={"0": camera_base(rng)},
+                             noise_position=1e-5, rng=rng, set_=sets)
+    write_dataset(tmp_path / "ds", replace(ds, q=q))
+    assert main(["calibrate", str(tmp_path / "ds"), "--out", str(tmp_path / "cal")]) == 0
+    out = capsys.readouterr().out
+    assert "the robot has errors the geometric model lacks" in out and "twin diagnose" in out
+    d = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    assert d["details"]["beyond_geometry"]["detected"] and d["details"]["beyond_geometry"]["residual_scale"] > 50
+    assert d["details"]["plausibility"]["forced"] == []
+
+
+def test_a_clean_calibration_says_nothing_is_beyond_its_geometry(clean, tmp_path, capsys):
+    """Clean simulated data: details.beyond_geometry.detected is false and stdout has no such note."""
+    assert main(["calibrate", str(clean), "--out", str(tmp_path / "cal")]) == 0
+    assert "errors the geometric model lacks" not in capsys.readouterr().out
+    d = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    bg = d["details"]["beyond_geometry"]
+    assert bg["detected"] is False and bg["residual_scale"] < 2 and bg["miss_fraction_of_motion"] < 1e-3

@@ -46,7 +46,6 @@ def test_stereo_calibration_from_board_views_keeps_the_focal_lengths():
     -0.55 and -0.63 px); padded, -0.26 px, within the +-0.3 px the calibration scatters by on analytic images
     of the same poses (over three sets of views: -0.58 px unpadded, -0.05 px padded).
     """
-    import twin  # noqa: F401  (MUJOCO_GL before mujoco)
     from twin.instrument import BoardSpec, calibrate_stereo
     from twin.world import World
 

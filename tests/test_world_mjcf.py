@@ -1,19 +1,18 @@
 """The generated MJCF: body frames follow the numpy kinematic chain; static and composed files load cleanly."""
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 import mujoco
 
 from twin.kinematics import link_frames, tool2meas
 from twin.presets import preset_deviation
+from twin.resources import model_file, model_names
 from twin.robots import get_robot
 from twin.transforms import pose6_to_transform, rotation_angle_between
-from twin.world.mjcf import MODELS_DIR, joint_geometry, robot_mjcf_xml
+from twin.world.mjcf import joint_geometry, robot_mjcf_xml
 
 N_CONFIGS = 1000
 
@@ -76,16 +75,25 @@ def test_joint_geometry_is_a_unit_hinge_through_the_chain():
         assert np.allclose(g.body2parent, L0[i], atol=1e-15)
 
 
-@pytest.mark.parametrize("path", sorted(MODELS_DIR.glob("*.xml")), ids=lambda p: p.name)
-def test_static_scene_files_load(path: Path):
-    """Every static scene file under models/ loads with mujoco.MjModel.from_xml_path."""
-    m = mujoco.MjModel.from_xml_path(str(path))
+@pytest.mark.parametrize("name", model_names())
+def test_static_scene_files_load(name: str):
+    """Every packaged static scene file (twin/data/models) loads with mujoco.MjModel.from_xml_string."""
+    m = mujoco.MjModel.from_xml_string(model_file(name).read_text())
     assert m.ngeom >= 1
 
 
 def test_static_files_exist():
-    """The scene, rig and board files the composer merges are present."""
-    assert {p.name for p in MODELS_DIR.glob("*.xml")} >= {"scene.xml", "rig.xml", "board.xml"}
+    """The scene, rig and board files the composer merges are packaged."""
+    assert set(model_names()) >= {"scene.xml", "rig.xml", "board.xml"}
+
+
+def test_model_file_takes_only_bare_names():
+    """A packaged model is named by its bare file name; a path or an unknown name is refused, naming it."""
+    with pytest.raises(ValueError, match="bare file name"):
+        model_file("models/scene.xml")
+    with pytest.raises(FileNotFoundError) as e:
+        model_file("nope.xml")
+    assert e.value.filename == "twin/data/models/nope.xml"
 
 
 def test_robot_mass_and_gravity_statics_are_plausible():

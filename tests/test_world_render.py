@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
 import cv2
 
 from twin.camera import distort_normalized, project_points, undistort_normalized

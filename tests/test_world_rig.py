@@ -5,8 +5,6 @@ import json
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
-
 from twin.runner.campaign import run_campaign
 from twin.runner.config import parse_campaign_config
 from twin.dataset import read_dataset

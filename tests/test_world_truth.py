@@ -6,7 +6,6 @@ import tomllib
 import numpy as np
 import pytest
 
-import twin  # noqa: F401
 import cv2
 
 from twin.dataset import read_joints_csv

@@ -4,8 +4,6 @@ import cv2
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (sets MUJOCO_GL before mujoco is imported)
-
 from twin.instrument import StereoCalibration, measure_pair
 from twin.world import World
 

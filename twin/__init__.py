@@ -3,16 +3,10 @@
 Layers (one-way data flow, see docs/architecture.md): world -> instrument -> dataset -> estimator ->
 diagnosis -> evaluation. Foundation modules (``transforms``, ``kinematics``, ``robots``, ``camera``)
 are pure math and know no truth.
+
+Importing the library changes nothing in its host's environment. A program that renders sets ``MUJOCO_GL=egl``
+(and one BLAS thread, for speed) before numpy and mujoco load: :func:`twin.runtime.set_process_defaults` does
+both, as the ``twin`` command does.
 """
-
-import os as _os
-
-# Offscreen MuJoCo rendering on CPU goes through Mesa's EGL; must be set before mujoco is imported.
-_os.environ.setdefault("MUJOCO_GL", "egl")
-# Our linear algebra is many small problems: a multi-threaded BLAS only thrashes on a shared 2-core machine
-# (a diagnosis run took 30 s with OpenBLAS threads under load, 5 s single-threaded). Only effective when
-# twin is imported before numpy; the Makefile exports the same for tests and runs. Override by setting it.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
 
 __version__ = "0.1.0"

@@ -26,6 +26,7 @@ __all__ = [
     "fovy_deg_from_focal_px",
     "project_points",
     "discs_in_image",
+    "spheres_in_view",
     "distort_normalized",
     "undistort_normalized",
 ]
@@ -156,3 +157,25 @@ def discs_in_image(uv: np.ndarray, radius_px: np.ndarray | float, width: int, he
     r = np.broadcast_to(np.asarray(radius_px, dtype=float), uv.shape[:-1])
     u, v = uv[..., 0], uv[..., 1]
     return (u - r >= 0) & (u + r <= width - 1) & (v - r >= 0) & (v + r <= height - 1)
+
+
+def spheres_in_view(centres_cam: np.ndarray, intr: CameraIntrinsics, *, radius: float = 0.0, margin_px: float = 0.0,
+                    min_depth: float = 0.0) -> np.ndarray:
+    """Whether a camera sees the whole plate: the one "plate in view" predicate of the planners and of the world.
+
+    ``centres_cam`` ``(..., K, 3)`` [m]: the K sphere centres of each plate pose in the camera's OpenCV frame.
+    A pose is in view when every sphere is in front of the camera (depth ``z > min_depth`` [m]) and its image
+    disc, of radius ``fx * radius / z`` [px] (``radius`` [m]: the sphere's; 0 for a disc of ``margin_px`` alone)
+    plus ``margin_px`` [px], lies wholly inside the image (:func:`discs_in_image`; the centres projected with the
+    camera's distortion, as :func:`project_points`). Returns a mask ``(...,)``.
+    """
+    P = np.asarray(centres_cam, dtype=float)
+    if P.ndim < 2 or P.shape[-1] != 3:
+        raise ValueError(f"centres_cam must be (..., K, 3) [m], got shape {P.shape}")
+    z = P[..., 2]
+    front = z > min_depth
+    zs = np.where(front, z, np.nan)  # a sphere behind the camera is out of view: no pixel for it
+    xy = distort_normalized(P[..., :2] / zs[..., None], intr.dist)
+    uv = np.stack([intr.fx * xy[..., 0] + intr.cx, intr.fy * xy[..., 1] + intr.cy], axis=-1)
+    inside = front & discs_in_image(uv, intr.fx * radius / zs + margin_px, intr.width, intr.height)
+    return np.all(inside, axis=-1)

@@ -32,6 +32,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "SPHERE_COLUMNS",
     "POSE_COLUMNS",
+    "OPTIONAL_COLUMNS",
     "JOINT_COLUMNS",
     "Plate",
     "Dataset",
@@ -48,6 +49,8 @@ __all__ = [
     "marker_columns",
     "joint_columns",
     "LENGTH_UNITS",
+    "read_text",
+    "open_text",
 ]
 
 SCHEMA_VERSION = 1
@@ -75,6 +78,21 @@ _DEG = math.pi / 180.0
 
 class DatasetError(ValueError):
     """A dataset that cannot be used as it is; the message names the file, row and column."""
+
+
+def read_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> str:
+    """The UTF-8 text of the file ``path``; a file that is not UTF-8 text raises ``error`` naming it (never a bare
+    ``UnicodeDecodeError``, which names no file). ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
+def open_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> io.StringIO:
+    """The file ``path`` as a text stream for :mod:`csv` (``newline=""``), decoded as :func:`read_text` does."""
+    return io.StringIO(read_text(path, error), newline="")
 
 
 @dataclass(frozen=True)
@@ -250,16 +268,32 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         beta_deg = [float(b) for b in spec.get("beta_deg", [0.0] * len(beta_joints))]
         if len(beta_deg) != len(beta_joints):
             raise DatasetError(f"{where}: robot.beta_deg has {len(beta_deg)} values for {len(beta_joints)} beta_joints")
+        if spec["convention"] not in ("mdh", "dh"):
+            raise DatasetError(f"{where}: robot.convention must be 'mdh', 'dh' or 'urdf', got {spec['convention']!r}")
         arrays = {}
         for k in ("theta_deg", "d_mm", "a_mm", "alpha_deg"):
             v = np.asarray(spec[k], dtype=float)
-            if v.shape != (6,) or not np.all(np.isfinite(v)):
-                raise DatasetError(f"{where}: robot.{k} must be 6 finite numbers, got {spec[k]!r}")
+            if v.ndim != 1 or v.size < 1 or not np.all(np.isfinite(v)):
+                raise DatasetError(f"{where}: robot.{k} must be a list of N >= 1 finite numbers (one per joint), "
+                                   f"got {spec[k]!r}")
             arrays[k] = v
+        n = arrays["theta_deg"].size
+        uneven = {k: v.size for k, v in arrays.items() if v.size != n}
+        if uneven:
+            raise DatasetError(f"{where}: robot.theta_deg has {n} entries but "
+                               f"{', '.join(f'robot.{k} has {m}' for k, m in uneven.items())}: every table needs one "
+                               "entry per joint")
+        bad = [j for j in beta_joints if not 1 <= j <= n]
+        if bad:
+            raise DatasetError(f"{where}: robot.beta_joints {bad} are not joint numbers of this {n}-joint table "
+                               f"(1..{n})")
         kw = {}
         for k in ("q_min_deg", "q_max_deg"):
             if k in spec:
-                kw[k[:5]] = np.asarray(spec[k], dtype=float) * _DEG
+                v = np.asarray(spec[k], dtype=float)
+                if v.shape != (n,) or not np.all(np.isfinite(v)):
+                    raise DatasetError(f"{where}: robot.{k} must be {n} finite numbers (one per joint), got {spec[k]!r}")
+                kw[k[:5]] = v * _DEG
         return RobotModel.from_tables(
             str(spec.get("name", "custom")),
             spec["convention"],
@@ -292,8 +326,7 @@ def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
 
 def _read_toml(path: Path) -> dict:
     try:
-        with open(path, "rb") as f:
-            meta = tomllib.load(f)
+        meta = tomllib.loads(read_text(path))
     except FileNotFoundError:
         raise DatasetError(f"{path}: missing (a dataset folder holds poses.csv and dataset.toml)") from None
     except tomllib.TOMLDecodeError as exc:
@@ -374,6 +407,12 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     if "robot" not in meta:
         raise DatasetError(f"{toml_path}: missing field 'robot' (a robot name or an inline table)")
     robot = robot_from_spec(meta["robot"], str(toml_path), base_dir=folder)
+    tool = meta.get("tool")
+    if tool is not None:
+        if not isinstance(tool, dict) or not isinstance(tool.get("tool2flange"), dict):
+            raise DatasetError(f"{toml_path}: [tool] must hold tool2flange = {{ x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad }} "
+                               f"(the nominal tool frame in the flange frame), got {tool!r}")
+        robot = robot.with_frames(tool2flange=_pose6_mm_to_transform(tool["tool2flange"], f"{toml_path}: [tool].tool2flange"))
     plate, length_unit = _plate_from_meta(meta, str(toml_path))
     to_m = LENGTH_UNITS[length_unit]
     noise = meta.get("noise", {}) or {}
@@ -384,7 +423,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
 
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
-    with open(csv_path, newline="") as f:
+    with open_text(csv_path) as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
@@ -582,10 +621,12 @@ def write_dataset_toml(
     stations_base2meas: dict[str, np.ndarray] | None = None,
     provenance: str = "",
     length_unit: str = "mm",
+    tool2flange: np.ndarray | None = None,
 ) -> Path:
     """Write ``dataset.toml`` (SI in, mm/deg out). The twin's plate (three spheres, columns in millimetres) is
     written as ``[plate]``, any other marker set as ``[markers]`` with ``length_unit``, the unit of the marker and
-    pose position columns of poses.csv."""
+    pose position columns of poses.csv. ``tool2flange`` ``(4, 4)``: the nominal tool frame (the frame of a
+    measured 6-DOF pose; the marker points' frame) in the flange frame, written as ``[tool]`` when given."""
     if length_unit not in LENGTH_UNITS:
         raise ValueError(f"length_unit must be one of {sorted(LENGTH_UNITS)}, got {length_unit!r}")
     folder = Path(folder)
@@ -617,6 +658,8 @@ def write_dataset_toml(
             lines.append(f"position_mm = {_toml_value(noise_position / _MM)}")
         if noise_orientation is not None:
             lines.append(f"orientation_rad = {_toml_value(noise_orientation)}")
+    if tool2flange is not None:
+        lines += ["", "[tool]", f"tool2flange = {_toml_value(_transform_to_pose6_mm(np.asarray(tool2flange, float)))}"]
     for sid, T in (stations_base2meas or {}).items():
         lines += ["", f"[stations.{_toml_key(sid)}]", f"base2meas = {_toml_value(_transform_to_pose6_mm(T))}"]
     path = folder / "dataset.toml"
@@ -776,6 +819,7 @@ def write_dataset(folder: str | os.PathLike, ds: Dataset) -> Path:
         stations_base2meas=ds.stations_base2meas,
         provenance=ds.provenance,
         length_unit=ds.length_unit,
+        tool2flange=None if np.allclose(ds.robot.tool2flange, np.eye(4), rtol=0, atol=1e-15) else ds.robot.tool2flange,
     )
     optional = [c for c in OPTIONAL_COLUMNS if getattr(ds, c) is not None]
     with DatasetWriter(
@@ -832,7 +876,7 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: missing")
-    with open(path, newline="") as f:
+    with open_text(path) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = list(reader)

@@ -238,17 +238,28 @@ class ChainStructure:
         return np.array([next(op.sign for op in ops if op.joint == i) for i, ops in enumerate(self.ops)])
 
     @staticmethod
-    @functools.lru_cache(maxsize=None)
-    def six_r(convention: str, beta_joints: tuple[int, ...]) -> "ChainStructure":
-        """The 6R structure of a papers' convention (``"mdh"`` / ``"dh"``) with beta on ``beta_joints``."""
+    def six_r(convention: str, beta_joints: tuple[int, ...], n_joints: int = N_JOINTS) -> "ChainStructure":
+        """The structure of a DH table (``"mdh"`` / ``"dh"``) of ``n_joints`` revolute joints (the papers' 6R arms
+        by default; joint columns ``q1..qN``) with beta on ``beta_joints`` (1-based, in ``1..n_joints``). One
+        object per distinct structure."""
+        return _dh_structure(str(convention), tuple(int(j) for j in beta_joints), int(n_joints))
+
+    @staticmethod
+    def _build_dh(convention: str, beta_joints: tuple[int, ...], n_joints: int) -> "ChainStructure":
         if convention not in _OPS:
             raise ValueError(f"convention must be 'mdh' or 'dh', got {convention!r}")
+        n_joints = int(n_joints)
+        if n_joints < 1:
+            raise ValueError(f"n_joints must be at least 1, got {n_joints}")
+        bad = [j for j in beta_joints if not 1 <= int(j) <= n_joints]
+        if bad:
+            raise ValueError(f"beta_joints must be joint numbers in 1..{n_joints}, got {list(beta_joints)}")
         names: list[str] = []
         for fam in ("theta", "d", "a", "alpha"):
-            names += [f"{fam}{i}" for i in range(1, N_JOINTS + 1)]
+            names += [f"{fam}{i}" for i in range(1, n_joints + 1)]
         names += [f"beta{j}" for j in beta_joints]
         ops = []
-        for i in range(N_JOINTS):
+        for i in range(n_joints):
             jops = []
             for kind, axis, fam in _OPS[convention]:
                 if fam == "beta" and (i + 1) not in beta_joints:
@@ -258,8 +269,8 @@ class ChainStructure:
         units = tuple("m" if n.rstrip("0123456789") in ("d", "a") else "rad" for n in names)
         return ChainStructure(
             convention=convention,
-            joint_names=tuple(f"q{i}" for i in range(1, N_JOINTS + 1)),
-            joint_kinds=("revolute",) * N_JOINTS,
+            joint_names=tuple(f"q{i}" for i in range(1, n_joints + 1)),
+            joint_kinds=("revolute",) * n_joints,
             ops=tuple(ops),
             end=(),
             param_names=tuple(names),
@@ -335,6 +346,11 @@ class ChainStructure:
             if fam in ("x", "y", "z"):
                 v[k] = self.joints[j - 1].xyz["xyz".index(fam)]
         return v
+
+
+@functools.lru_cache(maxsize=None)
+def _dh_structure(convention: str, beta_joints: tuple[int, ...], n_joints: int) -> ChainStructure:
+    return ChainStructure._build_dh(convention, beta_joints, n_joints)
 
 
 @dataclass(frozen=True)
@@ -446,7 +462,13 @@ class RobotModel:
 
     def __post_init__(self) -> None:
         if self.convention in _OPS:
-            st = ChainStructure.six_r(self.convention, tuple(self.beta_joints))
+            given = self.structure
+            if isinstance(given, ChainStructure) and given.convention == self.convention:
+                st = given
+            else:  # a DH table's joint count follows from its parameter count: 4 N + betas + base + tool
+                extra = np.size(self.params) - len(self.beta_joints) - 12
+                n = extra // 4 if extra >= 4 and extra % 4 == 0 else N_JOINTS
+                st = ChainStructure.six_r(self.convention, tuple(int(j) for j in self.beta_joints), n)
         elif self.convention == "urdf":
             if not isinstance(self.structure, ChainStructure) or self.structure.convention != "urdf":
                 raise ValueError("convention 'urdf' needs structure=ChainStructure.from_joints(...)")
@@ -456,7 +478,8 @@ class RobotModel:
         object.__setattr__(self, "structure", st)
         object.__setattr__(self, "beta_joints", tuple(st.beta_joints) if self.convention == "urdf" else tuple(self.beta_joints))
         p = np.array(self.params, dtype=float).reshape(-1)
-        layout = ParameterLayout(structure=st) if self.convention == "urdf" else ParameterLayout(tuple(self.beta_joints))
+        six_r = self.convention != "urdf" and st.n_joints == N_JOINTS
+        layout = ParameterLayout(tuple(self.beta_joints)) if six_r else ParameterLayout(structure=st)
         if p.shape != (layout.size,):
             raise ValueError(f"params must have {layout.size} entries for this chain, got {p.size}")
         if not np.all(np.isfinite(p)):
@@ -496,16 +519,20 @@ class RobotModel:
         q_min: np.ndarray | None = None,
         q_max: np.ndarray | None = None,
     ) -> "RobotModel":
-        """6R model from per-joint tables in SI (``theta``/``alpha`` [rad], ``d``/``a`` [m], ``(6,)`` each)."""
-        beta = dict(beta or {})
+        """A DH-table model (``convention`` ``"mdh"``/``"dh"``) of N revolute joints from per-joint tables in SI
+        (``theta``/``alpha`` [rad], ``d``/``a`` [m], ``(N,)`` each, N >= 1; the papers' 6R arms have N = 6);
+        ``beta``: ``{joint (1-based): tilt [rad]}``."""
+        beta = {int(j): float(v) for j, v in dict(beta or {}).items()}
         beta_joints = tuple(sorted(beta))
+        tables = [np.asarray(x, dtype=float).reshape(-1) for x in (theta, d, a, alpha)]
+        n = tables[0].size
+        if n < 1 or any(t.size != n for t in tables):
+            raise ValueError(f"theta, d, a, alpha must have the same length N >= 1, got "
+                             f"{[t.size for t in tables]}")
         base = np.zeros(6) if base2meas is None else transform_to_pose6(base2meas)
         tool = np.zeros(6) if tool2flange is None else transform_to_pose6(tool2flange)
-        params = np.concatenate(
-            [np.asarray(x, dtype=float).reshape(N_JOINTS) for x in (theta, d, a, alpha)]
-            + [np.array([beta[j] for j in beta_joints], dtype=float), base, tool]
-        )
-        kw = {}
+        params = np.concatenate(tables + [np.array([beta[j] for j in beta_joints], dtype=float), base, tool])
+        kw = {"structure": ChainStructure.six_r(convention, beta_joints, n)} if convention in _OPS else {}
         if q_min is not None:
             kw["q_min"] = q_min
         if q_max is not None:
@@ -588,28 +615,28 @@ class RobotModel:
 
     @property
     def theta(self) -> np.ndarray:
-        """Joint angle offsets ``(6,)`` [rad] (6R conventions)."""
+        """Joint angle offsets ``(N,)`` [rad] (DH conventions)."""
         return self._family("theta")
 
     @property
     def d(self) -> np.ndarray:
-        """Link offsets ``(6,)`` [m] (6R conventions)."""
+        """Link offsets ``(N,)`` [m] (DH conventions)."""
         return self._family("d")
 
     @property
     def a(self) -> np.ndarray:
-        """Link lengths ``(6,)`` [m] (6R conventions)."""
+        """Link lengths ``(N,)`` [m] (DH conventions)."""
         return self._family("a")
 
     @property
     def alpha(self) -> np.ndarray:
-        """Link twists ``(6,)`` [rad] (6R conventions)."""
+        """Link twists ``(N,)`` [rad] (DH conventions)."""
         return self._family("alpha")
 
     @property
     def beta(self) -> np.ndarray:
-        """Parallel-axis tilts ``(6,)`` [rad], zero for joints without beta (6R conventions)."""
-        out = np.zeros(N_JOINTS)
+        """Parallel-axis tilts ``(N,)`` [rad], zero for joints without beta (DH conventions)."""
+        out = np.zeros(self.n_joints)
         for j, v in zip(self.beta_joints, self._family("beta")):
             out[j - 1] = v
         return out

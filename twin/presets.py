@@ -2,7 +2,7 @@
 
 Each preset is a deviation dict in SI units keyed by parameter names of ``twin.kinematics.ParameterLayout``,
 plus the robot it applies to. The papers' identified values and statistics (their *results*) are not here:
-they live in ``experiments/paper_targets.toml`` and are only printed beside ours.
+they live in ``twin/data/paper_targets_*.toml`` (:mod:`twin.evaluation.targets`) and are only printed beside ours.
 
 * ``separation_tables_2_4``: the separation paper's simulation presets (Tables 2 and 4, IRB-1200, MDH).
   Table 2's theta2 of -0.4 deg is "the sum of delta theta2 and delta theta3"; Table 4 gives them as

@@ -36,7 +36,9 @@ CONFIG = ROOT / "experiments" / "separation.toml"
 
 def pipeline_section(quick: bool = False, poses: int = 12) -> dict:
     try:
-        import twin  # noqa: F401  (MUJOCO_GL before mujoco)
+        from twin.runtime import set_process_defaults
+
+        set_process_defaults()  # MUJOCO_GL=egl before mujoco loads
         import mujoco
         from twin.runner.config import load_campaign_config
         from twin.runner.measure import PoseTask, backend_spec_for, get_backend

@@ -212,10 +212,14 @@ def score_campaign(campaign: str | os.PathLike, out: str | os.PathLike, *, in_pr
                     t_s=key.t_s if ds.t_s is not None else None,
                     station=key.station if ds.station is not None else None)
     jpath = write_joints_csv(out / "sequence_joints.csv", joints)
-    cal_ext = out / "diagnosis" / dj["calibration"]
-    cal_geo = out / "diagnosis" / dj["calibration_geometric"]
-    pred = {"after": _predict(cal_ext, jpath, out / "pred_after.csv", in_process),
-            "before": _predict(cal_geo, jpath, out / "pred_before.csv", in_process)}
+    # the rows after the campaign: the models to use (refitted on every row of the campaign); the report rows: the
+    # models fitted on the calibration rows only (the report rows took no part in them)
+    d = out / "diagnosis"
+    blk = dj["calibrations_blocked"]
+    pred = {"after": _predict(d / dj["calibration"], jpath, out / "pred_after.csv", in_process),
+            "before": _predict(d / dj["calibration_geometric"], jpath, out / "pred_before.csv", in_process)}
+    pred_report = {"after": _predict(d / blk["extended"], jpath, out / "pred_after_blocked.csv", in_process),
+                   "before": _predict(d / blk["geometric"], jpath, out / "pred_before_blocked.csv", in_process)}
 
     # the oracle: the same geometric fit on measured - e (the diagnosis' split), then geometric + e
     in_ds = np.array([int(p) in ds_ids for p in key.pose_id])
@@ -228,12 +232,17 @@ def score_campaign(campaign: str | os.PathLike, out: str | os.PathLike, *, in_pr
     ores.calibration_geometric.save(oracle_path)
     pred["oracle"] = _predict(oracle_path, jpath, out / "pred_oracle.csv", in_process) + key.effect
     pred["truth"] = key.true
+    oracle_blocked = out / "calibration_oracle_blocked.json"
+    ores.calibrations_blocked["geometric"].save(oracle_blocked)
+    pred_report["oracle"] = _predict(oracle_blocked, jpath, out / "pred_oracle_blocked.csv", in_process) + key.effect
+    pred_report["truth"] = key.true
 
     # which rows count: the diagnosis' report rows (held out, used for nothing) and the test block; gross rows
     # (the generator's) left out of every statistic alike
     report_ids = set(int(p) for p in dj["held_out"]["report_pose_ids"]) | set(
         int(p) for p in dj["held_out"].get("gross_report_pose_ids", []))
-    role = np.array(["report" if (r in ("validation", "data") and int(p) in report_ids) else r
+    # (the diagnosis chooses its report rows as a block of time, whatever the dataset's set column says)
+    role = np.array(["report" if (r != "test" and int(p) in report_ids) else r
                      for r, p in zip(key.role, key.pose_id)], dtype=object)
     err_true = np.linalg.norm(key.measured - key.true, axis=-1) / _MM
     med = np.nanmedian(err_true)
@@ -242,7 +251,7 @@ def score_campaign(campaign: str | os.PathLike, out: str | os.PathLike, *, in_pr
     for part in ("report", "test"):
         rows = (role == part) & ~gross
         block = {}
-        for name, P in pred.items():
+        for name, P in (pred_report if part == "report" else pred).items():
             block[name] = _stats((np.linalg.norm(key.measured[rows] - P[rows], axis=-1) / _MM).ravel())
         if block["oracle"]["n"]:
             block["after_over_oracle"] = block["after"]["rms"] / block["oracle"]["rms"]

@@ -19,7 +19,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import twin  # noqa: F401  (single-threaded BLAS)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import provenance
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))

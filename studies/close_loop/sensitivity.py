@@ -29,7 +29,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # the repository root: this checkout's `twin`
 
-import twin  # noqa: E402,F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import numpy as np  # noqa: E402
 
 from twin.benchio import provenance  # noqa: E402

@@ -20,6 +20,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 from twin.benchio import provenance
 
 HERE = Path(__file__).resolve().parent

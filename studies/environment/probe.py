@@ -12,7 +12,9 @@ import hashlib
 import json
 import time
 
-import twin  # noqa: F401  (MUJOCO_GL=egl before mujoco)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import mujoco
 from twin.world import World
 

@@ -5,7 +5,7 @@ The separation paper's real-robot protocol (``studies/real_residual/separation_r
 noise, the robot's repeatability, backlash, gravity compliance, thermal warm-up and extra random geometric error
 (``studies/real_residual/realresidual.py``). Each combination runs over a few seeds; it is *consistent* when the seed-mean
 of the before and after means of Figures 13 (angle) and 15 (position) all lie within 20 % of the paper's (read
-from ``experiments/paper_targets_separation.toml``), judged on the paper-literal separation method
+from ``twin/data/paper_targets_separation.toml``), judged on the paper-literal separation method
 (``separation_paper``); ours (``separation``) is judged alongside. The best combination then runs the methods
 comparison (distance, full_pose, separation, separation_paper, default) over more seeds.
 
@@ -27,7 +27,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))  # the repository root: `studies.*` and this checkout's `twin`
 
-import twin  # noqa: E402,F401,I001  (sets MUJOCO_GL and single-threaded BLAS before numpy/mujoco load)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import provenance  # noqa: E402
 
 from studies.real_residual.realresidual import (UNITS, EffectMagnitudes, aggregate_seeds, judge, paper_real_targets,
@@ -85,7 +87,7 @@ def write_markdown(path: Path, data: dict) -> None:
          "RP of the flange), not measurement noise: the robot's scatter enters through the joints, so it follows "
          "the arm's geometry and is the same at the cameras whatever the instrument; instrument noise is the "
          "separate `noise` column.", "",
-         f"Paper (Figs. 13/15, from `experiments/paper_targets_separation.toml`): angle before/after mean "
+         f"Paper (Figs. 13/15, from `twin/data/paper_targets_separation.toml`): angle before/after mean "
          f"{paper['angle_deg']['before']['mean']} / {paper['angle_deg']['after']['mean']} deg; position "
          f"{paper['position_mm']['before']['mean']} / {paper['position_mm']['after']['mean']} mm.", "",
          "| # | world beside Table 6 | angle before [deg] | angle after [deg] | position before [mm] | "

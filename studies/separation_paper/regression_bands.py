@@ -18,6 +18,10 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 from twin.benchio import provenance  # noqa: E402
 from twin.evaluation.regression import bands_from_repeats, update_regression_file  # noqa: E402
 from twin.runner.campaign import run_repeats  # noqa: E402

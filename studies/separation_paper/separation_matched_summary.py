@@ -4,7 +4,7 @@
 
 Reads studies/separation_paper/results/regression.json (section separation_matched, written by
 `python studies/separation_paper/regression_bands.py studies/separation_paper/separation_matched.toml --seeds 20 --section separation_matched`)
-and the paper's targets (experiments/paper_targets_separation.toml); writes studies/separation_paper/results/separation_matched/summary.md.
+and the paper's targets (twin/data/paper_targets_separation.toml); writes studies/separation_paper/results/separation_matched/summary.md.
 """
 
 from __future__ import annotations
@@ -15,6 +15,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
+
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 
 from twin.evaluation.regression import detectable_factor  # noqa: E402
 from twin.evaluation.targets import read_targets  # noqa: E402

@@ -20,7 +20,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))  # the repository root: `studies.*` and this checkout's `twin`
 
-import twin  # noqa: E402,F401,I001  (single-threaded BLAS before numpy loads)
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import provenance  # noqa: E402
 
 from studies.spectral_correction.spectral import METHODS, SCENARIOS, markdown_table, plot_study, study, summarise  # noqa: E402

@@ -16,6 +16,10 @@ import tempfile
 import tomllib
 from pathlib import Path
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
@@ -77,7 +81,7 @@ def run(ds, points, group, level: str, cv: bool = True) -> list[dict]:
 def main() -> int:
     from twin.benchio import provenance
     from twin.dataset import read_dataset
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     load = os.getloadavg()
     cfg = tomllib.loads((HERE / "config.toml").read_text())

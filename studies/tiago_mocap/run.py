@@ -22,6 +22,10 @@ import time
 import tomllib
 from pathlib import Path
 
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
@@ -303,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     load = os.getloadavg()
     from twin.benchio import provenance, update_benchmark_section
-    from twin.mocap import import_mocap
+    from twin.importers.mocap import import_mocap
 
     cfg = tomllib.loads((HERE / "config.toml").read_text())
     p = cfg["protocol"]

@@ -22,6 +22,10 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small batched matrices: threads only contend
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import tmmdh_common as tc  # noqa: E402
 
 from twin.benchio import provenance  # noqa: E402

@@ -13,6 +13,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from twin.runtime import set_process_defaults  # noqa: E402
+
+set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
+
 import tmmdh_common as tc  # noqa: E402
 
 from twin.benchio import provenance  # noqa: E402
@@ -107,7 +111,7 @@ def main() -> int:
             rname = {"x": "x", "y": "y", "z": "z", "alpha": "rz", "beta": "ry", "gamma": "rx"}[c]
             row(f"{lab} {c}", preset[fr][k], f"table7.{fr}[{k}]", [tables[m][fr][k] for m in runs],
                 partner.get(f"{fr}_{rname}", ""))
-    lines += ["", "^: the paper's value is flagged unscored in experiments/paper_targets_tmmdh.toml (a slip its own text "
+    lines += ["", "^: the paper's value is flagged unscored in twin/data/paper_targets_tmmdh.toml (a slip its own text "
               "shows): printed, not a target."]
     lines += [f"* {p}: {r}" for p, r in unscored.items()]
     lines += ["", "Couplings named by our identifiability analysis (column-scaled Jacobian of these 100 poses):", ""]

@@ -146,8 +146,8 @@ def run(args) -> int:
 
     import numpy as np
 
-    from ..estimator.plausibility import (ImplausibleData, check_fit, check_fit_against_plate, check_joints,
-                                          check_length_unit, check_plate_rows, plate_noise)
+    from ..estimator.plausibility import (ImplausibleData, check_fit_miss, check_joints, check_length_unit,
+                                          check_plate_rows, fit_beyond_noise, fit_miss, plate_noise)
 
     ds = read_dataset(args.dataset)
     forced: list[str] = []
@@ -183,22 +183,32 @@ def run(args) -> int:
     )
     scale = cal.noise.get("residual_scale")
     fit_rms = (cal.residuals.get("calibration") or {}).get("position_mm", {}).get("rms")
+    beyond = {"detected": False}
+    miss = None
     try:
-        if scale is not None:
-            check_fit(float(scale))
-        if fit_rms is not None and ds.has_spheres:
-            check_fit_against_plate(float(fit_rms) * 1e-3 / np.sqrt(3), plate_noise(ds))
+        miss = fit_miss(cal, ds)
+        check_fit_miss(miss)
+        beyond = fit_beyond_noise(
+            None if scale is None else float(scale),
+            None if fit_rms is None or cal.measurement != "spheres" else float(fit_rms) * 1e-3 / np.sqrt(3),
+            plate_noise(ds) if cal.measurement == "spheres" else None, dataset=str(args.dataset))
     except ImplausibleData as exc:
         refuse(exc)
+    if miss is not None:
+        beyond = {**beyond, "miss_rms_mm": miss["miss_rms_m"] * 1e3, "motion_spread_mm": miss["spread_m"] * 1e3,
+                  "miss_fraction_of_motion": miss["fraction"]}
     details = dict(cal.details)
     details["plausibility"] = {"plate": None if plate is None else plate.summary(), "joints": notes,
                                "forced": forced}
-    cal = replace(cal, details=details, notes=tuple(cal.notes) + tuple(notes) + tuple(f"FORCED: {f}" for f in forced))
+    details["beyond_geometry"] = beyond
+    extra = [beyond["text"]] if beyond.get("detected") else []
+    cal = replace(cal, details=details, notes=tuple(cal.notes) + tuple(notes) + tuple(extra)
+                  + tuple(f"FORCED: {f}" for f in forced))
     out = Path(args.out)
     path = cal.save(out / "calibration.json")
     if not args.quiet:
         print(report(cal, path))
-    elif notes or forced:
-        for n in notes + [f"FORCED: {f}" for f in forced]:
+    elif notes or forced or extra:
+        for n in notes + extra + [f"FORCED: {f}" for f in forced]:
             print(f"note: {n}")
     return 0

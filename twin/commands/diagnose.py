@@ -9,13 +9,17 @@ HELP = "find structure beyond the noise in held-out residuals, trace it to an ef
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml); held-out rows from its 'set' column, else --holdout")
+    p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml); the held-out rows are a block of time after the "
+                   "rows that fit: its 'set' column's validation rows when they are the end of the campaign or whole "
+                   "sessions, else the same share (or --holdout) at the end")
     p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots, diagnosis.rrd")
     p.add_argument("--calibration", help="a geometric calibration.json to start from")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
-                   help="without a 'set' column: hold out this seeded random fraction for validation (default 0.3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the hold-out draw")
+                   help="hold out this fraction at the end of the campaign (default: the 'set' column's share of "
+                        "validation rows, else 0.3; a 'set' column whose validation rows are the end of the campaign "
+                        "or whole sessions is used as it is)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the estimator's random draws")
     p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
     p.add_argument("--catalogue-only", action="store_true",
                    help="select among the catalogue's named terms only (no unnamed dictionary)")
@@ -65,13 +69,20 @@ def run(args: argparse.Namespace) -> int:
           + (f"; explained {100 * res.explained_fraction:.0f} % of the held-out excess" if res.atoms else ""), file=out)
     for term in res.atoms:
         print(f"  term: {term['text']}" + ("  [minor]" if term.get("minor") else ""), file=out)
+    for term in res.candidate_terms:
+        print(f"  candidate term (not adopted): {term['text']}", file=out)
+    ad = res.adoption
+    if ad is not None:
+        c = ad["confirmation_rms_mm"]
+        print(f"model to use: {res.model_in_use} (confirmation block, a later block of time or another session: "
+              f"geometric {c['geometric']:.4g} mm, extended {c['extended']:.4g} mm RMS)", file=out)
     for d in res.alternatives:
         print(f"  alternative to '{d['of']}': {d['alternative']} (delta chi2 {d['delta_chi2']:.0f} vs "
               f"{d['delta_chi2_chosen']:.0f}; the data cannot tell them apart)", file=out)
     for n in res.notes:
         print(f"note: {n}", file=out)
     h = res.held_out
-    rows = (f"{h.get('n_report_rows')} report rows, held out and used for nothing else"
+    rows = (f"{h.get('n_report_rows')} report rows, a block of time after every row that chose or fitted the model"
             if h.get("before_after_on") == "report" else "the confirmation rows (too few held-out rows for a report block)")
     print(f"held-out error on {rows}", file=out)
     print("                        before             after", file=out)

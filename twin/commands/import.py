@@ -1,34 +1,86 @@
-"""``twin import CSV [--validation CSV] --urdf URDF --root LINK --end LINK --out DATASET``: a FIGAROH-style
-motion-capture campaign (joints under the robot's joint names, K points of one tracked body per row) and the
-robot's URDF into a dataset folder (``twin.mocap``)."""
+"""``twin import``: files people have into a dataset folder (``twin.importers``).
+
+* ``twin import --map MAP.toml [CSV[:key=value,...] ...] --out DATASET``: any laser-tracker or motion-capture CSV
+  read through a column map (``twin.importers.columns``); the CSVs are the map's ``[[files]]`` unless given here,
+  each with its own ``set``, ``session``, ``station``, ``time=row``, ``order``.
+* ``twin import CSV [--validation CSV] --urdf URDF --root LINK --end LINK --out DATASET``: a FIGAROH-style
+  motion-capture campaign (joints under the robot's joint names, K points of one tracked body per row) and the
+  robot's URDF (``twin.importers.mocap``).
+"""
 
 from __future__ import annotations
 
 import argparse
 
 
-HELP = "import a motion-capture campaign (FIGAROH-style CSV + URDF) as a dataset folder"
+HELP = "import CSVs as a dataset folder: through a column map (--map), or a FIGAROH-style mocap CSV + URDF"
+
+_MOCAP_ONLY = ("urdf", "root", "end", "marker_unit", "points", "rigid_tol_mm", "noise_mm")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("csv", nargs="+", help="mocap CSV(s) of the calibration (training) rows")
+    p.add_argument("csv", nargs="*",
+                   help="CSV(s): with --map, PATH[:set=calibration|validation|last:F|first:N,session=S,station=S,time=row,"
+                        "order=file|time] (default: the map's [[files]]); without, mocap CSV(s) of the calibration rows")
+    p.add_argument("--map", default=None, metavar="MAP.toml",
+                   help="column map: CSV dialect, robot, joint columns and units, points or a 6-DOF pose, time, "
+                        "temperature, set, session, station, nominal frames (docs/formats.md)")
     p.add_argument("--validation", action="append", default=[], metavar="CSV",
-                   help="mocap CSV of validation rows (another day); repeatable")
-    p.add_argument("--urdf", required=True, help="the robot's URDF")
-    p.add_argument("--root", required=True, help="root link of the chain (the robot base)")
-    p.add_argument("--end", required=True, help="end link of the chain (the flange the markers are fixed to)")
+                   help="CSV of validation rows (another day); repeatable")
+    p.add_argument("--urdf", default=None, help="mocap: the robot's URDF")
+    p.add_argument("--root", default=None, help="mocap: root link of the chain (the robot base)")
+    p.add_argument("--end", default=None, help="mocap: end link of the chain (the flange the markers are fixed to)")
     p.add_argument("--out", required=True, help="dataset folder to write")
-    p.add_argument("--marker-unit", choices=["m", "mm"], default="m", help="unit of the x1..zK columns (default m)")
-    p.add_argument("--points", default=None, help="marker numbers to keep, e.g. 1 or 1,2,3 (default all)")
-    p.add_argument("--rigid-tol-mm", type=float, default=1.0,
-                   help="largest spread of a pairwise marker distance over the rows (default 1 mm)")
-    p.add_argument("--noise-mm", type=float, default=None, help="instrument noise per coordinate for [noise]")
+    p.add_argument("--marker-unit", choices=["m", "mm"], default=None, help="mocap: unit of the x1..zK columns (default m)")
+    p.add_argument("--points", default=None, help="mocap: marker numbers to keep, e.g. 1 or 1,2,3 (default all)")
+    p.add_argument("--rigid-tol-mm", type=float, default=None,
+                   help="mocap: largest spread of a pairwise marker distance over the rows (default 1 mm)")
+    p.add_argument("--noise-mm", type=float, default=None, help="mocap: instrument noise per coordinate for [noise]")
     p.add_argument("--attribution", default="", help="text kept in the dataset's provenance")
 
 
-def run(args) -> int:
-    from ..mocap import import_mocap
+def _run_map(args) -> int:
+    from ..importers.columns import import_columns, parse_file_argument, read_column_map
 
+    given = [k.replace("_", "-") for k in _MOCAP_ONLY if getattr(args, k) is not None]
+    if given:
+        raise ValueError(f"--map: the robot, units and frames come from the map; --{', --'.join(given)} belong to the "
+                         "mocap import (without --map)")
+    cmap = read_column_map(args.map)
+    files = [parse_file_argument(c) for c in args.csv]
+    for v in args.validation:
+        path, over = parse_file_argument(v)
+        if over.get("set", "validation") != "validation":
+            raise ValueError(f"--validation {v}: set={over['set']} contradicts --validation")
+        files.append((path, {**over, "set": "validation"}))
+    rep = import_columns(cmap, args.out, files=files or None, attribution=args.attribution)
+    ds = rep.dataset
+    n_cal = int((ds.set == "calibration").sum())
+    kind = "a 6-DOF pose" if ds.has_poses else f"{ds.n_points} point(s)"
+    print(f"{ds.n} rows ({n_cal} calibration, {ds.n - n_cal} validation) from {len(rep.files)} file(s), "
+          f"{ds.robot.n_joints} joints ({', '.join(ds.robot.joint_names)}), {kind} per row; wrote {args.out}")
+    for f in rep.files:
+        print(f"  {f['path']}: {f['rows']} rows ({f['calibration']} calibration, {f['validation']} validation), "
+              f"session {', '.join(f['session'])}" + (f", station {', '.join(f['station'])}" if f["station"] else "")
+              + f", {f['time']}")
+    for sid, st in rep.stations.items():
+        o = "" if st["orientation_rms_deg"] is None else f", {st['orientation_rms_deg']:.3g} deg"
+        print(f"  station {sid}: {st['rows']} rows; the nominal robot fits to {st['position_rms_mm']:.3g} mm{o} RMS "
+              f"(base2meas {st['base2meas']})")
+    for n in rep.notes:
+        print(f"  note: {n}")
+    return 0
+
+
+def run(args) -> int:
+    if args.map is not None:
+        return _run_map(args)
+    from ..importers.mocap import import_mocap
+
+    missing = [f"--{k}" for k in ("urdf", "root", "end") if getattr(args, k) is None]
+    if missing or not args.csv:
+        raise ValueError("give --map MAP.toml (a column map), or mocap CSV(s) with --urdf, --root and --end "
+                         f"(missing: {', '.join(missing + ([] if args.csv else ['CSV']))})")
     points = None
     if args.points:
         try:
@@ -36,8 +88,10 @@ def run(args) -> int:
         except ValueError:
             raise ValueError(f"--points must be comma-separated marker numbers, got {args.points!r}") from None
     files = [(c, "calibration") for c in args.csv] + [(v, "validation") for v in args.validation]
-    ds = import_mocap(files, args.urdf, args.root, args.end, args.out, marker_unit=args.marker_unit, points=points,
-                      rigid_tol_mm=args.rigid_tol_mm, noise_position_mm=args.noise_mm, attribution=args.attribution)
+    ds = import_mocap(files, args.urdf, args.root, args.end, args.out,
+                      marker_unit=args.marker_unit or "m", points=points,
+                      rigid_tol_mm=1.0 if args.rigid_tol_mm is None else args.rigid_tol_mm,
+                      noise_position_mm=args.noise_mm, attribution=args.attribution)
     n_cal = int((ds.set == "calibration").sum())
     print(f"{ds.n} rows ({n_cal} calibration, {ds.n - n_cal} validation), {ds.robot.n_joints} joints "
           f"({', '.join(ds.robot.joint_names)}), {ds.n_points} marker point(s); wrote {args.out}")

@@ -79,7 +79,7 @@ def from_campaign(path: str):
 def run(args) -> int:
     import numpy as np
 
-    from ..dataset import Joints, default_plate, read_dataset, robot_from_spec, write_joints_csv
+    from ..dataset import Joints, default_plate, read_dataset, read_text, robot_from_spec, write_joints_csv
     from ..estimator.planning import PlanOptions, StereoCamera, plan_measurements
 
     robot = camera = None
@@ -95,7 +95,11 @@ def run(args) -> int:
     if args.robot:
         robot = robot_from_spec(args.robot, where="--robot")
     if args.camera:
-        camera = StereoCamera.from_json_dict(json.loads(Path(args.camera).read_text()), where=args.camera)
+        try:
+            cam = json.loads(read_text(args.camera, ValueError))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{args.camera}: not valid JSON: {exc}") from None
+        camera = StereoCamera.from_json_dict(cam, where=args.camera)
     for s in args.station:
         name, T = _station_arg(s)
         stations[name] = T

@@ -26,7 +26,7 @@ from .candidates import RowContext
 from .extend import param_weights
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
-           "history_unknown_rows"]
+           "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors"]
 
 
 def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
@@ -48,13 +48,15 @@ def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
 
 
 def required_channels(cal: Calibration) -> set[str]:
-    """Row channels the effects read (``t_s``, ``temp_c``, ``station``): rows lacking one get an error."""
+    """Row channels the effects read (``t_s``, ``temp_c``, ``station``): rows lacking one get an error. A term of
+    time that recorded its campaign's span (or record) does not need ``t_s``: rows without it are a new session
+    and read the state the campaign ended in."""
     need = set()
     for a, _ in effect_atoms(cal):
         for f in a.features:
             ch = f.get("ch")
             for c in ch if isinstance(ch, list) else [ch]:
-                if c in ("t_s", "temp_c"):
+                if c == "temp_c" or (c == "t_s" and "t_span" not in f and "record" not in f):
                     need.add(c)
             if f.get("kind") == "station":
                 need.add("station")
@@ -256,3 +258,61 @@ def _angular(Jax: np.ndarray, R: np.ndarray) -> np.ndarray:
         w += 0.5 * np.cross(R[:, k][None, :], Jax[:, k, :]).T
     return w
 
+
+
+def dataset_predictor(dataset):
+    """A prediction function ``predict(calibration, idx) -> Prediction`` of the rows ``idx`` of ``dataset`` (a
+    :class:`~twin.dataset.Dataset`) with the calibration's effects evaluated from all its rows in measurement order
+    (approach directions unknown at the first row and where the ``session`` column changes: a new session starts
+    anew), for :func:`twin.estimator.register.register` and :func:`~twin.estimator.register.prediction_errors`."""
+    from .floor import row_context
+
+    ctx = row_context(dataset)
+    station = dataset.station_ids
+
+    def predict(c: Calibration, idx: np.ndarray) -> Prediction:
+        p = predict_extended(c, ctx, station)
+        return replace(p, spheres=p.spheres[idx], pose=p.pose[idx], frame=p.frame[idx], station=p.station[idx],
+                       sd_spheres=None if p.sd_spheres is None else p.sd_spheres[idx],
+                       sd_pose=None if p.sd_pose is None else p.sd_pose[idx])
+
+    return predict
+
+
+def block_errors(geometric: Calibration, extended: Calibration, dataset, blocks: dict) -> dict:
+    """The errors of a geometric and an extended calibration on named blocks of ``dataset``'s rows (``blocks``:
+    name -> row indices ``(k,)`` or a boolean mask ``(n,)``; empty blocks are left out): per block ``{n_rows,
+    geometric, extended, rms_ratio}``, each as :func:`twin.estimator.register.prediction_errors` gives it (3-D
+    error per point [mm], and [deg] for poses), the extended model's effects evaluated from all the dataset's rows
+    in measurement order (:func:`dataset_predictor`)."""
+    from ..estimator.register import prediction_errors
+
+    predict = dataset_predictor(dataset)
+    out = {}
+    for name, rows in blocks.items():
+        rows = np.asarray(rows)
+        idx = np.flatnonzero(rows) if rows.dtype == bool else rows.astype(int)
+        if idx.size == 0:
+            continue
+        g = prediction_errors(geometric, dataset, idx)
+        e = prediction_errors(extended, dataset, idx, predict=predict if extended.effects else None)
+        out[name] = {"n_rows": int(idx.size), "geometric": g, "extended": e,
+                     "rms_ratio": e["position_mm"]["rms"] / g["position_mm"]["rms"]}
+    return out
+
+
+def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *, first: int = 50,
+                       tool: bool = False) -> dict:
+    """A calibrated robot in a new session (``dataset``: its rows, another day or a moved instrument): each model
+    keeps its robot and re-identifies the measurement frame (and the tool with ``tool``) from the session's
+    ``first`` rows (:func:`twin.estimator.register.register`), then predicts the others. Returns ``{registered_on,
+    tool, rows: {n_rows, geometric, extended, rms_ratio}}`` on the other rows (:func:`block_errors`)."""
+    from ..estimator.register import register, select_rows
+
+    rows = select_rows(dataset, first=first)
+    predict = dataset_predictor(dataset)
+    geo = register(geometric, dataset, rows, tool=tool).calibration
+    ext = register(extended, dataset, rows, tool=tool, predict=predict if extended.effects else None).calibration
+    others = np.setdiff1d(select_rows(dataset, first=dataset.n), rows)
+    return {"registered_on": int(rows.size), "tool": bool(tool),
+            "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"]}

@@ -170,8 +170,30 @@ def _row_channel(ctx: RowContext, f: dict) -> np.ndarray:
     return out
 
 
+def _time(ctx: RowContext, f: dict) -> np.ndarray:
+    """``t_s`` of the rows for a feature of time. A feature fitted on a campaign records its time span
+    (``f["t_span"]``, :func:`with_records`). Rows without ``t_s`` (a new session whose time is not recorded) read the
+    state the campaign ended in. A polynomial drift, which grows without bound, goes on for rows that continue the
+    campaign (within as long again as the campaign lasted after its end, or before its start) and holds the state the
+    campaign ended (or began) in for rows further away: another session. The bounded shapes (a step, a transient that
+    settles, an oscillation) go on as fitted, which for a transient is the state it settles to."""
+    span = f.get("t_span")
+    if ctx.t_s is None:
+        if span is None:
+            raise ValueError("this effect term depends on t_s: the rows need a t_s column")
+        return np.full(len(ctx.q), float(span[1]))
+    t = np.asarray(ctx.t_s, float)
+    if span is None or f.get("kind") != "pow":
+        return t
+    t0, t1 = float(span[0]), float(span[1])
+    d = t1 - t0
+    return np.where(t > t1 + d, t1, np.where(t < t0 - d, t0, t))
+
+
 def _ch(ctx: RowContext, f: dict, name: str | None = None) -> np.ndarray:
     name = f["ch"] if name is None else name
+    if name == "t_s":
+        return _time(ctx, f)
     return _row_channel(ctx, f) if name == "row" else _channel(ctx, name)
 
 
@@ -355,7 +377,8 @@ def with_records(features, ctx: RowContext) -> list[dict]:
     """``features`` (dicts) with what evaluating them on other rows needs from the campaign they were fitted on:
     a lagged channel and the motion heat carry the campaign's record (times, channel values, joints, restarts),
     a term in the row order the campaign's pose ids (:func:`feature_values` merges new rows with the record), so
-    that a row's prediction does not depend on which other rows are in the file."""
+    that a row's prediction does not depend on which other rows are in the file; a term of time its time span
+    (outside it, the term holds the state the campaign ended in: :func:`_time`)."""
     out = []
     for f in features:
         f = dict(f)
@@ -368,6 +391,8 @@ def with_records(features, ctx: RowContext) -> list[dict]:
                            "reset": reset.tolist()}
         if f.get("ch") == "row" and ctx.pose_id is not None:
             f["record_pose_id"] = np.asarray(ctx.pose_id).astype(int).tolist()
+        if (f.get("ch") == "t_s" or kind in ("settle", "field") and "tau" in f) and ctx.t_s is not None:
+            f["t_span"] = [float(np.min(ctx.t_s)), float(np.max(ctx.t_s))]
         if kind == "gated":
             f["f"] = with_records([f["f"]], ctx)[0]
         out.append(f)
@@ -464,7 +489,15 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             joints = tuple(f.get("joints", range(1, ctx.q.shape[1] + 1)))
             key = ("heat", f["tau"], joints, "record" in f)
             if key not in cache:
-                cache[key] = _recorded_heat(f, ctx) if "record" in f else _motion_heat(ctx, f["tau"], joints)
+                if "record" in f and ctx.t_s is None:
+                    # a new session whose time is not recorded: the heat the campaign ended with
+                    rec = f["record"]
+                    steps = np.vstack([np.zeros((1, ctx.q.shape[1])), np.diff(np.asarray(rec["q"], float).reshape(-1, ctx.q.shape[1]), axis=0)])
+                    steps[np.asarray(rec["reset"], bool)] = 0.0
+                    end = _heat_series(np.asarray(rec["t_s"], float), steps, f["tau"], joints)[-1]
+                    cache[key] = np.full(len(ctx.q), end)
+                else:
+                    cache[key] = _recorded_heat(f, ctx) if "record" in f else _motion_heat(ctx, f["tau"], joints)
             out[:, k] = cache[key] / f["h"]  # a scale fixed on the rows the atom was built on
         elif kind == "settle":
             st = np.asarray(ctx.station).astype(str) if ctx.station is not None else None
@@ -473,7 +506,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             t0 = np.array([f["t0"].get(s, np.nan) for s in st])
             if np.any(np.isnan(t0)):
                 raise ValueError(f"this effect term knows the set-up times of stations {sorted(f['t0'])} only")
-            out[:, k] = -np.expm1(-np.clip(_channel(ctx, "t_s") - t0, 0.0, None) / f["tau"])
+            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - t0, 0.0, None) / f["tau"])
             if "only" in f:
                 out[:, k] *= st == str(f["only"])
         elif kind == "gated":
@@ -491,11 +524,15 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache[key][:, f["axis"]]
         elif kind == "exp":
             # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
-            out[:, k] = -np.expm1(-(_ch(ctx, f) - f["t0"]) / f["tau"])
+            # (zero before t0: rows of an earlier session)
+            out[:, k] = -np.expm1(-np.clip(_ch(ctx, f) - f["t0"], 0.0, None) / f["tau"])
         elif kind == "lag":
             # the channel seen through a first-order lag of time constant tau (a link's temperature follows
             # the air's): exact for a channel constant between rows, started at the first row's value
-            lag = _recorded_lag(f, ctx) if "record" in f else _lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"])
+            if "record" in f and ctx.t_s is None:
+                lag = _channel(ctx, f["ch"])  # a new session whose time is not recorded: the channel settled
+            else:
+                lag = _recorded_lag(f, ctx) if "record" in f else _lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"])
             out[:, k] = (lag - f["c"]) / f.get("h", 1.0)
         elif kind == "station":
             if ctx.station is None:
@@ -505,7 +542,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = 1.0  # a field atom's values depend on the point, not the row (twin.diagnosis.field)
         elif kind == "field":
             # a field that grows with a settling transient (an instrument warming up after switch-on)
-            out[:, k] = -np.expm1(-(_channel(ctx, "t_s") - f["t0"]) / f["tau"])
+            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - f["t0"], 0.0, None) / f["tau"])
         else:
             raise ValueError(f"unknown feature kind {kind!r} in {f!r}")
     if not np.all(np.isfinite(out)):
@@ -594,13 +631,15 @@ def _time_features(ctx: RowContext, ch: str) -> list[dict]:
 
 
 def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
-                    harmonic_orders: tuple[int, ...] = (1, 2, 3), n_points: int = 3) -> list[Atom]:
+                    harmonic_orders: tuple[int, ...] = (1, 2, 3), n_points: int = 3,
+                    whole_orders: bool = True) -> list[Atom]:
     """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``
     (``n_points``: the points of the marker set, one ``plate_geometry`` atom each). Any serial chain: its joints
     by index (``theta<j>``, ``q<j>``, 1-based) and in words by name (:func:`joint_words`); harmonics, cyclic
     scans and the wrist couplings for revolute joints only; with the chain's mass properties (a URDF's
     inertials), compliance under the gravity load they give and the tilt of each joint's support (and of the
-    base) under the gravity moment it carries."""
+    base) under the gravity moment it carries. ``whole_orders``: the cyclic scan takes whole cycles per joint turn
+    only (a physical period); half orders only where terms are confirmed on another session."""
     atoms: list[Atom] = []
     N = model.n_joints
     jw = lambda j: joint_words(model, j)  # noqa: E731
@@ -678,14 +717,17 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
                           f"q{j}", f"joint {jw(j)} gear-ratio error (theta_{j} grows with q{j})" if revolute[j - 1] else
                           f"joint {jw(j)} travel scale error (its offset grows with q{j})", "catalogue", (j,)))
-    # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual),
-    # and of a stage with a non-integer ratio (a belt, an intermediate gear), scanned on a half-order grid (a pool
-    # of their own: its size enters the evidence threshold), the order refined when kept
+    # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual): whole
+    # orders (a pool of their own: its size enters the evidence threshold). A stage with a non-integer ratio (a
+    # belt, an intermediate gear) is scanned on a half-order grid and its order refined only where a term is
+    # confirmed on another session: on one session's pose pattern a free period fits the pattern, not the robot
     for j in range(1, N + 1):
         if np.ptp(ctx.q[:, j - 1]) < 1e-6 or not revolute[j - 1]:
             continue
         for k in np.arange(SCAN_ORDERS[0], SCAN_ORDERS[1] + 1e-9, SCAN_ORDERS[2]):
             k = float(k)
+            if whole_orders and k != round(k):
+                continue
             if k in harmonic_orders or k * np.ptp(ctx.q[:, j - 1]) < 1.5 * (2 * np.pi):
                 continue  # a period is evidence only where the rows see it repeat (1.5 periods over the range)
             atoms.append(Atom("cyclic", "joint", f"theta{j}",
@@ -792,26 +834,31 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                           (a, b)))
     for ax, nm in enumerate("xyz"):
         feats.append((f"gravity_dir_flange_{nm}", {"kind": "gdir", "axis": ax}, ()))
-    tch = _time_channel(ctx) or "row"
-    tv = _channel(ctx, tch)
-    c, h = _norm(tv)
-    # time: linear, change points, settling transients and (on the cell) oscillations; no higher polynomial in
-    # time: it goes where the rows are not (the next rows, later), and a blind campaign's re-seated plate,
-    # fitted with t^2, was predicted 13x worse than its oracle on the rows after the campaign
-    feats.append((tch, ({"kind": "pow", "ch": tch, "p": 1, "c": c, "h": h},), ()))
-    for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
-        at = float(np.quantile(tv, qq))
-        feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+    # time: only in t_s (a term in the row count says nothing of the next session); linear, change points,
+    # settling transients and (on the cell) oscillations; no higher polynomial in time: it goes where the rows are
+    # not (the next rows, later), and a blind campaign's re-seated plate, fitted with t^2, was predicted 13x worse
+    # than its oracle on the rows after the campaign
+    tch = _time_channel(ctx)
+    span = 0.0
+    if tch is not None:
+        tv = _channel(ctx, tch)
+        c, h = _norm(tv)
+        feats.append((tch, ({"kind": "pow", "ch": tch, "p": 1, "c": c, "h": h},), ()))
+        for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
+            at = float(np.quantile(tv, qq))
+            feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+        span = float(np.ptp(tv))
+        for tau in (fr * span for fr in TAU_FRACTIONS):
+            # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
+            feats.append((f"1-exp(-{tch}/{tau:.4g})", {"kind": "exp", "ch": tch, "t0": float(tv[0]), "tau": float(tau)}, ()))
+    # a change at a session start (a restart, another day) is a term of the sessions, located by t_s or the row
     starts = _session_starts(ctx)
+    sch = tch or "row"
     for _, at in starts:
-        feats.append((f"step({tch} >= {at:.6g}) (restart)", {"kind": "step", "ch": tch, "at": at}, ()))
+        feats.append((f"step({sch} >= {at:.6g}) (restart)", {"kind": "step", "ch": sch, "at": at}, ()))
     if len(starts) > 1:
         # a change at every restart (a joint re-homed, a plate re-seated each time): one term, a step at each
-        feats.append(("a step at every session start", tuple({"kind": "step", "ch": tch, "at": at} for _, at in starts), ()))
-    span = float(np.ptp(tv))
-    for tau in (fr * span for fr in TAU_FRACTIONS):
-        # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
-        feats.append((f"1-exp(-{tch}/{tau:.4g})", {"kind": "exp", "ch": tch, "t0": float(tv[0]), "tau": float(tau)}, ()))
+        feats.append(("a step at every session start", tuple({"kind": "step", "ch": sch, "at": at} for _, at in starts), ()))
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         c, h = _norm(ctx.temp_c)
         for p in (1, 2):
@@ -846,6 +893,10 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for ch, f, fj in feats:
             fs = f if isinstance(f, tuple) else (f,)
             if fs[0]["kind"] in ("lastmove", "stepin") and place != "joint":
+                continue
+            if fs[0]["kind"] == "sign" and not (place == "joint" and (int(target[5:]), fs[0]["j"]) in couplings):
+                # a joint's motion history acts on that joint (the catalogue's backlash) or on a joint its drive
+                # passes through (a wrist coupling), not on another joint's frame or the cell
                 continue
             if (place, target, _fkey(fs)) in cat_keys:
                 continue

@@ -35,11 +35,12 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..estimator.calibration import Calibration
-from ..estimator.core import Prepared, prepare
+from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
 from ..transforms import kabsch
 from ..transforms import matrix_to_rotvec
 from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
+from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
@@ -64,7 +65,11 @@ __all__ = [
     "selection_round",
     "select_terms",
     "decide",
+    "adopt",
+    "choose_geometry",
+    "geometry_candidates",
     "report_before_after",
+    "refit_on_every_row",
     "describe_terms",
     "implausible_size",
     "evidence_scale",
@@ -83,7 +88,6 @@ __all__ = [
 
 _MM = 1e-3
 _DEG = np.pi / 180.0
-DEFAULT_HOLDOUT = 0.3  # held-out fraction without a 'set' column (and no holdout given)
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 # on the 6R industrial arms (cycloidal and harmonic drives)
@@ -94,8 +98,6 @@ JOINT_MAX_CHAIN = 1.0 * np.pi / 180
 # chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
 LOAD_MAX = 1.0 * np.pi / 180
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
-REPORT_EVERY = 5  # every fifth held-out visit is a report row (the others confirm the terms: they need the power)
-REPORT_MIN_VISITS = 20  # fewer held-out visits: no separate report block (before/after on the confirmation rows)
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,13 @@ class DiagnosisResult:
     outside the catalogue; ``alternatives``: explanations the data cannot tell apart from a chosen one;
     ``rows``: rows flagged (gross, unknown history) and the two held-out blocks; ``unexplained``: when the test
     fired and no term was confirmed, the excess (whitened RMS, extra sigma per coordinate [mm]), the neighbour
-    smoothers' held-out ``z`` and whether they predict it (else None)."""
+    smoothers' held-out ``z`` and whether they predict it (else None). ``model_in_use``: ``"extended"`` when the
+    extended model predicts the confirmation block better than the geometric one (:func:`adopt`), else
+    ``"geometric"`` (``calibration`` is then the geometric model, and the terms found are ``candidate_terms``, not
+    ``atoms``, their model ``calibration_candidate``); ``adoption``: the comparison behind it (None when no term was
+    found). ``calibration`` and ``calibration_geometric`` are the models refitted on every row of the campaign
+    (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
+    the calibration rows only: before/after and every block figure are theirs."""
 
     structured: bool
     p_value: float
@@ -150,6 +158,11 @@ class DiagnosisResult:
     unexplained: dict[str, Any] | None = None
     held_out: dict[str, Any] = field(default_factory=dict)
     test_report: dict[str, StructureTest | None] = field(default_factory=dict)
+    model_in_use: str = "geometric"
+    adoption: dict[str, Any] | None = None
+    candidate_terms: tuple[dict, ...] = ()
+    calibration_candidate: Calibration | None = None
+    calibrations_blocked: dict[str, Calibration] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -161,6 +174,7 @@ class HeldOut:
     confirmation: np.ndarray
     report: np.ndarray | None
     rule: str
+    sets: str = ""  # how the held-out rows were chosen (:func:`twin.diagnosis.blocks.held_out_sets`)
 
 
 @dataclass
@@ -252,8 +266,9 @@ def diagnose(
 ) -> DiagnosisResult:
     """Diagnose ``dataset`` (see the module docstring for the steps and their statistics).
 
-    ``holdout``: without a ``set`` column, hold out this seeded random fraction for validation (default
-    ``DEFAULT_HOLDOUT``, 30 %, said so in the notes).
+    ``holdout``: without a ``set`` column, hold out this fraction at the end of the campaign (default
+    ``twin.diagnosis.blocks.HOLDOUT_DEFAULT``, 30 %; :func:`twin.diagnosis.blocks.held_out_sets`: the held-out rows are always a block of
+    time after the rows that fit, whatever the ``set`` column says, and the notes say which).
     ``calibration``: a geometric calibration to start from (refitted on this dataset's calibration rows).
     ``max_effects``: most atoms kept. ``alpha_select``: family-wise false-selection rate per round (each pool
     Bonferroni-adjusted). ``z_min``: held-out confirmation threshold (terms and the neighbour smoothers).
@@ -273,7 +288,14 @@ def diagnose(
     prob = setup.problem
     base = fit_geometry(prob, setup.x0)
     test0 = prob.test(base)
-    excess = test0.p_value < alpha
+    # the selection starts when the held-out block or the block that fits is beyond the floor: a change in the middle
+    # of the rows that fit leaves the held-out block after it in one state, which the geometry's frames absorb
+    test_fit = prob.test_fit_block(base)
+    excess = test0.p_value < alpha or test_fit.p_value < alpha
+    if excess and not test0.p_value < alpha:
+        setup.notes.append(f"the held-out block is within the floor (p = {test0.p_value:.2g}) but the rows that fit are "
+                           f"not (p = {test_fit.p_value:.2g}, {test_fit.distribution}, whitened RMS "
+                           f"{test_fit.whitened_rms:.3f}): terms are looked for there and must hold on the held-out block")
     if excess and setup.floor.lower_bound:
         setup.notes.append(evidence_scale(prob, base))
     sel = Selection(base)
@@ -285,8 +307,25 @@ def diagnose(
         base = prob.fit(base.z[: setup.prep.space.size], [])
         test0 = prob.test(base)
     ext = sel.fit if sel.fit.chosen else None
-    structured, unexplained, notes_v = decide(prob, base, ext, test0, excess, z_min)
+    adoption, candidate = None, None
+    if ext is not None:
+        adoption = adopt(prob, base, ext)
+        if not adoption["adopted"]:
+            candidate, ext = ext, None
+    structured, unexplained, notes_v = decide(prob, base, ext if candidate is None else candidate, test0, excess, z_min)
     rep = report_before_after(prob, base, ext)
+    rep["held_out"].update(held_out_rows=setup.held_out.sets, blocks=setup.held_out.rule)
+    candidate_terms: tuple = ()
+    calibration_candidate = None
+    if candidate is not None:
+        cand_json, _ = describe_terms(prob, candidate, base.chi2, sel.entry_chi2)
+        candidate_terms = tuple(cand_json)
+        calibration_candidate = replace(setup.geometric, method="best+effects",
+                                        x=candidate.z[: setup.prep.space.size], effects=candidate_terms)
+        rep_c = report_before_after(prob, base, candidate)
+        adoption["report_rms_mm"] = {"geometric": rep_c["before"]["position_mm"]["rms"],
+                                     "extended": rep_c["after"]["position_mm"]["rms"]}
+        notes_v.append(adoption["note"])
     frac, explained, notes_r = 0.0, False, []
     if ext is not None:
         tb, ta = rep["test_before"], rep["test_after"]
@@ -304,9 +343,23 @@ def diagnose(
     if rows["gross_validation"] or rows["gross_calibration"]:
         notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
                      f"validation {rows['gross_validation']}")
-    geo = setup.geometric
-    extended = replace(geo, method="best+effects" if ext is not None else geo.method,
-                       x=use.z[: setup.prep.space.size] if ext is not None else geo.x, effects=tuple(atoms_json))
+    P = setup.prep.space.size
+    geo_blocked = setup.geometric
+    ext_blocked = replace(geo_blocked, method="best+effects" if ext is not None else geo_blocked.method,
+                          x=use.z[:P] if ext is not None else geo_blocked.x, effects=tuple(atoms_json))
+    # the models to use: the chosen terms refitted on every row of the campaign (the choice and before/after were
+    # made on the blocks; the values take the campaign's whole time)
+    geo_all, ext_all, prob_all = refit_on_every_row(setup, base, ext)
+    geo = replace(geo_blocked, x=geo_all.z[:P], details={**geo_blocked.details, "refitted_on_every_row": True})
+    extended = geo
+    if ext is not None:
+        final, _ = describe_terms(prob_all, ext_all, geo_all.chi2)
+        final = tuple({**f, "minor": a["minor"], "entry_chi2": a["entry_chi2"]} for f, a in zip(final, atoms_json))
+        extended = replace(ext_blocked, x=ext_all.z[:P], effects=final,
+                           details={**ext_blocked.details, "refitted_on_every_row": True})
+    notes.append(f"calibration.json and calibration_geometric.json are the chosen models refitted on every row of the "
+                 f"campaign ({prob_all.obs_cal.n} rows); before/after are those of the models fitted on the "
+                 f"{prob.obs_cal.n} calibration rows, on report rows they never saw")
     return DiagnosisResult(
         structured=structured,
         p_value=float(test0.p_value),
@@ -332,36 +385,25 @@ def diagnose(
         unexplained=unexplained,
         held_out=rep["held_out"],
         test_report={"before": rep["test_before"], "after": rep["test_after"]},
+        model_in_use="extended" if ext is not None else "geometric",
+        adoption=adoption,
+        candidate_terms=candidate_terms,
+        calibration_candidate=calibration_candidate,
+        calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
     )
 
 
-def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, every: int = REPORT_EVERY,
+def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, fraction: float = REPORT_FRACTION,
                    min_visits: int = REPORT_MIN_VISITS) -> HeldOut:
-    """The held-out rows ``prep.val`` in two blocks. A *visit* is a run of consecutive dataset rows with the same
-    commanded joints and station (a repeat shares its visit's error, so a visit stays in one block); every
-    ``every``-th held-out visit in measurement order is a report row, the others confirmation rows, so both
-    blocks span the campaign in time and in the workspace. Report rows whose approach history is unknown (the
-    first rows, after a restart: :func:`twin.diagnosis.atoms.approach_unknown`) go to the confirmation block:
-    no model can predict a history-dependent term there. With fewer than ``min_visits`` held-out visits there is
-    no report block (``report`` None)."""
-    q = np.round(np.asarray(ds.q, float), 9)
-    st = np.asarray(ds.station_ids)
-    new = np.ones(ds.n, bool)
-    new[1:] = np.any(q[1:] != q[:-1], axis=1) | (st[1:] != st[:-1])
-    visit = np.cumsum(new)
+    """The held-out rows ``prep.val`` (a block of time after the calibration rows: :func:`held_out_sets`) in two
+    contiguous blocks (:func:`twin.diagnosis.blocks.confirm_and_report`): the earlier held-out rows confirm the
+    terms, the last held-out session (when there are several) or the last ``fraction`` of the held-out visits report
+    before/after; report rows whose approach history is unknown go to the confirmation block. With fewer than
+    ``min_visits`` held-out visits there is no report block (``report`` None)."""
     val = np.asarray(prep.val, int)
-    vrow = prep.rows[val]
-    uniq = list(dict.fromkeys(visit[vrow].tolist()))
-    if len(uniq) < min_visits:
-        return HeldOut(val, None, f"fewer than {min_visits} held-out visits ({len(uniq)}): before/after are on the "
-                                  "rows that also confirmed the terms (no separate report block)")
-    rep_visits = set(uniq[every - 1::every])
-    unknown = approach_unknown(ctx)
-    is_rep = np.isin(visit[vrow], list(rep_visits)) & ~unknown[vrow]
-    return HeldOut(val[~is_rep], val[is_rep],
-                   f"every {every}th held-out visit in measurement order (a visit: consecutive rows with the same "
-                   "commanded joints and station), rows with an unknown approach history excluded; the other "
-                   "held-out rows confirm the terms")
+    conf, rep, rule = confirm_and_report(ds, prep.rows[val], approach_unknown(ctx), fraction=fraction,
+                                         min_visits=min_visits)
+    return HeldOut(val[conf], None if rep is None else val[rep], rule)
 
 
 def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = None, holdout: float | None = None,
@@ -374,41 +416,80 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     if virtual:
         # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
         dataset, note_virtual = virtual_spheres(dataset)
-    default_holdout = dataset.set is None and holdout is None
-    if dataset.set is None:
-        if holdout is None:
-            # as the estimator does without a 'set' column (docs/formats.md): a seeded random fraction, said so
-            holdout = DEFAULT_HOLDOUT
-        if not (0.05 <= holdout <= 0.8):
-            raise ValueError(f"holdout must be in [0.05, 0.8], got {holdout!r}")
-    elif not np.any(dataset.set == "validation"):
+    if dataset.set is not None and not np.any(dataset.set == "validation"):
         raise DiagnosisError("diagnosis needs held-out rows: the 'set' column has no 'validation' rows")
+    blocks = held_out_sets(dataset, holdout)
+    dataset = replace(dataset, set=blocks.set)
     floor = noise_floor(dataset, plate=not virtual)
     notes.append(f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}")
     if virtual:
         notes.append(note_virtual)
-    if default_holdout:
-        notes.append(f"no 'set' column: held out a seeded random {100 * holdout:.0f} % of the rows for validation "
-                     f"(seed {seed}; --holdout and --seed choose another split)")
-    prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=holdout or 0.0, seed=seed)
+    notes.append(f"held-out rows: {blocks.rule}")
+    prep = prepare(dataset, noise_position=floor.sigma, validation_fraction=0.0, seed=seed)
     if prep.val.size == 0:
         raise DiagnosisError("diagnosis needs held-out rows with measurements; none are usable")
     geo_opts = dict(geometry or {})
-    bad = sorted(set(geo_opts) - {"level", "selection"})
+    bad = sorted(set(geo_opts) - {"level", "selection", "prior"})
     if bad:
-        raise ValueError(f"geometry: unknown options {bad}; known: level, selection")
+        raise ValueError(f"geometry: unknown options {bad}; known: level, selection, prior")
+    ctx = row_context(dataset, q_start)
+    held = replace(split_held_out(dataset, prep, ctx), sets=blocks.rule)
+    notes.append(f"confirmation and report blocks: {held.rule}")
     # the outlier rule needs the scatter a correct model leaves: not against a floor that is only a lower bound of it
-    ident = identify_best(prep, alpha=1e-6, **({"robust": False} if floor.lower_bound else {}), **geo_opts)
+    robust = {"robust": False} if floor.lower_bound else {}
     if geo_opts:
+        ident = identify_best(prep, alpha=1e-6, **robust, **geo_opts)
         notes.append("geometric model: " + ", ".join(f"{k} {v}" for k, v in sorted(geo_opts.items())))
+    else:
+        geo_opts, ident, note = choose_geometry(prep, held.confirmation, robust)
+        if note:
+            notes.append(note)
     if calibration is not None:
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
     geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM, **geo_opts})
-    ctx = row_context(dataset, q_start)
-    held = split_held_out(dataset, prep, ctx)
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report)
+    # rows that only register a station's frame do not make their session a fitted one
+    sess = sessions(dataset)
+    reg = np.isin(dataset.pose_id, [p for v in blocks.registration.values() for p in v])
+    cal_rows = prep.rows[prep.cal]
+    prob.cross_session = bool(len(np.unique(sess)) > 1 and not (set(sess[prep.rows[held.confirmation]].tolist())
+                                                                & set(sess[cal_rows[~reg[cal_rows]]].tolist())))
     return Setup(dataset, virtual, floor, prep, np.asarray(ident.x, float), geo, ctx, held, prob, notes)
+
+
+def geometry_candidates(model) -> list[dict]:
+    """The geometric parameter sets blocked cross-validation chooses among: the estimator's own ordered set and, on a
+    ``"urdf"`` chain, FIGAROH's full-parameter selection (:func:`twin.estimator.methods.identify_best`). Each is a set
+    of free parameters, as every later fit of the diagnosis takes it (a prior on the deviations would hold in the
+    geometric identification only: the terms are fitted by Gauss-Newton over the free parameters without it)."""
+    return [{}] + ([{"selection": "figaroh"}] if model.convention == "urdf" else [])
+
+
+def _geometry_name(opts: dict) -> str:
+    return opts.get("selection", "ordered")
+
+
+def choose_geometry(prep: Prepared, confirmation: np.ndarray, robust: dict) -> tuple[dict, Any, str]:
+    """The geometric parameter set that predicts the confirmation block best (blocked cross-validation: each
+    candidate of :func:`geometry_candidates` identified on the calibration rows, its position RMS on the
+    confirmation rows, a later block of time or another session). Returns the options, the identification and a
+    note (empty when there is one candidate)."""
+    cands = geometry_candidates(prep.nominal)
+    obs_c = prep.obs.subset(np.asarray(confirmation, int))
+    best = None
+    scores = []
+    for opts in cands:
+        ident = identify_best(prep, alpha=1e-6, **robust, **opts)
+        rms = float(residual_stats(prep.space, np.asarray(ident.x, float), obs_c)["position_mm"]["rms"])
+        scores.append((_geometry_name(opts), rms))
+        if best is None or rms < best[2]:
+            best = (opts, ident, rms)
+    if len(cands) == 1:
+        return best[0], best[1], ""
+    chosen = _geometry_name(best[0])
+    return best[0], best[1], ("geometric parameter set chosen on the confirmation block (position RMS there: "
+                              + ", ".join(f"{name} {v:.4g} mm" for name, v in scores) + f"): {chosen}")
 
 
 def evidence_scale(prob: Problem, base: Fit) -> str:
@@ -439,7 +520,8 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     the size of each pool (its Bonferroni factor)."""
     prep, ctx, ds = setup.prep, setup.ctx, setup.dataset
     length_names = link_lengths(prep.nominal)
-    cat = catalogue_atoms(prep.nominal, ctx, length_names, n_points=ds.spheres.shape[1])
+    cat = catalogue_atoms(prep.nominal, ctx, length_names, n_points=ds.spheres.shape[1],
+                          whole_orders=not setup.problem.cross_session)
     pool = list(cat)
     if generic:
         pool += generic_atoms(prep.nominal, ctx, dictionary_parameters(prep.nominal), length_names, cat,
@@ -630,6 +712,22 @@ def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, exce
     return structured, unexplained, notes
 
 
+def adopt(prob: Problem, base: Fit, ext: Fit) -> dict[str, Any]:
+    """Step 5b: does the extended model replace the geometric one? Only where it predicts the confirmation block (a
+    block of time after every row that fitted it, or another session) better: a lower position RMS there, over every
+    confirmation row (no row set aside as gross: a posture the extended model mispredicts, one outside the ranges it
+    was fitted on, is a posture of the next session too; a glitch of the instrument costs both models alike).
+    Otherwise the geometric model stays the one to use and the terms are reported as candidates. Returns
+    ``{adopted, confirmation_rms_mm: {geometric, extended}, note}``."""
+    gb = error_stats(base.model_val, base.z)["position_mm"]["rms"]
+    ge = error_stats(ext.model_val, ext.z)["position_mm"]["rms"]
+    adopted = bool(ge < gb)
+    note = ("" if adopted else
+            f"the extended model does not predict the confirmation block better than the geometric model ({ge:.4g} "
+            f"against {gb:.4g} mm RMS): the geometric model is the one to use; its terms are reported as candidates")
+    return {"adopted": adopted, "confirmation_rms_mm": {"geometric": gb, "extended": ge}, "note": note}
+
+
 def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, Any]:
     """Step 6: errors and structure tests of the geometric (``base``) and the extended model (``ext``, or the
     geometric one) on the report rows, which took no part in choosing or fitting the model (gross rows of the
@@ -657,6 +755,28 @@ def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, 
             f"before/after on the {int(keep.sum())} held-out rows that also confirmed the terms (too few held-out "
             "visits for a separate report block): optimistic")
     return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
+
+
+def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, Fit | None, Problem]:
+    """Step 8: the geometric model and the chosen extended model (its atoms and bases as chosen) refitted on every
+    row of the campaign, calibration, confirmation and report rows alike, gross rows down-weighted anew: the terms
+    were chosen, and before/after measured, on blocks of time; the models a user takes to the next session use the
+    whole campaign (a term of time ends where the campaign ends). Returns both fits and their problem."""
+    ds_all = replace(setup.dataset, set=np.full(setup.dataset.n, "calibration", dtype=object))
+    prep = prepare(ds_all, noise_position=setup.floor.sigma, validation_fraction=0.0)
+    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:])
+    prob.evidence_scale = setup.problem.evidence_scale
+    prob.cross_session = setup.problem.cross_session
+    P = prep.space.size
+    geo = prob.fit(base.z[:P], [])
+    update_gross(prob, geo)
+    geo = prob.fit(geo.z[:P], [])
+    if ext is None:
+        return geo, None, prob
+    full = prob.fit(ext.z[:P], ext.chosen, psi_init(ext, ext.chosen))
+    update_gross(prob, full)
+    full = prob.fit(full.z[:P], full.chosen, psi_init(full, full.chosen))
+    return geo, full, prob
 
 
 def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, ...], list[str]]:
@@ -713,8 +833,11 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
     if ds.noise_position is not None:
         sr = ds.noise_orientation or 0.0
         noise = float(np.sqrt(ds.noise_position**2 + (2.0 / 3.0) * (L * sr) ** 2))
+    # the marker set is stated in the flange frame: the virtual points through the nominal tool frame (the frame
+    # the poses are measured in), so that the calibration's tool frame stays the measured one
+    T = np.asarray(ds.robot.tool2flange, float)
     out = replace(ds, spheres=spheres, sphere_seen=seen, pose_seen=np.zeros(ds.n, bool),
-                  plate=Plate(ds.plate.sphere_diameter, pts), noise_position=noise)
+                  plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]), noise_position=noise)
     return out, (f"poses read as three points of the tool frame {L / _MM:.0f} mm along its axes (virtual spheres); "
                  "the plate's own terms and the plate-distance floor do not apply")
 

@@ -341,12 +341,16 @@ def history_resets(ds: Dataset) -> np.ndarray:
     return out if ch is None else out | ch
 
 
+SESSION_GAP_S = 1800.0  # [s] a pause shorter than this keeps the robot powered where it stood: not a new session
+
+
 def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None = None, *, gaps: bool = False,
                gap_factor: float = 20.0) -> np.ndarray:
     """:func:`history_resets` from the channels themselves (``t_s`` ``(n,)`` [s], ``status`` ``(n,)`` text): what
     ``twin predict`` uses on a JOINTS.csv, so that new rows read their history as the diagnosis did. With
-    ``gaps``, also rows after a gap in ``t_s`` longer than ``gap_factor`` times the median step: the starts of
-    the campaign's sessions (a restart, a long pause), where something may have changed."""
+    ``gaps``, also rows after a gap in ``t_s`` longer than ``gap_factor`` times the median step and than
+    ``SESSION_GAP_S`` (half an hour): the starts of the campaign's sessions (a restart, a night), where something may
+    have changed (a laser-tracker grid paused 205 times for 2-50 minutes between its rows is one session)."""
     out = np.zeros(n, dtype=bool)
     if n:
         out[0] = True
@@ -354,7 +358,7 @@ def row_resets(n: int, t_s: np.ndarray | None = None, status: np.ndarray | None 
         dt = np.diff(t_s)
         med = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
         if med > 0:
-            out[1:] |= dt > gap_factor * med
+            out[1:] |= dt > max(gap_factor * med, SESSION_GAP_S)
     if status is not None:
         st = np.char.lower(np.asarray(status, dtype=str))
         out |= np.char.find(st, "restart") >= 0

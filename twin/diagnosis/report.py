@@ -15,9 +15,11 @@ from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
 from .select import StructureTest
 
-__all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis"]
+__all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis", "blocked_summary"]
 
 DIAGNOSIS_SCHEMA_VERSION = 2
+# the models fitted on the calibration rows only (before/after and the block figures are theirs)
+BLOCKED_FILES = {"geometric": "calibration_geometric_blocked.json", "extended": "calibration_blocked.json"}
 
 
 def _test(t: StructureTest | None) -> dict | None:
@@ -72,7 +74,10 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         "explained": res.explained,
         "explained_fraction": res.explained_fraction,
         "vocabulary": list(EFFECT_VOCABULARY),
+        "model_in_use": res.model_in_use,
+        "adoption": None if res.adoption is None else {k: v for k, v in res.adoption.items() if k != "note"},
         "atoms": list(res.atoms),
+        "candidate_terms": list(res.candidate_terms),
         "unnamed": list(res.unnamed),
         "alternatives": list(res.alternatives),
         "effect_parameters": res.effect_parameters,
@@ -101,6 +106,8 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         ],
         "calibration": calibration,
         "calibration_geometric": calibration_geometric,
+        "calibration_candidate": "calibration_candidate.json" if res.calibration_candidate is not None else None,
+        "calibrations_blocked": {k: BLOCKED_FILES[k] for k in res.calibrations_blocked},
         "notes": list(res.notes),
     })
 
@@ -114,6 +121,10 @@ def write_diagnosis(res: DiagnosisResult, out_dir: str | os.PathLike, *, plots: 
         "calibration": res.calibration.save(out / "calibration.json"),
         "calibration_geometric": res.calibration_geometric.save(out / "calibration_geometric.json"),
     }
+    if res.calibration_candidate is not None:
+        paths["calibration_candidate"] = res.calibration_candidate.save(out / "calibration_candidate.json")
+    for k, c in res.calibrations_blocked.items():
+        paths[f"{k}_blocked"] = c.save(out / BLOCKED_FILES[k])
     d = diagnosis_dict(res)
     p = out / "diagnosis.json"
     tmp = p.with_suffix(".json.tmp")
@@ -203,3 +214,28 @@ def plot_diagnosis(res: DiagnosisResult, out: Path) -> dict[str, Path]:
     plt.close(fig)
     paths["residual_vs_history"] = p
     return paths
+
+
+def blocked_summary(res: DiagnosisResult, dataset, blocks: dict | None = None) -> dict[str, Any]:
+    """What a diagnosis says on blocks of time: the geometric and the extended model as fitted on the calibration
+    rows (``res.calibrations_blocked``; the candidate terms' model when it was not adopted) on the confirmation and
+    the report block and on any further named ``blocks`` of ``dataset``'s rows
+    (:func:`twin.diagnosis.apply.block_errors`), with how the rows were chosen, the model in use, the adoption
+    figures and every term in words."""
+    from .apply import block_errors
+
+    pid = np.asarray(dataset.pose_id)
+    named = {"confirmation": np.isin(pid, res.rows.get("confirmation", [])),
+             "report": np.isin(pid, res.held_out.get("report_pose_ids", []))}
+    named.update(blocks or {})
+    blocked = res.calibrations_blocked
+    geo = blocked.get("geometric", res.calibration_geometric)
+    ext = res.calibration_candidate if res.calibration_candidate is not None else blocked.get("extended", res.calibration)
+    terms = [{"text": a["text"], "family": a["family"], "minor": bool(a.get("minor"))}
+             for a in (res.atoms or res.candidate_terms)]
+    return _clean({"model_in_use": res.model_in_use, "adoption": None if res.adoption is None else
+                   {k: v for k, v in res.adoption.items() if k != "note"},
+                   "held_out_rows": res.held_out.get("held_out_rows"), "blocks_rule": res.held_out.get("blocks"),
+                   "structured": res.structured, "effects": list(res.effects), "terms": terms,
+                   "errors": block_errors(geo, ext, dataset, named),
+                   "notes": list(res.notes)})

@@ -63,6 +63,20 @@ def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFl
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
 
+def fit_block_test(r: np.ndarray, n_free: int, floor: NoiseFloor) -> StructureTest:
+    """The whitened residual ``r`` of a fit on the rows that fit it (gross rows left out) against the floor:
+    ``T = r^T r`` with ``m - p`` degrees of freedom (``p = n_free`` parameters), ``chi2(m - p)`` with a stated
+    floor, ``(T / (m - p)) ~ F(m - p, nu)`` with an estimated one. A structure inside the block that fits (a change
+    in its middle) shows here even where the held-out block after it holds only one state of it."""
+    m = max(r.size - int(n_free), 1)
+    T = float(r @ r)
+    if np.isinf(floor.dof):
+        p, dist = float(dists.chi2_sf(T, m)), f"chi2({m})"
+    else:
+        p, dist = float(dists.f_sf(T / m, m, floor.dof)), f"F({m}, {int(floor.dof)})"
+    return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))) if r.size else 0.0, dist)
+
+
 def row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     ss = np.bincount(row, weights=r**2, minlength=n)
     cnt = np.bincount(row, minlength=n)
@@ -139,6 +153,8 @@ class Problem:
         # the geometric fit's residual variance per degree of freedom when the floor is only a lower bound of it
         # (a motion-capture system's marker noise, below the robot's own pose-to-pose scatter)
         self.evidence_scale = 1.0
+        # the confirmation rows are sessions the calibration rows do not contain (set by the diagnosis)
+        self.cross_session = False
 
     def _key(self, atom: Atom) -> str:
         key = self._keys.get(atom)
@@ -231,6 +247,11 @@ class Problem:
         res = mc.residuals(gn.x, jacobian=False)
         rr = res.r * np.sqrt(self.w_cal[res.row])
         return Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)
+
+    def test_fit_block(self, fit: Fit) -> StructureTest:
+        """:func:`fit_block_test` of ``fit`` on the calibration rows (gross rows at weight 0 left out)."""
+        rc = fit.model_cal.residuals(fit.z, jacobian=False)
+        return fit_block_test(rc.r[self.w_cal[rc.row] > 0], fit.free.size, self.floor)
 
     def test(self, fit: Fit, model: ExtendedModel | None = None, keep: np.ndarray | None = None) -> StructureTest:
         """The structure test of ``fit`` on the confirmation rows (or on ``model``'s rows, ``keep`` of them)."""
@@ -981,6 +1002,21 @@ class Confirmation:
     local: bool = False
 
 
+def signed_rank_z(c: np.ndarray) -> float:
+    """Wilcoxon's signed-rank statistic of ``c`` ``(n,)`` as a normal score: ``(W+ - n (n + 1) / 4) / sqrt(n (n + 1)
+    (2 n + 1) / 24)``, ``W+`` the sum of the ranks of ``|c|`` over the positive entries (zeros dropped, ties at their
+    mean rank). ~N(0, 1) when the entries are independent and symmetric about zero; 0 for fewer than two."""
+    from scipy.stats import rankdata
+
+    c = np.asarray(c, float)
+    c = c[c != 0]
+    n = c.size
+    if n < 2:
+        return 0.0
+    w = float(rankdata(np.abs(c))[c > 0].sum())
+    return (w - n * (n + 1) / 4.0) / np.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
+
+
 def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     """Held-out check of a scored atom (:class:`Confirmation`); its prediction ``u`` on the confirmation rows is
     linearised, the geometry re-adjusting to it."""
@@ -998,10 +1034,15 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     nu = float(np.linalg.norm(u))
     if nu <= 0:
         return Confirmation(0.0, 0.0, False)
-    srms = float(np.sqrt(np.mean(r**2)))
+    # per row c_k = r_k . u_k: under the null (u independent of the held-out residual) each is symmetric about zero
+    # and the rows are independent, whatever the residual's size and its correlation within a row (an unmodelled
+    # effect moves every coordinate of a row together: a coordinate-wise z would count them as independent and pass
+    # a chance correlation as a confirmation). The rank test of their sum (Wilcoxon's signed ranks, as a normal
+    # score) keeps that level and the power a few rows of large residual would take from a ratio of sums.
     contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
-    z = float(r @ u) / (nu * srms)
-    z_minus = float(r @ u - contrib.max()) / (nu * srms)
+    c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
+    z = signed_rank_z(c)
+    z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
     err_term = float(np.sum((r - u) ** 2))
     better = err_term < float(r @ r)
     local = False
@@ -1009,7 +1050,9 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
         U, Rv = neighbour_predictions(prob, fit)["time"]
         Ut = row_blocks(fit.model_val, u_all)
         ok = np.isfinite(Rv) & np.isfinite(U) & np.isfinite(Ut)
-        local = float(np.sum((Rv - U)[ok] ** 2)) <= float(np.sum((Rv - Ut)[ok] ** 2))
+        # strictly better: a change that happened before the held-out block is predicted alike by the term and by
+        # the last rows' state, and the term is the model that says so
+        local = float(np.sum((Rv - U)[ok] ** 2)) < float(np.sum((Rv - Ut)[ok] ** 2))
     return Confirmation(z, z_minus, better, local)
 
 
@@ -1069,19 +1112,43 @@ def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray
     return out
 
 
-def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
-    """Is the held-out residual predictable from the calibration rows nearest to it, in joint space or in time?
+def earlier_rows_prediction(prob: Problem, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+    """The time smoother of a block of held-out rows: each confirmation row's residual predicted by the mean
+    residual ``(n_v, 3 K)`` of the ``NEIGHBOURS`` confirmation rows measured before it (other visits only: a repeat
+    shares its visit's error; NaN for the first rows), and the rows' own residual. The held-out rows are a block of
+    time after the rows that fit: the calibration rows nearest in time are the same few for every one of them, and a
+    prediction shared by every row is no test. Under the null (noise independent from row to row) each ``c_k =
+    r_k . u_k`` has mean zero given the rows before it, so the self-normalised sum is still ~N(0, 1)."""
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    Rv = row_blocks(fit.model_val, rv.r)
+    Rv[~prob.keep_val] = np.nan
+    rows = prob.rows_val
+    qv = np.round(prob.ctx.q[rows], 9)
+    U = np.full_like(Rv, np.nan)
+    for k in range(len(rows)):
+        prev = [i for i in range(k - 1, -1, -1) if not np.array_equal(qv[i], qv[k]) and np.isfinite(Rv[i]).any()]
+        prev = prev[:NEIGHBOURS]
+        if prev:
+            with np.errstate(invalid="ignore"):
+                U[k] = np.nanmean(Rv[prev], axis=0)
+    return U, Rv
 
-    Each validation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest calibration
-    rows (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``; time: ``t_s``, else the row order),
-    rows with the same commanded joints excluded (a repeat shares the visit's error). A structure that is smooth
-    in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the robot's
-    repeatability, an instrument error per pose) does not. Under that null the calibration residuals are
-    independent of the validation ones, so per validation row ``c_k = r_k . u_k`` is zero-mean and independent
-    of the others: ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever the noise's size and its correlation
-    within a row. Confirmed when ``z > z_min`` also without the most favourable row (either smoother)."""
+
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the rows nearest to it, in joint space or in time?
+
+    Joint space: each confirmation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest
+    calibration rows (joints scaled by their spread and ``JOINT_WEIGHTS``), rows with the same commanded joints
+    excluded (a repeat shares the visit's error); the calibration residuals are independent of the held-out ones.
+    Time: by the confirmation rows measured just before it (:func:`earlier_rows_prediction`). A structure that is
+    smooth in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the
+    robot's repeatability, an instrument error per pose) does not. Under that null per confirmation row ``c_k =
+    r_k . u_k`` is zero-mean (given what predicts it), so ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever
+    the noise's size and its correlation within a row. Confirmed when ``z > z_min`` also without the most favourable
+    row (either smoother)."""
     out = {}
-    for name, (U, Rv) in neighbour_predictions(prob, fit).items():
+    smoothers = {"joints": neighbour_predictions(prob, fit)["joints"], "time": earlier_rows_prediction(prob, fit)}
+    for name, (U, Rv) in smoothers.items():
         c = np.nansum(Rv * U, axis=1)
         ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
         c = c[ok_rows]
@@ -1209,7 +1276,8 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     if kinds == {"hinge"}:
         return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
-        return _refine_order(prob, fit, s, pool_sizes)
+        # an order off the whole cycles per joint turn only where terms are confirmed on another session
+        return _refine_order(prob, fit, s, pool_sizes) if prob.cross_session else s
     timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
     if any("tau" in f for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
         key = "tau"

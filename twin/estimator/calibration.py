@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..dataset import Plate
+from ..dataset import Plate, read_text
 from ..kinematics import RobotModel
 from ..transforms import pose6_to_transform, transform_to_pose6
 from .chain import Chain
@@ -276,7 +276,7 @@ class Calibration:
         """Read ``calibration.json``; ``ValueError`` naming the file and the field when it is not valid."""
         path = Path(path)
         try:
-            d = json.loads(path.read_text())
+            d = json.loads(read_text(path, ValueError))
         except FileNotFoundError:
             raise ValueError(f"{path}: missing") from None
         except json.JSONDecodeError as exc:

@@ -65,7 +65,7 @@ class Chain:
     """The kinematic chain of one robot structure, evaluated in batches.
 
     ``Chain(convention, beta_joints)`` is a papers' 6R chain (``"mdh"`` / ``"dh"``);
-    ``Chain(structure=...)`` or :meth:`of` (a model) any chain. Parameter vectors given to :meth:`evaluate` are
+    ``Chain(structure=...)`` or :meth:`of` (a model) any chain (a DH table of any length included). Parameter vectors given to :meth:`evaluate` are
     the *robot-and-tool* part of the foundation layout: the structural parameters (for the 6R chains ``theta1..6,
     d1..6, a1..6, alpha1..6, beta_j``), then ``tool_x..tool_rz`` (``P_rt = P - 6``). Use :meth:`split_full` to
     obtain it from a full vector.
@@ -79,8 +79,8 @@ class Chain:
             structure = ChainStructure.six_r(convention, tuple(int(j) for j in beta_joints))
             self.layout = ParameterLayout(structure.beta_joints)
         else:
-            self.layout = ParameterLayout(structure.beta_joints) if structure.convention in ("mdh", "dh") \
-                else ParameterLayout(structure=structure)
+            six_r = structure.convention in ("mdh", "dh") and structure.n_joints == 6
+            self.layout = ParameterLayout(structure.beta_joints) if six_r else ParameterLayout(structure=structure)
         self.structure = structure
         self.convention = structure.convention
         self.beta_joints = tuple(structure.beta_joints)
@@ -105,7 +105,7 @@ class Chain:
     @classmethod
     def of(cls, model: RobotModel) -> "Chain":
         """The chain of a model's structure."""
-        if model.convention in ("mdh", "dh"):
+        if model.convention in ("mdh", "dh") and model.n_joints == 6:
             return cls(model.convention, model.beta_joints)
         return cls(structure=model.structure)
 

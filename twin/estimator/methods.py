@@ -432,7 +432,7 @@ def calibrate(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-    if method != "best" and dataset.robot.convention not in ("mdh", "dh"):
+    if method != "best" and (dataset.robot.convention not in ("mdh", "dh") or dataset.robot.n_joints != 6):
         raise ValueError(f"method {method!r} reproduces a paper on 6R DH/MDH arms; robot {dataset.robot.name!r} is a "
                          f"{dataset.robot.n_joints}-joint {dataset.robot.convention!r} chain: use method 'best'")
     prep = prepare(

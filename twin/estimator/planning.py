@@ -6,7 +6,7 @@ parameters well, and predict the calibration accuracy of the plan against random
    cameras, any roll), turned into joint configurations by the nominal model's closed-form inverse (every
    branch inside the joint limits).
 2. **Visibility** of a candidate: all three spheres (their whole image discs plus ``margin_px``) inside both
-   images, in front of both cameras; the plate normal within ``max_tilt`` of the direction to each camera;
+   images, in front of both cameras (:func:`twin.camera.spheres_in_view`); the plate normal within ``max_tilt`` of the direction to each camera;
    no line of sight from a camera centre to a sphere passes within ``link_radius + sphere radius`` of a
    link segment of the nominal model (frame origins 0..6: capsules, a coarse self-occlusion model).
 3. **Design**: the whitened sphere-centre Jacobian of every candidate at the nominal model (stations at
@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, discs_in_image, distort_normalized
+from ..camera import CameraIntrinsics, spheres_in_view
 from ..dataset import Plate
 from ..kinematics import (
     RobotModel,
@@ -123,14 +123,6 @@ class PlanResult:
 # Visibility
 # ------------------------------------------------------------------------------------------------
 
-def _project(P: np.ndarray, intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels ``(..., 2)`` and depth ``(...)`` of camera-frame points ``(..., 3)`` (depth <= 0 gives NaN pixels)."""
-    z = P[..., 2]
-    zs = np.where(z > 1e-9, z, np.nan)
-    xy = distort_normalized(P[..., :2] / zs[..., None], intr.dist)
-    return np.stack([intr.fx * xy[..., 0] + intr.cx, intr.fy * xy[..., 1] + intr.cy], axis=-1), z
-
-
 def _seg_seg_distance(p0, p1, q0, q1) -> np.ndarray:
     """Minimum distance between segments ``[p0, p1]`` and ``[q0, q1]`` (broadcast over leading axes)."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
@@ -180,12 +172,7 @@ def visibility(
     ok_img = np.ones(n, dtype=bool)
     for (Tc, intr) in cams:
         P = S @ Tc[:3, :3].T + Tc[:3, 3]
-        uv, z = _project(P, intr)
-        rad_px = intr.fx * r_s / np.maximum(z, 1e-9)
-        m = options.margin_px + rad_px
-        inside = (z > 0.05) & np.all(np.isfinite(uv), axis=-1)
-        inside &= discs_in_image(uv, m, intr.width, intr.height)
-        ok_img &= np.all(inside, axis=1)
+        ok_img &= spheres_in_view(P, intr, radius=r_s, margin_px=options.margin_px, min_depth=0.05)
     reason[(reason == "") & ~ok_img] = "image"
     normal = T[:, :3, 2]
     centre = S.mean(axis=1)

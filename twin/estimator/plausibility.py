@@ -13,8 +13,11 @@ Checks on data a user has (nothing here reads truth):
   frame). A ratio near 1/1000 or 1000 is a unit declared wrong in ``dataset.toml``.
 * **Joints.** Values outside the robot's limits; all joints within a few degrees of zero over a campaign that
   must move (joints written in radians in the degree columns).
-* **Fit.** A residual scale far above 1 (the noise stated or estimated cannot explain the residual: the model
-  cannot fit these data).
+* **Fit.** A calibrated model that misses its own calibration rows by a sizeable fraction (5 %) of how far they
+  move cannot be the robot's: mislabelled data (joint columns swapped, rows of several stations without their
+  ``station`` column, another robot) are refused. A residual merely far above the noise (the whitened residual
+  scale, or the residual against the instrument's error seen in the marker distances) is a robot with errors
+  the geometric model lacks: it is said, never refused (``twin diagnose`` looks for them).
 * **Targets** (``twin compensate``). Plate positions against the reach of the calibrated robot within its joint
   limits: every target within a few millimetres of the base origin (metres written in the millimetre columns),
   targets beyond the reach (wrong units or frame).
@@ -31,9 +34,9 @@ import numpy as np
 
 from ..dataset import Dataset
 
-__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values", "check_fit",
-           "plate_noise", "check_fit_against_plate", "tool_reach", "check_targets", "forced_reasons",
-           "check_length_unit"]
+__all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
+           "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise", "tool_reach", "check_targets",
+           "forced_reasons", "check_length_unit", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _DEG = np.pi / 180.0
@@ -290,15 +293,6 @@ def check_length_unit(ds: Dataset, *, low: float = 0.05, high: float = 20.0) -> 
     return ratio
 
 
-def check_fit(residual_scale: float, *, limit: float = 30.0) -> None:
-    """:class:`ImplausibleData` when the whitened residual is ``limit`` or more times what the noise explains."""
-    if not np.isfinite(residual_scale):
-        raise ImplausibleData(f"the fit's residual scale is {residual_scale!r}")
-    if residual_scale >= limit:
-        raise ImplausibleData(f"the model cannot fit these data: the residual is {residual_scale:.4g}x what the noise "
-                              "explains (wrong robot, wrong units, swapped columns, or the stated noise far too small?)")
-
-
 def plate_noise(ds: Dataset, *, virtual_m: float = 1e-6) -> float | None:
     """The instrument's error per coordinate [m] seen in the marker set: the robust spread of the inter-point
     distances over the rows with all K points, divided by sqrt(2) (None with fewer than 10 such rows or K < 2).
@@ -315,15 +309,99 @@ def plate_noise(ds: Dataset, *, virtual_m: float = 1e-6) -> float | None:
     return None if sigma < virtual_m else sigma
 
 
-def check_fit_against_plate(fit_rms_per_coordinate_m: float, sigma_plate_m: float | None, *,
-                            limit: float = 30.0, min_sigma_m: float = 1e-6) -> None:
-    """:class:`ImplausibleData` when the fit's residual per coordinate is ``limit`` or more times the
-    instrument's error seen in the plate distances (the fit's own noise estimate cannot hide it)."""
-    if sigma_plate_m is None or not np.isfinite(fit_rms_per_coordinate_m):
+#: A fit whose residual is this many times what the noise explains: the robot has errors beyond its geometry.
+BEYOND_NOISE = 3.0
+#: A fit that misses the measured positions by this fraction of how far they move cannot be the robot's.
+MAX_MISS_FRACTION = 0.05
+
+
+def fit_beyond_noise(residual_scale: float | None, fit_rms_per_coordinate_m: float | None,
+                     sigma_plate_m: float | None, *, limit: float = BEYOND_NOISE, min_sigma_m: float = 1e-6,
+                     dataset: str = "DATASET") -> dict:
+    """Whether a geometric fit leaves more than the noise: the whitened residual scale (the residual over the noise
+    stated or estimated) and the fit's residual per coordinate [m] over the instrument's error seen in the marker
+    distances (``sigma_plate_m``, :func:`plate_noise`), each against ``limit``.
+
+    Returns ``{detected, residual_scale, plate_ratio, limit, text}``: ``detected`` when either ratio is ``limit``
+    or more (the robot has errors the geometric model lacks, or the stated noise is too small); ``text`` says so in
+    words and points to ``twin diagnose`` on ``dataset`` (empty when not detected). Never refuses: a real robot whose errors are
+    not geometric is not a wrong input. :class:`ImplausibleData` only for a residual scale that is not a finite
+    number (a broken fit)."""
+    if residual_scale is not None and not np.isfinite(residual_scale):
+        raise ImplausibleData(f"the fit's residual scale is {residual_scale!r}")
+    plate_ratio = None
+    if sigma_plate_m is not None and fit_rms_per_coordinate_m is not None and np.isfinite(fit_rms_per_coordinate_m):
+        plate_ratio = float(fit_rms_per_coordinate_m / max(sigma_plate_m, min_sigma_m))
+    scale = None if residual_scale is None else float(residual_scale)
+    why = []
+    if scale is not None and scale >= limit:
+        why.append(f"the residual is {scale:.3g}x what the noise explains")
+    if plate_ratio is not None and plate_ratio >= limit:
+        why.append(f"the residual per coordinate is {plate_ratio:.3g}x the instrument's error seen in the marker "
+                   "distances")
+    text = ""
+    if why:
+        text = (f"the robot has errors the geometric model lacks: {' and '.join(why)} (or the noise stated is too "
+                f"small); the geometric calibration is written, and `twin diagnose {dataset}` looks for the effects "
+                "(compliance, backlash, thermal growth, ...) that explain the rest")
+    return {"detected": bool(why), "residual_scale": scale, "plate_ratio": plate_ratio, "limit": float(limit),
+            "text": text}
+
+
+def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
+    """How far a calibration's model misses the rows it was fitted on, against how far they move.
+
+    Every calibration row (used or rejected by the outlier rule) of ``ds`` is predicted by ``cal`` (a
+    :class:`~twin.estimator.Calibration` of ``ds``) in its station's frame; a row's miss [m] is the mean distance of
+    its measured points (or pose position) from the prediction. ``miss_rms_m``: the RMS over the rows with the
+    worst ``trim`` fraction left out (a few gross rows do not count; a third of the rows measured in another frame
+    does). ``spread_m``: the RMS distance of the measured positions from their centroid, per station, the median
+    over stations. Returns ``{miss_rms_m, spread_m, fraction, rows}``, or None with fewer than 3 rows."""
+    if not 0 <= trim < 1:
+        raise ValueError(f"trim must be in [0, 1), got {trim!r}")
+    rows = cal.rows or {}
+    ids = {int(p) for p in rows.get("calibration_used", [])}
+    ids |= {int(r["pose_id"]) for r in rows.get("calibration_rejected", []) if isinstance(r, dict) and "pose_id" in r}
+    use_pose = cal.measurement == "pose"
+    seen = ds.pose_seen if use_pose else ds.sphere_seen.any(axis=1)
+    sel = np.flatnonzero(np.isin(ds.pose_id, sorted(ids)) & seen)
+    if sel.size < 3:
+        return None
+    pred = cal.predict(ds.q[sel], None if ds.station is None else ds.station_ids[sel])
+    if use_pose:
+        meas = ds.pose[sel, None, :3, 3]
+        P = pred.pose[:, None, :3, 3]
+        m = np.ones((sel.size, 1), bool)
+    else:
+        meas, P, m = ds.spheres[sel], pred.spheres, ds.sphere_seen[sel]
+    d = np.where(m, np.linalg.norm(np.where(m[..., None], meas - P, 0.0), axis=-1), 0.0)
+    miss = d.sum(axis=1) / m.sum(axis=1)
+    keep = np.sort(miss)[: max(1, int(np.ceil((1.0 - trim) * miss.size)))]
+    st = ds.station_ids[sel]
+    spreads = []
+    for s_ in np.unique(st):
+        pts = meas[st == s_][m[st == s_]]
+        if pts.shape[0] >= 3:
+            spreads.append(float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1)))))
+    if not spreads:
+        return None
+    spread = float(np.median(spreads))
+    rms = float(np.sqrt(np.mean(keep**2)))
+    return {"miss_rms_m": rms, "spread_m": spread, "fraction": rms / spread if spread > 0 else float("inf"),
+            "rows": int(sel.size), "trim": float(trim)}
+
+
+def check_fit_miss(miss: dict | None, *, limit: float = MAX_MISS_FRACTION) -> None:
+    """:class:`ImplausibleData` when the calibrated model misses its own calibration rows (:func:`fit_miss`) by
+    ``limit`` or more of how far they move: no robot's non-geometric errors are that large beside its motion; the
+    data are mislabelled (joint columns swapped or in another order, rows of several stations without their
+    ``station`` column, another robot)."""
+    if miss is None:
         return
-    ratio = fit_rms_per_coordinate_m / max(sigma_plate_m, min_sigma_m)
-    if ratio >= limit:
-        raise ImplausibleData(f"the model cannot fit these data: the residual ({fit_rms_per_coordinate_m * 1e3:.4g} mm "
-                              f"per coordinate) is {ratio:.0f}x the instrument's error seen in the plate's sphere "
-                              "distances (rows of several camera stations without a 'station' column? wrong robot or "
-                              "joint order?)")
+    if miss["fraction"] >= limit:
+        raise ImplausibleData(
+            f"the model cannot fit these data: the calibrated robot misses its calibration rows by "
+            f"{miss['miss_rms_m'] * 1e3:.4g} mm RMS (the worst {miss['trim']:.0%} left out), {miss['fraction']:.0%} of the "
+            f"{miss['spread_m'] * 1e3:.4g} mm the measured positions move over the campaign: no robot's own errors are "
+            "that large (joint columns swapped or in the wrong order, rows of several stations without their 'station' "
+            "column, another robot?)")

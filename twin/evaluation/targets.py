@@ -1,8 +1,8 @@
 """The papers' published numbers: *targets* printed beside ours, never results.
 
-``experiments/paper_targets_separation.toml`` holds the separation paper's Figures 10/11/13/15 statistics and
-its Tables 3/5 identified values; ``experiments/paper_targets_tmmdh.toml`` the TM-MDH paper's. This module only
-reads them; nothing computed by the library is in them.
+``twin/data/paper_targets_separation.toml`` (package data) holds the separation paper's Figures 10/11/13/15
+statistics and its Tables 3/5 identified values; ``twin/data/paper_targets_tmmdh.toml`` the TM-MDH paper's. This
+module only reads them; nothing computed by the library is in them.
 
 A target the paper's own text shows to be a slip or synthetic (e.g. the separation paper's Table 5 entries
 that are exactly 0.95 x the Table 4 presets) is flagged in an ``[[unscored]]`` entry of the file::
@@ -20,14 +20,17 @@ from __future__ import annotations
 import os
 import re
 import tomllib
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any, Mapping
+
+from ..resources import data_file
 
 __all__ = ["DEFAULT_SEPARATION_TARGETS", "DEFAULT_TMMDH_TARGETS", "read_targets", "target_value", "unscored_targets",
            "scored_value"]
 
-DEFAULT_SEPARATION_TARGETS = Path(__file__).resolve().parents[2] / "experiments" / "paper_targets_separation.toml"
-DEFAULT_TMMDH_TARGETS = Path(__file__).resolve().parents[2] / "experiments" / "paper_targets_tmmdh.toml"
+DEFAULT_SEPARATION_TARGETS = data_file("paper_targets_separation.toml")
+DEFAULT_TMMDH_TARGETS = data_file("paper_targets_tmmdh.toml")
 
 _PART = re.compile(r"^([A-Za-z0-9_']+)((?:\[\d+\])*)$")
 
@@ -49,7 +52,7 @@ def target_value(data: Mapping[str, Any], path: str) -> Any:
     return cur
 
 
-def _check_unscored(data: Mapping[str, Any], p: Path) -> None:
+def _check_unscored(data: Mapping[str, Any], p: Path | Traversable) -> None:
     entries = data.get("unscored", [])
     if not isinstance(entries, list):
         raise ValueError(f"{p}: unscored must be an array of tables ([[unscored]])")
@@ -72,16 +75,19 @@ def _check_unscored(data: Mapping[str, Any], p: Path) -> None:
             raise ValueError(f"{where}: path {path!r} must name a number, got {v!r}")
 
 
-def read_targets(path: str | os.PathLike | None = None) -> dict[str, Any]:
-    """The targets file as a dict (units as in the paper). ``ValueError`` naming the file when unusable,
-    including an ``[[unscored]]`` entry that is malformed or names no number of the file."""
-    p = Path(path) if path is not None else DEFAULT_SEPARATION_TARGETS
-    if not p.exists():
-        raise ValueError(f"targets file {p} does not exist")
+def read_targets(path: str | os.PathLike | Traversable | None = None) -> dict[str, Any]:
+    """The targets file as a dict (units as in the paper); default the separation paper's (package data).
+    ``ValueError`` naming the file when unusable, including an ``[[unscored]]`` entry that is malformed or names
+    no number of the file."""
+    p = DEFAULT_SEPARATION_TARGETS if path is None else path if isinstance(path, Traversable) else Path(path)
+    if not p.is_file():
+        raise ValueError(f"targets file {p} does not exist (or is not a file)")
     try:
-        data = tomllib.loads(p.read_text())
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     if data.get("schema_version") != 1:
         raise ValueError(f"{p}: unknown schema_version {data.get('schema_version')!r} (this reader knows 1)")
     _check_unscored(data, p)

@@ -8,16 +8,18 @@ image-folder reader and the dataset writer around it. See ``docs/instrument.md``
 from .calibration import BoardSpec, BoardView, StereoCalibration, ViewReport, calibrate_stereo, detect_board
 from .detect import DetectorConfig, SphereImage, detect_spheres
 from .folder import (
+    MeasuredRowsWriter,
     MeasureSummary,
     RigSpec,
     calibrate_folder,
     measure_folder,
+    instrument_provenance,
     measure_to_dataset,
     read_plate_toml,
     read_rig_toml,
 )
 from .geometry import ConeFit, Ellipse, fit_cone, fit_cone_robust, pixels_to_rays, triangulate_rays
-from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair
+from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair, status_reasons
 from .plate import PlateFit, label_by_distances, paper_euler_zyx_deg, paper_frame_from_spheres, plate_pose_from_spheres
 
 __all__ = [
@@ -31,6 +33,8 @@ __all__ = [
     "SphereImage",
     "detect_spheres",
     "MeasureSummary",
+    "MeasuredRowsWriter",
+    "instrument_provenance",
     "RigSpec",
     "calibrate_folder",
     "measure_folder",
@@ -46,6 +50,7 @@ __all__ = [
     "MeasureConfig",
     "PairMeasurement",
     "format_status",
+    "status_reasons",
     "measure_pair",
     "PlateFit",
     "label_by_distances",

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraIntrinsics
+from ..dataset import read_text
 from .detect import as_gray
 
 __all__ = [
@@ -263,7 +264,7 @@ class StereoCalibration:
         if not p.exists():
             raise ValueError(f"{p}: no such stereo-calibration file")
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(read_text(p, ValueError))
         except json.JSONDecodeError as exc:
             raise ValueError(f"{p}: not valid JSON ({exc})") from None
         return cls.from_dict(d, str(p))

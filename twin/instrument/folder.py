@@ -6,8 +6,11 @@ camera rig produces::
     IMAGES/rig.toml  joints.csv  board/<k>_left.png  board/<k>_right.png  pairs/<pose_id>_left.png ...
 
 Nothing here depends on the images having been rendered. The in-memory entry point
-:func:`measure_to_dataset` (joints + an iterable of image pairs) is what a campaign calls without writing
-images; :func:`measure_folder` wraps it for a folder.
+:func:`measure_to_dataset` (joints + an iterable of image pairs) measures pairs given as arrays;
+:func:`measure_folder` wraps it for a folder. :class:`MeasuredRowsWriter` is the one writer of measured rows
+(``poses.csv``) and of their summary: the folder measurement and the runner (``twin campaign``,
+``twin measure --render``) both write through it, and :func:`instrument_provenance` is the instrument's part of
+a measured dataset's provenance.
 """
 
 from __future__ import annotations
@@ -30,16 +33,20 @@ from ..dataset import (
     Joints,
     Plate,
     PoseRow,
+    open_text,
     read_dataset,
     read_joints_csv,
+    read_text,
     write_dataset_toml,
 )
 from .calibration import BoardSpec, StereoCalibration, calibrate_stereo
-from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair
+from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair, status_reasons
 
 __all__ = [
     "RigSpec",
     "MeasureSummary",
+    "MeasuredRowsWriter",
+    "instrument_provenance",
     "read_rig_toml",
     "read_image",
     "board_view_files",
@@ -72,8 +79,7 @@ def read_rig_toml(path: str | os.PathLike) -> RigSpec:
     if not p.exists():
         raise ValueError(f"{p}: missing (an image folder holds rig.toml, joints.csv, board/ and pairs/)")
     try:
-        with open(p, "rb") as f:
-            d = tomllib.load(f)
+        d = tomllib.loads(read_text(p, ValueError))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML ({exc})") from None
     if d.get("schema_version") != RIG_SCHEMA_VERSION:
@@ -94,8 +100,7 @@ def read_plate_toml(path: str | os.PathLike) -> Plate:
     """The ``[plate]`` table (``sphere_diameter_mm``, ``spheres_mm``) of a TOML file, e.g. a ``dataset.toml``."""
     p = Path(path)
     try:
-        with open(p, "rb") as f:
-            d = tomllib.load(f)
+        d = tomllib.loads(read_text(p, ValueError))
     except FileNotFoundError:
         raise ValueError(f"{p}: no such plate file") from None
     except tomllib.TOMLDecodeError as exc:
@@ -197,9 +202,96 @@ class MeasureSummary:
         }
 
 
+def instrument_provenance(calib: StereoCalibration, bias_correction: bool) -> str:
+    """The instrument's part of a measured dataset's ``provenance``: the stereo calibration it used and how the
+    sphere centres were measured."""
+    return (
+        f"instrument: stereo calibration from {calib.n_views_used} board views (RMS {calib.rms_px:.3f} px, "
+        f"baseline {calib.baseline * 1e3:.2f} mm); sphere centres from sub-pixel outlines, "
+        f"{'cone (perspective-bias) corrected' if bias_correction else 'ellipse centres (no perspective-bias correction)'}"
+    )
+
+
+class MeasuredRowsWriter:
+    """The one writer of measured rows: ``poses.csv`` of a dataset folder, streamed one row at a time (a run that
+    stops loses nothing already measured), and the tally a :class:`MeasureSummary` reports.
+
+    ``columns``: the optional columns besides ``status`` (``set``, ``station``, ``pair``, ``temp_c``, ``t_s``);
+    :meth:`write` takes a value for each. The caller writes ``dataset.toml``. Use as a context manager, then
+    :meth:`summary`.
+    """
+
+    COLUMNS = ("set", "station", "pair", "temp_c", "t_s")
+
+    def __init__(self, folder: str | os.PathLike, columns: Sequence[str] = ()) -> None:
+        unknown = set(columns) - set(self.COLUMNS)
+        if unknown:
+            raise ValueError(f"columns: unknown {sorted(unknown)}; known: {list(self.COLUMNS)}")
+        self.folder = Path(folder)
+        self.columns = tuple(c for c in self.COLUMNS if c in set(columns))
+        self._w = DatasetWriter(self.folder, spheres=True, optional=["status", *self.columns])
+        self.n_rows = self.n_complete = self.n_spheres = 0
+        self.reasons: collections.Counter = collections.Counter()
+        self.times: list[float] = []
+
+    def write(self, pose_id: int, q: np.ndarray, spheres: Sequence[np.ndarray | None], status: str, *,
+              time_s: float | None = None, **values: Any) -> PoseRow:
+        """One row: commanded joints ``q`` ``(6,)`` [rad], the sphere centres (each ``(3,)`` [m] or None), the
+        ``status`` cell (:func:`format_status`), a value for each of :attr:`columns` (``pair`` < 0: none), and
+        the measurement's wall time ``time_s`` [s] when it counts in the summary."""
+        if set(values) != set(self.columns):
+            raise ValueError(f"pose_id {pose_id}: values for {sorted(values)}, the writer's columns are "
+                             f"{list(self.columns)}")
+        pair = values.get("pair")
+        row = PoseRow(
+            pose_id=int(pose_id),
+            q=q,
+            spheres=list(spheres),
+            set=None if values.get("set") is None else str(values["set"]),
+            station=None if values.get("station") is None else str(values["station"]),
+            pair=None if pair is None or int(pair) < 0 else int(pair),
+            temp_c=None if values.get("temp_c") is None else float(values["temp_c"]),
+            t_s=None if values.get("t_s") is None else float(values["t_s"]),
+            status=status,
+        )
+        self._w.write(row)
+        seen = sum(s is not None for s in row.spheres)
+        self.n_rows += 1
+        self.n_spheres += seen
+        self.n_complete += int(seen == len(row.spheres))
+        self.reasons.update(status_reasons(status))
+        if time_s is not None:
+            self.times.append(float(time_s))
+        return row
+
+    def close(self) -> None:
+        self._w.close()
+
+    def __enter__(self) -> "MeasuredRowsWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def path(self) -> Path:
+        return self._w.path
+
+    def summary(self, calib: StereoCalibration) -> "MeasureSummary":
+        """Counts, reasons and times of the rows written, with the dataset read back to validate it (a failure,
+        e.g. too many incomplete rows, is reported in the summary, not raised). Call after closing."""
+        err = ""
+        try:
+            read_dataset(self.folder)
+        except DatasetError as exc:
+            err = str(exc)
+        return MeasureSummary(self.folder, self.n_rows, self.n_complete, self.n_spheres, dict(self.reasons),
+                              tuple(self.times), calib, err)
+
+
 def _read_pair_column(path: Path) -> np.ndarray | None:
     """The optional ``pair`` column of ``joints.csv`` (``twin.dataset.read_joints_csv`` leaves it out)."""
-    with open(path, newline="") as f:
+    with open_text(path, ValueError) as f:
         rows = list(csv.DictReader(f))
     if not rows or "pair" not in rows[0]:
         return None
@@ -242,24 +334,13 @@ def measure_to_dataset(
     n = len(joints.pose_id)
     if pair is not None and len(pair) != n:
         raise ValueError(f"pair: {len(pair)} entries for {n} rows of joints")
-    prov = provenance or "twin measure"
-    prov += (
-        f"; instrument: stereo calibration from {calib.n_views_used} board views (RMS {calib.rms_px:.3f} px, "
-        f"baseline {calib.baseline * 1e3:.2f} mm); sphere centres from sub-pixel outlines, "
-        f"{'cone (perspective-bias) corrected' if bias_correction else 'ellipse centres (no perspective-bias correction)'}"
-    )
+    prov = f"{provenance or 'twin measure'}; {instrument_provenance(calib, bias_correction)}"
     write_dataset_toml(out, robot, plate, provenance=prov)
-    optional = ["status"]
-    for c in ("set", "station", "temp_c", "t_s"):
-        if getattr(joints, c) is not None:
-            optional.append(c)
+    columns = {c: getattr(joints, c) for c in ("set", "station", "temp_c", "t_s") if getattr(joints, c) is not None}
     if pair is not None:
-        optional.append("pair")
-    reasons: collections.Counter = collections.Counter()
-    times: list[float] = []
-    n_complete = n_spheres = 0
+        columns["pair"] = pair
     it = iter(image_pairs)
-    with DatasetWriter(out, spheres=True, optional=optional) as w:
+    with MeasuredRowsWriter(out, columns=list(columns)) as w:
         for k in range(n):
             try:
                 left, right = next(it)
@@ -271,39 +352,15 @@ def measure_to_dataset(
                      if im is not None and np.shape(im)[:2] != (calib.left.height, calib.left.width)]
             if missing or wrong:
                 why = "/".join([f"image_missing({s})" for s in missing] + [f"image_size({s})" for s in wrong])
-                status = format_status([why] * 3)
-                spheres = [None, None, None]
-                reasons[why] += 3
+                status, spheres, time_s = format_status([why] * 3), [None, None, None], None
             else:
                 m = measure_pair(left, right, calib, plate, bias_correction=bias_correction, config=config)
-                times.append(m.time_s)
-                spheres = list(m.centres)
-                status = m.status
-                for r in m.reasons:
-                    if r:
-                        reasons[re.sub(r"\([0-9.]+(px|%)\)", "", r)] += 1
-                n_spheres += int(m.measured.sum())
-                n_complete += int(m.complete)
-            row = PoseRow(
-                pose_id=int(joints.pose_id[k]),
-                q=joints.q[k],
-                spheres=spheres,
-                set=None if joints.set is None else str(joints.set[k]),
-                station=None if joints.station is None else str(joints.station[k]),
-                pair=None if pair is None or pair[k] < 0 else int(pair[k]),
-                temp_c=None if joints.temp_c is None else float(joints.temp_c[k]),
-                t_s=None if joints.t_s is None else float(joints.t_s[k]),
-                status=status,
-            )
-            w.write(row)
+                status, spheres, time_s = m.status, list(m.centres), m.time_s
+            row = w.write(joints.pose_id[k], joints.q[k], spheres, status, time_s=time_s,
+                          **{c: v[k] for c, v in columns.items()})
             if on_row is not None:
                 on_row(k, row, m)
-    err = ""
-    try:
-        read_dataset(out)
-    except DatasetError as exc:
-        err = str(exc)
-    return MeasureSummary(out, n, n_complete, n_spheres, dict(reasons), tuple(times), calib, err)
+    return w.summary(calib)
 
 
 def measure_folder(

@@ -23,6 +23,7 @@ Steps (all pure, arrays in, results out):
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -35,7 +36,7 @@ from .detect import DetectorConfig, SphereImage, as_gray, detect_spheres
 from .geometry import epipolar_distance_px, pixels_to_rays, rays_to_pixels, triangulate_rays
 from .plate import PlateFit, check_plate_labelable, label_by_distances, plate_pose_from_spheres
 
-__all__ = ["MeasureConfig", "PairMeasurement", "measure_pair", "format_status"]
+__all__ = ["MeasureConfig", "PairMeasurement", "measure_pair", "format_status", "status_reasons"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,19 @@ class MeasureConfig:
 def format_status(reasons) -> str:
     """``status`` cell from per-sphere reasons: ``"p0:occluded(left);p2:not_found"`` (empty if all measured)."""
     return ";".join(f"p{k}:{r}" for k, r in enumerate(reasons) if r)
+
+
+_NUMBER = re.compile(r"\([0-9.]+(px|%)\)")
+
+
+def status_reasons(status: str) -> list[str]:
+    """The per-sphere reasons of a ``status`` cell (:func:`format_status`), each reduced to its kind: numbers in
+    parentheses dropped (``"occluded(left)"`` stays, ``"epipolar(3.2px)"`` becomes ``"epipolar"``)."""
+    out = []
+    for part in filter(None, status.split(";")):
+        _, _, why = part.partition(":")
+        out.append(_NUMBER.sub("", why))
+    return out
 
 
 @dataclass(frozen=True, eq=False)

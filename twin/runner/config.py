@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import FLIP_MUJOCO_OPENCV, CameraIntrinsics
-from ..dataset import Plate, default_plate
+from ..dataset import Plate, default_plate, read_text
 from ..kinematics import RobotModel
 from ..transforms import invert_transform, make_transform, pose6_to_transform
 from ..world.config import WorldConfig, nominal_robot_from_spec
@@ -478,7 +478,7 @@ def load_campaign_config(path: str | os.PathLike, *, quick: bool = False) -> Cam
     if not p.exists():
         raise ValueError(f"campaign config {p} does not exist")
     try:
-        raw = tomllib.loads(p.read_text())
+        raw = tomllib.loads(read_text(p, ValueError))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{p}: not valid TOML: {exc}") from None
     return parse_campaign_config(raw, source=p, quick=quick)

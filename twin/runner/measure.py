@@ -20,8 +20,8 @@ built from the plan by :func:`twin.world.effects.contexts_for_sequence`, and its
 task's seed; so a pose measured again after a resume, or in another process, gives the same numbers. A task
 without a seed takes the world's own image counter (one process, poses in order: ``twin measure --render``).
 
-:func:`write_measured_dataset` writes the rows (``poses.csv``) of measured poses; each caller writes its own
-``dataset.toml``. With a work folder, every measurement appends one line to ``<work>/renders.log`` (the resume
+:func:`write_measured_dataset` writes the rows (``poses.csv``) of measured poses through the instrument's one
+row writer (:class:`twin.instrument.folder.MeasuredRowsWriter`); each caller writes its own ``dataset.toml``. With a work folder, every measurement appends one line to ``<work>/renders.log`` (the resume
 test counts them).
 """
 
@@ -32,7 +32,6 @@ import hashlib
 import importlib
 import json
 import os
-import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,8 +39,9 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from ..dataset import DatasetWriter, Plate, PoseRow
+from ..dataset import Plate
 from ..evaluation.images import encode_image
+from ..instrument.folder import MeasuredRowsWriter
 from ..transforms import invert_transform
 from .config import CampaignConfig
 from .executor import run_tasks, worker_identity
@@ -61,7 +61,6 @@ __all__ = [
     "setup_from_campaign",
     "StationTruth",
     "write_measured_dataset",
-    "status_reasons",
 ]
 
 Progress = Callable[[str, int, int], None]  # (phase, done, total)
@@ -509,10 +508,11 @@ def measure_tasks(executor: cf.Executor, spec: BackendSpec, tasks: Sequence[Pose
 def write_measured_dataset(folder: str | os.PathLike, results: Sequence[PoseResult], q: np.ndarray | None = None, *,
                            set: Sequence[str] | None = None, station: Sequence[str] | None = None,
                            pair: Sequence[int] | None = None, t_s: Sequence[float] | None = None,
-                           temp_c: Sequence[float] | None = None) -> Path:
+                           temp_c: Sequence[float] | None = None) -> MeasuredRowsWriter:
     """``poses.csv`` of measured poses, in the order given: ``pose_id``, the commanded joints (``q`` ``(n, 6)``
     [rad], default each result's own), the measured sphere centres, ``status``, and the optional columns given
-    (``pair`` ``-1`` for a row outside a pair). The caller writes ``dataset.toml``."""
+    (``pair`` ``-1`` for a row outside a pair). The caller writes ``dataset.toml``. Returns the closed writer
+    (its ``path``; its ``summary(calib)`` counts the rows, their reasons and measurement times)."""
     n = len(results)
     cols = {"set": set, "station": station, "pair": pair, "t_s": t_s, "temp_c": temp_c}
     for name, v in cols.items():
@@ -520,28 +520,9 @@ def write_measured_dataset(folder: str | os.PathLike, results: Sequence[PoseResu
             raise ValueError(f"{name}: {len(v)} entries for {n} measured poses")
     if q is not None and np.shape(q) != (n, 6):
         raise ValueError(f"q must be ({n}, 6) [rad], got {np.shape(q)}")
-    optional = ["status"] + [k for k, v in cols.items() if v is not None]
-    with DatasetWriter(folder, spheres=True, optional=optional) as w:
+    given = {k: v for k, v in cols.items() if v is not None}
+    with MeasuredRowsWriter(folder, columns=list(given)) as w:
         for k, r in enumerate(results):
-            w.write(PoseRow(
-                pose_id=int(r.pose_id),
-                q=r.q if q is None else q[k],
-                spheres=list(r.spheres),
-                set=None if set is None else str(set[k]),
-                station=None if station is None else str(station[k]),
-                pair=None if pair is None or int(pair[k]) < 0 else int(pair[k]),
-                status=r.status,
-                temp_c=None if temp_c is None else float(temp_c[k]),
-                t_s=None if t_s is None else float(t_s[k]),
-            ))
-    return Path(folder) / "poses.csv"
-
-
-def status_reasons(status: str) -> list[str]:
-    """The per-sphere reasons of a ``status`` cell (``"p0:occluded(left);p2:not_found"``), numbers in
-    parentheses dropped (``"occluded(left)"`` stays, ``"epipolar(3.2px)"`` becomes ``"epipolar"``)."""
-    out = []
-    for part in filter(None, status.split(";")):
-        _, _, why = part.partition(":")
-        out.append(re.sub(r"\([0-9.]+(px|%)\)", "", why))
-    return out
+            w.write(r.pose_id, r.q if q is None else q[k], r.spheres, r.status,
+                    time_s=r.timings.get("measure_s"), **{c: v[k] for c, v in given.items()})
+    return w

@@ -21,12 +21,17 @@ _MM = 1e-3
 
 
 def code_version() -> dict[str, Any]:
-    """The git commit of the library (and whether the tree had changes), when it runs from a checkout."""
-    root = Path(__file__).resolve().parents[2]
+    """The git commit of the library (and whether the tree had changes), when it runs from a checkout: the git
+    work tree whose ``twin/`` is this package's folder (an installed copy inside some other repository has none)."""
+    package = Path(__file__).resolve().parent.parent
     try:
-        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+        top = subprocess.run(["git", "-C", str(package), "rev-parse", "--show-toplevel"], capture_output=True,
+                             text=True, timeout=10).stdout.strip()
+        if not top or Path(top).resolve() / "twin" != package:
+            return {}
+        commit = subprocess.run(["git", "-C", top, "rev-parse", "HEAD"], capture_output=True, text=True,
                                 timeout=10).stdout.strip()
-        dirty = bool(subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "twin"],
+        dirty = bool(subprocess.run(["git", "-C", top, "status", "--porcelain", "--", "twin"],
                                     capture_output=True, text=True, timeout=10).stdout.strip())
     except (OSError, subprocess.SubprocessError):
         return {}

@@ -14,12 +14,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..dataset import DatasetError, Joints, Plate, read_dataset, write_dataset_toml
-from ..instrument.folder import CALIBRATION_FILE, MeasureSummary
+from ..dataset import Joints, Plate, write_dataset_toml
+from ..instrument.folder import CALIBRATION_FILE, MeasureSummary, instrument_provenance
 from ..world.effects import contexts_for_sequence
 from ..world.truth import write_truth
 from .executor import SerialExecutor
-from .measure import BACKENDS, BackendSpec, InstrumentSetup, PoseTask, get_backend, measure_tasks, status_reasons
+from .measure import BACKENDS, BackendSpec, InstrumentSetup, PoseTask, get_backend, measure_tasks
 from .measure import write_measured_dataset
 from .store import MemoryStore, PoseResult
 
@@ -98,25 +98,11 @@ def measure_rendered(
     results = [store.read(t.key) for t in tasks]
     if robot is None:
         robot = w.config.robot if isinstance(w.config.robot, str) else "irb1200"
-    prov = (provenance or f"twin measure --render (world seed {w.config.seed})") + (
-        f"; instrument: stereo calibration from {calib.n_views_used} board views (RMS {calib.rms_px:.3f} px, "
-        f"baseline {calib.baseline * 1e3:.2f} mm); sphere centres from sub-pixel outlines, "
-        f"{'cone (perspective-bias) corrected' if bias_correction else 'ellipse centres (no perspective-bias correction)'}"
-    )
+    prov = provenance or f"twin measure --render (world seed {w.config.seed})"
+    prov = f"{prov}; {instrument_provenance(calib, bias_correction)}"
     write_dataset_toml(out, robot, backend.plate, provenance=prov)
-    write_measured_dataset(out, results, joints.q, set=joints.set, station=joints.station, t_s=joints.t_s,
-                           temp_c=joints.temp_c)
+    rows = write_measured_dataset(out, results, joints.q, set=joints.set, station=joints.station, t_s=joints.t_s,
+                                  temp_c=joints.temp_c)
     write_truth(Path(truth) if truth is not None else out.parent / "truth.json", backend.truth_record(results))
     w.close()
-    reasons: dict[str, int] = {}
-    for r in results:
-        for why in status_reasons(r.status):
-            reasons[why] = reasons.get(why, 0) + 1
-    seen = [sum(s is not None for s in r.spheres) for r in results]
-    err = ""
-    try:
-        read_dataset(out)
-    except DatasetError as exc:
-        err = str(exc)
-    return MeasureSummary(out, n, sum(k == 3 for k in seen), sum(seen), reasons,
-                          tuple(float(r.timings.get("measure_s", 0.0)) for r in results), calib, err)
+    return rows.summary(calib)

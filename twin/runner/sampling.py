@@ -2,7 +2,7 @@
 
 Everything here plans with the *nominal* robot and the *nominal* camera placement, as an operator would:
 a pose is accepted when every sphere of the plate, with its projected radius plus a margin, falls inside
-every camera image of the station (:func:`twin.camera.project_points`) and the plate faces the cameras.
+every camera image of the station (:func:`twin.camera.spheres_in_view`) and the plate faces the cameras.
 The world may still find a sphere hidden (the true robot differs by millimetres; a link may occlude);
 the instrument then reports it and the campaign keeps the row with its status.
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import CameraIntrinsics, discs_in_image, project_points
+from ..camera import CameraIntrinsics, spheres_in_view
 from ..dataset import Plate
 from ..kinematics import (
     IKSolutions,
@@ -200,15 +200,7 @@ def plate_in_view(
     r = 0.5 * plate.sphere_diameter
     for cam in station.cameras:
         pc = spheres.reshape(-1, 3) @ cam.base2cam[:3, :3].T + cam.base2cam[:3, 3]
-        z = pc[:, 2]
-        front = (z > r * 2).reshape(-1, 3).all(axis=1)
-        ok &= front
-        if not np.any(front):
-            continue
-        idx = np.flatnonzero(front)
-        uv = project_points(spheres[idx].reshape(-1, 3), cam.base2cam, cam.intrinsics).reshape(-1, 3, 2)
-        rad = (cam.intrinsics.fx * r / z.reshape(-1, 3)[idx]) + opt.margin_px
-        ok[idx] &= discs_in_image(uv, rad, cam.intrinsics.width, cam.intrinsics.height).all(axis=1)
+        ok &= spheres_in_view(pc.reshape(-1, 3, 3), cam.intrinsics, radius=r, margin_px=opt.margin_px, min_depth=r * 2)
     return ok
 
 

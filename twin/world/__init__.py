@@ -4,11 +4,7 @@ Commanded joints in, rendered 8-bit greyscale stereo images out; the truth goes 
 (read by evaluation). See ``docs/world.md``.
 """
 
-import os as _os
-
-_os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported anywhere below
-
-from .config import (  # noqa: E402
+from .config import (
     BoardConfig,
     PlateConfig,
     RenderConfig,
@@ -18,7 +14,7 @@ from .config import (  # noqa: E402
     default_stations,
     load_world_config,
 )
-from .effects import (  # noqa: E402
+from .effects import (
     BaseEffect,
     ConstantJointOffset,
     Effect,
@@ -27,7 +23,7 @@ from .effects import (  # noqa: E402
     as_effect,
     contexts_for_sequence,
 )
-from .effects_catalogue import (  # noqa: E402
+from .effects_catalogue import (
     EFFECT_TYPES,
     Backlash,
     Compliance,
@@ -39,7 +35,7 @@ from .effects_catalogue import (  # noqa: E402
     effect_from_spec,
     register_effect,
 )
-from .world import BoardView, Capture, World  # noqa: E402
+from .world import BoardView, Capture, World
 
 __all__ = [
     "World",

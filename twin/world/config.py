@@ -465,6 +465,9 @@ class WorldConfig:
                     f"world.preset {preset!r} applies to robot {preset_robot(preset)!r}, not {robot_name!r}"
                 )
         nominal = nominal_robot_from_spec(robot)
+        if nominal.convention in ("mdh", "dh") and nominal.n_joints != 6:
+            raise ValueError(f"world.robot: the twin's world builds 6-joint DH arms; this table has {nominal.n_joints} "
+                             "joints (a dataset.toml may hold a DH table of any length)")
         errors = errors_from_edge_units(cfg.get("errors", {}) or {}, nominal.layout, "world.errors")
         rnd = cfg.get("random_errors", {}) or {}
         check_keys(rnd, {"length_sigma_mm", "angle_sigma_deg"}, "world.random_errors")
@@ -531,10 +534,11 @@ def nominal_robot_from_spec(spec: Any) -> RobotModel:
 
 def load_world_config(path: str | os.PathLike) -> WorldConfig:
     """Read a TOML file holding a ``[world]`` table (a campaign config or ``experiments/world_default.toml``)."""
+    from ..dataset import read_text
+
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = tomllib.loads(read_text(path, ValueError))
     except FileNotFoundError:
         raise ValueError(f"{path}: world config file not found") from None
     except tomllib.TOMLDecodeError as exc:

@@ -14,8 +14,8 @@ The robot base body sits at ``robot.base2meas`` in the MuJoCo world frame (the w
 ``base2world``), the ``plate`` body at ``robot.tool2flange`` in the flange body, with a site ``plate``
 at its origin (the tool frame) and sites ``sphere0..2`` at the sphere centres.
 
-Static parts (rendering settings, materials, rig with cameras and lights, board, backdrop) are the files
-under ``models/``; :func:`compose_twin_xml` merges them with the generated robot and rewrites the
+Static parts (rendering settings, materials, rig with cameras and lights, board, backdrop) are the package's
+data files ``twin/data/models/*.xml`` (:func:`twin.resources.model_file`); :func:`compose_twin_xml` merges them with the generated robot and rewrites the
 config-dependent attributes (camera placement and field of view, backdrop distance, board size and
 texture).
 """
@@ -25,15 +25,14 @@ from __future__ import annotations
 import copy
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel, link_frames, link_transforms
+from ..resources import model_file
 from ..transforms import invert_transform, matrix_to_quat_wxyz, matrix_to_rotvec
 
 __all__ = [
-    "MODELS_DIR",
     "JointGeometry",
     "joint_geometry",
     "RobotVisual",
@@ -46,8 +45,6 @@ __all__ = [
     "GROUP_PROBE",
     "GROUP_BACKDROP",
 ]
-
-MODELS_DIR = Path(__file__).resolve().parent.parent.parent / "models"
 
 # Geom groups: the renderer shows the groups each kind of image needs (pairs hide the board, board views
 # hide the arm and plate, the probe image shows the probe only).
@@ -340,10 +337,7 @@ def robot_body_element(
 # ------------------------------------------------------------------------------------------------
 
 def _load_static(name: str) -> ET.Element:
-    path = MODELS_DIR / name
-    if not path.exists():
-        raise FileNotFoundError(f"static scene file {path} is missing")
-    return ET.parse(path).getroot()
+    return ET.fromstring(model_file(name).read_bytes())
 
 
 def _merge_section(dst: ET.Element, src: ET.Element, tag: str) -> None:

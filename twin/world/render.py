@@ -325,10 +325,15 @@ class ImageFormer:
             self._gl.make_current()
         except mujoco.FatalError as exc:
             raise RuntimeError(
-                f"MuJoCo could not open an offscreen GL context ({exc}); rendering needs MUJOCO_GL=egl, which "
-                "twin sets only if it is imported before mujoco: import twin first or export MUJOCO_GL=egl"
+                f"MuJoCo could not open an offscreen GL context ({exc}); rendering needs MUJOCO_GL=egl set before "
+                "mujoco is imported: export it, or call twin.runtime.set_process_defaults() first (the twin command does)"
             ) from exc
         limit = gl_max_renderbuffer_px()
+        if limit == 0:  # a context that cannot render (MuJoCo's GLFW default without a display)
+            self._gl.free()
+            raise RuntimeError("MuJoCo opened no usable offscreen GL context; rendering needs MUJOCO_GL=egl set before "
+                               "mujoco is imported: export it, or call twin.runtime.set_process_defaults() first "
+                               "(the twin command does)")
         if limit is not None and max(rw, rh) > limit:
             self._gl.free()
             raise ValueError(f"render {rw}x{rh} (image {self.width}x{self.height}, supersample {s}) exceeds this "

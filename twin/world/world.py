@@ -19,13 +19,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: offscreen rendering through Mesa EGL
-
 import cv2
 import mujoco
 import numpy as np
 
-from ..camera import discs_in_image
+from ..camera import spheres_in_view
 from ..dataset import Plate, default_plate
 from ..kinematics import N_JOINTS, RobotModel, UnreachableError, closest_branch, inverse_kinematics_closed_form
 from ..transforms import invert_transform, make_transform, pose6_to_transform, rotvec_to_matrix
@@ -339,7 +337,6 @@ class World(WorldGeometry, WorldRobot, WorldImaging):
         st = self.config.stations[station]
         base2world_nominal = pose6_to_transform(self.config.mount_pose6)
         world2base = invert_transform(base2world_nominal)
-        w, h = self.image_size
         margin = margin_px * self.config.render.scale
         r_px = 0.5 * self.nominal_plate.sphere_diameter * self._pipes[0].intr.fx / self.config.rig.standoff
         nominal = self.nominal_robot
@@ -380,7 +377,8 @@ class World(WorldGeometry, WorldRobot, WorldImaging):
             except UnreachableError:
                 continue
             spheres = self.true_spheres_meas(q, station)
-            ok = all(discs_in_image(uv, margin + r_px, w, h).all() for uv in self.project_spheres(spheres, station))
+            ok = all(spheres_in_view(spheres @ T[:3, :3].T + T[:3, 3], intr, margin_px=margin + r_px)
+                     for T, intr in zip((np.eye(4), self.true_left2right()), self.true_intrinsics()))
             if ok and not self.spheres_occluded(q, station):
                 out.append(q)
         return np.array(out)

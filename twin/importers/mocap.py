@@ -35,9 +35,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .dataset import Dataset, DatasetError, Plate, write_dataset
-from .kinematics import RobotModel, flange2base
-from .transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
+from ..dataset import Dataset, DatasetError, Plate, open_text, write_dataset
+from ..kinematics import RobotModel, flange2base
+from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
@@ -71,14 +71,14 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     ``marker_unit``: the unit of the ``x1..zK`` columns (``"m"`` as FIGAROH writes them, or ``"mm"``).
     :class:`~twin.dataset.DatasetError` naming the file, the row and the column: missing file, missing joint
     columns, no marker columns, empty or non-numeric cells."""
-    from .dataset import LENGTH_UNITS
+    from ..dataset import LENGTH_UNITS
 
     path = Path(path)
     if marker_unit not in LENGTH_UNITS:
         raise ValueError(f"marker_unit must be one of {sorted(LENGTH_UNITS)}, got {marker_unit!r}")
     if not path.is_file():
         raise DatasetError(f"{path}: no such mocap CSV")
-    with open(path, newline="") as f:
+    with open_text(path) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]
@@ -250,7 +250,7 @@ def import_mocap(
     position-only dataset); the body frame is built from all points. ``noise_position_mm``: the instrument's
     noise per coordinate written to ``[noise]`` (default: none, the estimator estimates it). Returns the
     written :class:`~twin.dataset.Dataset`."""
-    from .urdf import read_urdf_chain
+    from ..urdf import read_urdf_chain
 
     if not files:
         raise ValueError("files: give at least one (csv, set) pair")

@@ -1,0 +1,1030 @@
+"""Column-map import: the laser-tracker and motion-capture CSVs people have -> a dataset folder (``twin import
+--map``). The map format is ``docs/formats.md`` ("Column map"); its reader is :func:`read_column_map`, the import
+:func:`import_columns`.
+
+A column map (TOML) says how to read one kind of CSV: its dialect (separator, decimal mark, header row), the
+robot (a known name, a ``dataset.toml`` robot table, or a URDF), the joint columns in the robot's order and
+their unit, the measurement (K >= 1 points whose coordinates are columns or sums/differences of two columns, or
+a 6-DOF pose: position columns and Euler-angle columns with their convention), the time (a column with a
+format, or the row order), the temperature, the columns to keep, each row's ``set`` (a fixed role, a column, or
+"the last fraction F of the rows is validation"), ``session`` and ``station``, and the nominal frames when they
+are known (``base2meas``, ``tool2flange``, the points on the flange). ``[[files]]`` entries list the CSVs with
+their own role, session, station and any other per-file difference.
+
+The import:
+
+1. reads every CSV with its map (numbers with the map's decimal mark; errors name the file, the data row, the
+   file line, the column and the value);
+2. converts to SI: joints [rad, m], positions [m], orientations from Euler angles
+   (:meth:`scipy.spatial.transform.Rotation.from_euler`: upper-case axes intrinsic, lower-case extrinsic);
+3. orders the rows in time (a time that goes back is an error unless the map says ``order = "time"``; a time
+   column whose values are all equal, or that is not a time stamp, is an error unless ``time = "row"``);
+4. places the measurement on the robot: the frames the map gives, else fitted on the calibration rows with the
+   nominal robot (a 6-DOF pose: the closed-form hand-eye registration of :func:`twin.importers.mocap.hand_eye`;
+   points: alternating rigid registration of the base and least squares of the points on the flange); each
+   station's ``base2meas`` registered on its rows. These are nominal values, a start: the estimator identifies
+   base and tool again;
+5. writes ``poses.csv`` (joints in degrees / millimetres, points ``p0_x ..`` or the pose ``x y z`` [mm] ``rx ry
+   rz`` [rad, rotation vector], ``set``, ``station``, ``temp_c``, ``t_s``, ``session`` and the kept columns) and
+   ``dataset.toml`` (the robot, ``[markers]``, ``[tool]`` for a pose, ``[stations.*]``, ``[noise]`` when given,
+   the provenance with every input's sha256 and how each frame was obtained and how well the nominal robot fits).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import datetime as _dt
+import math
+import os
+import re
+import shutil
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..dataset import (OPTIONAL_COLUMNS, POSE_COLUMNS, Dataset, DatasetError, Plate, joint_columns, marker_columns,
+                       read_text, robot_from_spec, write_dataset)
+from ..kinematics import RobotModel, flange2base
+from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec, pose6_to_transform
+from .mocap import file_sha256, hand_eye
+
+__all__ = ["MAP_SCHEMA_VERSION", "ColumnMap", "FileSpec", "FileMap", "MappedRows", "ImportReport", "read_column_map",
+           "read_mapped_csv", "read_frame_file", "fit_points_on_flange", "import_columns", "parse_file_argument"]
+
+MAP_SCHEMA_VERSION = 1
+_MM = 1e-3
+_DEG = math.pi / 180.0
+_LENGTH = {"mm": _MM, "m": 1.0}
+_ANGLE = {"deg": _DEG, "rad": 1.0}
+_TOP_KEYS = {"schema_version", "kind", "description", "attribution", "robot", "csv", "joints", "measurement", "time",
+             "order", "temperature", "keep", "pose_id", "set", "session", "station", "frames", "noise", "files"}
+# what a [[files]] entry (and a CSV given on the command line) may set for its own file
+_FILE_KEYS = {"path", "csv", "joints", "measurement", "time", "order", "temperature", "keep", "pose_id", "set",
+              "session", "station", "base2meas"}
+_SETS = ("calibration", "validation")
+
+
+# ------------------------------------------------------------------------------------------------
+# The parsed map
+# ------------------------------------------------------------------------------------------------
+
+Terms = tuple[tuple[float, str], ...]  # a coordinate: sum of sign * column
+
+
+@dataclass(frozen=True)
+class FileMap:
+    """How to read one CSV (the map with its file's overrides applied). Columns by header name; ``points``: K
+    triples of :data:`Terms` (x, y, z); ``position``/``rotation``: the pose columns; ``time_column`` None for the
+    row order; ``set_rule`` ``("fixed", label)``, ``("column", name)`` or ``("last_fraction", F)``; ``session``
+    and ``station`` ``("fixed", label)``, ``("column", name)`` or None (session: the file's name; station: one
+    station ``"0"``)."""
+
+    separator: str
+    decimal: str
+    header_row: int
+    joint_columns: tuple[str, ...]
+    joint_scale: tuple[float, ...]
+    kind: str
+    length_scale: float
+    points: tuple[tuple[Terms, Terms, Terms], ...] = ()
+    position: tuple[Terms, Terms, Terms] | None = None
+    rotation: tuple[str, str, str] | None = None
+    rotation_scale: float = 1.0
+    euler: str = ""
+    time_column: str | None = None
+    time_format: str = ""
+    order: str = "file"
+    temperature: str | None = None
+    keep: tuple[str, ...] = ()
+    pose_id: str | None = None
+    set_rule: tuple[str, Any] = ("fixed", "calibration")
+    session: tuple[str, str] | None = None
+    station: tuple[str, str] | None = None
+    base2meas: np.ndarray | None = None
+    base2meas_source: str = ""
+
+    @property
+    def n_points(self) -> int:
+        """K, the points per row (1 for a pose: its origin)."""
+        return len(self.points) if self.kind == "points" else 1
+
+
+@dataclass(frozen=True)
+class FileSpec:
+    """One CSV of the map (``path``) and how to read it (``map``)."""
+
+    path: Path
+    map: FileMap
+
+
+@dataclass(frozen=True, eq=False)
+class ColumnMap:
+    """A read column map: the robot (``robot_spec`` as ``dataset.toml`` will hold it, ``robot`` the model,
+    ``urdf`` the URDF file to copy beside the dataset or None), the map of its files (``base``), its ``[[files]]``
+    (``files``), the nominal ``tool2flange`` ``(4, 4)`` of a pose and the nominal ``points_flange`` ``(K, 3)`` [m]
+    of points (None: fitted), the noise (SI), free text, the raw table (``raw``, for per-file overrides) and the
+    file's sha256."""
+
+    path: Path
+    raw: dict
+    robot_spec: Any
+    robot: RobotModel
+    urdf: Path | None
+    base: FileMap
+    files: tuple[FileSpec, ...]
+    tool2flange: np.ndarray | None = None
+    tool2flange_source: str = ""
+    points_flange: np.ndarray | None = None
+    noise_position: float | None = None
+    noise_orientation: float | None = None
+    description: str = ""
+    attribution: str = ""
+    sha256: str = ""
+
+    def for_file(self, path: str | os.PathLike, overrides: dict | None = None) -> FileSpec:
+        """The :class:`FileSpec` of a CSV read with this map and ``overrides`` (keys of a ``[[files]]`` entry)."""
+        return FileSpec(Path(path), _file_map(self.raw, dict(overrides or {}), self.path, self.robot,
+                                              f"{self.path}: {path}"))
+
+
+def _err(where: str, msg: str) -> DatasetError:
+    return DatasetError(f"{where}: {msg}")
+
+
+def _check_keys(d: dict, allowed: set[str], where: str) -> None:
+    unknown = sorted(set(d) - allowed)
+    if unknown:
+        raise _err(where, f"unknown key(s) {unknown}; known: {sorted(allowed)}")
+
+
+def _parse_terms(text: Any, where: str) -> Terms:
+    """``"a"``, ``"-a"``, ``"a - b"``, ``"a + b"`` (operators between spaces; column names may hold spaces)."""
+    if not isinstance(text, str) or not text.strip():
+        raise _err(where, f"must be a column name, or a sum or difference of columns (\"x_t - x_dif\"), got {text!r}")
+    parts = re.split(r"\s+([+-])\s+", text.strip())
+    terms = []
+    sign = 1.0
+    first = parts[0]
+    if first.startswith("-") and len(first) > 1 and first[1] != " ":
+        sign, first = -1.0, first[1:]
+    terms.append((sign, first.strip()))
+    for op, name in zip(parts[1::2], parts[2::2]):
+        if not name.strip():
+            raise _err(where, f"an operator without a column in {text!r}")
+        terms.append((1.0 if op == "+" else -1.0, name.strip()))
+    return tuple(terms)
+
+
+def _label_rule(v: Any, where: str, *, allow_fraction: bool = False) -> tuple[str, Any] | None:
+    if v is None:
+        return None
+    if isinstance(v, (str, int)) and not isinstance(v, bool):
+        return ("fixed", str(v))
+    if isinstance(v, dict):
+        if allow_fraction and set(v) == {"validation_last_fraction"}:
+            f = v["validation_last_fraction"]
+            if not isinstance(f, (int, float)) or isinstance(f, bool) or not 0.0 < float(f) < 1.0:
+                raise _err(where, f"validation_last_fraction must be a number between 0 and 1, got {f!r}")
+            return ("last_fraction", float(f))
+        if allow_fraction and set(v) == {"calibration_first_rows"}:
+            f = v["calibration_first_rows"]
+            if not isinstance(f, int) or isinstance(f, bool) or f < 1:
+                raise _err(where, f"calibration_first_rows must be a whole number >= 1, got {f!r}")
+            return ("first_rows", int(f))
+        if set(v) == {"column"} and isinstance(v["column"], str):
+            return ("column", v["column"])
+    forms = "a label, { column = \"NAME\" }" + (", { validation_last_fraction = F } or { calibration_first_rows = N }"
+                                                if allow_fraction else "")
+    raise _err(where, f"must be {forms}, got {v!r}")
+
+
+def read_frame_file(path: str | os.PathLike, *, unit: str = "mm", where: str = "") -> np.ndarray:
+    """A 4x4 homogeneous transform from a text file (16 numbers, whitespace or comma separated, row-major; the
+    translation in ``unit``), as it is written. :class:`~twin.dataset.DatasetError` naming the file when it holds
+    no 4x4 rigid transform (a last row other than ``0 0 0 1``, a rotation not orthonormal to 1e-5); the rotation
+    is re-orthonormalised (SVD) so that later conversions are exact."""
+    path = Path(path)
+    if unit not in _LENGTH:
+        raise _err(where or str(path), f"unit must be one of {sorted(_LENGTH)}, got {unit!r}")
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise _err(where or str(path), f"cannot read the frame file {path}: {exc.strerror or exc}") from None
+    try:
+        v = np.array([float(t) for t in re.split(r"[\s,;]+", text.strip()) if t], dtype=float)
+    except ValueError as exc:
+        raise _err(str(path), f"not a 4x4 matrix of numbers ({exc})") from None
+    if v.size != 16 or not np.all(np.isfinite(v)):
+        raise _err(str(path), f"holds {v.size} numbers; a 4x4 transform has 16 finite numbers")
+    T = v.reshape(4, 4)
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise _err(str(path), f"last row is {T[3].tolist()}, not [0, 0, 0, 1]: not a homogeneous transform")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-5 or np.linalg.det(R) < 0:
+        raise _err(str(path), "the rotation part is not a rotation (not orthonormal to 1e-5, or a reflection)")
+    U, _, Vt = np.linalg.svd(R)
+    return make_transform(U @ Vt, T[:3, 3] * _LENGTH[unit])
+
+
+def _frame(v: Any, where: str, base_dir: Path, directions: tuple[str, str]) -> tuple[np.ndarray, str]:
+    """A frame of the map: ``"identity"``, ``{x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad}`` or ``{file, unit,
+    direction}`` (``direction`` one of ``directions``: the first as written, the second inverted)."""
+    if v == "identity":
+        return np.eye(4), "identity (given)"
+    if isinstance(v, dict) and "file" in v:
+        _check_keys(v, {"file", "unit", "direction"}, where)
+        if v.get("direction") not in directions:
+            raise _err(where, f"direction must be {directions[0]!r} (the file maps {directions[0].split('2')[0]} "
+                              f"coordinates into the {directions[0].split('2')[1]} frame) or {directions[1]!r}, "
+                              f"got {v.get('direction')!r}")
+        p = Path(str(v["file"]))
+        p = p if p.is_absolute() else base_dir / p
+        T = read_frame_file(p, unit=str(v.get("unit", "mm")), where=where)
+        inverted = v["direction"] == directions[1]
+        return (invert_transform(T) if inverted else T), (f"{p.name} (sha256 {file_sha256(p)}, "
+                                                          f"{'inverted: it holds ' + directions[1] if inverted else 'as written'})")
+    if isinstance(v, dict):
+        _check_keys(v, {"x_mm", "y_mm", "z_mm", "rx_rad", "ry_rad", "rz_rad"}, where)
+        try:
+            x = np.array([float(v.get(k, 0.0)) for k in ("x_mm", "y_mm", "z_mm", "rx_rad", "ry_rad", "rz_rad")])
+        except (TypeError, ValueError):
+            raise _err(where, f"x_mm .. rz_rad must be numbers, got {v!r}") from None
+        if not np.all(np.isfinite(x)):
+            raise _err(where, f"not finite: {v!r}")
+        x[:3] *= _MM
+        return pose6_to_transform(x), "given in the map"
+    raise _err(where, f"must be \"identity\", {{ x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad }} or {{ file, unit, "
+                      f"direction }}, got {v!r}")
+
+
+def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: str) -> FileMap:
+    """Parse the per-file settings of the map ``raw`` with ``over`` (a ``[[files]]`` entry) on top."""
+    _check_keys(over, _FILE_KEYS, where)
+    d = {**raw, **{k: v for k, v in over.items() if k not in ("path", "base2meas")}}
+    base_dir = map_path.parent
+    # CSV dialect
+    c = d.get("csv", {}) or {}
+    if not isinstance(c, dict):
+        raise _err(f"{where}: [csv]", f"must be a table, got {c!r}")
+    _check_keys(c, {"separator", "decimal", "header_row"}, f"{where}: [csv]")
+    sep = c.get("separator", ",")
+    dec = c.get("decimal", ".")
+    if sep == "\\t":
+        sep = "\t"
+    if not isinstance(sep, str) or len(sep) != 1:
+        raise _err(f"{where}: csv.separator", f"must be one character (\",\", \";\", \"\\t\"), got {sep!r}")
+    if dec not in (".", ","):
+        raise _err(f"{where}: csv.decimal", f"must be \".\" or \",\", got {dec!r}")
+    if dec == sep:
+        raise _err(f"{where}: csv", f"the decimal mark and the separator are both {sep!r}")
+    hr = c.get("header_row", 1)
+    if not isinstance(hr, int) or isinstance(hr, bool) or hr < 1:
+        raise _err(f"{where}: csv.header_row", f"must be a line number >= 1, got {hr!r}")
+    # joints
+    j = d.get("joints")
+    if not isinstance(j, dict):
+        raise _err(where, "missing table [joints] (columns = the joint columns in the robot's order, unit)")
+    _check_keys(j, {"columns", "unit"}, f"{where}: [joints]")
+    cols = j.get("columns")
+    if not isinstance(cols, list) or not all(isinstance(x, str) for x in cols):
+        raise _err(f"{where}: joints.columns", f"must be a list of column names, got {cols!r}")
+    if len(cols) != robot.n_joints:
+        raise _err(f"{where}: joints.columns", f"has {len(cols)} columns for the {robot.n_joints} joints of robot "
+                                               f"{robot.name!r} ({', '.join(robot.joint_names)})")
+    unit = j.get("unit", "deg")
+    units = unit if isinstance(unit, list) else [unit] * robot.n_joints
+    if len(units) != robot.n_joints:
+        raise _err(f"{where}: joints.unit", f"has {len(units)} units for {robot.n_joints} joints")
+    scale = []
+    for k, (u, pris) in enumerate(zip(units, robot.is_prismatic)):
+        ok = _LENGTH if pris else _ANGLE
+        if u not in ok:
+            raise _err(f"{where}: joints.unit", f"joint {k + 1} ({robot.joint_names[k]}, "
+                                                f"{'prismatic' if pris else 'revolute'}) must be in {sorted(ok)}, got {u!r}")
+        scale.append(ok[u])
+    # measurement
+    m = d.get("measurement")
+    if not isinstance(m, dict):
+        raise _err(where, "missing table [measurement] (kind = \"points\" or \"pose\")")
+    kind = m.get("kind")
+    lu = m.get("unit", "mm")
+    if lu not in _LENGTH:
+        raise _err(f"{where}: measurement.unit", f"must be \"mm\" or \"m\", got {lu!r}")
+    kw: dict[str, Any] = {}
+    if kind == "points":
+        _check_keys(m, {"kind", "unit", "points"}, f"{where}: [measurement]")
+        pts = m.get("points")
+        if not isinstance(pts, list) or not pts:
+            raise _err(f"{where}: measurement.points", "must list K >= 1 points, each { x = ..., y = ..., z = ... }")
+        parsed = []
+        for i, p in enumerate(pts):
+            if not isinstance(p, dict) or set(p) != {"x", "y", "z"}:
+                raise _err(f"{where}: measurement.points[{i}]", f"must be {{ x = ..., y = ..., z = ... }}, got {p!r}")
+            parsed.append(tuple(_parse_terms(p[a], f"{where}: measurement.points[{i}].{a}") for a in "xyz"))
+        kw["points"] = tuple(parsed)
+    elif kind == "pose":
+        _check_keys(m, {"kind", "unit", "position", "rotation", "rotation_unit", "euler"}, f"{where}: [measurement]")
+        pos, rot = m.get("position"), m.get("rotation")
+        if not isinstance(pos, list) or len(pos) != 3:
+            raise _err(f"{where}: measurement.position", f"must be the three position columns, got {pos!r}")
+        if not isinstance(rot, list) or len(rot) != 3 or not all(isinstance(x, str) for x in rot):
+            raise _err(f"{where}: measurement.rotation", f"must be the three Euler-angle columns, got {rot!r}")
+        ru = m.get("rotation_unit", "deg")
+        if ru not in _ANGLE:
+            raise _err(f"{where}: measurement.rotation_unit", f"must be \"deg\" or \"rad\", got {ru!r}")
+        eu = m.get("euler")
+        if not (isinstance(eu, str) and len(eu) == 3 and (set(eu) <= set("xyz") or set(eu) <= set("XYZ"))
+                and eu[0] != eu[1] and eu[1] != eu[2]):
+            raise _err(f"{where}: measurement.euler", "must be an Euler sequence of scipy's Rotation.from_euler: three "
+                                                      "axes, upper case intrinsic (\"XYZ\"), lower case extrinsic "
+                                                      f"(\"xyz\"), no axis twice in a row; got {eu!r}")
+        kw.update(position=tuple(_parse_terms(x, f"{where}: measurement.position[{i}]") for i, x in enumerate(pos)),
+                  rotation=tuple(rot), rotation_scale=_ANGLE[ru], euler=eu)
+    else:
+        raise _err(f"{where}: measurement.kind", f"must be \"points\" or \"pose\", got {kind!r}")
+    # time and order
+    t = d.get("time", "row")
+    if t == "row":
+        tc, tf = None, ""
+    elif isinstance(t, dict) and set(t) == {"column", "format"} and isinstance(t["column"], str) \
+            and isinstance(t["format"], str) and t["format"]:
+        tc, tf = t["column"], t["format"]
+    else:
+        raise _err(f"{where}: time", "must be \"row\" (the row order only) or { column = \"NAME\", format = "
+                                     f"\"%Y%m%d%H%M%S\" (a strptime format) or \"seconds\" }}, got {t!r}")
+    order = d.get("order", "file")
+    if order not in ("file", "time"):
+        raise _err(f"{where}: order", f"must be \"file\" (the file's row order) or \"time\" (sorted by time), got {order!r}")
+    if order == "time" and tc is None:
+        raise _err(f"{where}: order", "\"time\" needs a time column (time = { column, format })")
+    temp = d.get("temperature")
+    if temp is not None and not (isinstance(temp, dict) and set(temp) == {"column"} and isinstance(temp["column"], str)):
+        raise _err(f"{where}: temperature", f"must be {{ column = \"NAME\" }} (degrees Celsius), got {temp!r}")
+    keep = d.get("keep", [])
+    if not isinstance(keep, list) or not all(isinstance(x, str) for x in keep):
+        raise _err(f"{where}: keep", f"must be a list of column names, got {keep!r}")
+    pid = d.get("pose_id")
+    if pid is not None and not (isinstance(pid, dict) and set(pid) == {"column"} and isinstance(pid["column"], str)):
+        raise _err(f"{where}: pose_id", f"must be {{ column = \"NAME\" }} (unique integers), got {pid!r}")
+    set_rule = _label_rule(d.get("set", "calibration"), f"{where}: set", allow_fraction=True)
+    if set_rule[0] == "fixed" and set_rule[1] not in _SETS:
+        raise _err(f"{where}: set", f"must be one of {list(_SETS)} (or a column, or {{ validation_last_fraction = F }}), "
+                                    f"got {set_rule[1]!r}")
+    b2m, b2m_src = None, ""
+    fr = over.get("base2meas", (raw.get("frames") or {}).get("base2meas"))
+    if fr is not None:
+        b2m, b2m_src = _frame(fr, f"{where}: base2meas", base_dir, ("base2meas", "meas2base"))
+    return FileMap(
+        separator=sep, decimal=dec, header_row=hr, joint_columns=tuple(cols), joint_scale=tuple(scale), kind=kind,
+        length_scale=_LENGTH[lu], time_column=tc, time_format=tf, order=order,
+        temperature=None if temp is None else temp["column"], keep=tuple(keep),
+        pose_id=None if pid is None else pid["column"], set_rule=set_rule,
+        session=_label_rule(d.get("session"), f"{where}: session"),
+        station=_label_rule(d.get("station"), f"{where}: station"), base2meas=b2m, base2meas_source=b2m_src, **kw)
+
+
+def read_column_map(path: str | os.PathLike) -> ColumnMap:
+    """Read and check a column map (``docs/formats.md``, "Column map"). :class:`~twin.dataset.DatasetError`
+    naming the map and the key: unknown keys, a robot the library cannot build, joint columns that do not match
+    the robot's joints, a measurement or time that cannot be read, a frame file that holds no rigid transform."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            raw = tomllib.load(f)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: no such column map") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DatasetError(f"{path}: not valid TOML: {exc}") from None
+    where = str(path)
+    _check_keys(raw, _TOP_KEYS, where)
+    if raw.get("schema_version", MAP_SCHEMA_VERSION) != MAP_SCHEMA_VERSION:
+        raise _err(where, f"schema_version {raw.get('schema_version')!r} is not supported (this library reads "
+                          f"{MAP_SCHEMA_VERSION})")
+    if raw.get("kind", "column_map") != "column_map":
+        raise _err(where, f"kind must be \"column_map\", got {raw.get('kind')!r}")
+    if "robot" not in raw:
+        raise _err(where, "missing 'robot' (a robot name, a dataset.toml robot table, or a table with urdf, "
+                          "root_link, end_link)")
+    spec = raw["robot"]
+    urdf = None
+    if isinstance(spec, dict) and "urdf" in spec:
+        urdf = Path(str(spec["urdf"]))
+        urdf = urdf if urdf.is_absolute() else path.parent / urdf
+        spec = {**spec, "urdf": urdf.name}
+    robot = robot_from_spec(raw["robot"], f"{where}: robot", base_dir=path.parent)
+    base = _file_map(raw, {}, path, robot, where)
+    fr = raw.get("frames", {}) or {}
+    if not isinstance(fr, dict):
+        raise _err(f"{where}: [frames]", f"must be a table, got {fr!r}")
+    _check_keys(fr, {"base2meas", "tool2flange", "points_mm"}, f"{where}: [frames]")
+    tool, tool_src, pts = None, "", None
+    if "tool2flange" in fr:
+        if base.kind != "pose":
+            raise _err(f"{where}: frames.tool2flange", "applies to a 6-DOF pose; points are placed by frames.points_mm")
+        tool, tool_src = _frame(fr["tool2flange"], f"{where}: frames.tool2flange", path.parent,
+                                ("tool2flange", "flange2tool"))
+    if "points_mm" in fr:
+        if base.kind != "points":
+            raise _err(f"{where}: frames.points_mm", "applies to points; a pose is placed by frames.tool2flange")
+        try:
+            pts = np.asarray(fr["points_mm"], dtype=float) * _MM
+        except (TypeError, ValueError):
+            raise _err(f"{where}: frames.points_mm", f"must be K triples of numbers, got {fr['points_mm']!r}") from None
+        if pts.shape != (base.n_points, 3) or not np.all(np.isfinite(pts)):
+            raise _err(f"{where}: frames.points_mm", f"must be {base.n_points} triple(s) of finite numbers (one per "
+                                                     f"measured point), got {fr['points_mm']!r}")
+    noise = raw.get("noise", {}) or {}
+    _check_keys(noise, {"position_mm", "orientation_rad"}, f"{where}: [noise]")
+    for k, v in noise.items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
+            raise _err(f"{where}: noise.{k}", f"must be a positive number, got {v!r}")
+    files = []
+    entries = raw.get("files", [])
+    if not isinstance(entries, list):
+        raise _err(f"{where}: files", "must be an array of tables ([[files]] path = ..., set = ...)")
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict) or not isinstance(e.get("path"), str):
+            raise _err(f"{where}: files[{i}]", f"needs path = \"FILE.csv\" (relative to the map), got {e!r}")
+        p = Path(e["path"])
+        p = p if p.is_absolute() else path.parent / p
+        fm = _file_map(raw, e, path, robot, f"{where}: files[{i}] ({e['path']})")
+        if fm.kind != base.kind or fm.n_points != base.n_points:
+            raise _err(f"{where}: files[{i}]", "every file must give the same measurement kind and number of points")
+        files.append(FileSpec(p, fm))
+    for k in ("description", "attribution"):
+        if not isinstance(raw.get(k, ""), str):
+            raise _err(f"{where}: {k}", f"must be text, got {raw[k]!r}")
+    return ColumnMap(path=path, raw=raw, robot_spec=spec, robot=robot, urdf=urdf, base=base, files=tuple(files),
+                     tool2flange=tool, tool2flange_source=tool_src, points_flange=pts,
+                     noise_position=None if "position_mm" not in noise else float(noise["position_mm"]) * _MM,
+                     noise_orientation=None if "orientation_rad" not in noise else float(noise["orientation_rad"]),
+                     description=str(raw.get("description", "")), attribution=str(raw.get("attribution", "")),
+                     sha256=file_sha256(path))
+
+
+def parse_file_argument(text: str) -> tuple[str, dict]:
+    """A CSV given on the command line with its own settings: ``PATH[:key=value,key=value]``, keys ``set``
+    (``calibration``/``validation``, ``last:F`` for "the last fraction F of the rows is validation", ``first:N`` for
+    "the first N rows are calibration, the rest validation"), ``session``, ``station``, ``time`` (``row``) and ``order`` (``file``/``time``). Returns ``(path, overrides)``."""
+    m = re.match(r"^(.+?):([A-Za-z_]+=.*)$", text)
+    path, opts = (m.group(1), m.group(2)) if m else (text, "")
+    over: dict[str, Any] = {}
+    for item in [o for o in opts.split(",") if o]:
+        k, eq, v = item.partition("=")
+        k, v = k.strip(), v.strip()
+        if not eq or not v:
+            raise ValueError(f"{text}: {item!r} is not key=value")
+        if k == "set":
+            if v.startswith("first:"):
+                try:
+                    over["set"] = {"calibration_first_rows": int(v[6:])}
+                except ValueError:
+                    raise ValueError(f"{text}: set=first:N needs a whole number N, got {v!r}") from None
+            elif v.startswith("last:"):
+                try:
+                    over["set"] = {"validation_last_fraction": float(v[5:])}
+                except ValueError:
+                    raise ValueError(f"{text}: set=last:F needs a number F, got {v!r}") from None
+            else:
+                over["set"] = v
+        elif k in ("session", "station"):
+            over[k] = v
+        elif k == "time":
+            if v != "row":
+                raise ValueError(f"{text}: time=row is the only time a command line can set (a time column goes "
+                                 "in the map)")
+            over["time"] = "row"
+        elif k == "order":
+            over["order"] = v
+        else:
+            raise ValueError(f"{text}: unknown key {k!r}; known: set, session, station, time, order")
+    return path, over
+
+
+# ------------------------------------------------------------------------------------------------
+# Reading one CSV
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class MappedRows:
+    """One CSV read with its map, in SI, rows in measurement order: ``q`` ``(n, N)`` [rad, m], ``points`` ``(n, K,
+    3)`` [m] (a pose: its position as the one point) and ``rot`` ``(n, 3, 3)`` or None, ``t`` ``(n,)`` [s] (time
+    stamps; None for the row order), ``temp_c``, ``pose_id``, ``set``, ``session``, ``station`` ``(n,)``, the kept
+    columns (text with ``.`` decimals), the file line of every row (``lines``), the file's sha256 and ``notes``."""
+
+    path: Path
+    q: np.ndarray
+    points: np.ndarray
+    rot: np.ndarray | None
+    t: np.ndarray | None
+    temp_c: np.ndarray | None
+    pose_id: np.ndarray | None
+    set: np.ndarray
+    session: np.ndarray
+    station: np.ndarray | None
+    keep: dict[str, list[str]]
+    lines: np.ndarray
+    sha256: str
+    notes: tuple[str, ...] = ()
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[0])
+
+
+def _number(text: str, dec: str, where: str) -> float:
+    t = text.strip()
+    if t == "":
+        raise DatasetError(f"{where}: empty")
+    other = "," if dec == "." else "."
+    if other in t:
+        raise DatasetError(f"{where}: {t!r} holds {other!r} where the map's decimal mark is {dec!r}")
+    try:
+        v = float(t.replace(",", ".") if dec == "," else t)
+    except ValueError:
+        raise DatasetError(f"{where}: not a number: {t!r}") from None
+    if not math.isfinite(v):
+        raise DatasetError(f"{where}: not a finite number: {t!r}")
+    return v
+
+
+def _time_value(text: str, fmt: str, dec: str, where: str) -> float:
+    if fmt == "seconds":
+        return _number(text, dec, where)
+    t = text.strip()
+    try:
+        return _dt.datetime.strptime(t, fmt).replace(tzinfo=_dt.timezone.utc).timestamp()
+    except ValueError:
+        raise DatasetError(f"{where}: not a time stamp of the map's format {fmt!r}: {t!r} (a spreadsheet may have "
+                           "rounded it; with time = \"row\" in the map the row order stands for the time)") from None
+
+
+def read_mapped_csv(spec: FileSpec) -> MappedRows:
+    """Read one CSV with its map (:class:`FileSpec`). :class:`~twin.dataset.DatasetError` naming the file, the data
+    row (1-based), the file line, the column and the value: a missing file or column, an empty or non-numeric
+    cell, a decimal mark other than the map's, a time that is not a time stamp of the format, every row at the
+    same time, a time going back (unless ``order = "time"``), a ``set`` value other than calibration/validation,
+    duplicate pose ids."""
+    path, fm = spec.path, spec.map
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such CSV")
+    text = read_text(path)
+    lines = list(csv.reader(io.StringIO(text[1:] if text.startswith("\ufeff") else text, newline=""),
+                            delimiter=fm.separator))
+    if len(lines) < fm.header_row:
+        raise DatasetError(f"{path}: {len(lines)} lines, no header row at line {fm.header_row}")
+    header = [h.strip() for h in lines[fm.header_row - 1]]
+    col = {h: i for i, h in enumerate(header)}
+    data = [(fm.header_row + 1 + k, r) for k, r in enumerate(lines[fm.header_row:]) if any(c.strip() for c in r)]
+    if not data:
+        raise DatasetError(f"{path}: no data rows after the header (line {fm.header_row})")
+    need: list[tuple[str, str]] = [(c, "joints.columns") for c in fm.joint_columns]
+    if fm.kind == "points":
+        need += [(name, f"measurement.points[{i}].{'xyz'[a]}") for i, p in enumerate(fm.points) for a in range(3)
+                 for _, name in p[a]]
+    else:
+        need += [(name, "measurement.position") for terms in fm.position for _, name in terms]
+        need += [(c, "measurement.rotation") for c in fm.rotation]
+    for c, key in ((fm.time_column, "time.column"), (fm.temperature, "temperature.column"), (fm.pose_id, "pose_id.column")):
+        if c is not None:
+            need.append((c, key))
+    need += [(c, "keep") for c in fm.keep]
+    for rule, key in ((fm.set_rule, "set.column"), (fm.session, "session.column"), (fm.station, "station.column")):
+        if rule is not None and rule[0] == "column":
+            need.append((rule[1], key))
+    missing = [(c, k) for c, k in need if c not in col]
+    if missing:
+        c, k = missing[0]
+        raise DatasetError(f"{path}: no column {c!r} (the map's {k}); the header (line {fm.header_row}) has "
+                           f"{', '.join(repr(h) for h in header)}")
+    n, N, K = len(data), len(fm.joint_columns), fm.n_points
+    q = np.zeros((n, N))
+    P = np.zeros((n, K, 3))
+    eul = np.zeros((n, 3))
+    t = np.zeros(n) if fm.time_column is not None else None
+    temp = np.zeros(n) if fm.temperature is not None else None
+    pid = np.zeros(n, dtype=np.int64) if fm.pose_id is not None else None
+    keep_text: dict[str, list[str]] = {c: [] for c in fm.keep}
+
+    def cell(r, c):
+        i = col[c]
+        return r[i] if i < len(r) else ""
+
+    def num(k, line, r, c):
+        return _number(cell(r, c), fm.decimal, f"{path}: row {k + 1} (line {line}), column {c!r}")
+
+    def terms_value(k, line, r, terms):
+        return sum(s * num(k, line, r, c) for s, c in terms)
+
+    for k, (line, r) in enumerate(data):
+        for jj, c in enumerate(fm.joint_columns):
+            q[k, jj] = num(k, line, r, c) * fm.joint_scale[jj]
+        if fm.kind == "points":
+            for i, p in enumerate(fm.points):
+                P[k, i] = [terms_value(k, line, r, p[a]) for a in range(3)]
+        else:
+            P[k, 0] = [terms_value(k, line, r, fm.position[a]) for a in range(3)]
+            eul[k] = [num(k, line, r, c) for c in fm.rotation]
+        if t is not None:
+            t[k] = _time_value(cell(r, fm.time_column), fm.time_format, fm.decimal,
+                               f"{path}: row {k + 1} (line {line}), column {fm.time_column!r}")
+        if temp is not None:
+            temp[k] = num(k, line, r, fm.temperature)
+        if pid is not None:
+            v = num(k, line, r, fm.pose_id)
+            if v != int(v):
+                raise DatasetError(f"{path}: row {k + 1} (line {line}), column {fm.pose_id!r}: not an integer: "
+                                   f"{cell(r, fm.pose_id)!r}")
+            pid[k] = int(v)
+        for c in fm.keep:  # numbers: checked, written with '.' decimals as the file gives their digits
+            num(k, line, r, c)
+            keep_text[c].append(cell(r, c).strip().replace(",", "."))
+    P *= fm.length_scale
+    rot = None
+    if fm.kind == "pose":
+        from scipy.spatial.transform import Rotation
+
+        rot = Rotation.from_euler(fm.euler, eul * fm.rotation_scale).as_matrix()
+    line_no = np.array([ln for ln, _ in data])
+    notes = []
+    order = np.arange(n)
+    if t is not None:
+        if n >= 2 and np.all(t == t[0]):
+            raise DatasetError(f"{path}: column {fm.time_column!r}: every one of the {n} rows has the same time "
+                               f"{cell(data[0][1], fm.time_column)!r}: unusable as a time (a spreadsheet may have rounded "
+                               "it); with time = \"row\" in the map the row order stands for the time")
+        back = np.flatnonzero(np.diff(t) < 0)
+        if back.size and fm.order == "file":
+            k = int(back[0]) + 1
+            raise DatasetError(f"{path}: row {k + 1} (line {line_no[k]}), column {fm.time_column!r}: the time "
+                               f"{cell(data[k][1], fm.time_column)!r} is before the previous row's "
+                               f"{cell(data[k - 1][1], fm.time_column)!r} ({back.size} such rows): the rows are not in "
+                               "time order; order = \"time\" in the map sorts them by time")
+        if back.size:
+            order = np.argsort(t, kind="stable")
+            notes.append(f"{path.name}: the time goes back at {back.size} row(s) (file lines "
+                         f"{', '.join(str(int(line_no[b + 1])) for b in back[:10])}{' ...' if back.size > 10 else ''}); "
+                         "rows sorted by time")
+    sel = lambda a: None if a is None else a[order]  # noqa: E731
+    q, P, rot, t, temp, pid, line_no = (sel(a) for a in (q, P, rot, t, temp, pid, line_no))
+    data = [data[i] for i in order]
+
+    def labels(rule, default):
+        if rule is None:
+            return np.full(n, default, dtype=object)
+        if rule[0] == "fixed":
+            return np.full(n, rule[1], dtype=object)
+        vals = []
+        for k, (line, r) in enumerate(data):
+            v = cell(r, rule[1]).strip()
+            if v == "":
+                raise DatasetError(f"{path}: row {k + 1} (line {line}), column {rule[1]!r}: empty")
+            vals.append(v)
+        return np.array(vals, dtype=object)
+
+    in_order = "time" if t is not None else "row"
+    if fm.set_rule[0] == "last_fraction":
+        n_val = int(round(fm.set_rule[1] * n))
+        sets = np.array(["calibration"] * (n - n_val) + ["validation"] * n_val, dtype=object)
+        notes.append(f"{path.name}: the last {n_val} of its {n} rows in {in_order} order ({fm.set_rule[1]:.0%}) are "
+                     "validation, the rest calibration")
+    elif fm.set_rule[0] == "first_rows":
+        n_cal = min(fm.set_rule[1], n)
+        sets = np.array(["calibration"] * n_cal + ["validation"] * (n - n_cal), dtype=object)
+        notes.append(f"{path.name}: the first {n_cal} of its {n} rows in {in_order} order are calibration, the rest "
+                     "validation")
+    else:
+        sets = labels(fm.set_rule, "calibration")
+        for k, v in enumerate(sets):
+            if v not in _SETS:
+                raise DatasetError(f"{path}: row {k + 1} (line {line_no[k]}), column {fm.set_rule[1]!r}: {v!r} is not "
+                                   f"one of {list(_SETS)}")
+    if pid is not None and np.unique(pid).size != n:
+        vals, counts = np.unique(pid, return_counts=True)
+        raise DatasetError(f"{path}: column {fm.pose_id!r}: duplicate ids {vals[counts > 1][:5].tolist()}")
+    keep = {c: [keep_text[c][i] for i in order] for c in fm.keep}
+    return MappedRows(path=path, q=q, points=P, rot=rot, t=t, temp_c=temp, pose_id=pid, set=sets,
+                      session=labels(fm.session, path.stem), station=None if fm.station is None else labels(fm.station, "0"),
+                      keep=keep, lines=line_no, sha256=file_sha256(path), notes=tuple(notes))
+
+
+# ------------------------------------------------------------------------------------------------
+# Frames on the nominal robot
+# ------------------------------------------------------------------------------------------------
+
+def fit_points_on_flange(flange2base_T: np.ndarray, points_meas: np.ndarray, base2meas: np.ndarray | None = None, *,
+                         max_iter: int = 500, tol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
+    """``(base2meas, points_flange)``: K points fixed on the flange, measured ``points_meas`` ``(n, K, 3)`` [m] at the
+    flange poses ``flange2base_T`` ``(n, 4, 4)``, with ``p_meas = base2meas F_i x_k``.
+
+    With ``base2meas`` given, the points are the linear least squares ``x_k = mean_i R_i^T (base2meas^-1 p_ik -
+    t_i)`` (exact: the ``R_i`` are rotations). Otherwise alternately: ``base2meas`` by a rigid fit (Kabsch) of the
+    predicted points onto the measured ones, then the points as above, from the flange origins, until the points
+    move less than ``tol`` [m] (at most ``max_iter`` rounds)."""
+    F = np.asarray(flange2base_T, dtype=float)
+    P = np.asarray(points_meas, dtype=float)
+    if F.ndim != 3 or F.shape[1:] != (4, 4) or P.ndim != 3 or P.shape[0] != F.shape[0] or P.shape[2] != 3:
+        raise ValueError(f"flange2base_T must be (n, 4, 4) and points_meas (n, K, 3), got {F.shape} and {P.shape}")
+    R, tt = F[:, :3, :3], F[:, :3, 3]
+
+    def points_given(B):
+        Binv = invert_transform(B)
+        pb = P @ Binv[:3, :3].T + Binv[:3, 3]  # (n, K, 3) in the base frame
+        return np.einsum("nji,nkj->nki", R, pb - tt[:, None, :]).mean(axis=0)
+
+    if base2meas is not None:
+        B = np.asarray(base2meas, dtype=float)
+        return B, points_given(B)
+    X = np.zeros((P.shape[1], 3))
+    B = np.eye(4)
+    for _ in range(max_iter):
+        pred = np.einsum("nij,kj->nki", R, X) + tt[:, None, :]
+        Rb, tb = kabsch(pred.reshape(-1, 3), P.reshape(-1, 3))
+        B = make_transform(Rb, tb)
+        X_new = points_given(B)
+        done = np.abs(X_new - X).max() < tol
+        X = X_new
+        if done:
+            break
+    return B, X
+
+
+def _register(F: np.ndarray, tool: np.ndarray, P: np.ndarray, rot: np.ndarray | None) -> tuple[np.ndarray, float, float | None]:
+    """``base2meas`` registered (Kabsch) from the predicted tool origins (and axis points for a pose) onto the
+    measured ones, and the RMS position [m] / orientation [rad] residuals after it."""
+    T = F @ tool
+    if rot is None:
+        pred, meas = T[:, :3, 3], P[:, 0]
+        Rb, tb = kabsch(pred, meas)
+    else:
+        pts = np.concatenate([np.zeros((1, 3)), 0.1 * np.eye(3)])
+        pred = (np.einsum("nij,kj->nki", T[:, :3, :3], pts) + T[:, None, :3, 3]).reshape(-1, 3)
+        meas = (np.einsum("nij,kj->nki", rot, pts) + P[:, 0][:, None, :]).reshape(-1, 3)
+        Rb, tb = kabsch(pred, meas)
+    B = make_transform(Rb, tb)
+    return B, *_fit_rms(F, tool, B, P, rot)
+
+
+def _fit_rms(F, tool, B, P, rot) -> tuple[float, float | None]:
+    T = B @ F @ tool
+    ep = float(np.sqrt(np.mean(np.sum((T[:, :3, 3] - P[:, 0]) ** 2, axis=-1))))
+    if rot is None:
+        return ep, None
+    er = np.linalg.norm(matrix_to_rotvec(rot @ np.swapaxes(T[:, :3, :3], 1, 2)), axis=-1)
+    return ep, float(np.sqrt(np.mean(er**2)))
+
+
+# ------------------------------------------------------------------------------------------------
+# The import
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ImportReport:
+    """What :func:`import_columns` wrote: the dataset, per file ``{path, sha256, rows, calibration, validation,
+    session, station, time}``, per station the nominal fit ``{rows, position_rms_mm, orientation_rms_deg,
+    base2meas}`` (the nominal robot with the frames written, on every row of the station) and the notes."""
+
+    dataset: Dataset
+    files: tuple[dict, ...]
+    stations: dict[str, dict] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, *,
+                   files: Sequence[tuple[str | os.PathLike, dict]] | None = None, attribution: str = "") -> ImportReport:
+    """Import the CSVs of a column map into the dataset folder ``out`` (see the module docstring).
+
+    ``files``: ``(path, overrides)`` pairs read instead of the map's ``[[files]]`` (overrides: keys of a
+    ``[[files]]`` entry, e.g. ``{"set": "validation", "session": "B", "station": "B", "time": "row"}``).
+    ``attribution``: text added to the provenance. Returns an :class:`ImportReport`."""
+    if not isinstance(cmap, ColumnMap):
+        cmap = read_column_map(cmap)
+    specs = [cmap.for_file(p, o) for p, o in files] if files else list(cmap.files)
+    if not specs:
+        raise ValueError(f"{cmap.path}: no CSV to import: list [[files]] in the map or give CSVs")
+    robot = cmap.robot
+    parts = [read_mapped_csv(s) for s in specs]
+    K = cmap.base.n_points
+    for r in parts:
+        if r.points.shape[1] != K:
+            raise DatasetError(f"{r.path}: {r.points.shape[1]} point(s) per row where the map has {K}")
+    pose = cmap.base.kind == "pose"
+    n_tot = sum(r.n for r in parts)
+    q = np.concatenate([r.q for r in parts])
+    P = np.concatenate([r.points for r in parts])
+    rot = np.concatenate([r.rot for r in parts]) if pose else None
+    sets = np.concatenate([r.set for r in parts])
+    session = np.concatenate([r.session for r in parts])
+    many = len(parts) > 1
+    st_given = [r.station is not None for r in parts]
+    if any(st_given):
+        station = np.concatenate([r.station if r.station is not None else np.full(r.n, "0", dtype=object)
+                                  for r in parts])
+    else:
+        station = None
+    st_ids = station if station is not None else np.full(n_tot, "0", dtype=object)
+    if not np.any(sets == "calibration"):
+        raise ValueError(f"{cmap.path}: no calibration rows (every file's set is validation)")
+    F = flange2base(robot, q)
+    cal = sets == "calibration"
+    notes: list[str] = [n for r in parts for n in r.notes]
+    frames_txt: list[str] = []
+    # the tool (pose) or the points on the flange
+    given_b2m: dict[str, np.ndarray] = {}
+    b2m_src: dict[str, str] = {}
+    for r, s in zip(parts, specs):
+        if s.map.base2meas is not None:
+            for sid in np.unique(r.station if r.station is not None else np.array(["0"], dtype=object)):
+                given_b2m[str(sid)] = s.map.base2meas
+                b2m_src[str(sid)] = s.map.base2meas_source
+    first = str(st_ids[np.flatnonzero(cal)[0]])
+    sel = np.flatnonzero(cal & (st_ids == first))
+    he_tool = None
+    if pose:
+        take = sel[np.linspace(0, sel.size - 1, min(sel.size, 40)).round().astype(int)]
+        try:
+            _, he_tool = hand_eye(F[take], _poses(rot[take], P[take, 0]))
+        except ValueError as exc:
+            if cmap.tool2flange is None:
+                raise DatasetError(f"{cmap.path}: the tool frame cannot be placed on the flange ({exc}); give "
+                                   "frames.tool2flange in the map") from None
+        if cmap.tool2flange is not None:
+            tool = cmap.tool2flange
+            frames_txt.append(f"tool2flange: {cmap.tool2flange_source}")
+        else:
+            tool = he_tool
+            frames_txt.append(f"tool2flange: closed-form hand-eye registration of the nominal robot on {take.size} "
+                              f"calibration rows of station {first} (a start: the estimator identifies it again)")
+        pts_flange = tool[:3, 3][None].copy()
+    else:
+        tool = np.eye(4)
+        if cmap.points_flange is not None:
+            pts_flange = cmap.points_flange
+            frames_txt.append("points on the flange: given in the map")
+        else:
+            _, pts_flange = fit_points_on_flange(F[sel], P[sel], given_b2m.get(first))
+            frames_txt.append(f"points on the flange: fitted with the nominal robot on the {sel.size} calibration rows "
+                              f"of station {first}"
+                              f" ({'its given base2meas' if first in given_b2m else 'base2meas fitted alongside'}; a "
+                              "start: the estimator identifies the tool again)")
+    # every station's base2meas and the nominal fit
+    stations: dict[str, dict] = {}
+    bases: dict[str, np.ndarray] = {}
+    for sid in sorted({str(s) for s in st_ids}):
+        rows = np.flatnonzero(st_ids == sid)
+        r_rot = None if rot is None else rot[rows]
+        if sid in given_b2m:
+            B = given_b2m[sid]
+        elif pose:
+            B = _register(F[rows], tool, P[rows], r_rot)[0]
+        else:
+            Rb, tb = kabsch(_on_flange(F[rows], pts_flange).reshape(-1, 3), P[rows].reshape(-1, 3))
+            B = make_transform(Rb, tb)
+        if pose:
+            ep, er = _fit_rms(F[rows], tool, B, P[rows], r_rot)
+        else:
+            pm = _on_flange(F[rows], pts_flange) @ B[:3, :3].T + B[:3, 3]
+            ep, er = float(np.sqrt(np.mean(np.sum((pm - P[rows]) ** 2, axis=-1)))), None
+        bases[sid] = B
+        stations[sid] = {"rows": int(rows.size), "position_rms_mm": ep / _MM,
+                         "orientation_rms_deg": None if er is None else er / _DEG,
+                         "base2meas": b2m_src.get(sid, "registered on its rows with the nominal robot")}
+    if pose and cmap.tool2flange is not None:
+        # the direction of a given tool frame, checked against the data: its inverse must not fit far better
+        inv = invert_transform(tool)
+        worse = []
+        for sid in bases:
+            rows = np.flatnonzero(st_ids == sid)
+            _, ep_i, _ = _register(F[rows], inv, P[rows], rot[rows])
+            worse.append((stations[sid]["position_rms_mm"], ep_i / _MM))
+        given_rms = float(np.median([a for a, _ in worse]))
+        inv_rms = float(np.median([b for _, b in worse]))
+        he = ""
+        if he_tool is not None:
+            rows = np.flatnonzero(st_ids == first)
+            _, ep_h, er_h = _register(F[rows], he_tool, P[rows], rot[rows])
+            he = (f"; a hand-eye fit instead would place the tool at {_fmt_mm(he_tool[:3, 3])} mm on the flange and fit "
+                  f"station {first} to {ep_h / _MM:.3g} mm, {er_h / _DEG:.3g} deg")
+        frames_txt.append(f"tool2flange checked against the data: the nominal robot fits to {given_rms:.3g} mm RMS with "
+                          f"it (tool at {_fmt_mm(tool[:3, 3])} mm on the flange), {inv_rms:.3g} mm with its inverse{he}")
+        if inv_rms * 3 < given_rms and given_rms - inv_rms > 1.0:
+            raise DatasetError(f"{cmap.path}: frames.tool2flange ({cmap.tool2flange_source}) fits the data to "
+                               f"{given_rms:.4g} mm RMS, its inverse to {inv_rms:.4g} mm: the file holds the other "
+                               "direction (set direction to the other value)")
+    # time
+    has_t = [r.t is not None for r in parts]
+    t_s = None
+    extra: dict[str, np.ndarray] = {}
+    if all(has_t):
+        t0 = min(float(r.t.min()) for r in parts)
+        t_s = np.concatenate([r.t - t0 for r in parts])
+        notes.append(f"t_s: seconds since {_dt.datetime.fromtimestamp(t0, _dt.timezone.utc):%Y-%m-%d %H:%M:%S} "
+                     "(the earliest time stamp)")
+    else:
+        if any(has_t):
+            t0 = min(float(r.t.min()) for r in parts if r.t is not None)
+            extra["time_s"] = np.concatenate([np.array([f"{v - t0:.3f}" for v in r.t], dtype=object) if r.t is not None
+                                              else np.full(r.n, "", dtype=object) for r in parts])
+            notes.append("no t_s column: " + ", ".join(r.path.name for r in parts if r.t is None) + " has no usable "
+                         "time (row order only); the time stamps of the others are kept as the extra column time_s")
+        else:
+            notes.append("no t_s column: the rows carry no time, only their order (time = \"row\")")
+    temp_c = None
+    if all(r.temp_c is not None for r in parts):
+        temp_c = np.concatenate([r.temp_c for r in parts])
+    elif any(r.temp_c is not None for r in parts):
+        notes.append("no temp_c column: not every file has a temperature")
+    keep_names = [c for r in parts for c in r.keep]
+    reserved = {"pose_id", "session", "time_s", *POSE_COLUMNS, *OPTIONAL_COLUMNS, *joint_columns(robot),
+                *marker_columns(K)}
+    for c in dict.fromkeys(keep_names):
+        if c in reserved:
+            raise DatasetError(f"{cmap.path}: keep: a kept column may not be named {c!r}, a column the dataset "
+                               "writes itself")
+        extra[c] = np.concatenate([np.array(r.keep[c], dtype=object) if c in r.keep else np.full(r.n, "", dtype=object)
+                                   for r in parts])
+    extra["session"] = session.astype(object)
+    pid_given = [r.pose_id is not None for r in parts]
+    if all(pid_given) and not many:
+        pose_id = parts[0].pose_id
+    elif any(pid_given):
+        raise ValueError(f"{cmap.path}: pose_id from a column needs a single file (ids of several files may clash); "
+                         "leave pose_id out to number the rows")
+    else:
+        pose_id = np.arange(n_tot, dtype=np.int64)
+    # write
+    outp = Path(out)
+    outp.mkdir(parents=True, exist_ok=True)
+    if cmap.urdf is not None:
+        dst = outp / cmap.urdf.name
+        if cmap.urdf.resolve() != dst.resolve():
+            shutil.copyfile(cmap.urdf, dst)
+    pose_T = np.full((n_tot, 4, 4), np.nan)
+    if pose:
+        pose_T = _poses(rot, P[:, 0])
+    lines = [f"imported by twin import --map {cmap.path.name} (sha256 {cmap.sha256}) from "
+             + "; ".join(f"{r.path.name} ({r.n} rows: {int(np.sum(r.set == 'calibration'))} calibration, "
+                         f"{int(np.sum(r.set == 'validation'))} validation; session {', '.join(sorted(set(r.session)))}; "
+                         f"sha256 {r.sha256})" for r in parts)]
+    if cmap.description:
+        lines.append(cmap.description)
+    if cmap.attribution:
+        lines.append(f"data attribution: {cmap.attribution}")
+    if attribution:
+        lines.append(f"data attribution: {attribution}")
+    if cmap.urdf is not None:
+        lines.append(f"robot: {cmap.urdf.name} (sha256 {file_sha256(cmap.urdf)})")
+    lines += frames_txt
+    for sid, st in stations.items():
+        o = "" if st["orientation_rms_deg"] is None else f", {st['orientation_rms_deg']:.3g} deg"
+        lines.append(f"station {sid}: base2meas {st['base2meas']}; the nominal robot fits its {st['rows']} rows to "
+                     f"{st['position_rms_mm']:.3g} mm{o} RMS")
+    lines += notes
+    ds = Dataset(
+        robot=robot.with_frames(tool2flange=tool) if pose else robot,
+        robot_spec=cmap.robot_spec,
+        plate=Plate(0.0, pts_flange),
+        pose_id=pose_id,
+        q=q,
+        spheres=np.full((n_tot, K, 3), np.nan) if pose else P,
+        sphere_seen=np.zeros((n_tot, K), bool) if pose else np.ones((n_tot, K), bool),
+        pose=pose_T,
+        pose_seen=np.full(n_tot, pose),
+        set=sets.astype(object),
+        station=None if station is None else station.astype(object),
+        temp_c=temp_c,
+        t_s=t_s,
+        extra=extra,
+        noise_position=cmap.noise_position,
+        noise_orientation=cmap.noise_orientation,
+        stations_base2meas=bases,
+        provenance="; ".join(lines),
+        path=outp,
+    )
+    write_dataset(outp, ds)
+    info = tuple({"path": str(r.path), "sha256": r.sha256, "rows": r.n,
+                  "calibration": int(np.sum(r.set == "calibration")), "validation": int(np.sum(r.set == "validation")),
+                  "session": sorted(set(r.session)), "station": None if r.station is None else sorted(set(r.station)),
+                  "time": "row order" if r.t is None else "time stamps"} for r in parts)
+    return ImportReport(dataset=ds, files=info, stations=stations, notes=tuple(frames_txt + notes))
+
+
+def _fmt_mm(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v / _MM:.4g}" for v in p) + ")"
+
+
+def _on_flange(F: np.ndarray, pts_flange: np.ndarray) -> np.ndarray:
+    """Points ``(K, 3)`` of the flange frame at the flange poses ``F`` ``(n, 4, 4)``: ``(n, K, 3)`` in the base frame."""
+    return np.einsum("nij,kj->nki", F[:, :3, :3], pts_flange) + F[:, None, :3, 3]
+
+
+def _poses(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    T = np.zeros((R.shape[0], 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    T[:, 3, 3] = 1.0
+    return T
