@@ -1,4 +1,4 @@
-"""The chi-square and F tail functions from scipy.special are scipy.stats' numbers, bit for bit."""
+"""The chi-square and F tail functions from scipy.special and the average ranks are scipy.stats' numbers, bit for bit."""
 
 import numpy as np
 from scipy import stats
@@ -49,3 +49,12 @@ def test_f_tail_is_scipy_stats_number():
     assert _same(D.f_sf(x, d1, d2), stats.f.sf(x, d1, d2))
     for a, b, c in zip(x[::50], d1[::50], d2[::50]):
         assert float(D.f_sf(a, b, c)) == float(stats.f.sf(a, b, c))
+
+
+def test_average_ranks_are_scipy_stats_rankdata():
+    """Average ranks (distinct values, ties of two and more, one entry) equal scipy.stats.rankdata's."""
+    rng = np.random.default_rng(14)
+    for a in (rng.exponential(1.0, 500), rng.integers(0, 20, 400).astype(float), np.round(rng.random(300), 2),
+              np.array([3.0]), np.array([2.0, 2.0, 2.0])):
+        assert _same(D.average_ranks(a), stats.rankdata(a))
+        assert float(D.average_ranks(a)[a > np.median(a)].sum()) == float(stats.rankdata(a)[a > np.median(a)].sum())

@@ -1006,14 +1006,12 @@ def signed_rank_z(c: np.ndarray) -> float:
     """Wilcoxon's signed-rank statistic of ``c`` ``(n,)`` as a normal score: ``(W+ - n (n + 1) / 4) / sqrt(n (n + 1)
     (2 n + 1) / 24)``, ``W+`` the sum of the ranks of ``|c|`` over the positive entries (zeros dropped, ties at their
     mean rank). ~N(0, 1) when the entries are independent and symmetric about zero; 0 for fewer than two."""
-    from scipy.stats import rankdata
-
     c = np.asarray(c, float)
     c = c[c != 0]
     n = c.size
     if n < 2:
         return 0.0
-    w = float(rankdata(np.abs(c))[c > 0].sum())
+    w = float(dists.average_ranks(np.abs(c))[c > 0].sum())
     return (w - n * (n + 1) / 4.0) / np.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
 
 

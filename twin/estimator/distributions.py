@@ -1,8 +1,9 @@
-"""The chi-square and F tail functions the estimator and the diagnosis use, from ``scipy.special``.
+"""The chi-square and F tail functions the estimator and the diagnosis use, from ``scipy.special``, and the average
+ranks of a rank test.
 
-The same numbers as ``scipy.stats.chi2`` and ``scipy.stats.f`` (the functions those distributions call, with their
-handling of the support's ends; ``tests/test_estimator_distributions.py`` compares them bit for bit), without
-importing ``scipy.stats``, which costs more than a second of start-up for every ``twin calibrate`` and ``twin
+The same numbers as ``scipy.stats.chi2``, ``scipy.stats.f`` (the functions those distributions call, with their
+handling of the support's ends) and ``scipy.stats.rankdata`` (``tests/test_estimator_distributions.py`` compares
+them bit for bit), without importing ``scipy.stats``, which costs more than a second of start-up for every ``twin calibrate`` and ``twin
 diagnose``.
 """
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import special as sc
 
-__all__ = ["chi2_sf", "chi2_logsf", "chi2_isf", "chi2_ppf", "chi2_median", "f_sf"]
+__all__ = ["chi2_sf", "chi2_logsf", "chi2_isf", "chi2_ppf", "chi2_median", "f_sf", "average_ranks"]
 
 
 def _support(x, k):
@@ -89,3 +90,19 @@ def f_sf(x, d1, d2):
     out[ok & (x == np.inf)] = 0.0
     out[good] = sc.fdtrc(d1[good], d2[good], x[good])
     return _out(out)
+
+
+def average_ranks(a) -> np.ndarray:
+    """The ranks ``1..n`` of the entries of ``a`` (flattened), tied entries at the mean of their ranks (``(first +
+    last) / 2``, exact in floating point), as ``scipy.stats.rankdata(a)``."""
+    a = np.asarray(a, dtype=float).ravel()
+    order = np.argsort(a, kind="stable")
+    s = a[order]
+    new = np.ones(s.size, dtype=bool)
+    new[1:] = s[1:] != s[:-1]
+    start = np.flatnonzero(new)  # 0-based first position of each run of equal values
+    stop = np.append(start[1:], s.size)  # one past its last
+    grp = np.cumsum(new) - 1
+    out = np.empty(a.size)
+    out[order] = 0.5 * (start[grp] + 1 + stop[grp])
+    return out
