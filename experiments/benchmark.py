@@ -1,7 +1,8 @@
-"""`make bench`: our calibrators side by side with the peers, the measurement pipeline, and growth with the work.
+"""`make bench`: our calibrators side by side with the peers, the measurement pipeline, growth with the work, and the
+diagnosis at scale.
 
-Writes the ``peers``, ``pipeline`` and ``growth`` sections of ``results/benchmark.json`` (other sections are
-left alone) and ``results/benchmark_table.md``. See ``docs/benchmark.md``.
+Writes the ``peers``, ``pipeline``, ``growth`` and ``diagnosis_scale`` sections of ``results/benchmark.json``
+(other sections are left alone) and ``results/benchmark_table.md``. See ``docs/benchmark.md``.
 
     python experiments/benchmark.py                      # everything (about half an hour on 2 cores)
     python experiments/benchmark.py --sections peers --quick
@@ -29,7 +30,7 @@ set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujo
 from experiments.peers import sections  # noqa: E402
 from twin.benchio import DEFAULT_PATH  # noqa: E402
 
-ALL = ("peers", "pipeline", "growth")
+ALL = ("peers", "pipeline", "growth", "diagnosis_scale")
 
 
 def main(argv: list[str] | None = None) -> int:

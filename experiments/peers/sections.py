@@ -1,4 +1,5 @@
-"""The three sections `make bench` writes (``peers``, ``pipeline``, ``growth``) and the markdown table."""
+"""The sections `make bench` writes (``peers``, ``pipeline``, ``growth``, ``diagnosis_scale``) and the markdown
+table."""
 
 from __future__ import annotations
 
@@ -72,6 +73,11 @@ def run_section(name: str, *, out: Path, seeds: int, repeats: int, quick: bool) 
         from .growth import growth_section
 
         data = growth_section(quick=quick, repeats=repeats)
+    elif name == "diagnosis_scale":
+        from experiments.bench_diagnosis_scale import section
+
+        # each run is a whole diagnosis of 12,000 rows (~1 min): at most 3
+        data = section(runs=min(repeats, 3), quick=quick)
     else:
         raise ValueError(f"unknown section {name!r}")
     update_benchmark_section(name, data, out)

@@ -137,6 +137,20 @@ def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
     raise ValueError(f"atom place {atom.place!r} has no parameter direction")
 
 
+def _times_weights(J: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``J[:, :P] @ w`` ``(m, c)`` for weights ``w`` ``(P, c)``; when each column of ``w`` has one nonzero entry (a
+    joint, a parameter, one axis of a frame) that column of ``J`` times it: the same numbers without a pass over
+    ``J``, laid out as the product's (C order; ``+ 0.0`` makes a zero ``+0`` as the product's sum does), since the
+    layout and the sign of a zero steer the later factorizations' rounding."""
+    nz = w != 0
+    if np.all(nz.sum(axis=0) == 1):
+        idx = np.argmax(nz, axis=0)
+        out = np.multiply(J[:, idx], w[idx, np.arange(w.shape[1])], order="C")
+        out += 0.0
+        return out
+    return J[:, : w.shape[0]] @ w
+
+
 class ExtendedModel:
     """Residuals of the geometric model plus atom terms on one set of observations."""
 
@@ -156,6 +170,7 @@ class ExtendedModel:
         self._field_cache: dict[str, np.ndarray] = {}
         self._f = (np.ones(self._crd.size) if axis_sigma is None
                    else (obs.sigma_position / np.asarray(axis_sigma, dtype=float))[self._crd])
+        self._f_one = bool(np.all(self._f == 1.0))  # an isotropic floor: whitening by the axes changes nothing
         sizes = [t.r for t in self.terms]
         self.offsets = np.concatenate([[space.size], space.size + np.cumsum(sizes)]).astype(int)
         self.size = int(self.offsets[-1])
@@ -185,7 +200,7 @@ class ExtendedModel:
         if a.place in ("joint", "length", "param"):
             if a.target == "base_along" or a.target.startswith("tilt"):
                 return None
-            return res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, c)
+            return _times_weights(res.J, param_weights(self.space, x, a))  # (m, c)
         if a.place == "plate":
             return self._plate_columns(x, obs, res, int(a.target[6:])) * self._f[:, None]  # (m, 3)
         if a.place == "scale":
@@ -254,8 +269,9 @@ class ExtendedModel:
         first_order = [t.atom.first_order for t in self.terms]
         need_J = jacobian or any(first_order)
         res = absolute_residuals(self.space, x, obs, jacobian=need_J)
-        res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,
-                        block=res.block)
+        if not self._f_one:
+            res = Residuals(r=res.r * self._f, J=None if res.J is None else res.J * self._f[:, None], row=res.row,
+                            block=res.block)
         r = res.r
         cols = []
         for t, phi, fo in zip(self.terms, phis, first_order):

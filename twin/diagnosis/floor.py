@@ -143,10 +143,10 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     dfn, dfd = rank - p3, n - rank
     if dfn <= 0 or dfd <= 0 or ss1 <= 0:
         return dev, infl, None
-    from scipy import stats
+    from ..estimator.distributions import f_sf
 
     F = ((ss0 - ss1) / dfn) / (ss1 / dfd)
-    pval = float(stats.f.sf(F, dfn, dfd))
+    pval = float(f_sf(F, dfn, dfd))
     if pval >= alpha:
         return dev, infl, None
     h = np.sum(Q**2, axis=1)

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from dataclasses import replace as replace_atom
 
 import numpy as np
-from scipy import stats
 
+from ..estimator import distributions as dists
 from ..estimator.core import Prepared
 from ..estimator.solvers import gauss_newton
 from .atoms import Atom, feature_values
@@ -55,10 +55,10 @@ def structure_test(r: np.ndarray, Jv: np.ndarray, Jc: np.ndarray, floor: NoiseFl
     y = Jv.T @ r
     T = float(r @ r - y @ np.linalg.lstsq(M, y, rcond=None)[0]) if M.size else float(r @ r)
     if np.isinf(floor.dof):
-        p = float(stats.chi2.sf(T, m))
+        p = float(dists.chi2_sf(T, m))
         dist = f"chi2({m})"
     else:
-        p = float(stats.f.sf(T / m, m, floor.dof))
+        p = float(dists.f_sf(T / m, m, floor.dof))
         dist = f"F({m}, {int(floor.dof)})"
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))), dist)
 
@@ -71,9 +71,9 @@ def fit_block_test(r: np.ndarray, n_free: int, floor: NoiseFloor) -> StructureTe
     m = max(r.size - int(n_free), 1)
     T = float(r @ r)
     if np.isinf(floor.dof):
-        p, dist = float(stats.chi2.sf(T, m)), f"chi2({m})"
+        p, dist = float(dists.chi2_sf(T, m)), f"chi2({m})"
     else:
-        p, dist = float(stats.f.sf(T / m, m, floor.dof)), f"F({m}, {int(floor.dof)})"
+        p, dist = float(dists.f_sf(T / m, m, floor.dof)), f"F({m}, {int(floor.dof)})"
     return StructureTest(T, m, p, float(np.sqrt(np.mean(r**2))) if r.size else 0.0, dist)
 
 
@@ -92,7 +92,7 @@ def gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 
     if has.sum() < 5:
         return np.zeros(n, dtype=bool)
     k = np.maximum(cnt, 1)
-    thr_floor = np.sqrt(stats.chi2.isf(1e-6 / max(n, 1), k) / k)
+    thr_floor = np.sqrt(dists.chi2_isf(1e-6 / max(n, 1), k) / k)
     med = float(np.median(e[has]))
     mad = 1.4826 * float(np.median(np.abs(e[has] - med)))
     bad = has & (e > thr_floor) & (e > med + 8 * max(mad, 0.05 * med))
@@ -141,6 +141,10 @@ class Problem:
         self.floor = floor
         self._F: dict[str, np.ndarray] = {}
         self._Fc: dict[str, np.ndarray] = {}
+        self._Fu: dict[str, tuple | None] = {}
+        self._newest_basis: weakref.ref | None = None  # the scoring basis that keeps its per-place quantities
+        self._orders: dict = {}
+        self._store: _ColumnStore | None = None
         self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
@@ -168,12 +172,59 @@ class Problem:
         return F
 
     def features_cal(self, atom: Atom) -> np.ndarray:
-        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached)."""
+        """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached; the values on every row are
+        kept only when :meth:`features` asks for them: most atoms are only ever scored on the calibration rows)."""
         key = self._key(atom)
         F = self._Fc.get(key)
         if F is None:
-            F = self._Fc[key] = self.features(atom)[self.rows_cal]
+            F_all = self._F.get(key)
+            if F_all is None:
+                F_all = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
+            F = self._Fc[key] = F_all[self.rows_cal]
         return F
+
+    def inner_features_cal(self, inner: tuple) -> np.ndarray:
+        """Values ``(n_cal, K)`` of the features inside gated features (:func:`_gate`) on the calibration rows
+        (cached)."""
+        key = ("inner", repr(inner))
+        got = self._orders.get(key)
+        if got is None:
+            got = self._orders[key] = feature_values(inner, self.ctx, self.prep.nominal, self._cache)[self.rows_cal]
+        return got
+
+    def channel_order_cal(self, ch: str) -> tuple[np.ndarray, np.ndarray]:
+        """The calibration rows in the order of a channel's values (stable) and the sorted values (cached)."""
+        key = ("order", ch)
+        got = self._orders.get(key)
+        if got is None:
+            from .atoms import _ch
+
+            v = np.asarray(_ch(self.ctx, {"ch": ch}), dtype=float)[self.rows_cal]
+            order = np.argsort(v, kind="stable")
+            got = self._orders[key] = (order, v[order])
+        return got
+
+    def column_store(self, atoms: list[Atom]) -> "_ColumnStore | None":
+        """The store of the feature sets the screening multiplies most (:class:`_ColumnStore`), built from the
+        first large call (the whole pool) and kept; None until then."""
+        if self._store is None and len(atoms) >= _ColumnStore.MIN_ATOMS:
+            self._store = _ColumnStore(self, atoms)
+        return self._store
+
+    def distinct_rows_cal(self, atom: Atom) -> tuple[np.ndarray, object] | None:
+        """The distinct feature rows ``(u, K)`` of an atom on the calibration rows and the sparse ``(u, n_cal)``
+        matrix summing a per-row quantity over the rows that share each, when there are at most half as many
+        distinct rows as rows (steps, indicators, sessions); else None (cached)."""
+        from scipy import sparse
+
+        key = self._key(atom)
+        if key not in self._Fu:
+            F = self.features_cal(atom)
+            Fu, inv = np.unique(F, axis=0, return_inverse=True)
+            n = F.shape[0]
+            self._Fu[key] = None if 2 * len(Fu) > n else (
+                Fu, sparse.csr_matrix((np.ones(n), (inv.ravel(), np.arange(n))), shape=(len(Fu), n)))
+        return self._Fu[key]
 
     def model(self, chosen: list, block: str) -> ExtendedModel:
         """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
@@ -219,7 +270,7 @@ def chi2_logsf(x, k):
     from scipy.special import gammaln
 
     x, k = np.asarray(x, float), np.asarray(k, float)
-    v = np.asarray(stats.chi2.logsf(x, k), float)
+    v = np.asarray(dists.chi2_logsf(x, k), float)
     bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
     if np.any(bad):
         xb, kb = np.broadcast_to(x, v.shape)[bad], np.broadcast_to(k, v.shape)[bad]
@@ -238,12 +289,32 @@ class Scored:
     """An atom scored against a fit: its reduced ``basis`` ``(K, r)``, coefficients ``psi`` ``(r,)``, calibration
     evidence ``dchi2`` and pool-adjusted ``logp_adj``, the residual ``r`` it was scored against (projected off the
     current model, kept residuals), and on demand its reduced columns ``E`` ``(m_kept, r)``, their part ``Ep``
-    beyond the current model and the fitted residual ``fitted = Ep psi``."""
+    beyond the current model and the fitted residual ``fitted = Ep psi``. ``ep_norm2``: ``|Ep|_F^2`` when the
+    scoring knows it (the sum of the kept eigenvalues of the projected Gram matrix)."""
 
     def __init__(self, atom: Atom, basis: np.ndarray, psi: np.ndarray, dchi2: float, logp_adj: float, r: np.ndarray,
-                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None):
+                 *, E: np.ndarray | None = None, Ep: np.ndarray | None = None, columns=None, Q: np.ndarray | None = None,
+                 ep_norm2: float | None = None):
         self.atom, self.basis, self.psi, self.dchi2, self.logp_adj, self.r = atom, basis, psi, dchi2, logp_adj, r
         self._E, self._Ep, self._columns, self._Q = E, Ep, columns, Q
+        self._ep_norm2 = ep_norm2
+        self._span: np.ndarray | None = None
+
+    def reduced_columns(self) -> np.ndarray:
+        """``E`` ``(m_kept, r)``, built without keeping it when it is not kept already (a test over many atoms)."""
+        return self._E if self._E is not None else self._columns() @ self.basis
+
+    def ep_norm2(self) -> float:
+        """``|Ep|_F^2``, the squared norm of the reduced columns beyond the current model."""
+        if self._ep_norm2 is None:
+            return float(np.sum(self.Ep**2))
+        return self._ep_norm2
+
+    def span(self) -> np.ndarray:
+        """An orthonormal basis ``(m_kept, r)`` of ``Ep`` (QR; kept)."""
+        if self._span is None:
+            self._span = np.linalg.qr(self.Ep)[0]
+        return self._span
 
     @property
     def E(self) -> np.ndarray:
@@ -263,6 +334,66 @@ class Scored:
         return self.Ep @ self.psi
 
 
+class _ColumnStore:
+    """The screened pool's feature sets on the calibration rows, stored once however many places use them: per
+    width ``K``, one block ``(n, K, g)`` of the sets several places use (the dictionary's) and one per place of the
+    sets only it uses (a scanned order, a joint's own shapes), so that a place multiplies its per-row aggregates
+    with a few contiguous blocks instead of a copy of its atoms' features. The calibration-row features of the stored sets
+    (:meth:`Problem.features_cal`) become views of the blocks. One-step atoms are left out (suffix sums)."""
+
+    MIN_ATOMS = 200
+
+    def __init__(self, prob: Problem, atoms: list[Atom]):
+        users: dict[str, set] = {}
+        rep: dict[str, Atom] = {}
+        for a in atoms:
+            if _single_step(a):
+                continue
+            key = prob._key(a)
+            users.setdefault(key, set()).add((a.place, a.target))
+            rep.setdefault(key, a)
+        # per width, one block of the sets several places use (a place multiplies the whole block: the few sets a
+        # place lacks, its own joint's polynomial on a joint, cost less than many small blocks) and one block per
+        # place of the sets only it uses (a scanned order)
+        everyone = frozenset().union(*users.values())
+        by_block: dict[tuple, list[str]] = {}
+        for key, places in users.items():
+            who = frozenset(places) if len(places) == 1 else everyone
+            by_block.setdefault((who, len(rep[key].features)), []).append(key)
+        self.blocks: list[tuple[frozenset, np.ndarray]] = []
+        self.index: dict[str, tuple[int, int]] = {}
+        for (places, K), keys in by_block.items():
+            F = np.stack([prob.features_cal(rep[k]) for k in keys], axis=2)  # (n, K, g)
+            b = len(self.blocks)
+            self.blocks.append((places, F))
+            for j, k in enumerate(keys):
+                self.index[k] = (b, j)
+                prob._Fc[k] = F[:, :, j]
+
+    def has(self, key: str) -> bool:
+        return key in self.index
+
+    def stats(self, place: tuple, keys: list[str], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+        """:func:`_block_stats` of the stored sets ``keys`` against one place's aggregates (every set of a block
+        the place uses is multiplied: the blocks are what the places share)."""
+        need: dict[int, list[tuple[int, int]]] = {}
+        for i, k in enumerate(keys):
+            b, j = self.index[k]
+            need.setdefault(b, []).append((i, j))
+        out: list = [None] * len(keys)
+        for b, items in need.items():
+            F = self.blocks[b][1]
+            if 4 * len(items) < F.shape[2]:  # a few sets of a large block: those alone
+                got = _block_stats(F[:, :, [j for _, j in items]], w, Qb, br)
+                for (i, _), st in zip(items, got):
+                    out[i] = st
+                continue
+            got = _block_stats(F, w, Qb, br)
+            for i, j in items:
+                out[i] = got[j]
+        return out
+
+
 def _screenable(a: Atom) -> bool:
     """Atoms whose columns are one model column times their features (batch-screened)."""
     if len(a.features) > 4:
@@ -279,79 +410,223 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     An atom's columns are ``E[m, k] = b[m] F[row(m), k]`` (``b`` the model column of its place, ``F`` its
     features), so every product over the residuals is a product over the rows with per-row aggregates of
     ``b``: ``E^T E = F^T diag(w) F`` with ``w = sum_row b^2``, ``Q^T E = (sum_row Q b)^T F``,
-    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``."""
-    from scipy import sparse
-
-    from .extend import param_weights
-
-    x = fit.z[: prob.prep.space.size]
-    Jg = rc.J[:, : prob.prep.space.size]
-    swk = sw[keep]
-    rows = rc.row[keep]
-    n = prob.obs_cal.n
-    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    ``E^T r = F^T (sum_row b r)``; the projected Gram matrix is ``E^T E - (Q^T E)^T Q^T E``. The products over
+    the rows are taken per feature set, not per atom: on the column store's blocks of the sets the places share
+    (:class:`_ColumnStore`), and for a step in time (``1[t >= a]``, one per session start) as the sum of the
+    aggregates over the rows from ``a`` on (suffix sums in the order of the channel)."""
+    sb = scoring_basis(prob, fit)
     Qtr = Q.T @ r
-    coords = None
+    store = prob.column_store(atoms)
     groups: dict[tuple, list[int]] = {}
     for i, a in enumerate(atoms):
         groups.setdefault((a.place, a.target), []).append(i)
     logp = np.full(len(atoms), np.inf)
-    for (place, _), ids in groups.items():
-        if place == "scale":
-            if coords is None:
-                _, phis = fit.model_cal.split(fit.z)
-                coords = fit.model_cal.scale_column(fit.model_cal.effective_obs(phis))
-            b = coords
-        else:
-            b = (Jg @ param_weights(prob.prep.space, x, atoms[ids[0]]))[:, 0]
-        b = b[keep] * swk
-        w = S @ (b * b)  # (n,)
-        Qb = S @ (Q * b[:, None])  # (n, p)
-        br = S @ (b * r)  # (n,)
-        by_width: dict[int, list[int]] = {}
+    stats: dict[int, list] = {}  # width K -> [(atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,))]
+    for (place, target), ids in groups.items():
+        w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
+        steps, stored, rest = [], [], []
         for i in ids:
+            if _single_step(atoms[i]):
+                steps.append(i)
+            elif store is not None and store.has(prob._key(atoms[i])):
+                stored.append(i)
+            else:
+                rest.append(i)
+        if steps:
+            for i, got in zip(steps, _step_stats(prob, [atoms[i] for i in steps], w, Qb, br)):
+                stats.setdefault(1, []).append((i, *got))
+        if stored:
+            got = store.stats((place, target), [prob._key(atoms[i]) for i in stored], w, Qb, br)
+            for i, st in zip(stored, got):
+                stats.setdefault(len(atoms[i].features), []).append((i, *st))
+        by_width: dict[int, list[int]] = {}
+        for i in rest:
             by_width.setdefault(len(atoms[i].features), []).append(i)
         for K, gi in by_width.items():
-            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=1)  # (n, g, K)
-            g = len(gi)
-            F2 = F.reshape(n, g * K)
-            nrm = np.sqrt(np.maximum(w @ (F2 * F2), 0.0)).reshape(g, K)
-            scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
-            QtE = (Qb.T @ F2).reshape(-1, g, K).transpose(1, 0, 2) * scale[:, None, :]  # (g, p, K)
-            Ft = F.transpose(1, 2, 0)  # (g, K, n)
-            EtE = ((Ft * w) @ Ft.transpose(0, 2, 1)) * scale[:, :, None] * scale[:, None, :]
-            G = EtE - QtE.transpose(0, 2, 1) @ QtE
-            er = (br @ F2).reshape(g, K) * scale - (Qtr @ QtE)
-            has = np.any(nrm > 0, axis=1)
-            lam, V = np.linalg.eigh(G)
-            ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
-            proj = np.einsum("gij,gi->gj", V, er)
-            d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
-            k = ok.sum(axis=1)
-            fine = k > 0
-            gi = np.asarray(gi)
-            logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
+            F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=2)  # (n, K, g)
+            for i, st in zip(gi, _block_stats(F, w, Qb, br)):
+                stats.setdefault(K, []).append((i, *st))
+    for K, rows in stats.items():
+        gi = np.array([t[0] for t in rows])
+        nrm = np.sqrt(np.maximum(np.array([t[1] for t in rows]), 0.0))  # (g, K)
+        EtE = np.array([t[2] for t in rows])  # (g, K, K)
+        QtE = np.array([t[3] for t in rows])  # (g, p, K)
+        Etr = np.array([t[4] for t in rows])  # (g, K)
+        scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
+        QtE = QtE * scale[:, None, :]
+        EtE = EtE * scale[:, :, None] * scale[:, None, :]
+        G = EtE - QtE.transpose(0, 2, 1) @ QtE
+        er = Etr * scale - (Qtr @ QtE)
+        has = np.any(nrm > 0, axis=1)
+        lam, V = np.linalg.eigh(G)
+        ok = (lam > 1e-4) & has[:, None]  # singular value above 1 % of a unit column
+        proj = np.einsum("gij,gi->gj", V, er)
+        d = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1)
+        k = ok.sum(axis=1)
+        fine = k > 0
+        logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
     return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
+
+
+def _single_step(a: Atom) -> bool:
+    """An atom of one feature, a step ``1[ch >= at]`` in a channel."""
+    return len(a.features) == 1 and a.features[0].get("kind") == "step"
+
+
+def _tail_sums(X: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """``S[i] = sum_{j >= pos[i]} X[j]`` ``(len(pos), X.shape[1])`` for rows ``X`` ``(n, d)`` (0 for ``pos[i] = n``):
+    the sums between consecutive distinct positions, accumulated from the last."""
+    n = X.shape[0]
+    out = np.zeros((len(pos), X.shape[1]))
+    inside = pos < n
+    if not np.any(inside):
+        return out
+    up = np.unique(pos[inside])
+    tails = np.cumsum(np.add.reduceat(X, up, axis=0)[::-1], axis=0)[::-1]
+    out[inside] = tails[np.searchsorted(up, pos[inside])]
+    return out
+
+
+def _block_stats(F: np.ndarray, w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+    """The products over the rows of feature sets ``F`` ``(n, K, g)`` with the per-row aggregates, per set:
+    ``sum w F_k^2`` ``(K,)``, ``sum w F_k F_l`` ``(K, K)``, ``Qb^T F`` ``(p, K)`` and ``br^T F`` ``(K,)``."""
+    n, K, g = F.shape
+    QtE = np.stack([Qb.T @ F[:, k, :] for k in range(K)], axis=2)  # (p, g, K)
+    Etr = np.stack([br @ F[:, k, :] for k in range(K)], axis=1)  # (g, K)
+    EtE = np.empty((g, K, K))
+    for k in range(K):
+        for m in range(k, K):
+            EtE[:, k, m] = EtE[:, m, k] = np.einsum("n,ng,ng->g", w, F[:, k, :], F[:, m, :])
+    nrm2 = np.diagonal(EtE, axis1=1, axis2=2)
+    return [(nrm2[i], EtE[i], QtE[:, i, :], Etr[i]) for i in range(g)]
+
+
+def _step_stats(prob: Problem, steps: list[Atom], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
+    """:func:`_block_stats` of one-step atoms ``1[ch >= at]``: sums of the aggregates over the rows with
+    ``ch >= at``, read off suffix sums in the channel's order (one pass over the rows for all the steps)."""
+    out: list = [None] * len(steps)
+    by_ch: dict[str, list[int]] = {}
+    for i, a in enumerate(steps):
+        by_ch.setdefault(a.features[0]["ch"], []).append(i)
+    for ch, idx in by_ch.items():
+        order, v = prob.channel_order_cal(ch)
+        A = np.concatenate([w[order, None], Qb[order], br[order, None]], axis=1)  # (n, p + 2)
+        at = np.array([steps[i].features[0]["at"] for i in idx], dtype=float)
+        for i, s in zip(idx, _tail_sums(A, np.searchsorted(v, at, side="left"))):
+            out[i] = (s[:1], s[:1].reshape(1, 1), s[1:-1, None], s[-1:])
+    return out
 
 
 @dataclass(frozen=True)
 class ScoringBasis:
     """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
     square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
-    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it."""
+    ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it; ``cache``: what the
+    scoring derives from them once per place (:func:`_kept_base`, :func:`_row_aggregates`)."""
 
     rc: object
     sw: np.ndarray
     keep: np.ndarray
     Q: np.ndarray
     r: np.ndarray
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The calibration row of every kept residual ``(m_kept,)``."""
+        got = self.cache.get("rows")
+        if got is None:
+            got = self.cache["rows"] = self.rc.row[self.keep]
+        return got
+
+    @property
+    def sw_kept(self) -> np.ndarray:
+        """The square-root row weights of the kept residuals ``(m_kept,)``."""
+        got = self.cache.get("sw_kept")
+        if got is None:
+            got = self.cache["sw_kept"] = self.sw[self.keep]
+        return got
+
+
+def _kept_base(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> np.ndarray:
+    """The whitened model columns a product atom's features multiply (:meth:`ExtendedModel.product_base`) on the
+    kept residuals ``(m_kept, c)``, unweighted; once per place and fit."""
+    key = ("base", atom.place, atom.target)
+    got = sb.cache.get(key)
+    if got is None:
+        model = fit.model_cal
+        obs = model.effective_obs(model.split(fit.z)[1])
+        got = sb.cache[key] = model.product_base(atom, fit.z[: prob.prep.space.size], obs, sb.rc)[sb.keep]
+    return got
+
+
+def _row_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tuple[np.ndarray, ...]:
+    """Per calibration row, the sums over its kept residuals of ``base base^T`` ``(n, c, c)``, ``Q base^T``
+    ``(n, p, c)`` and ``base r`` ``(n, c)`` (``base``: :func:`_kept_base` times the row weights); once per place and
+    fit."""
+    key = ("aggregates", atom.place, atom.target)
+    got = sb.cache.get(key)
+    if got is None:
+        base = _kept_base(prob, fit, sb, atom) * sb.sw_kept[:, None]  # (m, c)
+        slot, rows, Qg, rg = _row_slots(prob, sb)
+        kmax, n, p = Qg.shape
+        c = base.shape[1]
+        bg = np.zeros((kmax, n, c))
+        bg[slot, rows] = base
+        # each row's sum over its residuals in their order, one slot at a time (a padded slot adds an exact 0)
+        W = np.zeros((n, c, c))
+        QB = np.zeros((n, p, c))
+        Br = np.zeros((n, c))
+        tmp = np.empty((n, p))
+        for k in range(kmax):
+            W += bg[k][:, :, None] * bg[k][:, None, :]
+            for j in range(c):
+                np.multiply(Qg[k], bg[k, :, j:j + 1], out=tmp)
+                QB[:, :, j] += tmp
+            Br += bg[k] * rg[k][:, None]
+        got = sb.cache[key] = (W, QB, Br)
+    return got
+
+
+def _row_slots(prob: Problem, sb: ScoringBasis) -> tuple[np.ndarray, ...]:
+    """The kept residuals laid out by calibration row: each one's slot (its place among its row's residuals, in
+    their order) and row ``(m_kept,)``, and ``Q`` ``(kmax, n, p)`` and ``r`` ``(kmax, n)`` in that layout (zero in
+    the slots a row does not fill); once per basis."""
+    got = sb.cache.get("slots")
+    if got is None:
+        rows = sb.rows
+        n = prob.obs_cal.n
+        order = np.argsort(rows, kind="stable")
+        counts = np.bincount(rows, minlength=n)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        slot = np.empty(len(rows), dtype=int)
+        slot[order] = np.arange(len(rows)) - start[rows[order]]
+        kmax = int(counts.max(initial=0))
+        Qg = np.zeros((kmax, n, sb.Q.shape[1]))
+        Qg[slot, rows] = sb.Q
+        rg = np.zeros((kmax, n))
+        rg[slot, rows] = sb.r
+        got = sb.cache["slots"] = (slot, rows, Qg, rg)
+    return got
+
+
+def _screen_aggregates(prob: Problem, fit: Fit, sb: ScoringBasis, atom: Atom) -> tuple[np.ndarray, ...]:
+    """The single-column form of :func:`_row_aggregates` the screening uses: ``w`` ``(n,)``, ``Qb`` ``(n, p)``,
+    ``br`` ``(n,)``."""
+    W, QB, Br = _row_aggregates(prob, fit, sb, atom)
+    return W[:, 0, 0], QB[:, :, 0], Br[:, 0]
 
 
 def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
-    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit)."""
+    """The :class:`ScoringBasis` of ``fit`` under the problem's current row weights (cached on the fit). Only the
+    newest basis keeps its per-place quantities (the selection scores against its latest fit; an older basis
+    derives them again when asked)."""
     key = ("basis", id(prob.w_cal))
     got = fit.cache.get(key)
     if got is None:
+        old = prob._newest_basis() if prob._newest_basis is not None else None
+        if old is not None:
+            old.cache.clear()
         rc = fit.model_cal.residuals(fit.z)
         sw = np.sqrt(prob.w_cal[rc.row])
         keep = sw > 0
@@ -360,6 +635,7 @@ def scoring_basis(prob: Problem, fit: Fit) -> ScoringBasis:
         r = (rc.r * sw)[keep]
         r = r - Q @ (Q.T @ r)
         got = fit.cache[key] = ScoringBasis(rc, sw, keep, Q, r)
+        prob._newest_basis = weakref.ref(got)
     return got
 
 
@@ -407,60 +683,183 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     matrix ``D (E^T E - (Q^T E)^T Q^T E) D`` whose singular values (square roots) pass ``rel_tol`` (at most
     ``max_rank``), and ``Delta chi2 = sum (v^T D (E^T r - (Q^T E)^T Q^T r))^2 / lambda``. The columns themselves
     are built only for the atoms whose ``Ep`` is asked for."""
-    from scipy import sparse
-
-    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
-    x = fit.z[: prob.prep.space.size]
-    model = fit.model_cal
-    obs = model.effective_obs(model.split(fit.z)[1])
-    rows = rc.row[keep]
-    n = prob.obs_cal.n
-    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    Q, r = sb.Q, sb.r
     Qtr = Q.T @ r
     groups: dict[tuple, list[Atom]] = {}
     for a in atoms:
         groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
     pending = []
-    for key, members in groups.items():
-        base = model.product_base(members[0], x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
-        c = base.shape[1]
-        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
-        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
-        Br = S @ (base * r[:, None])  # (n, c)
-        by_width: dict[int, list[Atom]] = {}
+    for members in groups.values():
+        W, QB, Br = _row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
+        items: dict[int, list] = {}  # K -> [(atom, E^T E, Q^T E, E^T r, any feature nonzero)]
+        families: dict[tuple, list[Atom]] = {}
+        rest: list[Atom] = []
         for a in members:
+            gate = _gate(a)
+            if gate is None:
+                rest.append(a)
+            else:
+                families.setdefault((gate[0], repr(gate[2])), []).append(a)
+        for fam in families.values():
+            if len(fam) * W.shape[0] < GATE_SUFFIX_MIN:  # a small family: as every other atom
+                rest += fam
+                continue
+            for a, st in zip(fam, _gate_grams(prob, fam, W, QB, Br)):
+                items.setdefault(len(a.features), []).append((a, *st))
+        by_width: dict[int, list[Atom]] = {}
+        for a in rest:
             by_width.setdefault(len(a.features), []).append(a)
         for K, grp in by_width.items():
             F = np.stack([prob.features_cal(a) for a in grp], axis=1)  # (n, g, K)
-            g = len(grp)
-            KC, p = K * c, Q.shape[1]
-            FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
-            EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
-            F2 = F.reshape(n, g * K)
-            QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
-            Etr = (F2.T @ Br).reshape(g, KC)
+            EtE, QtE, Etr = _product_grams_bounded(prob, grp, F, W, QB, Br)
+            nonzero = np.any(F != 0, axis=(0, 2))
+            items.setdefault(K, []).extend(zip(grp, EtE, QtE, Etr, nonzero))
+        for K, it in items.items():
+            grp = [t[0] for t in it]
+            EtE, QtE, Etr = np.array([t[1] for t in it]), np.array([t[2] for t in it]), np.array([t[3] for t in it])
+            nonzero = [bool(t[4]) for t in it]
             nrm = np.sqrt(np.maximum(np.diagonal(EtE, axis1=1, axis2=2), 0.0))  # (g, KC)
             has = nrm > 1e-12 * np.maximum(nrm.max(axis=1, keepdims=True), 1e-300)
             D = np.where(has, 1.0 / np.where(has, nrm, 1.0), 0.0)
             G = (EtE - QtE.transpose(0, 2, 1) @ QtE) * D[:, :, None] * D[:, None, :]
             e = (Etr - Qtr @ QtE) * D
-            lam, V = np.linalg.eigh(G)
-            lam, V = lam[:, ::-1], V[:, :, ::-1]  # descending
+            lam, V = _leading_eigh(G, max_rank)  # descending
             sv = np.sqrt(np.maximum(lam, 0.0))
             rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
             for i, a in enumerate(grp):
                 rk = int(rks[i])
-                if rk == 0 or not np.any(F[:, i]) or not np.any(has[i]):
+                if rk == 0 or not nonzero[i] or not np.any(has[i]):
                     continue
                 Vr = V[i][:, :rk]
                 proj = Vr.T @ e[i]
-                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk))
+                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk,
+                                float(np.sum(lam[i, :rk]))))
     if not pending:
         return []
     logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
     return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
-                   columns=_column_maker(prob, fit, a, rc, keep, sw))
-            for (a, B, psi, d, _), lp in zip(pending, np.atleast_1d(logp))]
+                   columns=_column_maker(prob, fit, a, sb), ep_norm2=ep2)
+            for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
+
+
+WIDE_EIGH_MIN = 400  # from this size on, only the leading eigenpairs of a projected Gram matrix are computed
+
+
+def _leading_eigh(G: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues ``(g, .)`` and eigenvectors ``(g, KC, .)`` of symmetric matrices ``G`` ``(g, KC, KC)`` in
+    descending order: all of them, or for matrices of ``WIDE_EIGH_MIN`` rows and more (a step at each of 200
+    session starts on a frame: 1,200 rows) the ``k`` leading ones alone, all the scoring uses."""
+    KC = G.shape[-1]
+    if KC < WIDE_EIGH_MIN or KC <= k:
+        lam, V = np.linalg.eigh(G)
+        return lam[:, ::-1], V[:, :, ::-1]
+    from scipy.linalg import eigh
+
+    lam = np.empty((len(G), k))
+    V = np.empty((len(G), KC, k))
+    for i, Gi in enumerate(G):
+        w, v = eigh(Gi, subset_by_index=[KC - k, KC - 1])
+        lam[i], V[i] = w[::-1], v[:, ::-1]
+    return lam, V
+
+
+GATE_SUFFIX_MIN = 1 << 20  # atoms x rows from which a family acting from different moments is summed by suffixes
+
+
+def _gate(a: Atom) -> tuple[str, float, tuple] | None:
+    """``(channel, at, inner features)`` of an atom that acts from a moment on: one step ``1[ch >= at]`` (no inner
+    features), or features all gated at the same ``ch >= at`` (a compliance changed at a restart); else None."""
+    fs = a.features
+    if len(fs) == 1 and fs[0].get("kind") == "step":
+        return fs[0]["ch"], float(fs[0]["at"]), ()
+    if fs and all(f.get("kind") == "gated" for f in fs):
+        ch, at = fs[0]["ch"], fs[0]["at"]
+        if all(f["ch"] == ch and f["at"] == at for f in fs):
+            return ch, float(at), tuple(f["f"] for f in fs)
+    return None
+
+
+def _gate_grams(prob: Problem, family: list[Atom], W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> list:
+    """:func:`_product_grams` of atoms that differ only in the moment they act from (:func:`_gate`: the same
+    channel and inner features): the per-row products of their inner features with the aggregates summed over the
+    rows from each moment on, read off suffix sums in the channel's order (one pass over the rows for the family).
+    Per atom ``(E^T E, Q^T E, E^T r, whether a feature is nonzero)``."""
+    ch, _, inner = _gate(family[0])
+    order, v = prob.channel_order_cal(ch)
+    n = len(order)
+    Fo = np.ones((n, 1)) if not inner else prob.inner_features_cal(inner)[order]  # (n, K)
+    K, c, p = Fo.shape[1], W.shape[1], QB.shape[1]
+    KC = K * c
+    A = ((Fo[:, :, None] * Fo[:, None, :]).reshape(n, K * K, 1) * W[order].reshape(n, 1, c * c)).reshape(n, -1)
+    B = (Fo[:, :, None, None] * QB[order][:, None, :, :]).reshape(n, K * p * c)
+    C = (Fo[:, :, None] * Br[order][:, None, :]).reshape(n, K * c)
+    X = np.concatenate([A, B, C, np.any(Fo != 0, axis=1)[:, None].astype(float)], axis=1)
+    S = _tail_sums(X, np.searchsorted(v, np.array([_gate(a)[1] for a in family]), side="left"))
+    g = len(family)
+    a0, a1, a2 = K * K * c * c, K * K * c * c + K * p * c, K * K * c * c + K * p * c + K * c
+    EtE = S[:, :a0].reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+    QtE = S[:, a0:a1].reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+    Etr = S[:, a1:a2].reshape(g, KC)
+    return list(zip(EtE, QtE, Etr, S[:, a2] > 0))
+
+
+PRODUCT_BATCH_MAX = 1 << 23  # elements of the per-row feature products one batch builds at once (64 MB)
+
+
+def _product_grams(F: np.ndarray, W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``E^T E`` ``(g, K c, K c)``, ``Q^T E`` ``(g, p, K c)`` and ``E^T r`` ``(g, K c)`` of a batch of product atoms
+    with features ``F`` ``(n, g, K)`` from the per-row aggregates of their base ``W`` ``(n, c, c)``, ``QB``
+    ``(n, p, c)``, ``Br`` ``(n, c)`` (:func:`_score_products`)."""
+    n, g, K = F.shape
+    c, p = W.shape[1], QB.shape[1]
+    KC = K * c
+    FF = (F[:, :, :, None] * F[:, :, None, :]).reshape(n, g * K * K)
+    EtE = (FF.T @ W.reshape(n, c * c)).reshape(g, K, K, c, c).transpose(0, 1, 3, 2, 4).reshape(g, KC, KC)
+    F2 = F.reshape(n, g * K)
+    QtE = (F2.T @ QB.reshape(n, p * c)).reshape(g, K, p, c).transpose(0, 2, 1, 3).reshape(g, p, KC)
+    Etr = (F2.T @ Br).reshape(g, KC)
+    return EtE, QtE, Etr
+
+
+def _product_grams_bounded(prob: Problem, grp: list[Atom], F: np.ndarray, W: np.ndarray, QB: np.ndarray,
+                           Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_product_grams` with the per-row feature products of a batch held below ``PRODUCT_BATCH_MAX``
+    elements: a batch beyond it is split into smaller batches of atoms; an atom too wide alone (a step at each of
+    200 session starts) is evaluated on its distinct feature rows, the aggregates summed over the rows that share
+    one (``sum_row F F^T (x) W = sum_distinct F F^T (x) sum_its_rows W``), or else over blocks of rows."""
+    n, g, K = F.shape
+    if n * g * K * K <= PRODUCT_BATCH_MAX:
+        return _product_grams(F, W, QB, Br)
+    if n * K * K <= PRODUCT_BATCH_MAX:
+        step = max(1, PRODUCT_BATCH_MAX // (n * K * K))
+        parts = [_product_grams(F[:, i:i + step], W, QB, Br) for i in range(0, g, step)]
+        return tuple(np.concatenate(x, axis=0) for x in zip(*parts))
+    parts = []
+    for i, a in enumerate(grp):
+        distinct = prob.distinct_rows_cal(a)
+        if distinct is not None:
+            Fu, U = distinct
+            parts.append(_product_grams_wide(Fu, (U @ W.reshape(n, -1)).reshape(-1, *W.shape[1:]),
+                                             (U @ QB.reshape(n, -1)).reshape(-1, *QB.shape[1:]), U @ Br))
+        else:
+            parts.append(_product_grams_wide(F[:, i], W, QB, Br))
+    return tuple(np.concatenate(x, axis=0) for x in zip(*parts))
+
+
+def _product_grams_wide(F: np.ndarray, W: np.ndarray, QB: np.ndarray, Br: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`_product_grams` of one atom with many features ``F`` ``(n, K)`` without the ``(n, K^2)`` products:
+    ``E^T E`` block by block of the base, ``F^T diag(W[:, i, j]) F``."""
+    n, K = F.shape
+    c, p = W.shape[1], QB.shape[1]
+    EtE = np.empty((K, c, K, c))
+    for i in range(c):
+        for j in range(i, c):
+            EtE[:, i, :, j] = (F * W[:, i, j, None]).T @ F
+            if j > i:
+                EtE[:, j, :, i] = EtE[:, i, :, j].T
+    QtE = (F.T @ QB.reshape(n, p * c)).reshape(K, p, c).transpose(1, 0, 2).reshape(p, K * c)
+    Etr = (F.T @ Br).reshape(K * c)
+    return EtE.reshape(1, K * c, K * c), QtE[None], Etr[None]
 
 
 def _product(a: Atom) -> bool:
@@ -468,10 +867,17 @@ def _product(a: Atom) -> bool:
     return not (a.place == "field" or (a.place == "param" and (a.target == "base_along" or a.target.startswith("tilt"))))
 
 
-def _column_maker(prob: Problem, fit: Fit, atom: Atom, rc, keep, sw):
+def _column_maker(prob: Problem, fit: Fit, atom: Atom, sb: ScoringBasis):
+    """The weighted raw columns ``(m_kept, K c)`` of a product atom on the kept residuals, on demand: its features
+    on each residual's row times the place's model columns (:meth:`ExtendedModel.columns`)."""
     def make() -> np.ndarray:
-        F = prob.features(atom)[prob.rows_cal]
-        return raw_columns(fit.model_cal, atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+        base = _kept_base(prob, fit, sb, atom)
+        if atom.place == "plate" and not atom.varying_plate:
+            E = base
+        else:
+            Fr = prob.features_cal(atom)[sb.rows]
+            E = (Fr[:, :, None] * base[:, None, :]).reshape(len(base), -1)
+        return E * sb.sw_kept[:, None]
     return make
 
 
@@ -488,9 +894,11 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
         top = order[0]
         # "the same place": the same target, or a named atom whose columns lie within the unnamed one's (a joint-1
         # backlash is a rotation about base z, inside the base frame's six directions with the same sign)
-        same = [s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)
-                or _nested(s, top)]
-        cand = same[0] if same else (named[0] if named else None)
+        # the first such named atom in the order (the test is lazy: each _nested builds the atom's columns)
+        first_same = next((s for s in named if (s.atom.place, s.atom.target) == (top.atom.place, top.atom.target)
+                           or _nested(s, top)), None)
+        same = first_same is not None
+        cand = first_same if same else (named[0] if named else None)
         # at high signal-to-noise, effects not yet modelled leak a few per cent into any broader atom: the
         # margin grows with the evidence (5 % of it) for a named atom acting at the same place
         margin = max(CATALOGUE_MARGIN, CATALOGUE_SHARE * abs(cand.logp_adj)) if same else CATALOGUE_MARGIN
@@ -510,11 +918,12 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
 
 def _nested(small: Scored, big: Scored, share: float = 0.99) -> bool:
     """Whether ``small``'s projected columns lie (to ``share`` of their norm) within ``big``'s span."""
-    if small.basis.shape[1] >= big.basis.shape[1] or small.Ep.shape != (big.Ep.shape[0], small.Ep.shape[1]):
+    if small.basis.shape[1] >= big.basis.shape[1] or small.r.shape != big.r.shape:
         return False
-    Qb, _ = np.linalg.qr(big.Ep)
-    tot = float(np.sum(small.Ep**2))
-    return tot > 0 and float(np.sum((Qb.T @ small.Ep) ** 2)) >= share * tot
+    # big's span is orthogonal to the current model, so its product with small's projected columns Ep is its product
+    # with small's columns E (E - Ep lies in the model's span): no projection of small's columns is needed
+    tot = small.ep_norm2()
+    return tot > 0 and float(np.sum((big.span().T @ small.reduced_columns()) ** 2)) >= share * tot
 
 
 def _prefer_nested(order: list[Scored], alpha_select: float = 0.01) -> list[Scored]:
@@ -597,14 +1006,12 @@ def signed_rank_z(c: np.ndarray) -> float:
     """Wilcoxon's signed-rank statistic of ``c`` ``(n,)`` as a normal score: ``(W+ - n (n + 1) / 4) / sqrt(n (n + 1)
     (2 n + 1) / 24)``, ``W+`` the sum of the ranks of ``|c|`` over the positive entries (zeros dropped, ties at their
     mean rank). ~N(0, 1) when the entries are independent and symmetric about zero; 0 for fewer than two."""
-    from scipy.stats import rankdata
-
     c = np.asarray(c, float)
     c = c[c != 0]
     n = c.size
     if n < 2:
         return 0.0
-    w = float(rankdata(np.abs(c))[c > 0].sum())
+    w = float(dists.average_ranks(np.abs(c))[c > 0].sum())
     return (w - n * (n + 1) / 4.0) / np.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
 
 
@@ -844,7 +1251,7 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
         trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
-        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= stats.chi2.isf(0.01 / len(PLAY_HALF_DEG), 1)
+        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= dists.chi2_isf(0.01 / len(PLAY_HALF_DEG), 1)
         if better:
             f_sign = prob.features(s.atom)[prob.rows_cal, 0]
             f_play = prob.features(top.atom)[prob.rows_cal, 0]

@@ -359,12 +359,6 @@ class Residuals:
     block: np.ndarray
 
 
-def _cross_soa(v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``v x w`` for ``v`` ``(n, 3)`` and ``w`` ``(P, 3, n)`` -> ``(P, 3, n)``."""
-    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-    return np.stack([v1 * w[:, 2] - v2 * w[:, 1], v2 * w[:, 0] - v0 * w[:, 2], v0 * w[:, 1] - v1 * w[:, 0]], axis=1)
-
-
 def station_eval(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, jacobian: bool):
     """Per-row tool poses ``R (n, 3, 3)``, ``p (n, 3)`` in the rows' measurement frames and, with
     ``jacobian``, ``J (P, 6, n)`` over the whole space (parameter-major)."""
@@ -399,9 +393,16 @@ def predict_points(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.
     if not jacobian:
         return pts, None
     Jk = np.empty((space.size, points_tool.shape[0], 3, q.shape[0]))
+    tmp = np.empty((space.size, q.shape[0]))
     for k in range(points_tool.shape[0]):
-        # d(p + R s) = dp + w x (R s) = dp - (R s) x w
-        Jk[:, k] = J[:, :3] - _cross_soa(v[:, k], J[:, 3:])
+        # d(p + R s) = dp + w x (R s) = dp - (R s) x w, component by component into Jk without temporaries:
+        # component c is J_c - (v_a w_b - v_b w_a) for (c, a, b) cyclic
+        for c, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):
+            out = Jk[:, k, c]
+            np.multiply(v[:, k, a], J[:, 3 + b], out=out)
+            np.multiply(v[:, k, b], J[:, 3 + a], out=tmp)
+            np.subtract(out, tmp, out=out)
+            np.subtract(J[:, c], out, out=out)
     return pts, Jk
 
 

@@ -13,8 +13,8 @@ from typing import Callable, Literal
 
 import numpy as np
 from scipy import linalg as sla
-from scipy import stats
 
+from .distributions import chi2_median, chi2_ppf
 from .problem import Residuals
 
 __all__ = [
@@ -112,9 +112,9 @@ def gauss_newton(
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
-        J = res.J[:, idx]
+        J = res.J[:, idx]  # a copy: scaled in place below
         if sw is not None:
-            J = J * sw[:, None]
+            J *= sw[:, None]
         if linear_solver == "spectral":
             dx_f = spectral_correction(J.T @ J, J.T @ r, max_iter=spectral_iterations).x
             x_new = x.copy()
@@ -135,7 +135,8 @@ def gauss_newton(
         if D is None:
             nrm = np.linalg.norm(J, axis=0)
             D = 1.0 / np.where(nrm > 0, nrm, 1.0)
-        A = J * D
+        J *= D
+        A = J
         H = A.T @ A
         g = A.T @ r
         while True:
@@ -281,7 +282,7 @@ def robust_scale(t: np.ndarray, dof: np.ndarray, mask: np.ndarray | None = None)
     ok = dof > 0 if mask is None else (dof > 0) & mask
     if not np.any(ok):
         return 1.0
-    med = stats.chi2.median(dof[ok])
+    med = chi2_median(dof[ok])
     return float(np.sqrt(np.median(t[ok] / med)))
 
 
@@ -349,7 +350,7 @@ def robust_fit(
         s = robust_scale(t, dof, base_mask)
         s_eff = max(1.0, s) if scale_known else s
         n_used = int(np.sum(dof > 0))
-        thr = s_eff**2 * stats.chi2.ppf(1.0 - alpha / max(n_used, 1), np.maximum(dof, 1))
+        thr = s_eff**2 * chi2_ppf(1.0 - alpha / max(n_used, 1), np.maximum(dof, 1))
         inl = (t <= thr) & (dof > 0)
         return inl, t, dof, thr, s
 
