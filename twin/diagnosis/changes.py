@@ -1,0 +1,260 @@
+"""Change points: a step (or a step and back, a window) at an unknown row in one channel of the model.
+
+A *change* acts at one *place* from one row of the campaign on (a step) or between two rows (a window): a joint
+offset (``theta<j>``), the tool frame, the measurement (base) frame (each row's station), or a joint's compliance
+(its leading gravity-torque shapes, :func:`twin.diagnosis.atoms.catalogue_atoms`: a payload put on or taken off).
+Its column is the place's column times ``1[row >= s]`` (a window: ``1[s <= row < e]``), rows in time order (``t_s``
+when recorded, else the measurement order).
+
+**The scan.** After a fit with whitened residual ``r`` orthogonal to an orthonormal basis ``Q`` (``m x P``) of the
+model's columns, a place whose columns on row ``i`` are ``g_i`` (``p`` columns: the place's columns times its
+features) explains, with a step at row ``s``,
+
+    ``Delta chi2(s) = b_s^T (C_s - A_s^T A_s)^+ b_s``,  ``A_s = sum_{i>=s} Q_i^T g_i``, ``b_s = sum_{i>=s} g_i^T r_i``,
+    ``C_s = sum_{i>=s} g_i^T g_i``
+
+(the columns scaled to unit norm, directions below 1 % of a unit column dropped, as every atom is scored:
+:func:`twin.diagnosis.select.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
+``[s, e)`` takes the difference of two of them. The best row of each place is one candidate of the selection
+(family ``change``), its evidence ``p = chi2_sf(Delta chi2, rank)`` times the number of places and row positions
+tried (its pool: a step at every row of every place, ``change``; a window at every pair of rows, ``change_window``,
+on a grid of at most ``WINDOW_GRID`` boundaries, refined to the rows around the best pair). A change then faces
+what every term faces: held-out confirmation on the later block of time, the backward pass.
+
+A change is reported in ``diagnosis.json`` ``changes`` (not among the ``effects``) with the row and time it starts
+(and ends), its place and its size. In prediction the step is a term of time: rows after it, and a new session,
+read the state after it (:func:`twin.diagnosis.atoms.feature_values`, ``step`` and ``window``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .atoms import Atom, joint_words
+from .candidates import RowContext
+
+__all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
+           "scan_changes", "describe_changes", "is_change"]
+
+MIN_ROWS = 3  # rows on each side of a step, and inside a window
+WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
+CHANGE_POOLS = ("change", "change_window")
+
+
+@dataclass(frozen=True)
+class ChangePlace:
+    """Where a change may act: ``place``/``target`` as an atom's, the features the change multiplies (``None``: a
+    constant offset of the place), the words and joints."""
+
+    place: str
+    target: str
+    inner: tuple | None
+    words: str
+    joints: tuple[int, ...] = ()
+
+
+def is_change(atom) -> bool:
+    """Whether an atom (or its JSON) is a change (family ``change``)."""
+    fam = atom["family"] if isinstance(atom, dict) else atom.family
+    return fam == "change"
+
+
+def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
+    """Every joint offset, the tool frame, the measurement (base) frame, and each joint's compliance (the catalogue's
+    leading gravity-torque shapes of that joint)."""
+    out = [ChangePlace("joint", f"theta{j}", None, f"joint {joint_words(model, j)} offset", (j,))
+           for j in range(1, model.n_joints + 1)]
+    out += [ChangePlace("param", "tool", None, "tool (plate) frame"),
+            ChangePlace("param", "base", None, "base (measurement) frame")]
+    for a in catalogue:
+        if a.family == "compliance" and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}":
+            out.append(ChangePlace("joint", a.target, tuple(a.features), f"joint {joint_words(model, int(a.target[5:]))} "
+                                   "compliance (a payload)", a.joints))
+    return out
+
+
+def _time(ctx: RowContext) -> tuple[str, np.ndarray]:
+    """The time channel of the rows (``t_s`` when it varies, else the row order) and its values ``(n,)``."""
+    if ctx.t_s is not None and np.ptp(ctx.t_s) > 0:
+        return "t_s", np.asarray(ctx.t_s, float)
+    return "row", np.arange(len(ctx.q), dtype=float)
+
+
+def _steps(n: int) -> np.ndarray:
+    return np.arange(MIN_ROWS, n - MIN_ROWS + 1)
+
+
+def _grid(n: int) -> np.ndarray:
+    s = _steps(n)
+    stride = max(1, int(np.ceil(len(s) / WINDOW_GRID)))
+    return s[::stride]
+
+
+def _pairs(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = np.meshgrid(g, g, indexing="ij")
+    ok = b - a >= MIN_ROWS
+    return a[ok], b[ok]
+
+
+def change_pool_sizes(n_cal: int, places: list[ChangePlace]) -> dict[str, int]:
+    """The Bonferroni factor of each change pool: places times row positions (steps) or pairs of them (windows)."""
+    return {"change": max(1, len(places) * len(_steps(n_cal))),
+            "change_window": max(1, len(places) * len(_pairs(_grid(n_cal))[0]))}
+
+
+def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
+    """The change at place ``pl`` from ``at`` on (until ``until``) on the time channel ``ch``."""
+    if until is None:
+        gate = {"ch": ch, "at": float(at)}
+        chan = f"change({ch} >= {at:.6g})"
+        when = f"from {ch} {at:.6g} on"
+    else:
+        gate = {"ch": ch, "at": float(at), "until": float(until)}
+        chan = f"change({at:.6g} <= {ch} < {until:.6g})"
+        when = f"from {ch} {at:.6g} until {until:.6g}"
+    if pl.inner is None:
+        feats = (dict({"kind": "step" if until is None else "window"}, **gate),)
+    else:
+        feats = tuple(dict({"kind": "gated", "f": f}, **gate) for f in pl.inner)
+    return Atom("change", pl.place, pl.target, feats, chan, f"change of the {pl.words} {when}",
+                "change" if until is None else "change_window", pl.joints)
+
+
+def _gains(C: np.ndarray, A: np.ndarray, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``Delta chi2`` and rank ``(k,)`` of stacked candidates: ``C`` ``(k, p, p)``, ``A`` ``(k, P, p)``, ``b``
+    ``(k, p)`` (columns scaled to unit norm, directions below 1 % of a unit column dropped)."""
+    d = np.sqrt(np.maximum(np.diagonal(C, axis1=1, axis2=2), 0.0))
+    has = d > 1e-12
+    D = np.where(has, 1.0 / np.where(has, d, 1.0), 0.0)
+    G = (C - np.einsum("kpa,kpb->kab", A, A)) * D[:, :, None] * D[:, None, :]
+    lam, V = np.linalg.eigh(G)
+    ok = (lam > 1e-4) & np.any(has, axis=1)[:, None]
+    proj = np.einsum("kij,ki->kj", V, b * D)
+    gain = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1) / scale
+    return gain, ok.sum(axis=1)
+
+
+def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True) -> list[Atom]:
+    """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
+    calibration rows in time order): one candidate atom each whose evidence is significant before the Bonferroni
+    factor (the selection applies it, :func:`change_pool_sizes`)."""
+    from scipy import sparse
+
+    from .select import chi2_logsf, scoring_basis
+
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
+    model = fit.model_cal
+    P = prob.prep.space.size
+    x = fit.z[:P]
+    obs = model.effective_obs(model.split(fit.z)[1])
+    rows = rc.row[keep]
+    n = prob.obs_cal.n
+    if n < 2 * MIN_ROWS + 1:
+        return []
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    ch, tv = _time(prob.ctx)
+    t_cal = tv[prob.rows_cal]
+    order = np.argsort(t_cal, kind="stable")
+    ts = t_cal[order]
+    steps = _steps(n)
+    steps = steps[ts[steps] > ts[steps - 1]]  # a change between two rows measured at different times
+    g = _grid(n)
+    g = g[ts[g] > ts[g - 1]]
+    out = []
+    for pl in places:
+        tmpl = Atom("change", pl.place, pl.target, ({"kind": "const"},), "", "", "change")
+        base = model.product_base(tmpl, x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
+        c = base.shape[1]
+        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
+        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
+        Br = S @ (base * r[:, None])
+        if pl.inner is None:
+            F = np.ones((n, 1))
+        else:
+            F = prob.features(Atom("change", pl.place, pl.target, pl.inner, "", "", "change"))[prob.rows_cal]
+        K = F.shape[1]
+        p = K * c
+        Ci = np.einsum("nk,nl,nab->nkalb", F, F, W).reshape(n, p, p)[order]
+        Ai = np.einsum("nk,nqa->nqka", F, QB).reshape(n, Q.shape[1], p)[order]
+        bi = np.einsum("nk,na->nka", F, Br).reshape(n, p)[order]
+        Cc = np.concatenate([np.zeros((1, p, p)), np.cumsum(Ci, axis=0)])
+        Ac = np.concatenate([np.zeros((1, Q.shape[1], p)), np.cumsum(Ai, axis=0)])
+        bc = np.concatenate([np.zeros((1, p)), np.cumsum(bi, axis=0)])
+        if len(steps):
+            gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
+            lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+            k = int(np.argmin(lp))
+            if rank[k] > 0:
+                s = steps[k]
+                out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
+        if not windows or len(g) < 2:
+            continue
+        a, b = _pairs(g)
+        best = None
+        for lo in range(0, len(a), 4000):
+            sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
+            gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
+            lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+            k = int(np.argmin(lp))
+            if rank[k] > 0 and (best is None or lp[k] < best[0]):
+                best = (float(lp[k]), int(sa[k]), int(sb_[k]))
+        if best is None:
+            continue
+        stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
+        if stride > 1:
+            # the grid's best pair refined to the rows around it
+            sa = np.arange(max(best[1] - stride, MIN_ROWS), min(best[1] + stride, n - MIN_ROWS) + 1)
+            sb2 = np.arange(max(best[2] - stride, MIN_ROWS), min(best[2] + stride, n - MIN_ROWS) + 1)
+            A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
+            ok = (B2 - A2 >= MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
+            A2, B2 = A2[ok], B2[ok]
+            if len(A2):
+                gain, rank = _gains(Cc[B2] - Cc[A2], Ac[B2] - Ac[A2], bc[B2] - bc[A2], prob.evidence_scale)
+                lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+                k = int(np.argmin(lp))
+                if lp[k] < best[0]:
+                    best = (float(lp[k]), int(A2[k]), int(B2[k]))
+        _, s, e = best
+        out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
+    return [a for _, a in sorted(out, key=lambda t: t[0])]
+
+
+def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:
+    """The ``changes`` of ``diagnosis.json``: per kept change, its ``kind`` (``step`` or ``window``), ``place`` and
+    ``target``, the row where it starts (``row``: index in the dataset, ``pose_id``, ``t_s`` when recorded) and, for
+    a window, where it ends (the first row back in the former state), its ``size`` (the term's value in words'
+    units: deg for a joint offset, the frame's change in mm and deg, a compliance change's RMS effect) and the
+    label."""
+    ch, tv = _time(ctx)
+    order = np.argsort(tv, kind="stable")
+    out = []
+    for a in atoms_json:
+        if not is_change(a):
+            continue
+        f0 = a["features"][0]
+        at, until = float(f0["at"]), f0.get("until")
+
+        def first(v):
+            later = order[tv[order] >= v]
+            return int(later[0]) if len(later) else None
+
+        row = first(at)
+        d = {"kind": "step" if until is None else "window", "place": a["place"], "target": a["target"],
+             "label": a["label"], "minor": bool(a.get("minor", False)), "row": row, "pose_id": None if row is None else int(pose_id[row]),
+             "t_s": None if (row is None or ctx.t_s is None) else float(ctx.t_s[row])}
+        if until is not None:
+            end = first(float(until))
+            d.update({"end_row": end, "end_pose_id": None if end is None else int(pose_id[end]),
+                      "end_t_s": None if (end is None or ctx.t_s is None) else float(ctx.t_s[end])})
+        v = np.asarray(a["values"], float)
+        if a["place"] == "param" and a["target"] in ("tool", "base"):
+            d["size"] = {"translation_mm": (v[:3] * 1e3).tolist(), "rotation_deg": np.rad2deg(v[3:]).tolist()}
+        elif a["place"] == "joint" and f0.get("kind") in ("step", "window"):
+            d["size"] = {"offset_deg": float(np.rad2deg(v[0])), "sd_deg": float(np.rad2deg(a["sd"][0]))}
+        else:
+            d["size"] = dict(a["size"])
+        out.append(d)
+    return out
