@@ -39,6 +39,8 @@ __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_pla
            "scan_changes", "describe_changes", "is_change"]
 
 MIN_ROWS = 3  # rows on each side of a step, and inside a window
+WINDOW_MIN_ROWS = 5  # rows inside a window
+UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
 CHANGE_POOLS = ("change", "change_window")
 
@@ -94,7 +96,7 @@ def _grid(n: int) -> np.ndarray:
 
 def _pairs(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a, b = np.meshgrid(g, g, indexing="ij")
-    ok = b - a >= MIN_ROWS
+    ok = b - a >= WINDOW_MIN_ROWS
     return a[ok], b[ok]
 
 
@@ -136,10 +138,40 @@ def _gains(C: np.ndarray, A: np.ndarray, b: np.ndarray, scale: float) -> tuple[n
     return gain, ok.sum(axis=1)
 
 
-def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True) -> list[Atom]:
+def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray, rss_all: float, m_all: float,
+             scale: float) -> np.ndarray:
+    """Whether the rows a change acts on are fitted by it to the scatter of the other rows ``(k,)``: the residual
+    left on them, ``(RSS_in - Delta chi2) / (m_in - rank)``, against ``RSS_out / m_out`` of the rows outside, not
+    larger at ``p < UNIFORM_P`` (``F`` test). A burst of noisy rows, or a gross row, is fitted by no change: a
+    change is the same offset on every row it acts on."""
+    from scipy import stats
+
+    d1 = np.maximum(m - rank, 1.0)
+    d2 = np.maximum(m_all - m, 1.0)
+    left = np.maximum(rss - gain * scale, 0.0) / d1
+    out = np.maximum(rss_all - rss, 1e-300) / d2
+    return stats.f.sf(left / out, d1, d2) >= UNIFORM_P
+
+
+def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max: float) -> bool:
+    """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays significant
+    (``log p < logp_max``) without any one of its rows: no single row elects a change (a gross row is fitted by a
+    window around it)."""
+    from .select import chi2_logsf
+
+    C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
+    gain, rank = _gains(C[None] - Ci[lo:hi], A[None] - Ai[lo:hi], b[None] - bi[lo:hi], scale)
+    lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+    return bool(np.max(lp) < logp_max)
+
+
+TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
+
+
+def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01) -> list[Atom]:
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
-    calibration rows in time order): one candidate atom each whose evidence is significant before the Bonferroni
-    factor (the selection applies it, :func:`change_pool_sizes`)."""
+    calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
+    candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
     from scipy import sparse
 
     from .select import chi2_logsf, scoring_basis
@@ -163,6 +195,10 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True) 
     steps = steps[ts[steps] > ts[steps - 1]]  # a change between two rows measured at different times
     g = _grid(n)
     g = g[ts[g] > ts[g - 1]]
+    # per-row residual sums of squares and residual counts, in time order (the uniformity check)
+    rr = np.concatenate([[0.0], np.cumsum((S @ (r * r))[order])])
+    mm = np.concatenate([[0.0], np.cumsum((S @ np.ones(len(rows)))[order])])
+    sizes = change_pool_sizes(n, places)
     out = []
     for pl in places:
         tmpl = Atom("change", pl.place, pl.target, ({"kind": "const"},), "", "", "change")
@@ -185,22 +221,30 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True) 
         bc = np.concatenate([np.zeros((1, p)), np.cumsum(bi, axis=0)])
         if len(steps):
             gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
-            lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
-            k = int(np.argmin(lp))
-            if rank[k] > 0:
+            ok = (rank > 0) & _uniform(rr[n] - rr[steps], mm[n] - mm[steps], gain, rank, rr[n], mm[n],
+                                       prob.evidence_scale)
+            lp = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+            for k in np.argsort(lp)[:TOP]:
                 s = steps[k]
-                out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
+                if ok[k] and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale,
+                                                    np.log(alpha) - np.log(sizes["change"])):
+                    out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
+                    break
         if not windows or len(g) < 2:
             continue
         a, b = _pairs(g)
-        best = None
+        lp_all = np.zeros(len(a))
         for lo in range(0, len(a), 4000):
             sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
             gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
-            lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
-            k = int(np.argmin(lp))
-            if rank[k] > 0 and (best is None or lp[k] < best[0]):
-                best = (float(lp[k]), int(sa[k]), int(sb_[k]))
+            ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n], prob.evidence_scale)
+            lp_all[lo:lo + 4000] = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+        best = None
+        for k in np.argsort(lp_all)[:TOP]:
+            if lp_all[k] < 0 and _holds_without_any_row(Ci, Ai, bi, int(a[k]), int(b[k]), prob.evidence_scale,
+                                                        np.log(alpha) - np.log(sizes["change_window"])):
+                best = (float(lp_all[k]), int(a[k]), int(b[k]))
+                break
         if best is None:
             continue
         stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
@@ -209,13 +253,16 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True) 
             sa = np.arange(max(best[1] - stride, MIN_ROWS), min(best[1] + stride, n - MIN_ROWS) + 1)
             sb2 = np.arange(max(best[2] - stride, MIN_ROWS), min(best[2] + stride, n - MIN_ROWS) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
-            ok = (B2 - A2 >= MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
+            ok = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
             A2, B2 = A2[ok], B2[ok]
             if len(A2):
                 gain, rank = _gains(Cc[B2] - Cc[A2], Ac[B2] - Ac[A2], bc[B2] - bc[A2], prob.evidence_scale)
-                lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+                ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
+                                           prob.evidence_scale)
+                lp = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
                 k = int(np.argmin(lp))
-                if lp[k] < best[0]:
+                if lp[k] < best[0] and _holds_without_any_row(Ci, Ai, bi, int(A2[k]), int(B2[k]), prob.evidence_scale,
+                                                              np.log(alpha) - np.log(sizes["change_window"])):
                     best = (float(lp[k]), int(A2[k]), int(B2[k]))
         _, s, e = best
         out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))

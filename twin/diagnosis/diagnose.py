@@ -44,7 +44,7 @@ from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .extend import ExtendedModel, reduced_basis
 from .changes import change_places, change_pool_sizes, describe_changes, is_change, scan_changes
-from .loads import tilt_angles
+from .loads import refine_load_sign, tilt_angles
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
                      order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
@@ -534,7 +534,7 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
                               n_change_points=0)
     if setup.virtual:
         pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
-    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
+    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic", "load")}
     sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
     return pool, sizes
 
@@ -660,7 +660,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             break
         accepted = r.accepted
         taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
-        refined = refine(prob, fit, accepted, sizes)
+        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
         taken.add(_slot(accepted.atom))
         kept += 1

@@ -26,9 +26,10 @@ import numpy as np
 from ..kinematics import RobotModel, link_frames
 from .candidates import GRAVITY, RowContext, gravity_torque_regressor, gravity_torques, has_masses
 
-__all__ = ["TILT_RANK", "base_moment_regressor", "load_atoms", "tilt_angles"]
+__all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "base_moment_regressor", "load_atoms", "load_sign_feature", "refine_load_sign",
+           "tilt_angles"]
 
-TILT_RANK = 2  # principal moment shapes kept per horizontal axis of the base
+TILT_RANK = 1  # principal moment shapes kept per horizontal axis of the base
 COM_PRIOR_M = 0.1  # [m] the compliance atoms' prior: a link's centre of mass ~0.1 m off its frame
 
 
@@ -61,9 +62,9 @@ def _prior(N: int) -> np.ndarray:
     return np.tile(np.array([1.0, COM_PRIOR_M, COM_PRIOR_M, COM_PRIOR_M]), N)
 
 
-def _leading_torque_shape(model: RobotModel, q: np.ndarray, i: int) -> dict | None:
-    """Joint ``i``'s (1-based) leading principal gravity-torque shape under the generic prior, as a ``gravmix``
-    feature (the compliance atoms' first shape), or None when the joint carries no varying torque."""
+def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> tuple:
+    """Joint ``i``'s (1-based) ``rank`` leading principal gravity-torque shapes under the generic prior, as
+    ``gravmix`` features (the compliance atoms' shapes), or ``()`` when the joint carries no varying torque."""
     Y = gravity_torque_regressor(model, q)
     N = model.n_joints
     cols, prior = [], []
@@ -73,10 +74,68 @@ def _leading_torque_shape(model: RobotModel, q: np.ndarray, i: int) -> dict | No
             prior.append(1.0 if c == 0 else COM_PRIOR_M)
     M = np.stack([Y[:, i - 1, k - 1, c] for k, c in cols], axis=1) * np.array(prior)
     if not np.any(np.abs(M) > 1e-9):
-        return None
+        return ()
     _, sv, Vt = np.linalg.svd(M, full_matrices=False)
-    return {"kind": "gravmix", "i": i, "cols": cols, "w": (Vt[0] * np.array(prior)).tolist(),
-            "h": float(sv[0] / np.sqrt(len(M)))}
+    rk = min(rank, int(np.sum(sv > 1e-6 * sv[0])))
+    return tuple({"kind": "gravmix", "i": i, "cols": cols, "w": (Vt[k] * np.array(prior)).tolist(),
+                  "h": float(sv[k] / np.sqrt(len(M)))} for k in range(rk))
+
+
+def refine_load_sign(prob, fit, s, pool_sizes: dict):
+    """A kept load-signed backlash found on the grid of directions moved to the direction in the span of the joint's
+    torque shapes whose sign explains most (Nelder-Mead on the direction from the grid's best, scored as every atom
+    is: :func:`twin.diagnosis.select.score_atoms`). Returns the scored atom."""
+    from dataclasses import replace as replace_atom
+
+    from scipy.optimize import minimize
+
+    from .select import score_atoms
+
+    f0 = s.atom.features[0]
+    if f0.get("kind") != "loadsign" or "u" not in f0:
+        return s
+    shapes = _torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0["f"]["i"]))
+    if len(shapes) < 2:
+        return s
+    best = [s]
+
+    def cost(u):
+        u = np.asarray(u, float)
+        if not np.linalg.norm(u) > 0:
+            return 0.0
+        a = replace_atom(s.atom, features=(load_sign_feature(shapes, u / np.linalg.norm(u)),))
+        got = score_atoms(prob, fit, [a], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize(cost, np.asarray(f0["u"], float), method="Nelder-Mead",
+             options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 80, "initial_simplex": None})
+    return best[0]
+
+
+LOAD_DIRECTIONS = 40  # directions in the span of a joint's leading torque shapes whose sign is tried (then refined)
+
+
+def _hemisphere(k: int) -> np.ndarray:
+    """``k`` unit vectors ``(k, 3)`` spread over a hemisphere (a Fibonacci lattice; a direction and its opposite give
+    the same sign feature up to its coefficient)."""
+    i = np.arange(k) + 0.5
+    z = i / k
+    phi = np.pi * (1 + 5**0.5) * i
+    r = np.sqrt(1 - z**2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def load_sign_feature(shapes: tuple, u: np.ndarray) -> dict:
+    """The sign of the combination ``u`` ``(k,)`` of a joint's torque shapes (``gravmix`` features, each scaled to unit
+    RMS) as a ``loadsign`` feature."""
+    w = sum(ui * np.asarray(f["w"], float) / f["h"] for ui, f in zip(u, shapes))
+    f0 = shapes[0]
+    return {"kind": "loadsign", "f": {"kind": "gravmix", "i": f0["i"], "cols": f0["cols"], "w": w.tolist(), "h": 1.0},
+            "u": [float(x) for x in u]}
 
 
 def load_atoms(model: RobotModel, ctx: RowContext) -> list:
@@ -88,22 +147,28 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     N = model.n_joints
     masses = has_masses(model)
     tau = gravity_torques(model, ctx.q) if masses else None
-    for j in range(1, N + 1):
-        inner = {"kind": "torque", "j": j, "h": 1.0} if masses else _leading_torque_shape(model, ctx.q, j)
-        if inner is None:
-            continue
-        if masses:
-            t = tau[:, j - 1]
-        else:
-            from .atoms import feature_values
+    from .atoms import feature_values
 
-            t = feature_values((inner,), ctx, model)[:, 0]
-        s = np.sign(t)
-        if min(np.sum(s > 0), np.sum(s < 0)) < 3:
-            continue  # the load keeps one sign: the offset is a constant the geometry holds
-        atoms.append(Atom("backlash", "joint", f"theta{j}", ({"kind": "loadsign", "f": inner},), f"load_sign_j{j}",
-                          f"joint {joint_words(model, j)} backlash (offset signed by its gravity load)", "catalogue",
-                          (j,)))
+    for j in range(1, N + 1):
+        if masses:
+            feats = [{"kind": "loadsign", "f": {"kind": "torque", "j": j, "h": 1.0}}]
+        else:
+            # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
+            # close to their span), on a grid of directions refined when kept (refine_load_sign)
+            shapes = _torque_shapes(model, ctx.q, j)
+            if not shapes:
+                continue
+            U = _hemisphere(LOAD_DIRECTIONS) if len(shapes) == 3 else np.eye(len(shapes))
+            feats = [load_sign_feature(shapes, u[:len(shapes)]) for u in U]
+        for f in feats:
+            s = feature_values((f,), ctx, model)[:, 0]
+            if min(np.sum(s > 0), np.sum(s < 0)) < 3:
+                continue  # the load keeps one sign: the offset is a constant the geometry holds
+            u = f.get("u")
+            atoms.append(Atom("backlash", "joint", f"theta{j}", (f,), f"load_sign_j{j}" + ("" if u is None else
+                              f" ({', '.join(f'{x:+.3f}' for x in u)})"),
+                              f"joint {joint_words(model, j)} backlash (offset signed by its gravity load)",
+                              "catalogue" if masses else "load", (j,)))
     if not masses:
         Y = base_moment_regressor(model, ctx.q)
         n = len(ctx.q)
