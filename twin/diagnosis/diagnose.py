@@ -44,7 +44,7 @@ from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .extend import ExtendedModel, reduced_basis
 from .changes import change_places, change_pool_sizes, describe_changes, is_change, scan_changes
-from .loads import refine_load_sign, tilt_angles
+from .loads import load_alternatives, refine_load_sign, tilt_angles
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
                      order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
@@ -683,7 +683,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        alts = alts + alts2
+        alts = alts + alts2 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
         update_gross(prob, fit)
         fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
@@ -1100,8 +1100,12 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             axes = [("xyz"[f["axis"]]) for f in a.features]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
                     "compliance_mrad_per_nm": (phi * 1e3).tolist(), "compliance_sd_mrad_per_nm": (sd * 1e3).tolist()}
-            words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
-                     + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
+            if any("shape" in f for f in a.features):
+                # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
+                words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
+            else:
+                words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
+                         + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
         elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
             size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),

@@ -205,7 +205,14 @@ class ExtendedModel:
             # one rotation axis of the pivot per feature (the moment about that axis, its ``axis``): a diagonal
             # compliance; several features may turn about one axis (shapes of an unknown moment)
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 2)
-            return Fr * base[:, [int(f.get("axis", k)) for k, f in enumerate(a.features)]]
+            cols = Fr * base[:, [int(f.get("axis", k)) for k, f in enumerate(a.features)]]
+            if not any("shape" in f for f in a.features):
+                return cols
+            # a shape of the moment turns the pivot about both axes with one coefficient
+            out = np.zeros((len(res.r), a.K))
+            for k, f in enumerate(a.features):
+                out[:, int(f["shape"])] += cols[:, k]
+            return out
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
         base = self.product_base(a, x, obs, res)
