@@ -134,7 +134,8 @@ class DiagnosisResult:
     ``atoms``, their model ``calibration_candidate``); ``adoption``: the comparison behind it (None when no term was
     found). ``calibration`` and ``calibration_geometric`` are the models refitted on every row of the campaign
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
-    the calibration rows only: before/after and every block figure are theirs."""
+    the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
+    ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``."""
 
     structured: bool
     p_value: float
