@@ -282,3 +282,48 @@ def test_base_tilting_under_the_arm_moment_is_named_tilt():
         ok = tilt or shoulder
         out.append({"seed": seed, "named": ok and ratio <= 1.2, "effects": "+".join(res.effects), "ratio": ratio})
     H.tally(out, named=(9, SEEDS), ratio=("median<=", 1.2))
+
+
+# ---- the scan and the prediction -----------------------------------------------------------------------------
+
+def test_the_scan_finds_the_row_every_step_position_scored_alone_prefers():
+    """The change scan's step of joint 3 (suffix sums over all rows at once) is at the position whose atom, scored
+    alone by the selection's exact scoring, explains most of every step position of joint 3."""
+    from twin.diagnosis.changes import _atom, change_places, scan_changes
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+    from twin.diagnosis.select import score_atoms
+
+    ds, _, _, _ = _joint_step(3)
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    pool, sizes = atom_pool(setup)
+    places = [p for p in change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"])
+              if p.target == "theta3" and p.inner is None]
+    found = scan_changes(prob, base, places, windows=False)
+    assert len(found) == 1
+    t = np.sort(ds.t_s[prob.rows_cal])
+    every = [_atom(places[0], "t_s", 0.5 * (t[s - 1] + t[s]), None) for s in range(3, len(t) - 2)]
+    scored = score_atoms(prob, base, every, sizes, exact_top=len(every))
+    best = max(scored, key=lambda s: s.dchi2)
+    assert best.atom.features[0]["at"] == pytest.approx(found[0].features[0]["at"])
+
+
+def test_a_new_session_reads_the_state_after_the_last_change():
+    """A calibration with a change of joint 3's offset predicts rows without t_s (a new session) as the rows after
+    the change, and rows before the change without it."""
+    from twin.diagnosis.apply import effective_joints
+    from twin.diagnosis.candidates import RowContext
+    from twin.estimator import calibrate
+
+    ds, _ = _dataset(None, seed=0)
+    t0, t1 = float(ds.t_s[0]), float(ds.t_s[-1])
+    at = 0.5 * (t0 + t1)
+    cal = replace(calibrate(ds), effects=(
+        {"family": "change", "place": "joint", "target": "theta3", "channel": f"change(t_s >= {at})", "label": "x",
+         "features": [{"kind": "step", "ch": "t_s", "at": at, "t_span": [t0, t1]}], "values": [1e-4]},))
+    q = ds.q[:4]
+    before = effective_joints(cal, RowContext(q=q, t_s=np.full(4, t0)))
+    after = effective_joints(cal, RowContext(q=q, t_s=np.full(4, t1)))
+    new = effective_joints(cal, RowContext(q=q, t_s=None))
+    assert np.allclose(before, q) and np.allclose(after[:, 2] - q[:, 2], 1e-4) and np.allclose(new, after)

@@ -170,13 +170,26 @@ LOO_SHARE = 0.5  # a change keeps at least this share of its evidence without an
 TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
 
 
+def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
+    rank only (the others, and those not ``ok``, read 0: never among the best)."""
+    from .select import chi2_logsf
+
+    lp = np.zeros(len(gain))
+    for r in np.unique(rank[ok]):
+        idx = np.flatnonzero(ok & (rank == r))
+        idx = idx[np.argsort(-gain[idx])[:TOP]]
+        lp[idx] = chi2_logsf(gain[idx], float(r))
+    return lp
+
+
 def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01) -> list[Atom]:
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
     from scipy import sparse
 
-    from .select import chi2_logsf, scoring_basis
+    from .select import scoring_basis
 
     sb = scoring_basis(prob, fit)
     rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
@@ -225,10 +238,10 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
             ok = (rank > 0) & _uniform(rr[n] - rr[steps], mm[n] - mm[steps], gain, rank, rr[n], mm[n],
                                        prob.evidence_scale)
-            lp = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+            lp = _logp(gain, rank, ok)
             for k in np.argsort(lp)[:TOP]:
                 s = steps[k]
-                if ok[k] and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale,
+                if ok[k] and lp[k] < 0 and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale,
                                                     np.log(alpha) - np.log(sizes["change"])):
                     out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
                     break
@@ -240,7 +253,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
             gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
             ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n], prob.evidence_scale)
-            lp_all[lo:lo + 4000] = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+            lp_all[lo:lo + 4000] = _logp(gain, rank, ok)
         best = None
         for k in np.argsort(lp_all)[:TOP]:
             if lp_all[k] < 0 and _holds_without_any_row(Ci, Ai, bi, int(a[k]), int(b[k]), prob.evidence_scale,
@@ -261,7 +274,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                 gain, rank = _gains(Cc[B2] - Cc[A2], Ac[B2] - Ac[A2], bc[B2] - bc[A2], prob.evidence_scale)
                 ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
                                            prob.evidence_scale)
-                lp = np.where(ok, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+                lp = _logp(gain, rank, ok)
                 k = int(np.argmin(lp))
                 if lp[k] < best[0] and _holds_without_any_row(Ci, Ai, bi, int(A2[k]), int(B2[k]), prob.evidence_scale,
                                                               np.log(alpha) - np.log(sizes["change_window"])):
