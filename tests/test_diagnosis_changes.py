@@ -289,7 +289,7 @@ def test_base_tilting_under_the_arm_moment_is_named_tilt():
 def test_the_scan_finds_the_row_every_step_position_scored_alone_prefers():
     """The change scan's step of joint 3 (suffix sums over all rows at once) is at the position whose atom, scored
     alone by the selection's exact scoring, explains most of every step position of joint 3."""
-    from twin.diagnosis.changes import _atom, change_places, scan_changes
+    from twin.diagnosis.changes import _atom, _steps, change_places, scan_changes
     from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
     from twin.diagnosis.select import score_atoms
 
@@ -303,7 +303,7 @@ def test_the_scan_finds_the_row_every_step_position_scored_alone_prefers():
     found = scan_changes(prob, base, places, windows=False)
     assert len(found) == 1
     t = np.sort(ds.t_s[prob.rows_cal])
-    every = [_atom(places[0], "t_s", 0.5 * (t[s - 1] + t[s]), None) for s in range(3, len(t) - 2)]
+    every = [_atom(places[0], "t_s", 0.5 * (t[s - 1] + t[s]), None) for s in _steps(len(t))]
     scored = score_atoms(prob, base, every, sizes, exact_top=len(every))
     best = max(scored, key=lambda s: s.dchi2)
     assert best.atom.features[0]["at"] == pytest.approx(found[0].features[0]["at"])

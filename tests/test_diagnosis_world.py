@@ -146,9 +146,6 @@ def test_world_coupling_outside_the_catalogue_is_traced_near_the_oracle(world, p
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="found as a step at 708 s (true 700 s) with after/oracle 0.99-1.10 in every case, "
-                   "but on the base frame in 5/10 (else on joint 3 or a3): the held-out block after the slip holds one "
-                   "state of it, so the step's place rests on the rows that fit alone")
 def test_world_base_slip_is_traced_to_the_base_frame_at_its_time(world, plans):
     """The robot's base slipping once in the campaign's first half (0.02 mm and 0.002 deg at t_s = 700 s of 2148 s,
     inside the rows that fit: the held-out rows are the last 40 %; no catalogue term): flagged, no catalogue name,

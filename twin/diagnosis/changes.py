@@ -38,7 +38,8 @@ from .candidates import RowContext
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change"]
 
-MIN_ROWS = 3  # rows on each side of a step, and inside a window
+MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
+MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end of the campaign is no state
 WINDOW_MIN_ROWS = 5  # rows inside a window
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
@@ -85,7 +86,9 @@ def _time(ctx: RowContext) -> tuple[str, np.ndarray]:
 
 
 def _steps(n: int) -> np.ndarray:
-    return np.arange(MIN_ROWS, n - MIN_ROWS + 1)
+    """The positions ``s`` (time-ordered rows ``>= s`` change) with ``max(MIN_ROWS, MIN_SIDE n)`` rows on each side."""
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * n)))
+    return np.arange(side, n - side + 1)
 
 
 def _grid(n: int) -> np.ndarray:
@@ -265,8 +268,9 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
         if stride > 1:
             # the grid's best pair refined to the rows around it
-            sa = np.arange(max(best[1] - stride, MIN_ROWS), min(best[1] + stride, n - MIN_ROWS) + 1)
-            sb2 = np.arange(max(best[2] - stride, MIN_ROWS), min(best[2] + stride, n - MIN_ROWS) + 1)
+            lo_, hi_ = int(_steps(n)[0]), int(_steps(n)[-1])
+            sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
+            sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
             ok = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
             A2, B2 = A2[ok], B2[ok]
