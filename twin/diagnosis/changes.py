@@ -156,6 +156,18 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
     return stats.f.sf(left / out, d1, d2) >= UNIFORM_P
 
 
+def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: float, m_all: float, scale: float,
+                logp_max: float) -> bool:
+    """Whether a change's evidence stands out of the scatter the rows outside it keep: ``Delta chi2 / s^2`` with
+    ``s^2 = max(1, RSS_out / m_out)`` (per residual, in the floor's units) still significant (``log p <
+    logp_max``). Under scatter beyond the floor that moves over a few rows (a cell wandering in time), a window's
+    mean over a stretch of them is as large as that scatter allows, not a change."""
+    from .select import chi2_logsf
+
+    s2 = max(1.0, (rss_all - rss_in) / max(m_all - m_in, 1.0) / scale)
+    return bool(chi2_logsf(gain / s2, max(int(rank), 1)) < logp_max)
+
+
 def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max: float) -> bool:
     """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays significant
     (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
@@ -170,6 +182,7 @@ def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max:
 
 
 LOO_SHARE = 0.5  # a change keeps at least this share of its evidence without any one of its rows
+WHITE_Z = 3.0  # the residual a change leaves must not be correlated from row to row beyond this normal score
 TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
 
 
@@ -242,25 +255,32 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             ok = (rank > 0) & _uniform(rr[n] - rr[steps], mm[n] - mm[steps], gain, rank, rr[n], mm[n],
                                        prob.evidence_scale)
             lp = _logp(gain, rank, ok)
+            lp_max = np.log(alpha) - np.log(sizes["change"])
             for k in np.argsort(lp)[:TOP]:
                 s = steps[k]
-                if ok[k] and lp[k] < 0 and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale,
-                                                    np.log(alpha) - np.log(sizes["change"])):
+                if ok[k] and lp[k] < 0 and _stands_out(rr[n] - rr[s], mm[n] - mm[s], gain[k], rank[k], rr[n], mm[n],
+                                                       prob.evidence_scale, lp_max) \
+                        and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale, lp_max):
                     out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
                     break
         if not windows or len(g) < 2:
             continue
         a, b = _pairs(g)
         lp_all = np.zeros(len(a))
+        gain_all, rank_all = np.zeros(len(a)), np.zeros(len(a), int)
         for lo in range(0, len(a), 4000):
             sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
             gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
             ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n], prob.evidence_scale)
             lp_all[lo:lo + 4000] = _logp(gain, rank, ok)
+            gain_all[lo:lo + 4000], rank_all[lo:lo + 4000] = gain, rank
         best = None
+        lp_max = np.log(alpha) - np.log(sizes["change_window"])
         for k in np.argsort(lp_all)[:TOP]:
-            if lp_all[k] < 0 and _holds_without_any_row(Ci, Ai, bi, int(a[k]), int(b[k]), prob.evidence_scale,
-                                                        np.log(alpha) - np.log(sizes["change_window"])):
+            s, e = int(a[k]), int(b[k])
+            if lp_all[k] < 0 and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain_all[k], rank_all[k], rr[n], mm[n],
+                                             prob.evidence_scale, lp_max) \
+                    and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
                 best = (float(lp_all[k]), int(a[k]), int(b[k]))
                 break
         if best is None:
@@ -280,12 +300,40 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                                            prob.evidence_scale)
                 lp = _logp(gain, rank, ok)
                 k = int(np.argmin(lp))
-                if lp[k] < best[0] and _holds_without_any_row(Ci, Ai, bi, int(A2[k]), int(B2[k]), prob.evidence_scale,
-                                                              np.log(alpha) - np.log(sizes["change_window"])):
+                s, e = int(A2[k]), int(B2[k])
+                if lp[k] < best[0] and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain[k], rank[k], rr[n], mm[n],
+                                                   prob.evidence_scale, lp_max) \
+                        and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
                     best = (float(lp[k]), int(A2[k]), int(B2[k]))
         _, s, e = best
         out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
-    return [a for _, a in sorted(out, key=lambda t: t[0])]
+    return [a for _, a in sorted(out, key=lambda t: t[0]) if _white_after(prob, fit, a, sizes, order)]
+
+
+def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
+    """Whether the residual the change leaves is white in time: the lag-1 correlation of consecutive rows' whitened
+    residual vectors (time order, rows of the same commanded joints not paired: a repeat shares its visit's error),
+    ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
+    leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
+    a stretch of it, whose evidence against the (white) floor then says nothing."""
+    from .select import row_blocks, score_atoms, scoring_basis
+
+    got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
+    if not got:
+        return False
+    sb = scoring_basis(prob, fit)
+    e = np.zeros(len(sb.keep))
+    e[sb.keep] = got[0].r - got[0].fitted
+    R = row_blocks(fit.model_cal, e)[order]
+    R[~np.isfinite(R)] = 0.0
+    q = np.round(prob.ctx.q[prob.rows_cal][order], 9)
+    pair = ~np.all(q[1:] == q[:-1], axis=1) & (prob.w_cal[order][1:] > 0) & (prob.w_cal[order][:-1] > 0)
+    a, b = R[:-1][pair], R[1:][pair]
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    if den <= 0 or pair.sum() < 10:
+        return True
+    rho = float(np.sum(a * b)) / den
+    return rho * np.sqrt(pair.sum()) <= WHITE_Z
 
 
 def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:
