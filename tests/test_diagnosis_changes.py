@@ -327,3 +327,16 @@ def test_a_new_session_reads_the_state_after_the_last_change():
     after = effective_joints(cal, RowContext(q=q, t_s=np.full(4, t1)))
     new = effective_joints(cal, RowContext(q=q, t_s=None))
     assert np.allclose(before, q) and np.allclose(after[:, 2] - q[:, 2], 1e-4) and np.allclose(new, after)
+
+
+def test_the_base_moment_regressor_gives_the_arm_moment_from_its_mass_moments():
+    """The base's moment regressor times the links' mass moments ``(m_k, m_k c_k)`` is the arm's gravity moment about the
+    base's x and y axes, summed here link by link from the centres of mass (test-side)."""
+    from twin.diagnosis.loads import base_moment_regressor
+    from twin.robots import irb1200
+
+    model = irb1200()
+    q = H.configurations(np.random.default_rng(3), 20, model)
+    Y = base_moment_regressor(model, q)
+    w = np.concatenate([[m, *(m * np.asarray(c))] for m, c in zip(H.MASSES, H.COMS)])
+    assert np.allclose(Y.reshape(len(q), 2, -1) @ w, _base_moment(model, q), rtol=1e-9, atol=1e-9)

@@ -42,10 +42,10 @@ from ..transforms import matrix_to_rotvec
 from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .extend import ExtendedModel, reduced_basis
 from .changes import change_places, change_pool_sizes, describe_changes, is_change, scan_changes
-from .loads import load_alternatives, refine_load_sign, tilt_angles
+from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
+from .loads import load_alternatives, refine_load_sign, tilt_angles
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
                      order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
                      smooth_confirm, time_only, update_gross, widen)
