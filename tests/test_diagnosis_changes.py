@@ -108,6 +108,7 @@ def test_a_step_of_a_joint_offset_is_a_change_at_its_row():
 @pytest.mark.slow
 def test_a_step_without_t_s_is_located_by_the_row_order():
     """The same step with no t_s recorded: located within 2 rows by the measurement order (>= 9/10 seeds)."""
+    assert _joint_step(0, t_s=False)[0].t_s is None
     H.tally(_run_change(_joint_step, "theta3", t_s=False), named=(9, SEEDS), ratio=("median<=", 1.2))
 
 
