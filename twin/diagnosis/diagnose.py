@@ -1279,7 +1279,7 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
     from the geometry kept) on the calibration rows, and report on the report rows :func:`diagnose` would use
     (:func:`split_held_out`; the confirmation rows when there is no report block). An entry may also be a
-    catalogue family's name: every atom of that family (per joint, per link). Returns also the geometric and
+    catalogue family's name: every atom of that family (per joint, per link; a backlash signed by the last move). Returns also the geometric and
     the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
@@ -1296,8 +1296,10 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:
             raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
+        # a backlash by name is the sign of the last move (the load-signed one is searched over directions: an Atom)
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
-               if a.family in fams and a.target != "all_lengths"]
+               if a.family in fams and a.target != "all_lengths" and a.pool == "catalogue"
+               and not any(f.get("kind") == "loadsign" for f in a.features)]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)
