@@ -39,7 +39,7 @@ __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_pla
            "scan_changes", "describe_changes", "is_change"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
-MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end of the campaign is no state
+MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
 WINDOW_MIN_ROWS = 5  # rows inside a window
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
@@ -73,8 +73,8 @@ def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
             ChangePlace("param", "base", None, "base (measurement) frame")]
     for a in catalogue:
         if a.family == "compliance" and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}":
-            out.append(ChangePlace("joint", a.target, tuple(a.features), f"joint {joint_words(model, int(a.target[5:]))} "
-                                   "compliance (a payload)", a.joints))
+            words = f"joint {joint_words(model, int(a.target[5:]))} compliance (a payload)"
+            out.append(ChangePlace("joint", a.target, tuple(a.features), words, a.joints))
     return out
 
 
@@ -169,8 +169,8 @@ def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: flo
 
 
 def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max: float) -> bool:
-    """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays significant
-    (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
+    """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays
+    significant (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
     elects a change (a gross row is fitted by a window around it)."""
     from .select import chi2_logsf
 
@@ -271,7 +271,8 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         for lo in range(0, len(a), 4000):
             sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
             gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
-            ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n], prob.evidence_scale)
+            ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n],
+                                       prob.evidence_scale)
             lp_all[lo:lo + 4000] = _logp(gain, rank, ok)
             gain_all[lo:lo + 4000], rank_all[lo:lo + 4000] = gain, rank
         best = None
@@ -357,7 +358,8 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
 
         row = first(at)
         d = {"kind": "step" if until is None else "window", "place": a["place"], "target": a["target"],
-             "label": a["label"], "minor": bool(a.get("minor", False)), "row": row, "pose_id": None if row is None else int(pose_id[row]),
+             "label": a["label"], "minor": bool(a.get("minor", False)), "row": row,
+             "pose_id": None if row is None else int(pose_id[row]),
              "t_s": None if (row is None or ctx.t_s is None) else float(ctx.t_s[row])}
         if until is not None:
             end = first(float(until))

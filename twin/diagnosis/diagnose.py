@@ -1279,8 +1279,8 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
     from the geometry kept) on the calibration rows, and report on the report rows :func:`diagnose` would use
     (:func:`split_held_out`; the confirmation rows when there is no report block). An entry may also be a
-    catalogue family's name: every atom of that family (per joint, per link; a backlash signed by the last move). Returns also the geometric and
-    the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
+    catalogue family's name: every atom of that family (per joint, per link; a backlash signed by the last move).
+    Returns also the geometric and the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:

@@ -32,8 +32,8 @@ import numpy as np
 from ..kinematics import RobotModel, link_frames
 from .candidates import GRAVITY, RowContext, gravity_torque_regressor, gravity_torques, has_masses
 
-__all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "base_moment_regressor", "load_atoms", "load_sign_feature", "refine_load_sign",
-           "tilt_angles"]
+__all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "base_moment_regressor", "load_atoms", "load_sign_feature",
+           "refine_load_sign", "load_alternatives", "tilt_angles"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the compliance atoms' prior: a link's centre of mass ~0.1 m off its frame
