@@ -144,7 +144,10 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
         if a.target == "base_along":
             dx = F * phi[0]  # (n, 3): the displacement along the row's direction
         elif a.target.startswith("tilt"):
-            dx = F * phi  # (n, 2): one rotation axis of the pivot per feature
+            # (n, 2): each feature turns the pivot about its axis (one rotation axis per feature)
+            dx = np.zeros((n, 2))
+            for k, f in enumerate(a.features):
+                dx[:, int(f.get("axis", k))] += F[:, k] * phi[int(f.get("shape", k))]
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)

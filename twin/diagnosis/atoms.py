@@ -98,6 +98,8 @@ class Atom:
             return 6 * len(self.features)
         if self.place == "param" and self.target == "base_along":
             return 1
+        if self.place == "param" and self.target.startswith("tilt") and any("shape" in f for f in self.features):
+            return len({int(f["shape"]) for f in self.features})  # one coefficient per shape, both axes
         return len(self.features)
 
     @property
@@ -472,6 +474,15 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if key not in cache:
                 cache[key] = carried_moments(model, ctx.q, int(f["j"]))
             out[:, k] = cache[key][:, f["axis"]] / f.get("h", 1.0)
+        elif kind == "basemoment":
+            # the arm's gravity moment about one horizontal axis of the base through its origin, as a combination of
+            # the links' unknown mass moments (:func:`twin.diagnosis.loads.base_moment_regressor`)
+            if "basemoment" not in cache:
+                from .loads import base_moment_regressor
+
+                cache["basemoment"] = base_moment_regressor(model, ctx.q)
+            Yb = cache["basemoment"][:, f["axis"]].reshape(n, -1)
+            out[:, k] = Yb @ np.asarray(f["w"], float) / f.get("h", 1.0)
         elif kind == "gdir":
             if "gdir" not in cache:
                 fr = link_frames(model, ctx.q)
@@ -480,6 +491,14 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = cache["gdir"][:, f["axis"]]
         elif kind == "step":
             out[:, k] = (_ch(ctx, f) >= f["at"]).astype(float)
+        elif kind == "window":
+            # a change and back: the state differs from ``at`` until ``until`` (a step and its return)
+            x = _ch(ctx, f)
+            out[:, k] = ((x >= f["at"]) & (x < f["until"])).astype(float)
+        elif kind == "loadsign":
+            # the side of the gear flank the joint's gravity load pushes it to: the sign of the load (the URDF
+            # masses' torque, or the leading gravity-torque shape when the masses are unknown)
+            out[:, k] = np.sign(feature_values((f["f"],), ctx, model, cache)[:, 0])
         elif kind == "hinge":
             # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
             out[:, k] = (np.clip(f["side"] * (_channel(ctx, f["ch"]) - f["at"]), 0.0, None) / f["h"]) ** f["p"]
@@ -511,7 +530,9 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 out[:, k] *= st == str(f["only"])
         elif kind == "gated":
             # an inner feature that acts from a moment on (a payload added at a restart)
-            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * (_ch(ctx, f) >= f["at"])
+            x = _ch(ctx, f)
+            on = (x >= f["at"]) & (x < f["until"]) if "until" in f else x >= f["at"]
+            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * on
         elif kind == "play":
             key = ("play", f["j"], f["h"])
             if key not in cache:
@@ -782,7 +803,10 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
     for s in range(n_points):
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
-    return atoms
+    # the arm's own load without its masses: backlash signed by the load, the base tilting under the arm's moment
+    from .loads import load_atoms
+
+    return atoms + load_atoms(model, ctx)
 
 
 def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], length_names: list[str],

@@ -42,8 +42,10 @@ from ..transforms import matrix_to_rotvec
 from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs, with_records
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
+from .changes import change_places, change_pool_sizes, describe_changes, is_change, scan_changes
 from .extend import ExtendedModel, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
+from .loads import load_alternatives, refine_load_sign, tilt_angles
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, covariance, gross_rows,
                      order_candidates, polish_in_fit, prefer_play, psi_init, raw_columns, refine, row_rms, score_atoms,
                      smooth_confirm, time_only, update_gross, widen)
@@ -132,7 +134,8 @@ class DiagnosisResult:
     ``atoms``, their model ``calibration_candidate``); ``adoption``: the comparison behind it (None when no term was
     found). ``calibration`` and ``calibration_geometric`` are the models refitted on every row of the campaign
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
-    the calibration rows only: before/after and every block figure are theirs."""
+    the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
+    ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``."""
 
     structured: bool
     p_value: float
@@ -163,6 +166,7 @@ class DiagnosisResult:
     candidate_terms: tuple[dict, ...] = ()
     calibration_candidate: Calibration | None = None
     calibrations_blocked: dict[str, Calibration] = field(default_factory=dict)
+    changes: tuple[dict, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -390,6 +394,7 @@ def diagnose(
         candidate_terms=candidate_terms,
         calibration_candidate=calibration_candidate,
         calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
+        changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id)),
     )
 
 
@@ -524,11 +529,14 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
                           whole_orders=not setup.problem.cross_session)
     pool = list(cat)
     if generic:
+        # change points in time are the change scan's (every row), not a grid of the dictionary's
         pool += generic_atoms(prep.nominal, ctx, dictionary_parameters(prep.nominal), length_names, cat,
-                              points=None if setup.virtual else ds.spheres, plate_spheres=ds.plate.spheres_flange)
+                              points=None if setup.virtual else ds.spheres, plate_spheres=ds.plate.spheres_flange,
+                              n_change_points=0)
     if setup.virtual:
         pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
-    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic")}
+    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic", "load")}
+    sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
     return pool, sizes
 
 
@@ -636,9 +644,13 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     taken: set[str] = set()
     rnd, kept = 0, 0
     P = prob.prep.space.size
+    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"]) if "change" in sizes else []
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
         remaining = [a for a in pool if a.key not in rejected and _slot(a) not in taken]
+        if places:
+            # the best row of every place for a change, against the current fit (changes.scan_changes)
+            remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and _slot(a) not in taken]
         r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
                             callback=callback)
         sel.scores += r.scores
@@ -649,7 +661,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             break
         accepted = r.accepted
         taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
-        refined = refine(prob, fit, accepted, sizes)
+        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
         taken.add(_slot(accepted.atom))
         kept += 1
@@ -672,7 +684,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        alts = alts + alts2
+        alts = alts + alts2 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
         update_gross(prob, fit)
         fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
@@ -791,8 +803,8 @@ def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, .
                      f"{', '.join(sorted(_joint_channels(a)))} on joint {a['target'][5:]} that the catalogue does not "
                      f"name (not as {a['family']})")
     unnamed_shape = {id(a) for a, _ in merged}
-    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json
-                                  if a["family"] != "unnamed" and not a["minor"] and id(a) not in unnamed_shape))
+    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed" and not is_change(a)
+                                  and not a["minor"] and id(a) not in unnamed_shape))
     minor = [a["label"] for a in atoms_json if a["minor"]]
     if minor:
         notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
@@ -858,14 +870,14 @@ def _implausible(prob: Problem, s) -> str | None:
     ``JOINT_MAX`` (``JOINT_MAX_CHAIN`` on a ``"urdf"`` chain), a deflection under the chain's own weight varying by
     more than ``LOAD_MAX``. Unnamed atoms make no physical claim and are not checked."""
     a = s.atom
-    if a.pool == "generic":
-        return None
-    if any(f.get("kind") in ("torque", "moment") for f in a.features):
+    if a.pool == "generic" or is_change(a):
+        return None  # a change of the robot or the cell has no physical bound of a mechanism
+    if any(f.get("kind") in ("torque", "moment", "basemoment") for f in a.features):
         # a deflection under the load the chain's masses give: its variation over the rows (the constant part is
         # the geometry's), per axis for a tilt
         F = prob.features(a)[prob.rows_cal]
         phi = s.basis @ s.psi
-        eff = F * phi if a.place == "param" else (F @ phi)[:, None]
+        eff = tilt_angles(a.features, F, phi) if a.place == "param" else (F @ phi)[:, None]
         dev = float(np.max(np.abs(eff - eff.mean(axis=0)))) if eff.size else 0.0
         if dev > LOAD_MAX:
             return (f"implausible for {a.family} under the chain's own weight: {dev / _DEG:.3f} deg of variation over the "
@@ -1084,13 +1096,17 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
             words = f"{phi[0] / _MM:+.5f} +- {sd[0] / _MM:.5f} mm along the direction of its last move"
         elif a.place == "param" and a.target.startswith("tilt"):
-            tilt = F * phi  # (n, axes) [rad]: one compliance per axis of the pivot frame
+            tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
             axes = [("xyz"[f["axis"]]) for f in a.features]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
                     "compliance_mrad_per_nm": (phi * 1e3).tolist(), "compliance_sd_mrad_per_nm": (sd * 1e3).tolist()}
-            words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
-                     + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
+            if any("shape" in f for f in a.features):
+                # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
+                words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
+            else:
+                words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
+                         + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
         elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
             size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
@@ -1230,7 +1246,7 @@ def _term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
     if t.atom.target == "base_along":
         return np.linalg.norm(t.F, axis=1) * phi[0] / _MM
     if t.atom.place == "param" and t.atom.target.startswith("tilt"):
-        return np.linalg.norm(t.F * phi, axis=1) * fac
+        return np.linalg.norm(tilt_angles(t.atom.features, t.F, phi), axis=1) * fac
     if t.atom.place == "field":
         obs = model.obs
         disp = np.linalg.norm(np.einsum("nskc,k->nsc", model.field_grid(t.atom) * t.F[:, None, :, None], phi), axis=2)
@@ -1263,8 +1279,8 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
     """Fit the geometric model extended by exactly ``atoms`` (no selection; every direction the data separate
     from the geometry kept) on the calibration rows, and report on the report rows :func:`diagnose` would use
     (:func:`split_held_out`; the confirmation rows when there is no report block). An entry may also be a
-    catalogue family's name: every atom of that family (per joint, per link). Returns also the geometric and
-    the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
+    catalogue family's name: every atom of that family (per joint, per link; a backlash signed by the last move).
+    Returns also the geometric and the extended calibrations (``twin predict`` applies them to any rows). ``geometry``: as in :func:`diagnose`."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if dataset.set is None and holdout is None:
@@ -1280,8 +1296,10 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:
             raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
+        # a backlash by name is the sign of the last move (the load-signed one is searched over directions: an Atom)
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
-               if a.family in fams and a.target != "all_lengths"]
+               if a.family in fams and a.target != "all_lengths" and a.pool == "catalogue"
+               and not any(f.get("kind") == "loadsign" for f in a.features)]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)

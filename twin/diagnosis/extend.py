@@ -217,8 +217,17 @@ class ExtendedModel:
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 3)
             return np.sum(Fr * base, axis=1, keepdims=True)  # along the row's direction, one coefficient
         if a.place == "param" and a.target.startswith("tilt"):
-            # one rotation axis of the pivot per feature (the moment about that axis): a diagonal compliance
-            return Fr * (res.J[:, : self.space.size] @ param_weights(self.space, x, a))
+            # one rotation axis of the pivot per feature (the moment about that axis, its ``axis``): a diagonal
+            # compliance; several features may turn about one axis (shapes of an unknown moment)
+            base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 2)
+            cols = Fr * base[:, [int(f.get("axis", k)) for k, f in enumerate(a.features)]]
+            if not any("shape" in f for f in a.features):
+                return cols
+            # a shape of the moment turns the pivot about both axes with one coefficient
+            out = np.zeros((len(res.r), a.K))
+            for k, f in enumerate(a.features):
+                out[:, int(f["shape"])] += cols[:, k]
+            return out
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
         base = self.product_base(a, x, obs, res)

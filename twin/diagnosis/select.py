@@ -981,10 +981,10 @@ def _omp_gain(small: list[Scored], budget: int, pool: int = 60) -> float:
 
 
 def time_only(atom: Atom) -> bool:
-    """Whether an atom's features are functions of the time channel alone (a drift, a step, a transient, an
-    oscillation in ``t_s`` or the row order, on any place)."""
+    """Whether an atom's features are functions of the time channel alone (a drift, a step or a window, a transient,
+    an oscillation in ``t_s`` or the row order, on any place)."""
     kinds = {f.get("kind") for f in atom.features} - {"const"}
-    return bool(kinds) and kinds <= {"pow", "step", "exp", "sin", "cos"} and all(
+    return bool(kinds) and kinds <= {"pow", "step", "window", "exp", "sin", "cos"} and all(
         f.get("ch") in ("t_s", "row") for f in atom.features if f.get("kind") != "const")
 
 

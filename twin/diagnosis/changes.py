@@ -1,0 +1,376 @@
+"""Change points: a step (or a step and back, a window) at an unknown row in one channel of the model.
+
+A *change* acts at one *place* from one row of the campaign on (a step) or between two rows (a window): a joint
+offset (``theta<j>``), the tool frame, the measurement (base) frame (each row's station), or a joint's compliance
+(its leading gravity-torque shapes, :func:`twin.diagnosis.atoms.catalogue_atoms`: a payload put on or taken off).
+Its column is the place's column times ``1[row >= s]`` (a window: ``1[s <= row < e]``), rows in time order (``t_s``
+when recorded, else the measurement order).
+
+**The scan.** After a fit with whitened residual ``r`` orthogonal to an orthonormal basis ``Q`` (``m x P``) of the
+model's columns, a place whose columns on row ``i`` are ``g_i`` (``p`` columns: the place's columns times its
+features) explains, with a step at row ``s``,
+
+    ``Delta chi2(s) = b_s^T (C_s - A_s^T A_s)^+ b_s``,  ``A_s = sum_{i>=s} Q_i^T g_i``, ``b_s = sum_{i>=s} g_i^T r_i``,
+    ``C_s = sum_{i>=s} g_i^T g_i``
+
+(the columns scaled to unit norm, directions below 1 % of a unit column dropped, as every atom is scored:
+:func:`twin.diagnosis.select.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
+``[s, e)`` takes the difference of two of them. The best row of each place is one candidate of the selection
+(family ``change``), its evidence ``p = chi2_sf(Delta chi2, rank)`` times the number of places and row positions
+tried (its pool: a step at every row of every place, ``change``; a window at every pair of rows, ``change_window``,
+on a grid of at most ``WINDOW_GRID`` boundaries, refined to the rows around the best pair). A change then faces
+what every term faces: held-out confirmation on the later block of time, the backward pass.
+
+A change is reported in ``diagnosis.json`` ``changes`` (not among the ``effects``) with the row and time it starts
+(and ends), its place and its size. In prediction the step is a term of time: rows after it, and a new session,
+read the state after it (:func:`twin.diagnosis.atoms.feature_values`, ``step`` and ``window``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .atoms import Atom, joint_words
+from .candidates import RowContext
+
+__all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
+           "scan_changes", "describe_changes", "is_change"]
+
+MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
+MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
+WINDOW_MIN_ROWS = 5  # rows inside a window
+UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
+WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
+CHANGE_POOLS = ("change", "change_window")
+
+
+@dataclass(frozen=True)
+class ChangePlace:
+    """Where a change may act: ``place``/``target`` as an atom's, the features the change multiplies (``None``: a
+    constant offset of the place), the words and joints."""
+
+    place: str
+    target: str
+    inner: tuple | None
+    words: str
+    joints: tuple[int, ...] = ()
+
+
+def is_change(atom) -> bool:
+    """Whether an atom (or its JSON) is a change (family ``change``)."""
+    fam = atom["family"] if isinstance(atom, dict) else atom.family
+    return fam == "change"
+
+
+def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
+    """Every joint offset, the tool frame, the measurement (base) frame, and each joint's compliance (the catalogue's
+    leading gravity-torque shapes of that joint)."""
+    out = [ChangePlace("joint", f"theta{j}", None, f"joint {joint_words(model, j)} offset", (j,))
+           for j in range(1, model.n_joints + 1)]
+    out += [ChangePlace("param", "tool", None, "tool (plate) frame"),
+            ChangePlace("param", "base", None, "base (measurement) frame")]
+    for a in catalogue:
+        if a.family == "compliance" and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}":
+            words = f"joint {joint_words(model, int(a.target[5:]))} compliance (a payload)"
+            out.append(ChangePlace("joint", a.target, tuple(a.features), words, a.joints))
+    return out
+
+
+def _time(ctx: RowContext) -> tuple[str, np.ndarray]:
+    """The time channel of the rows (``t_s`` when it varies, else the row order) and its values ``(n,)``."""
+    if ctx.t_s is not None and np.ptp(ctx.t_s) > 0:
+        return "t_s", np.asarray(ctx.t_s, float)
+    return "row", np.arange(len(ctx.q), dtype=float)
+
+
+def _steps(n: int) -> np.ndarray:
+    """The positions ``s`` (time-ordered rows ``>= s`` change) with ``max(MIN_ROWS, MIN_SIDE n)`` rows on each side."""
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * n)))
+    return np.arange(side, n - side + 1)
+
+
+def _grid(n: int) -> np.ndarray:
+    s = _steps(n)
+    stride = max(1, int(np.ceil(len(s) / WINDOW_GRID)))
+    return s[::stride]
+
+
+def _pairs(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = np.meshgrid(g, g, indexing="ij")
+    ok = b - a >= WINDOW_MIN_ROWS
+    return a[ok], b[ok]
+
+
+def change_pool_sizes(n_cal: int, places: list[ChangePlace]) -> dict[str, int]:
+    """The Bonferroni factor of each change pool: places times row positions (steps) or pairs of them (windows)."""
+    return {"change": max(1, len(places) * len(_steps(n_cal))),
+            "change_window": max(1, len(places) * len(_pairs(_grid(n_cal))[0]))}
+
+
+def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
+    """The change at place ``pl`` from ``at`` on (until ``until``) on the time channel ``ch``."""
+    if until is None:
+        gate = {"ch": ch, "at": float(at)}
+        chan = f"change({ch} >= {at:.6g})"
+        when = f"from {ch} {at:.6g} on"
+    else:
+        gate = {"ch": ch, "at": float(at), "until": float(until)}
+        chan = f"change({at:.6g} <= {ch} < {until:.6g})"
+        when = f"from {ch} {at:.6g} until {until:.6g}"
+    if pl.inner is None:
+        feats = (dict({"kind": "step" if until is None else "window"}, **gate),)
+    else:
+        feats = tuple(dict({"kind": "gated", "f": f}, **gate) for f in pl.inner)
+    return Atom("change", pl.place, pl.target, feats, chan, f"change of the {pl.words} {when}",
+                "change" if until is None else "change_window", pl.joints)
+
+
+def _gains(C: np.ndarray, A: np.ndarray, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``Delta chi2`` and rank ``(k,)`` of stacked candidates: ``C`` ``(k, p, p)``, ``A`` ``(k, P, p)``, ``b``
+    ``(k, p)`` (columns scaled to unit norm, directions below 1 % of a unit column dropped)."""
+    d = np.sqrt(np.maximum(np.diagonal(C, axis1=1, axis2=2), 0.0))
+    has = d > 1e-12
+    D = np.where(has, 1.0 / np.where(has, d, 1.0), 0.0)
+    G = (C - np.einsum("kpa,kpb->kab", A, A)) * D[:, :, None] * D[:, None, :]
+    lam, V = np.linalg.eigh(G)
+    ok = (lam > 1e-4) & np.any(has, axis=1)[:, None]
+    proj = np.einsum("kij,ki->kj", V, b * D)
+    gain = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1) / scale
+    return gain, ok.sum(axis=1)
+
+
+def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray, rss_all: float, m_all: float,
+             scale: float) -> np.ndarray:
+    """Whether the rows a change acts on are fitted by it to the scatter of the other rows ``(k,)``: the residual
+    left on them, ``(RSS_in - Delta chi2) / (m_in - rank)``, against ``RSS_out / m_out`` of the rows outside, not
+    larger at ``p < UNIFORM_P`` (``F`` test). A burst of noisy rows, or a gross row, is fitted by no change: a
+    change is the same offset on every row it acts on."""
+    from scipy import stats
+
+    d1 = np.maximum(m - rank, 1.0)
+    d2 = np.maximum(m_all - m, 1.0)
+    left = np.maximum(rss - gain * scale, 0.0) / d1
+    out = np.maximum(rss_all - rss, 1e-300) / d2
+    return stats.f.sf(left / out, d1, d2) >= UNIFORM_P
+
+
+def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: float, m_all: float, scale: float,
+                logp_max: float) -> bool:
+    """Whether a change's evidence stands out of the scatter the rows outside it keep: ``Delta chi2 / s^2`` with
+    ``s^2 = max(1, RSS_out / m_out)`` (per residual, in the floor's units) still significant (``log p <
+    logp_max``). Under scatter beyond the floor that moves over a few rows (a cell wandering in time), a window's
+    mean over a stretch of them is as large as that scatter allows, not a change."""
+    from .select import chi2_logsf
+
+    s2 = max(1.0, (rss_all - rss_in) / max(m_all - m_in, 1.0) / scale)
+    return bool(chi2_logsf(gain / s2, max(int(rank), 1)) < logp_max)
+
+
+def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max: float) -> bool:
+    """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays
+    significant (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
+    elects a change (a gross row is fitted by a window around it)."""
+    from .select import chi2_logsf
+
+    C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
+    full, _ = _gains(C[None], A[None], b[None], scale)
+    gain, rank = _gains(C[None] - Ci[lo:hi], A[None] - Ai[lo:hi], b[None] - bi[lo:hi], scale)
+    lp = np.where(rank > 0, chi2_logsf(gain, np.maximum(rank, 1)), 0.0)
+    return bool(np.max(lp) < logp_max and np.min(gain) >= LOO_SHARE * full[0])
+
+
+LOO_SHARE = 0.5  # a change keeps at least this share of its evidence without any one of its rows
+WHITE_Z = 3.0  # the residual a change leaves must not be correlated from row to row beyond this normal score
+TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
+
+
+def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
+    rank only (the others, and those not ``ok``, read 0: never among the best)."""
+    from .select import chi2_logsf
+
+    lp = np.zeros(len(gain))
+    for r in np.unique(rank[ok]):
+        idx = np.flatnonzero(ok & (rank == r))
+        idx = idx[np.argsort(-gain[idx])[:TOP]]
+        lp[idx] = chi2_logsf(gain[idx], float(r))
+    return lp
+
+
+def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01) -> list[Atom]:
+    """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
+    calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
+    candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
+    from scipy import sparse
+
+    from .select import scoring_basis
+
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
+    model = fit.model_cal
+    P = prob.prep.space.size
+    x = fit.z[:P]
+    obs = model.effective_obs(model.split(fit.z)[1])
+    rows = rc.row[keep]
+    n = prob.obs_cal.n
+    if n < 2 * MIN_ROWS + 1:
+        return []
+    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
+    ch, tv = _time(prob.ctx)
+    t_cal = tv[prob.rows_cal]
+    order = np.argsort(t_cal, kind="stable")
+    ts = t_cal[order]
+    steps = _steps(n)
+    steps = steps[ts[steps] > ts[steps - 1]]  # a change between two rows measured at different times
+    g = _grid(n)
+    g = g[ts[g] > ts[g - 1]]
+    # per-row residual sums of squares and residual counts, in time order (the uniformity check)
+    rr = np.concatenate([[0.0], np.cumsum((S @ (r * r))[order])])
+    mm = np.concatenate([[0.0], np.cumsum((S @ np.ones(len(rows)))[order])])
+    sizes = change_pool_sizes(n, places)
+    out = []
+    for pl in places:
+        tmpl = Atom("change", pl.place, pl.target, ({"kind": "const"},), "", "", "change")
+        base = model.product_base(tmpl, x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
+        c = base.shape[1]
+        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
+        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
+        Br = S @ (base * r[:, None])
+        if pl.inner is None:
+            F = np.ones((n, 1))
+        else:
+            F = prob.features(Atom("change", pl.place, pl.target, pl.inner, "", "", "change"))[prob.rows_cal]
+        K = F.shape[1]
+        p = K * c
+        Ci = np.einsum("nk,nl,nab->nkalb", F, F, W).reshape(n, p, p)[order]
+        Ai = np.einsum("nk,nqa->nqka", F, QB).reshape(n, Q.shape[1], p)[order]
+        bi = np.einsum("nk,na->nka", F, Br).reshape(n, p)[order]
+        Cc = np.concatenate([np.zeros((1, p, p)), np.cumsum(Ci, axis=0)])
+        Ac = np.concatenate([np.zeros((1, Q.shape[1], p)), np.cumsum(Ai, axis=0)])
+        bc = np.concatenate([np.zeros((1, p)), np.cumsum(bi, axis=0)])
+        if len(steps):
+            gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
+            ok = (rank > 0) & _uniform(rr[n] - rr[steps], mm[n] - mm[steps], gain, rank, rr[n], mm[n],
+                                       prob.evidence_scale)
+            lp = _logp(gain, rank, ok)
+            lp_max = np.log(alpha) - np.log(sizes["change"])
+            for k in np.argsort(lp)[:TOP]:
+                s = steps[k]
+                if ok[k] and lp[k] < 0 and _stands_out(rr[n] - rr[s], mm[n] - mm[s], gain[k], rank[k], rr[n], mm[n],
+                                                       prob.evidence_scale, lp_max) \
+                        and _holds_without_any_row(Ci, Ai, bi, s, n, prob.evidence_scale, lp_max):
+                    out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
+                    break
+        if not windows or len(g) < 2:
+            continue
+        a, b = _pairs(g)
+        lp_all = np.zeros(len(a))
+        gain_all, rank_all = np.zeros(len(a)), np.zeros(len(a), int)
+        for lo in range(0, len(a), 4000):
+            sa, sb_ = a[lo:lo + 4000], b[lo:lo + 4000]
+            gain, rank = _gains(Cc[sb_] - Cc[sa], Ac[sb_] - Ac[sa], bc[sb_] - bc[sa], prob.evidence_scale)
+            ok = (rank > 0) & _uniform(rr[sb_] - rr[sa], mm[sb_] - mm[sa], gain, rank, rr[n], mm[n],
+                                       prob.evidence_scale)
+            lp_all[lo:lo + 4000] = _logp(gain, rank, ok)
+            gain_all[lo:lo + 4000], rank_all[lo:lo + 4000] = gain, rank
+        best = None
+        lp_max = np.log(alpha) - np.log(sizes["change_window"])
+        for k in np.argsort(lp_all)[:TOP]:
+            s, e = int(a[k]), int(b[k])
+            if lp_all[k] < 0 and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain_all[k], rank_all[k], rr[n], mm[n],
+                                             prob.evidence_scale, lp_max) \
+                    and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
+                best = (float(lp_all[k]), int(a[k]), int(b[k]))
+                break
+        if best is None:
+            continue
+        stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
+        if stride > 1:
+            # the grid's best pair refined to the rows around it
+            lo_, hi_ = int(_steps(n)[0]), int(_steps(n)[-1])
+            sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
+            sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
+            A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
+            ok = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
+            A2, B2 = A2[ok], B2[ok]
+            if len(A2):
+                gain, rank = _gains(Cc[B2] - Cc[A2], Ac[B2] - Ac[A2], bc[B2] - bc[A2], prob.evidence_scale)
+                ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
+                                           prob.evidence_scale)
+                lp = _logp(gain, rank, ok)
+                k = int(np.argmin(lp))
+                s, e = int(A2[k]), int(B2[k])
+                if lp[k] < best[0] and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain[k], rank[k], rr[n], mm[n],
+                                                   prob.evidence_scale, lp_max) \
+                        and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
+                    best = (float(lp[k]), int(A2[k]), int(B2[k]))
+        _, s, e = best
+        out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
+    return [a for _, a in sorted(out, key=lambda t: t[0]) if _white_after(prob, fit, a, sizes, order)]
+
+
+def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
+    """Whether the residual the change leaves is white in time: the lag-1 correlation of consecutive rows' whitened
+    residual vectors (time order, rows of the same commanded joints not paired: a repeat shares its visit's error),
+    ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
+    leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
+    a stretch of it, whose evidence against the (white) floor then says nothing."""
+    from .select import row_blocks, score_atoms, scoring_basis
+
+    got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
+    if not got:
+        return False
+    sb = scoring_basis(prob, fit)
+    e = np.zeros(len(sb.keep))
+    e[sb.keep] = got[0].r - got[0].fitted
+    R = row_blocks(fit.model_cal, e)[order]
+    R[~np.isfinite(R)] = 0.0
+    q = np.round(prob.ctx.q[prob.rows_cal][order], 9)
+    pair = ~np.all(q[1:] == q[:-1], axis=1) & (prob.w_cal[order][1:] > 0) & (prob.w_cal[order][:-1] > 0)
+    a, b = R[:-1][pair], R[1:][pair]
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    if den <= 0 or pair.sum() < 10:
+        return True
+    rho = float(np.sum(a * b)) / den
+    return rho * np.sqrt(pair.sum()) <= WHITE_Z
+
+
+def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:
+    """The ``changes`` of ``diagnosis.json``: per kept change, its ``kind`` (``step`` or ``window``), ``place`` and
+    ``target``, the row where it starts (``row``: index in the dataset, ``pose_id``, ``t_s`` when recorded) and, for
+    a window, where it ends (the first row back in the former state), its ``size`` (the term's value in words'
+    units: deg for a joint offset, the frame's change in mm and deg, a compliance change's RMS effect) and the
+    label."""
+    ch, tv = _time(ctx)
+    order = np.argsort(tv, kind="stable")
+    out = []
+    for a in atoms_json:
+        if not is_change(a):
+            continue
+        f0 = a["features"][0]
+        at, until = float(f0["at"]), f0.get("until")
+
+        def first(v):
+            later = order[tv[order] >= v]
+            return int(later[0]) if len(later) else None
+
+        row = first(at)
+        d = {"kind": "step" if until is None else "window", "place": a["place"], "target": a["target"],
+             "label": a["label"], "minor": bool(a.get("minor", False)), "row": row,
+             "pose_id": None if row is None else int(pose_id[row]),
+             "t_s": None if (row is None or ctx.t_s is None) else float(ctx.t_s[row])}
+        if until is not None:
+            end = first(float(until))
+            d.update({"end_row": end, "end_pose_id": None if end is None else int(pose_id[end]),
+                      "end_t_s": None if (end is None or ctx.t_s is None) else float(ctx.t_s[end])})
+        v = np.asarray(a["values"], float)
+        if a["place"] == "param" and a["target"] in ("tool", "base"):
+            d["size"] = {"translation_mm": (v[:3] * 1e3).tolist(), "rotation_deg": np.rad2deg(v[3:]).tolist()}
+        elif a["place"] == "joint" and f0.get("kind") in ("step", "window"):
+            d["size"] = {"offset_deg": float(np.rad2deg(v[0])), "sd_deg": float(np.rad2deg(a["sd"][0]))}
+        else:
+            d["size"] = dict(a["size"])
+        out.append(d)
+    return out
