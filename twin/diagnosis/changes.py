@@ -147,13 +147,13 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
     left on them, ``(RSS_in - Delta chi2) / (m_in - rank)``, against ``RSS_out / m_out`` of the rows outside, not
     larger at ``p < UNIFORM_P`` (``F`` test). A burst of noisy rows, or a gross row, is fitted by no change: a
     change is the same offset on every row it acts on."""
-    from scipy import stats
+    from ..estimator.distributions import f_sf
 
     d1 = np.maximum(m - rank, 1.0)
     d2 = np.maximum(m_all - m, 1.0)
     left = np.maximum(rss - gain * scale, 0.0) / d1
     out = np.maximum(rss_all - rss, 1e-300) / d2
-    return stats.f.sf(left / out, d1, d2) >= UNIFORM_P
+    return f_sf(left / out, d1, d2) >= UNIFORM_P
 
 
 def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: float, m_all: float, scale: float,
