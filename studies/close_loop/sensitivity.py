@@ -8,7 +8,8 @@ calibration (noise-free data, seed 0's poses) is ``--size`` noise sigmas.
 
 Per case and seed: detected (structured); for catalogue effects *named* (the family listed) and *named with the
 right joints/links* (the non-minor atoms of that family act exactly on the injected joints/links, and no other
-family is listed); for effects outside the catalogue *traced* (a non-minor unnamed term, or a listed
+family is listed); for effects outside the catalogue *traced* (a non-minor unnamed term, a listed change of its place
+for a step, or a listed
 alternative, at the expected place and channel); ``after/oracle``: validation RMS of the extended model over the
 oracle's. The oracle is the true effect known exactly (the world's own centres with and without the effect) with
 the geometry re-identified on the same noisy rows (``twin.evaluation.closeloop.oracle_delta_fit``). Clean seeds:
@@ -106,7 +107,10 @@ def _verdict(res, expected) -> dict:
     places = expected[1]
     alts = [(d["target"], d["channel"]) for d in res.alternatives]
     terms = [(a["target"], a["channel"]) for a in atoms if a["family"] == "unnamed"] + alts
-    traced = any(t == tgt and ch.startswith(pre) for tgt, pre in places for t, ch in terms)
+    # a change at one moment (diagnosis.json `changes`) is a step of its place in time
+    terms += [(c["target"], "step(") for c in res.changes if not c.get("minor")]
+    traced = any(t == tgt and (ch.startswith(pre) or (ch == "step(" and pre.startswith("step(")))
+                 for tgt, pre in places for t, ch in terms)
     return {"named": None, "named_exact": None, "traced": bool(traced)}
 
 
