@@ -22,13 +22,18 @@ of the prediction, e.g. ``J[:, theta_j] F[row, k]`` or ``J[:, L] L F[row, k]``.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
+from ..transforms import kabsch, matrix_to_rotvec
 from .atoms import Atom
 
-__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights"]
+_MM = 1e-3
+_DEG = np.pi / 180.0
+
+__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights", "error_stats"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -343,3 +348,41 @@ def reduced_basis(E: np.ndarray, A: np.ndarray | None = None, *, rel_tol: float 
     # singular values are fractions of unit columns: keep what survives above rel_tol of a unit column
     r = int(min(np.sum(s > rel_tol * max(s[0], 1.0)), max_rank))
     return D[:, None] * Vt[:r].T
+
+
+def _unmask(r: np.ndarray, model: ExtendedModel) -> np.ndarray:
+    """Whitened point residuals back to ``(n, K, 3)`` [m] (order of ``absolute_residuals``)."""
+    obs = model.obs
+    shape = (obs.spheres.shape[1], 3, obs.n)
+    mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
+    tmp = np.zeros(shape)
+    tmp[mask] = model.unwhiten(r)
+    return np.transpose(tmp, (2, 0, 1))
+
+
+def _stats(e: np.ndarray) -> dict[str, float]:
+    return {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(e))}
+
+
+def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = None) -> dict[str, Any]:
+    """Error statistics of ``model`` at ``z`` on its rows: 3-D point error [mm], and the marker set's (plate's)
+    orientation error [deg] between rigid fits of it to the measured and to the predicted points (rows with all
+    of them, at least three); ``keep`` ``(n,)``: the rows counted (gross rows left out)."""
+    _, phis = model.split(z)
+    obs = model.effective_obs(phis)
+    res = model.residuals(z, jacobian=False)
+    diff = _unmask(res.r, model)  # measured - predicted (n, K, 3) [m], zero where not seen
+    rows = np.ones(obs.n, bool) if keep is None else keep
+    seen = obs.seen & rows[:, None]
+    e3 = np.linalg.norm(diff, axis=-1)[seen]
+    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
+    full = seen.all(axis=1)
+    if full.any() and obs.spheres.shape[1] >= 3:
+        meas = obs.spheres[full]
+        pred = meas - diff[full]
+        A = np.broadcast_to(model.obs.spheres_tool, meas.shape)
+        Rm, _ = kabsch(A, meas)
+        Rp, _ = kabsch(A, pred)
+        ang = np.linalg.norm(matrix_to_rotvec(Rm @ np.swapaxes(Rp, 1, 2)), axis=-1)
+        out["orientation_deg"] = _stats(ang / _DEG)
+    return out

@@ -230,7 +230,7 @@ def load_alternatives(prob, fit, pool: list, sizes: dict, alpha_select: float) -
     by the strongest significant term of its other reading (:func:`_counterparts`), the model refitted; when that
     predicts the confirmation rows within ``ALT_RMS`` of the model as kept, it is reported as the kept term's
     alternative (``held_out_rms_mm``: the alternative's and the kept model's confirmation RMS)."""
-    from .diagnose import error_stats
+    from .extend import error_stats
     from .select import psi_init, score_atoms
 
     out = []

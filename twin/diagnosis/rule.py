@@ -1,0 +1,414 @@
+"""The selection rule of the diagnosis: which terms enter the extended model, in which order, and whether the
+extended model replaces the geometric one.
+
+One round (:func:`selection_round`) scores the remaining atoms on the calibration rows (:mod:`twin.diagnosis.select`),
+takes the best whose evidence passes the threshold of its pool, and keeps it only if it predicts the confirmation
+block (a block of time after every calibration row, or another session); :func:`select_terms` repeats rounds,
+then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
+keeps fewer families where they do as well (:func:`_fewer_families`) and refuses terms of implausible size
+(:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``). :func:`decide` states the verdict and
+:func:`adopt` whether the extended model is the model to use. The procedure around it is
+:mod:`twin.diagnosis.diagnose`; the statistics each step calls are in :mod:`twin.diagnosis.select`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from .atoms import Atom
+from .changes import change_places, is_change, scan_changes
+from .loads import load_alternatives, refine_load_sign, tilt_angles
+from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, order_candidates,
+                     polish_in_fit, prefer_play, psi_init, refine, score_atoms, smooth_confirm, time_only,
+                     update_gross, widen)
+from .extend import error_stats
+
+__all__ = [
+    "CandidateScore",
+    "Selection",
+    "Round",
+    "selection_round",
+    "select_terms",
+    "decide",
+    "adopt",
+    "implausible_size",
+]
+
+_MM = 1e-3
+_DEG = np.pi / 180.0
+
+
+JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
+# on the 6R industrial arms (cycloidal and harmonic drives)
+# [rad] the same for any other chain (a URDF's: service and mobile manipulators whose wrist and belt stages show up
+# to a degree of play; set after the TIAGo wrist's 0.63 deg backlash, confirmed on its other day, exceeded 0.5 deg)
+JOINT_MAX_CHAIN = 1.0 * np.pi / 180
+# [rad] largest variation over the rows of a deflection under a known load (compliance or a support's tilt under the
+# chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
+LOAD_MAX = 1.0 * np.pi / 180
+THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One atom considered in a selection round: reduced dimension, calibration ``Delta chi2``, adjusted
+    p-value, held-out ``z``, and what was decided."""
+
+    round: int
+    name: str
+    dim: int
+    delta_chi2: float
+    p_adjusted: float
+    z_validation: float
+    decision: str
+
+
+@dataclass
+class Selection:
+    """The outcome of :func:`select_terms`: the extended fit (its ``chosen`` atoms), every candidate scored, the
+    alternatives of the kept terms, each kept term's calibration ``Delta chi2`` when it entered, and notes."""
+
+    fit: Fit
+    scores: list[CandidateScore] = field(default_factory=list)
+    alternatives: list[dict] = field(default_factory=list)
+    entry_chi2: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def _slot(atom: Atom) -> str:
+    """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
+    occupies its own key."""
+    return f"backlash:{atom.target}" if atom.family == "backlash" else atom.key
+
+
+@dataclass
+class Round:
+    """One forward round: the accepted candidate (or None), the candidates tried with their decisions, every
+    atom scored, the keys rejected, and whether a named atom was rejected for an unphysical size."""
+
+    accepted: Scored | None
+    scores: list[CandidateScore]
+    scored: list[Scored]
+    rejected: list[str]
+    unphysical: bool
+
+
+def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
+                    alpha_select: float, z_min: float, tries: int = 3,
+                    callback: Callable[[CandidateScore], None] | None = None) -> Round:
+    """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
+    operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
+    ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
+    confirmation rows and of a physical size is accepted."""
+    scored = prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes)
+    out = Round(None, [], scored, [], False)
+    if not scored:
+        return out
+    for s in order_candidates(scored)[:tries]:
+        logp_adj = s.logp_adj
+        if logp_adj >= np.log(alpha_select):
+            out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
+                                             float("nan"), "not significant on the calibration rows"))
+            break
+        c = confirm(prob, fit, s, z_min)
+        if c.local and time_only(s.atom):
+            # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
+            # period), not at the coarse grid value it was found at: a slip between two grid times is a step
+            refined = refine(prob, fit, s, sizes)
+            if refined is not s:
+                c_refined = confirm(prob, fit, refined, z_min)
+                if not c_refined.local:
+                    s, c = refined, c_refined
+        implausible = _implausible(prob, s)
+        ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
+        sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
+                            "kept" if ok else ("not confirmed on held-out rows" if not (c.z > z_min) else
+                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
+                                               "held-out error not reduced" if not c.better else
+                                               "the nearest rows in time predict the held-out rows as well (a wander, "
+                                               "not a term of time)" if c.local else implausible))
+        out.scores.append(sc)
+        if callback:
+            callback(sc)
+        if ok:
+            out.accepted = s
+            break
+        out.rejected.append(s.atom.key)
+        out.unphysical |= implausible is not None
+    return out
+
+
+def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int], *, max_effects: int = 16,
+                 alpha_select: float = 0.01, z_min: float = 3.0,
+                 callback: Callable[[CandidateScore], None] | None = None) -> Selection:
+    """Step 4: forward rounds (:func:`selection_round`) from the geometric ``fit``: an accepted atom is refined
+    (its continuous constant), widened (its further directions when they add evidence), added and the model
+    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`) and
+    fewer families (:func:`_fewer_families`)."""
+    sel = Selection(fit)
+    chosen: list = []
+    rejected: set[str] = set()
+    taken: set[str] = set()
+    rnd, kept = 0, 0
+    P = prob.prep.space.size
+    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"]) if "change" in sizes else []
+    while kept < max_effects and rnd < 4 * max_effects:
+        rnd += 1
+        remaining = [a for a in pool if a.key not in rejected and _slot(a) not in taken]
+        if places:
+            # the best row of every place for a change, against the current fit (changes.scan_changes)
+            remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and _slot(a) not in taken]
+        r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
+                            callback=callback)
+        sel.scores += r.scores
+        rejected.update(r.rejected)
+        if r.accepted is None:
+            if r.unphysical:
+                continue  # named atoms of an unphysical size are out: the next round scores the rest
+            break
+        accepted = r.accepted
+        taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
+        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
+        accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
+        taken.add(_slot(accepted.atom))
+        kept += 1
+        sel.alternatives += alternatives(accepted, r.scored)
+        chosen.append((accepted.atom, accepted.basis))
+        sel.entry_chi2[accepted.atom.key] = accepted.dchi2
+        fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
+        update_gross(prob, fit)
+        if any(f.get("kind") == "play" for f in accepted.atom.features):
+            # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
+            # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
+            fit = polish_in_fit(prob, fit, len(chosen) - 1, "h")
+            chosen = list(fit.chosen)
+            update_gross(prob, fit)
+    if chosen:
+        fit, dropped = backward(prob, fit, alpha_select, sizes)
+        for a in dropped:
+            sel.notes.append(f"dropped in the backward pass (redundant once the others are in): {a.label}")
+        fit, swapped, alts = _named_shapes(prob, fit, pool, sizes, alpha_select)
+        sel.notes += swapped
+        fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
+        sel.notes += merged
+        alts = alts + alts2 + load_alternatives(prob, fit, pool, sizes, alpha_select)
+        sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
+        update_gross(prob, fit)
+        fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
+    sel.fit = fit
+    return sel
+
+
+def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, excess: bool,
+           z_min: float) -> tuple[bool, dict | None, list[str]]:
+    """Step 5: ``structured`` when the test fired (``excess``) and something in the residual is predictable on the
+    confirmation rows: a confirmed term (``ext``), or, without one, the nearest calibration rows in joint space or
+    in time (:func:`twin.diagnosis.select.smooth_confirm`). An excess that nothing predicts is scatter that
+    changes from visit to visit (the robot's repeatability, a per-pose instrument error), however large:
+    reported (``unexplained``), not called structure. Returns ``(structured, unexplained, notes)``."""
+    notes: list[str] = []
+    confirmed = ext is not None
+    unexplained = None
+    if excess and not confirmed:
+        smooth = smooth_confirm(prob, base, z_min)
+        w = test0.whitened_rms
+        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / _MM,
+                       "predictable": smooth["confirmed"], "by": smooth["by"] if smooth["confirmed"] else None,
+                       "smoothers": smooth["smoothers"]}
+    structured = bool(excess and (confirmed or unexplained["predictable"]))
+    if excess and not structured:
+        notes.append(f"the held-out scatter is {test0.whitened_rms:.2f}x the floor (p = {test0.p_value:.2g}), an extra "
+                     f"{unexplained['excess_sigma_mm']:.5f} mm per coordinate, but nothing in it is predictable on held-out "
+                     f"rows, neither by a term nor from the nearest rows in joint space or time (z = "
+                     f"{unexplained['smoothers']['joints']['z']:.2f}, {unexplained['smoothers']['time']['z']:.2f}): random "
+                     "scatter beyond the instrument's floor (the robot's repeatability, or an error that changes from visit "
+                     "to visit or too finely for these rows); no structure is claimed")
+    if structured and not confirmed:
+        by = "joint space" if unexplained["by"] == "joints" else "time"
+        notes.append(f"the residual is predictable from the nearest rows in {by} (z = "
+                     f"{unexplained['smoothers'][unexplained['by']]['z']:.2f} on held-out rows) and no term of the "
+                     "catalogue or the dictionary explains it")
+    return structured, unexplained, notes
+
+
+def adopt(prob: Problem, base: Fit, ext: Fit) -> dict[str, Any]:
+    """Step 5b: does the extended model replace the geometric one? Only where it predicts the confirmation block (a
+    block of time after every row that fitted it, or another session) better: a lower position RMS there, over every
+    confirmation row (no row set aside as gross: a posture the extended model mispredicts, one outside the ranges it
+    was fitted on, is a posture of the next session too; a glitch of the instrument costs both models alike).
+    Otherwise the geometric model stays the one to use and the terms are reported as candidates. Returns
+    ``{adopted, confirmation_rms_mm: {geometric, extended}, note}``."""
+    gb = error_stats(base.model_val, base.z)["position_mm"]["rms"]
+    ge = error_stats(ext.model_val, ext.z)["position_mm"]["rms"]
+    adopted = bool(ge < gb)
+    note = ("" if adopted else
+            f"the extended model does not predict the confirmation block better than the geometric model ({ge:.4g} "
+            f"against {gb:.4g} mm RMS): the geometric model is the one to use; its terms are reported as candidates")
+    return {"adopted": adopted, "confirmation_rms_mm": {"geometric": gb, "extended": ge}, "note": note}
+
+
+def implausible_size(prob: Problem, atom: Atom, phi: np.ndarray) -> str | None:
+    """Why the named ``atom`` with the values ``phi`` ``(K,)`` (SI per unit of its features) has a size that is not
+    physical for its family (:func:`_implausible`'s rules), or None."""
+    from types import SimpleNamespace
+
+    phi = np.asarray(phi, dtype=float)
+    return _implausible(prob, SimpleNamespace(atom=atom, basis=np.eye(phi.size), psi=phi))
+
+
+def _implausible(prob: Problem, s) -> str | None:
+    """Why a named (catalogue) atom's fitted size is not physical for its family, or None: thermal growth of more
+    than ``THERMAL_MAX`` over the rows (a short link's huge growth stands for something else: on a blind
+    campaign 3,500 ppm of a4 took the place of a joint offset jumping at restarts), a joint error beyond
+    ``JOINT_MAX`` (``JOINT_MAX_CHAIN`` on a ``"urdf"`` chain), a deflection under the chain's own weight varying by
+    more than ``LOAD_MAX``. Unnamed atoms make no physical claim and are not checked."""
+    a = s.atom
+    if a.pool == "generic" or is_change(a):
+        return None  # a change of the robot or the cell has no physical bound of a mechanism
+    if any(f.get("kind") in ("torque", "moment", "basemoment") for f in a.features):
+        # a deflection under the load the chain's masses give: its variation over the rows (the constant part is
+        # the geometry's), per axis for a tilt
+        F = prob.features(a)[prob.rows_cal]
+        phi = s.basis @ s.psi
+        eff = tilt_angles(a.features, F, phi) if a.place == "param" else (F @ phi)[:, None]
+        dev = float(np.max(np.abs(eff - eff.mean(axis=0)))) if eff.size else 0.0
+        if dev > LOAD_MAX:
+            return (f"implausible for {a.family} under the chain's own weight: {dev / _DEG:.3f} deg of variation over the "
+                    f"rows (more than {LOAD_MAX / _DEG:.1f} deg)")
+        return None
+    eff = prob.features(a)[prob.rows_cal] @ (s.basis @ s.psi) if a.place in ("length", "joint") else None
+    if eff is None or eff.size == 0:
+        return None
+    if a.place == "length" and float(np.ptp(eff)) > THERMAL_MAX:
+        return (f"implausible for thermal growth: {np.ptp(eff) * 1e6:.0f} ppm over the rows (more than "
+                f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
+    cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
+    if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
+        return f"implausible for {a.family}: {np.max(np.abs(eff)) / _DEG:.3f} deg (more than {cap / _DEG:.1f} deg)"
+    return None
+
+
+def _single_joint_variable(a: Atom) -> str | None:
+    """The one joint variable (``"q4"``) a joint atom's features are functions of (pow/sin/cos), else None."""
+    if a.place != "joint" or not {f.get("kind") for f in a.features} <= {"pow", "sin", "cos"}:
+        return None
+    chans = {f["ch"] for f in a.features}  # pow/sin/cos features name one channel each
+    ch = chans.pop() if len(chans) == 1 else ""
+    return ch if ch.startswith("q") else None
+
+
+def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict, alpha_select: float,
+               admit: Callable[[Fit, Scored], bool] | None = None) -> tuple[Fit, float, float] | None:
+    """The model ``fit`` with its term ``a`` replaced by the candidates ``cands`` that are significant on the fit
+    without it (``logp_adj < alpha_select``) and pass ``admit(fit_without_a, scored)``, refitted and through the
+    backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows' position RMS [mm] of the
+    alternative and of ``fit``; None when no candidate enters."""
+    if not cands:
+        return None
+    P = prob.prep.space.size
+    keep = [(c, B) for c, B in fit.chosen if c is not a]
+    base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+    scored = score_atoms(prob, base, cands, sizes, exact_top=len(cands))
+    new = [(sc.atom, sc.basis) for sc in scored
+           if sc.logp_adj < np.log(alpha_select) and (admit is None or admit(base, sc))]
+    if not new:
+        return None
+    alt = prob.fit(base.z[:P], keep + new, psi_init(base, keep + new))
+    alt, _ = backward(prob, alt, alpha_select, sizes)
+    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    return alt, e_alt, e_now
+
+
+def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
+                  alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
+    """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
+    named ones (a quadratic before the harmonics it stands for), try the catalogue's shapes of that variable
+    alone (harmonics 1-3, the gear ratio, the scanned orders already kept) in place of the unnamed term: when
+    they predict the confirmation rows as well (within 2 %) with no more parameters at that joint than the unnamed
+    shape and the named terms kept with it, the named explanation is kept, and the unnamed shape it
+    replaced is reported as the alternative the data cannot tell from it (over a joint's range a few harmonics
+    follow any smooth shape: the name is the simpler reading, not a proof). Returns the fit, notes and those
+    alternatives."""
+    notes: list[str] = []
+    alts: list[dict] = []
+    for a, _ in list(fit.chosen):
+        var = _single_joint_variable(a)
+        if a.pool != "generic" or var is None or a not in [c for c, _ in fit.chosen]:
+            continue
+        target = a.target
+        named_here = [c for c, _ in fit.chosen if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
+        if not named_here:
+            continue
+        have = {c.key for c, _ in fit.chosen if c is not a}
+        cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) == var
+                 and c.key not in have]
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select)
+        if swap is None:
+            continue
+        alt, e_alt, e_now = swap
+        # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
+        # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
+        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and _single_joint_variable(c) == var)
+        n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) == var)
+        if e_alt <= 1.02 * e_now and n_alt <= n_now:
+            notes.append(f"'{a.label}' replaced by the catalogue's shapes of {var} on joint {target[5:]} "
+                         f"({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they predict the "
+                         f"held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+            for c, _ in alt.chosen:
+                if c.target == target and c.pool != "generic":
+                    alts.append({"of": c.label, "alternative": f"{a.label} (with the named terms it was kept with)",
+                                 "family": "unnamed", "channel": a.channel, "target": target,
+                                 "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
+                                 "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            fit = alt
+    return fit, notes, alts
+
+
+def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                    z_min: float) -> tuple[Fit, list[str], list[dict]]:
+    """Where a catalogue family is named by one term only, at one joint, and another named family has terms of that
+    joint in the pool, try that family's terms of the joint in its place, each held to the forward pass' rules
+    (significant, confirmed on the held-out rows, of a physical size): when they predict the confirmation rows as
+    well (within 2 %), the model with fewer families is kept and the term it replaced is reported as the
+    alternative the data cannot tell from it (a harmonic of a wrist joint follows part of the gravity torque on
+    that joint over a plan's range: one cause is the simpler reading). Returns the fit, notes and alternatives."""
+    notes: list[str] = []
+    alts: list[dict] = []
+
+    def admitted(base: Fit, sc: Scored) -> bool:
+        if _implausible(prob, sc) is not None:
+            return False
+        c = confirm(prob, base, sc, z_min)
+        return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+
+    for a, _ in list(fit.chosen):
+        named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
+        if a.pool != "catalogue" or a.place != "joint" or a not in [c for c, _ in fit.chosen]:
+            continue
+        if sum(c.family == a.family for c in named) != 1:
+            continue
+        others = {c.family for c in named} - {a.family}
+        have = {c.key for c, _ in fit.chosen if c is not a}
+        cands = [c for c in pool if c.pool == "catalogue" and c.family in others and c.place == "joint"
+                 and c.target == a.target and c.key not in have]
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted)
+        if swap is None:
+            continue
+        alt, e_alt, e_now = swap
+        if {c.family for c, _ in alt.chosen if c.pool == "catalogue"} & {a.family}:
+            continue
+        new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        if not new:
+            continue  # nothing of the other family survived the backward pass: the term stays
+        if e_alt <= 1.02 * e_now:
+            notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
+                         f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+            for c in new:
+                alts.append({"of": c.label, "alternative": a.label, "family": a.family, "channel": a.channel,
+                             "target": a.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
+                             "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            fit = alt
+    return fit, notes, alts
