@@ -46,7 +46,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 import _diagnosis_helpers as H  # noqa: E402  (the synthetic generator of the diagnosis tests)
 
-from twin.benchio import provenance, update_benchmark_section  # noqa: E402
+from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # noqa: E402
 from twin.dataset import read_dataset, write_dataset  # noqa: E402
 from twin.diagnosis import diagnose, diagnosis_dict, write_diagnosis  # noqa: E402
 from twin.evaluation.recording import record_diagnosis  # noqa: E402
@@ -68,17 +68,6 @@ def _effect(q: np.ndarray, model) -> np.ndarray:
     out = q + 0.008 * _DEG * sign * np.array([0, 1, 1, 0, 0, 0])
     out[:, 4] += 0.004 * _DEG * np.sin(81 * q[:, 4] + 0.4)
     return out
-
-
-def _vm_hwm_kb(pid: int) -> int:
-    """Peak resident set of a running process [KiB] (0 when it has already gone)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except (FileNotFoundError, ProcessLookupError, ValueError):
-        pass
-    return 0
 
 
 def _median_timing(f, runs: int) -> dict:
@@ -165,7 +154,7 @@ def main() -> int:
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
             hwm = 0
             while proc.poll() is None:
-                hwm = max(hwm, _vm_hwm_kb(proc.pid))
+                hwm = max(hwm, peak_rss_kb(proc.pid))
                 time.sleep(0.02)
             if proc.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}")

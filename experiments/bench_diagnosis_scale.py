@@ -49,7 +49,7 @@ set_process_defaults()  # one BLAS thread (2 shared cores) before numpy loads, i
 
 import numpy as np  # noqa: E402
 
-from twin.benchio import provenance, update_benchmark_section  # noqa: E402
+from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # noqa: E402
 from twin.dataset import write_dataset  # noqa: E402
 from twin.diagnosis.floor import SESSION_GAP_S, row_resets  # noqa: E402
 from twin.estimator.simulate import simulate_dataset  # noqa: E402
@@ -170,17 +170,6 @@ def make_campaign(n: int, seed: int = 0):
                               f"seed {seed}): geometric errors, thermal growth with temp_c, 6-DOF poses")
 
 
-def _vm_hwm_kb(pid: int) -> int:
-    """Peak resident set of a running process [KiB] (0 when it has already gone)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except (FileNotFoundError, ProcessLookupError, ValueError):
-        pass
-    return 0
-
-
 def _cli_run(cmd: list[str]) -> dict:
     """One ``twin diagnose`` process: wall, user and system CPU [s] (its rusage), peak RSS [MiB] (VmHWM of
     ``/proc/PID/status`` polled every 20 ms: ``ru_maxrss`` of a forked child starts from this process's)."""
@@ -190,7 +179,7 @@ def _cli_run(cmd: list[str]) -> dict:
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     hwm = 0
     while proc.poll() is None:
-        hwm = max(hwm, _vm_hwm_kb(proc.pid))
+        hwm = max(hwm, peak_rss_kb(proc.pid))
         time.sleep(0.02)
     wall = time.perf_counter() - t
     err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""

@@ -11,7 +11,8 @@ import platform
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES",
+           "peak_rss_kb"]
 
 DEFAULT_PATH = Path(__file__).resolve().parent.parent / "results" / "benchmark.json"
 
@@ -68,6 +69,17 @@ def provenance(load_at_start: tuple[float, float, float] | list[float] | None = 
     if load_at_start is not None:
         out["load_average_at_start_1_5_15"] = [round(float(x), 2) for x in load_at_start]
     return out
+
+
+def peak_rss_kb(pid: int) -> int:
+    """Peak resident set of a running process [KiB]: ``VmHWM`` of ``/proc/PID/status`` (0 when it has gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except (FileNotFoundError, ProcessLookupError, ValueError):
+        pass
+    return 0
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
