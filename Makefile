@@ -67,10 +67,10 @@ run-quick: install
 
 # the whole suite, the peer-adapter tests included (they skip, with the reason, only where a peer is missing)
 test: install sysdeps-browser
-	$(PY) -m pytest -q -n $(JOBS)
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal
 
 test-fast: install
-	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not browser"
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not browser"
 
 bench: install
 	$(PY) experiments/benchmark.py

@@ -1,7 +1,7 @@
 """Benchmark of the test suite as CI runs it: the wall time of ``make test``'s pytest command, several runs.
 
-Runs ``pytest -q -n JOBS`` (the command of ``make test`` after its install step) ``--runs`` times and writes the
-``suite`` section of ``results/benchmark.json``: each run's wall time, test counts and load average at its
+Runs ``pytest -q -n JOBS --dist worksteal`` (the command of ``make test`` after its install step) ``--runs`` times and
+writes the ``suite`` section of ``results/benchmark.json``: each run's wall time, test counts and load average at its
 start and end, the range (min, median, max) over the runs, and the time of ``make install`` on the already synced
 environment. The target: the whole of ``make test`` under 10 minutes on the 2-core machine.
 
@@ -50,7 +50,8 @@ def main() -> int:
     for _ in range(a.runs):
         load0 = [round(x, 2) for x in os.getloadavg()]
         t = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", str(a.jobs), "-p", "no:cacheprovider"],
+        p = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", str(a.jobs), "--dist", "worksteal", "-p",
+                            "no:cacheprovider"],
                            cwd=ROOT, capture_output=True, text=True, env=env)
         wall = time.perf_counter() - t
         runs.append({"wall_s": round(wall, 1), "exit_code": p.returncode, "counts": _counts(p.stdout),
@@ -58,7 +59,7 @@ def main() -> int:
         print(runs[-1], flush=True)
     walls = [r["wall_s"] for r in runs]
     data = {
-        "command": f"pytest -q -n {a.jobs} (make test after make install)",
+        "command": f"pytest -q -n {a.jobs} --dist worksteal (make test after make install)",
         "jobs": a.jobs,
         "runs": runs,
         "wall_s_range": [min(walls), float(np.median(walls)), max(walls)],

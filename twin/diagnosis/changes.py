@@ -36,13 +36,13 @@ from .atoms import Atom, joint_words
 from .candidates import RowContext
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
-           "scan_changes", "describe_changes", "is_change"]
+           "scan_changes", "describe_changes", "is_change", "row_times"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
 WINDOW_MIN_ROWS = 5  # rows inside a window
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
-WINDOW_GRID = 120  # most boundary positions the window scan takes (every k-th row beyond, then refined)
+WINDOW_GRID = 60  # most boundary positions the window scan takes (every k-th row beyond, then refined)
 CHANGE_POOLS = ("change", "change_window")
 
 
@@ -78,7 +78,7 @@ def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
     return out
 
 
-def _time(ctx: RowContext) -> tuple[str, np.ndarray]:
+def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:
     """The time channel of the rows (``t_s`` when it varies, else the row order) and its values ``(n,)``."""
     if ctx.t_s is not None and np.ptp(ctx.t_s) > 0:
         return "t_s", np.asarray(ctx.t_s, float)
@@ -127,18 +127,61 @@ def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
                 "change" if until is None else "change_window", pl.joints)
 
 
+EIG_MIN = 1e-4  # directions of a unit-scaled projected Gram matrix below this eigenvalue are dropped (1 % of a column)
+
+
+def _cholesky(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factors ``L`` ``(k, p, p)`` of a stack of symmetric matrices, column by column over the whole stack,
+    and whether each is positive definite ``(k,)`` (its factor is then exact; else its entries are meaningless)."""
+    k, p, _ = G.shape
+    L = np.zeros_like(G)
+    ok = np.ones(k, bool)
+    for j in range(p):
+        s = G[:, j, j] - np.sum(L[:, j, :j] ** 2, axis=1)
+        ok &= s > 0
+        d = np.sqrt(np.where(s > 0, s, 1.0))
+        L[:, j, j] = d
+        if j + 1 < p:
+            L[:, j + 1:, j] = (G[:, j + 1:, j] - np.einsum("kia,ka->ki", L[:, j + 1:, :j], L[:, j, :j])) / d[:, None]
+    return L, ok
+
+
 def _gains(C: np.ndarray, A: np.ndarray, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """``Delta chi2`` and rank ``(k,)`` of stacked candidates: ``C`` ``(k, p, p)``, ``A`` ``(k, P, p)``, ``b``
-    ``(k, p)`` (columns scaled to unit norm, directions below 1 % of a unit column dropped)."""
+    ``(k, p)`` (columns scaled to unit norm, directions below 1 % of a unit column dropped: eigenvalues of the
+    projected Gram matrix ``G`` at most ``EIG_MIN``).
+
+    Where every eigenvalue of ``G`` is above ``EIG_MIN`` (``G - EIG_MIN I`` has a Cholesky factor) nothing is dropped
+    and the gain is ``|L^-1 D b|^2`` with ``G = L L^T``; the others take the eigen-decomposition."""
     d = np.sqrt(np.maximum(np.diagonal(C, axis1=1, axis2=2), 0.0))
     has = d > 1e-12
     D = np.where(has, 1.0 / np.where(has, d, 1.0), 0.0)
-    G = (C - np.einsum("kpa,kpb->kab", A, A)) * D[:, :, None] * D[:, None, :]
-    lam, V = np.linalg.eigh(G)
-    ok = (lam > 1e-4) & np.any(has, axis=1)[:, None]
-    proj = np.einsum("kij,ki->kj", V, b * D)
-    gain = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1) / scale
-    return gain, ok.sum(axis=1)
+    G = (C - np.matmul(np.swapaxes(A, 1, 2), A)) * D[:, :, None] * D[:, None, :]
+    bD = b * D
+    p = G.shape[1]
+    if p == 1:
+        lam = G[:, 0, :]
+        ok = (lam > EIG_MIN) & has
+        gain = np.where(ok[:, 0], bD[:, 0] ** 2 / np.where(ok[:, 0], lam[:, 0], 1.0), 0.0) / scale
+        return gain, ok.sum(axis=1)
+    gain, rank = np.zeros(len(G)), np.zeros(len(G), int)
+    _, full = _cholesky(G - EIG_MIN * np.eye(p))
+    full &= np.all(has, axis=1)
+    if np.any(full):
+        L, _ = _cholesky(G[full])
+        y = np.zeros((int(full.sum()), p))
+        r = bD[full]
+        for j in range(p):
+            y[:, j] = (r[:, j] - np.einsum("ka,ka->k", L[:, j, :j], y[:, :j])) / L[:, j, j]
+        gain[full], rank[full] = np.sum(y * y, axis=1) / scale, p
+    rest = ~full
+    if np.any(rest):
+        lam, V = np.linalg.eigh(G[rest])
+        ok = (lam > EIG_MIN) & np.any(has[rest], axis=1)[:, None]
+        proj = np.einsum("kij,ki->kj", V, bD[rest])
+        gain[rest] = np.sum(np.where(ok, proj**2 / np.where(ok, lam, 1.0), 0.0), axis=1) / scale
+        rank[rest] = ok.sum(axis=1)
+    return gain, rank
 
 
 def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray, rss_all: float, m_all: float,
@@ -153,7 +196,12 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
     d2 = np.maximum(m_all - m, 1.0)
     left = np.maximum(rss - gain * scale, 0.0) / d1
     out = np.maximum(rss_all - rss, 1e-300) / d2
-    return f_sf(left / out, d1, d2) >= UNIFORM_P
+    x = left / out
+    ok = np.ones(x.shape, bool)
+    # P(F(d1, d2) > 1) is above 0.3 for every d1, d2 >= 1: only ratios beyond 1 can fail
+    big = x > 1.0
+    ok[big] = f_sf(x[big], d1[big], d2[big]) >= UNIFORM_P
+    return ok
 
 
 def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: float, m_all: float, scale: float,
@@ -218,7 +266,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     if n < 2 * MIN_ROWS + 1:
         return []
     S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
-    ch, tv = _time(prob.ctx)
+    ch, tv = row_times(prob.ctx)
     t_cal = tv[prob.rows_cal]
     order = np.argsort(t_cal, kind="stable")
     ts = t_cal[order]
@@ -343,7 +391,7 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
     a window, where it ends (the first row back in the former state), its ``size`` (the term's value in words'
     units: deg for a joint offset, the frame's change in mm and deg, a compliance change's RMS effect) and the
     label."""
-    ch, tv = _time(ctx)
+    ch, tv = row_times(ctx)
     order = np.argsort(tv, kind="stable")
     out = []
     for a in atoms_json:

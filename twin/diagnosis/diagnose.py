@@ -40,7 +40,8 @@ from ..estimator.methods import build_calibration, identify_best
 from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import change_places, change_pool_sizes, describe_changes
+from .changes import change_places, change_pool_sizes, describe_changes, row_times
+from .late import late_change
 from .extend import error_stats, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, psi_init, raw_columns, row_rms,
@@ -109,7 +110,10 @@ class DiagnosisResult:
     found). ``calibration`` and ``calibration_geometric`` are the models refitted on every row of the campaign
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
-    ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``."""
+    ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
+    A change found after the rows that fit (:mod:`twin.diagnosis.late`) is the last of ``atoms`` and of ``changes``,
+    with ``found``; it is in ``calibration`` (then ``model_in_use`` is ``"extended"``) but not in
+    ``calibrations_blocked``, whose rows never saw it."""
 
     structured: bool
     p_value: float
@@ -227,6 +231,7 @@ def diagnose(
     if excess and setup.floor.lower_bound:
         setup.notes.append(evidence_scale(prob, base))
     sel = Selection(base)
+    pool: list[Atom] = []
     if excess and max_effects > 0:
         pool, sizes = atom_pool(setup, generic=generic)
         sel = select_terms(prob, base, pool, sizes, max_effects=max_effects, alpha_select=alpha_select, z_min=z_min,
@@ -280,10 +285,22 @@ def diagnose(
     geo_all, ext_all, prob_all = refit_on_every_row(setup, base, ext)
     geo = replace(geo_blocked, x=geo_all.z[:P], details={**geo_blocked.details, "refitted_on_every_row": True})
     extended = geo
-    if ext is not None:
+    # step 9: a change in the held-out block, located before a cut and confirmed after it (twin.diagnosis.late)
+    late, entries = None, [{"minor": a["minor"], "entry_chi2": a["entry_chi2"]} for a in atoms_json]
+    if pool and prob.test(use).p_value < alpha:
+        places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"])
+        late, note_late = late_change(setup, prob_all, ext_all if ext_all is not None else geo_all, places,
+                                      alpha=alpha_select, z_min=z_min)
+        notes.append(note_late)
+    if late is not None:
+        structured = True
+        src = ext_all if ext_all is not None else geo_all
+        ext_all = refit_with(prob_all, src, list(src.chosen) + [(late.atom, late.basis)])
+        entries.append({"minor": False, "entry_chi2": late.dchi2})
+    if ext_all is not None:
         final, _ = describe_terms(prob_all, ext_all, geo_all.chi2)
-        final = tuple({**f, "minor": a["minor"], "entry_chi2": a["entry_chi2"]} for f, a in zip(final, atoms_json))
-        extended = replace(ext_blocked, x=ext_all.z[:P], effects=final,
+        final = tuple({**f, **e} for f, e in zip(final, entries))
+        extended = replace(ext_blocked, method="best+effects", x=ext_all.z[:P], effects=final,
                            details={**ext_blocked.details, "refitted_on_every_row": True})
     notes.append(f"calibration.json and calibration_geometric.json are the chosen models refitted on every row of the "
                  f"campaign ({prob_all.obs_cal.n} rows); before/after are those of the models fitted on the "
@@ -305,7 +322,7 @@ def diagnose(
         calibration=extended,
         series=_series(prob, base, use),
         notes=tuple(notes),
-        atoms=tuple(atoms_json),
+        atoms=tuple(atoms_json) + ((dict(extended.effects[-1], found=LATE_FOUND),) if late is not None else ()),
         unnamed=unnamed,
         alternatives=tuple(sel.alternatives),
         explained_fraction=frac,
@@ -313,12 +330,13 @@ def diagnose(
         unexplained=unexplained,
         held_out=rep["held_out"],
         test_report={"before": rep["test_before"], "after": rep["test_after"]},
-        model_in_use="extended" if ext is not None else "geometric",
+        model_in_use="extended" if ext is not None or late is not None else "geometric",
         adoption=adoption,
         candidate_terms=candidate_terms,
         calibration_candidate=calibration_candidate,
         calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
-        changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id)),
+        changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id))
+        + (late_json(late, extended.effects[-1], setup) if late is not None else ()),
     )
 
 
@@ -521,6 +539,32 @@ def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, 
     return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
 
 
+def refit_with(prob: Problem, src: Fit, chosen: list) -> Fit:
+    """``chosen`` fitted on ``prob``'s calibration rows from ``src`` (new atoms from zero), refitted once its gross
+    rows are down-weighted."""
+    P = prob.prep.space.size
+    full = prob.fit(src.z[:P], chosen, psi_init(src, chosen))
+    update_gross(prob, full)
+    return prob.fit(full.z[:P], chosen, psi_init(full, chosen))
+
+
+LATE_FOUND = "after the rows that fit (located before a cut, confirmed after it)"
+
+
+def late_json(late, term: dict, setup: Setup) -> tuple[dict, ...]:
+    """The ``changes`` entry of a change confirmed after the block that fits (:mod:`twin.diagnosis.late`): as
+    :func:`describe_changes` gives it from its term refitted on every row, with where it was found and its
+    confirmation."""
+    (d,) = describe_changes([term], setup.ctx, setup.dataset.pose_id)
+    ch, _ = row_times(setup.ctx)
+    d.update({"found": LATE_FOUND,
+              "confirmation": {f"cut_{ch}": late.cut, "n_rows_before_cut": late.n_before,
+                               "n_rows_after_cut": late.n_after, "z": late.z,
+                               "z_without_best_row": late.z_without_best_row,
+                               "rms_after_cut_mm": {"without": late.rms_without_mm, "with": late.rms_with_mm}}})
+    return (d,)
+
+
 def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, Fit | None, Problem]:
     """Step 8: the geometric model and the chosen extended model (its atoms and bases as chosen) refitted on every
     row of the campaign, calibration, confirmation and report rows alike, gross rows down-weighted anew: the terms
@@ -537,10 +581,7 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
     geo = prob.fit(geo.z[:P], [])
     if ext is None:
         return geo, None, prob
-    full = prob.fit(ext.z[:P], ext.chosen, psi_init(ext, ext.chosen))
-    update_gross(prob, full)
-    full = prob.fit(full.z[:P], full.chosen, psi_init(full, full.chosen))
-    return geo, full, prob
+    return geo, refit_with(prob, ext, ext.chosen), prob
 
 
 # ------------------------------------------------------------------------------------------------

@@ -116,6 +116,11 @@ class Fit:
     cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
+# a fit has converged when a step changes the weighted chi2 by less than this share: far below what any test reads (a
+# term's evidence is a Delta chi2 of order 1 and more on a chi2 of the rows' count)
+FIT_FTOL = 1e-10
+
+
 class Problem:
     """Everything the selection rounds share: observations, rows, features, weights.
 
@@ -243,7 +248,7 @@ class Problem:
         free = np.concatenate([self.free_geo, np.arange(self.prep.space.size, mc.size)]).astype(int)
         # 1e-11 (SI) per step is far below any effect or geometric parameter that matters here
         gn = gauss_newton(lambda z: mc.residuals(z), z0, free, row_weights=self.w_cal, max_iter=30, xtol=1e-11,
-                          stage="extended")
+                          ftol=FIT_FTOL, stage="extended")
         res = mc.residuals(gn.x, jacobian=False)
         rr = res.r * np.sqrt(self.w_cal[res.row])
         return Fit(list(chosen), gn.x, free, float(rr @ rr), mc, mv)

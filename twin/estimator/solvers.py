@@ -72,6 +72,7 @@ def gauss_newton(
     max_iter: int = 50,
     xtol: float = 1e-13,
     rtol: float = 1e-10,
+    ftol: float = 0.0,
     stage: str = "gauss-newton",
     linear_solver: Literal["scaled", "spectral"] = "scaled",
     spectral_iterations: int = 100_000,
@@ -92,7 +93,9 @@ def gauss_newton(
 
     Converged when every parameter moves by less than ``xtol`` [SI] in a step, or (scaled solver) when the
     next Gauss-Newton step would change the residual vector by less than ``rtol * |r| + 1e-15`` (far below
-    the noise: the step is then not taken). ``res0``: residuals already evaluated at ``x0``.
+    the noise: the step is then not taken), or (scaled solver, ``ftol > 0``) when a step changes the cost by less
+    than ``ftol * cost`` either way (the cost is at its minimum to that relative precision: the step is taken when it
+    lowers the cost). ``res0``: residuals already evaluated at ``x0``.
     """
     x = np.array(x0, dtype=float)
     free = np.asarray(free)
@@ -160,6 +163,8 @@ def gauss_newton(
             cost_new = float(r_new @ r_new)
             if cost_new <= cost * (1 + 1e-12) or step < xtol:
                 break
+            if abs(cost_new - cost) <= ftol * cost:
+                break
             lam = max(lam * 10.0, 1e-6 * float(np.max(np.diag(H))))
             if lam > 1e8 * float(np.max(np.diag(H))):
                 break
@@ -171,6 +176,7 @@ def gauss_newton(
             converged = True
             break
         accepted = cost_new <= cost * (1 + 1e-12) or step < xtol
+        flat = abs(cost_new - cost) <= ftol * cost
         if accepted:
             x, res, r, cost = x_new, res_new, r_new, cost_new
             lam = lam / 10.0 if lam > 1e-12 else 0.0
@@ -178,8 +184,8 @@ def gauss_newton(
         trace.append(e)
         if callback:
             callback(e)
-        if step < xtol or not accepted:
-            converged = step < xtol or accepted
+        if step < xtol or not accepted or flat:
+            converged = step < xtol or accepted or flat
             break
     return GNResult(x=x, cost=cost, converged=converged, iterations=it, residuals=res, trace=tuple(trace))
 

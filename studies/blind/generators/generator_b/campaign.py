@@ -169,7 +169,10 @@ def jacobian(ctx, geom, rows):
         pv = geom["pv"] + x[:25]
         F = kin.flange2base(q, pv)
         T = kin.sixdof(geom["tool"]) @ kin.sixdof(x[25:31])
-        B = np.stack([geom["base2meas"][s] @ kin.sixdof(x[31 + 6 * stations.index(s): 37 + 6 * stations.index(s)]) for s in st])
+        # one frame per station: its rows share the matrix
+        per = {s: geom["base2meas"][s] @ kin.sixdof(x[31 + 6 * stations.index(s): 37 + 6 * stations.index(s)])
+               for s in set(st.tolist())}
+        B = np.stack([per[s] for s in st.tolist()])
         return kin.apply(B @ F @ T, np.broadcast_to(geom["spheres_tool"], (len(q), 3, 3))).reshape(-1)
 
     h = 1e-6

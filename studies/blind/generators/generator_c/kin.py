@@ -114,30 +114,31 @@ def rot_about_axis_through(axis, angle, point):
 # ----------------------------------------------------------------------------------------------- forward kinematics
 
 def _link(al, a, d, th, be):
+    # Rx(al) Rz(th) in closed form: each entry of the product has one non-zero term, so it equals the matrix product
+    # bit for bit; Ry(be) multiplies only where some be is non-zero (else it is the identity)
     n = th.shape[0]
     ca, sa = np.cos(al), np.sin(al)
     ct, st = np.cos(th), np.sin(th)
-    cb, sb = np.cos(be), np.sin(be)
-    Rx = np.zeros((n, 3, 3))
-    Rx[:, 0, 0] = 1
-    Rx[:, 1, 1] = ca
-    Rx[:, 1, 2] = -sa
-    Rx[:, 2, 1] = sa
-    Rx[:, 2, 2] = ca
-    Rz = np.zeros((n, 3, 3))
-    Rz[:, 0, 0] = ct
-    Rz[:, 0, 1] = -st
-    Rz[:, 1, 0] = st
-    Rz[:, 1, 1] = ct
-    Rz[:, 2, 2] = 1
-    Ry = np.zeros((n, 3, 3))
-    Ry[:, 0, 0] = cb
-    Ry[:, 0, 2] = sb
-    Ry[:, 1, 1] = 1
-    Ry[:, 2, 0] = -sb
-    Ry[:, 2, 2] = cb
+    R = np.zeros((n, 3, 3))
+    R[:, 0, 0] = ct
+    R[:, 0, 1] = -st
+    R[:, 1, 0] = ca * st
+    R[:, 1, 1] = ca * ct
+    R[:, 1, 2] = -sa
+    R[:, 2, 0] = sa * st
+    R[:, 2, 1] = sa * ct
+    R[:, 2, 2] = ca
+    if np.any(be != 0):
+        cb, sb = np.cos(be), np.sin(be)
+        Ry = np.zeros((n, 3, 3))
+        Ry[:, 0, 0] = cb
+        Ry[:, 0, 2] = sb
+        Ry[:, 1, 1] = 1
+        Ry[:, 2, 0] = -sb
+        Ry[:, 2, 2] = cb
+        R = R @ Ry
     T = np.zeros((n, 4, 4))
-    T[:, :3, :3] = Rx @ Rz @ Ry
+    T[:, :3, :3] = R
     T[:, 0, 3] = a
     T[:, 1, 3] = -sa * d
     T[:, 2, 3] = ca * d
