@@ -24,6 +24,10 @@ named steps, each a function of this module (``docs/diagnosis.md`` has the reaso
    the report rows, which took no part in choosing or fitting the model (rows whose approach history is unknown
    are left out: no model can predict a history-dependent term there).
 7. :func:`describe_terms` and :func:`name_effects`: every kept term in words, the catalogue families among them.
+8. :func:`refit_on_every_row`: the chosen models refitted on every row of the campaign (the models to use).
+9. :func:`twin.diagnosis.late.late_change` (when the model in use leaves the confirmation rows beyond the floor): a
+   step after the rows that fit, located on the rows up to a cut and confirmed on the rows after it, joins the
+   models to use (``docs/diagnosis.md``, step 7b).
 """
 
 from __future__ import annotations
@@ -285,7 +289,7 @@ def diagnose(
     geo_all, ext_all, prob_all = refit_on_every_row(setup, base, ext)
     geo = replace(geo_blocked, x=geo_all.z[:P], details={**geo_blocked.details, "refitted_on_every_row": True})
     extended = geo
-    # step 9: a change in the held-out block, located before a cut and confirmed after it (twin.diagnosis.late)
+    # step 9: a change in the held-out block, located before a cut and confirmed after it
     late, entries = None, [{"minor": a["minor"], "entry_chi2": a["entry_chi2"]} for a in atoms_json]
     if pool and prob.test(use).p_value < alpha:
         places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"])

@@ -30,11 +30,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, row_times, scan_changes
+from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
 from .select import Fit, Problem, confirm, psi_init, score_atoms, update_gross
 
 __all__ = ["LateChange", "late_change", "rows_to_confirm"]
-
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -124,8 +123,6 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     if not cands:
         return None, (f"a change after the rows that fit ({found[0].label}) is not found again on the rows before "
                       f"{ch} {t_cut:.6g} alone: not kept")
-    from .changes import change_pool_sizes
-
     sizes = change_pool_sizes(prob.obs_cal.n, places)
     scored = score_atoms(prob, fit0, cands[:1], sizes, exact_top=1)
     if not scored:
