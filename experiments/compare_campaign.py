@@ -20,7 +20,6 @@ import os
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -53,21 +52,10 @@ def main() -> int:
     a = ap.parse_args()
     if a.rounds < 1:
         raise SystemExit(f"--rounds must be >= 1, got {a.rounds}")
-    from twin.benchio import update_benchmark_section
+    from twin.benchio import alternate_with_commit, update_benchmark_section
 
-    git = dict(check=True, capture_output=True, text=True, cwd=ROOT)
-    sha = subprocess.run(["git", "rev-parse", "--short", a.against], **git).stdout.strip()
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], **git).stdout.strip()
-    runs = []
-    with tempfile.TemporaryDirectory() as tmp:
-        old = Path(tmp) / "tree"
-        old.mkdir()
-        archive = subprocess.run(["git", "archive", sha], check=True, capture_output=True, cwd=ROOT).stdout
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
-        for k in range(a.rounds):
-            for code, tree in ((sha, old), ("current", ROOT)):
-                runs.append({"code": code, **_campaign(tree, Path(tmp) / f"out_{code}_{k}")})
-                print(runs[-1], flush=True)
+    sha, head, runs = alternate_with_commit(a.against, a.rounds, lambda tree, scratch: _campaign(tree, scratch / "out"),
+                                            ROOT)
     keys = ("campaign_total_s", "command_wall_s", "command_cpu_s")
     med = {code: {k: float(np.median([r[k] for r in runs if r["code"] == code])) for k in keys}
            for code in (sha, "current")}

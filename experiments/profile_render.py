@@ -26,7 +26,6 @@ import os
 import pstats
 import subprocess
 import sys
-import tempfile
 import time
 import tomllib
 from pathlib import Path
@@ -87,21 +86,10 @@ def _time_pairs(tree: Path, config: Path, pairs: int) -> dict:
 
 
 def _compare(rev: str, rounds: int, pairs: int) -> dict:
-    sha = subprocess.run(["git", "rev-parse", "--short", rev], check=True, capture_output=True, text=True,
-                         cwd=ROOT).stdout.strip()
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], check=True, capture_output=True, text=True,
-                          cwd=ROOT).stdout.strip()
-    runs = []
-    with tempfile.TemporaryDirectory() as tmp:
-        old = Path(tmp) / "tree"
-        old.mkdir()
-        archive = subprocess.run(["git", "archive", sha], check=True, capture_output=True, cwd=ROOT).stdout
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
-        for _ in range(rounds):
-            for code, tree in ((sha, old), ("current", ROOT)):
-                r = _time_pairs(tree, tree / "experiments" / "separation.toml", pairs)
-                runs.append({"code": code, **r})
-                print(runs[-1], flush=True)
+    from twin.benchio import alternate_with_commit
+
+    sha, head, runs = alternate_with_commit(
+        rev, rounds, lambda tree, _: _time_pairs(tree, tree / "experiments" / "separation.toml", pairs), ROOT)
 
     def median(code: str, key: str) -> float:
         v = sorted(r[key] for r in runs if r["code"] == code)

@@ -24,3 +24,33 @@ def test_benchmark_section_carries_the_machine_with_versions(tmp_path):
     assert d["a"]["x"] == 1 and d["b"]["y"] == 2
     assert d["a"]["machine"]["packages"]["numpy"]
     assert d["b"]["machine"]["load_average_1_5_15"] is not None
+
+
+def test_alternate_with_commit_runs_the_earlier_commit_and_the_working_tree_in_turn(tmp_path):
+    """Each round runs the earlier commit's files (git archive), then the working tree, each with its own empty
+    scratch folder; the hashes returned are the commit's and HEAD's."""
+    import subprocess
+
+    from twin.benchio import alternate_with_commit
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    git = dict(cwd=repo, check=True, capture_output=True)
+    subprocess.run(["git", "init", "-q"], **git)
+    for text in ("old", "new"):
+        (repo / "code.txt").write_text(text)
+        subprocess.run(["git", "add", "code.txt"], **git)
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", text], **git)
+    (repo / "code.txt").write_text("working")
+    seen = []
+
+    def run(tree, scratch):
+        seen.append(scratch)
+        assert not any(scratch.iterdir())
+        return {"text": (tree / "code.txt").read_text()}
+
+    sha, head, runs = alternate_with_commit("HEAD~1", 2, run, repo)
+    rev = lambda r: subprocess.run(["git", "rev-parse", "--short", r], text=True, **git).stdout.strip()  # noqa: E731
+    assert (sha, head) == (rev("HEAD~1"), rev("HEAD"))
+    assert [(r["code"], r["text"]) for r in runs] == [(sha, "old"), ("current", "working")] * 2
+    assert len(set(seen)) == 4

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES",
-           "peak_rss_kb"]
+           "peak_rss_kb", "alternate_with_commit"]
 
 DEFAULT_PATH = Path(__file__).resolve().parent.parent / "results" / "benchmark.json"
 
@@ -125,3 +125,31 @@ def update_benchmark_section(section: str, data: dict[str, Any], path: str | os.
     except FileNotFoundError:
         pass
     return p
+
+
+def alternate_with_commit(rev: str, rounds: int, run, root: Path) -> tuple[str, str, list[dict[str, Any]]]:
+    """A before/after of two codes on this machine: ``run(tree, scratch)`` (a dict of figures) for the commit
+    ``rev`` of the repository at ``root`` (its files written by ``git archive`` into a temporary folder) and for the
+    working tree ``root``, alternating, ``rounds`` times each; ``scratch`` is a fresh empty folder per run. Returns
+    the short hashes of ``rev`` and of HEAD and the runs, each ``{"code": <rev's hash or "current">, **figures}``."""
+    import subprocess
+    import tempfile
+
+    if rounds < 1:
+        raise ValueError(f"rounds must be >= 1, got {rounds}")
+    git = dict(check=True, capture_output=True, text=True, cwd=root)
+    sha = subprocess.run(["git", "rev-parse", "--short", rev], **git).stdout.strip()
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], **git).stdout.strip()
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp) / "tree"
+        old.mkdir()
+        archive = subprocess.run(["git", "archive", sha], check=True, capture_output=True, cwd=root).stdout
+        subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
+        for k in range(rounds):
+            for code, tree in ((sha, old), ("current", root)):
+                scratch = Path(tmp) / f"run_{code}_{k}"
+                scratch.mkdir()
+                runs.append({"code": code, **run(tree, scratch)})
+                print(runs[-1], flush=True)
+    return sha, head, runs

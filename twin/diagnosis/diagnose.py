@@ -48,8 +48,8 @@ from .changes import change_places, change_pool_sizes, describe_changes, row_tim
 from .late import late_change
 from .extend import error_stats, reduced_basis
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, psi_init, raw_columns, row_rms,
-                     update_gross)
+from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, raw_columns, refit_with,
+                     row_rms, update_gross)
 from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
 from .describe import _place_unit, _term_values, describe_terms, name_effects
 
@@ -543,15 +543,6 @@ def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, 
     return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
 
 
-def refit_with(prob: Problem, src: Fit, chosen: list) -> Fit:
-    """``chosen`` fitted on ``prob``'s calibration rows from ``src`` (new atoms from zero), refitted once its gross
-    rows are down-weighted."""
-    P = prob.prep.space.size
-    full = prob.fit(src.z[:P], chosen, psi_init(src, chosen))
-    update_gross(prob, full)
-    return prob.fit(full.z[:P], chosen, psi_init(full, chosen))
-
-
 LATE_FOUND = "after the rows that fit (located before a cut, confirmed after it)"
 
 
@@ -579,10 +570,7 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
     prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:])
     prob.evidence_scale = setup.problem.evidence_scale
     prob.cross_session = setup.problem.cross_session
-    P = prep.space.size
-    geo = prob.fit(base.z[:P], [])
-    update_gross(prob, geo)
-    geo = prob.fit(geo.z[:P], [])
+    geo = refit_with(prob, base, [])
     if ext is None:
         return geo, None, prob
     return geo, refit_with(prob, ext, ext.chosen), prob

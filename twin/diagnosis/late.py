@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
-from .select import Fit, Problem, confirm, psi_init, score_atoms, update_gross
+from .select import Fit, Problem, confirm, psi_init, refit_with, score_atoms
 
 __all__ = ["LateChange", "late_change", "rows_to_confirm"]
 
@@ -80,13 +80,6 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
     return prob
 
 
-def _refit(prob: Problem, use: Fit) -> Fit:
-    P = prob.prep.space.size
-    fit = prob.fit(use.z[:P], use.chosen, psi_init(use, use.chosen))
-    update_gross(prob, fit)
-    return prob.fit(fit.z[:P], use.chosen, psi_init(fit, use.chosen))
-
-
 def _rms_mm(fit: Fit, prob: Problem) -> float:
     from .extend import error_stats
 
@@ -117,7 +110,7 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
                       f"the {need} it takes to locate it on some and confirm it on others: not kept")
     t_cut = float(later[n_locate])
     prob = _prob_before(setup, prob_all, t_cut)
-    fit0 = _refit(prob, use_all)
+    fit0 = refit_with(prob, use_all, use_all.chosen)
     cands = [a for a in scan_changes(prob, fit0, places, windows=False, alpha=alpha)
              if float(a.features[0]["at"]) > t_fit_end]
     if not cands:

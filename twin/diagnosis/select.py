@@ -24,7 +24,8 @@ from .floor import NoiseFloor
 __all__ = [
     "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
     "gross_rows", "chi2_logsf", "raw_columns", "scoring_basis", "score_atoms", "order_candidates", "confirm",
-    "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross", "psi_init", "backward", "alternatives",
+    "smooth_confirm", "neighbour_predictions", "time_only", "Confirmation", "row_blocks", "covariance", "update_gross",
+    "refit_with", "psi_init", "backward", "alternatives",
     "prefer_play", "refine", "widen", "polish_in_fit", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights",
 ]
 
@@ -1178,6 +1179,15 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def refit_with(prob: Problem, src: Fit, chosen: list) -> Fit:
+    """``chosen`` fitted on ``prob``'s calibration rows from ``src`` (new atoms from zero), refitted once its gross
+    rows are down-weighted."""
+    P = prob.prep.space.size
+    full = prob.fit(src.z[:P], chosen, psi_init(src, chosen))
+    update_gross(prob, full)
+    return prob.fit(full.z[:P], chosen, psi_init(full, chosen))
 
 
 def psi_init(fit: Fit, chosen: list) -> list[np.ndarray]:
