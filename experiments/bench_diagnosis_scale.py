@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from twin.runtime import set_process_defaults  # noqa: E402
+from twin.runtime import available_cores, set_process_defaults  # noqa: E402
 
 set_process_defaults()  # one BLAS thread (2 shared cores) before numpy loads, inherited by the timed processes
 
@@ -52,6 +52,7 @@ import numpy as np  # noqa: E402
 from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # noqa: E402
 from twin.dataset import write_dataset  # noqa: E402
 from twin.diagnosis.floor import SESSION_GAP_S, row_resets  # noqa: E402
+from twin.diagnosis.select import THREADS_MIN_ROWS  # noqa: E402
 from twin.estimator.simulate import simulate_dataset  # noqa: E402
 from twin.kinematics import RobotModel  # noqa: E402
 from twin.transforms import pose6_to_transform, rotvec_to_matrix  # noqa: E402
@@ -271,10 +272,13 @@ def section(runs: int = 3, quick: bool = False, seed: int = 0) -> dict:
         },
         "cases": got,
         "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "command_threads": available_cores(),
         "note": "wall = the twin process from start to exit (interpreter start-up and imports, ~2 s of CPU, "
-                "included); user/system = its CPU time; peak RSS = its VmHWM; library_diagnose = diagnose() alone "
-                "in the benchmark process, one run. Times on a 2-core machine shared with other jobs: see the "
-                "load averages of each run.",
+                "included); user/system = its CPU time; peak RSS = its VmHWM. The command scores independent places "
+                "on command_threads threads (its default: every core) from "
+                f"{THREADS_MIN_ROWS} calibration rows on, one thread below; library_diagnose = diagnose() alone in "
+                "the benchmark process with the library's default of one thread, one run. Times on a 2-core "
+                "machine shared with other jobs: see the load averages of each run.",
         "provenance": provenance(load_start),
     }
 

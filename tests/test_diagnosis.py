@@ -92,6 +92,14 @@ def test_interleaved_validation_rows_are_moved_to_the_end_and_said():
     assert res.held_out["held_out_rows"].startswith("the dataset's 'set' column interleaves")
 
 
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True])
+def test_a_thread_count_that_is_not_a_positive_integer_is_refused(bad):
+    """diagnose names ``threads`` and the value when it is not a positive integer, before any work."""
+    ds, _ = H.make_dataset(seed=0, n=40)
+    with pytest.raises(ValueError, match=r"threads must be a positive integer, got"):
+        diagnose(ds, threads=bad)
+
+
 def test_a_set_column_without_validation_rows_is_refused():
     """A set column with no validation rows: diagnosis asks for held-out rows."""
     ds, _ = H.make_dataset(seed=0, n=40)

@@ -441,3 +441,45 @@ def test_change_gains_equal_the_eigen_decomposition_of_the_projected_gram_matrix
     gain, rank = _gains(C, A, b, 2.0)
     assert np.array_equal(rank, ok.sum(axis=1))
     assert np.allclose(gain, want, rtol=1e-10, atol=0)
+
+
+@pytest.mark.parametrize("p", [1, 6])
+def test_window_gains_from_per_index_grams_equal_those_of_each_window(p):
+    """The refinement's gains from one Gram matrix per boundary and one product of the two boundary sets equal
+    :func:`_gains` of every window's own ``A`` (prefix-sum differences), ranks included, in ``np.nonzero`` order."""
+    from twin.diagnosis.changes import _gains, _window_gains
+
+    rng = np.random.default_rng(3 + p)
+    n, P = 300, 20
+    Ai = 0.05 * rng.normal(size=(n, P, p))
+    g = rng.normal(size=(n, 9, p))
+    Ci = np.einsum("nka,nkb->nab", g, g)
+    bi = rng.normal(size=(n, p))
+    Cc, Ac, bc = (np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)]) for x in (Ci, Ai, bi))
+    ia, ib = np.arange(40, 90), np.arange(60, 200)
+    A2, B2 = np.meshgrid(ia, ib, indexing="ij")
+    ok = (B2 - A2 >= 5) & (rng.uniform(size=A2.shape) < 0.9)
+    a, b = A2[ok], B2[ok]
+    gain, rank = _window_gains(Cc, Ac, bc, ia, ib, ok, 2.0)
+    want, want_rank = _gains(Cc[b] - Cc[a], Ac[b] - Ac[a], bc[b] - bc[a], 2.0)
+    assert np.array_equal(rank, want_rank)
+    assert np.allclose(gain, want, rtol=1e-10, atol=0)
+
+
+def test_the_scan_on_two_threads_finds_what_it_finds_on_one():
+    """The change scan with its places on two threads returns the same candidates, in the same order, as on one."""
+    from twin.diagnosis.changes import change_places, scan_changes
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+
+    ds, _, _, _ = _joint_step(3)
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    pool, _ = atom_pool(setup)
+    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"])
+    assert len(places) > 4
+    one = scan_changes(prob, base, places)
+    prob.threads = 2
+    two = scan_changes(prob, base, places)
+    assert len(one) >= 1
+    assert [(a.key, a.features) for a in two] == [(a.key, a.features) for a in one]

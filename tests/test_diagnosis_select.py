@@ -203,3 +203,18 @@ def test_leading_eigenpairs_of_a_wide_gram_matrix_are_the_full_decompositions():
     full, U = np.linalg.eigh(G[0])
     np.testing.assert_allclose(lam[0], full[::-1][:6], rtol=1e-12)
     np.testing.assert_allclose(np.abs(np.sum(V[0] * U[:, ::-1][:, :6], axis=0)), 1.0, rtol=1e-9)
+
+
+def test_scores_on_two_threads_equal_those_on_one(problem):
+    """Scoring the pool with its places on two threads gives the same atoms and the same log p-values, bit for bit."""
+    prob, fit, sb, pool, sizes = problem
+    one = S.score_atoms(prob, fit, pool, sizes)
+    sb.cache.clear()  # the per-place quantities derived anew, on the threads
+    prob.threads = 2
+    try:
+        two = S.score_atoms(prob, fit, pool, sizes)
+    finally:
+        prob.threads = 1
+    assert len(one) > 20
+    assert [s.atom.key for s in two] == [s.atom.key for s in one]
+    assert [(s.logp_adj, s.dchi2) for s in two] == [(s.logp_adj, s.dchi2) for s in one]

@@ -5,6 +5,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from twin.runtime import PROCESS_DEFAULTS, set_process_defaults
 
 # imported before the snapshot: their own import-time effects are theirs (OpenCV's loader sets LD_LIBRARY_PATH)
@@ -64,3 +66,21 @@ def test_console_entry_sets_the_defaults_before_running():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.splitlines()[0].startswith("twin ")
     assert out.stdout.splitlines()[-1] == str({"MUJOCO_GL": "egl", "OPENBLAS_NUM_THREADS": "1"})
+
+
+def test_thread_map_keeps_the_order_of_its_items():
+    """thread_map on two threads returns fn of each item in the items' order, as the plain loop does."""
+    from twin.runtime import thread_map
+
+    items = list(range(40))
+    assert thread_map(lambda x: x * x, items, 2) == [x * x for x in items]
+    assert thread_map(lambda x: x * x, items, 1) == [x * x for x in items]
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
+def test_thread_map_refuses_a_thread_count_that_is_not_a_positive_integer(bad):
+    """thread_map names ``threads`` and the value when it is not a positive integer."""
+    from twin.runtime import thread_map
+
+    with pytest.raises(ValueError, match=r"threads must be a positive integer, got"):
+        thread_map(abs, [1, 2], bad)

@@ -25,6 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="select among the catalogue's named terms only (no unnamed dictionary)")
     p.add_argument("--selection", choices=["ordered", "figaroh"], default=None,
                    help="the geometric model's parameters on a URDF chain (as twin calibrate --selection)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads the scoring may use (default: every core this process may run on); the result is the "
+                        "same with any number")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-recording", action="store_true",
                    help="skip the Rerun recording DIR/diagnosis.rrd (open it with: rerun DIR/diagnosis.rrd)")
@@ -36,7 +39,11 @@ def run(args: argparse.Namespace) -> int:
     from ..estimator import Calibration
 
     from ..estimator.plausibility import ImplausibleData, check_joints, check_plate_rows
+    from ..runtime import available_cores
 
+    threads = available_cores() if args.threads is None else args.threads
+    if threads < 1:
+        raise ValueError(f"--threads must be a positive integer, got {args.threads}")
     ds = read_dataset(args.dataset)
     try:
         for n in check_joints(ds):
@@ -51,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     cal = Calibration.load(args.calibration) if args.calibration else None
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
-                   geometry=None if args.selection is None else {"selection": args.selection})
+                   geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
     if not args.no_recording:
         # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..runtime import thread_map
 from .atoms import Atom, joint_words
 from .candidates import RowContext
 
@@ -149,14 +150,43 @@ def _cholesky(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _gains(C: np.ndarray, A: np.ndarray, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """``Delta chi2`` and rank ``(k,)`` of stacked candidates: ``C`` ``(k, p, p)``, ``A`` ``(k, P, p)``, ``b``
     ``(k, p)`` (columns scaled to unit norm, directions below 1 % of a unit column dropped: eigenvalues of the
-    projected Gram matrix ``G`` at most ``EIG_MIN``).
+    projected Gram matrix ``G`` at most ``EIG_MIN``): :func:`_gains_gram` with ``A^T A``."""
+    return _gains_gram(C, np.matmul(np.swapaxes(A, 1, 2), A), b, scale)
+
+
+def _window_gains(Cc: np.ndarray, Ac: np.ndarray, bc: np.ndarray, ia: np.ndarray, ib: np.ndarray, ok: np.ndarray,
+                  scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_gains` of the windows ``ia[i]..ib[j]`` where ``ok[i, j]`` (``(na, nb)``; results in ``np.nonzero(ok)``
+    order) from the prefix sums ``Cc`` ``(n+1, p, p)``, ``Ac`` ``(n+1, P, p)``, ``bc`` ``(n+1, p)``. With ``X =
+    Ac - Ac[ref]`` (a start in the middle of ``ia``: the window's ``A = X_e - X_s``, ``X_s`` small),
+    ``A^T A = X_e^T X_e + X_s^T X_s - X_s^T X_e - (X_s^T X_e)^T``: one Gram per index and one product of the two
+    index sets instead of a ``P x p`` matrix per window."""
+    ref = Ac[ia[len(ia) // 2]]
+    Xa, Xb = Ac[ia] - ref, Ac[ib] - ref  # (na, P, p), (nb, P, p)
+    Ma = np.matmul(np.swapaxes(Xa, 1, 2), Xa)
+    Mb = np.matmul(np.swapaxes(Xb, 1, 2), Xb)
+    I, J = np.nonzero(ok)
+    p = Xa.shape[2]
+    AtA = Ma[I] + Mb[J]
+    step = max(1, int(4e6 // max(1, p * p * len(ib))))  # starts per cross product (~32 MB at most)
+    for lo in range(0, len(ia), step):
+        K = np.tensordot(Xa[lo:lo + step], Xb, axes=([1], [1]))  # (k, p, nb, p): X_s^T X_e
+        sel = (I >= lo) & (I < lo + step)
+        cross = K[I[sel] - lo, :, J[sel], :]  # (m, p, p)
+        AtA[sel] -= cross + np.swapaxes(cross, 1, 2)
+    return _gains_gram(Cc[ib[J]] - Cc[ia[I]], AtA, bc[ib[J]] - bc[ia[I]], scale)
+
+
+def _gains_gram(C: np.ndarray, AtA: np.ndarray, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``Delta chi2`` and rank ``(k,)`` of stacked candidates from ``C`` ``(k, p, p)``, ``A^T A`` ``(k, p, p)`` and
+    ``b`` ``(k, p)``: the projected Gram matrix ``G = D (C - A^T A) D`` (``D``: the columns scaled to unit norm).
 
     Where every eigenvalue of ``G`` is above ``EIG_MIN`` (``G - EIG_MIN I`` has a Cholesky factor) nothing is dropped
     and the gain is ``|L^-1 D b|^2`` with ``G = L L^T``; the others take the eigen-decomposition."""
     d = np.sqrt(np.maximum(np.diagonal(C, axis1=1, axis2=2), 0.0))
     has = d > 1e-12
     D = np.where(has, 1.0 / np.where(has, d, 1.0), 0.0)
-    G = (C - np.matmul(np.swapaxes(A, 1, 2), A)) * D[:, :, None] * D[:, None, :]
+    G = (C - AtA) * D[:, :, None] * D[:, None, :]
     bD = b * D
     p = G.shape[1]
     if p == 1:
@@ -251,21 +281,13 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
-    from scipy import sparse
-
-    from .select import scoring_basis
+    from .select import _row_aggregates, scoring_basis
 
     sb = scoring_basis(prob, fit)
-    rc, sw, keep, Q, r = sb.rc, sb.sw, sb.keep, sb.Q, sb.r
-    model = fit.model_cal
-    P = prob.prep.space.size
-    x = fit.z[:P]
-    obs = model.effective_obs(model.split(fit.z)[1])
-    rows = rc.row[keep]
+    rows, r = sb.rows, sb.r
     n = prob.obs_cal.n
     if n < 2 * MIN_ROWS + 1:
         return []
-    S = sparse.csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(n, len(rows)))
     ch, tv = row_times(prob.ctx)
     t_cal = tv[prob.rows_cal]
     order = np.argsort(t_cal, kind="stable")
@@ -275,17 +297,15 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     g = _grid(n)
     g = g[ts[g] > ts[g - 1]]
     # per-row residual sums of squares and residual counts, in time order (the uniformity check)
-    rr = np.concatenate([[0.0], np.cumsum((S @ (r * r))[order])])
-    mm = np.concatenate([[0.0], np.cumsum((S @ np.ones(len(rows)))[order])])
+    rr = np.concatenate([[0.0], np.cumsum(np.bincount(rows, weights=r * r, minlength=n)[order])])
+    mm = np.concatenate([[0.0], np.cumsum(np.bincount(rows, minlength=n)[order].astype(float))])
     sizes = change_pool_sizes(n, places)
-    out = []
-    for pl in places:
+
+    def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
+        out = []
         tmpl = Atom("change", pl.place, pl.target, ({"kind": "const"},), "", "", "change")
-        base = model.product_base(tmpl, x, obs, rc)[keep] * sw[keep][:, None]  # (m, c)
-        c = base.shape[1]
-        W = (S @ (base[:, :, None] * base[:, None, :]).reshape(len(rows), c * c)).reshape(n, c, c)
-        QB = (S @ (Q[:, :, None] * base[:, None, :]).reshape(len(rows), -1)).reshape(n, Q.shape[1], c)
-        Br = S @ (base * r[:, None])
+        W, QB, Br = _row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
+        c = W.shape[1]
         if pl.inner is None:
             F = np.ones((n, 1))
         else:
@@ -293,10 +313,10 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         K = F.shape[1]
         p = K * c
         Ci = np.einsum("nk,nl,nab->nkalb", F, F, W).reshape(n, p, p)[order]
-        Ai = np.einsum("nk,nqa->nqka", F, QB).reshape(n, Q.shape[1], p)[order]
+        Ai = np.einsum("nk,nqa->nqka", F, QB).reshape(n, QB.shape[1], p)[order]
         bi = np.einsum("nk,na->nka", F, Br).reshape(n, p)[order]
         Cc = np.concatenate([np.zeros((1, p, p)), np.cumsum(Ci, axis=0)])
-        Ac = np.concatenate([np.zeros((1, Q.shape[1], p)), np.cumsum(Ai, axis=0)])
+        Ac = np.concatenate([np.zeros((1, QB.shape[1], p)), np.cumsum(Ai, axis=0)])
         bc = np.concatenate([np.zeros((1, p)), np.cumsum(bi, axis=0)])
         if len(steps):
             gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
@@ -312,7 +332,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                     out.append((float(lp[k]), _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), None)))
                     break
         if not windows or len(g) < 2:
-            continue
+            return out
         a, b = _pairs(g)
         lp_all = np.zeros(len(a))
         gain_all, rank_all = np.zeros(len(a)), np.zeros(len(a), int)
@@ -333,7 +353,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                 best = (float(lp_all[k]), int(a[k]), int(b[k]))
                 break
         if best is None:
-            continue
+            return out
         stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
         if stride > 1:
             # the grid's best pair refined to the rows around it
@@ -341,10 +361,10 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
             sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
-            ok = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
-            A2, B2 = A2[ok], B2[ok]
+            pair = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
+            A2, B2 = A2[pair], B2[pair]
             if len(A2):
-                gain, rank = _gains(Cc[B2] - Cc[A2], Ac[B2] - Ac[A2], bc[B2] - bc[A2], prob.evidence_scale)
+                gain, rank = _window_gains(Cc, Ac, bc, sa, sb2, pair, prob.evidence_scale)
                 ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
                                            prob.evidence_scale)
                 lp = _logp(gain, rank, ok)
@@ -356,6 +376,9 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                     best = (float(lp[k]), int(A2[k]), int(B2[k]))
         _, s, e = best
         out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
+        return out
+
+    out = [c for got in thread_map(place_scan, places, prob.threads) for c in got]
     return [a for _, a in sorted(out, key=lambda t: t[0]) if _white_after(prob, fit, a, sizes, order)]
 
 
@@ -372,7 +395,8 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
         return False
     sb = scoring_basis(prob, fit)
     e = np.zeros(len(sb.keep))
-    e[sb.keep] = got[0].r - got[0].fitted
+    fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
+    e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
     R = row_blocks(fit.model_cal, e)[order]
     R[~np.isfinite(R)] = 0.0
     q = np.round(prob.ctx.q[prob.rows_cal][order], 9)

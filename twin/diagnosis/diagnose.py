@@ -199,6 +199,7 @@ def diagnose(
     q_start: np.ndarray | None = None,
     geometry: dict | None = None,
     callback: Callable[[CandidateScore], None] | None = None,
+    threads: int = 1,
 ) -> DiagnosisResult:
     """Diagnose ``dataset`` (see the module docstring for the steps and their statistics).
 
@@ -211,8 +212,12 @@ def diagnose(
     ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
     when known (otherwise the first row's approach is unknown). ``geometry``: options of the geometric
     identification (:func:`twin.estimator.methods.identify_best`: ``level``, ``selection``; default the estimator's
-    own), e.g. ``{"selection": "figaroh"}``.
+    own), e.g. ``{"selection": "figaroh"}``. ``threads``: threads the scoring of independent places may use
+    (:func:`twin.runtime.thread_map`; the same result with any number; the ``twin diagnose`` command uses every
+    core).
     """
+    if not (isinstance(threads, (int, np.integer)) and not isinstance(threads, bool) and threads >= 1):
+        raise ValueError(f"threads must be a positive integer, got {threads!r}")
     if not (0 < alpha < 0.5):
         raise ValueError(f"alpha must be in (0, 0.5), got {alpha!r}")
     if not (0 < alpha_select < 0.5):
@@ -220,7 +225,7 @@ def diagnose(
     if not (isinstance(max_effects, (int, np.integer)) and max_effects >= 0):
         raise ValueError(f"max_effects must be a non-negative integer, got {max_effects!r}")
     setup = prepare_diagnosis(dataset, calibration=calibration, holdout=holdout, seed=seed, q_start=q_start,
-                              geometry=geometry)
+                              geometry=geometry, threads=int(threads))
     prob = setup.problem
     base = fit_geometry(prob, setup.x0)
     test0 = prob.test(base)
@@ -358,7 +363,8 @@ def split_held_out(ds: Dataset, prep: Prepared, ctx: RowContext, *, fraction: fl
 
 
 def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = None, holdout: float | None = None,
-                      seed: int = 0, q_start: np.ndarray | None = None, geometry: dict | None = None) -> Setup:
+                      seed: int = 0, q_start: np.ndarray | None = None, geometry: dict | None = None,
+                      threads: int = 1) -> Setup:
     """Step 1: the floor, the rows (split, held-out blocks), the geometric identification and the problem."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
@@ -399,7 +405,7 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
     geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM, **geo_opts})
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
-    prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report)
+    prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report, threads=threads)
     # rows that only register a station's frame do not make their session a fitted one
     sess = sessions(dataset)
     reg = np.isin(dataset.pose_id, [p for v in blocks.registration.values() for p in v])
@@ -567,7 +573,8 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
     whole campaign (a term of time ends where the campaign ends). Returns both fits and their problem."""
     ds_all = replace(setup.dataset, set=np.full(setup.dataset.n, "calibration", dtype=object))
     prep = prepare(ds_all, noise_position=setup.floor.sigma, validation_fraction=0.0)
-    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:])
+    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:],
+                   threads=setup.problem.threads)
     prob.evidence_scale = setup.problem.evidence_scale
     prob.cross_session = setup.problem.cross_session
     geo = refit_with(prob, base, [])

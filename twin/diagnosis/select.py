@@ -16,6 +16,7 @@ import numpy as np
 from ..estimator import distributions as dists
 from ..estimator.core import Prepared
 from ..estimator.solvers import gauss_newton
+from ..runtime import thread_map
 from .atoms import Atom, feature_values
 from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, reduced_basis
@@ -122,6 +123,9 @@ class Fit:
 FIT_FTOL = 1e-10
 
 
+THREADS_MIN_ROWS = 2000  # calibration rows from which independent places are scored on threads
+
+
 class Problem:
     """Everything the selection rounds share: observations, rows, features, weights.
 
@@ -131,12 +135,15 @@ class Problem:
     then the report is on the confirmation rows). ``cal``, ``val``, ``rep`` index ``prep.obs``."""
 
     def __init__(self, prep: Prepared, floor: NoiseFloor, ctx: RowContext, free_geo: np.ndarray, *,
-                 val: np.ndarray | None = None, rep: np.ndarray | None = None):
+                 val: np.ndarray | None = None, rep: np.ndarray | None = None, threads: int = 1):
         self.prep = prep
         val = prep.val if val is None else np.asarray(val, int)
         self.val_idx = val
         self.rep_idx = None if rep is None else np.asarray(rep, int)
         self.obs_cal = prep.obs_cal.with_sigma(floor.sigma)
+        # threads the scoring of independent places uses (twin.runtime.thread_map): below THREADS_MIN_ROWS
+        # calibration rows a place's array work is too short to gain from them
+        self.threads = threads if self.obs_cal.n >= THREADS_MIN_ROWS else 1
         self.obs_val = prep.obs.subset(val).with_sigma(floor.sigma)
         self.rows_cal = prep.rows[prep.cal]
         self.rows_val = prep.rows[val]
@@ -421,14 +428,16 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     (:class:`_ColumnStore`), and for a step in time (``1[t >= a]``, one per session start) as the sum of the
     aggregates over the rows from ``a`` on (suffix sums in the order of the channel)."""
     sb = scoring_basis(prob, fit)
-    Qtr = Q.T @ r
+    Qtr = sb.Qtr
     store = prob.column_store(atoms)
     groups: dict[tuple, list[int]] = {}
     for i, a in enumerate(atoms):
         groups.setdefault((a.place, a.target), []).append(i)
     logp = np.full(len(atoms), np.inf)
-    stats: dict[int, list] = {}  # width K -> [(atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,))]
-    for (place, target), ids in groups.items():
+
+    def group_stats(item: tuple) -> list[tuple[int, tuple]]:
+        (place, target), ids = item
+        got_all: list[tuple[int, tuple]] = []  # (width K, (atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,)))
         w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
         steps, stored, rest = [], [], []
         for i in ids:
@@ -440,18 +449,24 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
                 rest.append(i)
         if steps:
             for i, got in zip(steps, _step_stats(prob, [atoms[i] for i in steps], w, Qb, br)):
-                stats.setdefault(1, []).append((i, *got))
+                got_all.append((1, (i, *got)))
         if stored:
             got = store.stats((place, target), [prob._key(atoms[i]) for i in stored], w, Qb, br)
             for i, st in zip(stored, got):
-                stats.setdefault(len(atoms[i].features), []).append((i, *st))
+                got_all.append((len(atoms[i].features), (i, *st)))
         by_width: dict[int, list[int]] = {}
         for i in rest:
             by_width.setdefault(len(atoms[i].features), []).append(i)
         for K, gi in by_width.items():
             F = np.stack([prob.features_cal(atoms[i]) for i in gi], axis=2)  # (n, K, g)
             for i, st in zip(gi, _block_stats(F, w, Qb, br)):
-                stats.setdefault(K, []).append((i, *st))
+                got_all.append((K, (i, *st)))
+        return got_all
+
+    stats: dict[int, list] = {}  # width K -> [(atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,))]
+    for got_group in thread_map(group_stats, list(groups.items()), prob.threads):
+        for K, st in got_group:
+            stats.setdefault(K, []).append(st)
     for K, rows in stats.items():
         gi = np.array([t[0] for t in rows])
         nrm = np.sqrt(np.maximum(np.array([t[1] for t in rows]), 0.0))  # (g, K)
@@ -543,6 +558,14 @@ class ScoringBasis:
         got = self.cache.get("rows")
         if got is None:
             got = self.cache["rows"] = self.rc.row[self.keep]
+        return got
+
+    @property
+    def Qtr(self) -> np.ndarray:
+        """``Q^T r`` ``(p,)``."""
+        got = self.cache.get("Qtr")
+        if got is None:
+            got = self.cache["Qtr"] = self.Q.T @ self.r
         return got
 
     @property
@@ -690,12 +713,13 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     ``max_rank``), and ``Delta chi2 = sum (v^T D (E^T r - (Q^T E)^T Q^T r))^2 / lambda``. The columns themselves
     are built only for the atoms whose ``Ep`` is asked for."""
     Q, r = sb.Q, sb.r
-    Qtr = Q.T @ r
+    Qtr = sb.Qtr
     groups: dict[tuple, list[Atom]] = {}
     for a in atoms:
         groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
-    pending = []
-    for members in groups.values():
+
+    def group_scores(members: list[Atom]) -> list[tuple]:
+        pending = []
         W, QB, Br = _row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
         items: dict[int, list] = {}  # K -> [(atom, E^T E, Q^T E, E^T r, any feature nonzero)]
         families: dict[tuple, list[Atom]] = {}
@@ -740,6 +764,9 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
                 proj = Vr.T @ e[i]
                 pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk,
                                 float(np.sum(lam[i, :rk]))))
+        return pending
+
+    pending = [t for got in thread_map(group_scores, list(groups.values()), prob.threads) for t in got]
     if not pending:
         return []
     logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
