@@ -232,9 +232,10 @@ def test_a_drift_goes_on_while_the_campaign_continues_and_holds_in_another_sessi
 
     from twin.diagnosis.atoms import feature_values
     from twin.diagnosis.candidates import RowContext
+    from twin.diagnosis.features import feature_from_dict
     from twin.robots import irb1200
 
-    f = {"kind": "pow", "ch": "t_s", "p": 1, "c": 500.0, "h": 500.0, "t_span": [0.0, 1000.0]}
+    f = feature_from_dict({"kind": "pow", "ch": "t_s", "p": 1, "c": 500.0, "h": 500.0, "t_span": [0.0, 1000.0]})
     ctx = RowContext(q=np.zeros((4, 6)), t_s=np.array([500.0, 1500.0, 1999.0, 2500.0]))
     v = feature_values((f,), ctx, irb1200())[:, 0]
     assert v.tolist() == pytest.approx([0.0, 2.0, 2.998, 1.0])

@@ -392,11 +392,11 @@ def test_every_feature_reads_the_same_on_rows_that_continue():
     pool = cat + generic_atoms(ds.robot, part, params, lengths, cat, points=ds.spheres[:k],
                                plate_spheres=ds.plate.spheres_flange)
     kinds = set()
-    for a in pool[::7] + [a for a in pool if {f.get("kind") for f in a.features} & {"heat", "lag", "play", "settle",
+    for a in pool[::7] + [a for a in pool if {f.kind for f in a.features} & {"heat", "lag", "play", "settle",
                                                                                    "stepin", "cartdir", "gated"}]:
         if a.place == "field":
             continue  # functions of the measured point, not of the rows
-        kinds |= {f.get("kind") for f in a.features}
+        kinds |= {f.kind for f in a.features}
         assert np.allclose(feature_values(a.features, full, ds.robot)[:k], feature_values(a.features, part, ds.robot),
                            rtol=1e-9, atol=1e-12), a.label
     assert {"heat", "lag", "exp", "settle", "stepin", "cartdir", "gated", "step", "sign", "lastmove"} <= kinds

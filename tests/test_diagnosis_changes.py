@@ -366,7 +366,7 @@ def test_the_scan_finds_the_row_every_step_position_scored_alone_prefers():
     every = [_atom(places[0], "t_s", 0.5 * (t[s - 1] + t[s]), None) for s in _steps(len(t))]
     scored = score_atoms(prob, base, every, sizes, exact_top=len(every))
     best = max(scored, key=lambda s: s.dchi2)
-    assert best.atom.features[0]["at"] == pytest.approx(found[0].features[0]["at"])
+    assert best.atom.features[0].at == pytest.approx(found[0].features[0].at)
 
 
 def test_a_new_session_reads_the_state_after_the_last_change():

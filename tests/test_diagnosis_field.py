@@ -7,6 +7,7 @@ import pytest
 
 import _diagnosis_helpers as H
 from twin.diagnosis import diagnose, noise_floor
+from twin.diagnosis.features import Field
 from twin.diagnosis.field import field_applicable, field_constants, field_values
 
 
@@ -35,7 +36,7 @@ def test_radial_field_matches_its_formula():
     """The radial field at a point is (x rho^2, y rho^2, 0) with rho^2 = (u^2 + v^2) / rho2_h."""
     p = np.array([[0.1, -0.05, 0.8], [0.0, 0.2, 1.0], [-0.3, 0.1, 0.7]])
     c = field_constants(p)
-    g = field_values(({"kind": "field", "g": "radial", **c},), p)[:, 0]
+    g = field_values((Field(g="radial", **c),), p)[:, 0]
     rho2 = ((p[:, 0] / p[:, 2]) ** 2 + (p[:, 1] / p[:, 2]) ** 2) / c["rho2_h"]
     assert np.allclose(g, np.stack([p[:, 0] * rho2, p[:, 1] * rho2, 0 * rho2], axis=1))
 
@@ -47,7 +48,7 @@ def test_tangential_fields_are_opencv_decentering_terms():
 
     p = np.array([[0.1, -0.05, 0.8], [0.0, 0.2, 1.0], [-0.3, 0.1, 0.7], [0.12, 0.09, 0.9]])
     c = field_constants(p)
-    g = field_values(({"kind": "field", "g": "tangential1", **c}, {"kind": "field", "g": "tangential2", **c}), p)
+    g = field_values((Field(g="tangential1", **c), Field(g="tangential2", **c)), p)
     p1, p2 = 2e-6, -3e-6
     img, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), np.eye(3), np.array([0.0, 0.0, p1, p2, 0.0]))
     shift = (img.reshape(-1, 2) - p[:, :2] / p[:, 2:3]) * p[:, 2:3]  # image displacement times depth [m]
@@ -97,7 +98,7 @@ def test_range_sq_field_is_the_square_of_the_range_along_the_line_of_sight():
     line of sight."""
     p = np.array([[0.1, -0.05, 0.8], [0.0, 0.2, 1.0], [-0.3, 0.1, 0.7]])
     c = field_constants(p)
-    g = field_values(tuple({"kind": "field", "g": n, **c} for n in ("range_sq", "range_x", "range_y")), p)
+    g = field_values(tuple(Field(g=n, **c) for n in ("range_sq", "range_x", "range_y")), p)
     r = np.linalg.norm(p, axis=1)
     want = np.stack([r**2, p[:, 0] * c["r_c"], p[:, 1] * c["r_c"]], axis=1) * c["r_h"] / c["r_c"] ** 2
     assert np.allclose(g, want[:, :, None] * (p / r[:, None])[:, None, :])

@@ -16,6 +16,7 @@ from twin.diagnosis import select as S
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 from twin.diagnosis.extend import _times_weights, param_weights
+from twin.diagnosis.features import Gated, Step
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +43,7 @@ def _close(got, want, scale, tol=1e-12):
 
 
 def _steps(place, target, ats):
-    return [Atom("unnamed", place, target, ({"kind": "step", "ch": "t_s", "at": float(a)},), f"step {a}", f"step {a}",
+    return [Atom("unnamed", place, target, (Step(ch="t_s", at=float(a)),), f"step {a}", f"step {a}",
                  "generic") for a in ats]
 
 
@@ -105,7 +106,7 @@ def test_family_acting_from_different_moments_equals_its_atoms_products(problem)
     prob, fit, sb, pool, _ = problem
     comp = next(a for a in pool if a.family == "compliance" and a.target == "theta2" and "further" not in a.channel)
     t = prob.ctx.t_s[prob.rows_cal]
-    family = [Atom("compliance", "joint", "theta2", tuple({"kind": "gated", "f": f, "ch": "t_s", "at": float(at)}
+    family = [Atom("compliance", "joint", "theta2", tuple(Gated(f=f, ch="t_s", at=float(at))
                                                           for f in comp.features), f"from {at}", f"from {at}",
                    "catalogue", (2,)) for at in np.quantile(t, [0.1, 0.4, 0.75])]
     W, QB, Br = S._row_aggregates(prob, fit, sb, family[0])
@@ -125,7 +126,7 @@ def test_wide_product_atom_equals_one_batch_when_split_or_on_distinct_rows(probl
     prob, fit, sb, _, _ = problem
     t = prob.ctx.t_s[prob.rows_cal]
     at = np.quantile(t, np.linspace(0.05, 0.95, 12))
-    wide = Atom("unnamed", "param", "base", tuple({"kind": "step", "ch": "t_s", "at": float(a)} for a in at),
+    wide = Atom("unnamed", "param", "base", tuple(Step(ch="t_s", at=float(a)) for a in at),
                 "steps", "steps", "generic")
     W, QB, Br = S._row_aggregates(prob, fit, sb, wide)
     F = prob.features_cal(wide)[:, None, :]

@@ -119,7 +119,7 @@ def physical_candidates(ds) -> list:
     cat = catalogue_atoms(ds.robot, row_context(ds), link_lengths(ds.robot), n_points=ds.spheres.shape[1])
     keep = []
     for a in cat:
-        kinds = {f.get("kind") for f in a.features}
+        kinds = {f.kind for f in a.features}
         prismatic = a.place == "joint" and ds.robot.joint_kinds[int(a.target[5:]) - 1] == "prismatic"
         if (a.family == "compliance" and kinds == {"torque"}) or a.family == "tilt" or \
                 (a.family == "backlash" and kinds == {"sign"}) or (a.family == "gear_ratio" and prismatic):

@@ -23,6 +23,7 @@ from ..estimator.problem import ParamSpace, predict_points
 from ..transforms import matrix_to_rotvec
 from .atoms import Atom, feature_values, history_unknown
 from .candidates import RowContext
+from .features import Station
 from .extend import param_weights
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
@@ -54,11 +55,12 @@ def required_channels(cal: Calibration) -> set[str]:
     need = set()
     for a, _ in effect_atoms(cal):
         for f in a.features:
-            ch = f.get("ch")
-            for c in ch if isinstance(ch, list) else [ch]:
-                if c == "temp_c" or (c == "t_s" and "t_span" not in f and "record" not in f):
+            ch = getattr(f, "ch", None)
+            for c in ch if isinstance(ch, tuple) else [ch]:
+                if c == "temp_c" or (c == "t_s" and getattr(f, "t_span", None) is None
+                                     and getattr(f, "record", None) is None):
                     need.add(c)
-            if f.get("kind") == "station":
+            if isinstance(f, Station):
                 need.add("station")
     return need
 
@@ -130,7 +132,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
         if a.place == "field":
             from .field import field_values, station_mask
 
-            n_tool = next((f["n_tool"] for f in a.features if "n_tool" in f), None)
+            n_tool = next((f.n_tool for f in a.features if getattr(f, "n_tool", None) is not None), None)
             nrm = None
             if n_tool is not None:
                 # the plate normal of each predicted row (the view fields follow the plate's tilt)
@@ -147,7 +149,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             # (n, 2): each feature turns the pivot about its axis (one rotation axis per feature)
             dx = np.zeros((n, 2))
             for k, f in enumerate(a.features):
-                dx[:, int(f.get("axis", k))] += F[:, k] * phi[int(f.get("shape", k))]
+                dx[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)

@@ -29,20 +29,24 @@ frames and the measurement scale, against low-order polynomials and harmonics of
 two joints, approach signs, the gravity direction in the flange frame, polynomials and change points in
 time (or row order), temperature, and the station.
 
-A feature is a small dict (``{"kind": "pow", "ch": "q3", "p": 2, "c": ..., "h": ...}``) whose constants
-(centres, scales, reference temperature, change-point times) are fixed on the rows the atom is identified
-on, so that ``twin predict`` evaluates the same regressor on new rows. Nothing here reads truth.
+A feature is a small typed object (:mod:`twin.diagnosis.features`: ``Pow(ch="q3", p=2, c=..., h=...)``, stored as
+``{"kind": "pow", "ch": "q3", "p": 2, "c": ..., "h": ...}``) whose constants (centres, scales, reference
+temperature, change-point times) are fixed on the rows the atom is identified on, so that ``twin predict``
+evaluates the same regressor on new rows. Nothing here reads truth.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..kinematics import RobotModel, link_frames
 from .candidates import (GRAVITY, RowContext, approach_signs, carried_moments, gravity_torque_regressor,
                          gravity_torques, has_masses)
+from .features import (BaseMoment, CartDir, Const, Cos, Exp, Feature, Field, Gated, Grav, GravityDir, GravMix, Heat,
+                       HeatRecord, Hinge, Lag, LagRecord, LastMove, LoadSign, Moment, Play, Pow, Prod, Settle, Sign, Sin,
+                       Station, Step, StepIn, Torque, Window, feature_from_dict)
 
 __all__ = [
     "Atom",
@@ -77,13 +81,14 @@ PLACES = ("joint", "length", "param", "plate", "scale", "field")
 @dataclass(frozen=True, eq=False)
 class Atom:
     """One candidate term: ``family`` (catalogue name or ``"unnamed"``), ``place`` and ``target`` (where it
-    acts), ``features`` (``K`` feature dicts), ``channel`` (what it depends on, for people), ``label``
-    (words), ``pool`` (``"catalogue"``/``"generic"``), and ``joints`` (1-based joints it involves)."""
+    acts), ``features`` (``K`` features, :mod:`twin.diagnosis.features`), ``channel`` (what it depends on, for
+    people), ``label`` (words), ``pool`` (``"catalogue"``/``"generic"``), and ``joints`` (1-based joints it
+    involves)."""
 
     family: str
     place: str
     target: str
-    features: tuple[dict, ...]
+    features: tuple[Feature, ...]
     channel: str
     label: str
     pool: str
@@ -98,14 +103,15 @@ class Atom:
             return 6 * len(self.features)
         if self.place == "param" and self.target == "base_along":
             return 1
-        if self.place == "param" and self.target.startswith("tilt") and any("shape" in f for f in self.features):
-            return len({int(f["shape"]) for f in self.features})  # one coefficient per shape, both axes
+        if self.place == "param" and self.target.startswith("tilt") and \
+                any(getattr(f, "shape", None) is not None for f in self.features):
+            return len({int(f.shape) for f in self.features})  # one coefficient per shape, both axes
         return len(self.features)
 
     @property
     def varying_plate(self) -> bool:
         """A plate atom whose offset changes from row to row (first order), not a constant one (exact)."""
-        return self.place == "plate" and any(f.get("kind") != "const" for f in self.features)
+        return self.place == "plate" and any(not isinstance(f, Const) for f in self.features)
 
     @property
     def first_order(self) -> bool:
@@ -120,7 +126,7 @@ class Atom:
     def spec(self) -> dict:
         """JSON-ready description (values are added by the caller)."""
         return {"family": self.family, "place": self.place, "target": self.target, "channel": self.channel,
-                "label": self.label, "joints": list(self.joints), "features": [dict(f) for f in self.features]}
+                "label": self.label, "joints": list(self.joints), "features": [f.to_dict() for f in self.features]}
 
     @classmethod
     def from_spec(cls, d: dict) -> "Atom":
@@ -129,7 +135,8 @@ class Atom:
                 raise ValueError(f"effect term is missing {k!r}: {d!r}")
         if d["place"] not in PLACES:
             raise ValueError(f"effect term place {d['place']!r} is not one of {', '.join(PLACES)}")
-        return cls(family=d["family"], place=d["place"], target=d["target"], features=tuple(d["features"]),
+        return cls(family=d["family"], place=d["place"], target=d["target"],
+                   features=tuple(feature_from_dict(f) for f in d["features"]),
                    channel=d.get("channel", ""), label=d.get("label", ""), pool=d.get("pool", ""),
                    joints=tuple(d.get("joints", ())))
 
@@ -157,11 +164,11 @@ def _channel(ctx: RowContext, name: str) -> np.ndarray:
     raise ValueError(f"unknown feature channel {name!r}")
 
 
-def _row_channel(ctx: RowContext, f: dict) -> np.ndarray:
-    """The row order of a feature in ``row``: with the campaign's pose ids recorded (``f["record_pose_id"]``) and the
+def _row_channel(ctx: RowContext, f: Feature | None) -> np.ndarray:
+    """The row order of a feature in ``row``: with the campaign's pose ids recorded (``f.record_pose_id``) and the
     rows' pose ids known, a campaign row reads its place in the campaign and any other row continues the count
     after the campaign's last (in the order given); otherwise the rows' positions in the order given."""
-    rec = f.get("record_pose_id")
+    rec = getattr(f, "record_pose_id", None)
     if rec is None or ctx.pose_id is None:
         return _channel(ctx, "row")
     index = {int(p): k for k, p in enumerate(rec)}
@@ -172,28 +179,30 @@ def _row_channel(ctx: RowContext, f: dict) -> np.ndarray:
     return out
 
 
-def _time(ctx: RowContext, f: dict) -> np.ndarray:
-    """``t_s`` of the rows for a feature of time. A feature fitted on a campaign records its time span
-    (``f["t_span"]``, :func:`with_records`). Rows without ``t_s`` (a new session whose time is not recorded) read the
-    state the campaign ended in. A polynomial drift, which grows without bound, goes on for rows that continue the
+def _time(ctx: RowContext, f: Feature | None) -> np.ndarray:
+    """``t_s`` of the rows for a feature of time (``None``: the channel alone). A feature fitted on a campaign records
+    its time span (``f.t_span``, :func:`with_records`). Rows without ``t_s`` (a new session whose time is not recorded)
+    read the state the campaign ended in. A polynomial drift, which grows without bound, goes on for rows that continue the
     campaign (within as long again as the campaign lasted after its end, or before its start) and holds the state the
     campaign ended (or began) in for rows further away: another session. The bounded shapes (a step, a transient that
     settles, an oscillation) go on as fitted, which for a transient is the state it settles to."""
-    span = f.get("t_span")
+    span = getattr(f, "t_span", None)
     if ctx.t_s is None:
         if span is None:
             raise ValueError("this effect term depends on t_s: the rows need a t_s column")
         return np.full(len(ctx.q), float(span[1]))
     t = np.asarray(ctx.t_s, float)
-    if span is None or f.get("kind") != "pow":
+    if span is None or not isinstance(f, Pow):
         return t
     t0, t1 = float(span[0]), float(span[1])
     d = t1 - t0
     return np.where(t > t1 + d, t1, np.where(t < t0 - d, t0, t))
 
 
-def _ch(ctx: RowContext, f: dict, name: str | None = None) -> np.ndarray:
-    name = f["ch"] if name is None else name
+def _ch(ctx: RowContext, f: Feature | None, name: str | None = None) -> np.ndarray:
+    """The values of the channel ``name`` (default the feature's ``ch``) on the rows, time and row order as the
+    feature ``f`` recorded them (``None``: as the rows give them)."""
+    name = f.ch if name is None else name
     if name == "t_s":
         return _time(ctx, f)
     return _row_channel(ctx, f) if name == "row" else _channel(ctx, name)
@@ -293,32 +302,32 @@ def _merge_record(t_rec: np.ndarray, t_new: np.ndarray, tol: float = 1e-6) -> tu
     return order, new, where[at]
 
 
-def _recorded_lag(f: dict, ctx: RowContext) -> np.ndarray:
-    """A lagged channel on the given rows, continuing the campaign's record ``f["record"]`` (its times and channel
+def _recorded_lag(f: Lag, ctx: RowContext) -> np.ndarray:
+    """A lagged channel on the given rows, continuing the campaign's record ``f.record`` (its times and channel
     values): the rows are placed among the recorded ones by ``t_s``, so that a row alone, a subset or rows after
     the campaign read the lag the campaign's own sequence gives."""
-    rec = f["record"]
-    t_new, x_new = _channel(ctx, "t_s"), _channel(ctx, f["ch"])
-    order, new, at = _merge_record(rec["t_s"], t_new)
-    t_all = np.concatenate([np.asarray(rec["t_s"], float), t_new[new]])[order]
-    x_all = np.concatenate([np.asarray(rec["x"], float), x_new[new]])[order]
-    return _lagged(x_all, t_all, f["tau"])[at]
+    rec = f.record
+    t_new, x_new = _channel(ctx, "t_s"), _channel(ctx, f.ch)
+    order, new, at = _merge_record(rec.t_s, t_new)
+    t_all = np.concatenate([np.asarray(rec.t_s, float), t_new[new]])[order]
+    x_all = np.concatenate([np.asarray(rec.x, float), x_new[new]])[order]
+    return _lagged(x_all, t_all, f.tau)[at]
 
 
-def _recorded_heat(f: dict, ctx: RowContext) -> np.ndarray:
-    """Motion heat on the given rows, continuing the campaign's record ``f["record"]`` (times, commanded joints,
+def _recorded_heat(f: Heat, ctx: RowContext) -> np.ndarray:
+    """Motion heat on the given rows, continuing the campaign's record ``f.record`` (times, commanded joints,
     rows where its history restarted), merged by ``t_s`` as :func:`_recorded_lag` does."""
-    rec = f["record"]
+    rec = f.record
     t_new = _channel(ctx, "t_s")
-    order, new, at = _merge_record(rec["t_s"], t_new)
-    t_all = np.concatenate([np.asarray(rec["t_s"], float), t_new[new]])[order]
+    order, new, at = _merge_record(rec.t_s, t_new)
+    t_all = np.concatenate([np.asarray(rec.t_s, float), t_new[new]])[order]
     N = ctx.q.shape[1]
-    q_all = np.concatenate([np.asarray(rec["q"], float).reshape(-1, N), np.asarray(ctx.q, float)[new]])[order]
-    reset = np.concatenate([np.asarray(rec["reset"], bool), np.zeros(int(new.sum()), bool)])[order]
+    q_all = np.concatenate([np.asarray(rec.q, float).reshape(-1, N), np.asarray(ctx.q, float)[new]])[order]
+    reset = np.concatenate([np.asarray(rec.reset, bool), np.zeros(int(new.sum()), bool)])[order]
     reset[0] = True
     steps = np.vstack([np.zeros((1, N)), np.diff(q_all, axis=0)])
     steps[reset] = 0.0
-    return _heat_series(t_all, steps, f["tau"], tuple(f.get("joints", range(1, N + 1))))[at]
+    return _heat_series(t_all, steps, f.tau, tuple(range(1, N + 1) if f.joints is None else f.joints))[at]
 
 
 def _play(ctx: RowContext, j: int, h: float) -> np.ndarray:
@@ -375,28 +384,29 @@ def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     return y
 
 
-def with_records(features, ctx: RowContext) -> list[dict]:
-    """``features`` (dicts) with what evaluating them on other rows needs from the campaign they were fitted on:
+def with_records(features, ctx: RowContext) -> list[Feature]:
+    """``features`` with what evaluating them on other rows needs from the campaign they were fitted on:
     a lagged channel and the motion heat carry the campaign's record (times, channel values, joints, restarts),
     a term in the row order the campaign's pose ids (:func:`feature_values` merges new rows with the record), so
     that a row's prediction does not depend on which other rows are in the file; a term of time its time span
     (outside it, the term holds the state the campaign ended in: :func:`_time`)."""
     out = []
     for f in features:
-        f = dict(f)
-        kind = f.get("kind")
-        if kind == "lag" and ctx.t_s is not None:
-            f["record"] = {"t_s": np.asarray(ctx.t_s, float).tolist(), "x": _channel(ctx, f["ch"]).tolist()}
-        elif kind == "heat" and ctx.t_s is not None:
+        if isinstance(f, Lag) and ctx.t_s is not None:
+            f = replace(f, record=LagRecord(t_s=tuple(np.asarray(ctx.t_s, float).tolist()),
+                                            x=tuple(_channel(ctx, f.ch).tolist())))
+        elif isinstance(f, Heat) and ctx.t_s is not None:
             reset = np.zeros(len(ctx.q), bool) if ctx.history_reset is None else np.asarray(ctx.history_reset, bool)
-            f["record"] = {"t_s": np.asarray(ctx.t_s, float).tolist(), "q": np.asarray(ctx.q, float).tolist(),
-                           "reset": reset.tolist()}
-        if f.get("ch") == "row" and ctx.pose_id is not None:
-            f["record_pose_id"] = np.asarray(ctx.pose_id).astype(int).tolist()
-        if (f.get("ch") == "t_s" or kind in ("settle", "field") and "tau" in f) and ctx.t_s is not None:
-            f["t_span"] = [float(np.min(ctx.t_s)), float(np.max(ctx.t_s))]
-        if kind == "gated":
-            f["f"] = with_records([f["f"]], ctx)[0]
+            f = replace(f, record=HeatRecord(t_s=tuple(np.asarray(ctx.t_s, float).tolist()),
+                                             q=tuple(map(tuple, np.asarray(ctx.q, float).tolist())),
+                                             reset=tuple(reset.tolist())))
+        ch = getattr(f, "ch", None)
+        if ch == "row" and ctx.pose_id is not None:
+            f = replace(f, record_pose_id=tuple(np.asarray(ctx.pose_id).astype(int).tolist()))
+        if (ch == "t_s" or isinstance(f, (Settle, Field)) and f.tau is not None) and ctx.t_s is not None:
+            f = replace(f, t_span=(float(np.min(ctx.t_s)), float(np.max(ctx.t_s))))
+        if isinstance(f, Gated):
+            f = replace(f, f=with_records([f.f], ctx)[0])
         out.append(f)
     return out
 
@@ -413,13 +423,12 @@ def history_unknown(features_list, ctx: RowContext) -> np.ndarray:
     out = np.zeros(len(ctx.q), bool)
     for feats in features_list:
         for f in feats:
-            kind = f.get("kind")
-            if kind not in HISTORY_FEATURES:
+            if f.kind not in HISTORY_FEATURES:
                 continue
-            if kind == "cartdir":
+            if isinstance(f, CartDir):
                 out |= np.all(s == 0, axis=1)
             else:
-                out |= s[:, int(f["j"]) - 1] == 0
+                out |= s[:, int(f.j) - 1] == 0
     return out
 
 
@@ -432,140 +441,142 @@ def approach_unknown(ctx: RowContext) -> np.ndarray:
 
 
 def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | None = None) -> np.ndarray:
-    """Values ``(n, K)`` of ``features`` on the rows of ``ctx`` (``model``: the nominal robot, for gravity)."""
+    """Values ``(n, K)`` of ``features`` (:mod:`twin.diagnosis.features`) on the rows of ``ctx`` (``model``: the
+    nominal robot, for gravity)."""
     cache = {} if cache is None else cache
     n = len(ctx.q)
     out = np.empty((n, len(features)))
     for k, f in enumerate(features):
-        kind = f.get("kind")
-        if kind == "pow":
-            out[:, k] = ((_ch(ctx, f) - f["c"]) / f["h"]) ** f["p"]
-        elif kind in ("sin", "cos"):
-            x = f["k"] * _ch(ctx, f)
-            out[:, k] = np.sin(x) if kind == "sin" else np.cos(x)
-        elif kind == "prod":
-            a, b = f["ch"]
-            out[:, k] = (_channel(ctx, a) - f["c"][0]) / f["h"][0] * (_channel(ctx, b) - f["c"][1]) / f["h"][1]
-        elif kind == "sign":
+        if isinstance(f, Pow):
+            out[:, k] = ((_ch(ctx, f) - f.c) / f.h) ** f.p
+        elif isinstance(f, (Sin, Cos)):
+            x = f.k * _ch(ctx, f)
+            out[:, k] = np.sin(x) if isinstance(f, Sin) else np.cos(x)
+        elif isinstance(f, Prod):
+            a, b = f.ch
+            out[:, k] = (_channel(ctx, a) - f.c[0]) / f.h[0] * (_channel(ctx, b) - f.c[1]) / f.h[1]
+        elif isinstance(f, Sign):
             if "signs" not in cache:
                 cache["signs"] = history_signs(ctx)
-            out[:, k] = cache["signs"][:, f["j"] - 1]
-        elif kind == "grav":
+            out[:, k] = cache["signs"][:, f.j - 1]
+        elif isinstance(f, Grav):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
-            out[:, k] = cache["grav"][:, f["i"] - 1, f["k"] - 1, f["c"]] / f.get("h", 1.0)
-        elif kind == "lastmove":
+            out[:, k] = cache["grav"][:, f.i - 1, f.k - 1, f.c] / (1.0 if f.h is None else f.h)
+        elif isinstance(f, LastMove):
             if "moves" not in cache:
                 cache["moves"] = _last_moves(ctx)
-            out[:, k] = np.tanh(cache["moves"][:, f["j"] - 1] / f["w"])
-        elif kind == "gravmix":
+            out[:, k] = np.tanh(cache["moves"][:, f.j - 1] / f.w)
+        elif isinstance(f, GravMix):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
             Yg = cache["grav"]
-            out[:, k] = sum(w * Yg[:, f["i"] - 1, kk - 1, c] for w, (kk, c) in zip(f["w"], f["cols"])) / f["h"]
-        elif kind == "torque":
+            out[:, k] = sum(w * Yg[:, f.i - 1, kk - 1, c] for w, (kk, c) in zip(f.w, f.cols)) / f.h
+        elif isinstance(f, Torque):
             # the gravity load of joint j from the chain's mass properties [N m, or N along a prismatic axis]
             if "torque" not in cache:
                 cache["torque"] = gravity_torques(model, ctx.q)
-            out[:, k] = cache["torque"][:, f["j"] - 1] / f.get("h", 1.0)
-        elif kind == "moment":
+            out[:, k] = cache["torque"][:, f.j - 1] / (1.0 if f.h is None else f.h)
+        elif isinstance(f, Moment):
             # the gravity moment of what joint j carries about its origin (j = 0: the base), one axis of its frame
-            key = ("moment", f["j"])
+            key = ("moment", f.j)
             if key not in cache:
-                cache[key] = carried_moments(model, ctx.q, int(f["j"]))
-            out[:, k] = cache[key][:, f["axis"]] / f.get("h", 1.0)
-        elif kind == "basemoment":
+                cache[key] = carried_moments(model, ctx.q, int(f.j))
+            out[:, k] = cache[key][:, f.axis] / (1.0 if f.h is None else f.h)
+        elif isinstance(f, BaseMoment):
             # the arm's gravity moment about one horizontal axis of the base through its origin, as a combination of
             # the links' unknown mass moments (:func:`twin.diagnosis.loads.base_moment_regressor`)
             if "basemoment" not in cache:
                 from .loads import base_moment_regressor
 
                 cache["basemoment"] = base_moment_regressor(model, ctx.q)
-            Yb = cache["basemoment"][:, f["axis"]].reshape(n, -1)
-            out[:, k] = Yb @ np.asarray(f["w"], float) / f.get("h", 1.0)
-        elif kind == "gdir":
+            Yb = cache["basemoment"][:, f.axis].reshape(n, -1)
+            out[:, k] = Yb @ np.asarray(f.w, float) / (1.0 if f.h is None else f.h)
+        elif isinstance(f, GravityDir):
             if "gdir" not in cache:
                 fr = link_frames(model, ctx.q)
                 R = fr[:, -1, :3, :3]  # flange (last link frame) in the base frame
                 cache["gdir"] = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
-            out[:, k] = cache["gdir"][:, f["axis"]]
-        elif kind == "step":
-            out[:, k] = (_ch(ctx, f) >= f["at"]).astype(float)
-        elif kind == "window":
+            out[:, k] = cache["gdir"][:, f.axis]
+        elif isinstance(f, Step):
+            out[:, k] = (_ch(ctx, f) >= f.at).astype(float)
+        elif isinstance(f, Window):
             # a change and back: the state differs from ``at`` until ``until`` (a step and its return)
             x = _ch(ctx, f)
-            out[:, k] = ((x >= f["at"]) & (x < f["until"])).astype(float)
-        elif kind == "loadsign":
+            out[:, k] = ((x >= f.at) & (x < f.until)).astype(float)
+        elif isinstance(f, LoadSign):
             # the side of the gear flank the joint's gravity load pushes it to: the sign of the load (the URDF
             # masses' torque, or the leading gravity-torque shape when the masses are unknown)
-            out[:, k] = np.sign(feature_values((f["f"],), ctx, model, cache)[:, 0])
-        elif kind == "hinge":
+            out[:, k] = np.sign(feature_values((f.f,), ctx, model, cache)[:, 0])
+        elif isinstance(f, Hinge):
             # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
-            out[:, k] = (np.clip(f["side"] * (_channel(ctx, f["ch"]) - f["at"]), 0.0, None) / f["h"]) ** f["p"]
-        elif kind == "stepin":
-            out[:, k] = _steps_in(ctx)[:, f["j"] - 1]
-        elif kind == "heat":
-            joints = tuple(f.get("joints", range(1, ctx.q.shape[1] + 1)))
-            key = ("heat", f["tau"], joints, "record" in f)
+            out[:, k] = (np.clip(f.side * (_channel(ctx, f.ch) - f.at), 0.0, None) / f.h) ** f.p
+        elif isinstance(f, StepIn):
+            out[:, k] = _steps_in(ctx)[:, f.j - 1]
+        elif isinstance(f, Heat):
+            joints = tuple(range(1, ctx.q.shape[1] + 1) if f.joints is None else f.joints)
+            key = ("heat", f.tau, joints, f.record is not None)
             if key not in cache:
-                if "record" in f and ctx.t_s is None:
+                if f.record is not None and ctx.t_s is None:
                     # a new session whose time is not recorded: the heat the campaign ended with
-                    rec = f["record"]
-                    steps = np.vstack([np.zeros((1, ctx.q.shape[1])), np.diff(np.asarray(rec["q"], float).reshape(-1, ctx.q.shape[1]), axis=0)])
-                    steps[np.asarray(rec["reset"], bool)] = 0.0
-                    end = _heat_series(np.asarray(rec["t_s"], float), steps, f["tau"], joints)[-1]
+                    rec = f.record
+                    steps = np.vstack([np.zeros((1, ctx.q.shape[1])), np.diff(np.asarray(rec.q, float).reshape(-1, ctx.q.shape[1]), axis=0)])
+                    steps[np.asarray(rec.reset, bool)] = 0.0
+                    end = _heat_series(np.asarray(rec.t_s, float), steps, f.tau, joints)[-1]
                     cache[key] = np.full(len(ctx.q), end)
                 else:
-                    cache[key] = _recorded_heat(f, ctx) if "record" in f else _motion_heat(ctx, f["tau"], joints)
-            out[:, k] = cache[key] / f["h"]  # a scale fixed on the rows the atom was built on
-        elif kind == "settle":
+                    cache[key] = _recorded_heat(f, ctx) if f.record is not None else _motion_heat(ctx, f.tau, joints)
+            out[:, k] = cache[key] / f.h  # a scale fixed on the rows the atom was built on
+        elif isinstance(f, Settle):
             st = np.asarray(ctx.station).astype(str) if ctx.station is not None else None
             if st is None:
                 raise ValueError("this effect term depends on the station: the rows need a station column")
-            t0 = np.array([f["t0"].get(s, np.nan) for s in st])
+            t0s = dict(f.t0)
+            t0 = np.array([t0s.get(s, np.nan) for s in st])
             if np.any(np.isnan(t0)):
-                raise ValueError(f"this effect term knows the set-up times of stations {sorted(f['t0'])} only")
-            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - t0, 0.0, None) / f["tau"])
-            if "only" in f:
-                out[:, k] *= st == str(f["only"])
-        elif kind == "gated":
+                raise ValueError(f"this effect term knows the set-up times of stations {sorted(t0s)} only")
+            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - t0, 0.0, None) / f.tau)
+            if f.only is not None:
+                out[:, k] *= st == str(f.only)
+        elif isinstance(f, Gated):
             # an inner feature that acts from a moment on (a payload added at a restart)
             x = _ch(ctx, f)
-            on = (x >= f["at"]) & (x < f["until"]) if "until" in f else x >= f["at"]
-            out[:, k] = feature_values((f["f"],), ctx, model, cache)[:, 0] * on
-        elif kind == "play":
-            key = ("play", f["j"], f["h"])
+            on = (x >= f.at) & (x < f.until) if f.until is not None else x >= f.at
+            out[:, k] = feature_values((f.f,), ctx, model, cache)[:, 0] * on
+        elif isinstance(f, Play):
+            key = ("play", f.j, f.h)
             if key not in cache:
-                cache[key] = _play(ctx, f["j"], f["h"])
+                cache[key] = _play(ctx, f.j, f.h)
             out[:, k] = cache[key]
-        elif kind == "cartdir":
-            key = ("cartdir", tuple(f.get("tcp", (0.0, 0.0, 0.0))))
+        elif isinstance(f, CartDir):
+            tcp = (0.0, 0.0, 0.0) if f.tcp is None else f.tcp
+            key = ("cartdir", tuple(tcp))
             if key not in cache:
-                cache[key] = _cartesian_moves(ctx, model, np.asarray(f.get("tcp", (0.0, 0.0, 0.0)), dtype=float))
-            out[:, k] = cache[key][:, f["axis"]]
-        elif kind == "exp":
+                cache[key] = _cartesian_moves(ctx, model, np.asarray(tcp, dtype=float))
+            out[:, k] = cache[key][:, f.axis]
+        elif isinstance(f, Exp):
             # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
             # (zero before t0: rows of an earlier session)
-            out[:, k] = -np.expm1(-np.clip(_ch(ctx, f) - f["t0"], 0.0, None) / f["tau"])
-        elif kind == "lag":
+            out[:, k] = -np.expm1(-np.clip(_ch(ctx, f) - f.t0, 0.0, None) / f.tau)
+        elif isinstance(f, Lag):
             # the channel seen through a first-order lag of time constant tau (a link's temperature follows
             # the air's): exact for a channel constant between rows, started at the first row's value
-            if "record" in f and ctx.t_s is None:
-                lag = _channel(ctx, f["ch"])  # a new session whose time is not recorded: the channel settled
+            if f.record is not None and ctx.t_s is None:
+                lag = _channel(ctx, f.ch)  # a new session whose time is not recorded: the channel settled
             else:
-                lag = _recorded_lag(f, ctx) if "record" in f else _lagged(_channel(ctx, f["ch"]), _channel(ctx, "t_s"), f["tau"])
-            out[:, k] = (lag - f["c"]) / f.get("h", 1.0)
-        elif kind == "station":
+                lag = _recorded_lag(f, ctx) if f.record is not None else _lagged(_channel(ctx, f.ch), _channel(ctx, "t_s"), f.tau)
+            out[:, k] = (lag - f.c) / (1.0 if f.h is None else f.h)
+        elif isinstance(f, Station):
             if ctx.station is None:
                 raise ValueError("this effect term depends on the station: the rows need a station column")
-            out[:, k] = (np.asarray(ctx.station).astype(str) == str(f["name"])).astype(float)
-        elif kind == "const" or (kind == "field" and "tau" not in f):
+            out[:, k] = (np.asarray(ctx.station).astype(str) == str(f.name)).astype(float)
+        elif isinstance(f, Const) or (isinstance(f, Field) and f.tau is None):
             out[:, k] = 1.0  # a field atom's values depend on the point, not the row (twin.diagnosis.field)
-        elif kind == "field":
+        elif isinstance(f, Field):
             # a field that grows with a settling transient (an instrument warming up after switch-on)
-            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - f["t0"], 0.0, None) / f["tau"])
+            out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - f.t0, 0.0, None) / f.tau)
         else:
-            raise ValueError(f"unknown feature kind {kind!r} in {f!r}")
+            raise ValueError(f"unknown feature kind {getattr(f, 'kind', None)!r} in {f!r}")
     if not np.all(np.isfinite(out)):
         bad = np.unique(np.nonzero(~np.isfinite(out))[0])[:10]
         raise ValueError(f"effect features are not finite in rows {bad.tolist()} (check t_s / temp_c)")
@@ -586,7 +597,7 @@ def play_backlash(j: int, h: float) -> Atom:
     """Joint ``j``'s backlash as a play operator with half clearance ``h`` [rad] (moves shorter than the
     clearance do not switch the side): it competes with the sign backlash (:func:`twin.diagnosis.select.prefer_play`)."""
     hd = np.rad2deg(h)
-    return Atom("backlash", "joint", f"theta{j}", ({"kind": "play", "j": j, "h": float(h)},), f"play j{j} half {hd:.3g} deg",
+    return Atom("backlash", "joint", f"theta{j}", (Play(j=j, h=float(h)),), f"play j{j} half {hd:.3g} deg",
                 f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",
                 "catalogue", (j,))
 
@@ -600,8 +611,8 @@ def hinge_atom(j: int, at: float, side: int, p: int, h: float, *, prismatic: boo
     rel = f"q{j} - {ad:.4g} {unit}" if side > 0 else f"{ad:.4g} {unit} - q{j}"
     ch = f"max(0, {rel})" + ("" if p == 1 else f"^{p}")
     what = "position varies with {} (a pull past a position)" if prismatic else "angle varies with {} (a pull past an angle)"
-    return Atom("unnamed", "joint", f"theta{j}", ({"kind": "hinge", "ch": f"q{j}", "at": float(at), "side": int(side),
-                                                  "p": int(p), "h": float(h)},), ch,
+    return Atom("unnamed", "joint", f"theta{j}", (Hinge(ch=f"q{j}", at=float(at), side=int(side),
+                                                  p=int(p), h=float(h)),), ch,
                 f"unnamed: joint {words or j} {what.format(ch)}", "generic", (j,))
 
 
@@ -646,9 +657,9 @@ def _time_channel(ctx: RowContext) -> str | None:
     return None
 
 
-def _time_features(ctx: RowContext, ch: str) -> list[dict]:
+def _time_features(ctx: RowContext, ch: str) -> list[Feature]:
     c, h = _norm(_channel(ctx, ch))
-    return [{"kind": "pow", "ch": ch, "p": 1, "c": c, "h": h}]
+    return [Pow(ch=ch, p=1, c=c, h=h)]
 
 
 def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
@@ -684,15 +695,15 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         rk = int(np.sum(sv > 1e-6 * sv[0]))
 
         def shapes(a, b):
-            return tuple({"kind": "gravmix", "i": i, "cols": cols, "w": (Vt[j] * np.array(prior)).tolist(),
-                          "h": float(sv[j] / np.sqrt(len(M)))} for j in range(a, min(b, rk)))
+            return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[j] * np.array(prior)).tolist()),
+                          h=float(sv[j] / np.sqrt(len(M)))) for j in range(a, min(b, rk)))
 
         atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(0, COMPLIANCE_RANK), f"gravity torque of joint {i}",
                           f"joint {jw(i)} compliance under gravity", "catalogue", (i,)))
         for tch, at in _session_starts(ctx):
             # a payload added (or a brake set) at a restart changes the torque from then on
             atoms.append(Atom("compliance", "joint", f"theta{i}",
-                              tuple({"kind": "gated", "f": f, "ch": tch, "at": at} for f in shapes(0, COMPLIANCE_RANK)),
+                              tuple(Gated(f=f, ch=tch, at=at) for f in shapes(0, COMPLIANCE_RANK)),
                               f"gravity torque of joint {i} from {tch} >= {at:.6g}",
                               f"joint {jw(i)} compliance under gravity, changed at the restart ({tch} >= {at:.6g})",
                               "catalogue", (i,)))
@@ -709,7 +720,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             if np.ptp(t) <= 1e-9 * max(1.0, float(np.max(np.abs(t)))):
                 continue  # a constant load (a vertical lift carries the same weight everywhere): the offset holds it
             what = "force along it" if model.joint_kinds[i - 1] == "prismatic" else "torque about it"
-            atoms.append(Atom("compliance", "joint", f"theta{i}", ({"kind": "torque", "j": i, "h": 1.0},),
+            atoms.append(Atom("compliance", "joint", f"theta{i}", (Torque(j=i, h=1.0),),
                               f"gravity load of joint {i} (URDF masses)",
                               f"joint {jw(i)} compliance under gravity (the {what} from the URDF masses)",
                               "catalogue", (i,)))
@@ -717,7 +728,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         # axes of its frame under the gravity moment of everything it carries, one compliance per axis
         for i in range(0, N + 1):
             M = carried_moments(model, ctx.q, i)
-            feats = tuple({"kind": "moment", "j": i, "axis": a, "h": 1.0} for a in (0, 1)
+            feats = tuple(Moment(j=i, axis=a, h=1.0) for a in (0, 1)
                           if np.ptp(M[:, a]) > 1e-9 * max(1.0, float(np.max(np.abs(M[:, a])))))
             if len(feats) < 2:
                 continue
@@ -727,15 +738,15 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                               f"{where} under the gravity moment it carries (URDF masses)", "catalogue",
                               (i,) if i else ()))
     for j in range(1, N + 1):
-        atoms.append(Atom("backlash", "joint", f"theta{j}", ({"kind": "sign", "j": j},), f"approach_sign_j{j}",
+        atoms.append(Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
                           f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
         if revolute[j - 1]:
             for k in harmonic_orders:
                 atoms.append(Atom("cyclic", "joint", f"theta{j}",
-                                  ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
+                                  (Sin(ch=f"q{j}", k=k), Cos(ch=f"q{j}", k=k)),
                                   f"sin/cos({k} q{j})", f"joint {jw(j)}, {_ORD.get(k, f'{k}th')} harmonic", "catalogue", (j,),
                                   {"order": k}))
-        atoms.append(Atom("gear_ratio", "joint", f"theta{j}", ({"kind": "pow", "ch": f"q{j}", "p": 1, "c": 0.0, "h": 1.0},),
+        atoms.append(Atom("gear_ratio", "joint", f"theta{j}", (Pow(ch=f"q{j}", p=1, c=0.0, h=1.0),),
                           f"q{j}", f"joint {jw(j)} gear-ratio error (theta_{j} grows with q{j})" if revolute[j - 1] else
                           f"joint {jw(j)} travel scale error (its offset grows with q{j})", "catalogue", (j,)))
     # cyclic errors of the motor-side stages: k = N h cycles per joint turn (gear ratios of 50-150 are usual): whole
@@ -752,18 +763,18 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             if k in harmonic_orders or k * np.ptp(ctx.q[:, j - 1]) < 1.5 * (2 * np.pi):
                 continue  # a period is evidence only where the rows see it repeat (1.5 periods over the range)
             atoms.append(Atom("cyclic", "joint", f"theta{j}",
-                              ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}),
+                              (Sin(ch=f"q{j}", k=k), Cos(ch=f"q{j}", k=k)),
                               f"sin/cos({k:.4g} q{j})", f"joint {jw(j)}, harmonic of order {k:.4g} (cycles per joint turn)",
                               "scan", (j,), {"order": k}))
     # wrist coupling: the drives of the last two joints pass through the one before (a 6R arm's 5 and 6 through 4,
     # 6's through 5): a coupling-ratio error turns the driven joint with the driving one
     for jd, js in wrist_couplings(model):
-        atoms.append(Atom("coupling", "joint", f"theta{jd}", ({"kind": "pow", "ch": f"q{js}", "p": 1, "c": 0.0, "h": 1.0},),
+        atoms.append(Atom("coupling", "joint", f"theta{jd}", (Pow(ch=f"q{js}", p=1, c=0.0, h=1.0),),
                           f"q{js}", f"wrist coupling (theta{jd} follows q{js})", "catalogue", (js, jd)))
     # thermal growth: each link, and all links together, against temp_c (linear) or a cubic in t_s
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         ref = float(np.median(ctx.temp_c))
-        feats = ({"kind": "pow", "ch": "temp_c", "p": 1, "c": ref, "h": 1.0},)
+        feats = (Pow(ch="temp_c", p=1, c=ref, h=1.0),)
         ch = "temp_c"
     elif _time_channel(ctx):
         feats = tuple(_time_features(ctx, "t_s"))
@@ -780,18 +791,18 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
     if span > 0:
         for tau in (fr * span for fr in TAU_FRACTIONS):
             if ch == "temp_c":
-                f = {"kind": "lag", "ch": "temp_c", "tau": float(tau), "c": ref, "h": 1.0}
+                f = Lag(ch="temp_c", tau=float(tau), c=ref, h=1.0)
                 variants.append(((f,), f"temp_c lagged {tau:.4g} s"))
             else:
-                f = {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}
+                f = Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))
                 variants.append(((f,), f"warm-up 1-exp(-t/{tau:.4g} s)"))
             # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
             # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
-            heat = [{"kind": "heat", "tau": float(tau), "joints": js,
-                     "h": float(max(np.mean(_motion_heat(ctx, float(tau), tuple(js))), 1e-9))}
+            heat = [Heat(tau=float(tau), joints=tuple(js),
+                     h=float(max(np.mean(_motion_heat(ctx, float(tau), tuple(js))), 1e-9)))
                     for js in (list(range(1, N - 2)), list(range(N - 2, N + 1))) if js]
             variants.append(((*heat,
-                              {"kind": "exp", "ch": "t_s", "t0": float(ctx.t_s[0]), "tau": float(tau)}),
+                              Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
                              f"motion heat lagged {tau:.4g} s"))
     for fs, chan in variants:
         atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
@@ -801,7 +812,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                 continue  # a link of nominal length ~0 (a2 of the IRB 1200) has no length to grow
             atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
     for s in range(n_points):
-        atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", ({"kind": "const"},), "constant",
+        atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", (Const(),), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
     # the arm's own load without its masses: backlash signed by the load, the base tilting under the arm's moment
     from .loads import load_atoms
@@ -823,7 +834,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     revolute = [k == "revolute" for k in model.joint_kinds]
     jw = lambda j: joint_words(model, j)  # noqa: E731
     couplings = wrist_couplings(model)
-    feats: list[tuple[str, dict | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
+    feats: list[tuple[str, Feature | tuple, tuple[int, ...]]] = []  # (channel label, feature(s), joints)
     for j in range(1, N + 1):
         c, h = _norm(q[:, j - 1])
         if np.ptp(q[:, j - 1]) < 1e-6:
@@ -832,19 +843,19 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             # a polynomial of degree p (all lower powers with it: a centred power alone cannot follow an
             # offset curve)
             feats.append((f"q{j}^{p}" if p > 1 else f"q{j}",
-                          tuple({"kind": "pow", "ch": f"q{j}", "p": e, "c": c, "h": h} for e in range(1, p + 1)), (j,)))
+                          tuple(Pow(ch=f"q{j}", p=e, c=c, h=h) for e in range(1, p + 1)), (j,)))
         if revolute[j - 1]:
             for k in (1, 2, 3):
-                feats.append((f"sin/cos({k} q{j})", ({"kind": "sin", "ch": f"q{j}", "k": k}, {"kind": "cos", "ch": f"q{j}", "k": k}), (j,)))
-        feats.append((f"approach_sign_j{j}", {"kind": "sign", "j": j}, (j,)))
+                feats.append((f"sin/cos({k} q{j})", (Sin(ch=f"q{j}", k=k), Cos(ch=f"q{j}", k=k)), (j,)))
+        feats.append((f"approach_sign_j{j}", Sign(j=j), (j,)))
         for w_deg in MOVE_WIDTHS_DEG:
             # hysteresis that follows the size of the last move (friction-like), on the joint angles only
             if revolute[j - 1]:
-                feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", {"kind": "lastmove", "j": j, "w": w_deg * _DEG}, (j,)))
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", LastMove(j=j, w=w_deg * _DEG), (j,)))
             else:
-                feats.append((f"tanh(last move j{j} / {w_deg:.3g} mm)", {"kind": "lastmove", "j": j, "w": w_deg * 1e-3}, (j,)))
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} mm)", LastMove(j=j, w=w_deg * 1e-3), (j,)))
         # the step into this row (zero for a repeat): a joint still settling from the move it just made
-        feats.append((f"step into the row j{j}", {"kind": "stepin", "j": j}, (j,)))
+        feats.append((f"step into the row j{j}", StepIn(j=j), (j,)))
     for a in range(1, N + 1):
         for b in range(a + 1, N + 1):
             if np.ptp(q[:, a - 1]) < 1e-6 or np.ptp(q[:, b - 1]) < 1e-6:
@@ -852,12 +863,12 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
             ca, ha = _norm(q[:, a - 1])
             cb, hb = _norm(q[:, b - 1])
             # the product with both linear terms (a centred product alone leaves a linear remainder)
-            feats.append((f"q{a}*q{b}", ({"kind": "pow", "ch": f"q{a}", "p": 1, "c": ca, "h": ha},
-                                         {"kind": "pow", "ch": f"q{b}", "p": 1, "c": cb, "h": hb},
-                                         {"kind": "prod", "ch": [f"q{a}", f"q{b}"], "c": [ca, cb], "h": [ha, hb]}),
+            feats.append((f"q{a}*q{b}", (Pow(ch=f"q{a}", p=1, c=ca, h=ha),
+                                         Pow(ch=f"q{b}", p=1, c=cb, h=hb),
+                                         Prod(ch=(f"q{a}", f"q{b}"), c=(ca, cb), h=(ha, hb))),
                           (a, b)))
     for ax, nm in enumerate("xyz"):
-        feats.append((f"gravity_dir_flange_{nm}", {"kind": "gdir", "axis": ax}, ()))
+        feats.append((f"gravity_dir_flange_{nm}", GravityDir(axis=ax), ()))
     # time: only in t_s (a term in the row count says nothing of the next session); linear, change points,
     # settling transients and (on the cell) oscillations; no higher polynomial in time: it goes where the rows are
     # not (the next rows, later), and a blind campaign's re-seated plate, fitted with t^2, was predicted 13x worse
@@ -867,35 +878,35 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     if tch is not None:
         tv = _channel(ctx, tch)
         c, h = _norm(tv)
-        feats.append((tch, ({"kind": "pow", "ch": tch, "p": 1, "c": c, "h": h},), ()))
+        feats.append((tch, (Pow(ch=tch, p=1, c=c, h=h),), ()))
         for qq in np.linspace(0, 1, n_change_points + 2)[1:-1]:
             at = float(np.quantile(tv, qq))
-            feats.append((f"step({tch} >= {at:.6g})", {"kind": "step", "ch": tch, "at": at}, ()))
+            feats.append((f"step({tch} >= {at:.6g})", Step(ch=tch, at=at), ()))
         span = float(np.ptp(tv))
         for tau in (fr * span for fr in TAU_FRACTIONS):
             # a transient that settles (warm-up of the robot, the camera mount, the cell): extrapolates as it settles
-            feats.append((f"1-exp(-{tch}/{tau:.4g})", {"kind": "exp", "ch": tch, "t0": float(tv[0]), "tau": float(tau)}, ()))
+            feats.append((f"1-exp(-{tch}/{tau:.4g})", Exp(ch=tch, t0=float(tv[0]), tau=float(tau)), ()))
     # a change at a session start (a restart, another day) is a term of the sessions, located by t_s or the row
     starts = _session_starts(ctx)
     sch = tch or "row"
     for _, at in starts:
-        feats.append((f"step({sch} >= {at:.6g}) (restart)", {"kind": "step", "ch": sch, "at": at}, ()))
+        feats.append((f"step({sch} >= {at:.6g}) (restart)", Step(ch=sch, at=at), ()))
     if len(starts) > 1:
         # a change at every restart (a joint re-homed, a plate re-seated each time): one term, a step at each
-        feats.append(("a step at every session start", tuple({"kind": "step", "ch": sch, "at": at} for _, at in starts), ()))
+        feats.append(("a step at every session start", tuple(Step(ch=sch, at=at) for _, at in starts), ()))
     if ctx.temp_c is not None and np.ptp(ctx.temp_c) > 0:
         c, h = _norm(ctx.temp_c)
         for p in (1, 2):
             feats.append(("temp_c" if p == 1 else "temp_c^2",
-                          tuple({"kind": "pow", "ch": "temp_c", "p": e, "c": c, "h": h} for e in range(1, p + 1)), ()))
+                          tuple(Pow(ch="temp_c", p=e, c=c, h=h) for e in range(1, p + 1)), ()))
         if tch == "t_s":
             for tau in (fr * span for fr in TAU_FRACTIONS):
-                feats.append((f"temp_c lagged {tau:.4g} s", {"kind": "lag", "ch": "temp_c", "tau": float(tau), "c": c, "h": h}, ()))
+                feats.append((f"temp_c lagged {tau:.4g} s", Lag(ch="temp_c", tau=float(tau), c=c, h=h), ()))
     if ctx.station is not None:
         names = sorted(set(np.asarray(ctx.station).astype(str).tolist()))
         if len(names) > 1:
             for s in names:
-                feats.append((f"station=={s}", {"kind": "station", "name": s}, ()))
+                feats.append((f"station=={s}", Station(name=s), ()))
 
     # an oscillation in time (the air conditioning's cycle swaying a stand, warming a mount): on the cell's
     # places only (the measurement frame and scale), the period refined when kept
@@ -903,8 +914,8 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     if span > 0:
         for cyc in TIME_CYCLES:
             k = 2 * np.pi * cyc / span
-            cell_feats.append((f"sin/cos(2pi {tch}/{span / cyc:.4g})", ({"kind": "sin", "ch": tch, "k": float(k)},
-                                                                        {"kind": "cos", "ch": tch, "k": float(k)}), ()))
+            cell_feats.append((f"sin/cos(2pi {tch}/{span / cyc:.4g})", (Sin(ch=tch, k=float(k)),
+                                                                        Cos(ch=tch, k=float(k))), ()))
     places: list[tuple[str, str, str, tuple[int, ...]]] = [
         ("joint", f"theta{j}", f"joint {jw(j)} " + ("angle" if revolute[j - 1] else "position"), (j,))
         for j in range(1, N + 1)]
@@ -916,33 +927,34 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     for place, target, pl_words, pj in places:
         for ch, f, fj in feats:
             fs = f if isinstance(f, tuple) else (f,)
-            if fs[0]["kind"] in ("lastmove", "stepin") and place != "joint":
+            f0 = fs[0]
+            if isinstance(f0, (LastMove, StepIn)) and place != "joint":
                 continue
-            if fs[0]["kind"] == "sign" and not (place == "joint" and (int(target[5:]), fs[0]["j"]) in couplings):
+            if isinstance(f0, Sign) and not (place == "joint" and (int(target[5:]), f0.j) in couplings):
                 # a joint's motion history acts on that joint (the catalogue's backlash) or on a joint its drive
                 # passes through (a wrist coupling), not on another joint's frame or the cell
                 continue
             if (place, target, _fkey(fs)) in cat_keys:
                 continue
-            if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and fs[0]["ch"] == target.replace("theta", "q"):
+            if place == "joint" and len(fs) == 1 and isinstance(f0, Pow) and f0.p == 1 and f0.ch == target.replace("theta", "q"):
                 continue  # = gear_ratio up to the geometry's constant
-            if place == "joint" and fs[0]["kind"] in ("sin", "cos") and fs[0]["ch"] == target.replace("theta", "q"):
+            if place == "joint" and isinstance(f0, (Sin, Cos)) and f0.ch == target.replace("theta", "q"):
                 continue  # = cyclic
-            if place == "joint" and fs[0]["kind"] == "sign" and fs[0]["j"] == int(target[5:]):
+            if place == "joint" and isinstance(f0, Sign) and f0.j == int(target[5:]):
                 continue  # = backlash
-            if place == "joint" and len(fs) == 1 and fs[0]["kind"] == "pow" and fs[0]["p"] == 1 and \
-                    (int(target[5:]), int(fs[0]["ch"][1:]) if fs[0]["ch"].startswith("q") else 0) in couplings:
+            if place == "joint" and len(fs) == 1 and isinstance(f0, Pow) and f0.p == 1 and \
+                    (int(target[5:]), int(f0.ch[1:]) if f0.ch.startswith("q") else 0) in couplings:
                 continue  # = coupling
-            if place == "param" and target in length_names and fs[0].get("ch") in ("temp_c", "t_s") and fs[0]["kind"] == "pow" \
-                    and len(fs) <= (1 if fs[0]["ch"] == "temp_c" else 3):
+            if place == "param" and target in length_names and getattr(f0, "ch", None) in ("temp_c", "t_s") and isinstance(f0, Pow) \
+                    and len(fs) <= (1 if f0.ch == "temp_c" else 3):
                 continue  # = thermal (absolute instead of relative: the same column)
-            if place == "param" and target in length_names and fs[0]["kind"] in ("lag", "exp"):
+            if place == "param" and target in length_names and isinstance(f0, (Lag, Exp)):
                 continue  # = thermal with a lag or a warm-up (absolute instead of relative)
             joints = tuple(sorted(set(pj) | set(fj)))
             if place == "scale":
                 # the geometry cannot absorb a constant scale (the plate's size pins it), and the features are
                 # centred: the scale atom carries its own constant (s = s0 + s1 f)
-                fs = ({"kind": "const"},) + fs
+                fs = (Const(),) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic", joints))
     # a station's instrument settling after it was set up (a tripod foot sinking, a mount relaxing): a transient
     # from each station's first row, on the measurement frame
@@ -952,10 +964,10 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for tau in (fr * span for fr in TAU_FRACTIONS):
             # one transient per station (each set-up settles its own way, about its own axis)
             cell_feats.append((f"settling since set-up 1-exp(-t/{tau:.4g})",
-                               tuple({"kind": "settle", "tau": float(tau), "t0": t_first, "only": s} for s in t_first), ()))
+                               tuple(Settle(tau=float(tau), t0=tuple(t_first.items()), only=s) for s in t_first), ()))
     for place, target, pl_words in (("param", "base", "base (measurement) frame"), ("scale", "meas_scale", "measurement scale")):
         for ch, fs, _ in cell_feats:
-            fs = (({"kind": "const"},) if place == "scale" else ()) + fs
+            fs = ((Const(),) if place == "scale" else ()) + fs
             atoms.append(Atom("unnamed", place, target, fs, ch, f"unnamed: {pl_words} varies with {ch}", "generic"))
     # a pull that starts past an angle (a cable or dress pack going taut): zero on one side of the angle, a power of
     # the overtravel beyond it, on the joint itself; the angle on the deciles of the joint's range (then refined)
@@ -971,12 +983,12 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
     # the flange stops short of (or beyond) its target along its last move (settling): a displacement in the
     # base frame along the direction of the last Cartesian move
     tcp = [0.0, 0.0, 0.0] if plate_spheres is None else np.mean(np.asarray(plate_spheres, float), axis=0).tolist()
-    atoms.append(Atom("unnamed", "param", "base_along", tuple({"kind": "cartdir", "axis": a, "tcp": tcp} for a in range(3)),
+    atoms.append(Atom("unnamed", "param", "base_along", tuple(CartDir(axis=a, tcp=tuple(tcp)) for a in range(3)),
                       "direction of the last Cartesian move", "unnamed: the flange is displaced along its last Cartesian move",
                       "generic"))
     for sph in range(0 if plate_spheres is None else len(plate_spheres)):
         # a sphere that moves on the plate with the direction of gravity (loose in its seat, a flexing holder)
-        atoms.append(Atom("unnamed", "plate", f"sphere{sph}", tuple({"kind": "gdir", "axis": ax} for ax in range(3)),
+        atoms.append(Atom("unnamed", "plate", f"sphere{sph}", tuple(GravityDir(axis=ax) for ax in range(3)),
                           "gravity_dir_flange", f"unnamed: sphere {sph} moves on the plate with the gravity direction",
                           "generic"))
     if points is not None:
@@ -1001,7 +1013,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
                     if ch not in ("scale vs depth", "range error vs range", "range error vs range^2"):
                         continue
                     for tau in (fr * span for fr in TAU_FRACTIONS):
-                        ft = tuple(dict(f, t0=float(ctx.t_s[0]), tau=float(tau)) for f in fs)
+                        ft = tuple(replace(f, t0=float(ctx.t_s[0]), tau=float(tau)) for f in fs)
                         if ch == "range error vs range^2":
                             # a stereo bar bending as it warms: the convergence error was already growing when
                             # the first row was measured (switched on earlier), so the field's constant part
@@ -1014,5 +1026,5 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
 
 
 def _fkey(features) -> str:
-    return repr([(f.get("kind"), f.get("ch"), f.get("k"), f.get("p"), f.get("j"), f.get("axis"), f.get("tau"))
-                 for f in features])
+    return repr([(f.kind, getattr(f, "ch", None), getattr(f, "k", None), getattr(f, "p", None), getattr(f, "j", None),
+                  getattr(f, "axis", None), getattr(f, "tau", None)) for f in features])

@@ -35,6 +35,7 @@ import numpy as np
 from ..runtime import thread_map
 from .atoms import Atom, joint_words
 from .candidates import RowContext
+from .features import Const, Gated, Step, Window, feature_from_dict
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "row_times"]
@@ -121,9 +122,9 @@ def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
         chan = f"change({at:.6g} <= {ch} < {until:.6g})"
         when = f"from {ch} {at:.6g} until {until:.6g}"
     if pl.inner is None:
-        feats = (dict({"kind": "step" if until is None else "window"}, **gate),)
+        feats = ((Step if until is None else Window)(**gate),)
     else:
-        feats = tuple(dict({"kind": "gated", "f": f}, **gate) for f in pl.inner)
+        feats = tuple(Gated(f=f, **gate) for f in pl.inner)
     return Atom("change", pl.place, pl.target, feats, chan, f"change of the {pl.words} {when}",
                 "change" if until is None else "change_window", pl.joints)
 
@@ -303,7 +304,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
 
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []
-        tmpl = Atom("change", pl.place, pl.target, ({"kind": "const"},), "", "", "change")
+        tmpl = Atom("change", pl.place, pl.target, (Const(),), "", "", "change")
         W, QB, Br = _row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
         c = W.shape[1]
         if pl.inner is None:
@@ -421,8 +422,8 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
     for a in atoms_json:
         if not is_change(a):
             continue
-        f0 = a["features"][0]
-        at, until = float(f0["at"]), f0.get("until")
+        f0 = feature_from_dict(a["features"][0])
+        at, until = float(f0.at), getattr(f0, "until", None)
 
         def first(v):
             later = order[tv[order] >= v]
@@ -440,7 +441,7 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
         v = np.asarray(a["values"], float)
         if a["place"] == "param" and a["target"] in ("tool", "base"):
             d["size"] = {"translation_mm": (v[:3] * 1e3).tolist(), "rotation_deg": np.rad2deg(v[3:]).tolist()}
-        elif a["place"] == "joint" and f0.get("kind") in ("step", "window"):
+        elif a["place"] == "joint" and isinstance(f0, (Step, Window)):
             d["size"] = {"offset_deg": float(np.rad2deg(v[0])), "sd_deg": float(np.rad2deg(a["sd"][0]))}
         else:
             d["size"] = dict(a["size"])

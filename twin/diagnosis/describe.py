@@ -10,6 +10,7 @@ import numpy as np
 from .atoms import Atom, with_records
 from .changes import is_change
 from .extend import ExtendedModel
+from .features import Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
 from .select import Fit, Problem, covariance
 
@@ -52,9 +53,9 @@ def _joint_channels(a: dict) -> set[str]:
     """Joint variables a term's features are functions of (only pow/sin/cos features of joint angles; empty
     when any feature is of another kind: gravity, approach, time)."""
     chans = set()
-    for f in a["features"]:
-        ch = f.get("ch")
-        if f.get("kind") not in ("pow", "sin", "cos") or not (isinstance(ch, str) and ch.startswith("q")):
+    for f in map(feature_from_dict, a["features"]):
+        ch = getattr(f, "ch", None)
+        if not isinstance(f, (Pow, Sin, Cos)) or not (isinstance(ch, str) and ch.startswith("q")):
             return set()
         chans.add(ch)
     return chans
@@ -127,10 +128,10 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         elif a.place == "param" and a.target.startswith("tilt"):
             tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
-            axes = [("xyz"[f["axis"]]) for f in a.features]
+            axes = [("xyz"[f.axis]) for f in a.features]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
                     "compliance_mrad_per_nm": (phi * 1e3).tolist(), "compliance_sd_mrad_per_nm": (sd * 1e3).tolist()}
-            if any("shape" in f for f in a.features):
+            if any(getattr(f, "shape", None) is not None for f in a.features):
                 # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
                 words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
             else:
@@ -190,7 +191,7 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             value, value_sd, vunit = size["rms_mm"], None, "mm RMS (translation)"
         else:
             value, value_sd, vunit = float(np.linalg.norm(phi) * fac), None, unit
-        entry = {**a.spec(), "features": with_records(a.features, prob.ctx), "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
+        entry = {**a.spec(), "features": [f.to_dict() for f in with_records(a.features, prob.ctx)], "pool": a.pool, "values": phi.tolist(), "sd": sd.tolist(), "reduced_dimension": int(t.r),
                  "value": value, "value_sd": value_sd, "value_unit": vunit,
                  "unique_chi2": wald, "unique_share": share, "unique_rms_floor": float(np.sqrt(wald / max(J.shape[0], 1))),
                  "entry_chi2": (entry_chi2 or {}).get(a.key, wald),

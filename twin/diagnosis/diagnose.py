@@ -47,6 +47,7 @@ from .candidates import EFFECT_VOCABULARY, RowContext
 from .changes import change_places, change_pool_sizes, describe_changes, row_times
 from .late import late_change
 from .extend import error_stats, reduced_basis
+from .features import LoadSign
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, raw_columns, refit_with,
                      row_rms, update_gross)
@@ -727,7 +728,7 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         # a backlash by name is the sign of the last move (the load-signed one is searched over directions: an Atom)
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
                if a.family in fams and a.target != "all_lengths" and a.pool == "catalogue"
-               and not any(f.get("kind") == "loadsign" for f in a.features)]
+               and not any(isinstance(f, LoadSign) for f in a.features)]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)

@@ -225,13 +225,13 @@ class ExtendedModel:
             # one rotation axis of the pivot per feature (the moment about that axis, its ``axis``): a diagonal
             # compliance; several features may turn about one axis (shapes of an unknown moment)
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 2)
-            cols = Fr * base[:, [int(f.get("axis", k)) for k, f in enumerate(a.features)]]
-            if not any("shape" in f for f in a.features):
+            cols = Fr * base[:, [int(getattr(f, "axis", k)) for k, f in enumerate(a.features)]]
+            if not any(getattr(f, "shape", None) is not None for f in a.features):
                 return cols
             # a shape of the moment turns the pivot about both axes with one coefficient
             out = np.zeros((len(res.r), a.K))
             for k, f in enumerate(a.features):
-                out[:, int(f["shape"])] += cols[:, k]
+                out[:, int(f.shape)] += cols[:, k]
             return out
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])
@@ -251,7 +251,7 @@ class ExtendedModel:
             obs = self.obs
             K = obs.spheres.shape[1]
             pts = np.where(obs.seen[..., None], obs.spheres, np.array([0.0, 0.0, 1.0]))  # (n, K, 3)
-            n_tool = next((f["n_tool"] for f in a.features if "n_tool" in f), None)
+            n_tool = next((f.n_tool for f in a.features if getattr(f, "n_tool", None) is not None), None)
             nrm = None if n_tool is None else np.repeat(
                 plate_normals(obs.spheres, obs.seen, obs.spheres_tool, n_tool), K, axis=0)
             G = field_values(a.features, pts.reshape(-1, 3), nrm).reshape(obs.n, K, len(a.features), 3)

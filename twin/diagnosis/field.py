@@ -35,7 +35,11 @@ here reads truth: the constants come from the measured points.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+
+from .features import Field
 
 __all__ = ["FIELD_NAMES", "POINT_FIELDS", "field_applicable", "field_constants", "field_values", "field_atom_specs",
            "plate_normals", "station_mask"]
@@ -86,9 +90,9 @@ def plate_normals(spheres: np.ndarray, seen: np.ndarray, spheres_tool: np.ndarra
 
 
 def field_values(features, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
-    """``G_k(p)`` ``(m, K, 3)`` [m per unit phi] of the field ``features`` (dicts ``{"kind": "field", "g": name,
-    ...constants}``) at the points ``(m, 3)`` [m] in the measurement frame; ``normals`` ``(m, 3)``: the plate
-    normal at each point, for the view fields (zero normals give zero)."""
+    """``G_k(p)`` ``(m, K, 3)`` [m per unit phi] of the field ``features`` (:class:`twin.diagnosis.features.Field`:
+    ``g`` the field's name, with its constants) at the points ``(m, 3)`` [m] in the measurement frame; ``normals``
+    ``(m, 3)``: the plate normal at each point, for the view fields (zero normals give zero)."""
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     x, y, z = P[:, 0], P[:, 1], P[:, 2]
     out = np.zeros((len(P), len(features), 3))
@@ -97,9 +101,9 @@ def field_values(features, points: np.ndarray, normals: np.ndarray | None = None
         r = np.linalg.norm(P, axis=1)
         los = P / r[:, None]
     for k, f in enumerate(features):
-        if f.get("kind") != "field":
+        if not isinstance(f, Field):
             raise ValueError(f"not a field feature: {f!r}")
-        g, zc, zh, r2h = f["g"], f["z_c"], f["z_h"], f["rho2_h"]
+        g, zc, zh, r2h = f.g, f.z_c, f.z_h, f.rho2_h
         w = (z - zc) / zh
         rho2 = (u * u + v * v) / r2h
         if g == "radial":
@@ -113,12 +117,12 @@ def field_values(features, points: np.ndarray, normals: np.ndarray | None = None
         elif g == "depth2":
             out[:, k, 2] = zh * w * w
         elif g in ("range0", "range1", "range2"):
-            wr = (r - f["r_c"]) / f["r_h"]
-            out[:, k] = (f["r_h"] * wr ** int(g[-1]))[:, None] * los
+            wr = (r - f.r_c) / f.r_h
+            out[:, k] = (f.r_h * wr ** int(g[-1]))[:, None] * los
         elif g == "range_sq":
-            out[:, k] = (f["r_h"] * (r / f["r_c"]) ** 2)[:, None] * los
+            out[:, k] = (f.r_h * (r / f.r_c) ** 2)[:, None] * los
         elif g in ("range_x", "range_y"):
-            out[:, k] = (f["r_h"] * P[:, "xy".index(g[-1])] / f["r_c"])[:, None] * los
+            out[:, k] = (f.r_h * P[:, "xy".index(g[-1])] / f.r_c)[:, None] * los
         elif g in ("view1", "view2"):
             if normals is None:
                 raise ValueError(f"the field {g!r} needs the plate normal of every point")
@@ -142,18 +146,18 @@ def station_mask(features, station_names: np.ndarray) -> np.ndarray:
     """``(m, K)``: 1 where a field feature applies to the row's station (a feature with ``"station"`` acts on
     that station's rows only: an instrument refocused, or set up anew, at each station), else 0."""
     names = np.asarray(station_names).astype(str)
-    return np.stack([np.ones(len(names)) if "station" not in f else (names == str(f["station"])).astype(float)
+    return np.stack([np.ones(len(names)) if f.station is None else (names == str(f.station)).astype(float)
                      for f in features], axis=1)
 
 
 def field_atom_specs(consts: dict, n_tool: np.ndarray | None = None,
-                     stations: list[str] | None = None) -> list[tuple[str, tuple[dict, ...], str]]:
+                     stations: list[str] | None = None) -> list[tuple[str, tuple[Field, ...], str]]:
     """``(channel, features, words)`` of the field atoms: the physical ones, each small, and the general
     quadratic field (a broad atom). ``n_tool``: the plate normal in the plate frame (for the view fields; none
     without it). ``stations``: with two or more, the small physical fields also once per station (an
     instrument set up anew at each station has its own)."""
     def feats(*names, **extra):
-        return tuple({"kind": "field", "g": n, **consts, **extra} for n in names)
+        return tuple(Field(g=n, **consts, **extra) for n in names)
 
     specs = [
         ("radial distortion", feats("radial"), "radial distortion of the measurement field"),
@@ -165,10 +169,11 @@ def field_atom_specs(consts: dict, n_tool: np.ndarray | None = None,
         ("quadratic field", feats(*[n for n in FIELD_NAMES if n.startswith("quad_")]), "quadratic distortion of the measurement field"),
     ]
     if n_tool is not None:
-        specs.append(("plate tilt to the line of sight", feats("view1", "view2", n_tool=[float(c) for c in n_tool]),
+        specs.append(("plate tilt to the line of sight",
+                      feats("view1", "view2", n_tool=tuple(float(c) for c in n_tool)),
                       "measurement bias following the plate's tilt to the line of sight"))
     if stations is not None and len(stations) > 1:
         for ch, fs, words in [sp for sp in specs if sp[0] != "quadratic field"]:
-            specs.append((f"{ch} per station", tuple(dict(f, station=str(st)) for st in stations for f in fs),
+            specs.append((f"{ch} per station", tuple(replace(f, station=str(st)) for st in stations for f in fs),
                           f"{words}, one per station"))
     return specs

@@ -105,10 +105,11 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     moves the three distances together with the place; :mod:`twin.diagnosis.field`; only in a line-of-sight
     frame) and, per pair, with the row regressors ``rows`` ``(n_full, k)`` (:func:`_row_regressors`). Returns
     the deviations to use, their variance inflation ``1 / (1 - leverage)``, and what was found (or None)."""
+    from .features import Field
     from .field import POINT_FIELDS, field_applicable, field_constants, field_values
 
     infl = [np.ones(len(x)) for x in dev]
-    feats = (tuple({"kind": "field", "g": g, **field_constants(P)} for g in POINT_FIELDS)
+    feats = (tuple(Field(g=g, **field_constants(P)) for g in POINT_FIELDS)
              if field_applicable(P) else ())
     cols, ys = [], []
     nr = rows.shape[1]

@@ -98,10 +98,10 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     t_fit_end = float(t_fit[max(len(t_fit) - side, 0)])
     t_rows = np.sort(tv[prob_all.rows_cal])
     found = [a for a in scan_changes(prob_all, use_all, places, windows=False, alpha=alpha)
-             if float(a.features[0]["at"]) > t_fit_end]
+             if float(a.features[0].at) > t_fit_end]
     if not found:
         return None, "no change after the rows that fit (step scan on every row)"
-    at = float(found[0].features[0]["at"])
+    at = float(found[0].features[0].at)
     later = t_rows[t_rows > at]
     n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
     need = n_locate + rows_to_confirm(z_min)
@@ -112,7 +112,7 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     prob = _prob_before(setup, prob_all, t_cut)
     fit0 = refit_with(prob, use_all, use_all.chosen)
     cands = [a for a in scan_changes(prob, fit0, places, windows=False, alpha=alpha)
-             if float(a.features[0]["at"]) > t_fit_end]
+             if float(a.features[0].at) > t_fit_end]
     if not cands:
         return None, (f"a change after the rows that fit ({found[0].label}) is not found again on the rows before "
                       f"{ch} {t_cut:.6g} alone: not kept")

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..kinematics import RobotModel, link_frames
 from .candidates import GRAVITY, RowContext, gravity_torque_regressor, gravity_torques, has_masses
+from .features import BaseMoment, GravMix, LoadSign, Torque
 
 __all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "base_moment_regressor", "load_atoms", "load_sign_feature",
            "refine_load_sign", "load_alternatives", "tilt_angles"]
@@ -83,8 +84,8 @@ def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> t
         return ()
     _, sv, Vt = np.linalg.svd(M, full_matrices=False)
     rk = min(rank, int(np.sum(sv > 1e-6 * sv[0])))
-    return tuple({"kind": "gravmix", "i": i, "cols": cols, "w": (Vt[k] * np.array(prior)).tolist(),
-                  "h": float(sv[k] / np.sqrt(len(M)))} for k in range(rk))
+    return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[k] * np.array(prior)).tolist()),
+                         h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
 
 
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
@@ -98,9 +99,9 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     from .select import score_atoms
 
     f0 = s.atom.features[0]
-    if f0.get("kind") != "loadsign" or "u" not in f0:
+    if not isinstance(f0, LoadSign) or f0.u is None:
         return s
-    shapes = _torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0["f"]["i"]))
+    shapes = _torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i))
     if len(shapes) < 2:
         return s
     best = [s]
@@ -117,7 +118,7 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
             best[0] = got[0]
         return -got[0].dchi2
 
-    minimize(cost, np.asarray(f0["u"], float), method="Nelder-Mead",
+    minimize(cost, np.asarray(f0.u, float), method="Nelder-Mead",
              options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 80, "initial_simplex": None})
     return best[0]
 
@@ -135,13 +136,12 @@ def _hemisphere(k: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def load_sign_feature(shapes: tuple, u: np.ndarray) -> dict:
+def load_sign_feature(shapes: tuple, u: np.ndarray) -> LoadSign:
     """The sign of the combination ``u`` ``(k,)`` of a joint's torque shapes (``gravmix`` features, each scaled to unit
     RMS) as a ``loadsign`` feature."""
-    w = sum(ui * np.asarray(f["w"], float) / f["h"] for ui, f in zip(u, shapes))
+    w = sum(ui * np.asarray(f.w, float) / f.h for ui, f in zip(u, shapes))
     f0 = shapes[0]
-    return {"kind": "loadsign", "f": {"kind": "gravmix", "i": f0["i"], "cols": f0["cols"], "w": w.tolist(), "h": 1.0},
-            "u": [float(x) for x in u]}
+    return LoadSign(f=GravMix(i=f0.i, cols=f0.cols, w=tuple(w.tolist()), h=1.0), u=tuple(float(x) for x in u))
 
 
 def load_atoms(model: RobotModel, ctx: RowContext) -> list:
@@ -158,7 +158,7 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     cache: dict = {}
     for j in range(1, N + 1):
         if masses:
-            feats = [{"kind": "loadsign", "f": {"kind": "torque", "j": j, "h": 1.0}}]
+            feats = [LoadSign(f=Torque(j=j, h=1.0))]
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
@@ -171,7 +171,7 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
             s = feature_values((f,), ctx, model, cache)[:, 0]
             if min(np.sum(s > 0), np.sum(s < 0)) < 3:
                 continue  # the load keeps one sign: the offset is a constant the geometry holds
-            u = f.get("u")
+            u = f.u
             atoms.append(Atom("backlash", "joint", f"theta{j}", (f,), f"load_sign_j{j}" + ("" if u is None else
                               f" ({', '.join(f'{x:+.3f}' for x in u)})"),
                               f"joint {joint_words(model, j)} backlash (offset signed by its gravity load)",
@@ -187,8 +187,8 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
         if np.any(np.abs(M) > 1e-9):
             _, sv, Vt = np.linalg.svd(M, full_matrices=False)
             rk = int(np.sum(sv > 1e-6 * sv[0]))
-            feats = [{"kind": "basemoment", "axis": a, "shape": k, "w": (Vt[k] * prior).tolist(),
-                      "h": float(sv[k] / np.sqrt(n))} for k in range(min(TILT_RANK, rk)) for a in (0, 1)]
+            feats = [BaseMoment(axis=a, shape=k, w=tuple((Vt[k] * prior).tolist()), h=float(sv[k] / np.sqrt(n)))
+                     for k in range(min(TILT_RANK, rk)) for a in (0, 1)]
         if feats:
             atoms.append(Atom("tilt", "param", "tilt0", tuple(feats), "gravity moment carried by the base (shapes)",
                               "the robot's base tilting about its horizontal axes under the arm's gravity moment "
@@ -201,7 +201,7 @@ def tilt_angles(features, F: np.ndarray, phi: np.ndarray) -> np.ndarray:
     the pivot about its ``axis``), values ``F`` ``(n, K)`` and coefficients ``phi`` ``(K,)``."""
     out = np.zeros((F.shape[0], 2))
     for k, f in enumerate(features):
-        out[:, int(f.get("axis", k))] += F[:, k] * phi[int(f.get("shape", k))]
+        out[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
     return out
 
 
@@ -212,16 +212,16 @@ def _counterparts(a, pool: list) -> list:
     """The terms of the other reading of the same load effect: a backlash signed by the last move <-> signed by the
     load (same joint); a joint's compliance <-> the base tilting under the arm's moment (the shoulder's torque and the
     base's moment follow the same mass moments)."""
-    kinds = {f.get("kind") for f in a.features}
+    kinds = {f.kind for f in a.features}
     if a.family == "backlash":
         want = "loadsign" if kinds <= {"sign", "play"} else "sign"
         return [c for c in pool if c.family == "backlash" and c.target == a.target
-                and {f.get("kind") for f in c.features} == {want}]
+                and {f.kind for f in c.features} == {want}]
     if a.family == "compliance" and a.pool == "catalogue" and kinds == {"gravmix"}:
         return [c for c in pool if c.family == "tilt" and c.target == "tilt0"]
     if a.family == "tilt" and a.target == "tilt0":
         return [c for c in pool if c.family == "compliance" and c.pool == "catalogue"
-                and {f.get("kind") for f in c.features} == {"gravmix"} and c.joints and c.joints[0] <= 3]
+                and {f.kind for f in c.features} == {"gravmix"} and c.joints and c.joints[0] <= 3]
     return []
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
+from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
 from .loads import load_alternatives, refine_load_sign, tilt_angles
 from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, order_candidates,
                      polish_in_fit, prefer_play, psi_init, refine, score_atoms, smooth_confirm, time_only,
@@ -179,7 +180,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.entry_chi2[accepted.atom.key] = accepted.dchi2
         fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
         update_gross(prob, fit)
-        if any(f.get("kind") == "play" for f in accepted.atom.features):
+        if any(isinstance(f, Play) for f in accepted.atom.features):
             # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
             # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
             fit = polish_in_fit(prob, fit, len(chosen) - 1, "h")
@@ -267,7 +268,7 @@ def _implausible(prob: Problem, s) -> str | None:
     a = s.atom
     if a.pool == "generic" or is_change(a):
         return None  # a change of the robot or the cell has no physical bound of a mechanism
-    if any(f.get("kind") in ("torque", "moment", "basemoment") for f in a.features):
+    if any(isinstance(f, (Torque, Moment, BaseMoment)) for f in a.features):
         # a deflection under the load the chain's masses give: its variation over the rows (the constant part is
         # the geometry's), per axis for a tilt
         F = prob.features(a)[prob.rows_cal]
@@ -292,9 +293,9 @@ def _implausible(prob: Problem, s) -> str | None:
 
 def _single_joint_variable(a: Atom) -> str | None:
     """The one joint variable (``"q4"``) a joint atom's features are functions of (pow/sin/cos), else None."""
-    if a.place != "joint" or not {f.get("kind") for f in a.features} <= {"pow", "sin", "cos"}:
+    if a.place != "joint" or not all(isinstance(f, (Pow, Sin, Cos)) for f in a.features):
         return None
-    chans = {f["ch"] for f in a.features}  # pow/sin/cos features name one channel each
+    chans = {f.ch for f in a.features}  # pow/sin/cos features name one channel each
     ch = chans.pop() if len(chans) == 1 else ""
     return ch if ch.startswith("q") else None
 

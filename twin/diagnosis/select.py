@@ -20,6 +20,7 @@ from ..runtime import thread_map
 from .atoms import Atom, feature_values
 from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, reduced_basis
+from .features import Const, Feature, Gated, Pow, Step
 from .floor import NoiseFloor
 
 __all__ = [
@@ -212,7 +213,7 @@ class Problem:
         if got is None:
             from .atoms import _ch
 
-            v = np.asarray(_ch(self.ctx, {"ch": ch}), dtype=float)[self.rows_cal]
+            v = np.asarray(_ch(self.ctx, None, ch), dtype=float)[self.rows_cal]
             order = np.argsort(v, kind="stable")
             got = self._orders[key] = (order, v[order])
         return got
@@ -491,7 +492,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
 
 def _single_step(a: Atom) -> bool:
     """An atom of one feature, a step ``1[ch >= at]`` in a channel."""
-    return len(a.features) == 1 and a.features[0].get("kind") == "step"
+    return len(a.features) == 1 and isinstance(a.features[0], Step)
 
 
 def _tail_sums(X: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -528,11 +529,11 @@ def _step_stats(prob: Problem, steps: list[Atom], w: np.ndarray, Qb: np.ndarray,
     out: list = [None] * len(steps)
     by_ch: dict[str, list[int]] = {}
     for i, a in enumerate(steps):
-        by_ch.setdefault(a.features[0]["ch"], []).append(i)
+        by_ch.setdefault(a.features[0].ch, []).append(i)
     for ch, idx in by_ch.items():
         order, v = prob.channel_order_cal(ch)
         A = np.concatenate([w[order, None], Qb[order], br[order, None]], axis=1)  # (n, p + 2)
-        at = np.array([steps[i].features[0]["at"] for i in idx], dtype=float)
+        at = np.array([steps[i].features[0].at for i in idx], dtype=float)
         for i, s in zip(idx, _tail_sums(A, np.searchsorted(v, at, side="left"))):
             out[i] = (s[:1], s[:1].reshape(1, 1), s[1:-1, None], s[-1:])
     return out
@@ -803,12 +804,12 @@ def _gate(a: Atom) -> tuple[str, float, tuple] | None:
     """``(channel, at, inner features)`` of an atom that acts from a moment on: one step ``1[ch >= at]`` (no inner
     features), or features all gated at the same ``ch >= at`` (a compliance changed at a restart); else None."""
     fs = a.features
-    if len(fs) == 1 and fs[0].get("kind") == "step":
-        return fs[0]["ch"], float(fs[0]["at"]), ()
-    if fs and all(f.get("kind") == "gated" for f in fs):
-        ch, at = fs[0]["ch"], fs[0]["at"]
-        if all(f["ch"] == ch and f["at"] == at for f in fs):
-            return ch, float(at), tuple(f["f"] for f in fs)
+    if len(fs) == 1 and isinstance(fs[0], Step):
+        return fs[0].ch, float(fs[0].at), ()
+    if fs and all(isinstance(f, Gated) for f in fs):
+        ch, at = fs[0].ch, fs[0].at
+        if all(f.ch == ch and f.at == at for f in fs):
+            return ch, float(at), tuple(f.f for f in fs)
     return None
 
 
@@ -967,12 +968,12 @@ def _prefer_nested(order: list[Scored], alpha_select: float = 0.01) -> list[Scor
     if not order:
         return order
     top = order[0]
-    keys = {repr(sorted(f.items())) for f in top.atom.features}
+    keys = {repr(f) for f in top.atom.features}
     best = None
     for s in order[1:]:
         if (s.atom.place, s.atom.target) != (top.atom.place, top.atom.target) or s.logp_adj >= np.log(alpha_select):
             continue
-        sk = {repr(sorted(f.items())) for f in s.atom.features}
+        sk = {repr(f) for f in s.atom.features}
         if sk < keys and (best is None or len(sk) < len(best.atom.features)
                           or (len(sk) == len(best.atom.features) and s.dchi2 > best.dchi2)):
             best = s
@@ -1016,9 +1017,9 @@ def _omp_gain(small: list[Scored], budget: int, pool: int = 60) -> float:
 def time_only(atom: Atom) -> bool:
     """Whether an atom's features are functions of the time channel alone (a drift, a step or a window, a transient,
     an oscillation in ``t_s`` or the row order, on any place)."""
-    kinds = {f.get("kind") for f in atom.features} - {"const"}
+    kinds = {f.kind for f in atom.features} - {"const"}
     return bool(kinds) and kinds <= {"pow", "step", "window", "exp", "sin", "cos"} and all(
-        f.get("ch") in ("t_s", "row") for f in atom.features if f.get("kind") != "const")
+        getattr(f, "ch", None) in ("t_s", "row") for f in atom.features if not isinstance(f, Const))
 
 
 @dataclass(frozen=True)
@@ -1286,10 +1287,10 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
 
     out = []
     for s in scored:
-        if s.atom.family != "backlash" or {f.get("kind") for f in s.atom.features} != {"sign"}:
+        if s.atom.family != "backlash" or {f.kind for f in s.atom.features} != {"sign"}:
             out.append(s)
             continue
-        j = s.atom.features[0]["j"]
+        j = s.atom.features[0].j
         trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
@@ -1310,7 +1311,7 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     evidence within the last grid step (bounded scalar search: a play's clearance must be right to a fraction of
     a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
     come back as they are."""
-    kinds = {f.get("kind") for f in s.atom.features}
+    kinds = {f.kind for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
     if kinds == {"hinge"}:
@@ -1318,8 +1319,8 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
         # an order off the whole cycles per joint turn only where terms are confirmed on another session
         return _refine_order(prob, fit, s, pool_sizes) if prob.cross_session else s
-    timely = all(f.get("ch") in ("t_s", "row") for f in s.atom.features)
-    if any("tau" in f for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
+    timely = all(getattr(f, "ch", None) in ("t_s", "row") for f in s.atom.features)
+    if any(_has(f, "tau") for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
         key = "tau"
     elif "lastmove" in kinds or "play" in kinds:
         key = "w" if "lastmove" in kinds else "h"
@@ -1331,7 +1332,7 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
         return s
     span_max = 4.0 if key != "k" else 1.25  # a period is sharp: zoom within +-25 % of the grid's
     best = s
-    v0 = next(f[key] for f in s.atom.features if key in f)
+    v0 = _constant(s.atom.features, key)
     for span in (span_max, span_max ** 0.25):
         vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
         trial = [_with_constant(best.atom, key, v) for v in vals]
@@ -1339,7 +1340,7 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
-        v0 = next(f[key] for f in best.atom.features if key in f)
+        v0 = _constant(best.atom.features, key)
     return _polish(prob, fit, best, key, span_max ** (0.25 * 0.25), pool_sizes)
 
 
@@ -1352,7 +1353,7 @@ def polish_in_fit(prob: Problem, fit: Fit, k: int, key: str, ratio: float = 1.05
     from scipy.optimize import minimize_scalar
 
     atom, B = fit.chosen[k]
-    v0 = next(f[key] for f in atom.features if key in f)
+    v0 = _constant(atom.features, key)
     x = fit.z[: prob.prep.space.size]
     best = [fit]
 
@@ -1382,7 +1383,7 @@ def _polish(prob: Problem, fit: Fit, s: Scored, key: str, ratio: float, pool_siz
     from scipy.optimize import minimize_scalar
 
     make = make or (lambda atom, v: _with_constant(atom, key, v))
-    v0 = next(f[key] for f in s.atom.features if key in f)
+    v0 = _constant(s.atom.features, key)
     best = [s]
 
     def cost(u: float) -> float:
@@ -1399,9 +1400,9 @@ def _polish(prob: Problem, fit: Fit, s: Scored, key: str, ratio: float, pool_siz
 
 def _with_order(atom: Atom, k: float) -> Atom:
     """A scanned cyclic atom with its order (cycles per joint turn) set to ``k``; channel and label to match."""
-    k0 = atom.features[0]["k"]
-    feats = tuple(dict(f, k=float(k)) for f in atom.features)
-    ch = atom.features[0]["ch"]
+    k0 = atom.features[0].k
+    feats = tuple(replace_atom(f, k=float(k)) for f in atom.features)
+    ch = atom.features[0].ch
     return replace_atom(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
                 label=atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"), meta=dict(atom.meta, order=float(k)))
 
@@ -1411,13 +1412,13 @@ def _refine_order(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     (a stage's ratio need not be a half-integer), zoomed twice, then polished within the last grid step."""
     best = s
     for half in (0.25, 0.06):
-        k0 = best.atom.features[0]["k"]
+        k0 = best.atom.features[0].k
         trial = [_with_order(best.atom, k) for k in k0 + np.linspace(-half, half, 9) if k > 0 and k != k0]
         scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
         top = max(scored, key=lambda t: t.dchi2, default=None)
         if top is not None and top.dchi2 > best.dchi2:
             best = top
-    k0 = best.atom.features[0]["k"]
+    k0 = best.atom.features[0].k
     return _polish(prob, fit, best, "k", 1.0 + 0.015 / k0, pool_sizes, make=_with_order)
 
 
@@ -1443,11 +1444,21 @@ def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int
     return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
 
 
+def _has(f: Feature, key: str) -> bool:
+    """Whether the feature ``f`` has the constant ``key`` (a field of its kind, set)."""
+    return getattr(f, key, None) is not None
+
+
+def _constant(features, key: str):
+    """The constant ``key`` of the first of ``features`` that has it (:func:`_has`)."""
+    return next(getattr(f, key) for f in features if _has(f, key))
+
+
 def _with_constant(atom: Atom, key: str, v: float) -> Atom:
     """``atom`` with the constant ``key`` (``tau`` [s], ``w`` or ``h`` [rad], ``k`` [rad/s]) of its features set to
     ``v``; channel and label renamed to match."""
-    old = next(f[key] for f in atom.features if key in f)
-    feats = tuple(dict(f, **{key: float(v)}) if key in f else f for f in atom.features)
+    old = _constant(atom.features, key)
+    feats = tuple(replace_atom(f, **{key: float(v)}) if _has(f, key) else f for f in atom.features)
     if key == "tau":
         o, n = f"{old:.4g}", f"{v:.4g}"
     elif key == "k":
@@ -1467,17 +1478,17 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     from .atoms import HINGE_POINTS, hinge_atom, joint_words
 
     f0 = s.atom.features[0]
-    j = int(f0["ch"][1:])
+    j = int(f0.ch[1:])
     model = prob.prep.nominal
     prismatic = model.joint_kinds[j - 1] == "prismatic"
     x = prob.ctx.q[:, j - 1]
     grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
-    k = int(np.argmin(np.abs(grid - f0["at"])))
+    k = int(np.argmin(np.abs(grid - f0.at)))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     best = [s]
 
     def cost(at: float) -> float:
-        got = score_atoms(prob, fit, [hinge_atom(j, at, f0["side"], f0["p"], f0["h"], prismatic=prismatic,
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0.side, f0.p, f0.h, prismatic=prismatic,
                                                  words=joint_words(model, j))], pool_sizes, exact_top=1)
         if not got:
             return 0.0
@@ -1493,17 +1504,17 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
 def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
     neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
-    f0 = next(f for f in s.atom.features if f.get("kind") == "step")
-    ch = f0["ch"]
-    values = np.unique(feature_values(({"kind": "pow", "ch": ch, "p": 1, "c": 0.0, "h": 1.0},), prob.ctx,
+    f0 = next(f for f in s.atom.features if isinstance(f, Step))
+    ch = f0.ch
+    values = np.unique(feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx,
                                       prob.prep.nominal)[:, 0])
     grid = np.quantile(values, np.linspace(0, 1, 11))
-    k = int(np.argmin(np.abs(grid - f0["at"])))
+    k = int(np.argmin(np.abs(grid - f0.at)))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    cands = [v for v in values if lo < v < hi and v != f0["at"]]
+    cands = [v for v in values if lo < v < hi and v != f0.at]
     trial = []
     for v in cands:
-        feats = tuple(dict(f, at=float(v)) if f.get("kind") == "step" else f for f in s.atom.features)
+        feats = tuple(replace_atom(f, at=float(v)) if isinstance(f, Step) else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
         trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []

@@ -1,0 +1,161 @@
+"""Tests of twin.diagnosis.features: the typed features of the atoms and the dicts diagnosis.json and
+calibration.json store them as."""
+
+import json
+
+import numpy as np
+import pytest
+
+from twin.diagnosis.atoms import Atom, feature_values, with_records
+from twin.diagnosis.candidates import RowContext
+from twin.diagnosis.features import (FEATURE_KINDS, BaseMoment, CartDir, Const, Cos, Exp, Feature, Field, Gated, Grav,
+                                     GravityDir, GravMix, Heat, HeatRecord, Hinge, Lag, LagRecord, LastMove, LoadSign,
+                                     Moment, Play, Pow, Prod, Settle, Sign, Sin, Station, Step, StepIn, Torque, Window,
+                                     feature_from_dict)
+from twin.robots import irb1200
+
+_FIELD = {"z_c": 1.2, "z_h": 0.3, "r_c": 1.25, "r_h": 0.31, "rho2_h": 0.04}
+
+
+def _one_of_each() -> list[Feature]:
+    """One feature of every kind, the optional fields set on some."""
+    gm = GravMix(i=2, cols=((2, 0), (2, 1), (3, 0)), w=(0.5, -0.25, 0.125), h=3.0)
+    return [
+        Pow(ch="q3", p=2, c=0.1, h=1.5),
+        Sin(ch="q2", k=3),
+        Cos(ch="t_s", k=0.0125, t_span=(0.0, 500.0)),
+        Prod(ch=("q1", "q2"), c=(0.1, -0.2), h=(1.0, 2.0)),
+        Sign(j=4),
+        Grav(i=2, k=3, c=1),
+        LastMove(j=1, w=0.1),
+        gm,
+        Torque(j=2, h=1.0),
+        Moment(j=0, axis=1, h=1.0),
+        BaseMoment(axis=0, shape=1, w=(0.25, 0.5), h=2.0),
+        GravityDir(axis=2),
+        Step(ch="row", at=12.0, record_pose_id=(3, 1, 2)),
+        Window(ch="t_s", at=100.0, until=200.0),
+        LoadSign(f=gm, u=(0.6, 0.8)),
+        LoadSign(f=Torque(j=3, h=1.0)),
+        Hinge(ch="q2", at=0.3, side=-1, p=2, h=0.7),
+        StepIn(j=5),
+        Heat(tau=120.0, joints=(1, 2, 3), h=0.5, record=HeatRecord(t_s=(0.0, 1.0), q=((0.0,) * 6, (0.1,) * 6),
+                                                                   reset=(False, True))),
+        Settle(tau=60.0, t0=(("A", 0.0), ("B", 30.0)), only="B", t_span=(0.0, 90.0)),
+        Gated(f=gm, ch="t_s", at=50.0, until=80.0),
+        Play(j=2, h=0.001),
+        CartDir(axis=1, tcp=(0.0, 0.0, 0.05)),
+        Exp(ch="t_s", t0=0.0, tau=30.0),
+        Lag(ch="temp_c", tau=300.0, c=21.0, h=1.0, record=LagRecord(t_s=(0.0, 10.0), x=(20.5, 21.5))),
+        Station(name="B"),
+        Const(),
+        Field(g="view1", **_FIELD, n_tool=(0.0, 0.0, 1.0)),
+        Field(g="depth_scale", **_FIELD, station="A", t0=0.0, tau=45.0, t_span=(0.0, 90.0)),
+    ]
+
+
+def test_every_kind_reads_back_from_its_dict():
+    """Every kind's dict, also through JSON, reads back as the same feature (and hashes), and the examples cover
+    every kind there is."""
+    feats = _one_of_each()
+    assert {f.kind for f in feats} == set(FEATURE_KINDS)
+    for f in feats:
+        d = f.to_dict()
+        assert d["kind"] == f.kind
+        assert feature_from_dict(d) == f, f
+        assert feature_from_dict(json.loads(json.dumps(d))) == f, f
+        assert hash(feature_from_dict(d)) == hash(f)
+
+
+def test_dicts_keep_the_keys_in_their_order():
+    """``to_dict`` gives the dicts the diagnosis has always written: the same keys in the same order, lists where
+    they had lists, an optional key only when set."""
+    gm = GravMix(i=2, cols=((2, 0), (2, 1)), w=(0.5, -0.25), h=3.0)
+    want = [
+        (Pow(ch="q3", p=2, c=0.1, h=1.5), {"kind": "pow", "ch": "q3", "p": 2, "c": 0.1, "h": 1.5}),
+        (Prod(ch=("q1", "q2"), c=(0.1, -0.2), h=(1.0, 2.0)),
+         {"kind": "prod", "ch": ["q1", "q2"], "c": [0.1, -0.2], "h": [1.0, 2.0]}),
+        (gm, {"kind": "gravmix", "i": 2, "cols": [[2, 0], [2, 1]], "w": [0.5, -0.25], "h": 3.0}),
+        (LoadSign(f=gm, u=(0.6, 0.8)),
+         {"kind": "loadsign", "f": {"kind": "gravmix", "i": 2, "cols": [[2, 0], [2, 1]], "w": [0.5, -0.25], "h": 3.0},
+          "u": [0.6, 0.8]}),
+        (LoadSign(f=Torque(j=3, h=1.0)), {"kind": "loadsign", "f": {"kind": "torque", "j": 3, "h": 1.0}}),
+        (Heat(tau=120.0, joints=(1, 2, 3), h=0.5), {"kind": "heat", "tau": 120.0, "joints": [1, 2, 3], "h": 0.5}),
+        (Settle(tau=60.0, t0=(("A", 0.0), ("B", 30.0)), only="B"),
+         {"kind": "settle", "tau": 60.0, "t0": {"A": 0.0, "B": 30.0}, "only": "B"}),
+        (Gated(f=Torque(j=2, h=1.0), ch="t_s", at=50.0, until=80.0),
+         {"kind": "gated", "f": {"kind": "torque", "j": 2, "h": 1.0}, "ch": "t_s", "at": 50.0, "until": 80.0}),
+        (Window(ch="row", at=3.0, until=9.0), {"kind": "window", "ch": "row", "at": 3.0, "until": 9.0}),
+        (CartDir(axis=0, tcp=(0.0, 0.0, 0.05)), {"kind": "cartdir", "axis": 0, "tcp": [0.0, 0.0, 0.05]}),
+        (Field(g="view2", **_FIELD, n_tool=(0.0, 0.0, 1.0), station="A"),
+         {"kind": "field", "g": "view2", **_FIELD, "n_tool": [0.0, 0.0, 1.0], "station": "A"}),
+        (Const(), {"kind": "const"}),
+    ]
+    for f, d in want:
+        assert list(f.to_dict().items()) == list(d.items()), f
+
+
+def test_records_are_written_as_before():
+    """The records a lag, the motion heat, a term in the row order and a term of time carry
+    (:func:`twin.diagnosis.atoms.with_records`) are written with the keys, order and values they always had."""
+    t = np.array([0.0, 10.0, 25.0])
+    q = np.arange(18, dtype=float).reshape(3, 6) * 0.01
+    ctx = RowContext(q=q, t_s=t, temp_c=np.array([20.0, 20.5, 21.0]), pose_id=np.array([7, 8, 9]),
+                     history_reset=np.array([False, True, False]))
+    got = [f.to_dict() for f in with_records((Lag(ch="temp_c", tau=30.0, c=20.5, h=1.0),
+                                              Heat(tau=40.0, joints=(1, 2), h=0.5),
+                                              Step(ch="row", at=1.0),
+                                              Gated(f=Pow(ch="t_s", p=1, c=12.5, h=12.5), ch="t_s", at=10.0)), ctx)]
+    assert [list(d.items()) for d in got] == [list(d.items()) for d in [
+        {"kind": "lag", "ch": "temp_c", "tau": 30.0, "c": 20.5, "h": 1.0,
+         "record": {"t_s": [0.0, 10.0, 25.0], "x": [20.0, 20.5, 21.0]}},
+        {"kind": "heat", "tau": 40.0, "joints": [1, 2], "h": 0.5,
+         "record": {"t_s": [0.0, 10.0, 25.0], "q": q.tolist(), "reset": [False, True, False]}},
+        {"kind": "step", "ch": "row", "at": 1.0, "record_pose_id": [7, 8, 9]},
+        {"kind": "gated", "f": {"kind": "pow", "ch": "t_s", "p": 1, "c": 12.5, "h": 12.5, "t_span": [0.0, 25.0]},
+         "ch": "t_s", "at": 10.0, "t_span": [0.0, 25.0]},
+    ]]
+    for d in got:
+        assert feature_from_dict(d).to_dict() == d
+
+
+def test_features_read_back_give_the_same_values():
+    """A feature read back from its dict (with its records) gives the same values on the rows, to the bit."""
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-1, 1, (12, 6))
+    ctx = RowContext(q=q, t_s=np.linspace(0, 100, 12), temp_c=np.linspace(20, 22, 12), station=np.array(["A", "B"] * 6))
+    # every kind of the rows but the loads from mass properties (the 6R robots have none) and the point fields
+    plain = [f for f in _one_of_each() if not isinstance(f, (Field, Heat, Lag, Settle, Torque, Moment, BaseMoment))
+             and not (isinstance(f, LoadSign) and isinstance(f.f, Torque))
+             and getattr(f, "record_pose_id", None) is None]
+    feats = tuple(with_records(tuple(plain)
+                               + (BaseMoment(axis=1, shape=0, w=tuple(np.linspace(-1, 1, 24).tolist()), h=2.0),
+                                  Lag(ch="temp_c", tau=30.0, c=21.0), Heat(tau=40.0, h=0.5),
+                                  Settle(tau=20.0, t0=(("A", 0.0), ("B", 5.0)))), ctx))
+    back = tuple(feature_from_dict(json.loads(json.dumps(f.to_dict()))) for f in feats)
+    assert back == feats
+    assert np.array_equal(feature_values(back, ctx, irb1200()), feature_values(feats, ctx, irb1200()))
+
+
+def test_an_atom_spec_round_trips():
+    """``Atom.spec`` writes the features' dicts and ``Atom.from_spec`` reads them back as the same features."""
+    a = Atom("compliance", "joint", "theta2", (Gated(f=Torque(j=2, h=1.0), ch="t_s", at=5.0),), "ch", "label",
+             "catalogue", (2,))
+    spec = a.spec()
+    assert spec["features"] == [{"kind": "gated", "f": {"kind": "torque", "j": 2, "h": 1.0}, "ch": "t_s", "at": 5.0}]
+    assert Atom.from_spec(json.loads(json.dumps(spec))).features == a.features
+
+
+def test_an_unknown_kind_or_key_is_refused_with_its_name():
+    """A dict of a kind nobody knows, or with a key its kind does not have or lacking one it needs, is a
+    ``ValueError`` naming the kind (and the key)."""
+    with pytest.raises(ValueError, match="unknown feature kind 'spline'"):
+        feature_from_dict({"kind": "spline", "ch": "q1"})
+    with pytest.raises(ValueError, match="unknown feature kind None"):
+        feature_from_dict({"ch": "q1"})
+    with pytest.raises(ValueError, match="feature kind 'pow' has no 'q'"):
+        feature_from_dict({"kind": "pow", "ch": "q1", "p": 1, "c": 0.0, "h": 1.0, "q": 2})
+    with pytest.raises(ValueError, match="feature kind 'step' is missing 'at'"):
+        feature_from_dict({"kind": "step", "ch": "t_s"})
+    with pytest.raises(ValueError, match="unknown feature kind 'spline'"):
+        Atom.from_spec({"family": "unnamed", "place": "joint", "target": "theta1", "features": [{"kind": "spline"}]})
