@@ -79,3 +79,10 @@ def test_escaped_decode_error_says_what_it_is():
     """A UnicodeDecodeError no reader caught is reported as a file that is not UTF-8 text, not as a codec message."""
     exc = UnicodeDecodeError("utf-8", b"\xff", 0, 1, "invalid start byte")
     assert error_message(exc).startswith("a file given is not UTF-8 text (invalid start byte at byte 0)")
+
+
+def test_a_thread_count_below_one_is_named_before_any_work(tmp_path, capsys):
+    """twin diagnose --threads 0 names the option and its value, and writes nothing."""
+    line = _error(capsys, ["diagnose", str(GOLDEN), "--out", str(tmp_path / "out"), "--threads", "0"])
+    assert line == "twin diagnose: error: --threads must be a positive integer, got 0"
+    assert not (tmp_path / "out").exists()
