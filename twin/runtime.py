@@ -12,6 +12,10 @@ variables itself, before the first ``import numpy`` / ``import mujoco`` of the p
   took 30 s with OpenBLAS threads under load, 5 s single-threaded); BLAS reads them when numpy loads.
 
 A value already set in the environment is kept. Child processes (the campaign's workers) inherit them.
+
+The library starts no thread of its own unless asked: :func:`thread_map` runs independent pieces of numpy work on
+``threads`` threads (one by default, as ``twin.diagnosis.diagnose(threads=1)``); the ``twin diagnose`` command asks
+for :func:`available_cores`.
 """
 
 from __future__ import annotations

@@ -575,7 +575,7 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
     ds_all = replace(setup.dataset, set=np.full(setup.dataset.n, "calibration", dtype=object))
     prep = prepare(ds_all, noise_position=setup.floor.sigma, validation_fraction=0.0)
     prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:],
-                   threads=setup.problem.threads)
+                   threads=setup.problem.threads_asked)
     prob.evidence_scale = setup.problem.evidence_scale
     prob.cross_session = setup.problem.cross_session
     geo = refit_with(prob, base, [])

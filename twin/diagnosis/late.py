@@ -74,7 +74,7 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
     sets = np.where(tv < t_cut, "calibration", "validation").astype(object)
     ds_cut = replace(ds, set=sets)
     prep = prepare(ds_cut, noise_position=setup.floor.sigma, validation_fraction=0.0)
-    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, threads=setup.problem.threads)
+    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, threads=setup.problem.threads_asked)
     prob.evidence_scale = prob_all.evidence_scale
     prob.cross_session = prob_all.cross_session
     return prob

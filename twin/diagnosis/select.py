@@ -145,6 +145,7 @@ class Problem:
         # threads the scoring of independent places uses (twin.runtime.thread_map): below THREADS_MIN_ROWS
         # calibration rows a place's array work is too short to gain from them
         self.threads = threads if self.obs_cal.n >= THREADS_MIN_ROWS else 1
+        self.threads_asked = threads  # what the caller allowed (a problem on more rows may use it)
         self.obs_val = prep.obs.subset(val).with_sigma(floor.sigma)
         self.rows_cal = prep.rows[prep.cal]
         self.rows_val = prep.rows[val]
