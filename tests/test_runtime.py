@@ -70,11 +70,17 @@ def test_console_entry_sets_the_defaults_before_running():
 
 def test_thread_map_keeps_the_order_of_its_items():
     """thread_map on two threads returns fn of each item in the items' order, as the plain loop does."""
+    import time
+
     from twin.runtime import thread_map
 
+    def slow_first(x: int) -> int:  # earlier items finish later: completion order differs from the items' order
+        time.sleep(0.002 * (5 - x % 5))
+        return x * x
+
     items = list(range(40))
-    assert thread_map(lambda x: x * x, items, 2) == [x * x for x in items]
-    assert thread_map(lambda x: x * x, items, 1) == [x * x for x in items]
+    assert thread_map(slow_first, items, 2) == [x * x for x in items]
+    assert thread_map(slow_first, items, 1) == [x * x for x in items]
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])

@@ -125,8 +125,9 @@ class Feature:
 
     @classmethod
     def _read(cls, name: str, v: Any) -> Any:
-        """Field ``name``'s value from the stored ``v`` (lists to tuples; kinds with nested values override)."""
-        return _freeze(v)
+        """Field ``name``'s value from the stored ``v``: a nested feature (a dict with a ``kind``) read as one, lists
+        as tuples; kinds with other nested values (records, a table of times) override."""
+        return feature_from_dict(v) if isinstance(v, dict) and "kind" in v else _freeze(v)
 
     @classmethod
     def from_dict(cls, d: dict) -> "Feature":
@@ -332,10 +333,6 @@ class LoadSign(Feature):
     f: Feature
     u: tuple[float, ...] | None = None
 
-    @classmethod
-    def _read(cls, name: str, v: Any) -> Any:
-        return feature_from_dict(v) if name == "f" else _freeze(v)
-
 
 # ------------------------------------------------------------------------------------------------
 # Time, temperature, station
@@ -376,10 +373,6 @@ class Gated(Feature):
     until: float | None = None
     record_pose_id: tuple[int, ...] | None = None
     t_span: tuple[float, float] | None = None
-
-    @classmethod
-    def _read(cls, name: str, v: Any) -> Any:
-        return feature_from_dict(v) if name == "f" else _freeze(v)
 
 
 @dataclass(**_FROZEN)
