@@ -1,0 +1,143 @@
+"""The UR10 study, second part: what of series A's extended model carries over to series B, and why the ratio on B
+stays above 0.8.
+
+Run from the repository root, after ``run.py`` (it reads ``work/``: the imported series and series A's diagnosis)::
+
+    .venv/bin/python studies/ur10_laser_tracker/transfer.py
+
+Writes ``results/transfer.json`` (with its ``provenance``) and ``results/transfer.md``:
+
+1. the registration's share: series A's models to use with B's tracker registered on B's first 50 rows (the new
+   session's figure) and on all of B's rows (an analysis bound: 6 parameters from every row, the same rows scored;
+   no prediction);
+2. term sets with their values fitted on series A's calibration rows alone (``fit_with_effects``, no selection),
+   B's tracker registered on its first 50 rows, scored on B's blocks: series A's terms, the same without its
+   measurement-scale and base-tilt terms, the terms series B's own ``twin diagnose`` keeps (chosen on B's first
+   70 % of rows and confirmed on its next rows: only B's last 90 rows, its report block, are untouched by that
+   choice), and the terms both diagnoses keep.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from twin.runtime import set_process_defaults
+
+set_process_defaults()  # one BLAS thread before numpy loads (twin.runtime)
+
+import numpy as np  # noqa: E402
+
+from twin.benchio import atomic_write_text, provenance  # noqa: E402
+from twin.dataset import read_dataset  # noqa: E402
+from twin.diagnosis import diagnose, write_diagnosis  # noqa: E402
+from twin.diagnosis.apply import block_errors, dataset_predictor, effect_atoms  # noqa: E402
+from twin.diagnosis.diagnose import fit_with_effects  # noqa: E402
+from twin.estimator import Calibration  # noqa: E402
+from twin.estimator.register import register  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+FIRST = 50  # rows of B that register its tracker (the issue's "at most 50")
+
+
+def _rms(e: dict) -> float:
+    return e["position_mm"]["rms"]
+
+
+def _scored(geo: Calibration, ext: Calibration, ds, rows: np.ndarray, blocks: dict, tool: bool = False) -> dict:
+    """Both models with B's tracker (and the probe's frame with ``tool``) registered on ``rows``, on ``blocks``."""
+    pred = dataset_predictor(ds)
+    g = register(geo, ds, rows, tool=tool).calibration
+    e = register(ext, ds, rows, tool=tool, predict=pred if ext.effects else None).calibration
+    return {k: {"n_rows": v["n_rows"], "geometric_rms_mm": _rms(v["geometric"]), "extended_rms_mm": _rms(v["extended"]),
+                "rms_ratio": v["rms_ratio"]} for k, v in block_errors(g, e, ds, blocks).items()}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.parse_args()
+    work = HERE / "work"
+    need = [work / "series_A", work / "series_B", work / "diagnosis_A" / "calibration.json"]
+    missing = [str(p.relative_to(HERE)) for p in need if not p.exists()]
+    if missing:
+        print(f"missing {missing}: run studies/ur10_laser_tracker/run.py first", file=sys.stderr)
+        return 2
+    ds_a, ds_b = read_dataset(work / "series_A"), read_dataset(work / "series_B")
+    n = ds_b.n
+    geo_a = Calibration.load(work / "diagnosis_A" / "calibration_geometric.json")
+    ext_a = Calibration.load(work / "diagnosis_A" / "calibration.json")
+    first, every = np.arange(FIRST), np.arange(n)
+    n_val = int(np.sum(np.asarray(ds_b.set) == "validation"))
+    blocks = {f"B's other {n - FIRST} rows": np.arange(FIRST, n),
+              f"B's last {n_val} rows (its own diagnosis' held-out rows)": np.arange(n - n_val, n)}
+
+    out: dict = {"provenance": provenance(), "registered_on_first_rows": FIRST}
+    out["registration"] = {
+        f"B's first {FIRST} rows (the new session)": _scored(geo_a, ext_a, ds_b, first, {"scored": np.arange(FIRST, n)}),
+        f"B's first {FIRST} rows, probe's frame too": _scored(geo_a, ext_a, ds_b, first, {"scored": np.arange(FIRST, n)},
+                                                            tool=True),
+        "all of B's rows (analysis bound; the same rows scored)": _scored(geo_a, ext_a, ds_b, every, {"scored": every}),
+        "all of B's rows, probe's frame too (analysis bound)": _scored(geo_a, ext_a, ds_b, every, {"scored": every},
+                                                                     tool=True),
+    }
+
+    res_b = diagnose(ds_b)
+    write_diagnosis(res_b, work / "diagnosis_B", plots=False)
+    report_b = np.flatnonzero(np.isin(ds_b.pose_id, res_b.held_out["report_pose_ids"]))
+    if report_b.size:
+        blocks[f"B's report block ({report_b.size} rows, untouched by B's choice of terms)"] = report_b
+    atoms_a = [a for a, _ in effect_atoms(ext_a)]
+    atoms_b = [a for a, _ in effect_atoms(res_b.calibration)] if res_b.calibration.effects else []
+    labels_b = {a.label for a in atoms_b}
+    sets = {
+        "series A's terms": atoms_a,
+        "series A's terms without its measurement-scale and base-tilt terms":
+            [a for a in atoms_a if not (a.family == "tilt" or a.target.startswith("meas_"))],
+        "the terms series B's own diagnosis keeps": atoms_b,
+        "the terms both diagnoses keep": [a for a in atoms_a if a.label in labels_b],
+    }
+    out["term_sets"] = {}
+    for name, atoms in sets.items():
+        if not atoms:
+            out["term_sets"][name] = {"terms": [], "note": "no term"}
+            continue
+        fit = fit_with_effects(ds_a, atoms)
+        out["term_sets"][name] = {
+            "terms": [a.label for a in atoms],
+            "series_A_report_rms_mm": {"geometric": _rms(fit.before), "extended": _rms(fit.after)},
+            "series_B": _scored(fit.calibration_geometric, fit.calibration, ds_b, first, blocks),
+        }
+    (HERE / "results").mkdir(exist_ok=True)
+    atomic_write_text(HERE / "results" / "transfer.json", json.dumps(out, indent=1) + "\n")
+
+    lines = ["# UR10: what of series A's extended model carries over to series B", "",
+             "RMS of the probe's 3-D position error [mm], geometric / extended (ratio).", "",
+             "## The registration's share (series A's models to use)", "",
+             "| B's tracker registered on | rows scored | geometric | extended | ratio |", "|---|---|---|---|---|"]
+    for k, v in out["registration"].items():
+        s = v["scored"]
+        lines.append(f"| {k} | {s['n_rows']} | {s['geometric_rms_mm']:.3f} | {s['extended_rms_mm']:.3f} | "
+                     f"{s['rms_ratio']:.3f} |")
+    names = list(blocks)
+    lines += ["", f"## Term sets fitted on series A's calibration rows alone, B's tracker registered on its first {FIRST} rows",
+              "", "| terms | series A's report block | " + " | ".join(names) + " |",
+              "|---|---|" + "---|" * len(names)]
+    for k, v in out["term_sets"].items():
+        if "series_B" not in v:
+            lines.append(f"| {k} | - |" + " - |" * len(names))
+            continue
+        ra = v["series_A_report_rms_mm"]
+        cells = [f"{v['series_B'][b]['geometric_rms_mm']:.3f} / {v['series_B'][b]['extended_rms_mm']:.3f} "
+                 f"({v['series_B'][b]['rms_ratio']:.3f})" for b in names]
+        lines.append(f"| {k} ({len(v['terms'])}) | {ra['geometric']:.3f} / {ra['extended']:.3f} | " + " | ".join(cells)
+                     + " |")
+    lines += ["", "Terms of series B's own diagnosis: " + "; ".join(out["term_sets"]["the terms series B's own diagnosis keeps"]["terms"])]
+    atomic_write_text(HERE / "results" / "transfer.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
