@@ -14,7 +14,10 @@ Writes ``results/transfer.json`` (with its ``provenance``) and ``results/transfe
    B's tracker registered on its first 50 rows, scored on B's blocks: series A's terms, the same without its
    measurement-scale and base-tilt terms, the terms series B's own ``twin diagnose`` keeps (chosen on B's first
    70 % of rows and confirmed on its next rows: only B's last 90 rows, its report block, are untouched by that
-   choice), and the terms both diagnoses keep.
+   choice), and the terms both diagnoses keep;
+3. series A's terms less one, fitted on A and judged on B as in 2;
+4. each of series A's terms fitted on series A alone and on series B alone (their calibration rows): a periodic
+   error of a joint's drive keeps its amplitude and phase from one session to the next.
 """
 
 from __future__ import annotations
@@ -109,6 +112,32 @@ def main() -> int:
             "series_A_report_rms_mm": {"geometric": _rms(fit.before), "extended": _rms(fit.after)},
             "series_B": _scored(fit.calibration_geometric, fit.calibration, ds_b, first, blocks),
         }
+    # series A's terms less one: what each costs or gains in the next session
+    other = {"B's other rows": np.arange(FIRST, n)}
+    out["series_A_terms_less_one"] = []
+    for k, a in enumerate(atoms_a):
+        fit = fit_with_effects(ds_a, atoms_a[:k] + atoms_a[k + 1:])
+        out["series_A_terms_less_one"].append({
+            "without": a.label, "series_A_report_extended_rms_mm": _rms(fit.after),
+            "series_B_other_rows": _scored(fit.calibration_geometric, fit.calibration, ds_b, first, other)[
+                "B's other rows"]})
+    # each of series A's terms fitted on each series alone: a cyclic term of the robot keeps its amplitude and phase
+    fit_a_on = {"A": fit_with_effects(ds_a, atoms_a), "B": fit_with_effects(ds_b, atoms_a)}
+    values = {k: effect_atoms(f.calibration) for k, f in fit_a_on.items()}
+    out["series_A_terms_per_series"] = []
+    out["whitened_rms_with_series_A_terms"] = {k: float(f.test_after.whitened_rms) for k, f in fit_a_on.items()}
+    for (a, phi_a), (_, phi_b) in zip(values["A"], values["B"]):
+        row = {"term": a.label, "family": a.family}
+        if a.family == "cyclic" and phi_a.size == 2:
+            for k, phi in (("A", phi_a), ("B", phi_b)):
+                size = fit_a_on[k].effect_parameters.get(a.label, {}).get("size", {})
+                row[k] = {"amplitude_deg": float(np.degrees(np.hypot(phi[0], phi[1]))),
+                          "amplitude_sd_deg": size.get("amplitude_sd"),
+                          "phase_deg": float(np.degrees(np.arctan2(phi[1], phi[0])))}
+            row["phase_difference_deg"] = float((row["B"]["phase_deg"] - row["A"]["phase_deg"] + 180.0) % 360.0 - 180.0)
+        else:
+            row["A"], row["B"] = {"values": phi_a.tolist()}, {"values": phi_b.tolist()}
+        out["series_A_terms_per_series"].append(row)
     (HERE / "results").mkdir(exist_ok=True)
     atomic_write_text(HERE / "results" / "transfer.json", json.dumps(out, indent=1) + "\n")
 
@@ -133,6 +162,32 @@ def main() -> int:
                  f"({v['series_B'][b]['rms_ratio']:.3f})" for b in names]
         lines.append(f"| {k} ({len(v['terms'])}) | {ra['geometric']:.3f} / {ra['extended']:.3f} | " + " | ".join(cells)
                      + " |")
+    sds = [r[k]["amplitude_sd_deg"] for r in out["series_A_terms_per_series"] if "phase_difference_deg" in r
+           for k in ("A", "B") if r[k]["amplitude_sd_deg"] is not None]
+    lines += ["", "## Series A's terms fitted on each series alone (its calibration rows; values in SI per unit of the "
+              "term's features)", "",
+              f"Formal standard deviations of the amplitudes {min(sds):.5f}-{max(sds):.5f} deg (from the stated noise; "
+              "the whitened residual RMS with these terms: "
+              + ", ".join(f"{v:.1f} on {k}" for k, v in out["whitened_rms_with_series_A_terms"].items()) + ")."
+              if sds else "", "", "| term | series A | series B | phase difference [deg] |", "|---|---|---|---|"]
+    for r in out["series_A_terms_per_series"]:
+        if "phase_difference_deg" in r:
+            cell = lambda d: f"{d['amplitude_deg']:.4f} deg at {d['phase_deg']:.0f} deg"  # noqa: E731
+            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | {r['phase_difference_deg']:.0f} |")
+        else:
+            cell = lambda d: ", ".join(f"{v:.3g}" for v in d["values"])  # noqa: E731
+            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | - |")
+    full = out["term_sets"]["series A's terms"]
+    lines += ["", f"## Series A's terms less one (fitted on series A's calibration rows; B's tracker registered on its "
+              f"first {FIRST} rows)", "",
+              "| without | series A's report block, extended | B's other rows, extended | ratio to geometric |",
+              "|---|---|---|---|",
+              f"| (none) | {full['series_A_report_rms_mm']['extended']:.3f} | "
+              f"{full['series_B'][names[0]]['extended_rms_mm']:.3f} | {full['series_B'][names[0]]['rms_ratio']:.3f} |"]
+    for r in out["series_A_terms_less_one"]:
+        b = r["series_B_other_rows"]
+        lines.append(f"| {r['without']} | {r['series_A_report_extended_rms_mm']:.3f} | {b['extended_rms_mm']:.3f} | "
+                     f"{b['rms_ratio']:.3f} |")
     lines += ["", "Terms of series B's own diagnosis: " + "; ".join(out["term_sets"]["the terms series B's own diagnosis keeps"]["terms"])]
     atomic_write_text(HERE / "results" / "transfer.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
