@@ -16,8 +16,9 @@ Writes ``results/transfer.json`` (with its ``provenance``) and ``results/transfe
    70 % of rows and confirmed on its next rows: only B's last 90 rows, its report block, are untouched by that
    choice), and the terms both diagnoses keep;
 3. series A's terms less one, fitted on A and judged on B as in 2;
-4. each of series A's terms fitted on series A alone and on series B alone (their calibration rows): a periodic
-   error of a joint's drive keeps its amplitude and phase from one session to the next.
+4. each of series A's terms fitted on series A alone and on series B alone (their calibration rows), and on halves
+   of series A (in time; in q3): a periodic error of a joint's drive keeps its amplitude and phase from one session
+   to the next and within one.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from twin.runtime import set_process_defaults
@@ -121,22 +123,35 @@ def main() -> int:
             "without": a.label, "series_A_report_extended_rms_mm": _rms(fit.after),
             "series_B_other_rows": _scored(fit.calibration_geometric, fit.calibration, ds_b, first, other)[
                 "B's other rows"]})
-    # each of series A's terms fitted on each series alone: a cyclic term of the robot keeps its amplitude and phase
-    fit_a_on = {"A": fit_with_effects(ds_a, atoms_a), "B": fit_with_effects(ds_b, atoms_a)}
+    # each of series A's terms fitted on each series alone (a cyclic term of the robot keeps its amplitude and phase),
+    # and on halves of series A: its first and second half in time, its rows below and above the median of q3
+    q3 = ds_a.q[:, 2]
+    half = np.arange(ds_a.n) < ds_a.n // 2
+    def part(mask):  # a part of series A, its own last 30 % in time held out
+        return fit_with_effects(replace(ds_a.subset(mask), set=None), atoms_a, holdout=0.3)
+
+    fit_a_on = {"A": fit_with_effects(ds_a, atoms_a), "B": fit_with_effects(ds_b, atoms_a),
+                "A, first half in time": part(half), "A, second half in time": part(~half),
+                "A, q3 below its median": part(q3 < np.median(q3)), "A, q3 above its median": part(q3 >= np.median(q3))}
     values = {k: effect_atoms(f.calibration) for k, f in fit_a_on.items()}
     out["series_A_terms_per_series"] = []
-    out["whitened_rms_with_series_A_terms"] = {k: float(f.test_after.whitened_rms) for k, f in fit_a_on.items()}
-    for (a, phi_a), (_, phi_b) in zip(values["A"], values["B"]):
+    out["whitened_rms_with_series_A_terms"] = {k: float(fit_a_on[k].test_after.whitened_rms) for k in ("A", "B")}
+    for i, (a, phi_a) in enumerate(values["A"]):
         row = {"term": a.label, "family": a.family}
         if a.family == "cyclic" and phi_a.size == 2:
-            for k, phi in (("A", phi_a), ("B", phi_b)):
+            for k in values:
+                phi = values[k][i][1]
                 size = fit_a_on[k].effect_parameters.get(a.label, {}).get("size", {})
                 row[k] = {"amplitude_deg": float(np.degrees(np.hypot(phi[0], phi[1]))),
                           "amplitude_sd_deg": size.get("amplitude_sd"),
                           "phase_deg": float(np.degrees(np.arctan2(phi[1], phi[0])))}
-            row["phase_difference_deg"] = float((row["B"]["phase_deg"] - row["A"]["phase_deg"] + 180.0) % 360.0 - 180.0)
+            dphi = lambda k1, k2: float((row[k2]["phase_deg"] - row[k1]["phase_deg"] + 180.0) % 360.0 - 180.0)  # noqa: E731
+            row["phase_difference_deg"] = dphi("A", "B")
+            row["phase_difference_within_A_deg"] = {
+                "time halves": dphi("A, first half in time", "A, second half in time"),
+                "q3 halves": dphi("A, q3 below its median", "A, q3 above its median")}
         else:
-            row["A"], row["B"] = {"values": phi_a.tolist()}, {"values": phi_b.tolist()}
+            row.update({k: {"values": values[k][i][1].tolist()} for k in values})
         out["series_A_terms_per_series"].append(row)
     (HERE / "results").mkdir(exist_ok=True)
     atomic_write_text(HERE / "results" / "transfer.json", json.dumps(out, indent=1) + "\n")
@@ -169,14 +184,17 @@ def main() -> int:
               f"Formal standard deviations of the amplitudes {min(sds):.5f}-{max(sds):.5f} deg (from the stated noise; "
               "the whitened residual RMS with these terms: "
               + ", ".join(f"{v:.1f} on {k}" for k, v in out["whitened_rms_with_series_A_terms"].items()) + ")."
-              if sds else "", "", "| term | series A | series B | phase difference [deg] |", "|---|---|---|---|"]
+              if sds else "", "", "| term | series A | series B | phase difference [deg] | within A: time halves / q3 halves [deg] |",
+              "|---|---|---|---|---|"]
     for r in out["series_A_terms_per_series"]:
         if "phase_difference_deg" in r:
             cell = lambda d: f"{d['amplitude_deg']:.4f} deg at {d['phase_deg']:.0f} deg"  # noqa: E731
-            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | {r['phase_difference_deg']:.0f} |")
+            w = r["phase_difference_within_A_deg"]
+            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | {r['phase_difference_deg']:.0f} | "
+                         f"{w['time halves']:.0f} / {w['q3 halves']:.0f} |")
         else:
             cell = lambda d: ", ".join(f"{v:.3g}" for v in d["values"])  # noqa: E731
-            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | - |")
+            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | - | - |")
     full = out["term_sets"]["series A's terms"]
     lines += ["", f"## Series A's terms less one (fitted on series A's calibration rows; B's tracker registered on its "
               f"first {FIRST} rows)", "",
