@@ -179,18 +179,27 @@ def main() -> int:
                      + " |")
     sds = [r[k]["amplitude_sd_deg"] for r in out["series_A_terms_per_series"] if "phase_difference_deg" in r
            for k in ("A", "B") if r[k]["amplitude_sd_deg"] is not None]
+    scaled = {k: [r[k]["amplitude_sd_deg"] * out["whitened_rms_with_series_A_terms"][k]
+                  for r in out["series_A_terms_per_series"] if "phase_difference_deg" in r
+                  and r[k]["amplitude_sd_deg"] is not None] or [float("nan")] for k in ("A", "B")}
     lines += ["", "## Series A's terms fitted on each series alone (its calibration rows; values in SI per unit of the "
               "term's features)", "",
-              f"Formal standard deviations of the amplitudes {min(sds):.5f}-{max(sds):.5f} deg (from the stated noise; "
-              "the whitened residual RMS with these terms: "
-              + ", ".join(f"{v:.1f} on {k}" for k, v in out["whitened_rms_with_series_A_terms"].items()) + ")."
-              if sds else "", "", "| term | series A | series B | phase difference [deg] | within A: time halves / q3 halves [deg] |",
+              f"Formal standard deviations of the amplitudes {min(sds):.5f}-{max(sds):.5f} deg (from the stated noise); "
+              "scaled by the whitened residual RMS with these terms ("
+              + ", ".join(f"{v:.1f} on {k}" for k, v in out["whitened_rms_with_series_A_terms"].items()) + "): "
+              + ", ".join(f"up to {max(scaled[k]):.4f} deg on {k}" for k in ("A", "B")) + "."
+              if sds else "", "", "| term | series A (amplitude +- its scaled standard deviation) | series B | phase difference [deg] | "
+              "within A: time halves / q3 halves [deg] |",
               "|---|---|---|---|---|"]
     for r in out["series_A_terms_per_series"]:
         if "phase_difference_deg" in r:
-            cell = lambda d: f"{d['amplitude_deg']:.4f} deg at {d['phase_deg']:.0f} deg"  # noqa: E731
+            def cell(k):
+                d, sd = r[k], r[k]["amplitude_sd_deg"]
+                pm = f" +- {sd * out['whitened_rms_with_series_A_terms'][k]:.4f}" if sd is not None else ""
+                return f"{d['amplitude_deg']:.4f}{pm} deg at {d['phase_deg']:.0f} deg"
+
             w = r["phase_difference_within_A_deg"]
-            lines.append(f"| {r['term']} | {cell(r['A'])} | {cell(r['B'])} | {r['phase_difference_deg']:.0f} | "
+            lines.append(f"| {r['term']} | {cell('A')} | {cell('B')} | {r['phase_difference_deg']:.0f} | "
                          f"{w['time halves']:.0f} / {w['q3 halves']:.0f} |")
         else:
             cell = lambda d: ", ".join(f"{v:.3g}" for v in d["values"])  # noqa: E731
