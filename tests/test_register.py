@@ -1,6 +1,7 @@
 """Tests of twin.estimator.register and `twin register`: a calibrated robot's measurement frame (and tool)
 re-identified from a few rows of a new session, the robot model held."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -212,6 +213,107 @@ def test_extended_calibration_without_its_prediction_is_refused(backlash_case):
         register(ext, ds2, known[:10])
     with pytest.raises(ValueError, match="has effects"):
         prediction_errors(ext, ds2, known[:10])
+
+
+# ---- judged on the new session: the extended model only where it predicts the session's rows better ------------
+
+@pytest.fixture(scope="module")
+def judged_case():
+    """A backlash calibrated in one session (the extended model and the geometric one it extends); two new
+    sessions at another base2meas: one where the backlash persists, one where it is gone (the joint repaired)."""
+    from twin.diagnosis import fit_with_effects
+
+    ds, truth = H.make_dataset(seed=21, n=120, effect=H.backlash())
+    fit = fit_with_effects(ds, ["backlash"])
+    true = truth["true"].with_frames(base2meas=B_NEW)
+    rng = np.random.default_rng(11)
+    q = H.configurations(rng, 120, truth["true"])
+    kept, _ = simulate_dataset(true, H.backlash()(q, None), robot_spec="irb1200", nominal=get_robot("irb1200"),
+                               noise_position=H.SIGMA, rng=rng)
+    gone, _ = simulate_dataset(true, q, robot_spec="irb1200", nominal=get_robot("irb1200"), noise_position=H.SIGMA,
+                               rng=rng)
+    return fit.calibration_geometric, fit.calibration, replace(kept, q=q), gone
+
+
+def test_the_extended_model_is_chosen_where_its_effect_persists(judged_case):
+    """In a session where the backlash persists, the extended model predicts the registration rows' blocks better
+    (by more than 3x) and is chosen."""
+    from twin.diagnosis.apply import choose_for_session
+
+    geo, ext, kept, _ = judged_case
+    c = choose_for_session({"geometric": geo, "extended": ext}, kept, np.arange(1, 41))
+    assert c.chosen == "extended"
+    assert c.cv_position_rms_mm["geometric"] > 3 * c.cv_position_rms_mm["extended"]
+    assert len(c.folds) == 5 and sum(f.size for f in c.folds) == 40
+
+
+def test_the_geometric_model_is_chosen_where_the_effect_is_gone(judged_case):
+    """In a session without the backlash, the geometric model predicts the registration rows better and is chosen;
+    on the session's other rows it is indeed the better one."""
+    from twin.diagnosis.apply import choose_for_session, dataset_predictor
+
+    geo, ext, _, gone = judged_case
+    rows = np.arange(1, 41)
+    c = choose_for_session({"geometric": geo, "extended": ext}, gone, rows)
+    assert c.chosen == "geometric"
+    others = np.arange(41, gone.n)
+    e_geo = prediction_errors(c.registered["geometric"], gone, others)["position_mm"]["rms"]
+    e_ext = prediction_errors(c.registered["extended"], gone, others, predict=dataset_predictor(gone))["position_mm"]["rms"]
+    assert e_geo < e_ext
+
+
+@pytest.mark.parametrize("bad,match", [
+    (dict(models={}), "models must be a non-empty dict"),
+    (dict(folds=1), "folds must be an integer >= 2"),
+    (dict(rows=np.arange(3)), "3 row\\(s\\) cannot make 5 folds"),
+])
+def test_a_session_choice_refuses_bad_input_naming_it(judged_case, bad, match):
+    """No models, one fold, or fewer rows than folds: ValueError naming the argument."""
+    from twin.diagnosis.apply import choose_for_session
+
+    geo, ext, kept, _ = judged_case
+    kw = dict(models={"geometric": geo, "extended": ext}, rows=np.arange(1, 41))
+    kw.update(bad)
+    with pytest.raises(ValueError, match=match):
+        choose_for_session(kw.pop("models"), kept, kw.pop("rows"), **kw)
+
+
+def test_command_judges_an_extended_calibration_against_the_geometric_one_beside_it(judged_case, tmp_path, capsys):
+    """`twin register DIAG/calibration.json` judges it against DIAG/calibration_geometric.json on the session's rows:
+    where the effect is gone it writes the geometric model registered (and says so); --no-judge writes the
+    extended one."""
+    from twin.cli import main
+
+    geo, ext, _, gone = judged_case
+    diag = tmp_path / "diag"
+    ext.save(diag / "calibration.json")
+    geo.save(diag / "calibration_geometric.json")
+    write_dataset(tmp_path / "new", gone)
+    assert main(["register", str(diag / "calibration.json"), str(tmp_path / "new"), "--first", "40",
+                 "--out", str(tmp_path / "reg.json")]) == 0
+    out = capsys.readouterr().out
+    assert "the geometric model is used" in out
+    reg = Calibration.load(tmp_path / "reg.json")
+    assert reg.effects == () and reg.details["session_choice"]["chosen"] == "geometric"
+    assert main(["register", str(diag / "calibration.json"), str(tmp_path / "new"), "--first", "40", "--no-judge",
+                 "--out", str(tmp_path / "reg2.json")]) == 0
+    assert "judged" not in capsys.readouterr().out
+    assert Calibration.load(tmp_path / "reg2.json").effects == Calibration.load(diag / "calibration.json").effects
+
+
+def test_command_against_with_too_few_rows_names_the_option(judged_case, tmp_path, capsys):
+    """--against with fewer registration rows than blocks is refused naming --against and the rows; nothing is
+    written."""
+    from twin.cli import main
+
+    geo, ext, _, gone = judged_case
+    ext.save(tmp_path / "ext.json")
+    geo.save(tmp_path / "geo.json")
+    write_dataset(tmp_path / "new", gone)
+    assert main(["register", str(tmp_path / "ext.json"), str(tmp_path / "new"), "--first", "3", "--against",
+                 str(tmp_path / "geo.json"), "--out", str(tmp_path / "reg.json")]) != 0
+    assert re.search(r"--against \S*geo.json: --first 3: rows: 3 row\(s\) cannot make 5 folds", capsys.readouterr().err)
+    assert not (tmp_path / "reg.json").exists()
 
 
 # ---- bad input -------------------------------------------------------------------------------------------------

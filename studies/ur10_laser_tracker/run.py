@@ -77,11 +77,14 @@ def main() -> int:
     lines += ["", "## Series B as a new session of series A's models", "",
               "Each model keeps its robot; the tracker's frame (and the probe's) registered on B's first 50 rows "
               "(`twin register`), B's other rows predicted.", "",
-              "| registration | rows | geometric | extended | extended / geometric (RMS) |", "|---|---|---|---|---|"]
+              "| registration | rows | geometric | extended | extended / geometric (RMS) | model `twin register` takes "
+              "(judged on the 50 rows) |", "|---|---|---|---|---|---|"]
     for k, v in out["new_session"].items():
         e = v["rows"]
+        cv = v.get("cv_position_rms_mm", {})
+        judged = (f"{v['chosen']} ({', '.join(f'{m} {x:.3f}' for m, x in cv.items())} mm)" if "chosen" in v else "-")
         lines.append(f"| base, {k} | {e['n_rows']} | {_fmt(e['geometric'])} | {_fmt(e['extended'])} | "
-                     f"{e['rms_ratio']:.3f} |")
+                     f"{e['rms_ratio']:.3f} | {judged} |")
     (HERE / "results" / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

@@ -1,5 +1,7 @@
-"""``twin register CALIBRATION.json DATASET (--first N | --pose-ids FILE | --set NAME) [--tool] --out NEW.json``: the
-calibrated robot in a new session: its measurement frame (and tool) re-identified from a few rows, the robot held."""
+"""``twin register CALIBRATION.json DATASET (--first N | --pose-ids FILE | --set NAME) [--tool] [--against GEO.json |
+--no-judge] --out NEW.json``: the calibrated robot in a new session: its measurement frame (and tool) re-identified
+from a few rows, the robot held; an extended calibration is used only where it predicts the session's registration
+rows better than the geometric model it extends (judged by blocks of those rows)."""
 
 from __future__ import annotations
 
@@ -23,6 +25,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--session", default=None, help="only rows of this value of the 'session' column")
     p.add_argument("--station", default=None, help="only rows of this station")
     p.add_argument("--tool", action="store_true", help="re-identify tool2flange too (6 more parameters)")
+    j = p.add_mutually_exclusive_group()
+    j.add_argument("--against", default=None, metavar="GEOMETRIC.json",
+                   help="judge the calibration against this one (the model it extends) on the session's registration "
+                        "rows and write the one that predicts them better (default for an extended calibration: the "
+                        "calibration_geometric.json beside it, as twin diagnose writes it)")
+    j.add_argument("--no-judge", action="store_true",
+                   help="register the calibration as given, without judging it against the model it extends")
     p.add_argument("--out", required=True, help="the registered calibration.json to write")
     p.add_argument("--force", action="store_true",
                    help="register even when the dataset's joints or length unit look wrong (noted in the output)")
@@ -112,6 +121,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise ValueError(f"{how}{scope}: {exc}") from None
 
+    cal, args_cal, choice = _judged(args, cal, ds, rows, how, scope)
     predict = None
     if cal.effects:
         # an extended calibration: its effects evaluated from the dataset's rows in measurement order (history
@@ -127,6 +137,12 @@ def run(args) -> int:
         msg = str(exc)
         raise ValueError(f"{how}{scope}: {msg}" if msg.startswith("rows") else msg) from None
     new = reg.calibration
+    if choice is not None:
+        from dataclasses import replace as _replace
+
+        new = _replace(new, details={**new.details, "session_choice": {
+            "chosen": choice.chosen, "calibration": str(args_cal), "cv_position_rms_mm": choice.cv_position_rms_mm,
+            "folds": [int(f.size) for f in choice.folds], "note": choice.note}})
     if notes:
         from dataclasses import replace
 
@@ -138,7 +154,7 @@ def run(args) -> int:
     ids = f"pose_id {pid[0]}..{pid[-1]}" if np.array_equal(pid, np.arange(pid[0], pid[0] + pid.size)) else \
         f"pose_id {', '.join(str(v) for v in pid[:8])}{' ...' if pid.size > 8 else ''}"
     print(f"registered {', '.join(repr(s) for s in reg.stations)} ({'base2meas and tool2flange' if reg.tool else 'base2meas'}) "
-          f"on {rows.size} rows ({how}{scope}: {ids}){sess} of {args.dataset}; robot model of {args.calibration} held")
+          f"on {rows.size} rows ({how}{scope}: {ids}){sess} of {args.dataset}; robot model of {args_cal} held")
     for s in reg.stations:
         v = transform_to_pose6(new.base2meas[s])
         line = (f"  station {s!r} base2meas: x {v[0] * 1e3:.3f} y {v[1] * 1e3:.3f} z {v[2] * 1e3:.3f} mm, rotation vector "
@@ -180,3 +196,43 @@ def run(args) -> int:
               "`twin predict` to predict in a station's frame")
     print(f"wrote {path}")
     return 0
+
+
+def _judged(args, cal, ds, rows, how: str, scope: str):
+    """The calibration to register: the given one, or the model it extends where that predicts the session's
+    registration rows better (:func:`twin.diagnosis.apply.choose_for_session`). Returns ``(calibration, its path,
+    choice or None)``; prints the judgement."""
+    from ..estimator import Calibration
+
+    against = args.against
+    auto = against is None
+    if args.no_judge or (auto and not cal.effects):
+        return cal, args.calibration, None
+    if auto:
+        beside = Path(args.calibration).with_name("calibration_geometric.json")
+        if not beside.is_file() or beside.resolve() == Path(args.calibration).resolve():
+            print(f"note: {args.calibration} has effects and no calibration_geometric.json beside it: not judged "
+                  "against the model it extends (--against GEOMETRIC.json judges it on this session's rows)")
+            return cal, args.calibration, None
+        against = str(beside)
+    other = Calibration.load(against)
+    from ..diagnosis.apply import choose_for_session
+
+    names = ("geometric" if not other.effects else "fallback", "extended" if cal.effects else "given")
+    try:
+        choice = choose_for_session({names[0]: other, names[1]: cal}, ds, rows, tool=args.tool)
+    except ValueError as exc:
+        if not auto:
+            raise ValueError(f"--against {against}: {how}{scope}: {exc}") from None
+        print(f"note: not judged against {against} ({exc}); the given calibration is registered")
+        return cal, args.calibration, None
+    print(f"judged on this session's {rows.size} registration rows ({len(choice.folds)} blocks in measurement order, "
+          "each predicted by the others' registration), position RMS: "
+          + ", ".join(f"{k} ({args.calibration if k == names[1] else against}) {v:.4g} mm"
+                      for k, v in choice.cv_position_rms_mm.items()))
+    if choice.chosen == names[0]:
+        print(f"  the {names[0]} model is used: the {names[1]} one does not predict this session's rows better "
+              "(--no-judge registers it anyway)")
+        return other, against, choice
+    print(f"  the {names[1]} model is used")
+    return cal, args.calibration, choice

@@ -13,7 +13,7 @@ campaign's rows by their pose ids.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -27,7 +27,8 @@ from .features import Station
 from .extend import param_weights
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
-           "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors"]
+           "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
+           "choose_for_session", "SESSION_FOLDS"]
 
 
 def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
@@ -311,13 +312,88 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     """A calibrated robot in a new session (``dataset``: its rows, another day or a moved instrument): each model
     keeps its robot and re-identifies the measurement frame (and the tool with ``tool``) from the session's
     ``first`` rows (:func:`twin.estimator.register.register`), then predicts the others. Returns ``{registered_on,
-    tool, rows: {n_rows, geometric, extended, rms_ratio}}`` on the other rows (:func:`block_errors`)."""
-    from ..estimator.register import register, select_rows
+    tool, rows: {n_rows, geometric, extended, rms_ratio}, chosen, cv_position_rms_mm}``: the errors on the other
+    rows (:func:`block_errors`) and the model :func:`choose_for_session` takes for the session from its ``first``
+    rows (the one ``twin register`` writes)."""
+    from ..estimator.register import select_rows
 
     rows = select_rows(dataset, first=first)
-    predict = dataset_predictor(dataset)
-    geo = register(geometric, dataset, rows, tool=tool).calibration
-    ext = register(extended, dataset, rows, tool=tool, predict=predict if extended.effects else None).calibration
+    choice = choose_for_session({"geometric": geometric, "extended": extended}, dataset, rows, tool=tool)
+    geo, ext = choice.registered["geometric"], choice.registered["extended"]
     others = np.setdiff1d(select_rows(dataset, first=dataset.n), rows)
     return {"registered_on": int(rows.size), "tool": bool(tool),
-            "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"]}
+            "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"],
+            "chosen": choice.chosen, "cv_position_rms_mm": choice.cv_position_rms_mm}
+
+
+SESSION_FOLDS = 5  # contiguous blocks of the registration rows in time, each predicted by the others' registration
+
+
+@dataclass(frozen=True, eq=False)
+class SessionChoice:
+    """Result of :func:`choose_for_session`.
+
+    ``chosen``: the name of the model to use in the session; ``registered``: each model registered on all the rows
+    (name -> :class:`~twin.estimator.Calibration`); ``cv_position_rms_mm``: name -> the RMS of the position error
+    [mm] of every row predicted by the model registered on the other folds (per marker point, or per pose);
+    ``folds``: row indices ``(k_f,)`` of each fold; ``note``: the choice in words.
+    """
+
+    chosen: str
+    registered: dict
+    cv_position_rms_mm: dict
+    folds: tuple
+    note: str
+
+
+def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS) -> SessionChoice:
+    """Which of ``models`` (name -> calibration, the fallback first: a geometric model, then the extended model that
+    extends it) to use in a new session, judged on the session's own registration rows ``rows`` (indices ``(k,)``
+    in measurement order), which none of the models was fitted on.
+
+    Each model's frames are registered (:func:`twin.estimator.register.register`, ``tool`` as there) on the rows
+    less one fold and predict that fold; ``folds`` contiguous blocks of ``rows`` in measurement order, so that every
+    row is predicted once by a registration that did not see it. The score is the RMS of the position error over
+    all predicted rows (3-D per marker point, or per pose): ``sqrt(sum_f n_f rms_f^2 / sum_f n_f)``. A model
+    replaces the first only where its score is lower; on a tie the first is kept. Every model is then registered
+    on all of ``rows`` (``registered``). ``ValueError`` naming the argument when ``models`` is empty or holds
+    something else than calibrations, when ``folds`` < 2 or exceeds the rows, or when a fold's registration is
+    refused (too few rows: the message names the fold)."""
+    from ..estimator.register import prediction_errors, register
+
+    if not isinstance(models, dict) or not models or not all(isinstance(c, Calibration) for c in models.values()):
+        raise ValueError(f"models must be a non-empty dict of name -> twin.estimator.Calibration, got {models!r:.120}")
+    if not (isinstance(folds, (int, np.integer)) and not isinstance(folds, bool) and folds >= 2):
+        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
+    idx = np.asarray(rows)
+    idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(int)
+    if idx.size < folds:
+        raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
+    predict = dataset_predictor(dataset)
+    parts = tuple(np.array_split(idx, folds))
+    scores, registered = {}, {}
+    for name, cal in models.items():
+        pred = predict if cal.effects else None
+        num = den = 0.0
+        for f, test in enumerate(parts):
+            train = np.setdiff1d(idx, test)
+            try:
+                fitted = register(cal, dataset, train, tool=tool, predict=pred).calibration
+            except ValueError as exc:
+                raise ValueError(f"rows: fold {f + 1} of {folds} (registered on {train.size} rows): {exc}") from None
+            e = prediction_errors(fitted, dataset, test, predict=pred)
+            n = e.get("n_spheres", e["n_rows"])
+            num += n * e["position_mm"]["rms"] ** 2
+            den += n
+        scores[name] = float(np.sqrt(num / den))
+        registered[name] = register(cal, dataset, idx, tool=tool, predict=pred).calibration
+    names = list(models)
+    chosen = names[0]
+    for name in names[1:]:
+        if scores[name] < scores[chosen]:
+            chosen = name
+    listed = ", ".join(f"{k} {v:.4g} mm" for k, v in scores.items())
+    note = (f"the {chosen} model is used in this session: each model registered on {folds - 1} of {folds} blocks of the "
+            f"{idx.size} registration rows predicted the other block at (RMS) {listed}; a model replaces the "
+            f"{names[0]} one only where it predicts these rows better")
+    return SessionChoice(chosen=chosen, registered=registered, cv_position_rms_mm=scores, folds=parts, note=note)
