@@ -235,31 +235,92 @@ def judged_case():
     return fit.calibration_geometric, fit.calibration, replace(kept, q=q), gone
 
 
+def _backlash_joints(cal) -> set[int]:
+    return {int(e["target"][5:]) for e in cal.effects if e["family"] == "backlash"}
+
+
 def test_the_extended_model_is_chosen_where_its_effect_persists(judged_case):
-    """In a session where the backlash persists, the extended model predicts the registration rows' blocks better
-    (by more than 3x) and is chosen."""
+    """In a session where the backlash persists, the extended model (pruned or not) predicts the registration
+    rows' blocks better than the geometric one (by more than 3x) and is chosen with the backlash of joints 2, 3
+    and 5, the joints that have it."""
     from twin.diagnosis.apply import choose_for_session
 
     geo, ext, kept, _ = judged_case
     c = choose_for_session({"geometric": geo, "extended": ext}, kept, np.arange(1, 41))
-    assert c.chosen == "extended"
-    assert c.cv_position_rms_mm["geometric"] > 3 * c.cv_position_rms_mm["extended"]
+    assert c.chosen in ("extended", "extended (pruned)")
+    assert {2, 3, 5} <= _backlash_joints(c.candidates[c.chosen])
+    assert c.cv_position_rms_mm["geometric"] > 3 * c.cv_position_rms_mm[c.chosen]
     assert len(c.folds) == 5 and sum(f.size for f in c.folds) == 40
 
 
-def test_the_geometric_model_is_chosen_where_the_effect_is_gone(judged_case):
-    """In a session without the backlash, the geometric model predicts the registration rows better and is chosen;
-    on the session's other rows it is indeed the better one."""
+def test_the_backlash_is_dropped_where_it_is_gone(judged_case):
+    """In a session without the backlash, a model without it (the geometric one, or the extended one pruned of
+    the backlash of joints 2, 3 and 5) predicts the registration rows better and is chosen; on the session's other rows it is indeed
+    better than the extended model."""
     from twin.diagnosis.apply import choose_for_session, dataset_predictor
 
     geo, ext, _, gone = judged_case
     rows = np.arange(1, 41)
     c = choose_for_session({"geometric": geo, "extended": ext}, gone, rows)
-    assert c.chosen == "geometric"
+    assert c.chosen in ("geometric", "extended (pruned)")
+    assert not {2, 3, 5} & _backlash_joints(c.candidates[c.chosen])
     others = np.arange(41, gone.n)
-    e_geo = prediction_errors(c.registered["geometric"], gone, others)["position_mm"]["rms"]
-    e_ext = prediction_errors(c.registered["extended"], gone, others, predict=dataset_predictor(gone))["position_mm"]["rms"]
-    assert e_geo < e_ext
+    pred = dataset_predictor(gone)
+    e_chosen = prediction_errors(c.registered[c.chosen], gone, others, predict=pred)["position_mm"]["rms"]
+    e_ext = prediction_errors(c.registered["extended"], gone, others, predict=pred)["position_mm"]["rms"]
+    assert e_chosen < e_ext
+
+
+@pytest.fixture(scope="module")
+def two_effects_case():
+    """Backlash and gear-ratio errors calibrated in one session (every joint's backlash and gear-ratio term); a new
+    session at another base2meas where the gear ratios persist and the backlash is gone."""
+    from twin.diagnosis import fit_with_effects
+
+    bl, gr = H.backlash(), H.gear_ratio()
+    ds, truth = H.make_dataset(seed=21, n=160, effect=lambda q, m: gr(bl(q, m), m))
+    ext = fit_with_effects(ds, ["backlash", "gear_ratio"]).calibration
+    true = truth["true"].with_frames(base2meas=B_NEW)
+    rng = np.random.default_rng(12)
+    q = H.configurations(rng, 160, truth["true"])
+    ds2, _ = simulate_dataset(true, gr(q, None), robot_spec="irb1200", nominal=get_robot("irb1200"),
+                              noise_position=H.SIGMA, rng=rng)
+    return ext, replace(ds2, q=q)
+
+
+def test_pruning_drops_the_terms_a_session_lacks_and_keeps_those_it_has(two_effects_case):
+    """prune_for_session on 40 rows of the new session drops the backlash of joints 2, 3 and 5 (gone) and keeps
+    their gear-ratio terms (still there); the pruned model predicts the session's other rows at least 3x better
+    than the whole one, and its linearised score falls at every step of the trace."""
+    from twin.diagnosis.apply import dataset_predictor, prune_for_session
+
+    ext, ds2 = two_effects_case
+    rows = np.arange(1, 41)
+    pruned, dropped, trace = prune_for_session(ext, ds2, rows)
+    for j in (2, 3, 5):
+        assert any(lbl.startswith(f"joint {j} backlash") for lbl in dropped), dropped
+        assert any(e["label"].startswith(f"joint {j} gear-ratio") for e in pruned.effects), dropped
+    assert [s for _, s in trace] == sorted((s for _, s in trace), reverse=True) and trace[0][0] is None
+    pred = dataset_predictor(ds2)
+    others = np.arange(41, ds2.n)
+    e = {k: prediction_errors(register(c, ds2, rows, predict=pred).calibration, ds2, others, predict=pred)
+         ["position_mm"]["rms"] for k, c in (("whole", ext), ("pruned", pruned))}
+    assert e["whole"] > 3 * e["pruned"], e
+
+
+def test_pruning_scores_match_the_exact_blocked_registrations(two_effects_case):
+    """Each step of the linearised backward pass scores the model without the terms dropped so far as the exact
+    blocked registrations do (choose_for_session without pruning), within 1 %."""
+    from twin.diagnosis.apply import choose_for_session, prune_for_session
+
+    ext, ds2 = two_effects_case
+    rows = np.arange(1, 41)
+    _, dropped, trace = prune_for_session(ext, ds2, rows)
+    for k, (_, lin) in enumerate(trace):
+        gone = set(dropped[:k])
+        cal = replace(ext, effects=tuple(e for e in ext.effects if e["label"] not in gone))
+        exact = choose_for_session({"model": cal}, ds2, rows, prune=False).cv_position_rms_mm["model"]
+        assert lin == pytest.approx(exact, rel=0.01), (k, dropped[:k])
 
 
 @pytest.mark.parametrize("bad,match", [
@@ -268,20 +329,26 @@ def test_the_geometric_model_is_chosen_where_the_effect_is_gone(judged_case):
     (dict(rows=np.arange(3)), "3 row\\(s\\) cannot make 5 folds"),
 ])
 def test_a_session_choice_refuses_bad_input_naming_it(judged_case, bad, match):
-    """No models, one fold, or fewer rows than folds: ValueError naming the argument."""
-    from twin.diagnosis.apply import choose_for_session
+    """No models, one fold, or fewer rows than folds: ValueError naming the argument (choose_for_session, and
+    prune_for_session for the last two)."""
+    from twin.diagnosis.apply import choose_for_session, prune_for_session
 
     geo, ext, kept, _ = judged_case
     kw = dict(models={"geometric": geo, "extended": ext}, rows=np.arange(1, 41))
     kw.update(bad)
     with pytest.raises(ValueError, match=match):
         choose_for_session(kw.pop("models"), kept, kw.pop("rows"), **kw)
+    if "models" not in bad:
+        kw = dict(rows=np.arange(1, 41))
+        kw.update(bad)
+        with pytest.raises(ValueError, match=match):
+            prune_for_session(ext, kept, kw.pop("rows"), **kw)
 
 
 def test_command_judges_an_extended_calibration_against_the_geometric_one_beside_it(judged_case, tmp_path, capsys):
     """`twin register DIAG/calibration.json` judges it against DIAG/calibration_geometric.json on the session's rows:
-    where the effect is gone it writes the geometric model registered (and says so); --no-judge writes the
-    extended one."""
+    where the effect is gone it writes a model without it registered (and says so); --no-judge writes the extended
+    one."""
     from twin.cli import main
 
     geo, ext, _, gone = judged_case
@@ -292,9 +359,10 @@ def test_command_judges_an_extended_calibration_against_the_geometric_one_beside
     assert main(["register", str(diag / "calibration.json"), str(tmp_path / "new"), "--first", "40",
                  "--out", str(tmp_path / "reg.json")]) == 0
     out = capsys.readouterr().out
-    assert "the geometric model is used" in out
+    assert "model is used" in out and "the extended model is used" not in out
     reg = Calibration.load(tmp_path / "reg.json")
-    assert reg.effects == () and reg.details["session_choice"]["chosen"] == "geometric"
+    assert not {2, 3, 5} & _backlash_joints(reg)
+    assert reg.details["session_choice"]["chosen"] in ("geometric", "extended (pruned)")
     assert main(["register", str(diag / "calibration.json"), str(tmp_path / "new"), "--first", "40", "--no-judge",
                  "--out", str(tmp_path / "reg2.json")]) == 0
     assert "judged" not in capsys.readouterr().out

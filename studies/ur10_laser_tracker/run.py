@@ -11,7 +11,8 @@ writes ``results/results.json`` (with its ``provenance``) and ``results/table.md
    extended model on the report block (the last rows, used for nothing else) and the confirmation block; then
    series B, months later with the tracker placed elsewhere, as a new session: each model keeps its robot, the
    tracker's frame (and, second, the probe's frame) is registered on B's first 50 rows (`twin register`), and the
-   other 1445 rows are predicted;
+   other 1445 rows are predicted, by each model and by the model `twin register` takes for the session (judged on
+   those 50 rows, series A's terms that they do not bear out dropped);
 2. series A and B in one dataset (``ur10_A_to_B.toml``: A fits, B's first 50 rows register its tracker, B's other
    rows confirm the terms and report): the terms must hold on the other session to be kept.
 """
@@ -78,13 +79,18 @@ def main() -> int:
               "Each model keeps its robot; the tracker's frame (and the probe's) registered on B's first 50 rows "
               "(`twin register`), B's other rows predicted.", "",
               "| registration | rows | geometric | extended | extended / geometric (RMS) | model `twin register` takes "
-              "(judged on the 50 rows) |", "|---|---|---|---|---|---|"]
+              "(judged on the 50 rows: RMS [mm] of each block predicted by the others' registration) | that model | "
+              "its RMS / geometric |", "|---|---|---|---|---|---|---|---|"]
     for k, v in out["new_session"].items():
-        e = v["rows"]
-        cv = v.get("cv_position_rms_mm", {})
-        judged = (f"{v['chosen']} ({', '.join(f'{m} {x:.3f}' for m, x in cv.items())} mm)" if "chosen" in v else "-")
+        e, m = v["rows"], v["session_model"]
+        cv = v["cv_position_rms_mm"]
+        judged = f"{v['chosen']} ({', '.join(f'{n} {x:.3f}' for n, x in cv.items())})"
         lines.append(f"| base, {k} | {e['n_rows']} | {_fmt(e['geometric'])} | {_fmt(e['extended'])} | "
-                     f"{e['rms_ratio']:.3f} | {judged} |")
+                     f"{e['rms_ratio']:.3f} | {judged} | {_fmt(m['extended'])} | {m['rms_ratio']:.3f} |")
+    for k, v in out["new_session"].items():
+        if v["dropped"]:
+            lines.append(f"\nTerms `twin register` dropped for session B (base, {k}), in the order dropped: "
+                         + "; ".join(v["dropped"]) + ".")
     (HERE / "results" / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

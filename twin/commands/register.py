@@ -142,7 +142,7 @@ def run(args) -> int:
 
         new = _replace(new, details={**new.details, "session_choice": {
             "chosen": choice.chosen, "calibration": str(args_cal), "cv_position_rms_mm": choice.cv_position_rms_mm,
-            "folds": [int(f.size) for f in choice.folds], "note": choice.note}})
+            "folds": [int(f.size) for f in choice.folds], "dropped": list(choice.dropped), "note": choice.note}})
     if notes:
         from dataclasses import replace
 
@@ -228,11 +228,14 @@ def _judged(args, cal, ds, rows, how: str, scope: str):
         return cal, args.calibration, None
     print(f"judged on this session's {rows.size} registration rows ({len(choice.folds)} blocks in measurement order, "
           "each predicted by the others' registration), position RMS: "
-          + ", ".join(f"{k} ({args.calibration if k == names[1] else against}) {v:.4g} mm"
-                      for k, v in choice.cv_position_rms_mm.items()))
+          + ", ".join(f"{k} {v:.4g} mm" for k, v in choice.cv_position_rms_mm.items())
+          + f" ({names[0]}: {against}; {names[1]}: {args.calibration})")
+    if choice.dropped:
+        print(f"  {names[1]} (pruned): without the {len(choice.dropped)} term(s) these rows do not bear out, in the order "
+              f"dropped: {'; '.join(choice.dropped)}")
     if choice.chosen == names[0]:
         print(f"  the {names[0]} model is used: the {names[1]} one does not predict this session's rows better "
               "(--no-judge registers it anyway)")
         return other, against, choice
-    print(f"  the {names[1]} model is used")
-    return cal, args.calibration, choice
+    print(f"  the {choice.chosen} model is used")
+    return choice.candidates[choice.chosen], args.calibration, choice

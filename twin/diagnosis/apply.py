@@ -28,7 +28,7 @@ from .extend import param_weights
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
            "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
-           "choose_for_session", "SESSION_FOLDS"]
+           "choose_for_session", "prune_for_session", "SESSION_FOLDS"]
 
 
 def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
@@ -312,20 +312,26 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     """A calibrated robot in a new session (``dataset``: its rows, another day or a moved instrument): each model
     keeps its robot and re-identifies the measurement frame (and the tool with ``tool``) from the session's
     ``first`` rows (:func:`twin.estimator.register.register`), then predicts the others. Returns ``{registered_on,
-    tool, rows: {n_rows, geometric, extended, rms_ratio}, chosen, cv_position_rms_mm}``: the errors on the other
-    rows (:func:`block_errors`) and the model :func:`choose_for_session` takes for the session from its ``first``
-    rows (the one ``twin register`` writes)."""
+    tool, rows: {n_rows, geometric, extended, rms_ratio}, chosen, cv_position_rms_mm, dropped, session_model}``:
+    the errors on the other rows (:func:`block_errors`), the model :func:`choose_for_session` takes for the session
+    from its ``first`` rows (the one ``twin register`` writes), the terms it dropped, and that model's errors on the
+    other rows (``session_model``: ``{name, n_rows, geometric, extended, rms_ratio}``, its errors as ``extended``)."""
     from ..estimator.register import select_rows
 
     rows = select_rows(dataset, first=first)
     choice = choose_for_session({"geometric": geometric, "extended": extended}, dataset, rows, tool=tool)
     geo, ext = choice.registered["geometric"], choice.registered["extended"]
     others = np.setdiff1d(select_rows(dataset, first=dataset.n), rows)
+    chosen = choice.registered[choice.chosen]
     return {"registered_on": int(rows.size), "tool": bool(tool),
             "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"],
-            "chosen": choice.chosen, "cv_position_rms_mm": choice.cv_position_rms_mm}
+            "chosen": choice.chosen, "cv_position_rms_mm": choice.cv_position_rms_mm, "dropped": list(choice.dropped),
+            "session_model": {"name": choice.chosen,
+                              **block_errors(geo, chosen, dataset, {"other rows": others})["other rows"]}}
 
 
+_FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the residuals in the registered frames
+_MM = 1e-3
 SESSION_FOLDS = 5  # contiguous blocks of the registration rows in time, each predicted by the others' registration
 
 
@@ -336,7 +342,11 @@ class SessionChoice:
     ``chosen``: the name of the model to use in the session; ``registered``: each model registered on all the rows
     (name -> :class:`~twin.estimator.Calibration`); ``cv_position_rms_mm``: name -> the RMS of the position error
     [mm] of every row predicted by the model registered on the other folds (per marker point, or per pose);
-    ``folds``: row indices ``(k_f,)`` of each fold; ``note``: the choice in words.
+    ``folds``: row indices ``(k_f,)`` of each fold; ``note``: the choice in words; ``dropped``: the labels of the
+    terms the session's rows dropped from the extended model (``prune``), in the order they were dropped;
+    ``trace``: ``(label dropped, linearised score [mm])`` per step of that backward pass, the first entry
+    ``(None, score of the whole model)``; ``candidates``: every model judged, as given (not registered), the
+    pruned one included.
     """
 
     chosen: str
@@ -344,9 +354,13 @@ class SessionChoice:
     cv_position_rms_mm: dict
     folds: tuple
     note: str
+    dropped: tuple = ()
+    trace: tuple = ()
+    candidates: dict | None = None
 
 
-def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS) -> SessionChoice:
+def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS,
+                       prune: bool = True) -> SessionChoice:
     """Which of ``models`` (name -> calibration, the fallback first: a geometric model, then the extended model that
     extends it) to use in a new session, judged on the session's own registration rows ``rows`` (indices ``(k,)``
     in measurement order), which none of the models was fitted on.
@@ -356,7 +370,10 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
     row is predicted once by a registration that did not see it. The score is the RMS of the position error over
     all predicted rows (3-D per marker point, or per pose): ``sqrt(sum_f n_f rms_f^2 / sum_f n_f)``. A model
     replaces the first only where its score is lower; on a tie the first is kept. Every model is then registered
-    on all of ``rows`` (``registered``). ``ValueError`` naming the argument when ``models`` is empty or holds
+    on all of ``rows`` (``registered``). ``prune``: a model with terms (``effects``) is also tried without the terms
+    this session does not bear out (:func:`prune_for_session`: a backward pass over its terms on the same blocks;
+    the others keep their values), as the candidate ``"<name> (pruned)"`` after it, when a term is dropped.
+    ``ValueError`` naming the argument when ``models`` is empty or holds
     something else than calibrations, when ``folds`` < 2 or exceeds the rows, or when a fold's registration is
     refused (too few rows: the message names the fold)."""
     from ..estimator.register import prediction_errors, register
@@ -371,6 +388,16 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
         raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
     predict = dataset_predictor(dataset)
     parts = tuple(np.array_split(idx, folds))
+    dropped, trace = (), ()
+    if prune:
+        grown = {}
+        for name, cal in models.items():
+            grown[name] = cal
+            if cal.effects and not dropped:
+                pruned, dropped, trace = prune_for_session(cal, dataset, idx, tool=tool, folds=folds)
+                if dropped:
+                    grown[f"{name} (pruned)"] = pruned
+        models = grown
     scores, registered = {}, {}
     for name, cal in models.items():
         pred = predict if cal.effects else None
@@ -396,4 +423,86 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
     note = (f"the {chosen} model is used in this session: each model registered on {folds - 1} of {folds} blocks of the "
             f"{idx.size} registration rows predicted the other block at (RMS) {listed}; a model replaces the "
             f"{names[0]} one only where it predicts these rows better")
-    return SessionChoice(chosen=chosen, registered=registered, cv_position_rms_mm=scores, folds=parts, note=note)
+    if dropped:
+        note += f"; the pruned model is the extended one without {len(dropped)} term(s): " + "; ".join(dropped)
+    return SessionChoice(chosen=chosen, registered=registered, cv_position_rms_mm=scores, folds=parts, note=note,
+                         dropped=dropped, trace=trace, candidates=dict(models))
+
+
+def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = False,
+                      folds: int = SESSION_FOLDS) -> tuple[Calibration, tuple, tuple]:
+    """The extended ``calibration`` without the terms a new session's registration rows ``rows`` (indices ``(k,)``,
+    measurement order) do not bear out: a backward pass over its terms scored by blocked cross-validation of the
+    registration, linearised.
+
+    The model with every term is registered on all ``rows`` (:func:`twin.estimator.register.register`): frames
+    ``theta_0``, whitened residuals ``r_0`` (:func:`twin.estimator.register.session_residuals`) and their Jacobian
+    ``J`` in the registered frames (central differences, step 1e-6 m / rad). Dropping term ``t`` (its values set
+    aside, the other terms and the robot kept) changes the residuals by ``d_t = r_{-t}(theta_0) - r_0``; a set
+    ``D`` of dropped terms gives ``r_D = r_0 + sum_{t in D} d_t`` (first order in the frames, exact for one term).
+    Its score: each of the ``folds`` contiguous blocks of ``rows`` in turn, ``delta = argmin |J_o delta + r_D,o|``
+    on the other blocks ``o``, the block's residuals ``r_D,b + J_b delta``; the RMS of the 3-D position error over
+    every predicted point (or pose) [mm]. Backward pass: drop the term whose removal lowers the score most, while
+    one does. Returns ``(calibration without the dropped terms, labels dropped in order, trace)``; ``trace``:
+    ``(label, score [mm])`` per step, the first ``(None, score with every term)``. Nothing is refitted: the
+    session's rows only choose (the values came from the campaign that fitted them). ``ValueError`` naming the
+    argument as in :func:`choose_for_session`."""
+    from ..estimator.register import register, session_residuals
+
+    if not isinstance(calibration, Calibration):
+        raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
+    if not (isinstance(folds, (int, np.integer)) and not isinstance(folds, bool) and folds >= 2):
+        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
+    idx = np.asarray(rows)
+    idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(int)
+    if idx.size < folds:
+        raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
+    eff = list(calibration.effects)
+    if not eff:
+        return calibration, (), ()
+    predict = dataset_predictor(dataset)
+    reg = register(calibration, dataset, idx, tool=tool, predict=predict)
+    cal0 = reg.calibration
+    sp = cal0.space
+    free = [k for s in reg.stations for k in range(sp.base_slice(sp.station_index(s)).start,
+                                                    sp.base_slice(sp.station_index(s)).stop)]
+    if tool:
+        free += list(range(sp.tool_slice.start, sp.tool_slice.stop))
+
+    def resid(c: Calibration) -> np.ndarray:
+        return session_residuals(c, dataset, idx, predict=predict if c.effects else None)[0]
+
+    r0, row, pos, sigma = session_residuals(cal0, dataset, idx, predict=predict)
+    J = np.empty((r0.size, len(free)))
+    for j, k in enumerate(free):
+        e = np.zeros(sp.size)
+        e[k] = _FD_STEP
+        J[:, j] = (resid(replace(cal0, x=cal0.x + e)) - resid(replace(cal0, x=cal0.x - e))) / (2.0 * _FD_STEP)
+    d = [resid(replace(cal0, effects=tuple(eff[:t] + eff[t + 1:]))) - r0 for t in range(len(eff))]
+    blocks = np.array_split(np.arange(idx.size), folds)
+    n_points = pos.sum() / 3.0
+
+    def score(drop: list[int]) -> float:
+        r = r0 + (np.sum([d[t] for t in drop], axis=0) if drop else 0.0)
+        sq = 0.0
+        for b in blocks:
+            test = np.isin(row, b)
+            delta, *_ = np.linalg.lstsq(J[~test], -r[~test], rcond=None)
+            e = r[test] + J[test] @ delta
+            sq += float(np.sum(e[pos[test]] ** 2))
+        return float(np.sqrt(sq / n_points) * sigma / _MM)
+
+    dropped: list[int] = []
+    best = score(dropped)
+    trace = [(None, best)]
+    while len(dropped) < len(eff):
+        trials = [(score(dropped + [t]), t) for t in range(len(eff)) if t not in dropped]
+        s_min, t_min = min(trials)
+        if not s_min < best:
+            break
+        dropped.append(t_min)
+        best = s_min
+        trace.append((str(eff[t_min].get("label", eff[t_min].get("family", t_min))), best))
+    kept = tuple(e for t, e in enumerate(eff) if t not in dropped)
+    labels = tuple(lbl for lbl, _ in trace[1:])
+    return replace(calibration, effects=kept), labels, tuple(trace)

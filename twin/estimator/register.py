@@ -24,7 +24,8 @@ from .identifiability import analyse_jacobian
 from .problem import Observations, ParamSpace, Residuals, absolute_residuals, observations_from_dataset
 from .solvers import TraceEntry, covariance, gauss_newton
 
-__all__ = ["Registration", "register", "select_rows", "prediction_errors", "SESSION_COLUMN", "PredictFn"]
+__all__ = ["Registration", "register", "select_rows", "prediction_errors", "session_residuals", "SESSION_COLUMN",
+           "PredictFn"]
 
 SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording session (docs/formats.md)
 _MM = 1e-3
@@ -356,6 +357,23 @@ def prediction_errors(calibration: Calibration, dataset: Dataset, rows: Sequence
     obs_all, kept = _observations(calibration, dataset)
     obs = obs_all.subset(_positions(dataset, kept, idx))
     return _errors(obs, _predict(calibration, dataset, idx, predict), idx, dataset)
+
+
+def session_residuals(calibration: Calibration, dataset: Dataset, rows: Sequence[int] | np.ndarray, *,
+                      predict: PredictFn | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The whitened residuals of ``calibration`` on the dataset rows ``rows`` (indices ``(k,)`` or a bool mask), as
+    :func:`register` fits them: ``(r, row, position, sigma_position)`` with ``r`` ``(m,)``, ``row`` ``(m,)`` the
+    position in ``rows`` of each residual's row, ``position`` ``(m,)`` True for a position component (marker point
+    or pose position, whitened by ``sigma_position`` [m]; the others are a pose's rotation). ``predict`` as in
+    :func:`register`."""
+    if calibration.effects and predict is None:
+        raise ValueError("calibration has effects: pass predict= (see register)")
+    _check_robot(calibration, dataset)
+    idx = _row_indices(dataset, rows)
+    obs_all, kept = _observations(calibration, dataset)
+    obs = obs_all.subset(_positions(dataset, kept, idx))
+    res = _residuals_from_prediction(obs, _predict(calibration, dataset, idx, predict), idx, dataset)
+    return res.r, res.row, res.block == 0, float(obs.sigma_position)
 
 
 # ------------------------------------------------------------------------------------------------------------------
