@@ -386,6 +386,23 @@ def test_command_against_with_too_few_rows_names_the_option(judged_case, tmp_pat
 
 # ---- bad input -------------------------------------------------------------------------------------------------
 
+def test_session_residuals_are_the_registration_residuals_and_refuse_bad_input(spheres_case):
+    """session_residuals of a registered calibration on its rows give the registration's residual RMS (its
+    position components, whitened by the noise); a dataset that is not one, or an extended calibration without its
+    prediction, is refused naming it."""
+    from twin.estimator.register import session_residuals
+
+    cal, ds2, _ = spheres_case
+    rows = select_rows(ds2, first=30)
+    reg = register(cal, ds2, rows)
+    r, row, pos, sigma = session_residuals(reg.calibration, ds2, rows)
+    assert pos.all() and set(row.tolist()) == set(range(30))
+    rms_mm = np.sqrt(np.sum(r ** 2) / (r.size / 3)) * sigma / 1e-3  # RMS of the 3-D distance per marker point
+    assert rms_mm == pytest.approx(reg.residuals["position_mm"]["rms"], rel=1e-6)
+    with pytest.raises(ValueError, match="dataset must be"):
+        session_residuals(cal, "not a dataset", rows)
+
+
 def test_too_few_rows_for_the_parameters_are_refused(spheres_case):
     """One row of three points (9 coordinates) cannot give base and tool (12 parameters): the error says so."""
     cal, ds2, _ = spheres_case

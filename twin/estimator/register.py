@@ -366,6 +366,10 @@ def session_residuals(calibration: Calibration, dataset: Dataset, rows: Sequence
     position in ``rows`` of each residual's row, ``position`` ``(m,)`` True for a position component (marker point
     or pose position, whitened by ``sigma_position`` [m]; the others are a pose's rotation). ``predict`` as in
     :func:`register`."""
+    if not isinstance(calibration, Calibration):
+        raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
+    if not isinstance(dataset, Dataset):
+        raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if calibration.effects and predict is None:
         raise ValueError("calibration has effects: pass predict= (see register)")
     _check_robot(calibration, dataset)
