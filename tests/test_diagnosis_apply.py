@@ -36,6 +36,19 @@ def test_extended_prediction_matches_measurements_to_the_noise(backlash_case):
     assert np.sqrt(np.mean(e_geo**2)) > 5 * rms_ext
 
 
+def test_the_dataset_predictor_of_a_few_rows_equals_the_whole_file(backlash_case):
+    """dataset_predictor evaluates the rows up to the last one asked: its predictions of the first rows, of a block
+    in the middle and of scattered rows equal those of the whole file (approach history included), bit for bit."""
+    from twin.diagnosis.apply import dataset_predictor
+
+    ds, _, _, cal, _ = backlash_case
+    full = predict_extended(cal, row_context(ds), ds.station_ids)
+    predict = dataset_predictor(ds)
+    for idx in (np.arange(10), np.arange(40, 70), np.array([3, 17, 55, 90])):
+        p = predict(cal, idx)
+        assert np.array_equal(p.spheres, full.spheres[idx]) and np.array_equal(p.pose, full.pose[idx])
+
+
 @pytest.mark.slow
 def test_compensation_with_effects_reaches_targets_through_the_true_robot(backlash_case):
     """Commands from compensate_extended, sent through the true robot *with* backlash in the order given,

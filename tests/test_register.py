@@ -290,13 +290,14 @@ def two_effects_case():
 
 def test_pruning_drops_the_terms_a_session_lacks_and_keeps_those_it_has(two_effects_case):
     """prune_for_session on 40 rows of the new session drops the backlash of joints 2, 3 and 5 (gone) and keeps
-    their gear-ratio terms (still there); the pruned model predicts the session's other rows at least 3x better
-    than the whole one, and its linearised score falls at every step of the trace."""
+    their gear-ratio terms (still there), significantly (z >= 3 row by row); the pruned model predicts the session's
+    other rows at least 3x better than the whole one, and its linearised score falls at every step of the trace."""
     from twin.diagnosis.apply import dataset_predictor, prune_for_session
 
     ext, ds2 = two_effects_case
     rows = np.arange(1, 41)
-    pruned, dropped, trace = prune_for_session(ext, ds2, rows)
+    pruned, dropped, trace, z = prune_for_session(ext, ds2, rows)
+    assert z >= 3
     for j in (2, 3, 5):
         assert any(lbl.startswith(f"joint {j} backlash") for lbl in dropped), dropped
         assert any(e["label"].startswith(f"joint {j} gear-ratio") for e in pruned.effects), dropped
@@ -308,6 +309,18 @@ def test_pruning_drops_the_terms_a_session_lacks_and_keeps_those_it_has(two_effe
     assert e["whole"] > 3 * e["pruned"], e
 
 
+def test_drops_that_are_not_significant_are_not_kept(two_effects_case):
+    """The same backward pass with a threshold it cannot reach keeps every term (and reports the pass in its trace);
+    with no threshold it drops them."""
+    from twin.diagnosis.apply import prune_for_session
+
+    ext, ds2 = two_effects_case
+    rows = np.arange(1, 41)
+    pruned, dropped, trace, z = prune_for_session(ext, ds2, rows, z_min=np.inf)
+    assert dropped == () and pruned.effects == ext.effects and len(trace) > 1 and np.isfinite(z)
+    assert prune_for_session(ext, ds2, rows, z_min=-np.inf)[1] == tuple(lbl for lbl, _ in trace[1:])
+
+
 def test_pruning_scores_match_the_exact_blocked_registrations(two_effects_case):
     """Each step of the linearised backward pass scores the model without the terms dropped so far as the exact
     blocked registrations do (choose_for_session without pruning), within 1 %."""
@@ -315,7 +328,7 @@ def test_pruning_scores_match_the_exact_blocked_registrations(two_effects_case):
 
     ext, ds2 = two_effects_case
     rows = np.arange(1, 41)
-    _, dropped, trace = prune_for_session(ext, ds2, rows)
+    _, dropped, trace, _ = prune_for_session(ext, ds2, rows)
     for k, (_, lin) in enumerate(trace):
         gone = set(dropped[:k])
         cal = replace(ext, effects=tuple(e for e in ext.effects if e["label"] not in gone))

@@ -55,7 +55,8 @@ def main() -> int:
     work = HERE / "work"
     res_path = HERE / "results" / "results.json"
     old = json.loads(res_path.read_text()) if res_path.exists() else {}
-    out = {"provenance": provenance(), "runs": dict(old.get("runs", {})), "new_session": old.get("new_session", {})}
+    out = {"provenance": provenance(), "runs": dict(old.get("runs", {})), "new_session": old.get("new_session", {}),
+           "same_session": old.get("same_session", {})}
     for name in ("series_A", "series_B", "ur10_A_to_B"):
         import_columns(DATA / f"{name}.toml", work / name)
     ds_b = read_dataset(work / "series_B")
@@ -67,6 +68,9 @@ def main() -> int:
         ext = Calibration.load(work / "diagnosis_A" / "calibration.json")  # the model to use
         out["new_session"] = {f"tool {'re-registered' if tool else 'kept'}": new_session_errors(geo, ext, ds_b, tool=tool)
                               for tool in (False, True)}
+        # the same judgement on series A's own first 50 rows (the session the models were fitted on): nothing there
+        # should be dropped that the rest of series A bears out
+        out["same_session"] = new_session_errors(geo, ext, ds_a)
     ds_ab = read_dataset(work / "ur10_A_to_B")
     out["runs"]["series A fits, series B confirms and reports (its first 50 rows register its tracker)"] = \
         diagnosis_record(ds_ab, work / "diagnosis_AB")
@@ -87,6 +91,13 @@ def main() -> int:
         judged = f"{v['chosen']} ({', '.join(f'{n} {x:.3f}' for n, x in cv.items())})"
         lines.append(f"| base, {k} | {e['n_rows']} | {_fmt(e['geometric'])} | {_fmt(e['extended'])} | "
                      f"{e['rms_ratio']:.3f} | {judged} | {_fmt(m['extended'])} | {m['rms_ratio']:.3f} |")
+    if out["same_session"]:
+        v = out["same_session"]
+        m = v["session_model"]
+        lines.append(f"| series A's own first 50 rows (the session the models were fitted on), tool kept | {m['n_rows']} | "
+                     f"{_fmt(v['rows']['geometric'])} | {_fmt(v['rows']['extended'])} | {v['rows']['rms_ratio']:.3f} | "
+                     f"{v['chosen']} ({', '.join(f'{n} {x:.3f}' for n, x in v['cv_position_rms_mm'].items())}) | "
+                     f"{_fmt(m['extended'])} | {m['rms_ratio']:.3f} |")
     for k, v in out["new_session"].items():
         if v["dropped"]:
             lines.append(f"\nTerms `twin register` dropped for session B (base, {k}), in the order dropped: "

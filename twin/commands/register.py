@@ -142,7 +142,8 @@ def run(args) -> int:
 
         new = _replace(new, details={**new.details, "session_choice": {
             "chosen": choice.chosen, "calibration": str(args_cal), "cv_position_rms_mm": choice.cv_position_rms_mm,
-            "folds": [int(f.size) for f in choice.folds], "dropped": list(choice.dropped), "note": choice.note}})
+            "folds": [int(f.size) for f in choice.folds], "dropped": list(choice.dropped), "prune_z": choice.prune_z,
+            "note": choice.note}})
     if notes:
         from dataclasses import replace
 
@@ -231,8 +232,11 @@ def _judged(args, cal, ds, rows, how: str, scope: str):
           + ", ".join(f"{k} {v:.4g} mm" for k, v in choice.cv_position_rms_mm.items())
           + f" ({names[0]}: {against}; {names[1]}: {args.calibration})")
     if choice.dropped:
-        print(f"  {names[1]} (pruned): without the {len(choice.dropped)} term(s) these rows do not bear out, in the order "
-              f"dropped: {'; '.join(choice.dropped)}")
+        print(f"  {names[1]} (pruned): without the {len(choice.dropped)} term(s) these rows do not bear out (z = "
+              f"{choice.prune_z:.2f} against the whole model), in the order dropped: {'; '.join(choice.dropped)}")
+    elif choice.prune_z:
+        print(f"  every term of the {names[1]} model kept: dropping some did not predict these rows significantly "
+              f"better (z = {choice.prune_z:.2f})")
     if choice.chosen == names[0]:
         print(f"  the {names[0]} model is used: the {names[1]} one does not predict this session's rows better "
               "(--no-judge registers it anyway)")

@@ -28,7 +28,7 @@ from .extend import param_weights
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
            "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
-           "choose_for_session", "prune_for_session", "SESSION_FOLDS"]
+           "choose_for_session", "prune_for_session", "SESSION_FOLDS", "SESSION_Z_MIN"]
 
 
 def effect_atoms(cal: Calibration) -> list[tuple[Atom, np.ndarray]]:
@@ -270,19 +270,37 @@ def dataset_predictor(dataset):
     """A prediction function ``predict(calibration, idx) -> Prediction`` of the rows ``idx`` of ``dataset`` (a
     :class:`~twin.dataset.Dataset`) with the calibration's effects evaluated from all its rows in measurement order
     (approach directions unknown at the first row and where the ``session`` column changes: a new session starts
-    anew), for :func:`twin.estimator.register.register` and :func:`~twin.estimator.register.prediction_errors`."""
+    anew), for :func:`twin.estimator.register.register` and :func:`~twin.estimator.register.prediction_errors`.
+    The rows are evaluated up to the last one asked for: a term reads a row and the rows before it, so the rows
+    after it change nothing (and a few rows at the start of a long file cost a few rows)."""
     from .floor import row_context
 
     ctx = row_context(dataset)
     station = dataset.station_ids
+    prefixes: dict[int, RowContext] = {}
+
+    def upto(m: int) -> RowContext:
+        # the first m rows as the whole file gives them: a term reads the row itself and the rows before it (the
+        # approach history, a lagged record), never a later row
+        if m >= dataset.n:
+            return ctx
+        if m not in prefixes:
+            prefixes[m] = replace(ctx, **{f: None if getattr(ctx, f) is None else getattr(ctx, f)[:m]
+                                          for f in _PER_ROW})
+        return prefixes[m]
 
     def predict(c: Calibration, idx: np.ndarray) -> Prediction:
-        p = predict_extended(c, ctx, station)
+        idx = np.asarray(idx, dtype=int)
+        m = int(idx.max()) + 1 if idx.size else 0
+        p = predict_extended(c, upto(m), station[:m])
         return replace(p, spheres=p.spheres[idx], pose=p.pose[idx], frame=p.frame[idx], station=p.station[idx],
                        sd_spheres=None if p.sd_spheres is None else p.sd_spheres[idx],
                        sd_pose=None if p.sd_pose is None else p.sd_pose[idx])
 
     return predict
+
+
+_PER_ROW = ("q", "temp_c", "t_s", "station", "history_reset", "session_start", "pose_id")  # RowContext's (n,) fields
 
 
 def block_errors(geometric: Calibration, extended: Calibration, dataset, blocks: dict) -> dict:
@@ -312,7 +330,8 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     """A calibrated robot in a new session (``dataset``: its rows, another day or a moved instrument): each model
     keeps its robot and re-identifies the measurement frame (and the tool with ``tool``) from the session's
     ``first`` rows (:func:`twin.estimator.register.register`), then predicts the others. Returns ``{registered_on,
-    tool, rows: {n_rows, geometric, extended, rms_ratio}, chosen, cv_position_rms_mm, dropped, session_model}``:
+    tool, rows: {n_rows, geometric, extended, rms_ratio}, chosen, cv_position_rms_mm, dropped, prune_z,
+    session_model}``:
     the errors on the other rows (:func:`block_errors`), the model :func:`choose_for_session` takes for the session
     from its ``first`` rows (the one ``twin register`` writes), the terms it dropped, and that model's errors on the
     other rows (``session_model``: ``{name, n_rows, geometric, extended, rms_ratio}``, its errors as ``extended``)."""
@@ -326,11 +345,13 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     return {"registered_on": int(rows.size), "tool": bool(tool),
             "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"],
             "chosen": choice.chosen, "cv_position_rms_mm": choice.cv_position_rms_mm, "dropped": list(choice.dropped),
+            "prune_z": choice.prune_z,
             "session_model": {"name": choice.chosen,
                               **block_errors(geo, chosen, dataset, {"other rows": others})["other rows"]}}
 
 
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the residuals in the registered frames
+SESSION_Z_MIN = 3.0  # a pruned model replaces the whole one at this z over the rows (diagnose's z_min)
 _MM = 1e-3
 SESSION_FOLDS = 5  # contiguous blocks of the registration rows in time, each predicted by the others' registration
 
@@ -346,7 +367,8 @@ class SessionChoice:
     terms the session's rows dropped from the extended model (``prune``), in the order they were dropped;
     ``trace``: ``(label dropped, linearised score [mm])`` per step of that backward pass, the first entry
     ``(None, score of the whole model)``; ``candidates``: every model judged, as given (not registered), the
-    pruned one included.
+    pruned one included; ``prune_z``: the pruned model's z against the whole one (:func:`prune_for_session`), None
+    without a backward pass.
     """
 
     chosen: str
@@ -357,6 +379,7 @@ class SessionChoice:
     dropped: tuple = ()
     trace: tuple = ()
     candidates: dict | None = None
+    prune_z: float | None = None
 
 
 def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS,
@@ -388,13 +411,13 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
         raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
     predict = dataset_predictor(dataset)
     parts = tuple(np.array_split(idx, folds))
-    dropped, trace = (), ()
+    dropped, trace, prune_z = (), (), None
     if prune:
         grown = {}
         for name, cal in models.items():
             grown[name] = cal
             if cal.effects and not dropped:
-                pruned, dropped, trace = prune_for_session(cal, dataset, idx, tool=tool, folds=folds)
+                pruned, dropped, trace, prune_z = prune_for_session(cal, dataset, idx, tool=tool, folds=folds)
                 if dropped:
                     grown[f"{name} (pruned)"] = pruned
         models = grown
@@ -424,13 +447,17 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
             f"{idx.size} registration rows predicted the other block at (RMS) {listed}; a model replaces the "
             f"{names[0]} one only where it predicts these rows better")
     if dropped:
-        note += f"; the pruned model is the extended one without {len(dropped)} term(s): " + "; ".join(dropped)
+        note += (f"; the pruned model is the extended one without {len(dropped)} term(s) (z = {prune_z:.2f} against "
+                 "the whole one): " + "; ".join(dropped))
+    elif prune_z:
+        note += (f"; dropping terms did not predict these rows significantly better (z = {prune_z:.2f} < "
+                 f"{SESSION_Z_MIN:g}): every term kept")
     return SessionChoice(chosen=chosen, registered=registered, cv_position_rms_mm=scores, folds=parts, note=note,
-                         dropped=dropped, trace=trace, candidates=dict(models))
+                         dropped=dropped, trace=trace, candidates=dict(models), prune_z=prune_z)
 
 
-def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = False,
-                      folds: int = SESSION_FOLDS) -> tuple[Calibration, tuple, tuple]:
+def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS,
+                      z_min: float = SESSION_Z_MIN) -> tuple[Calibration, tuple, tuple, float]:
     """The extended ``calibration`` without the terms a new session's registration rows ``rows`` (indices ``(k,)``,
     measurement order) do not bear out: a backward pass over its terms scored by blocked cross-validation of the
     registration, linearised.
@@ -443,8 +470,12 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
     Its score: each of the ``folds`` contiguous blocks of ``rows`` in turn, ``delta = argmin |J_o delta + r_D,o|``
     on the other blocks ``o``, the block's residuals ``r_D,b + J_b delta``; the RMS of the 3-D position error over
     every predicted point (or pose) [mm]. Backward pass: drop the term whose removal lowers the score most, while
-    one does. Returns ``(calibration without the dropped terms, labels dropped in order, trace)``; ``trace``:
-    ``(label, score [mm])`` per step, the first ``(None, score with every term)``. Nothing is refitted: the
+    one does. The pass searched many subsets, so its best score flatters it: the dropped terms stay dropped only
+    where the pruned model beats the whole one significantly row by row, ``z = mean(s_w - s_p) / (sd(s_w - s_p) /
+    sqrt(k)) >= z_min`` over the ``k`` rows' squared errors ``s`` (the diagnosis' confirmation threshold, 3).
+    Returns ``(calibration without the dropped terms, labels dropped in order, trace, z)``; ``trace``: ``(label,
+    score [mm])`` per step of the pass, the first ``(None, score with every term)`` (kept when the drops are not
+    significant, with no label returned). Nothing is refitted: the
     session's rows only choose (the values came from the campaign that fitted them). ``ValueError`` naming the
     argument as in :func:`choose_for_session`."""
     from ..estimator.register import register, session_residuals
@@ -459,7 +490,7 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
         raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
     eff = list(calibration.effects)
     if not eff:
-        return calibration, (), ()
+        return calibration, (), (), 0.0
     predict = dataset_predictor(dataset)
     reg = register(calibration, dataset, idx, tool=tool, predict=predict)
     cal0 = reg.calibration
@@ -482,27 +513,38 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
     blocks = np.array_split(np.arange(idx.size), folds)
     n_points = pos.sum() / 3.0
 
-    def score(drop: list[int]) -> float:
+    def per_row(drop: list[int]) -> np.ndarray:
+        # each row's squared whitened position error, predicted by the registration on the other blocks
         r = r0 + (np.sum([d[t] for t in drop], axis=0) if drop else 0.0)
-        sq = 0.0
+        out = np.zeros(idx.size)
         for b in blocks:
             test = np.isin(row, b)
             delta, *_ = np.linalg.lstsq(J[~test], -r[~test], rcond=None)
             e = r[test] + J[test] @ delta
-            sq += float(np.sum(e[pos[test]] ** 2))
-        return float(np.sqrt(sq / n_points) * sigma / _MM)
+            np.add.at(out, row[test][pos[test]], e[pos[test]] ** 2)
+        return out
 
+    def score(sq: np.ndarray) -> float:
+        return float(np.sqrt(sq.sum() / n_points) * sigma / _MM)
+
+    whole = per_row([])
     dropped: list[int] = []
-    best = score(dropped)
-    trace = [(None, best)]
+    cur = whole
+    trace = [(None, score(whole))]
     while len(dropped) < len(eff):
-        trials = [(score(dropped + [t]), t) for t in range(len(eff)) if t not in dropped]
-        s_min, t_min = min(trials)
-        if not s_min < best:
+        trials = [(score(sq), t, sq) for t in range(len(eff)) if t not in dropped for sq in [per_row(dropped + [t])]]
+        s_min, t_min, sq_min = min(trials, key=lambda v: (v[0], v[1]))
+        if not s_min < score(cur):
             break
         dropped.append(t_min)
-        best = s_min
-        trace.append((str(eff[t_min].get("label", eff[t_min].get("family", t_min))), best))
+        cur = sq_min
+        trace.append((str(eff[t_min].get("label", eff[t_min].get("family", t_min))), s_min))
+    # the pass searched many subsets: its best is kept only where it beats the whole model significantly, row by row
+    diff = whole - cur
+    z = float(diff.mean() / (diff.std(ddof=1) / np.sqrt(diff.size))) if dropped and diff.std() > 0 else \
+        (float("inf") if dropped else 0.0)
+    if dropped and not z >= z_min:
+        return calibration, (), tuple(trace), z
     kept = tuple(e for t, e in enumerate(eff) if t not in dropped)
     labels = tuple(lbl for lbl, _ in trace[1:])
-    return replace(calibration, effects=kept), labels, tuple(trace)
+    return replace(calibration, effects=kept), labels, tuple(trace), z
