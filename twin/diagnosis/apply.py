@@ -335,19 +335,21 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     the errors on the other rows (:func:`block_errors`), the model :func:`choose_for_session` takes for the session
     from its ``first`` rows (the one ``twin register`` writes), the terms it dropped, and that model's errors on the
     other rows (``session_model``: ``{name, n_rows, geometric, extended, rms_ratio}``, its errors as ``extended``)."""
-    from ..estimator.register import select_rows
+    from ..estimator.register import prediction_errors, select_rows
 
     rows = select_rows(dataset, first=first)
     choice = choose_for_session({"geometric": geometric, "extended": extended}, dataset, rows, tool=tool)
     geo, ext = choice.registered["geometric"], choice.registered["extended"]
     others = np.setdiff1d(select_rows(dataset, first=dataset.n), rows)
+    e = block_errors(geo, ext, dataset, {"other rows": others})["other rows"]
     chosen = choice.registered[choice.chosen]
-    return {"registered_on": int(rows.size), "tool": bool(tool),
-            "rows": block_errors(geo, ext, dataset, {"other rows": others})["other rows"],
+    e_chosen = prediction_errors(chosen, dataset, others, predict=dataset_predictor(dataset) if chosen.effects else None)
+    return {"registered_on": int(rows.size), "tool": bool(tool), "rows": e,
             "chosen": choice.chosen, "cv_position_rms_mm": choice.cv_position_rms_mm, "dropped": list(choice.dropped),
             "prune_z": choice.prune_z,
-            "session_model": {"name": choice.chosen,
-                              **block_errors(geo, chosen, dataset, {"other rows": others})["other rows"]}}
+            "session_model": {"name": choice.chosen, "n_rows": e["n_rows"], "geometric": e["geometric"],
+                              "extended": e_chosen,
+                              "rms_ratio": e_chosen["position_mm"]["rms"] / e["geometric"]["position_mm"]["rms"]}}
 
 
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the residuals in the registered frames
@@ -403,12 +405,7 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
 
     if not isinstance(models, dict) or not models or not all(isinstance(c, Calibration) for c in models.values()):
         raise ValueError(f"models must be a non-empty dict of name -> twin.estimator.Calibration, got {models!r:.120}")
-    if not (isinstance(folds, (int, np.integer)) and not isinstance(folds, bool) and folds >= 2):
-        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
-    idx = np.asarray(rows)
-    idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(int)
-    if idx.size < folds:
-        raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
+    idx = _fold_rows(rows, folds)
     predict = dataset_predictor(dataset)
     parts = tuple(np.array_split(idx, folds))
     dropped, trace, prune_z = (), (), None
@@ -456,6 +453,17 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
                          dropped=dropped, trace=trace, candidates=dict(models), prune_z=prune_z)
 
 
+def _fold_rows(rows, folds) -> np.ndarray:
+    """``rows`` (indices or a bool mask) as indices ``(k,)``, checked to make ``folds`` blocks."""
+    if not (isinstance(folds, (int, np.integer)) and not isinstance(folds, bool) and folds >= 2):
+        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
+    idx = np.asarray(rows)
+    idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(int)
+    if idx.size < folds:
+        raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
+    return idx
+
+
 def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = False, folds: int = SESSION_FOLDS,
                       z_min: float = SESSION_Z_MIN) -> tuple[Calibration, tuple, tuple, float]:
     """The extended ``calibration`` without the terms a new session's registration rows ``rows`` (indices ``(k,)``,
@@ -482,12 +490,7 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
 
     if not isinstance(calibration, Calibration):
         raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
-    if not (isinstance(folds, (int, np.integer)) and not isinstance(folds, bool) and folds >= 2):
-        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
-    idx = np.asarray(rows)
-    idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(int)
-    if idx.size < folds:
-        raise ValueError(f"rows: {idx.size} row(s) cannot make {folds} folds; give more rows or fewer folds")
+    idx = _fold_rows(rows, folds)
     eff = list(calibration.effects)
     if not eff:
         return calibration, (), (), 0.0

@@ -343,19 +343,7 @@ def prediction_errors(calibration: Calibration, dataset: Dataset, rows: Sequence
     ``{n_rows, position_mm: {mean, rms, max, min}}`` per marker point (3-D distance, with ``n_spheres``) or per
     pose (position, and ``orientation_deg``: the angle of ``R_meas R_pred^T``). ``predict`` as in :func:`register`
     (required for an extended calibration). Rows of a station the calibration does not know are refused."""
-    if not isinstance(calibration, Calibration):
-        raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
-    if not isinstance(dataset, Dataset):
-        raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
-    if calibration.effects and predict is None:
-        raise ValueError("calibration has effects: pass predict= (see register)")
-    _check_robot(calibration, dataset)
-    idx = _row_indices(dataset, rows)
-    unknown = sorted({s for s in dataset.station_ids[idx].astype(str) if s not in calibration.stations})
-    if unknown:
-        raise ValueError(f"rows: station(s) {unknown} are not in the calibration (stations: {list(calibration.stations)})")
-    obs_all, kept = _observations(calibration, dataset)
-    obs = obs_all.subset(_positions(dataset, kept, idx))
+    idx, obs = _rows_observed(calibration, dataset, rows, predict, known_stations=True)
     return _errors(obs, _predict(calibration, dataset, idx, predict), idx, dataset)
 
 
@@ -366,6 +354,19 @@ def session_residuals(calibration: Calibration, dataset: Dataset, rows: Sequence
     position in ``rows`` of each residual's row, ``position`` ``(m,)`` True for a position component (marker point
     or pose position, whitened by ``sigma_position`` [m]; the others are a pose's rotation). ``predict`` as in
     :func:`register`."""
+    idx, obs = _rows_observed(calibration, dataset, rows, predict)
+    res = _residuals_from_prediction(obs, _predict(calibration, dataset, idx, predict), idx, dataset)
+    return res.r, res.row, res.block == 0, float(obs.sigma_position)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# internals
+# ------------------------------------------------------------------------------------------------------------------
+
+def _rows_observed(calibration: Calibration, dataset: Dataset, rows, predict: PredictFn | None, *,
+                   known_stations: bool = False) -> tuple[np.ndarray, Observations]:
+    """The checked row indices ``(k,)`` and their observations, for :func:`prediction_errors` and
+    :func:`session_residuals` (``known_stations``: rows of a station the calibration lacks are refused)."""
     if not isinstance(calibration, Calibration):
         raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
     if not isinstance(dataset, Dataset):
@@ -374,15 +375,14 @@ def session_residuals(calibration: Calibration, dataset: Dataset, rows: Sequence
         raise ValueError("calibration has effects: pass predict= (see register)")
     _check_robot(calibration, dataset)
     idx = _row_indices(dataset, rows)
+    if known_stations:
+        unknown = sorted({s for s in dataset.station_ids[idx].astype(str) if s not in calibration.stations})
+        if unknown:
+            raise ValueError(f"rows: station(s) {unknown} are not in the calibration (stations: "
+                             f"{list(calibration.stations)})")
     obs_all, kept = _observations(calibration, dataset)
-    obs = obs_all.subset(_positions(dataset, kept, idx))
-    res = _residuals_from_prediction(obs, _predict(calibration, dataset, idx, predict), idx, dataset)
-    return res.r, res.row, res.block == 0, float(obs.sigma_position)
+    return idx, obs_all.subset(_positions(dataset, kept, idx))
 
-
-# ------------------------------------------------------------------------------------------------------------------
-# internals
-# ------------------------------------------------------------------------------------------------------------------
 
 def _listed(v: np.ndarray, k: int = 12) -> str:
     u = list(dict.fromkeys(np.asarray(v).astype(str).tolist()))
