@@ -22,7 +22,7 @@ FORBIDDEN = {
     "runner": ("twin.commands", "studies", "experiments", "rerun"),
 }
 FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
-              "resources", "runtime", "units"}
+              "resources", "runtime", "units", "files"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}
 # the packages whose modules must not import another module's private (_name) names

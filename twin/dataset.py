@@ -17,16 +17,17 @@ import csv
 import io
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from .files import open_text, parse_finite, read_toml
 from .kinematics import RobotModel
 from .robots import ROBOTS, get_robot
 from .transforms import pose6_to_transform, transform_to_pose6
+from .units import M_PER_MM, RAD_PER_DEG, deg_to_rad
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -49,15 +50,15 @@ __all__ = [
     "marker_columns",
     "joint_columns",
     "LENGTH_UNITS",
-    "read_text",
-    "open_text",
+    "NOISE_KEYS",
+    "read_noise_table",
 ]
 
 SCHEMA_VERSION = 1
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 SPHERE_COLUMNS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
 # Units of the marker (p<k>_x ...) and pose position (x y z) columns of poses.csv, to metres.
-LENGTH_UNITS = {"mm": 1e-3, "m": 1.0}
+LENGTH_UNITS = {"mm": M_PER_MM, "m": 1.0}
 
 
 def marker_columns(k: int) -> tuple[str, ...]:
@@ -72,27 +73,10 @@ def joint_columns(robot: RobotModel) -> tuple[str, ...]:
 POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz")
 OPTIONAL_COLUMNS = ("set", "station", "pair", "temp_c", "t_s", "status")
 SETS = ("calibration", "validation")
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 
 class DatasetError(ValueError):
     """A dataset that cannot be used as it is; the message names the file, row and column."""
-
-
-def read_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> str:
-    """The UTF-8 text of the file ``path``; a file that is not UTF-8 text raises ``error`` naming it (never a bare
-    ``UnicodeDecodeError``, which names no file). ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
-    data = Path(path).read_bytes()
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-
-
-def open_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> io.StringIO:
-    """The file ``path`` as a text stream for :mod:`csv` (``newline=""``), decoded as :func:`read_text` does."""
-    return io.StringIO(read_text(path, error), newline="")
 
 
 @dataclass(frozen=True)
@@ -134,9 +118,9 @@ class Plate:
 def default_plate() -> Plate:
     """The twin's plate (separation paper section 2.2.2): 25.4 mm spheres on a 60 mm circle at z = 50 mm,
     at 0, 180 and 110 deg (unequal spacing so that the three can be labelled by their distances)."""
-    ang = np.deg2rad([0.0, 180.0, 110.0])
-    s = np.stack([60.0 * np.cos(ang), 60.0 * np.sin(ang), np.full(3, 50.0)], axis=1) * _MM
-    return Plate(25.4 * _MM, s)
+    ang = deg_to_rad(np.array([0.0, 180.0, 110.0]))
+    s = np.stack([60.0 * np.cos(ang), 60.0 * np.sin(ang), np.full(3, 50.0)], axis=1) * M_PER_MM
+    return Plate(25.4 * M_PER_MM, s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,15 +277,15 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
                 v = np.asarray(spec[k], dtype=float)
                 if v.shape != (n,) or not np.all(np.isfinite(v)):
                     raise DatasetError(f"{where}: robot.{k} must be {n} finite numbers (one per joint), got {spec[k]!r}")
-                kw[k[:5]] = v * _DEG
+                kw[k[:5]] = v * RAD_PER_DEG
         return RobotModel.from_tables(
             str(spec.get("name", "custom")),
             spec["convention"],
-            theta=arrays["theta_deg"] * _DEG,
-            d=arrays["d_mm"] * _MM,
-            a=arrays["a_mm"] * _MM,
-            alpha=arrays["alpha_deg"] * _DEG,
-            beta={j: b * _DEG for j, b in zip(beta_joints, beta_deg)},
+            theta=arrays["theta_deg"] * RAD_PER_DEG,
+            d=arrays["d_mm"] * M_PER_MM,
+            a=arrays["a_mm"] * M_PER_MM,
+            alpha=arrays["alpha_deg"] * RAD_PER_DEG,
+            beta={j: b * RAD_PER_DEG for j, b in zip(beta_joints, beta_deg)},
             **kw,
         )
     except DatasetError:
@@ -315,22 +299,34 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
 # ------------------------------------------------------------------------------------------------
 
 def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a number: {text!r}") from None
-    if not math.isfinite(v):
-        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a finite number: {text!r}")
-    return v
+    return parse_finite(text, f"{file}: row {row} (pose_id {pid}), column {col!r}", DatasetError)
+
+
+NOISE_KEYS = ("position_mm", "orientation_rad")  # the keys of a [noise] table (dataset.toml, a column map)
+
+
+def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None]:
+    """The instrument's 1-sigma noise stated by a ``[noise]`` table (``dataset.toml``, a column map):
+    ``(position [m], orientation [rad])`` from ``position_mm`` and ``orientation_rad``, None where the table does not
+    state it (``table`` None or empty: neither). ``DatasetError`` naming ``where`` and the key for a key of another
+    name or a value that is not a positive finite number."""
+    if table is None:
+        return None, None
+    if not isinstance(table, dict):
+        raise DatasetError(f"{where}: [noise] must be a table ({', '.join(NOISE_KEYS)}), got {table!r}")
+    unknown = sorted(set(table) - set(NOISE_KEYS))
+    if unknown:
+        raise DatasetError(f"{where}: [noise]: unknown key(s) {unknown}; known: {sorted(NOISE_KEYS)}")
+    for k, v in table.items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
+            raise DatasetError(f"{where}: noise.{k}: must be a positive number, got {v!r}")
+    position = float(table["position_mm"]) * M_PER_MM if "position_mm" in table else None
+    orientation = float(table["orientation_rad"]) if "orientation_rad" in table else None
+    return position, orientation
 
 
 def _read_toml(path: Path) -> dict:
-    try:
-        meta = tomllib.loads(read_text(path))
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: missing (a dataset folder holds poses.csv and dataset.toml)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise DatasetError(f"{path}: not valid TOML: {exc}") from None
+    meta = read_toml(path, DatasetError, missing="missing (a dataset folder holds poses.csv and dataset.toml)")
     version = meta.get("schema_version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
         raise DatasetError(f"{path}: schema_version {version!r} is not supported (this library reads {SCHEMA_VERSION})")
@@ -350,7 +346,7 @@ def _plate_from_meta(meta: dict, where: str) -> tuple[Plate, str]:
     diam = 0.0
     if dkey in tab or what == "[plate]":
         try:
-            diam = float(tab[dkey]) * _MM
+            diam = float(tab[dkey]) * M_PER_MM
         except KeyError:
             raise DatasetError(f"{where}: {what} lacks field {dkey!r}") from None
         except (TypeError, ValueError):
@@ -371,13 +367,13 @@ def _plate_from_meta(meta: dict, where: str) -> tuple[Plate, str]:
     if unit not in LENGTH_UNITS:
         raise DatasetError(f"{where}: {what} unit must be one of {sorted(LENGTH_UNITS)} (the unit of the marker and "
                            f"pose position columns of poses.csv), got {unit!r}")
-    return Plate(diam, s * _MM), str(unit)
+    return Plate(diam, s * M_PER_MM), str(unit)
 
 
 def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
     try:
         v = np.array(
-            [d["x_mm"] * _MM, d["y_mm"] * _MM, d["z_mm"] * _MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], dtype=float
+            [d["x_mm"] * M_PER_MM, d["y_mm"] * M_PER_MM, d["z_mm"] * M_PER_MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], dtype=float
         )
     except (KeyError, TypeError) as exc:
         raise DatasetError(f"{where}: needs x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad ({exc})") from None
@@ -387,7 +383,7 @@ def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
 def _transform_to_pose6_mm(T: np.ndarray) -> dict:
     v = transform_to_pose6(T)
     return {
-        "x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+        "x_mm": float(v[0] / M_PER_MM), "y_mm": float(v[1] / M_PER_MM), "z_mm": float(v[2] / M_PER_MM),
         "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5]),
     }
 
@@ -415,7 +411,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         robot = robot.with_frames(tool2flange=_pose6_mm_to_transform(tool["tool2flange"], f"{toml_path}: [tool].tool2flange"))
     plate, length_unit = _plate_from_meta(meta, str(toml_path))
     to_m = LENGTH_UNITS[length_unit]
-    noise = meta.get("noise", {}) or {}
+    noise_position, noise_orientation = read_noise_table(meta.get("noise"), str(toml_path))
     stations_b2m = {}
     for sid, st in (meta.get("stations") or {}).items():
         if isinstance(st, dict) and "base2meas" in st:
@@ -423,7 +419,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
 
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
-    with open_text(csv_path) as f:
+    with open_text(csv_path, DatasetError) as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
@@ -436,7 +432,7 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         dup = sorted({h for h in header if header.count(h) > 1})
         raise DatasetError(f"{file}: duplicate columns {dup}")
     jcols = joint_columns(robot)
-    jscale = [_MM if pr else _DEG for pr in robot.is_prismatic]
+    jscale = [M_PER_MM if pr else RAD_PER_DEG for pr in robot.is_prismatic]
     missing = [c for c in ("pose_id",) + jcols if c not in col]
     if missing:
         raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
@@ -579,8 +575,8 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         t_s=floats("t_s"),
         status=np.array(opt["status"], dtype=object) if "status" in opt else None,
         extra={c: np.array(v, dtype=object) for c, v in extra.items()},
-        noise_position=float(noise["position_mm"]) * _MM if "position_mm" in noise else None,
-        noise_orientation=float(noise["orientation_rad"]) if "orientation_rad" in noise else None,
+        noise_position=noise_position,
+        noise_orientation=noise_orientation,
         stations_base2meas=stations_b2m,
         provenance=str(meta.get("provenance", "")),
         path=folder,
@@ -641,21 +637,21 @@ def write_dataset_toml(
         lines += [
             "",
             "[plate]",
-            f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
-            f"spheres_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+            f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / M_PER_MM)}",
+            f"spheres_mm = {_toml_value([[round(float(x) / M_PER_MM, 9) for x in s] for s in plate.spheres_flange])}",
         ]
     else:
         lines += [
             "",
             "[markers]",
             f"unit = {_toml_value(length_unit)}",
-            f"diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
-            f"points_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+            f"diameter_mm = {_toml_value(plate.sphere_diameter / M_PER_MM)}",
+            f"points_mm = {_toml_value([[round(float(x) / M_PER_MM, 9) for x in s] for s in plate.spheres_flange])}",
         ]
     if noise_position is not None or noise_orientation is not None:
         lines += ["", "[noise]"]
         if noise_position is not None:
-            lines.append(f"position_mm = {_toml_value(noise_position / _MM)}")
+            lines.append(f"position_mm = {_toml_value(noise_position / M_PER_MM)}")
         if noise_orientation is not None:
             lines.append(f"orientation_rad = {_toml_value(noise_orientation)}")
     if tool2flange is not None:
@@ -694,11 +690,11 @@ class PoseRow:
 
 def _fmt_deg(x: float) -> str:
     """Degrees with 1e-10 deg resolution (2e-12 rad: far below any effect the library models)."""
-    return f"{float(x) / _DEG:.10f}"
+    return f"{float(x) / RAD_PER_DEG:.10f}"
 
 
 def _fmt_mm(x: float) -> str:
-    return f"{float(x) / _MM:.6f}"
+    return f"{float(x) / M_PER_MM:.6f}"
 
 
 class DatasetWriter:
@@ -725,7 +721,7 @@ class DatasetWriter:
         if int(n_points) < 1:
             raise ValueError(f"n_points must be at least 1, got {n_points!r}")
         self._jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-        self._jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+        self._jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
         self._k = int(n_points)
         self._to_m = LENGTH_UNITS[length_unit]
         self.folder = Path(folder)
@@ -754,7 +750,7 @@ class DatasetWriter:
             self._f.flush()
 
     def _fmt_len(self, x: float) -> str:
-        return _fmt_mm(x) if self._to_m == _MM else f"{float(x):.9f}"
+        return _fmt_mm(x) if self._to_m == M_PER_MM else f"{float(x):.9f}"
 
     def write(self, row: PoseRow) -> None:
         nj = len(self._jcols)
@@ -876,7 +872,7 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: missing")
-    with open_text(path) as f:
+    with open_text(path, DatasetError) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = list(reader)
@@ -896,7 +892,7 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     a prismatic joint), optional ``temp_c, t_s, station, set, session``)."""
     path = Path(path)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
@@ -936,7 +932,7 @@ def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     if np.shape(joints.q)[1:] != (len(jcols),):
         raise ValueError(f"joints.q must have shape (n, {len(jcols)}) for columns {', '.join(jcols)}, got {np.shape(joints.q)}")
     cols = ["pose_id", *jcols] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]

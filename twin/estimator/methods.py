@@ -13,6 +13,7 @@ from typing import Any, Callable, Literal
 import numpy as np
 
 from ..dataset import Dataset
+from ..units import M_PER_MM, rad_to_deg
 from .calibration import Calibration
 from .core import (
     ErrorModel,
@@ -31,8 +32,6 @@ from .problem import Observations, ParamSpace, absolute_residuals
 from .solvers import TraceEntry, gauss_newton, robust_fit
 
 __all__ = ["calibrate", "identify_best", "identifiability", "METHODS", "candidates", "build_calibration"]
-
-_MM = 1e-3
 
 
 LEVELS = ("full", "offsets", "frames")
@@ -214,7 +213,7 @@ def identify_best(
         else:
             status.append("given")
     noise = {
-        "position_mm": sig_p / _MM,
+        "position_mm": sig_p / M_PER_MM,
         "position_source": "given" if given_p else "estimated from residuals",
     }
     if obs.kind == "pose":
@@ -313,10 +312,10 @@ def build_calibration(prep: Prepared, ident: Identified, method: str, options: d
         floor = predicted_error(space, ident.x, ident.covariance, obs_val)
         exp = {}
         if obs_val.kind == "spheres":
-            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / M_PER_MM) ** 2 + floor["position_mm"] ** 2))
         else:
-            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
-            exp["orientation_deg"] = float(np.sqrt(3 * np.rad2deg(sig_o) ** 2 + floor["orientation_deg"] ** 2))
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / M_PER_MM) ** 2 + floor["position_mm"] ** 2))
+            exp["orientation_deg"] = float(np.sqrt(3 * rad_to_deg(sig_o) ** 2 + floor["orientation_deg"] ** 2))
         residuals["predicted_validation"] = {
             "model_error_rms": floor,
             "expected_residual_rms": exp,

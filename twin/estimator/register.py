@@ -17,6 +17,7 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..transforms import matrix_to_rotvec, transform_to_pose6
+from ..units import M_PER_MM, RAD_PER_DEG
 from .calibration import Calibration, Prediction
 from .chain import Chain
 from .core import _stats, register_bases
@@ -28,8 +29,6 @@ __all__ = ["Registration", "register", "select_rows", "prediction_errors", "sess
            "PredictFn"]
 
 SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording session (docs/formats.md)
-_MM = 1e-3
-_DEG = np.pi / 180.0
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the Jacobian through a prediction function
 _XTOL_PREDICT = 1e-10  # [m] and [rad]: convergence step through a prediction function
 
@@ -227,7 +226,7 @@ def register(
         "rows": [int(v) for v in dataset.pose_id[idx]],
         "n_rows": int(idx.size),
         "measurement": obs.kind,
-        "noise": {"position_mm": obs.sigma_position / _MM,
+        "noise": {"position_mm": obs.sigma_position / M_PER_MM,
                   **({"orientation_rad": obs.sigma_orientation} if obs.kind == "pose" else {})},
         "residuals": stats,
         "residual_scale": float(np.sqrt(s2)) if np.isfinite(s2) else None,
@@ -440,10 +439,10 @@ def _observations(cal: Calibration, ds: Dataset) -> tuple[Observations, np.ndarr
             k = int(np.argmax(d.max(axis=1)))
             raise ValueError(
                 f"dataset {ds.path or '(in memory)'}: its marker set differs from the calibration's (point p{k}: "
-                f"{np.round(ds.plate.spheres_flange[k] / _MM, 4).tolist()} mm against "
-                f"{np.round(cal.plate.spheres_flange[k] / _MM, 4).tolist()} mm in the flange frame); another marker set "
+                f"{np.round(ds.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm against "
+                f"{np.round(cal.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm in the flange frame); another marker set "
                 "needs a calibration of its own")
-    sp = ds.noise_position if ds.noise_position is not None else _noise(cal, "position_mm", _MM)
+    sp = ds.noise_position if ds.noise_position is not None else _noise(cal, "position_mm", M_PER_MM)
     so = ds.noise_orientation if ds.noise_orientation is not None else _noise(cal, "orientation_rad", 1.0)
     obs, kept, _ = observations_from_dataset(ds, sigma_position=sp, sigma_orientation=so)
     return replace(obs, spheres_tool=np.asarray(cal.spheres_tool, dtype=float)), kept
@@ -509,10 +508,10 @@ def _errors(obs: Observations, pred: Prediction, idx: np.ndarray, ds: Dataset) -
     _check_prediction(pred, obs.n, ds, idx)
     if obs.kind == "spheres":
         e = np.linalg.norm(obs.spheres - pred.spheres, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / _MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / M_PER_MM)}
     ep = np.linalg.norm(obs.pose_p - pred.pose[:, :3, 3], axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(pred.pose[:, :3, :3], -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / _MM), "orientation_deg": _stats(er / _DEG)}
+    return {"n_rows": obs.n, "position_mm": _stats(ep / M_PER_MM), "orientation_deg": _stats(er / RAD_PER_DEG)}
 
 
 def _sessions(ds: Dataset, idx: np.ndarray) -> tuple[str, ...] | None:
@@ -564,5 +563,5 @@ def _covariance(old: Calibration, sp: ParamSpace, x: np.ndarray, obs: Observatio
 
 def _pose_json(T: np.ndarray) -> dict[str, float]:
     v = transform_to_pose6(T)
-    return {"x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+    return {"x_mm": float(v[0] / M_PER_MM), "y_mm": float(v[1] / M_PER_MM), "z_mm": float(v[2] / M_PER_MM),
             "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5])}
