@@ -388,6 +388,54 @@ def _transform_to_pose6_mm(T: np.ndarray) -> dict:
     }
 
 
+@dataclass(frozen=True)
+class _Meta:
+    """What ``dataset.toml`` says, in SI: the robot (with its nominal tool), the marker set, the noise, the
+    stations' nominal ``base2meas``."""
+
+    raw: dict
+    robot: RobotModel
+    plate: Plate
+    length_unit: str
+    noise_position: float | None
+    noise_orientation: float | None
+    stations_base2meas: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """The columns of a ``poses.csv`` header, checked against the robot and the marker set."""
+
+    file: str
+    index: dict[str, int]
+    joints: tuple[str, ...]
+    joint_scale: list[float]  # [m/mm] or [rad/deg] per joint
+    markers: tuple[str, ...]
+    n_points: int
+    has_markers: bool
+    has_pose: bool
+    optional: tuple[str, ...]
+    extra: tuple[str, ...]
+
+    def cell(self, r: list[str], c: str) -> str:
+        i = self.index[c]
+        return r[i].strip() if i < len(r) else ""
+
+
+@dataclass
+class _Rows:
+    """The cells of the data rows, read and checked: joints and measurements in SI, the other columns as text."""
+
+    pose_id: np.ndarray
+    q: np.ndarray
+    spheres: np.ndarray
+    seen: np.ndarray
+    pose: np.ndarray
+    pose_seen: np.ndarray
+    optional: dict[str, list[str]]
+    extra: dict[str, list[str]]
+
+
 def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float = 0.5) -> Dataset:
     """Read and validate a dataset folder. Errors are :class:`DatasetError` naming file, row and column.
 
@@ -397,8 +445,38 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a dataset folder (expected poses.csv and dataset.toml inside)")
+    meta = _read_meta(folder)
+    header, rows = _read_csv_table(folder / "poses.csv")
+    cols = _check_columns(str(folder / "poses.csv"), header, meta.robot, meta.plate)
+    if not rows:
+        raise DatasetError(f"{cols.file}: no data rows")
+    data = _read_rows(cols, rows, LENGTH_UNITS[meta.length_unit], meta.robot.n_joints)
+    _check_measured_rows(cols, data, max_rows_without_spheres)
+    opt = _optional_arrays(cols.file, data)
+    return Dataset(
+        robot=meta.robot,
+        robot_spec=meta.raw["robot"],
+        plate=meta.plate,
+        pose_id=data.pose_id,
+        q=data.q,
+        spheres=data.spheres,
+        sphere_seen=data.seen,
+        pose=data.pose,
+        pose_seen=data.pose_seen,
+        **opt,
+        extra={c: np.array(v, dtype=object) for c, v in data.extra.items()},
+        noise_position=meta.noise_position,
+        noise_orientation=meta.noise_orientation,
+        stations_base2meas=meta.stations_base2meas,
+        provenance=str(meta.raw.get("provenance", "")),
+        path=folder,
+        length_unit=meta.length_unit,
+    )
+
+
+def _read_meta(folder: Path) -> _Meta:
+    """``dataset.toml`` of ``folder``: the robot (and its ``[tool]``), the marker set, ``[noise]``, the stations."""
     toml_path = folder / "dataset.toml"
-    csv_path = folder / "poses.csv"
     meta = _read_toml(toml_path)
     if "robot" not in meta:
         raise DatasetError(f"{toml_path}: missing field 'robot' (a robot name or an inline table)")
@@ -410,13 +488,16 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
                                f"(the nominal tool frame in the flange frame), got {tool!r}")
         robot = robot.with_frames(tool2flange=_pose6_mm_to_transform(tool["tool2flange"], f"{toml_path}: [tool].tool2flange"))
     plate, length_unit = _plate_from_meta(meta, str(toml_path))
-    to_m = LENGTH_UNITS[length_unit]
     noise_position, noise_orientation = read_noise_table(meta.get("noise"), str(toml_path))
     stations_b2m = {}
     for sid, st in (meta.get("stations") or {}).items():
         if isinstance(st, dict) and "base2meas" in st:
             stations_b2m[str(sid)] = _pose6_mm_to_transform(st["base2meas"], f"{toml_path}: [stations.{sid}].base2meas")
+    return _Meta(meta, robot, plate, length_unit, noise_position, noise_orientation, stations_b2m)
 
+
+def _read_csv_table(csv_path: Path) -> tuple[list[str], list[list[str]]]:
+    """The header (stripped) and the non-blank rows of ``poses.csv``."""
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
     with open_text(csv_path, DatasetError) as f:
@@ -426,7 +507,11 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         except StopIteration:
             raise DatasetError(f"{csv_path}: empty file (no header row)") from None
         rows = [r for r in reader if any(c.strip() for c in r)]
-    file = str(csv_path)
+    return header, rows
+
+
+def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate) -> _Columns:
+    """The header's columns: no duplicate, the robot's joints, the marker set's points and/or a whole pose."""
     col = {h: i for i, h in enumerate(header)}
     if len(col) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
@@ -454,29 +539,25 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     if not (has_sph_cols or has_pose_cols):
         raise DatasetError(f"{file}: no measurement columns: need {mcols[0]}..{mcols[-1]} (markers) or x y z rx ry rz "
                            "(pose)")
-    n = len(rows)
-    if n == 0:
-        raise DatasetError(f"{file}: no data rows")
-
-    pose_id = np.zeros(n, dtype=np.int64)
-    q = np.zeros((n, robot.n_joints))
-    spheres = np.full((n, K, 3), np.nan)
-    seen = np.zeros((n, K), dtype=bool)
-    pose = np.full((n, 4, 4), np.nan)
-    pose_seen = np.zeros(n, dtype=bool)
-    opt: dict[str, list] = {c: [] for c in OPTIONAL_COLUMNS if c in col}
     known = set(("pose_id",) + jcols + mcols + POSE_COLUMNS + OPTIONAL_COLUMNS)
-    extra_cols = [h for h in header if h not in known]
-    extra: dict[str, list] = {c: [] for c in extra_cols}
-    seen_ids: dict[int, int] = {}
+    return _Columns(file=file, index=col, joints=jcols, joint_scale=jscale, markers=mcols, n_points=K,
+                    has_markers=has_sph_cols, has_pose=has_pose_cols,
+                    optional=tuple(c for c in OPTIONAL_COLUMNS if c in col),
+                    extra=tuple(h for h in header if h not in known))
 
-    def cell(r: list[str], c: str) -> str:
-        i = col[c]
-        return r[i].strip() if i < len(r) else ""
 
+def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int) -> _Rows:
+    """Every data row: a unique integer ``pose_id``, the commanded joints (all given), whole marker points and/or a
+    whole pose (a row without any says why in ``status``); lengths in [m] by ``to_m``, joints in [rad] / [m]."""
+    file, K, mcols = cols.file, cols.n_points, cols.markers
+    n = len(rows)
+    out = _Rows(pose_id=np.zeros(n, dtype=np.int64), q=np.zeros((n, n_joints)), spheres=np.full((n, K, 3), np.nan),
+                seen=np.zeros((n, K), dtype=bool), pose=np.full((n, 4, 4), np.nan), pose_seen=np.zeros(n, dtype=bool),
+                optional={c: [] for c in cols.optional}, extra={c: [] for c in cols.extra})
+    opt, seen_ids = out.optional, {}
     for k, r in enumerate(rows):
         rown = k + 1
-        pid_txt = cell(r, "pose_id")
+        pid_txt = cols.cell(r, "pose_id")
         try:
             pid = int(pid_txt)
         except ValueError:
@@ -484,48 +565,59 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         if pid in seen_ids:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
         seen_ids[pid] = rown
-        pose_id[k] = pid
-        for j, c in enumerate(jcols):
-            t = cell(r, c)
+        out.pose_id[k] = pid
+        for j, c in enumerate(cols.joints):
+            t = cols.cell(r, c)
             if t == "":
                 raise DatasetError(f"{file}: row {rown} (pose_id {pid}), column {c!r}: empty (commanded joints are required)")
-            q[k, j] = _parse_float(t, file, rown, str(pid), c) * jscale[j]
-        if has_sph_cols:
+            out.q[k, j] = _parse_float(t, file, rown, str(pid), c) * cols.joint_scale[j]
+        if cols.has_markers:
             for s in range(K):
                 cs = mcols[3 * s:3 * s + 3]
-                texts = [cell(r, c) for c in cs]
+                texts = [cols.cell(r, c) for c in cs]
                 if all(t == "" for t in texts):
                     continue
                 if any(t == "" for t in texts):
                     empty = [c for c, t in zip(cs, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: point p{s} is partly empty")
-                spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * to_m for t, c in zip(texts, cs)]
-                seen[k, s] = True
-        if has_pose_cols:
-            texts = [cell(r, c) for c in POSE_COLUMNS]
+                out.spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * to_m for t, c in zip(texts, cs)]
+                out.seen[k, s] = True
+        if cols.has_pose:
+            texts = [cols.cell(r, c) for c in POSE_COLUMNS]
             if any(t != "" for t in texts):
                 if any(t == "" for t in texts):
                     empty = [c for c, t in zip(POSE_COLUMNS, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: pose is partly empty")
                 v = [_parse_float(t, file, rown, str(pid), c) for t, c in zip(texts, POSE_COLUMNS)]
-                pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
-                pose_seen[k] = True
+                out.pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
+                out.pose_seen[k] = True
         for c in opt:
-            opt[c].append(cell(r, c))
-        for c in extra:
-            extra[c].append(cell(r, c))
-        if not seen[k].any() and not pose_seen[k] and (not opt.get("status") or opt["status"][-1] == ""):
+            opt[c].append(cols.cell(r, c))
+        for c in out.extra:
+            out.extra[c].append(cols.cell(r, c))
+        if not out.seen[k].any() and not out.pose_seen[k] and (not opt.get("status") or opt["status"][-1] == ""):
             raise DatasetError(
                 f"{file}: row {rown} (pose_id {pid}): no measurement and no 'status' saying why"
             )
+    return out
 
-    incomplete = ~(seen.all(axis=1) | pose_seen)
-    if has_sph_cols and incomplete.mean() > max_rows_without_spheres:
+
+def _check_measured_rows(cols: _Columns, data: _Rows, max_rows_without_spheres: float) -> None:
+    """Refuse a marker dataset where more than ``max_rows_without_spheres`` of the rows lack a point and a pose."""
+    incomplete = ~(data.seen.all(axis=1) | data.pose_seen)
+    if cols.has_markers and incomplete.mean() > max_rows_without_spheres:
+        K = cols.n_points
         raise DatasetError(
-            f"{file}: {int(incomplete.sum())} of {n} rows have fewer than "
+            f"{cols.file}: {int(incomplete.sum())} of {incomplete.size} rows have fewer than "
             f"{'three spheres' if K == 3 else f'{K} marker points'} and no pose "
             f"(more than {max_rows_without_spheres:.0%}); check the instrument's 'status' column"
         )
+
+
+def _optional_arrays(file: str, data: _Rows) -> dict[str, np.ndarray | None]:
+    """The optional columns as the dataset's arrays (None where absent), checked in the order ``set``, ``pair``,
+    ``temp_c``, ``t_s``: a ``set`` of calibration/validation, an integer ``pair``, finite temperatures and times."""
+    opt, pose_id, n = data.optional, data.pose_id, data.pose_id.size
 
     def floats(c: str) -> np.ndarray | None:
         if c not in opt:
@@ -558,30 +650,8 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     station = None
     if "station" in opt:
         station = np.array([t if t != "" else "0" for t in opt["station"]], dtype=object)
-    return Dataset(
-        robot=robot,
-        robot_spec=meta["robot"],
-        plate=plate,
-        pose_id=pose_id,
-        q=q,
-        spheres=spheres,
-        sphere_seen=seen,
-        pose=pose,
-        pose_seen=pose_seen,
-        set=set_arr,
-        station=station,
-        pair=pair,
-        temp_c=floats("temp_c"),
-        t_s=floats("t_s"),
-        status=np.array(opt["status"], dtype=object) if "status" in opt else None,
-        extra={c: np.array(v, dtype=object) for c, v in extra.items()},
-        noise_position=noise_position,
-        noise_orientation=noise_orientation,
-        stations_base2meas=stations_b2m,
-        provenance=str(meta.get("provenance", "")),
-        path=folder,
-        length_unit=length_unit,
-    )
+    return {"set": set_arr, "station": station, "pair": pair, "temp_c": floats("temp_c"), "t_s": floats("t_s"),
+            "status": np.array(opt["status"], dtype=object) if "status" in opt else None}
 
 
 # ------------------------------------------------------------------------------------------------
