@@ -40,7 +40,6 @@ bilinearly. On the sampling grid the same holds with ``s fx``, ``s cx + (s - 1)/
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
