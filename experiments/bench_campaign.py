@@ -34,6 +34,7 @@ from twin.dataset import Plate
 from twin.estimator.problem import kabsch
 from twin.instrument import plate_pose_from_spheres
 from twin.transforms import rotation_angle_between
+from twin.units import M_PER_MM, MM_PER_M, rad_to_deg
 
 
 def instrument_errors(run_dir: Path) -> dict:
@@ -49,15 +50,15 @@ def instrument_errors(run_dir: Path) -> dict:
         for row in csv.DictReader(f):
             if any(row[f"p{k}_{a}"] == "" for k in range(3) for a in "xyz") or int(row["pose_id"]) not in by_id:
                 continue
-            meas.append(np.array([[float(row[f"p{k}_{a}"]) for a in "xyz"] for k in range(3)]) * 1e-3)
+            meas.append(np.array([[float(row[f"p{k}_{a}"]) for a in "xyz"] for k in range(3)]) * M_PER_MM)
             t = by_id[int(row["pose_id"])]
             sph.append(np.array(t["spheres_meas_m"]))
             tool.append(np.array(t["tool2meas"]))
     X, Y = np.concatenate(meas), np.concatenate(sph)
     R, t = kabsch(X, Y)  # R X + t ~ Y
-    err_raw = np.linalg.norm(X - Y, axis=1) * 1e3
-    err_al = np.linalg.norm(X @ R.T + t - Y, axis=1) * 1e3
-    ori = [np.degrees(rotation_angle_between(R @ plate_pose_from_spheres(m, plate).tool2meas[:3, :3], T[:3, :3]))
+    err_raw = np.linalg.norm(X - Y, axis=1) * MM_PER_M
+    err_al = np.linalg.norm(X @ R.T + t - Y, axis=1) * MM_PER_M
+    ori = [rad_to_deg(rotation_angle_between(R @ plate_pose_from_spheres(m, plate).tool2meas[:3, :3], T[:3, :3]))
            for m, T in zip(meas, tool)]
 
     def stats(v) -> dict:

@@ -50,9 +50,9 @@ from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # no
 from twin.dataset import read_dataset, write_dataset  # noqa: E402
 from twin.diagnosis import diagnose, diagnosis_dict, write_diagnosis  # noqa: E402
 from twin.evaluation.recording import record_diagnosis  # noqa: E402
+from twin.units import M_PER_MM, RAD_PER_DEG  # noqa: E402
 
 TARGET_S = 30.0
-_DEG = np.pi / 180.0
 
 
 def _effect(q: np.ndarray, model) -> np.ndarray:
@@ -65,8 +65,8 @@ def _effect(q: np.ndarray, model) -> np.ndarray:
             d = np.sign(q[k] - q[k - 1])
             last = np.where(d != 0, d, last)
         sign[k] = last
-    out = q + 0.008 * _DEG * sign * np.array([0, 1, 1, 0, 0, 0])
-    out[:, 4] += 0.004 * _DEG * np.sin(81 * q[:, 4] + 0.4)
+    out = q + 0.008 * RAD_PER_DEG * sign * np.array([0, 1, 1, 0, 0, 0])
+    out[:, 4] += 0.004 * RAD_PER_DEG * np.sin(81 * q[:, 4] + 0.4)
     return out
 
 
@@ -179,7 +179,7 @@ def main() -> int:
             "robot": "irb1200", "seed": args.seed, "poses": n, "rows": int(ds.n),
             "validation_rows": n_val, "calibration_rows": int(ds.n - n_val),
             "repeats": "every 4th pose measured twice in a row (noise floor)",
-            "noise_position_mm": H.SIGMA / 1e-3, "channels": ["t_s", "temp_c"],
+            "noise_position_mm": H.SIGMA / M_PER_MM, "channels": ["t_s", "temp_c"],
             "effect": "backlash 0.008 deg on joints 2-3 + cyclic order 81 (0.004 deg) on joint 5, undeclared",
         },
         "verdict": {"structured": res.structured, "p_value": res.p_value, "effects": list(res.effects),

@@ -56,16 +56,15 @@ from twin.diagnosis.select import THREADS_MIN_ROWS  # noqa: E402
 from twin.estimator.simulate import simulate_dataset  # noqa: E402
 from twin.kinematics import RobotModel  # noqa: E402
 from twin.transforms import pose6_to_transform, rotvec_to_matrix  # noqa: E402
+from twin.units import M_PER_MM, RAD_PER_DEG  # noqa: E402
 
 SECTION = "diagnosis_scale"
 CASES = {"rows_230": (230, 5.0), "rows_12000": (12000, 60.0)}  # rows, target [s]
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 # the UR10's standard DH table [mm, deg]
 UR10_DH = {"theta_deg": [0.0] * 6, "d_mm": [127.3, 0.0, 0.0, 163.941, 115.7, 92.2],
            "a_mm": [0.0, -612.0, -572.3, 0.0, 0.0, 0.0], "alpha_deg": [90.0, 0.0, 0.0, 90.0, -90.0, 0.0]}
-NOISE_POSITION = 0.02 * _MM  # [m] per coordinate
+NOISE_POSITION = 0.02 * M_PER_MM  # [m] per coordinate
 NOISE_ORIENTATION = 1e-4  # [rad] per rotation-vector component
 THERMAL_PER_K = 23e-6  # [1/K] aluminium links
 VALIDATION_FRACTION = 0.3
@@ -74,8 +73,8 @@ VALIDATION_FRACTION = 0.3
 def ur10_nominal() -> RobotModel:
     """The nominal UR10 (standard DH, ``"dh"``), joint limits +-360 deg."""
     return RobotModel.from_tables(
-        "ur10", "dh", theta=np.array(UR10_DH["theta_deg"]) * _DEG, d=np.array(UR10_DH["d_mm"]) * _MM,
-        a=np.array(UR10_DH["a_mm"]) * _MM, alpha=np.array(UR10_DH["alpha_deg"]) * _DEG,
+        "ur10", "dh", theta=np.array(UR10_DH["theta_deg"]) * RAD_PER_DEG, d=np.array(UR10_DH["d_mm"]) * M_PER_MM,
+        a=np.array(UR10_DH["a_mm"]) * M_PER_MM, alpha=np.array(UR10_DH["alpha_deg"]) * RAD_PER_DEG,
         q_min=np.full(6, -2 * np.pi), q_max=np.full(6, 2 * np.pi))
 
 
@@ -96,7 +95,7 @@ def joint_errors(q: np.ndarray) -> np.ndarray:
     (``COMPLIANCE``; upper arm 12.9 kg, forearm 3.9 kg, wrist and probe 4.0 kg, in a planar arm's form)."""
     dq = np.zeros_like(q)
     for j, k, amp, ph in HARMONICS:
-        dq[:, j - 1] += amp * _DEG * np.sin(k * q[:, j - 1] + ph)
+        dq[:, j - 1] += amp * RAD_PER_DEG * np.sin(k * q[:, j - 1] + ph)
     c2, c23 = np.cos(q[:, 1]), np.cos(q[:, 1] + q[:, 2])
     tau3 = 9.81 * (3.9 * 0.29 * c23 + 4.0 * 0.572 * c23)
     tau2 = 9.81 * (12.9 * 0.306 * c2 + 3.9 * 0.612 * c2 + 4.0 * 0.612 * c2) + tau3
@@ -113,12 +112,12 @@ def make_campaign(n: int, seed: int = 0):
     nom = ur10_nominal()
     L = nom.layout
     dev = np.zeros(nom.params.size)
-    for fam, sd in (("theta", 0.02 * _DEG), ("d", 0.3 * _MM), ("a", 0.3 * _MM), ("alpha", 0.02 * _DEG)):
+    for fam, sd in (("theta", 0.02 * RAD_PER_DEG), ("d", 0.3 * M_PER_MM), ("a", 0.3 * M_PER_MM), ("alpha", 0.02 * RAD_PER_DEG)):
         idx = L.family(fam)
         dev[idx] = rng.normal(0.0, sd, idx.size)
     true = nom.perturbed(dev).with_frames(
         base2meas=pose6_to_transform(np.array([2.36, -1.37, 0.12, 0.3, -0.2, 2.6])),
-        tool2flange=pose6_to_transform(np.array([0.4 * _MM, -0.3 * _MM, 93.0 * _MM, 0.002, -0.001, 0.003])))
+        tool2flange=pose6_to_transform(np.array([0.4 * M_PER_MM, -0.3 * M_PER_MM, 93.0 * M_PER_MM, 0.002, -0.001, 0.003])))
     m = 20000  # the draws of the longest campaign: a shorter one is its first rows
     lo = np.array([-2.6, -2.3, -1.4, -2.2, 0.35, -3.0])
     hi = np.array([-0.6, -0.9, -0.3, 0.6, 1.5, 3.0])
@@ -260,7 +259,7 @@ def section(runs: int = 3, quick: bool = False, seed: int = 0) -> dict:
                      "alpha 90, 0, 0, 90, -90, 0 deg) + N(0, 0.02 deg / 0.3 mm) geometric errors",
             "seed": seed,
             "measurements": "6-DOF probe poses (x y z rx ry rz), tracker 2.5 m away, probe 93 mm along the flange's z",
-            "noise": {"position_mm": NOISE_POSITION / _MM, "orientation_rad": NOISE_ORIENTATION},
+            "noise": {"position_mm": NOISE_POSITION / M_PER_MM, "orientation_rad": NOISE_ORIENTATION},
             "effects": "link lengths growing 23 ppm/K with the cell temperature (temp_c in 0.125 K steps, drifting "
                        "0.7 K over the session); drive harmonics " + ", ".join(f"joint {j} order {k} {a} deg"
                                                                              for j, k, a, _ in HARMONICS)

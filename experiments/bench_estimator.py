@@ -48,8 +48,7 @@ from twin.kinematics import tool2meas  # noqa: E402
 from twin.presets import preset_deviation  # noqa: E402
 from twin.robots import get_robot  # noqa: E402
 from twin.transforms import matrix_to_rotvec, pose6_to_transform  # noqa: E402
-
-MM = 1e-3
+from twin.units import M_PER_MM  # noqa: E402
 
 
 def _truth(robot: str, rng):
@@ -69,8 +68,8 @@ def _errors(model, truth, base_est, base_true, q, spheres_tool):
     Tt = base_true @ tool2meas(truth.with_frames(base2meas=np.eye(4)), q)
     P = np.einsum("nij,kj->nki", T[:, :3, :3], spheres_tool) + T[:, None, :3, 3]
     Pt = np.einsum("nij,kj->nki", Tt[:, :3, :3], spheres_tool) + Tt[:, None, :3, 3]
-    sph = np.sqrt(np.mean(np.sum((P - Pt) ** 2, axis=-1))) / MM
-    pos = np.sqrt(np.mean(np.sum((T[:, :3, 3] - Tt[:, :3, 3]) ** 2, axis=-1))) / MM
+    sph = np.sqrt(np.mean(np.sum((P - Pt) ** 2, axis=-1))) / M_PER_MM
+    pos = np.sqrt(np.mean(np.sum((T[:, :3, 3] - Tt[:, :3, 3]) ** 2, axis=-1))) / M_PER_MM
     rot = np.sqrt(np.mean(np.sum(matrix_to_rotvec(Tt[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2)) ** 2, axis=-1)))
     return {"spheres_mm": float(sph), "position_mm": float(pos), "orientation_rad": float(rot)}
 
@@ -100,7 +99,7 @@ def accuracy_case(robot, kind, noise, n_cal, seeds, n_val=200):
         rows.append({"default": e_def, "reference": e_ref, "rejected": len(cal.rows["calibration_rejected"]),
                      "n_identified": int(np.sum(np.array(cal.status) == "identified"))})
     keys = ("spheres_mm",) if kind == "spheres" else ("position_mm", "orientation_rad")
-    out = {"robot": robot, "kind": kind, "noise": {"position_mm": noise[0] / MM, "orientation_rad": noise[1]},
+    out = {"robot": robot, "kind": kind, "noise": {"position_mm": noise[0] / M_PER_MM, "orientation_rad": noise[1]},
            "n_calibration": n_cal, "n_validation": n_val, "seeds": seeds,
            "rejected_rows_total": int(sum(r["rejected"] for r in rows)),
            "n_identified": rows[0]["n_identified"]}

@@ -53,6 +53,7 @@ from twin.instrument import (
 )
 from twin.instrument.synthetic import add_sensor_noise, render_board, render_spheres
 from twin.transforms import matrix_to_rotvec, rotation_angle_between
+from twin.units import MM_PER_M, UM_PER_M, rad_to_deg
 from twin.world import World
 
 TARGETS = {
@@ -87,10 +88,10 @@ def _evaluate(meas: list, truth_sph: list, truth_tool: list, plate) -> dict:
     Xa = X @ R.T + t
     out = {
         "poses": len(keep),
-        "sphere_error_mm": {"raw": _stats(np.linalg.norm(X - Y, axis=1), 1e3),
-                            "aligned": _stats(np.linalg.norm(Xa - Y, axis=1), 1e3)},
-        "frame_alignment": {"rotation_deg": float(np.degrees(np.linalg.norm(matrix_to_rotvec(R)))),
-                            "translation_mm": float(np.linalg.norm(t) * 1e3)},
+        "sphere_error_mm": {"raw": _stats(np.linalg.norm(X - Y, axis=1), MM_PER_M),
+                            "aligned": _stats(np.linalg.norm(Xa - Y, axis=1), MM_PER_M)},
+        "frame_alignment": {"rotation_deg": float(rad_to_deg(np.linalg.norm(matrix_to_rotvec(R)))),
+                            "translation_mm": float(np.linalg.norm(t) * MM_PER_M)},
     }
     # shape only: pairwise sphere distances (free of any frame)
     dist_err = []
@@ -105,10 +106,10 @@ def _evaluate(meas: list, truth_sph: list, truth_tool: list, plate) -> dict:
         pm, pt = paper_frame_from_spheres(m), paper_frame_from_spheres(s)
         paper_raw.append(rotation_angle_between(pm[:3, :3], pt[:3, :3]))
         paper_al.append(rotation_angle_between(R @ pm[:3, :3], pt[:3, :3]))
-    out["distance_error_mm"] = _stats(np.array(dist_err), 1e3)
-    out["plate_orientation_error_deg"] = {"raw": _stats(np.degrees(ori_raw), 1.0), "aligned": _stats(np.degrees(ori_al), 1.0)}
-    out["paper_frame_orientation_error_deg"] = {"raw": _stats(np.degrees(paper_raw), 1.0),
-                                                "aligned": _stats(np.degrees(paper_al), 1.0)}
+    out["distance_error_mm"] = _stats(np.array(dist_err), MM_PER_M)
+    out["plate_orientation_error_deg"] = {"raw": _stats(rad_to_deg(ori_raw), 1.0), "aligned": _stats(rad_to_deg(ori_al), 1.0)}
+    out["paper_frame_orientation_error_deg"] = {"raw": _stats(rad_to_deg(paper_raw), 1.0),
+                                                "aligned": _stats(rad_to_deg(paper_al), 1.0)}
     return out
 
 
@@ -121,8 +122,8 @@ def _calibration_errors(cal: StereoCalibration, il, ir, l2r) -> dict:
         "views_rejected": {v.name: v.reason for v in cal.views if not v.used},
         "focal_error_px": [cal.left.fx - il.fx, cal.left.fy - il.fy, cal.right.fx - ir.fx, cal.right.fy - ir.fy],
         "principal_point_error_px": [cal.left.cx - il.cx, cal.left.cy - il.cy, cal.right.cx - ir.cx, cal.right.cy - ir.cy],
-        "baseline_error_mm": (cal.baseline - float(np.linalg.norm(l2r[:3, 3]))) * 1e3,
-        "left2right_rotation_error_deg": float(np.degrees(np.linalg.norm(matrix_to_rotvec(cal.left2right[:3, :3] @ l2r[:3, :3].T)))),
+        "baseline_error_mm": (cal.baseline - float(np.linalg.norm(l2r[:3, 3]))) * MM_PER_M,
+        "left2right_rotation_error_deg": float(rad_to_deg(np.linalg.norm(matrix_to_rotvec(cal.left2right[:3, :3] @ l2r[:3, :3].T)))),
     }
 
 
@@ -198,7 +199,7 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
     if supersample > 1:
         rig = World.from_config({"seed": seed}).config.rig
         cfg["rig"] = {"width_px": rig.width_px * supersample, "height_px": rig.height_px * supersample,
-                      "pixel_um": rig.pixel_size * 1e6 / supersample}
+                      "pixel_um": rig.pixel_size * UM_PER_M / supersample}
         cfg["render"] = {"noise_sigma": 0.0}
     w = World.from_config(cfg)
     rng = np.random.default_rng([seed, 99])
@@ -244,7 +245,7 @@ def run_world(per_station: int, seed: int, msaa: int = 0, supersample: int = 1, 
     figures["scene"] = {
         "poses": len(pairs),
         "stations": {w.station_names[s]: stations.count(s) for s in sorted(set(stations))},
-        "depth_mm": {"min": min(depths) * 1e3, "median": float(np.median(depths)) * 1e3, "max": max(depths) * 1e3},
+        "depth_mm": {"min": min(depths) * MM_PER_M, "median": float(np.median(depths)) * MM_PER_M, "max": max(depths) * MM_PER_M},
         "image_size": [il.width, il.height],
         "noise_sigma_grey": 2.0,
         "samples_per_pixel": supersample**2 * render_supersample**2,

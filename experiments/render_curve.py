@@ -23,6 +23,7 @@ import tomllib
 from pathlib import Path
 
 from twin.runtime import set_process_defaults  # noqa: E402
+from twin.units import MM_PER_M  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import numpy as np  # noqa: E402
@@ -69,7 +70,7 @@ def main() -> int:
                 wall += time.perf_counter() - t0
                 n += 1
                 m = measure_pair(cap.left, cap.right, cal, w.nominal_plate)
-                err += [np.linalg.norm(np.asarray(c) - p) * 1e3 for c, p in zip(m.centres, cap.spheres_meas)
+                err += [np.linalg.norm(np.asarray(c) - p) * MM_PER_M for c, p in zip(m.centres, cap.spheres_meas)
                         if c is not None]
         w.close()
         e = np.array(err)

@@ -18,11 +18,13 @@ FORBIDDEN = {
     "instrument": ("twin.world", "twin.estimator", "twin.diagnosis", "twin.evaluation", IMPORTERS, "mujoco", "rerun") + ABOVE,
     "estimator": ("twin.world", "twin.instrument", "twin.diagnosis", "twin.evaluation", IMPORTERS, "mujoco", "rerun", "cv2") + ABOVE,
     "diagnosis": ("twin.world", "twin.instrument", "twin.evaluation", IMPORTERS, "mujoco", "rerun", "cv2") + ABOVE,
-    "evaluation": (IMPORTERS,) + ABOVE,
-    "runner": ("twin.commands", "studies", "experiments", "rerun"),
+    "evaluation": (IMPORTERS, "mujoco") + ABOVE,
+    # the runner works on datasets: it imports every layer but the importers (files people have) and the commands
+    "runner": (IMPORTERS, "twin.commands", "studies", "experiments", "mujoco", "rerun"),
+    "commands": ("studies", "experiments", "mujoco", "rerun"),
 }
 FOUNDATION = {"transforms", "kinematics", "robots", "camera", "dataset", "benchio", "presets", "cli", "__init__", "urdf",
-              "resources", "runtime", "units"}
+              "resources", "runtime", "units", "files"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}
 # the packages whose modules must not import another module's private (_name) names

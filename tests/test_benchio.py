@@ -2,7 +2,7 @@
 
 import json
 
-from twin.benchio import PROVENANCE_PACKAGES, provenance, update_benchmark_section
+from twin.benchio import PROVENANCE_PACKAGES, REPOSITORY, command_line, provenance, update_benchmark_section
 
 
 def test_provenance_names_versions_cpu_and_load():
@@ -54,3 +54,12 @@ def test_alternate_with_commit_runs_the_earlier_commit_and_the_working_tree_in_t
     assert (sha, head) == (rev("HEAD~1"), rev("HEAD"))
     assert [(r["code"], r["text"]) for r in runs] == [(sha, "old"), ("current", "working")] * 2
     assert len(set(seen)) == 4
+
+
+def test_command_line_records_no_folder_of_the_machine(tmp_path):
+    """Absolute paths in a recorded command become repository-relative inside it and OUTSIDE/<name> outside it."""
+    assert not tmp_path.is_relative_to(REPOSITORY)
+    args = ["studies/x/run.py", "--out", str(tmp_path / "reg.json"), f"--work={tmp_path / 'regwork'}",
+            str(REPOSITORY / "results" / "a.json"), "a b"]
+    assert command_line("python", args) == ("python studies/x/run.py --out OUTSIDE/reg.json --work=OUTSIDE/regwork "
+                                            "results/a.json 'a b'")

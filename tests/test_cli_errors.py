@@ -30,7 +30,7 @@ def test_missing_packaged_model_names_the_file():
     """A broken install missing a packaged MJCF model is reported with the model's file name."""
     with pytest.raises(FileNotFoundError) as e:
         model_file("no_such_model.xml")
-    assert error_message(e.value).startswith("twin/data/models/no_such_model.xml: packaged MJCF model missing")
+    assert error_message(e.value).startswith("models/no_such_model.xml: packaged MJCF model missing")
 
 
 def test_oserror_with_two_files_names_both(tmp_path):

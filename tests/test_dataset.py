@@ -11,11 +11,13 @@ from twin.dataset import (
     default_plate,
     read_dataset,
     read_joints_csv,
+    read_noise_table,
     write_dataset,
     write_dataset_toml,
     write_joints_csv,
 )
 from twin.transforms import pose6_to_transform
+from twin.units import M_PER_MM
 
 
 def _write_small(folder, rng, n=6, missing=()):
@@ -140,3 +142,23 @@ def test_joints_csv_round_trip(tmp_path):
     r = read_joints_csv(tmp_path / "J.csv")
     assert r.pose_id.tolist() == [3, 1, 2]
     assert np.allclose(r.q, j.q) and np.allclose(r.temp_c, j.temp_c)
+
+
+def test_noise_table_reads_si_and_refuses_bad_entries(tmp_path):
+    """[noise] gives (m, rad) or None per key; an unknown key or a value that is not positive is refused, named."""
+    assert read_noise_table({"position_mm": 0.02, "orientation_rad": 1e-4}, "x") == (0.02 * M_PER_MM, 1e-4)
+    assert read_noise_table(None, "x") == (None, None) and read_noise_table({"position_mm": 5}, "x") == (5e-3, None)
+    with pytest.raises(DatasetError, match=r"^map.toml: \[noise\]: unknown key\(s\) \['position_m'\]"):
+        read_noise_table({"position_m": 0.02}, "map.toml")
+    for bad in (0, -1.0, float("nan"), "0.02", True):
+        with pytest.raises(DatasetError, match=r"^d.toml: noise.position_mm: must be a positive number"):
+            read_noise_table({"position_mm": bad}, "d.toml")
+
+
+def test_dataset_refuses_a_bad_noise_value_naming_the_file(tmp_path):
+    """A dataset.toml whose [noise] position_mm is not a positive number is refused naming the file and the key."""
+    _write_small(tmp_path, np.random.default_rng(1))
+    toml = tmp_path / "dataset.toml"
+    toml.write_text(toml.read_text().replace("position_mm = 0.005", "position_mm = -0.005"))
+    with pytest.raises(DatasetError, match=r"dataset.toml: noise.position_mm: must be a positive number, got -0.005"):
+        read_dataset(tmp_path)

@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -84,6 +85,15 @@ def _run(cmd, **kw) -> subprocess.CompletedProcess:
     return r
 
 
+def test_wheel_packages_every_subpackage_and_the_models():
+    """pyproject.toml names every package folder under twin/ and maps the top-level models/ folder as twin.models."""
+    tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "twin").rglob("__init__.py")}
+    assert set(tool["packages"]) == folders | {"twin.models"}
+    assert tool["package-dir"] == {"twin.models": "models"}
+    assert (ROOT / "models" / "__init__.py").is_file() and "*.xml" in tool["package-data"]["twin.models"]
+
+
 @pytest.mark.slow
 def test_wheel_installs_and_runs_a_campaign_outside_the_repository(tmp_path):
     """uv builds the wheel from the sources alone, installs it into a new venv at the lock's versions, and the
@@ -98,7 +108,8 @@ def test_wheel_installs_and_runs_a_campaign_outside_the_repository(tmp_path):
     src.mkdir()
     for f in ("pyproject.toml", "README.md"):
         shutil.copy2(ROOT / f, src / f)
-    shutil.copytree(ROOT / "twin", src / "twin", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    for folder in ("twin", "models"):  # models/ is mapped into the package as twin.models by pyproject.toml
+        shutil.copytree(ROOT / folder, src / folder, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     _run([uv, "build", "--wheel", "--out-dir", tmp_path / "dist", src], env=env, timeout=300)
     wheels = list((tmp_path / "dist").glob("twin-*.whl"))
     assert len(wheels) == 1

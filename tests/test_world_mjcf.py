@@ -1,6 +1,7 @@
 """The generated MJCF: body frames follow the numpy kinematic chain; static and composed files load cleanly."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,7 +78,7 @@ def test_joint_geometry_is_a_unit_hinge_through_the_chain():
 
 @pytest.mark.parametrize("name", model_names())
 def test_static_scene_files_load(name: str):
-    """Every packaged static scene file (twin/data/models) loads with mujoco.MjModel.from_xml_string."""
+    """Every packaged static scene file (models/, installed as twin.models) loads with mujoco.MjModel.from_xml_string."""
     m = mujoco.MjModel.from_xml_string(model_file(name).read_text())
     assert m.ngeom >= 1
 
@@ -93,7 +94,15 @@ def test_model_file_takes_only_bare_names():
         model_file("models/scene.xml")
     with pytest.raises(FileNotFoundError) as e:
         model_file("nope.xml")
-    assert e.value.filename == "twin/data/models/nope.xml"
+    assert e.value.filename == "models/nope.xml"
+
+
+def test_checkout_reads_the_models_at_the_repository_top():
+    """In the checkout's install, the packaged models are the files of the top-level models/ folder (one copy)."""
+    top = Path(__file__).resolve().parent.parent / "models"
+    for name in model_names():
+        assert Path(str(model_file(name))).resolve() == top / name
+    assert model_names() == sorted(p.name for p in top.glob("*.xml"))
 
 
 def test_robot_mass_and_gravity_statics_are_plausible():

@@ -8,11 +8,15 @@ import fcntl
 import json
 import os
 import platform
+import re
+import shlex
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
+
+from .files import read_json
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "update_benchmark_section", "read_benchmark", "machine_info", "provenance", "PROVENANCE_PACKAGES",
-           "peak_rss_kb", "alternate_with_commit"]
+           "peak_rss_kb", "alternate_with_commit", "command_line", "machine_free_path"]
 
 DEFAULT_PATH = Path(__file__).resolve().parent.parent / "results" / "benchmark.json"
 
@@ -71,6 +75,35 @@ def provenance(load_at_start: tuple[float, float, float] | list[float] | None = 
     return out
 
 
+REPOSITORY = Path(__file__).resolve().parent.parent
+OUTSIDE = "OUTSIDE"  # stands for the folders of a path outside the repository in a recorded command
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~-])/[^\s'\"=,;:]+")
+
+
+def machine_free_path(path: str | os.PathLike, *, root: str | os.PathLike = REPOSITORY) -> str:
+    """``path`` as a results file may record it: an absolute path inside the repository ``root`` relative to it, one
+    outside (a temporary folder, a home) as ``OUTSIDE/<its name>``; a relative path as given."""
+    p = str(path)
+    if not p.startswith("/"):
+        return p
+    resolved, base = Path(os.path.normpath(p)), Path(os.path.normpath(str(root)))
+    if resolved == base:
+        return "."
+    if resolved.is_relative_to(base):
+        return resolved.relative_to(base).as_posix()
+    return f"{OUTSIDE}/{resolved.name}"
+
+
+def command_line(program: str, args: Sequence[str], *, root: str | os.PathLike = REPOSITORY) -> str:
+    """The command that wrote a results file, for its record: ``program`` and the shell-quoted ``args``, every
+    absolute path in them (``--out PATH`` or ``--out=PATH``) made machine-free by
+    :func:`machine_free_path`, so that no folder of the machine that ran it is committed."""
+    def clean(arg: str) -> str:
+        return _ABSOLUTE_PATH.sub(lambda m: machine_free_path(m.group(0), root=root), str(arg))
+
+    return " ".join([program] + [shlex.quote(clean(a)) for a in args])
+
+
 def peak_rss_kb(pid: int) -> int:
     """Peak resident set of a running process [KiB]: ``VmHWM`` of ``/proc/PID/status`` (0 when it has gone)."""
     try:
@@ -103,7 +136,7 @@ def read_benchmark(path: str | os.PathLike | None = None) -> dict[str, Any]:
     p = Path(path) if path else DEFAULT_PATH
     if not p.exists():
         return {}
-    return json.loads(p.read_text())
+    return read_json(p)
 
 
 def update_benchmark_section(section: str, data: dict[str, Any], path: str | os.PathLike | None = None) -> Path:
@@ -115,7 +148,7 @@ def update_benchmark_section(section: str, data: dict[str, Any], path: str | os.
     lock = p.with_suffix(".lock")
     with open(lock, "w") as lf:
         fcntl.flock(lf, fcntl.LOCK_EX)
-        current = json.loads(p.read_text()) if p.exists() else {}
+        current = read_json(p) if p.exists() else {}
         current[section] = {**data, "machine": machine_info()}
         tmp = p.with_suffix(".tmp")
         tmp.write_text(json.dumps(current, indent=2, sort_keys=True) + "\n")

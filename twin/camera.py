@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .units import deg_to_rad, rad_to_deg
+
 __all__ = [
     "FLIP_MUJOCO_OPENCV",
     "CameraIntrinsics",
@@ -106,12 +108,12 @@ def opencv_to_mujoco_cam2world(cam2world_cv: np.ndarray) -> tuple[np.ndarray, np
 
 def focal_px_from_fovy(fovy_deg: float, height: int) -> float:
     """``f = 0.5 * height / tan(0.5 * fovy)`` [px]."""
-    return 0.5 * height / np.tan(0.5 * np.deg2rad(fovy_deg))
+    return 0.5 * height / np.tan(0.5 * deg_to_rad(fovy_deg))
 
 
 def fovy_deg_from_focal_px(f_px: float, height: int) -> float:
     """Vertical field of view [deg] of a focal length [px] on ``height`` rows."""
-    return float(np.rad2deg(2.0 * np.arctan(0.5 * height / f_px)))
+    return float(rad_to_deg(2.0 * np.arctan(0.5 * height / f_px)))
 
 
 def distort_normalized(xy: np.ndarray, dist) -> np.ndarray:

@@ -17,16 +17,17 @@ import csv
 import io
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from .files import open_text, parse_finite, read_toml
 from .kinematics import RobotModel
 from .robots import ROBOTS, get_robot
 from .transforms import pose6_to_transform, transform_to_pose6
+from .units import M_PER_MM, RAD_PER_DEG, deg_to_rad
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -49,15 +50,15 @@ __all__ = [
     "marker_columns",
     "joint_columns",
     "LENGTH_UNITS",
-    "read_text",
-    "open_text",
+    "NOISE_KEYS",
+    "read_noise_table",
 ]
 
 SCHEMA_VERSION = 1
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 SPHERE_COLUMNS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
 # Units of the marker (p<k>_x ...) and pose position (x y z) columns of poses.csv, to metres.
-LENGTH_UNITS = {"mm": 1e-3, "m": 1.0}
+LENGTH_UNITS = {"mm": M_PER_MM, "m": 1.0}
 
 
 def marker_columns(k: int) -> tuple[str, ...]:
@@ -72,27 +73,10 @@ def joint_columns(robot: RobotModel) -> tuple[str, ...]:
 POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz")
 OPTIONAL_COLUMNS = ("set", "station", "pair", "temp_c", "t_s", "status")
 SETS = ("calibration", "validation")
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 
 class DatasetError(ValueError):
     """A dataset that cannot be used as it is; the message names the file, row and column."""
-
-
-def read_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> str:
-    """The UTF-8 text of the file ``path``; a file that is not UTF-8 text raises ``error`` naming it (never a bare
-    ``UnicodeDecodeError``, which names no file). ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
-    data = Path(path).read_bytes()
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-
-
-def open_text(path: str | os.PathLike, error: type[ValueError] = DatasetError) -> io.StringIO:
-    """The file ``path`` as a text stream for :mod:`csv` (``newline=""``), decoded as :func:`read_text` does."""
-    return io.StringIO(read_text(path, error), newline="")
 
 
 @dataclass(frozen=True)
@@ -134,9 +118,9 @@ class Plate:
 def default_plate() -> Plate:
     """The twin's plate (separation paper section 2.2.2): 25.4 mm spheres on a 60 mm circle at z = 50 mm,
     at 0, 180 and 110 deg (unequal spacing so that the three can be labelled by their distances)."""
-    ang = np.deg2rad([0.0, 180.0, 110.0])
-    s = np.stack([60.0 * np.cos(ang), 60.0 * np.sin(ang), np.full(3, 50.0)], axis=1) * _MM
-    return Plate(25.4 * _MM, s)
+    ang = deg_to_rad(np.array([0.0, 180.0, 110.0]))
+    s = np.stack([60.0 * np.cos(ang), 60.0 * np.sin(ang), np.full(3, 50.0)], axis=1) * M_PER_MM
+    return Plate(25.4 * M_PER_MM, s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,15 +277,15 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
                 v = np.asarray(spec[k], dtype=float)
                 if v.shape != (n,) or not np.all(np.isfinite(v)):
                     raise DatasetError(f"{where}: robot.{k} must be {n} finite numbers (one per joint), got {spec[k]!r}")
-                kw[k[:5]] = v * _DEG
+                kw[k[:5]] = v * RAD_PER_DEG
         return RobotModel.from_tables(
             str(spec.get("name", "custom")),
             spec["convention"],
-            theta=arrays["theta_deg"] * _DEG,
-            d=arrays["d_mm"] * _MM,
-            a=arrays["a_mm"] * _MM,
-            alpha=arrays["alpha_deg"] * _DEG,
-            beta={j: b * _DEG for j, b in zip(beta_joints, beta_deg)},
+            theta=arrays["theta_deg"] * RAD_PER_DEG,
+            d=arrays["d_mm"] * M_PER_MM,
+            a=arrays["a_mm"] * M_PER_MM,
+            alpha=arrays["alpha_deg"] * RAD_PER_DEG,
+            beta={j: b * RAD_PER_DEG for j, b in zip(beta_joints, beta_deg)},
             **kw,
         )
     except DatasetError:
@@ -315,22 +299,34 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
 # ------------------------------------------------------------------------------------------------
 
 def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a number: {text!r}") from None
-    if not math.isfinite(v):
-        raise DatasetError(f"{file}: row {row} (pose_id {pid}), column {col!r}: not a finite number: {text!r}")
-    return v
+    return parse_finite(text, f"{file}: row {row} (pose_id {pid}), column {col!r}", DatasetError)
+
+
+NOISE_KEYS = ("position_mm", "orientation_rad")  # the keys of a [noise] table (dataset.toml, a column map)
+
+
+def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None]:
+    """The instrument's 1-sigma noise stated by a ``[noise]`` table (``dataset.toml``, a column map):
+    ``(position [m], orientation [rad])`` from ``position_mm`` and ``orientation_rad``, None where the table does not
+    state it (``table`` None or empty: neither). ``DatasetError`` naming ``where`` and the key for a key of another
+    name or a value that is not a positive finite number."""
+    if table is None:
+        return None, None
+    if not isinstance(table, dict):
+        raise DatasetError(f"{where}: [noise] must be a table ({', '.join(NOISE_KEYS)}), got {table!r}")
+    unknown = sorted(set(table) - set(NOISE_KEYS))
+    if unknown:
+        raise DatasetError(f"{where}: [noise]: unknown key(s) {unknown}; known: {sorted(NOISE_KEYS)}")
+    for k, v in table.items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
+            raise DatasetError(f"{where}: noise.{k}: must be a positive number, got {v!r}")
+    position = float(table["position_mm"]) * M_PER_MM if "position_mm" in table else None
+    orientation = float(table["orientation_rad"]) if "orientation_rad" in table else None
+    return position, orientation
 
 
 def _read_toml(path: Path) -> dict:
-    try:
-        meta = tomllib.loads(read_text(path))
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: missing (a dataset folder holds poses.csv and dataset.toml)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise DatasetError(f"{path}: not valid TOML: {exc}") from None
+    meta = read_toml(path, DatasetError, missing="missing (a dataset folder holds poses.csv and dataset.toml)")
     version = meta.get("schema_version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
         raise DatasetError(f"{path}: schema_version {version!r} is not supported (this library reads {SCHEMA_VERSION})")
@@ -350,7 +346,7 @@ def _plate_from_meta(meta: dict, where: str) -> tuple[Plate, str]:
     diam = 0.0
     if dkey in tab or what == "[plate]":
         try:
-            diam = float(tab[dkey]) * _MM
+            diam = float(tab[dkey]) * M_PER_MM
         except KeyError:
             raise DatasetError(f"{where}: {what} lacks field {dkey!r}") from None
         except (TypeError, ValueError):
@@ -371,13 +367,13 @@ def _plate_from_meta(meta: dict, where: str) -> tuple[Plate, str]:
     if unit not in LENGTH_UNITS:
         raise DatasetError(f"{where}: {what} unit must be one of {sorted(LENGTH_UNITS)} (the unit of the marker and "
                            f"pose position columns of poses.csv), got {unit!r}")
-    return Plate(diam, s * _MM), str(unit)
+    return Plate(diam, s * M_PER_MM), str(unit)
 
 
 def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
     try:
         v = np.array(
-            [d["x_mm"] * _MM, d["y_mm"] * _MM, d["z_mm"] * _MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], dtype=float
+            [d["x_mm"] * M_PER_MM, d["y_mm"] * M_PER_MM, d["z_mm"] * M_PER_MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], dtype=float
         )
     except (KeyError, TypeError) as exc:
         raise DatasetError(f"{where}: needs x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad ({exc})") from None
@@ -387,9 +383,57 @@ def _pose6_mm_to_transform(d: dict, where: str) -> np.ndarray:
 def _transform_to_pose6_mm(T: np.ndarray) -> dict:
     v = transform_to_pose6(T)
     return {
-        "x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+        "x_mm": float(v[0] / M_PER_MM), "y_mm": float(v[1] / M_PER_MM), "z_mm": float(v[2] / M_PER_MM),
         "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5]),
     }
+
+
+@dataclass(frozen=True)
+class _Meta:
+    """What ``dataset.toml`` says, in SI: the robot (with its nominal tool), the marker set, the noise, the
+    stations' nominal ``base2meas``."""
+
+    raw: dict
+    robot: RobotModel
+    plate: Plate
+    length_unit: str
+    noise_position: float | None
+    noise_orientation: float | None
+    stations_base2meas: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """The columns of a ``poses.csv`` header, checked against the robot and the marker set."""
+
+    file: str
+    index: dict[str, int]
+    joints: tuple[str, ...]
+    joint_scale: list[float]  # [m/mm] or [rad/deg] per joint
+    markers: tuple[str, ...]
+    n_points: int
+    has_markers: bool
+    has_pose: bool
+    optional: tuple[str, ...]
+    extra: tuple[str, ...]
+
+    def cell(self, r: list[str], c: str) -> str:
+        i = self.index[c]
+        return r[i].strip() if i < len(r) else ""
+
+
+@dataclass
+class _Rows:
+    """The cells of the data rows, read and checked: joints and measurements in SI, the other columns as text."""
+
+    pose_id: np.ndarray
+    q: np.ndarray
+    spheres: np.ndarray
+    seen: np.ndarray
+    pose: np.ndarray
+    pose_seen: np.ndarray
+    optional: dict[str, list[str]]
+    extra: dict[str, list[str]]
 
 
 def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float = 0.5) -> Dataset:
@@ -401,8 +445,38 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     folder = Path(folder)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a dataset folder (expected poses.csv and dataset.toml inside)")
+    meta = _read_meta(folder)
+    header, rows = _read_csv_table(folder / "poses.csv")
+    cols = _check_columns(str(folder / "poses.csv"), header, meta.robot, meta.plate)
+    if not rows:
+        raise DatasetError(f"{cols.file}: no data rows")
+    data = _read_rows(cols, rows, LENGTH_UNITS[meta.length_unit], meta.robot.n_joints)
+    _check_measured_rows(cols, data, max_rows_without_spheres)
+    opt = _optional_arrays(cols.file, data)
+    return Dataset(
+        robot=meta.robot,
+        robot_spec=meta.raw["robot"],
+        plate=meta.plate,
+        pose_id=data.pose_id,
+        q=data.q,
+        spheres=data.spheres,
+        sphere_seen=data.seen,
+        pose=data.pose,
+        pose_seen=data.pose_seen,
+        **opt,
+        extra={c: np.array(v, dtype=object) for c, v in data.extra.items()},
+        noise_position=meta.noise_position,
+        noise_orientation=meta.noise_orientation,
+        stations_base2meas=meta.stations_base2meas,
+        provenance=str(meta.raw.get("provenance", "")),
+        path=folder,
+        length_unit=meta.length_unit,
+    )
+
+
+def _read_meta(folder: Path) -> _Meta:
+    """``dataset.toml`` of ``folder``: the robot (and its ``[tool]``), the marker set, ``[noise]``, the stations."""
     toml_path = folder / "dataset.toml"
-    csv_path = folder / "poses.csv"
     meta = _read_toml(toml_path)
     if "robot" not in meta:
         raise DatasetError(f"{toml_path}: missing field 'robot' (a robot name or an inline table)")
@@ -414,29 +488,36 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
                                f"(the nominal tool frame in the flange frame), got {tool!r}")
         robot = robot.with_frames(tool2flange=_pose6_mm_to_transform(tool["tool2flange"], f"{toml_path}: [tool].tool2flange"))
     plate, length_unit = _plate_from_meta(meta, str(toml_path))
-    to_m = LENGTH_UNITS[length_unit]
-    noise = meta.get("noise", {}) or {}
+    noise_position, noise_orientation = read_noise_table(meta.get("noise"), str(toml_path))
     stations_b2m = {}
     for sid, st in (meta.get("stations") or {}).items():
         if isinstance(st, dict) and "base2meas" in st:
             stations_b2m[str(sid)] = _pose6_mm_to_transform(st["base2meas"], f"{toml_path}: [stations.{sid}].base2meas")
+    return _Meta(meta, robot, plate, length_unit, noise_position, noise_orientation, stations_b2m)
 
+
+def _read_csv_table(csv_path: Path) -> tuple[list[str], list[list[str]]]:
+    """The header (stripped) and the non-blank rows of ``poses.csv``."""
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a dataset folder holds poses.csv and dataset.toml)")
-    with open_text(csv_path) as f:
+    with open_text(csv_path, DatasetError) as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise DatasetError(f"{csv_path}: empty file (no header row)") from None
         rows = [r for r in reader if any(c.strip() for c in r)]
-    file = str(csv_path)
+    return header, rows
+
+
+def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate) -> _Columns:
+    """The header's columns: no duplicate, the robot's joints, the marker set's points and/or a whole pose."""
     col = {h: i for i, h in enumerate(header)}
     if len(col) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise DatasetError(f"{file}: duplicate columns {dup}")
     jcols = joint_columns(robot)
-    jscale = [_MM if pr else _DEG for pr in robot.is_prismatic]
+    jscale = [M_PER_MM if pr else RAD_PER_DEG for pr in robot.is_prismatic]
     missing = [c for c in ("pose_id",) + jcols if c not in col]
     if missing:
         raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
@@ -458,29 +539,25 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     if not (has_sph_cols or has_pose_cols):
         raise DatasetError(f"{file}: no measurement columns: need {mcols[0]}..{mcols[-1]} (markers) or x y z rx ry rz "
                            "(pose)")
-    n = len(rows)
-    if n == 0:
-        raise DatasetError(f"{file}: no data rows")
-
-    pose_id = np.zeros(n, dtype=np.int64)
-    q = np.zeros((n, robot.n_joints))
-    spheres = np.full((n, K, 3), np.nan)
-    seen = np.zeros((n, K), dtype=bool)
-    pose = np.full((n, 4, 4), np.nan)
-    pose_seen = np.zeros(n, dtype=bool)
-    opt: dict[str, list] = {c: [] for c in OPTIONAL_COLUMNS if c in col}
     known = set(("pose_id",) + jcols + mcols + POSE_COLUMNS + OPTIONAL_COLUMNS)
-    extra_cols = [h for h in header if h not in known]
-    extra: dict[str, list] = {c: [] for c in extra_cols}
-    seen_ids: dict[int, int] = {}
+    return _Columns(file=file, index=col, joints=jcols, joint_scale=jscale, markers=mcols, n_points=K,
+                    has_markers=has_sph_cols, has_pose=has_pose_cols,
+                    optional=tuple(c for c in OPTIONAL_COLUMNS if c in col),
+                    extra=tuple(h for h in header if h not in known))
 
-    def cell(r: list[str], c: str) -> str:
-        i = col[c]
-        return r[i].strip() if i < len(r) else ""
 
+def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int) -> _Rows:
+    """Every data row: a unique integer ``pose_id``, the commanded joints (all given), whole marker points and/or a
+    whole pose (a row without any says why in ``status``); lengths in [m] by ``to_m``, joints in [rad] / [m]."""
+    file, K, mcols = cols.file, cols.n_points, cols.markers
+    n = len(rows)
+    out = _Rows(pose_id=np.zeros(n, dtype=np.int64), q=np.zeros((n, n_joints)), spheres=np.full((n, K, 3), np.nan),
+                seen=np.zeros((n, K), dtype=bool), pose=np.full((n, 4, 4), np.nan), pose_seen=np.zeros(n, dtype=bool),
+                optional={c: [] for c in cols.optional}, extra={c: [] for c in cols.extra})
+    opt, seen_ids = out.optional, {}
     for k, r in enumerate(rows):
         rown = k + 1
-        pid_txt = cell(r, "pose_id")
+        pid_txt = cols.cell(r, "pose_id")
         try:
             pid = int(pid_txt)
         except ValueError:
@@ -488,48 +565,59 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
         if pid in seen_ids:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
         seen_ids[pid] = rown
-        pose_id[k] = pid
-        for j, c in enumerate(jcols):
-            t = cell(r, c)
+        out.pose_id[k] = pid
+        for j, c in enumerate(cols.joints):
+            t = cols.cell(r, c)
             if t == "":
                 raise DatasetError(f"{file}: row {rown} (pose_id {pid}), column {c!r}: empty (commanded joints are required)")
-            q[k, j] = _parse_float(t, file, rown, str(pid), c) * jscale[j]
-        if has_sph_cols:
+            out.q[k, j] = _parse_float(t, file, rown, str(pid), c) * cols.joint_scale[j]
+        if cols.has_markers:
             for s in range(K):
                 cs = mcols[3 * s:3 * s + 3]
-                texts = [cell(r, c) for c in cs]
+                texts = [cols.cell(r, c) for c in cs]
                 if all(t == "" for t in texts):
                     continue
                 if any(t == "" for t in texts):
                     empty = [c for c, t in zip(cs, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: point p{s} is partly empty")
-                spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * to_m for t, c in zip(texts, cs)]
-                seen[k, s] = True
-        if has_pose_cols:
-            texts = [cell(r, c) for c in POSE_COLUMNS]
+                out.spheres[k, s] = [_parse_float(t, file, rown, str(pid), c) * to_m for t, c in zip(texts, cs)]
+                out.seen[k, s] = True
+        if cols.has_pose:
+            texts = [cols.cell(r, c) for c in POSE_COLUMNS]
             if any(t != "" for t in texts):
                 if any(t == "" for t in texts):
                     empty = [c for c, t in zip(POSE_COLUMNS, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: pose is partly empty")
                 v = [_parse_float(t, file, rown, str(pid), c) for t, c in zip(texts, POSE_COLUMNS)]
-                pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
-                pose_seen[k] = True
+                out.pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
+                out.pose_seen[k] = True
         for c in opt:
-            opt[c].append(cell(r, c))
-        for c in extra:
-            extra[c].append(cell(r, c))
-        if not seen[k].any() and not pose_seen[k] and (not opt.get("status") or opt["status"][-1] == ""):
+            opt[c].append(cols.cell(r, c))
+        for c in out.extra:
+            out.extra[c].append(cols.cell(r, c))
+        if not out.seen[k].any() and not out.pose_seen[k] and (not opt.get("status") or opt["status"][-1] == ""):
             raise DatasetError(
                 f"{file}: row {rown} (pose_id {pid}): no measurement and no 'status' saying why"
             )
+    return out
 
-    incomplete = ~(seen.all(axis=1) | pose_seen)
-    if has_sph_cols and incomplete.mean() > max_rows_without_spheres:
+
+def _check_measured_rows(cols: _Columns, data: _Rows, max_rows_without_spheres: float) -> None:
+    """Refuse a marker dataset where more than ``max_rows_without_spheres`` of the rows lack a point and a pose."""
+    incomplete = ~(data.seen.all(axis=1) | data.pose_seen)
+    if cols.has_markers and incomplete.mean() > max_rows_without_spheres:
+        K = cols.n_points
         raise DatasetError(
-            f"{file}: {int(incomplete.sum())} of {n} rows have fewer than "
+            f"{cols.file}: {int(incomplete.sum())} of {incomplete.size} rows have fewer than "
             f"{'three spheres' if K == 3 else f'{K} marker points'} and no pose "
             f"(more than {max_rows_without_spheres:.0%}); check the instrument's 'status' column"
         )
+
+
+def _optional_arrays(file: str, data: _Rows) -> dict[str, np.ndarray | None]:
+    """The optional columns as the dataset's arrays (None where absent), checked in the order ``set``, ``pair``,
+    ``temp_c``, ``t_s``: a ``set`` of calibration/validation, an integer ``pair``, finite temperatures and times."""
+    opt, pose_id, n = data.optional, data.pose_id, data.pose_id.size
 
     def floats(c: str) -> np.ndarray | None:
         if c not in opt:
@@ -562,30 +650,8 @@ def read_dataset(folder: str | os.PathLike, *, max_rows_without_spheres: float =
     station = None
     if "station" in opt:
         station = np.array([t if t != "" else "0" for t in opt["station"]], dtype=object)
-    return Dataset(
-        robot=robot,
-        robot_spec=meta["robot"],
-        plate=plate,
-        pose_id=pose_id,
-        q=q,
-        spheres=spheres,
-        sphere_seen=seen,
-        pose=pose,
-        pose_seen=pose_seen,
-        set=set_arr,
-        station=station,
-        pair=pair,
-        temp_c=floats("temp_c"),
-        t_s=floats("t_s"),
-        status=np.array(opt["status"], dtype=object) if "status" in opt else None,
-        extra={c: np.array(v, dtype=object) for c, v in extra.items()},
-        noise_position=float(noise["position_mm"]) * _MM if "position_mm" in noise else None,
-        noise_orientation=float(noise["orientation_rad"]) if "orientation_rad" in noise else None,
-        stations_base2meas=stations_b2m,
-        provenance=str(meta.get("provenance", "")),
-        path=folder,
-        length_unit=length_unit,
-    )
+    return {"set": set_arr, "station": station, "pair": pair, "temp_c": floats("temp_c"), "t_s": floats("t_s"),
+            "status": np.array(opt["status"], dtype=object) if "status" in opt else None}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -641,21 +707,21 @@ def write_dataset_toml(
         lines += [
             "",
             "[plate]",
-            f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
-            f"spheres_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+            f"sphere_diameter_mm = {_toml_value(plate.sphere_diameter / M_PER_MM)}",
+            f"spheres_mm = {_toml_value([[round(float(x) / M_PER_MM, 9) for x in s] for s in plate.spheres_flange])}",
         ]
     else:
         lines += [
             "",
             "[markers]",
             f"unit = {_toml_value(length_unit)}",
-            f"diameter_mm = {_toml_value(plate.sphere_diameter / _MM)}",
-            f"points_mm = {_toml_value([[round(float(x) / _MM, 9) for x in s] for s in plate.spheres_flange])}",
+            f"diameter_mm = {_toml_value(plate.sphere_diameter / M_PER_MM)}",
+            f"points_mm = {_toml_value([[round(float(x) / M_PER_MM, 9) for x in s] for s in plate.spheres_flange])}",
         ]
     if noise_position is not None or noise_orientation is not None:
         lines += ["", "[noise]"]
         if noise_position is not None:
-            lines.append(f"position_mm = {_toml_value(noise_position / _MM)}")
+            lines.append(f"position_mm = {_toml_value(noise_position / M_PER_MM)}")
         if noise_orientation is not None:
             lines.append(f"orientation_rad = {_toml_value(noise_orientation)}")
     if tool2flange is not None:
@@ -694,11 +760,11 @@ class PoseRow:
 
 def _fmt_deg(x: float) -> str:
     """Degrees with 1e-10 deg resolution (2e-12 rad: far below any effect the library models)."""
-    return f"{float(x) / _DEG:.10f}"
+    return f"{float(x) / RAD_PER_DEG:.10f}"
 
 
 def _fmt_mm(x: float) -> str:
-    return f"{float(x) / _MM:.6f}"
+    return f"{float(x) / M_PER_MM:.6f}"
 
 
 class DatasetWriter:
@@ -725,7 +791,7 @@ class DatasetWriter:
         if int(n_points) < 1:
             raise ValueError(f"n_points must be at least 1, got {n_points!r}")
         self._jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-        self._jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+        self._jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
         self._k = int(n_points)
         self._to_m = LENGTH_UNITS[length_unit]
         self.folder = Path(folder)
@@ -754,7 +820,7 @@ class DatasetWriter:
             self._f.flush()
 
     def _fmt_len(self, x: float) -> str:
-        return _fmt_mm(x) if self._to_m == _MM else f"{float(x):.9f}"
+        return _fmt_mm(x) if self._to_m == M_PER_MM else f"{float(x):.9f}"
 
     def write(self, row: PoseRow) -> None:
         nj = len(self._jcols)
@@ -876,7 +942,7 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: missing")
-    with open_text(path) as f:
+    with open_text(path, DatasetError) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = list(reader)
@@ -896,7 +962,7 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     a prismatic joint), optional ``temp_c, t_s, station, set, session``)."""
     path = Path(path)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
@@ -936,7 +1002,7 @@ def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
-    jscale = [_DEG] * 6 if robot is None else [_MM if p else _DEG for p in robot.is_prismatic]
+    jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     if np.shape(joints.q)[1:] != (len(jcols),):
         raise ValueError(f"joints.q must have shape (n, {len(jcols)}) for columns {', '.join(jcols)}, got {np.shape(joints.q)}")
     cols = ["pose_id", *jcols] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]

@@ -16,16 +16,12 @@ they live in ``twin/data/paper_targets_*.toml`` (:mod:`twin.evaluation.targets`)
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .transforms import matrix_from_euler_zyx, matrix_to_rotvec
+from .units import M_PER_MM, RAD_PER_DEG
 
 __all__ = ["PRESETS", "preset_deviation", "preset_robot"]
-
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 
 def _rows(table: dict[int, dict[str, float]], scale: dict[str, float]) -> dict[str, float]:
@@ -36,8 +32,8 @@ def _rows(table: dict[int, dict[str, float]], scale: dict[str, float]) -> dict[s
     return out
 
 
-_SEP_SCALE = {"theta": _DEG, "alpha": _DEG, "beta": _DEG, "d": _MM, "a": _MM}
-_TM_SCALE = {"theta": 1.0, "alpha": 1.0, "beta": 1.0, "d": _MM, "a": _MM}
+_SEP_SCALE = {"theta": RAD_PER_DEG, "alpha": RAD_PER_DEG, "beta": RAD_PER_DEG, "d": M_PER_MM, "a": M_PER_MM}
+_TM_SCALE = {"theta": 1.0, "alpha": 1.0, "beta": 1.0, "d": M_PER_MM, "a": M_PER_MM}
 
 # Separation paper, Table 2 (angles, deg) and Table 4 (lengths, mm; theta2/theta3 split in deg).
 _SEP_T2 = {
@@ -82,7 +78,7 @@ def _frame_dev(prefix: str, xyz_mm_abg: tuple[float, ...]) -> dict[str, float]:
     x, y, z, al, be, ga = xyz_mm_abg
     r = matrix_to_rotvec(matrix_from_euler_zyx(np.array([ga, be, al])))
     return {
-        f"{prefix}_x": x * _MM, f"{prefix}_y": y * _MM, f"{prefix}_z": z * _MM,
+        f"{prefix}_x": x * M_PER_MM, f"{prefix}_y": y * M_PER_MM, f"{prefix}_z": z * M_PER_MM,
         f"{prefix}_rx": float(r[0]), f"{prefix}_ry": float(r[1]), f"{prefix}_rz": float(r[2]),
     }
 

@@ -17,11 +17,9 @@ from typing import Callable
 import numpy as np
 
 from .kinematics import RobotModel
+from .units import M_PER_MM, RAD_PER_DEG
 
 __all__ = ["irb1200", "brtirus0707a", "get_robot", "ROBOTS", "robot_from_joint_table", "joint_table"]
-
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 def irb1200() -> RobotModel:
@@ -41,13 +39,13 @@ def irb1200() -> RobotModel:
     return RobotModel.from_tables(
         "irb1200",
         "mdh",
-        theta=table[:, 3] * _DEG,
-        d=table[:, 2] * _MM,
-        a=table[:, 1] * _MM,
-        alpha=table[:, 0] * _DEG,
+        theta=table[:, 3] * RAD_PER_DEG,
+        d=table[:, 2] * M_PER_MM,
+        a=table[:, 1] * M_PER_MM,
+        alpha=table[:, 0] * RAD_PER_DEG,
         beta={2: 0.0},
-        q_min=limits_deg[:, 0] * _DEG,
-        q_max=limits_deg[:, 1] * _DEG,
+        q_min=limits_deg[:, 0] * RAD_PER_DEG,
+        q_max=limits_deg[:, 1] * RAD_PER_DEG,
     )
 
 
@@ -72,8 +70,8 @@ def brtirus0707a() -> RobotModel:
         "brtirus0707a",
         "dh",
         theta=table[:, 0],
-        d=table[:, 1] * _MM,
-        a=table[:, 2] * _MM,
+        d=table[:, 1] * M_PER_MM,
+        a=table[:, 2] * M_PER_MM,
         alpha=table[:, 3],
         beta={2: 0.0},
         q_min=limits[:, 0],
@@ -111,8 +109,8 @@ def _transform_from_table(t: dict, what: str) -> np.ndarray:
 
     if not isinstance(t, dict):
         raise ValueError(f"{what} must be a table with xyz_mm and rpy_deg, got {t!r}")
-    xyz = _floats(t.get("xyz_mm", [0, 0, 0]), 3, f"{what}.xyz_mm") * _MM
-    rpy = _floats(t.get("rpy_deg", [0, 0, 0]), 3, f"{what}.rpy_deg") * _DEG
+    xyz = _floats(t.get("xyz_mm", [0, 0, 0]), 3, f"{what}.xyz_mm") * M_PER_MM
+    rpy = _floats(t.get("rpy_deg", [0, 0, 0]), 3, f"{what}.rpy_deg") * RAD_PER_DEG
     return make_transform(matrix_from_euler_zyx(rpy), xyz)
 
 
@@ -137,19 +135,19 @@ def robot_from_joint_table(spec: dict, where: str = "robot") -> RobotModel:
         kind = j["type"]
         if kind not in ("revolute", "prismatic"):
             raise ValueError(f"{w}.type must be 'revolute' or 'prismatic', got {kind!r}")
-        unit = _MM if kind == "prismatic" else _DEG
+        unit = M_PER_MM if kind == "prismatic" else RAD_PER_DEG
         lim = _floats(j["limits"], 2, f"{w}.limits") * unit
         inertial = None
         if "mass_kg" in j:
             I6 = _floats(j.get("inertia_kg_m2", [0] * 6), 6, f"{w}.inertia_kg_m2")
             inertia = ((I6[0], I6[1], I6[2]), (I6[1], I6[3], I6[4]), (I6[2], I6[4], I6[5]))
             mass = float(_floats([j["mass_kg"]], 1, f"{w}.mass_kg")[0])
-            com = tuple(_floats(j.get("com_mm", [0, 0, 0]), 3, f"{w}.com_mm") * _MM)
+            com = tuple(_floats(j.get("com_mm", [0, 0, 0]), 3, f"{w}.com_mm") * M_PER_MM)
             inertial = {"mass": mass, "com": com, "inertia": inertia}
         specs.append(JointSpec(
             name=str(j["name"]), kind=kind,
-            xyz=tuple(_floats(j["xyz_mm"], 3, f"{w}.xyz_mm") * _MM),
-            rpy=tuple(_floats(j["rpy_deg"], 3, f"{w}.rpy_deg") * _DEG),
+            xyz=tuple(_floats(j["xyz_mm"], 3, f"{w}.xyz_mm") * M_PER_MM),
+            rpy=tuple(_floats(j["rpy_deg"], 3, f"{w}.rpy_deg") * RAD_PER_DEG),
             axis=tuple(_floats(j.get("axis", [0, 0, 1]), 3, f"{w}.axis")),
             q_min=float(lim[0]), q_max=float(lim[1]), inertial=inertial,
         ))
@@ -167,14 +165,14 @@ def joint_table(model: RobotModel) -> dict:
         raise ValueError(f"model {model.name!r} is a {st.convention!r} robot: its table is the DH one")
     joints = []
     for j in st.joints:
-        unit = _MM if j.kind == "prismatic" else _DEG
-        row = {"name": j.name, "type": j.kind, "xyz_mm": [x / _MM for x in j.xyz], "rpy_deg": [x / _DEG for x in j.rpy],
+        unit = M_PER_MM if j.kind == "prismatic" else RAD_PER_DEG
+        row = {"name": j.name, "type": j.kind, "xyz_mm": [x / M_PER_MM for x in j.xyz], "rpy_deg": [x / RAD_PER_DEG for x in j.rpy],
                "axis": list(j.axis), "limits": [j.q_min / unit, j.q_max / unit]}
         if j.inertial:
             I = np.asarray(j.inertial["inertia"], dtype=float)
-            row.update({"mass_kg": j.inertial["mass"], "com_mm": [c / _MM for c in j.inertial["com"]],
+            row.update({"mass_kg": j.inertial["mass"], "com_mm": [c / M_PER_MM for c in j.inertial["com"]],
                         "inertia_kg_m2": [I[0, 0], I[0, 1], I[0, 2], I[1, 1], I[1, 2], I[2, 2]]})
         joints.append(row)
     E = np.asarray(st.end_origin, dtype=float).reshape(4, 4)
     return {"name": model.name, "convention": "urdf", "joints": joints,
-            "end": {"xyz_mm": (E[:3, 3] / _MM).tolist(), "rpy_deg": (euler_zyx_from_matrix(E[:3, :3]) / _DEG).tolist()}}
+            "end": {"xyz_mm": (E[:3, 3] / M_PER_MM).tolist(), "rpy_deg": (euler_zyx_from_matrix(E[:3, :3]) / RAD_PER_DEG).tolist()}}

@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from twin.kinematics import tool2meas
+from twin.units import MM_PER_M
 
 from .common import PeerResult, register_base_and_tool
 from .floor import floor_fit
@@ -120,7 +121,7 @@ def run_grid(
             cells.append(
                 {
                     "n_calibration": n_cal,
-                    "noise": {"position_mm": noise.position * 1e3, "orientation_rad": noise.orientation},
+                    "noise": {"position_mm": noise.position * MM_PER_M, "orientation_rad": noise.orientation},
                     "noise_label": noise.label,
                     "timing_runs": timing,
                     "seeds": per_seed,

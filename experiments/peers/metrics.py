@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from twin.transforms import rotation_angle_between
+from twin.units import MM_PER_M, rad_to_deg
 
 __all__ = ["ValidationErrors", "validation_errors", "median_time"]
 
@@ -43,13 +44,13 @@ def validation_errors(
         raise ValueError(f"positions must have shape ({true_tool2meas.shape[0]}, 3), got {positions.shape}")
     if not np.all(np.isfinite(positions)):
         raise ValueError("positions contain non-finite values")
-    d = np.linalg.norm(positions - true_tool2meas[:, :3, 3], axis=1) * 1e3
+    d = np.linalg.norm(positions - true_tool2meas[:, :3, 3], axis=1) * MM_PER_M
     o_rms = o_max = None
     if rotations is not None:
         rotations = np.asarray(rotations, dtype=float)
         if rotations.shape != (true_tool2meas.shape[0], 3, 3):
             raise ValueError(f"rotations must have shape ({true_tool2meas.shape[0]}, 3, 3), got {rotations.shape}")
-        ang = np.rad2deg(rotation_angle_between(true_tool2meas[:, :3, :3], rotations))
+        ang = rad_to_deg(rotation_angle_between(true_tool2meas[:, :3, :3], rotations))
         o_rms, o_max = float(np.sqrt(np.mean(ang**2))), float(ang.max())
     return ValidationErrors(
         position_mean_mm=float(d.mean()),

@@ -33,13 +33,13 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from twin.kinematics import RobotModel
+from twin.units import MM_PER_M
 
 from .common import PeerResult, PeerUnavailable, register_base_and_tool, run_quietly, timed
 
 __all__ = ["NAME", "available", "mdh_table_mm", "build_robot", "calibrate"]
 
 NAME = "pybotics"
-_MM = 1e3
 
 
 def available() -> bool:
@@ -58,7 +58,7 @@ def mdh_table_mm(model: RobotModel) -> np.ndarray:
         raise ValueError(f"model convention must be 'mdh' for pybotics, got {model.convention!r}")
     if np.any(model.beta != 0):
         raise ValueError(f"pybotics cannot represent beta != 0, got beta = {model.beta.tolist()}")
-    return np.column_stack([model.alpha, model.a * _MM, model.theta, model.d * _MM])
+    return np.column_stack([model.alpha, model.a * MM_PER_M, model.theta, model.d * MM_PER_M])
 
 
 def build_robot(model: RobotModel, base2meas: np.ndarray, tool_point: np.ndarray):
@@ -71,9 +71,9 @@ def build_robot(model: RobotModel, base2meas: np.ndarray, tool_point: np.ndarray
         raise PeerUnavailable(f"pybotics is not installed ({e}); pip install .[peers]") from e
     kc = MDHKinematicChain(mdh_table_mm(model))
     tool = Tool()
-    tool.position = np.asarray(tool_point, dtype=float) * _MM
+    tool.position = np.asarray(tool_point, dtype=float) * MM_PER_M
     world = np.array(base2meas, dtype=float)
-    world[:3, 3] *= _MM
+    world[:3, 3] *= MM_PER_M
     robot = Robot(kc, tool=tool, world_frame=world)
     robot.joint_limits = np.vstack([model.q_min, model.q_max])
     return robot
@@ -101,11 +101,11 @@ def calibrate(nominal: RobotModel, q_cal: np.ndarray, tool2meas_cal: np.ndarray,
         from pybotics.optimization import OptimizationHandler, optimize_accuracy
     except ImportError as e:
         raise PeerUnavailable(f"pybotics is not installed ({e}); pip install .[peers]") from e
-    positions_mm = np.asarray(tool2meas_cal)[:, :3, 3] * _MM
+    positions_mm = np.asarray(tool2meas_cal)[:, :3, 3] * MM_PER_M
     q_cal = np.asarray(q_cal, dtype=float)
 
     def fit():
-        base2meas, tool_point = register_base_and_tool(nominal, q_cal, positions_mm / _MM)
+        base2meas, tool_point = register_base_and_tool(nominal, q_cal, positions_mm / MM_PER_M)
         robot = build_robot(nominal, base2meas, tool_point)
         handler = OptimizationHandler(
             robot,
@@ -127,7 +127,7 @@ def calibrate(nominal: RobotModel, q_cal: np.ndarray, tool2meas_cal: np.ndarray,
     except Exception as e:  # the peer failing is a result, not a crash of the benchmark
         return PeerResult(NAME, "position", None, None, None, SETTINGS, "positions", error=f"{type(e).__name__}: {e}")
     fitted = deepcopy(handler.robot)
-    pred = np.array([fitted.fk(q)[:3, 3] for q in np.asarray(q_val, dtype=float)]) / _MM
+    pred = np.array([fitted.fk(q)[:3, 3] for q in np.asarray(q_val, dtype=float)]) / MM_PER_M
     notes = (f"least_squares: {res.message} ({res.nfev} evaluations)",)
     error = None if res.success else f"least_squares did not converge: {res.message}"
     return PeerResult(

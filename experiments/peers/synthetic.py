@@ -30,6 +30,7 @@ from twin.kinematics import RobotModel, tool2meas
 from twin.presets import preset_deviation
 from twin.robots import irb1200
 from twin.transforms import make_transform, pose6_to_transform, rotvec_to_matrix
+from twin.units import MM_PER_M
 
 __all__ = [
     "NoiseLevel",
@@ -63,11 +64,11 @@ class NoiseLevel:
 
     @property
     def label(self) -> str:
-        return f"{self.position * 1e3:g} mm / {self.orientation:g} rad"
+        return f"{self.position * MM_PER_M:g} mm / {self.orientation:g} rad"
 
     @property
     def key(self) -> str:
-        return f"{self.position * 1e3:g}mm_{self.orientation:g}rad"
+        return f"{self.position * MM_PER_M:g}mm_{self.orientation:g}rad"
 
 
 NOISE_LEVELS = (NoiseLevel(0.02e-3, 0.002), NoiseLevel(0.01e-3, 0.0002))

@@ -37,11 +37,10 @@ import numpy as np
 
 from twin.dataset import Joints, read_dataset, write_joints_csv
 from twin.estimator.files import read_pred_csv
+from twin.units import M_PER_MM, RAD_PER_DEG
 
 __all__ = ["BlindKey", "read_key", "score_campaign", "summarise", "summary_markdown", "CATEGORIES", "alone_and_in_file"]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 CATEGORIES = ("clean", "catalogue", "outside", "mixed")
 
 
@@ -54,7 +53,7 @@ class BlindKey:
         self.path = path
         n = len(rows)
         self.pose_id = np.array([int(r["pose_id"]) for r in rows])
-        self.q = np.array([[float(r[f"q{j}"]) for j in range(1, 7)] for r in rows]) * _DEG
+        self.q = np.array([[float(r[f"q{j}"]) for j in range(1, 7)] for r in rows]) * RAD_PER_DEG
         self.role = np.array([r["role"].strip() for r in rows], dtype=object)
 
         def block(prefix: str) -> np.ndarray:
@@ -63,7 +62,7 @@ class BlindKey:
                 for k in range(3):
                     cells = [(r.get(f"{prefix}{k}_{c}") or "").strip() for c in "xyz"]
                     if all(cells):
-                        out[i, k] = np.array([float(x) for x in cells]) * _MM
+                        out[i, k] = np.array([float(x) for x in cells]) * M_PER_MM
             return out
 
         self.measured = block("m")
@@ -244,7 +243,7 @@ def score_campaign(campaign: str | os.PathLike, out: str | os.PathLike, *, in_pr
     # (the diagnosis chooses its report rows as a block of time, whatever the dataset's set column says)
     role = np.array(["report" if (r != "test" and int(p) in report_ids) else r
                      for r, p in zip(key.role, key.pose_id)], dtype=object)
-    err_true = np.linalg.norm(key.measured - key.true, axis=-1) / _MM
+    err_true = np.linalg.norm(key.measured - key.true, axis=-1) / M_PER_MM
     med = np.nanmedian(err_true)
     gross = np.nanmax(np.where(np.isfinite(err_true), err_true, 0), axis=1) > 10 * max(med, 1e-6)
     res["gross_rows_left_out"] = [int(p) for p in key.pose_id[gross]]
@@ -252,7 +251,7 @@ def score_campaign(campaign: str | os.PathLike, out: str | os.PathLike, *, in_pr
         rows = (role == part) & ~gross
         block = {}
         for name, P in (pred_report if part == "report" else pred).items():
-            block[name] = _stats((np.linalg.norm(key.measured[rows] - P[rows], axis=-1) / _MM).ravel())
+            block[name] = _stats((np.linalg.norm(key.measured[rows] - P[rows], axis=-1) / M_PER_MM).ravel())
         if block["oracle"]["n"]:
             block["after_over_oracle"] = block["after"]["rms"] / block["oracle"]["rms"]
             block["before_over_oracle"] = block["before"]["rms"] / block["oracle"]["rms"]

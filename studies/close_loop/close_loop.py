@@ -34,7 +34,7 @@ from twin.runtime import set_process_defaults  # noqa: E402
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import numpy as np  # noqa: E402
 
-from twin.benchio import provenance  # noqa: E402
+from twin.benchio import command_line, provenance  # noqa: E402
 from twin.dataset import default_plate, read_dataset, write_dataset_toml  # noqa: E402
 from twin.diagnosis import diagnose, write_diagnosis  # noqa: E402
 from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, true_model_error  # noqa: E402
@@ -42,9 +42,8 @@ from twin.runner.executor import SerialExecutor, open_executor  # noqa: E402
 from twin.runner.measure import (BACKENDS, BackendSpec, InstrumentSetup, PoseTask, get_backend, measure_tasks,  # noqa: E402
                                  write_measured_dataset)
 from twin.runner.store import PoseStore  # noqa: E402
+from twin.units import M_PER_MM  # noqa: E402
 from twin.world.effects import contexts_for_sequence  # noqa: E402
-
-_MM = 1e-3
 
 
 def main() -> int:
@@ -121,7 +120,7 @@ def main() -> int:
         "config": args.config,
         "rows": int(ds.n),
         "rows_with_a_missing_sphere": int(n_flagged),
-        "noise_floor_mm": sigma / _MM,
+        "noise_floor_mm": sigma / M_PER_MM,
         "noise_floor_source": res.noise.source,
         "noise_floor_components": res.noise.components,
         "effect": [e for e in cfg.get("world", {}).get("effects", [])],
@@ -149,13 +148,14 @@ def main() -> int:
         "oracle_definition": "the true effect known exactly (the world's centres with minus without the effects) "
                              "and the geometry re-identified on the same measured calibration rows",
         "timings_s": timings,
-        "command": f"python studies/close_loop/close_loop.py {args.config} --out {args.out}" + (" --quick" if args.quick else ""),
+        "command": command_line("python studies/close_loop/close_loop.py",
+                                [args.config, "--out", args.out] + (["--quick"] if args.quick else [])),
         "provenance": provenance(load_start),
     }
     (out / "close_loop.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
     _plot(summary, out / "close_loop.png")
     v = summary["validation_error_mm"]
-    print(f"noise floor {sigma / _MM:.4f} mm/coord; effect size {size:.2f} sigma; structured={res.structured} "
+    print(f"noise floor {sigma / M_PER_MM:.4f} mm/coord; effect size {size:.2f} sigma; structured={res.structured} "
           f"(p={res.p_value:.2g}); effects={list(res.effects)}")
     for a in res.atoms:
         print(f"  term: {a['text']}")

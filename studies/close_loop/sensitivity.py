@@ -35,10 +35,11 @@ from twin.runtime import set_process_defaults  # noqa: E402
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 import numpy as np  # noqa: E402
 
-from twin.benchio import provenance  # noqa: E402
+from twin.benchio import command_line, provenance  # noqa: E402
 
 from twin.diagnosis import diagnose
 from twin.evaluation.closeloop import effect_delta, effect_size, oracle_delta_fit, plan_poses, synthetic_dataset
+from twin.units import M_PER_MM
 from twin.world import World, load_world_config
 from twin.world.effects_catalogue import effect_from_spec
 
@@ -127,14 +128,14 @@ def main() -> int:
                     help="relative to the repository root")
     args = ap.parse_args()
     load_start = os.getloadavg()
-    sigma = args.sigma_mm * 1e-3
+    sigma = args.sigma_mm * M_PER_MM
     world = World.from_config(load_world_config(ROOT / args.world))
     t0 = time.time()
     world.effects = []
     # plans depend on the stations and the seed, not on the effect: one per seed, shared by every case
     plans = {seed: plan_poses(world, args.per_station, seed=seed) for seed in range(max(args.seeds, args.clean_seeds) + 1)}
-    out: dict = {"command": "python studies/close_loop/sensitivity.py " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+    out: dict = {"command": command_line("python studies/close_loop/sensitivity.py", [
+        x for k, v in vars(args).items() for x in (f"--{k.replace('_', '-')}", str(v))]),
         "sigma_mm": args.sigma_mm, "per_station": args.per_station, "rows": int(len(plans[0].q)),
         "definition": __doc__.split("\n\n")[1] + " " + __doc__.split("\n\n")[2], "cases": {}}
     # clean: false alarms

@@ -32,13 +32,14 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from twin.units import M_PER_MM, rad_to_deg
+
 __all__ = ["EffectMagnitudes", "STATISTICS", "UNITS", "campaign_raw", "run_real_protocol", "aggregate_seeds",
            "paper_real_targets", "judge", "scan_point"]
 
 UNITS = ("angle_deg", "position_mm")
 STATISTICS = ("mean", "max", "std")
 _PHASES = ("before", "after")
-_MM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,7 @@ def _repeatability_sigma_deg(rp_mm: float) -> float:
     from twin.world.effects_shapes import repeatability_sigma
 
     q = np.random.default_rng(0).uniform(-1.0, 1.0, size=(16, 6))  # a fixed spread of configurations
-    return float(np.degrees(repeatability_sigma(irb1200(), q, rp_mm * _MM)))
+    return float(rad_to_deg(repeatability_sigma(irb1200(), q, rp_mm * M_PER_MM)))
 
 
 def campaign_raw(base: Mapping[str, Any], magnitudes: EffectMagnitudes, seed: int,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import sys
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from twin.runtime import set_process_defaults  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 
-from twin.benchio import provenance  # noqa: E402
+from twin.benchio import command_line, provenance  # noqa: E402
 from twin.evaluation.regression import bands_from_repeats, update_regression_file  # noqa: E402
 from twin.runner.campaign import run_repeats  # noqa: E402
 from twin.runner.config import load_campaign_config  # noqa: E402
@@ -49,7 +48,7 @@ def main() -> int:
     with open_executor(kind, a.workers, a.dask) as ex:
         rep = run_repeats(cfg, Path(a.work) / a.section, seeds, ex,
                           progress=lambda ph, d, n: print(f"{ph}: {d}/{n}", flush=True))
-    command = "python " + " ".join(shlex.quote(x) for x in sys.argv)
+    command = command_line("python", sys.argv)
     data = bands_from_repeats(rep, command, a.config)
     data["provenance"] = provenance(load_start)
     path = update_regression_file(a.section, data, a.out)

@@ -58,6 +58,7 @@ from twin.estimator.solvers import spectral_correction
 from twin.presets import preset_deviation
 from twin.robots import get_robot
 from twin.transforms import pose6_to_transform
+from twin.units import M_PER_MM, MM_PER_M, UM_PER_M, RAD_PER_DEG
 
 __all__ = [
     "LINEAR_METHODS",
@@ -89,7 +90,6 @@ UNBOUNDED_ITERATIONS = 10**15
 SCENARIOS = ("wide", "narrow", "with_d2", "paper_list")
 UNITS = ("si", "mm")
 NARROW_POSTURE_DEG = (0.0, 10.0, 10.0, 0.0, 40.0, 0.0)  # centre of the narrow design
-_DEG = np.pi / 180.0
 
 
 # ------------------------------------------------------------------------------------------------
@@ -299,7 +299,7 @@ class SeparationProblem:
 
 def _configs(nom, n: int, rng: np.random.Generator, scenario: str, span: float) -> np.ndarray:
     if scenario == "narrow":
-        centre = np.array(NARROW_POSTURE_DEG) * _DEG
+        centre = np.array(NARROW_POSTURE_DEG) * RAD_PER_DEG
         return centre + rng.uniform(-span, span, (n, 6))
     return random_configurations(nom, n, rng)
 
@@ -345,7 +345,7 @@ def simulate_problem(
     rng = np.random.default_rng(seed)
     base2meas = pose6_to_transform([0.5, 0.0, 1.1, 0.2, -1.3, 0.1])
     n = 2 * n_pairs
-    q = _configs(nom, n, rng, scenario, narrow_span_deg * _DEG)
+    q = _configs(nom, n, rng, scenario, narrow_span_deg * RAD_PER_DEG)
     ds, _ = simulate_dataset(truth, q, robot_spec="irb1200", base2meas={"0": base2meas}, rng=rng,
                              noise_position=noise_position, pair=np.repeat(np.arange(n_pairs), 2),
                              set_=np.array(["calibration"] * n, dtype=object))
@@ -474,8 +474,8 @@ def run_method(problem: SeparationProblem, method: str | SolverFn, *, max_iter: 
     fit = method if callable(method) else _fitter(method, max_iter, spectral_iterations)
     label = name or (method if isinstance(method, str) else getattr(method, "__name__", "custom"))
     p, space = problem, problem.space
-    col = np.where(space.is_length, 1e-3, 1.0) if units == "mm" else np.ones(space.size)
-    row2 = 1e3 if units == "mm" else 1.0
+    col = np.where(space.is_length, M_PER_MM, 1.0) if units == "mm" else np.ones(space.size)
+    row2 = MM_PER_M if units == "mm" else 1.0
     x0 = p.prep.x_nominal.copy()
     f1 = _fit_in_units(fit, lambda y: pair_residuals(space, y, p.obs_rot, p.pairs_rot, "rotation_change"), x0,
                        p.idx1, col, 1.0)
@@ -568,7 +568,7 @@ def study(
                 prob = simulate_problem(s, noise, scenario=sc, n_pairs=n_pairs, narrow_span_deg=narrow_span_deg)
                 out += run_case(prob, methods, max_iter=max_iter, spectral_iterations=spectral_iterations, units=units)
             if progress:
-                progress(f"{sc} noise {noise * 1e3:g} mm: {len(seeds)} seeds")
+                progress(f"{sc} noise {noise * MM_PER_M:g} mm: {len(seeds)} seeds")
     return out
 
 
@@ -598,7 +598,7 @@ def summarise(records: Sequence[RunRecord]) -> list[dict]:
         for r in rs:
             if r.failed:
                 reasons[r.failure] = reasons.get(r.failure, 0) + 1
-        row = {"units": units, "scenario": sc, "noise_mm": noise * 1e3, "method": m, "runs": len(rs)}
+        row = {"units": units, "scenario": sc, "noise_mm": noise * MM_PER_M, "method": m, "runs": len(rs)}
         for s in (0, 1):
             row[f"iterations_step{s + 1}"] = _pct(col(lambda r: r.iterations[s]), 50)
             row[f"inner_iterations_step{s + 1}"] = _pct(col(lambda r: r.inner_iterations[s]), 50)
@@ -607,14 +607,14 @@ def summarise(records: Sequence[RunRecord]) -> list[dict]:
             row[f"cond_scaled_step{s + 1}"] = _pct(col(lambda r: r.cond_scaled[s]), 50)
             row[f"cond_shifted_step{s + 1}"] = _pct(col(lambda r: r.cond_shifted[s]), 50)
         row["inner_converged_rate"] = float(np.mean(col(lambda r: r.inner_converged)))
-        for name, f, unit in (("length_error_um", lambda r: r.length_error, 1e6),
+        for name, f, unit in (("length_error_um", lambda r: r.length_error, UM_PER_M),
                               ("angle_error_urad", lambda r: r.angle_error, 1e6),
-                              ("distance_prediction_um", lambda r: r.distance_prediction_error, 1e6),
+                              ("distance_prediction_um", lambda r: r.distance_prediction_error, UM_PER_M),
                               ("rotation_prediction_urad", lambda r: r.rotation_prediction_error, 1e6)):
             v = np.array(col(f)) * unit
             row[f"{name}_median"] = _pct(v, 50)
             row[f"{name}_p95"] = _pct(v, 95)
-        row["residual_rms_step2_um_median"] = _pct(np.array(col(lambda r: r.residual_rms[1])) * 1e6, 50)
+        row["residual_rms_step2_um_median"] = _pct(np.array(col(lambda r: r.residual_rms[1])) * UM_PER_M, 50)
         row["failure_rate"] = float(np.mean(col(lambda r: r.failed)))
         for key, what in (("solver_error_rate", "solver error"), ("not_converged_rate", "not converged"),
                           ("error_above_threshold_rate", "error above threshold")):

@@ -24,6 +24,7 @@ from twin.runtime import set_process_defaults  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 from twin.benchio import provenance  # noqa: E402
+from twin.units import M_PER_MM  # noqa: E402
 
 from studies.spectral_correction.spectral import METHODS, SCENARIOS, markdown_table, plot_study, study, summarise  # noqa: E402
 
@@ -55,10 +56,10 @@ def main(argv=None) -> int:
                     help="output path without extension, relative to the repository root")
     a = ap.parse_args(argv)
     t0, load_start = time.perf_counter(), os.getloadavg()
-    recs = study([n * 1e-3 for n in a.noise_mm], tuple(range(a.seeds)), a.scenarios, METHODS, n_pairs=a.pairs,
+    recs = study([n * M_PER_MM for n in a.noise_mm], tuple(range(a.seeds)), a.scenarios, METHODS, n_pairs=a.pairs,
                  spectral_iterations=a.spectral_iterations, progress=lambda s: print(s, flush=True))
     if a.mm_scenarios:
-        recs += study([n * 1e-3 for n in a.noise_mm], tuple(range(a.seeds)), a.mm_scenarios, METHODS,
+        recs += study([n * M_PER_MM for n in a.noise_mm], tuple(range(a.seeds)), a.mm_scenarios, METHODS,
                       n_pairs=a.pairs, spectral_iterations=a.spectral_iterations, units="mm",
                       progress=lambda s: print("mm:", s, flush=True))
     rows = summarise(recs)

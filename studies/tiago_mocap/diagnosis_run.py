@@ -32,6 +32,7 @@ import tomllib
 from pathlib import Path
 
 from twin.runtime import set_process_defaults  # noqa: E402
+from twin.units import MM_PER_M  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 
@@ -81,7 +82,7 @@ def predicted(cal, ds) -> np.ndarray:
 def scores(cal, ds, group) -> dict:
     """Errors on the other day's rows by FIGAROH's groups: ``marker1`` (point 1) and ``points`` (all points), and the
     training RMSE on point 1."""
-    e = np.linalg.norm(predicted(cal, ds) - ds.spheres, axis=-1) * 1e3
+    e = np.linalg.norm(predicted(cal, ds) - ds.spheres, axis=-1) * MM_PER_M
     v = ds.set == "validation"
     return {"marker1": by_group(e[v][:, :1], group), "points": by_group(e[v], group),
             "training_marker1": stats(e[~v][:, :1])}
@@ -97,7 +98,7 @@ def run_diagnose(ds, group, *, generic: bool, geometry: dict | None) -> dict:
     return {
         "seconds": dt, "structured": res.structured, "p_value": res.p_value,
         "test": {"statistic": tb.statistic, "dof": tb.dof, "distribution": tb.distribution, "whitened_rms": tb.whitened_rms},
-        "noise_floor_mm": res.noise.sigma * 1e3, "noise_floor_source": res.noise.source,
+        "noise_floor_mm": res.noise.sigma * MM_PER_M, "noise_floor_source": res.noise.source,
         "terms": [{"label": a["label"], "family": a["family"], "text": a["text"], "minor": a["minor"]} for a in res.atoms],
         "effects": list(res.effects), "alternatives": [{"of": a["of"], "alternative": a["alternative"]} for a in res.alternatives],
         "explained_fraction": res.explained_fraction, "notes": list(res.notes), "model_in_use": res.model_in_use,

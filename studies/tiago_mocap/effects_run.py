@@ -17,6 +17,7 @@ import tomllib
 from pathlib import Path
 
 from twin.runtime import set_process_defaults  # noqa: E402
+from twin.units import MM_PER_M, MRAD_PER_RAD  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 
@@ -56,7 +57,7 @@ def cv_rmse(ds, points, level: str, eff) -> float:
         part = replace(tr, set=np.where(fold == f, "validation", "calibration").astype(object))
         em, z = fit_level(part, level, eff)
         m = np.flatnonzero(fold == f)
-        errs.append((np.linalg.norm(em.predict(z, m) - part.spheres[m], axis=-1)[:, points] * 1e3).ravel())
+        errs.append((np.linalg.norm(em.predict(z, m) - part.spheres[m], axis=-1)[:, points] * MM_PER_M).ravel())
     e = np.concatenate(errs)
     return float(np.sqrt(np.mean(e**2)))
 
@@ -68,8 +69,8 @@ def run(ds, points, group, level: str, cv: bool = True) -> list[dict]:
     for eff in CANDIDATES:
         em, z = fit_level(ds, level, eff)
         prep = em.prep
-        e_cal = np.linalg.norm(em.predict(z, cal_rows) - ds.spheres[cal_rows], axis=-1)[:, points] * 1e3
-        e_val = np.linalg.norm(em.predict(z, val_rows) - ds.spheres[val_rows], axis=-1)[:, points] * 1e3
+        e_cal = np.linalg.norm(em.predict(z, cal_rows) - ds.spheres[cal_rows], axis=-1)[:, points] * MM_PER_M
+        e_val = np.linalg.norm(em.predict(z, val_rows) - ds.spheres[val_rows], axis=-1)[:, points] * MM_PER_M
         n_geo = int(np.sum(np.abs(z[: prep.space.size] - prep.x_nominal) > 0))
         out.append({"level": level, "effects": list(eff) or ["none"], "parameters": n_geo + em.n_eff,
                     "cv_rmse_mm": cv_rmse(ds, points, level, eff) if cv else None,
@@ -128,7 +129,7 @@ def main() -> int:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         v = r["validation"]
-        ep = ", ".join(f"{k} {x * 1e3:.3g} mrad/Nm" for k, x in r["effect_parameters"].items())
+        ep = ", ".join(f"{k} {x * MRAD_PER_RAD:.3g} mrad/Nm" for k, x in r["effect_parameters"].items())
         star = " *" if r.get("chosen_by_training_cv") else ""
         lines.append(f"| {r['variant']} | {r['level']}{star} | {' + '.join(r['effects'])} | {r['parameters']} | {f(r['training'])} | "
                      f"{r['cv_rmse_mm']:.2f} | "
@@ -138,7 +139,7 @@ def main() -> int:
               "| level | effects | validation all | replayed | new in range | outside | effect parameters |", "|---|---|---|---|---|---|---|"]
     for r in swap_rows:
         v = r["validation"]
-        ep = ", ".join(f"{k} {x * 1e3:.3g} mrad/Nm" for k, x in r["effect_parameters"].items())
+        ep = ", ".join(f"{k} {x * MRAD_PER_RAD:.3g} mrad/Nm" for k, x in r["effect_parameters"].items())
         lines.append(f"| {r['level']} | {' + '.join(r['effects'])} | {f(v['all'])} | {f(v['replayed'])} | "
                      f"{f(v['new_in_range'])} | {f(v['outside'])} | {ep} |")
     (out / "effects.md").write_text("\n".join(lines) + "\n")

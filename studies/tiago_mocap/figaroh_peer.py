@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.units import MM_PER_M
+
 CONFIG = """robot:
   name: tiago
 tasks:
@@ -92,11 +94,11 @@ def run_figaroh(urdf: Path, training: Path, validation: Path, end_link: str, joi
             conf = dict(cal.calib_config, NbSample=len(q))
             est = calc_updated_fkm(cal.model, cal.data, result.x, q, conf)
             res = cal._compute_logmap_residuals(pee, est, n_samples=len(q))
-            return np.linalg.norm(np.asarray(res).reshape(3, len(q)), axis=0) * 1e3
+            return np.linalg.norm(np.asarray(res).reshape(3, len(q)), axis=0) * MM_PER_M
 
         e_val = errors(cal._q_val, cal._PEE_val)
         e_train = errors(cal.q_measured, cal.PEE_measured)
     return {"level": level, "parameters": list(cal.calib_config["param_name"]), "n_parameters": len(result.x),
             "values": [float(v) for v in result.x], "validation_errors_mm": e_val.tolist(),
             "training_errors_mm": e_train.tolist(), "seconds": seconds,
-            "reported_rmse_mm": float(cal.evaluation_metrics["rmse"]) * 1e3}
+            "reported_rmse_mm": float(cal.evaluation_metrics["rmse"]) * MM_PER_M}

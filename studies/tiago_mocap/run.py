@@ -23,6 +23,7 @@ import tomllib
 from pathlib import Path
 
 from twin.runtime import set_process_defaults  # noqa: E402
+from twin.units import MM_PER_M, MRAD_PER_RAD, rad_to_deg  # noqa: E402
 
 set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujoco load (twin.runtime)
 
@@ -68,7 +69,7 @@ def cv_rmse(ds, opts: dict, folds: int = CV_FOLDS) -> float:
 
 def point_errors(pred: np.ndarray, meas: np.ndarray) -> np.ndarray:
     """Per-point 3-D errors ``(n, K)`` [mm]."""
-    return np.linalg.norm(pred - meas, axis=-1) * 1e3
+    return np.linalg.norm(pred - meas, axis=-1) * MM_PER_M
 
 
 def selection_cv(ds) -> dict:
@@ -139,8 +140,8 @@ def variant_rows(variant: str, ds, points, group, timings: dict) -> list[dict]:
         t0 = time.perf_counter()
         cal = calibrate(ds, "best", **opts)
         dt = time.perf_counter() - t0
-        rows.append({"variant": variant, "model": f"full + prior {best['prior']['length'] * 1e3:g} mm / "
-                     f"{best['prior']['angle'] * 1e3:g} mrad (CV on training day)", "options": opts,
+        rows.append({"variant": variant, "model": f"full + prior {best['prior']['length'] * MM_PER_M:g} mm / "
+                     f"{best['prior']['angle'] * MRAD_PER_RAD:g} mrad (CV on training day)", "options": opts,
                      "parameters": identified(cal)["n"], "identified": identified(cal), "seconds": dt,
                      "prior_sweep": sweep, **evaluate(cal, ds, cal_rows, val_rows, group, points)})
     else:
@@ -162,9 +163,9 @@ def repeatability(ds, tolerance: float) -> dict:
     B = ds.spheres[~cal][rep]
     e_raw = point_errors(A, B)
     R, t = kabsch(A.reshape(-1, 3), B.reshape(-1, 3))
-    e_rigid = np.linalg.norm(A.reshape(-1, 3) @ R.T + t - B.reshape(-1, 3), axis=-1) * 1e3
+    e_rigid = np.linalg.norm(A.reshape(-1, 3) @ R.T + t - B.reshape(-1, 3), axis=-1) * MM_PER_M
     return {"postures": int(rep.sum()), "as_measured": stats(e_raw), "after_rigid_motion": stats(e_rigid),
-            "rigid_motion": {"translation_mm": (t * 1e3).tolist(), "rotation_deg": float(np.degrees(np.linalg.norm(matrix_to_rotvec(R))))}}
+            "rigid_motion": {"translation_mm": (t * MM_PER_M).tolist(), "rotation_deg": float(rad_to_deg(np.linalg.norm(matrix_to_rotvec(R))))}}
 
 
 def figaroh_rows(cfg: dict, group: np.ndarray, urdf: Path, training: Path, validation: Path, joints) -> tuple[list, str | None]:
@@ -221,7 +222,7 @@ def table(results: dict) -> str:
     fig = next((r for r in results["rows"] if r.get("tool", "").startswith("FIGAROH joint")), None)
     fa5 = None if fig is None else fig["values"].get("offsetRZ_arm_5_joint")
     lines += ["", f"arm_5 offset at the joint-offset level (marker 1): ours {a5:.2f} mrad"
-              + ("" if fa5 is None else f", FIGAROH run here {fa5 * 1e3:.2f} mrad")
+              + ("" if fa5 is None else f", FIGAROH run here {fa5 * MRAD_PER_RAD:.2f} mrad")
               + f", FIGAROH quoted {q['joint_offsets_arm_5_offset_mrad']:g} mrad."]
     rep = results["repeatability"]
     lines += ["", f"Day-to-day repeatability without any model: the {rep['postures']} replayed postures measured on both days "

@@ -22,9 +22,9 @@ from twin.kinematics import RobotModel  # noqa: E402
 from twin.presets import preset_deviation  # noqa: E402
 from twin.robots import brtirus0707a  # noqa: E402
 from twin.transforms import matrix_to_rotvec, rotvec_to_matrix  # noqa: E402
+from twin.units import M_PER_MM  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-MM = 1e-3
 
 
 def targets() -> dict:
@@ -72,12 +72,12 @@ def deviations_table(x: np.ndarray, x_nom: np.ndarray, names) -> dict:
     """Deviations in the paper's units: theta/alpha/beta rad, d/a mm, base/tool xyz mm + (alpha, beta, gamma)."""
     idx = {n: k for k, n in enumerate(names)}
     out = {}
-    for fam, scale in (("theta", 1.0), ("d", 1 / MM), ("a", 1 / MM), ("alpha", 1.0)):
+    for fam, scale in (("theta", 1.0), ("d", 1 / M_PER_MM), ("a", 1 / M_PER_MM), ("alpha", 1.0)):
         out[fam] = [float((x[idx[f"{fam}{j}"]] - x_nom[idx[f"{fam}{j}"]]) * scale) for j in range(1, 7)]
     out["beta2"] = float(x[idx["beta2"]] - x_nom[idx["beta2"]])
     for fr in ("base", "tool"):
         v = np.array([x[idx[f"{fr}_{c}"]] for c in ("x", "y", "z", "rx", "ry", "rz")])
-        out[fr] = [float(t / MM) for t in v[:3]] + [float(t) for t in euler_from_rotvec(v[3:])]
+        out[fr] = [float(t / M_PER_MM) for t in v[:3]] + [float(t) for t in euler_from_rotvec(v[3:])]
     return out
 
 
@@ -240,7 +240,7 @@ def run_variant(sp, q, X0, pose_p, pose_R, variant: str, chunk: int = 256) -> di
     rot = rest[0] if rest else "log"
     accept = rest[1] if len(rest) > 1 else "always"
     lam = float(rest[2]) if len(rest) > 2 else LM_SETTINGS.lam
-    sig_p = MM if units == "mm_rad" else 1.0
+    sig_p = M_PER_MM if units == "mm_rad" else 1.0
     t0 = time.perf_counter()
     Xs, its = [], []
     for c0 in range(0, X0.shape[0], chunk):

@@ -41,7 +41,7 @@ def pose_errors(model, truth, q):
     out = {}
     for name, f in (("tool_in_meas", tool2meas), ("flange_in_base", flange2base)):
         T, Tt = f(model, q), f(truth, q)
-        ep = np.linalg.norm(T[:, :3, 3] - Tt[:, :3, 3], axis=1) / tc.MM
+        ep = np.linalg.norm(T[:, :3, 3] - Tt[:, :3, 3], axis=1) / tc.M_PER_MM
         eo = np.linalg.norm(matrix_to_rotvec(Tt[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2)), axis=1)
         out[name] = {"position_mm": ep, "orientation_rad": eo}
     return out
@@ -144,7 +144,7 @@ def main() -> int:
     nom = brtirus0707a()
     for fam in ("theta", "d", "a", "alpha"):
         for j in range(6):
-            sc = 1.0 if fam in ("theta", "alpha") else 1 / tc.MM
+            sc = 1.0 if fam in ("theta", "alpha") else 1 / tc.M_PER_MM
             pv = (getattr(truth, fam)[j] - getattr(nom, fam)[j]) * sc
             L.append(f"| {fam}{j + 1} | {pv:+.4g} | {tg['table9']['mdh'][fam][j]:+.4g} | {devs['mdh'][fam][j]:+.4g} | "
                      f"{tg['table9']['tmmdh'][fam][j]:+.4g} | {devs['tmmdh'][fam][j]:+.4g} | {devs['ours'][fam][j]:+.4g} |")

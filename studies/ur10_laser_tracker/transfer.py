@@ -42,6 +42,7 @@ from twin.diagnosis.apply import block_errors, dataset_predictor, effect_atoms  
 from twin.diagnosis.diagnose import fit_with_effects  # noqa: E402
 from twin.estimator import Calibration  # noqa: E402
 from twin.estimator.register import register  # noqa: E402
+from twin.units import rad_to_deg  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 FIRST = 50  # rows of B that register its tracker (the "at most 50")
@@ -142,9 +143,9 @@ def main() -> int:
             for k in values:
                 phi = values[k][i][1]
                 size = fit_a_on[k].effect_parameters.get(a.label, {}).get("size", {})
-                row[k] = {"amplitude_deg": float(np.degrees(np.hypot(phi[0], phi[1]))),
+                row[k] = {"amplitude_deg": float(rad_to_deg(np.hypot(phi[0], phi[1]))),
                           "amplitude_sd_deg": size.get("amplitude_sd"),
-                          "phase_deg": float(np.degrees(np.arctan2(phi[1], phi[0])))}
+                          "phase_deg": float(rad_to_deg(np.arctan2(phi[1], phi[0])))}
             dphi = lambda k1, k2: float((row[k2]["phase_deg"] - row[k1]["phase_deg"] + 180.0) % 360.0 - 180.0)  # noqa: E731
             row["phase_difference_deg"] = dphi("A", "B")
             row["phase_difference_within_A_deg"] = {

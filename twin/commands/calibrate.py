@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..units import M_PER_MM, MM_PER_M, RAD_PER_MRAD
+
 
 HELP = "identify the robot of a measured dataset (writes DIR/calibration.json)"
 
@@ -66,8 +68,8 @@ def _options(args) -> dict:
         if args.method != "best":
             raise ValueError("--selection applies to --method best only")
         opts["selection"] = args.selection
-    prior = {k: v * 1e-3 for k, v in (("length", args.prior_mm), ("angle", args.prior_mrad),
-                                       ("offset", args.prior_offset_mrad)) if v is not None}
+    prior = {k: v * scale for k, v, scale in (("length", args.prior_mm, M_PER_MM), ("angle", args.prior_mrad, RAD_PER_MRAD),
+                                              ("offset", args.prior_offset_mrad, RAD_PER_MRAD)) if v is not None}
     if prior:
         if args.method != "best":
             raise ValueError("--prior-mm / --prior-mrad / --prior-offset-mrad apply to --method best only")
@@ -174,7 +176,7 @@ def run(args) -> int:
         ds,
         method=args.method,
         measurement=args.measurement,
-        noise_position=None if args.noise_position_mm is None else args.noise_position_mm * 1e-3,
+        noise_position=None if args.noise_position_mm is None else args.noise_position_mm * M_PER_MM,
         noise_orientation=args.noise_orientation_rad,
         validation_fraction=args.validation_fraction,
         seed=args.seed,
@@ -190,12 +192,12 @@ def run(args) -> int:
         check_fit_miss(miss)
         beyond = fit_beyond_noise(
             None if scale is None else float(scale),
-            None if fit_rms is None or cal.measurement != "spheres" else float(fit_rms) * 1e-3 / np.sqrt(3),
+            None if fit_rms is None or cal.measurement != "spheres" else float(fit_rms) * M_PER_MM / np.sqrt(3),
             plate_noise(ds) if cal.measurement == "spheres" else None, dataset=str(args.dataset))
     except ImplausibleData as exc:
         refuse(exc)
     if miss is not None:
-        beyond = {**beyond, "miss_rms_mm": miss["miss_rms_m"] * 1e3, "motion_spread_mm": miss["spread_m"] * 1e3,
+        beyond = {**beyond, "miss_rms_mm": miss["miss_rms_m"] * MM_PER_M, "motion_spread_mm": miss["spread_m"] * MM_PER_M,
                   "miss_fraction_of_motion": miss["fraction"]}
     details = dict(cal.details)
     details["plausibility"] = {"plate": None if plate is None else plate.summary(), "joints": notes,

@@ -9,7 +9,6 @@ Thin: parses the arguments, runs :func:`twin.runner.campaign.run_campaign` (or `
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -83,6 +82,7 @@ def _rich_tables(results: dict, source: str = "measured") -> list:
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
+    from twin.benchio import command_line
     from twin.runner.campaign import run_campaign, run_repeats
     from twin.runner.config import load_campaign_config, parse_campaign_config
     from twin.runner.executor import open_executor
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         if args.workers:
             raw["execution"] = {**raw.get("execution", {}), "workers": args.workers}
         cfg = parse_campaign_config(raw, source=cfg.source, _quick_applied=cfg.quick)
-    command = "twin campaign " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
+    command = command_line("twin campaign", sys.argv[2:]) if len(sys.argv) > 2 else ""
     out = Path(args.out)
     if args.restart:
         import shutil

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..units import M_PER_MM, MM_PER_M, deg_to_rad, rad_to_deg
+
 
 HELP = "corrected joint commands that reach target plate poses on the calibrated robot"
 
@@ -58,7 +60,7 @@ def run(args) -> int:
             raise ValueError(f"--q-ref-deg must be {what} comma-separated numbers, got {args.q_ref_deg!r}") from None
         if v.shape != (nj,) or not np.all(np.isfinite(v)):
             raise ValueError(f"--q-ref-deg must be {what} finite numbers, got {args.q_ref_deg!r}")
-        q_ref = np.where(cal.nominal.is_prismatic, v * 1e-3, np.deg2rad(v))
+        q_ref = np.where(cal.nominal.is_prismatic, v * M_PER_MM, deg_to_rad(v))
     try:
         if cal.effects:
             res = _compensate_with_effects(cal, T, q_ref, pid, args.context)
@@ -68,9 +70,9 @@ def run(args) -> int:
         raise ValueError(f"{args.targets}: {exc} (indices count data rows from 0)") from None
     write_joints_csv(args.out, Joints(pose_id=pid, q=res.q), robot=cal.nominal)
     rev = ~cal.nominal.is_prismatic
-    dq = np.rad2deg(np.abs(res.q - res.q_nominal)[:, rev]).max()
+    dq = rad_to_deg(np.abs(res.q - res.q_nominal)[:, rev]).max()
     print(f"compensated {len(pid)} targets (largest change from the nominal inverse {dq:.4g} deg; residual "
-          f"{res.position_error.max() * 1e3:.2g} mm); wrote {args.out}")
+          f"{res.position_error.max() * MM_PER_M:.2g} mm); wrote {args.out}")
     return 0
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..units import MM_PER_M
+
 HELP = "find structure beyond the noise in held-out residuals, trace it to an effect, extend the model, report before/after"
 
 
@@ -69,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                                               read_diagnosis(paths["diagnosis"]))
     b, a = res.before, res.after
     out = sys.stdout
-    print(f"noise floor: {res.noise.sigma * 1e3:.5f} mm per coordinate ({res.noise.source})", file=out)
+    print(f"noise floor: {res.noise.sigma * MM_PER_M:.5f} mm per coordinate ({res.noise.source})", file=out)
     print(f"structured: {res.structured} (p = {res.p_value:.3g}, alpha = {res.alpha}; {res.test_before.distribution}, "
           f"whitened RMS {res.test_before.whitened_rms:.3f})", file=out)
     print(f"effects: {', '.join(res.effects) if res.effects else 'none'}"

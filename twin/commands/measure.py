@@ -19,6 +19,8 @@ import json
 import sys
 from pathlib import Path
 
+from ..units import MM_PER_M
+
 HELP = "measure sphere centres in stereo image pairs (calibrating the rig from board views) -> dataset folder"
 
 
@@ -62,7 +64,7 @@ def _progress(args):
 def _report(summary) -> int:
     cal = summary.calibration
     print(f"stereo calibration: {cal.n_views_used} board views used, RMS {cal.rms_px:.3f} px "
-          f"(left {cal.rms_left_px:.3f}, right {cal.rms_right_px:.3f}), baseline {cal.baseline * 1e3:.2f} mm")
+          f"(left {cal.rms_left_px:.3f}, right {cal.rms_right_px:.3f}), baseline {cal.baseline * MM_PER_M:.2f} mm")
     for v in cal.views:
         if not v.used:
             print(f"  board view {v.name} rejected: {v.reason}")
@@ -93,9 +95,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_render(args: argparse.Namespace) -> int:
     """Render with the twin and measure: the runner's measure stage (``twin.runner.rendered``)."""
-    import tomllib
-
     from ..dataset import read_joints_csv
+    from ..files import read_toml
     from ..instrument.folder import read_plate_toml
     from ..runner.rendered import measure_rendered
     from ..world import load_world_config
@@ -103,7 +104,7 @@ def _run_render(args: argparse.Namespace) -> int:
     world: dict = {}
     if args.world:
         load_world_config(args.world)  # a bad file or key is named here
-        data = tomllib.loads(Path(args.world).read_text())
+        data = read_toml(args.world)
         world = data["world"] if isinstance(data.get("world"), dict) else data
     truth = args.truth or (Path(args.out).parent / "truth.json")
     summary = measure_rendered(

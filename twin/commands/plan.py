@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ..units import M_PER_MM, MM_PER_M, deg_to_rad
+
 
 HELP = "choose measurement configurations the cameras can see that identify the parameters well (D-optimal)"
 
@@ -45,7 +47,7 @@ def _station_arg(text: str) -> tuple:
         raise ValueError(f"--station must be NAME=x_mm,y_mm,z_mm,rx_rad,ry_rad,rz_rad, got {text!r}") from None
     if v.shape != (6,) or not np.all(np.isfinite(v)):
         raise ValueError(f"--station {text!r}: need six finite numbers")
-    return name, pose6_to_transform(np.r_[v[:3] * 1e-3, v[3:]])
+    return name, pose6_to_transform(np.r_[v[:3] * M_PER_MM, v[3:]])
 
 
 def from_campaign(path: str):
@@ -79,7 +81,8 @@ def from_campaign(path: str):
 def run(args) -> int:
     import numpy as np
 
-    from ..dataset import Joints, default_plate, read_dataset, read_text, robot_from_spec, write_joints_csv
+    from ..dataset import Joints, default_plate, read_dataset, robot_from_spec, write_joints_csv
+    from ..files import read_json
     from ..estimator.planning import PlanOptions, StereoCamera, plan_measurements
 
     robot = camera = None
@@ -95,11 +98,7 @@ def run(args) -> int:
     if args.robot:
         robot = robot_from_spec(args.robot, where="--robot")
     if args.camera:
-        try:
-            cam = json.loads(read_text(args.camera, ValueError))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{args.camera}: not valid JSON: {exc}") from None
-        camera = StereoCamera.from_json_dict(cam, where=args.camera)
+        camera = StereoCamera.from_json_dict(read_json(args.camera), where=args.camera)
     for s in args.station:
         name, T = _station_arg(s)
         stations[name] = T
@@ -112,14 +111,14 @@ def run(args) -> int:
     depth = None
     if args.depth_mm:
         try:
-            a, b = (float(x) * 1e-3 for x in args.depth_mm.split(","))
+            a, b = (float(x) * M_PER_MM for x in args.depth_mm.split(","))
         except ValueError:
             raise ValueError(f"--depth-mm must be min,max in mm, got {args.depth_mm!r}") from None
         depth = (a, b)
-    opts = PlanOptions(margin_px=args.margin_px, max_tilt=np.deg2rad(args.max_tilt_deg),
-                       link_radius=args.link_radius_mm * 1e-3, depth=depth)
+    opts = PlanOptions(margin_px=args.margin_px, max_tilt=deg_to_rad(args.max_tilt_deg),
+                       link_radius=args.link_radius_mm * M_PER_MM, depth=depth)
     res = plan_measurements(robot, stations, camera, plate, args.n, pool_per_station=args.pool,
-                            noise_position=args.noise_mm * 1e-3, n_random=args.random, seed=args.seed,
+                            noise_position=args.noise_mm * M_PER_MM, n_random=args.random, seed=args.seed,
                             options=opts, progress=print)
     write_joints_csv(args.out, Joints(pose_id=np.arange(len(res.q)), q=res.q, station=res.station), robot=robot)
     fr = res.floor_random
@@ -127,14 +126,14 @@ def run(args) -> int:
     print(f"{len(res.identifiable)} identifiable parameters ({len(res.dropped)} not: {', '.join(res.dropped)})")
     print(f"chosen per station: " + ", ".join(f"{s}: {int(np.sum(res.station == s))}" for s in stations))
     print(f"predicted RMS error of the calibrated sphere predictions over the visible workspace at "
-          f"{args.noise_mm:g} mm noise: plan {res.floor_plan * 1e3:.4g} mm; random {args.n} "
-          + (f"median {np.median(finite) * 1e3:.4g} mm, best {finite.min() * 1e3:.4g} mm" if finite.size else "")
+          f"{args.noise_mm:g} mm noise: plan {res.floor_plan * MM_PER_M:.4g} mm; random {args.n} "
+          + (f"median {np.median(finite) * MM_PER_M:.4g} mm, best {finite.min() * MM_PER_M:.4g} mm" if finite.size else "")
           + (f", {int(np.sum(~np.isfinite(fr)))} of {fr.size} random plans cannot identify the parameters" if np.any(~np.isfinite(fr)) else ""))
     print(f"wrote {args.out}")
     if args.report:
         Path(args.report).write_text(json.dumps({
             "n": args.n, "pool": res.pool, "identifiable": list(res.identifiable), "dropped": list(res.dropped),
-            "floor_plan_mm": res.floor_plan * 1e3, "floor_random_mm": [float(x) * 1e3 if np.isfinite(x) else None for x in fr],
+            "floor_plan_mm": res.floor_plan * MM_PER_M, "floor_random_mm": [float(x) * MM_PER_M if np.isfinite(x) else None for x in fr],
             "design": res.design,
         }, indent=2) + "\n")
     return 0

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..units import MM_PER_M, rad_to_deg
+
 HELP = "re-identify a calibration's measurement frame (and tool) from a few rows of a new session, robot held"
 
 
@@ -158,17 +160,17 @@ def run(args) -> int:
           f"on {rows.size} rows ({how}{scope}: {ids}){sess} of {args.dataset}; robot model of {args_cal} held")
     for s in reg.stations:
         v = transform_to_pose6(new.base2meas[s])
-        line = (f"  station {s!r} base2meas: x {v[0] * 1e3:.3f} y {v[1] * 1e3:.3f} z {v[2] * 1e3:.3f} mm, rotation vector "
-                f"{np.degrees(v[3]):.4f} {np.degrees(v[4]):.4f} {np.degrees(v[5]):.4f} deg")
+        line = (f"  station {s!r} base2meas: x {v[0] * MM_PER_M:.3f} y {v[1] * MM_PER_M:.3f} z {v[2] * MM_PER_M:.3f} mm, rotation vector "
+                f"{rad_to_deg(v[3]):.4f} {rad_to_deg(v[4]):.4f} {rad_to_deg(v[5]):.4f} deg")
         if s in cal.stations:
             B0, B1 = cal.base2meas[s], new.base2meas[s]
-            line += (f" (moved {np.linalg.norm(B1[:3, 3] - B0[:3, 3]) * 1e3:.3f} mm, "
-                     f"{np.degrees(float(rotation_angle_between(B0[:3, :3], B1[:3, :3]))):.4f} deg from the calibration's)")
+            line += (f" (moved {np.linalg.norm(B1[:3, 3] - B0[:3, 3]) * MM_PER_M:.3f} mm, "
+                     f"{rad_to_deg(float(rotation_angle_between(B0[:3, :3], B1[:3, :3]))):.4f} deg from the calibration's)")
         print(line)
     if reg.tool:
         v = transform_to_pose6(new.tool2flange)
-        print(f"  tool2flange: x {v[0] * 1e3:.3f} y {v[1] * 1e3:.3f} z {v[2] * 1e3:.3f} mm, rotation vector "
-              f"{np.degrees(v[3]):.4f} {np.degrees(v[4]):.4f} {np.degrees(v[5]):.4f} deg")
+        print(f"  tool2flange: x {v[0] * MM_PER_M:.3f} y {v[1] * MM_PER_M:.3f} z {v[2] * MM_PER_M:.3f} mm, rotation vector "
+              f"{rad_to_deg(v[3]):.4f} {rad_to_deg(v[4]):.4f} {rad_to_deg(v[5]):.4f} deg")
     print(f"  Gauss-Newton from the closed-form registration: {reg.iterations} iteration(s), "
           f"{'converged' if reg.converged else 'NOT converged'}; residual scale {reg.residual_scale:.3g}")
     for line in _report("residual on the rows used", reg.residuals):

@@ -16,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from ..dataset import Plate, read_text
+from ..dataset import Plate
+from ..files import read_json
 from ..kinematics import RobotModel
 from ..transforms import pose6_to_transform, transform_to_pose6
+from ..units import M_PER_MM, RAD_PER_DEG
 from .chain import Chain
 from .identifiability import Combination
 from .problem import ParamSpace, predict_points
@@ -26,13 +28,11 @@ from .problem import ParamSpace, predict_points
 __all__ = ["Calibration", "Prediction", "CALIBRATION_SCHEMA_VERSION", "parameter_table"]
 
 CALIBRATION_SCHEMA_VERSION = 1
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 
 def _display(name: str, unit: str) -> tuple[str, float]:
     """Display unit and factor (SI -> display) of a parameter."""
-    return ("mm", 1.0 / _MM) if unit == "m" else ("deg", 1.0 / _DEG)
+    return ("mm", 1.0 / M_PER_MM) if unit == "m" else ("deg", 1.0 / RAD_PER_DEG)
 
 
 @dataclass(frozen=True)
@@ -239,8 +239,8 @@ class Calibration:
             "measurement": self.measurement,
             "robot": _robot_json(nom),
             "plate": {
-                "sphere_diameter_mm": self.plate.sphere_diameter / _MM,
-                "spheres_mm": (self.plate.spheres_flange / _MM).tolist(),
+                "sphere_diameter_mm": self.plate.sphere_diameter / M_PER_MM,
+                "spheres_mm": (self.plate.spheres_flange / M_PER_MM).tolist(),
             },
             "parameters": params,
             "covariance": cov,
@@ -275,13 +275,7 @@ class Calibration:
     def load(cls, path: str | os.PathLike) -> "Calibration":
         """Read ``calibration.json``; ``ValueError`` naming the file and the field when it is not valid."""
         path = Path(path)
-        try:
-            d = json.loads(read_text(path, ValueError))
-        except FileNotFoundError:
-            raise ValueError(f"{path}: missing") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON: {exc}") from None
-        return cls.from_json_dict(d, where=str(path))
+        return cls.from_json_dict(read_json(path), where=str(path))
 
     @classmethod
     def from_json_dict(cls, d: dict, where: str = "calibration.json") -> "Calibration":
@@ -316,7 +310,7 @@ class Calibration:
                 ii = [sp.index(n) for n in cn]
                 fac = np.array([_display(n, sp.units[sp.index(n)])[1] for n in cn])
                 cov[np.ix_(ii, ii)] = M / fac[:, None] / fac[None, :]
-            plate = Plate(float(d["plate"]["sphere_diameter_mm"]) * _MM, np.asarray(d["plate"]["spheres_mm"], float) * _MM)
+            plate = Plate(float(d["plate"]["sphere_diameter_mm"]) * M_PER_MM, np.asarray(d["plate"]["spheres_mm"], float) * M_PER_MM)
             Tinv = np.linalg.inv(tool)
             spheres_tool = plate.spheres_flange @ Tinv[:3, :3].T + Tinv[:3, 3]
             combos = tuple(
@@ -373,7 +367,7 @@ def _robot_json(nom: RobotModel) -> dict[str, Any]:
     if nom.convention == "urdf":
         from ..robots import joint_table
 
-        scale = np.where(nom.is_prismatic, 1.0 / _MM, 1.0 / _DEG)
+        scale = np.where(nom.is_prismatic, 1.0 / M_PER_MM, 1.0 / RAD_PER_DEG)
         return {"name": nom.name, "convention": "urdf", "joint_names": list(nom.joint_names),
                 "joint_units": ["mm" if p else "deg" for p in nom.is_prismatic],
                 "table": joint_table(nom), "nominal": {"tool2flange": _pose_mm(nom.tool2flange)},
@@ -383,15 +377,15 @@ def _robot_json(nom: RobotModel) -> dict[str, Any]:
         "convention": nom.convention,
         "beta_joints": list(nom.beta_joints),
         "nominal": {
-            "theta_deg": (nom.theta / _DEG).tolist(),
-            "d_mm": (nom.d / _MM).tolist(),
-            "a_mm": (nom.a / _MM).tolist(),
-            "alpha_deg": (nom.alpha / _DEG).tolist(),
-            "beta_deg": [float(nom.param(f"beta{j}") / _DEG) for j in nom.beta_joints],
+            "theta_deg": (nom.theta / RAD_PER_DEG).tolist(),
+            "d_mm": (nom.d / M_PER_MM).tolist(),
+            "a_mm": (nom.a / M_PER_MM).tolist(),
+            "alpha_deg": (nom.alpha / RAD_PER_DEG).tolist(),
+            "beta_deg": [float(nom.param(f"beta{j}") / RAD_PER_DEG) for j in nom.beta_joints],
             "tool2flange": _pose_mm(nom.tool2flange),
         },
-        "q_min_deg": (nom.q_min / _DEG).tolist(),
-        "q_max_deg": (nom.q_max / _DEG).tolist(),
+        "q_min_deg": (nom.q_min / RAD_PER_DEG).tolist(),
+        "q_max_deg": (nom.q_max / RAD_PER_DEG).tolist(),
     }
 
 
@@ -403,21 +397,21 @@ def _robot_from_json(rb: dict) -> RobotModel:
         from ..robots import robot_from_joint_table
 
         m = robot_from_joint_table(rb["table"], where="robot.table")
-        scale = np.where(m.is_prismatic, _MM, _DEG)
+        scale = np.where(m.is_prismatic, M_PER_MM, RAD_PER_DEG)
         lo = np.asarray(rb["q_min"], float) * scale
         hi = np.asarray(rb["q_max"], float) * scale
         return replace(m.with_frames(tool2flange=tool), q_min=lo, q_max=hi)
     return RobotModel.from_tables(
         rb["name"],
         rb["convention"],
-        theta=np.asarray(nomd["theta_deg"], float) * _DEG,
-        d=np.asarray(nomd["d_mm"], float) * _MM,
-        a=np.asarray(nomd["a_mm"], float) * _MM,
-        alpha=np.asarray(nomd["alpha_deg"], float) * _DEG,
-        beta={int(j): float(b) * _DEG for j, b in zip(rb["beta_joints"], nomd["beta_deg"])},
+        theta=np.asarray(nomd["theta_deg"], float) * RAD_PER_DEG,
+        d=np.asarray(nomd["d_mm"], float) * M_PER_MM,
+        a=np.asarray(nomd["a_mm"], float) * M_PER_MM,
+        alpha=np.asarray(nomd["alpha_deg"], float) * RAD_PER_DEG,
+        beta={int(j): float(b) * RAD_PER_DEG for j, b in zip(rb["beta_joints"], nomd["beta_deg"])},
         tool2flange=tool,
-        q_min=np.asarray(rb["q_min_deg"], float) * _DEG,
-        q_max=np.asarray(rb["q_max_deg"], float) * _DEG,
+        q_min=np.asarray(rb["q_min_deg"], float) * RAD_PER_DEG,
+        q_max=np.asarray(rb["q_max_deg"], float) * RAD_PER_DEG,
     )
 
 
@@ -435,7 +429,7 @@ def _angular_rows(Jaxes: np.ndarray, Rcols: np.ndarray) -> np.ndarray:
 
 def _pose_mm(T: np.ndarray) -> dict[str, float]:
     v = transform_to_pose6(T)
-    return {"x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+    return {"x_mm": float(v[0] / M_PER_MM), "y_mm": float(v[1] / M_PER_MM), "z_mm": float(v[2] / M_PER_MM),
             "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5])}
 
 
@@ -447,7 +441,7 @@ def _check_finite(**arrays) -> None:
 
 
 def _pose_from_mm(d: dict) -> np.ndarray:
-    return pose6_to_transform(np.array([d["x_mm"] * _MM, d["y_mm"] * _MM, d["z_mm"] * _MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], float))
+    return pose6_to_transform(np.array([d["x_mm"] * M_PER_MM, d["y_mm"] * M_PER_MM, d["z_mm"] * M_PER_MM, d["rx_rad"], d["ry_rad"], d["rz_rad"]], float))
 
 
 def _jsonable(o):

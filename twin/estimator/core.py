@@ -13,6 +13,7 @@ import numpy as np
 from ..dataset import Dataset
 from ..kinematics import RobotModel
 from ..transforms import matrix_to_rotvec, transform_to_pose6
+from ..units import M_PER_MM, RAD_PER_DEG
 from .chain import Chain
 from .identifiability import Identifiability, analyse_jacobian, preference_order
 from .problem import (
@@ -38,8 +39,6 @@ __all__ = [
 ]
 
 ErrorModel = Literal["tmmdh", "structural"]
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,13 +292,13 @@ def residual_stats(space: ParamSpace, x: np.ndarray, obs: Observations) -> dict[
     if obs.kind == "spheres":
         pred, _ = predict_points(space, x, obs.q, obs.station, obs.spheres_tool)
         e = np.linalg.norm(obs.spheres - pred, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / _MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / M_PER_MM)}
     from .problem import station_eval
 
     R, p, _ = station_eval(space, x, obs.q, obs.station, False)
     ep = np.linalg.norm(obs.pose_p - p, axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(R, -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / _MM), "orientation_deg": _stats(er / _DEG)}
+    return {"n_rows": obs.n, "position_mm": _stats(ep / M_PER_MM), "orientation_deg": _stats(er / RAD_PER_DEG)}
 
 
 def _stats(e: np.ndarray) -> dict[str, float]:
@@ -322,13 +321,13 @@ def predicted_error(space: ParamSpace, x: np.ndarray, cov: np.ndarray, obs: Obse
         _, Jk = predict_points(space, x, obs.q, obs.station, obs.spheres_tool, jacobian=True)
         v = np.einsum("pkcn,pq,qkcn->nk", Jk, cov, Jk)  # (n, 3) summed over coordinates
         v = v[obs.seen]
-        return {"position_mm": float(np.sqrt(np.mean(v)) / _MM)}
+        return {"position_mm": float(np.sqrt(np.mean(v)) / M_PER_MM)}
     from .problem import station_eval
 
     _, _, J = station_eval(space, x, obs.q, obs.station, True)
     vp = np.einsum("pcn,pq,qcn->n", J[:, :3], cov, J[:, :3])
     vr = np.einsum("pcn,pq,qcn->n", J[:, 3:], cov, J[:, 3:])
-    return {"position_mm": float(np.sqrt(np.mean(vp)) / _MM), "orientation_deg": float(np.sqrt(np.mean(vr)) / _DEG)}
+    return {"position_mm": float(np.sqrt(np.mean(vp)) / M_PER_MM), "orientation_deg": float(np.sqrt(np.mean(vr)) / RAD_PER_DEG)}
 
 
 def full_covariance(space: ParamSpace, J_free: np.ndarray, free_idx: np.ndarray, row_weights=None) -> np.ndarray:

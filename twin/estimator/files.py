@@ -14,11 +14,11 @@ import numpy as np
 
 from ..dataset import DatasetError, read_csv_rows
 from ..transforms import make_transform, matrix_to_quat_wxyz, quat_wxyz_to_matrix, transform_to_pose6
+from ..units import M_PER_MM
 from .calibration import Prediction
 
 __all__ = ["PRED_COLUMNS", "TARGET_COLUMNS", "write_pred_csv", "read_pred_csv", "read_targets_csv", "write_targets_csv"]
 
-_MM = 1e-3
 SPHERE_COLS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
 POSE_COLS = ("x", "y", "z", "rx", "ry", "rz")
 PRED_COLUMNS = ("pose_id",) + SPHERE_COLS + POSE_COLS + ("frame",)
@@ -46,14 +46,14 @@ def write_pred_csv(path: str | os.PathLike, pose_id: np.ndarray, pred: Predictio
         w.writerow(cols)
         for i in range(n):
             row = [str(int(pose_id[i]))]
-            row += [f"{v / _MM:.6f}" for v in pred.spheres[i].reshape(-1)]
-            row += [f"{v / _MM:.6f}" for v in pose6[i, :3]] + [f"{v:.12f}" for v in pose6[i, 3:]]
+            row += [f"{v / M_PER_MM:.6f}" for v in pred.spheres[i].reshape(-1)]
+            row += [f"{v / M_PER_MM:.6f}" for v in pose6[i, :3]] + [f"{v:.12f}" for v in pose6[i, 3:]]
             row.append(str(pred.frame[i]))
             if station is not None:
                 row.append(str(station[i]))
             if has_sd:
-                row += [f"{v / _MM:.6g}" for v in pred.sd_spheres[i].reshape(-1)]
-                row += [f"{v / _MM:.6g}" for v in pred.sd_pose[i, :3]] + [f"{v:.6g}" for v in pred.sd_pose[i, 3:]]
+                row += [f"{v / M_PER_MM:.6g}" for v in pred.sd_spheres[i].reshape(-1)]
+                row += [f"{v / M_PER_MM:.6g}" for v in pred.sd_pose[i, :3]] + [f"{v:.6g}" for v in pred.sd_pose[i, 3:]]
             w.writerow(row)
     return path
 
@@ -82,12 +82,12 @@ def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     pcols = _point_cols(K)
     out = {
         "pose_id": np.array([int(r["pose_id"]) for r in rows]),
-        "spheres": np.array([[float(r[c]) for c in pcols] for r in rows]).reshape(-1, K, 3) * _MM,
-        "pose6": np.array([[float(r[c]) * (_MM if c in "xyz" else 1.0) for c in POSE_COLS] for r in rows]),
+        "spheres": np.array([[float(r[c]) for c in pcols] for r in rows]).reshape(-1, K, 3) * M_PER_MM,
+        "pose6": np.array([[float(r[c]) * (M_PER_MM if c in "xyz" else 1.0) for c in POSE_COLS] for r in rows]),
         "frame": np.array([r["frame"] for r in rows], dtype=object),
     }
     if "sd_p0_x" in rows[0]:
-        out["sd_spheres"] = np.array([[float(r[f"sd_{c}"]) for c in pcols] for r in rows]).reshape(-1, K, 3) * _MM
+        out["sd_spheres"] = np.array([[float(r[f"sd_{c}"]) for c in pcols] for r in rows]).reshape(-1, K, 3) * M_PER_MM
     return out
 
 
@@ -126,7 +126,7 @@ def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             raise DatasetError(
                 f"{path}: row {k + 1} (pose_id {pid[k]}), columns qw..qz: not a unit quaternion (norm {np.linalg.norm(qv):.9g})"
             )
-        T[k] = make_transform(quat_wxyz_to_matrix(qv), np.array([vals["x"], vals["y"], vals["z"]]) * _MM)
+        T[k] = make_transform(quat_wxyz_to_matrix(qv), np.array([vals["x"], vals["y"], vals["z"]]) * M_PER_MM)
     return pid, T
 
 
@@ -139,5 +139,5 @@ def write_targets_csv(path: str | os.PathLike, pose_id: np.ndarray, tool2base: n
         w = csv.writer(f, lineterminator="\n")
         w.writerow(TARGET_COLUMNS)
         for i in range(len(pose_id)):
-            w.writerow([str(int(pose_id[i]))] + [f"{v / _MM:.6f}" for v in tool2base[i, :3, 3]] + [f"{v:.12f}" for v in q[i]])
+            w.writerow([str(int(pose_id[i]))] + [f"{v / M_PER_MM:.6f}" for v in tool2base[i, :3, 3]] + [f"{v:.12f}" for v in q[i]])
     return path

@@ -8,11 +8,13 @@ a :class:`~twin.estimator.calibration.Calibration`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable, Literal
 
 import numpy as np
 
 from ..dataset import Dataset
+from ..units import M_PER_MM, rad_to_deg
 from .calibration import Calibration
 from .core import (
     ErrorModel,
@@ -31,8 +33,6 @@ from .problem import Observations, ParamSpace, absolute_residuals
 from .solvers import TraceEntry, gauss_newton, robust_fit
 
 __all__ = ["calibrate", "identify_best", "identifiability", "METHODS", "candidates", "build_calibration"]
-
-_MM = 1e-3
 
 
 LEVELS = ("full", "offsets", "frames")
@@ -122,13 +122,69 @@ def identify_best(
     if selection == "figaroh" and (level != "full" or space.chain.structure.convention != "urdf"):
         raise ValueError(f"selection 'figaroh' is FIGAROH's full-parameter level of a URDF chain: it needs level='full' "
                          f"and a 'urdf' chain, got level={level!r} on a {space.chain.structure.convention!r} chain")
+    x0 = prep.x_nominal.copy()
+    sel = _select_parameters(prep, x0, error_model, level, gauge, selection)
+    trace: list[TraceEntry] = []
+
+    def cb(e):
+        trace.append(e)
+        if callback:
+            callback(e)
+
+    fit = _fit_settling_noise(prep, x0, sel.free_idx, sel.res0, robust, alpha, cb)
+    x, res, Jw, sig_p, sig_o = fit.x, fit.residuals, fit.Jw, fit.sigma_position, fit.sigma_orientation
+    w_rows = fit.inlier.astype(float)[res.row]
+    if prior:
+        sd = prior_sd(space, prior, sel.cand)
+        x, res, Jw, w_rows = _map_fit(space, obs.with_sigma(sig_p, sig_o), x, x0, sd, sel.free_idx, fit.inlier, cb)
+    C = full_covariance(space, Jw, sel.free_idx, w_rows)
+    rejected = _rejected_rows(fit, alpha) if robust else []
+    status = ["identified" if sel.free_full[k] else "fixed" if sel.cand[k] else "given" for k in range(space.size)]
+    noise = _noise_report(prep, sig_p, sig_o)
+    # residual scale check: with stated noise, how do the inlier residuals compare?
+    m_in = float(np.sum(w_rows))
+    chi2 = float(np.sum(res.r**2 * w_rows))
+    noise["residual_scale"] = float(np.sqrt(chi2 / max(m_in - sel.free_idx.size, 1)))
+    return Identified(
+        x=x,
+        status=tuple(status),
+        covariance=C,
+        identifiability=sel.identifiability,
+        inlier=fit.inlier,
+        rejected=tuple(rejected),
+        noise=noise,
+        trace=tuple(trace),
+        notes=tuple(fit.notes),
+        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge,
+               "level": level, **({"prior": {k: float(v) for k, v in prior.items()}} if prior else {}),
+               **sel.extra},
+    )
+
+
+@dataclass(frozen=True)
+class _Selection:
+    """Step 2 of :func:`identify_best`: the candidate parameters of the error model and level, the identifiability
+    at the start, the parameters estimated (``free_full`` mask, ``free_idx`` indices) and the residuals at the
+    start."""
+
+    cand: np.ndarray
+    identifiability: Any
+    free_full: np.ndarray
+    free_idx: np.ndarray
+    res0: Any
+    extra: dict
+
+
+def _select_parameters(prep: Prepared, x0: np.ndarray, error_model: ErrorModel, level: str, gauge: str,
+                       selection: str) -> _Selection:
+    """The parameters :func:`identify_best` estimates: every identifiable candidate (``"ordered"``) or FIGAROH's
+    full-parameter set on our parameterisation (``"figaroh"``); the design is checked for each count."""
+    space, obs = prep.space, prep.obs_cal
     cand = candidates(space, error_model, level)
     check_design(obs, int(cand.sum()))
-    x0 = prep.x_nominal.copy()
     res0 = absolute_residuals(space, x0, obs)
     cand_names = [n for n, c in zip(space.names, cand) if c]
     ida = analyse_jacobian(res0.J, space.names, candidates=cand_names, order=preference_order(cand_names, gauge))
-    free = ida.mask(space.names)
     free_full = np.zeros(space.size, dtype=bool)
     selected = ida.identifiable
     sel_extra: dict = {}
@@ -145,16 +201,34 @@ def identify_best(
     free_full[[space.index(n) for n in selected]] = True
     free_idx = np.flatnonzero(free_full)
     check_design(obs, int(free_idx.size))
+    return _Selection(cand=cand, identifiability=ida, free_full=free_full, free_idx=free_idx, res0=res0,
+                      extra=sel_extra)
+
+
+@dataclass(frozen=True)
+class _NoiseFit:
+    """Steps 3-4 of :func:`identify_best`: the solution, its inlier rows (and, robust, each row's statistic and
+    threshold), the residuals and whitened free-column Jacobian at it, and the settled noise [m], [rad]."""
+
+    x: np.ndarray
+    inlier: np.ndarray
+    row_stat: np.ndarray | None
+    threshold: np.ndarray | None
+    residuals: Any
+    Jw: np.ndarray
+    sigma_position: float
+    sigma_orientation: float
+    notes: tuple[str, ...]
+
+
+def _fit_settling_noise(prep: Prepared, x0: np.ndarray, free_idx: np.ndarray, res0, robust: bool, alpha: float,
+                        cb: Callable[[TraceEntry], None]) -> _NoiseFit:
+    """The robust (or plain) fit, refitted with the noise re-estimated by variance components until the ratio of
+    the position and orientation noise settles (at most 6 rounds; a stated noise is kept)."""
+    space, obs = prep.space, prep.obs_cal
     given_p = prep.noise_given["position"]
     given_o = prep.noise_given["orientation"] or obs.kind == "spheres"
     sig_p, sig_o = obs.sigma_position, obs.sigma_orientation
-    trace: list[TraceEntry] = []
-
-    def cb(e):
-        trace.append(e)
-        if callback:
-            callback(e)
-
     x = x0
     notes = []
     for round_ in range(6):
@@ -193,50 +267,30 @@ def identify_best(
             break
     else:
         notes.append("noise estimation did not settle in 6 rounds")
-    w_rows = inlier.astype(float)[res.row]
-    if prior:
-        sd = prior_sd(space, prior, cand)
-        x, res, Jw, w_rows = _map_fit(space, obs.with_sigma(sig_p, sig_o), x, x0, sd, free_idx, inlier, cb)
-    C = full_covariance(space, Jw, free_idx, w_rows)
-    rejected = []
-    if robust and row_stat is not None:
-        for i in np.flatnonzero(~inlier):
-            rejected.append(
-                (int(i), f"outlier: sum of squared normalised residuals {row_stat[i]:.4g} > threshold {thr[i]:.4g} "
-                         f"(chi-square rule, alpha={alpha:g} over {int(np.sum(row_stat >= 0))} rows)")
-            )
-    status = []
-    for k, n in enumerate(space.names):
-        if free_full[k]:
-            status.append("identified")
-        elif cand[k]:
-            status.append("fixed")
-        else:
-            status.append("given")
-    noise = {
-        "position_mm": sig_p / _MM,
-        "position_source": "given" if given_p else "estimated from residuals",
+    return _NoiseFit(x=x, inlier=inlier, row_stat=row_stat, threshold=thr, residuals=res, Jw=Jw,
+                     sigma_position=sig_p, sigma_orientation=sig_o, notes=tuple(notes))
+
+
+def _rejected_rows(fit: _NoiseFit, alpha: float) -> list[tuple[int, str]]:
+    """The rows the robust fit left out, each with the chi-square rule's numbers."""
+    if fit.row_stat is None:
+        return []
+    row_stat, thr = fit.row_stat, fit.threshold
+    return [(int(i), f"outlier: sum of squared normalised residuals {row_stat[i]:.4g} > threshold {thr[i]:.4g} "
+                     f"(chi-square rule, alpha={alpha:g} over {int(np.sum(row_stat >= 0))} rows)")
+            for i in np.flatnonzero(~fit.inlier)]
+
+
+def _noise_report(prep: Prepared, sig_p: float, sig_o: float) -> dict[str, Any]:
+    """``noise`` of the result: the noise used [mm] / [rad] and whether it was stated or estimated."""
+    noise: dict[str, Any] = {
+        "position_mm": sig_p / M_PER_MM,
+        "position_source": "given" if prep.noise_given["position"] else "estimated from residuals",
     }
-    if obs.kind == "pose":
+    if prep.obs_cal.kind == "pose":
         noise["orientation_rad"] = sig_o
         noise["orientation_source"] = "given" if prep.noise_given["orientation"] else "estimated from residuals"
-    # residual scale check: with stated noise, how do the inlier residuals compare?
-    m_in = float(np.sum(w_rows))
-    chi2 = float(np.sum(res.r**2 * w_rows))
-    noise["residual_scale"] = float(np.sqrt(chi2 / max(m_in - free_idx.size, 1)))
-    return Identified(
-        x=x,
-        status=tuple(status),
-        covariance=C,
-        identifiability=ida,
-        inlier=inlier,
-        rejected=tuple(rejected),
-        noise=noise,
-        trace=tuple(trace),
-        notes=tuple(notes),
-        extra={"sigma_position": sig_p, "sigma_orientation": sig_o, "error_model": error_model, "gauge": gauge,
-               "level": level, **({"prior": {k: float(v) for k, v in prior.items()}} if prior else {}), **sel_extra},
-    )
+    return noise
 
 
 PRIOR_KEYS = ("length", "angle", "offset")
@@ -313,10 +367,10 @@ def build_calibration(prep: Prepared, ident: Identified, method: str, options: d
         floor = predicted_error(space, ident.x, ident.covariance, obs_val)
         exp = {}
         if obs_val.kind == "spheres":
-            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / M_PER_MM) ** 2 + floor["position_mm"] ** 2))
         else:
-            exp["position_mm"] = float(np.sqrt(3 * (sig_p / _MM) ** 2 + floor["position_mm"] ** 2))
-            exp["orientation_deg"] = float(np.sqrt(3 * np.rad2deg(sig_o) ** 2 + floor["orientation_deg"] ** 2))
+            exp["position_mm"] = float(np.sqrt(3 * (sig_p / M_PER_MM) ** 2 + floor["position_mm"] ** 2))
+            exp["orientation_deg"] = float(np.sqrt(3 * rad_to_deg(sig_o) ** 2 + floor["orientation_deg"] ** 2))
         residuals["predicted_validation"] = {
             "model_error_rms": floor,
             "expected_residual_rms": exp,

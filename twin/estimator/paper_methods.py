@@ -40,6 +40,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
+from ..units import M_PER_MM
 from .core import Identified, Prepared, analyse, check_design, register_bases
 from .identifiability import analyse_jacobian, preference_order
 from .lm import GenericBatch, LMSettings, PoseBatch, cross_identification, levenberg_marquardt
@@ -71,7 +72,6 @@ __all__ = [
 EQ21_ANGLES = ("theta1", "alpha1", "theta2", "alpha2", "beta2", "alpha3", "theta4", "alpha4", "theta5", "alpha5",
                "theta6", "alpha6")
 EQ22_LENGTHS = tuple(f"{f}{i}" for i in range(1, 7) for f in ("d", "a")) + ("theta2", "theta3")
-_MM = 1e-3
 
 
 def _mask(space: ParamSpace, names) -> np.ndarray:
@@ -87,7 +87,7 @@ def _weighted(obs: Observations, weighting: str) -> Observations:
     if weighting == "noise":
         return obs
     if weighting == "mm_rad":  # unweighted, positions in mm and angles in rad
-        return obs.with_sigma(_MM, 1.0)
+        return obs.with_sigma(M_PER_MM, 1.0)
     raise ValueError(f"weighting must be 'paper', 'mm_rad' or 'noise', got {weighting!r}")
 
 
@@ -150,7 +150,7 @@ def _pair_analysis(space, x, obs, pairs, kind, free, base2meas=None, gauge="fram
 
 def _noise_info(prep: Prepared, weighting: str) -> dict:
     d = {"weighting": "unweighted SI residuals (the papers')" if weighting == "paper" else "whitened by the dataset noise"}
-    d["position_mm"] = prep.obs.sigma_position / _MM
+    d["position_mm"] = prep.obs.sigma_position / M_PER_MM
     d["position_source"] = "given" if prep.noise_given["position"] else "placeholder (not used by the papers' methods)"
     return d
 

@@ -35,6 +35,7 @@ from ..kinematics import (
     tool2base,
 )
 from ..transforms import invert_transform, make_transform, rotvec_to_matrix
+from ..units import M_PER_MM, deg_to_rad
 from .chain import Chain
 from .identifiability import analyse_jacobian, preference_order
 from .problem import ParamSpace, predict_points
@@ -48,8 +49,6 @@ __all__ = [
     "plan_measurements",
     "design_floor",
 ]
-
-_MM = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,7 +78,7 @@ class StereoCamera:
 
             T = np.eye(4)
             T[:3, :3] = np.asarray(d["left2right"]["R"], dtype=float)
-            T[:3, 3] = np.asarray(d["left2right"]["t_mm"], dtype=float) * _MM
+            T[:3, 3] = np.asarray(d["left2right"]["t_mm"], dtype=float) * M_PER_MM
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{where}: missing or malformed field ({exc})") from None
         if np.abs(T[:3, :3] @ T[:3, :3].T - np.eye(3)).max() > 1e-6:
@@ -95,7 +94,7 @@ class PlanOptions:
     at which the two optical axes cross, else 0.55-0.85 m)."""
 
     margin_px: float = 20.0
-    max_tilt: float = np.deg2rad(55.0)
+    max_tilt: float = deg_to_rad(55.0)
     link_radius: float = 0.045
     depth: tuple[float, float] | None = None
 

@@ -33,13 +33,13 @@ from itertools import permutations
 import numpy as np
 
 from ..dataset import Dataset
+from ..units import MM_PER_M, RAD_PER_DEG, DEG_PER_RAD
 
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
            "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise", "tool_reach", "check_targets",
            "forced_reasons", "check_length_unit", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
-_DEG = np.pi / 180.0
 _MAX_RELABEL_POINTS = 6  # K! permutations are tried per row
 
 
@@ -100,7 +100,7 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
             cause = "a different plate, or wrong units?"
         label = ("sphere distances", "the plate's") if ds.plate.sphere_diameter > 0 else ("marker distances",
                                                                                         "the marker set's")
-        raise ImplausibleData(f"{label[0]} are {ratio:.4g}x {label[1]} ({', '.join(f'{x * 1e3:.2f}' for x in nom[:6])} "
+        raise ImplausibleData(f"{label[0]} are {ratio:.4g}x {label[1]} ({', '.join(f'{x * MM_PER_M:.2f}' for x in nom[:6])} "
                               f"mm in dataset.toml): {cause}")
     K = ds.plate.n_points
     spheres = ds.spheres.copy()
@@ -125,7 +125,7 @@ def check_plate_rows(ds: Dataset, *, k: float = 10.0, min_sd_m: float = 2e-6) ->
     for r, b, x in zip(rows, bad, dev):
         if b:
             flagged[int(ds.pose_id[r])] = (f"plate geometry off: inter-point distances differ from the campaign's by "
-                                           f"{', '.join(f'{v * 1e3:.3f}' for v in x)} mm (> {k:g} robust sd): not what the "
+                                           f"{', '.join(f'{v * MM_PER_M:.3f}' for v in x)} mm (> {k:g} robust sd): not what the "
                                            f"instrument could have measured")
     if bad.mean() > 0.5:
         raise ImplausibleData(f"{int(bad.sum())} of {int(full.sum())} rows have marker distances that do not fit the "
@@ -166,16 +166,16 @@ def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_
         raise ValueError(f"pose_id must have shape ({q.shape[0]},), got {pose_id.shape}")
     n = q.shape[0]
     rev = q[:, ~pris]
-    if n >= 10 and rev.size and np.all(np.abs(rev) <= np.pi * _DEG * 1.02) and np.ptp(rev, axis=0).max() > 0:
+    if n >= 10 and rev.size and np.all(np.abs(rev) <= np.pi * RAD_PER_DEG * 1.02) and np.ptp(rev, axis=0).max() > 0:
         cols = "q1..q6" if joint_names is None else ", ".join(n_ for n_, p in zip(names, pris) if not p)
-        raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(rev).max() / _DEG:.3g} deg of zero: "
+        raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(rev).max() / RAD_PER_DEG:.3g} deg of zero: "
                               f"joints look like radians ({where} expects {cols} in degrees)")
     lo, hi = np.asarray(q_min, float), np.asarray(q_max, float)
     out = []
     for j in range(nj):
         b = np.flatnonzero((q[:, j] < lo[j] - 1e-9) | (q[:, j] > hi[j] + 1e-9))
         if b.size:
-            f, u = (1e3, "mm") if pris[j] else (1 / _DEG, "deg")
+            f, u = (MM_PER_M, "mm") if pris[j] else (DEG_PER_RAD, "deg")
             out.append(f"{names[j]} outside the robot's limits [{lo[j] * f:.1f}, {hi[j] * f:.1f}] {u} in "
                        f"{b.size} rows (pose_id {[int(x) for x in pose_id[b[:5]]]})")
     return out
@@ -209,8 +209,8 @@ def check_targets(tool2base_targets: np.ndarray, pose_id: np.ndarray, robot, *, 
     typical, reach = tool_reach(robot)
     ratio = float(np.median(r)) / typical
     if ratio < 0.01:
-        raise ImplausibleData(f"every target lies within {r.max() * 1e3:.4g} mm of the robot base origin, where the "
-                              f"plate is typically {typical * 1e3:.0f} mm from it: positions in metres? ({where} expects "
+        raise ImplausibleData(f"every target lies within {r.max() * MM_PER_M:.4g} mm of the robot base origin, where the "
+                              f"plate is typically {typical * MM_PER_M:.0f} mm from it: positions in metres? ({where} expects "
                               "x, y, z in millimetres)")
     far = np.flatnonzero(r > margin * reach)
     if far.size:
@@ -220,8 +220,8 @@ def check_targets(tool2base_targets: np.ndarray, pose_id: np.ndarray, robot, *, 
             cause = "positions 25.4x too large: millimetres converted as if inches?"
         else:
             cause = f"wrong units, or a frame other than the robot base? ({where} expects millimetres in the robot base frame)"
-        raise ImplausibleData(f"{far.size} of {r.size} targets lie beyond the robot's reach ({reach * 1e3:.0f} mm from "
-                              f"the base origin within its joint limits; farthest {r.max() * 1e3:.4g} mm, pose_id "
+        raise ImplausibleData(f"{far.size} of {r.size} targets lie beyond the robot's reach ({reach * MM_PER_M:.0f} mm from "
+                              f"the base origin within its joint limits; farthest {r.max() * MM_PER_M:.4g} mm, pose_id "
                               f"{[int(x) for x in pose_id[far[:10]]]}): {cause}")
 
 
@@ -287,7 +287,7 @@ def check_length_unit(ds: Dataset, *, low: float = 0.05, high: float = 20.0) -> 
                      else f"dataset.toml declares unit {unit!r}: values in micrometres?")
         else:
             cause = "wrong units, wrong robot, or joints in the wrong columns?"
-        f = 1e3 if unit == "mm" else 1.0
+        f = MM_PER_M if unit == "mm" else 1.0
         raise ImplausibleData(f"the measured positions spread {sm_ * f:.4g} {unit} over the campaign where "
                               f"the nominal robot moves them {sp * f:.4g} {unit} (ratio {ratio:.3g}): {cause}")
     return ratio
@@ -401,7 +401,7 @@ def check_fit_miss(miss: dict | None, *, limit: float = MAX_MISS_FRACTION) -> No
     if miss["fraction"] >= limit:
         raise ImplausibleData(
             f"the model cannot fit these data: the calibrated robot misses its calibration rows by "
-            f"{miss['miss_rms_m'] * 1e3:.4g} mm RMS (the worst {miss['trim']:.0%} left out), {miss['fraction']:.0%} of the "
-            f"{miss['spread_m'] * 1e3:.4g} mm the measured positions move over the campaign: no robot's own errors are "
+            f"{miss['miss_rms_m'] * MM_PER_M:.4g} mm RMS (the worst {miss['trim']:.0%} left out), {miss['fraction']:.0%} of the "
+            f"{miss['spread_m'] * MM_PER_M:.4g} mm the measured positions move over the campaign: no robot's own errors are "
             "that large (joint columns swapped or in the wrong order, rows of several stations without their 'station' "
             "column, another robot?)")

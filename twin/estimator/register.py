@@ -17,19 +17,18 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..transforms import matrix_to_rotvec, transform_to_pose6
+from ..units import M_PER_MM, RAD_PER_DEG
 from .calibration import Calibration, Prediction
 from .chain import Chain
 from .core import _stats, register_bases
 from .identifiability import analyse_jacobian
 from .problem import Observations, ParamSpace, Residuals, absolute_residuals, observations_from_dataset
-from .solvers import TraceEntry, covariance, gauss_newton
+from .solvers import GNResult, TraceEntry, covariance, gauss_newton
 
 __all__ = ["Registration", "register", "select_rows", "prediction_errors", "session_residuals", "SESSION_COLUMN",
            "PredictFn"]
 
 SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording session (docs/formats.md)
-_MM = 1e-3
-_DEG = np.pi / 180.0
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the Jacobian through a prediction function
 _XTOL_PREDICT = 1e-10  # [m] and [rad]: convergence step through a prediction function
 
@@ -110,6 +109,55 @@ def register(
     as they are; history-dependent terms read the rows as ``predict`` gives them (a new session starts a new
     history where the ``session`` column changes or in a file of its own).
     """
+    _check_arguments(calibration, dataset, tool, predict, max_iter)
+    _check_robot(calibration, dataset)
+    idx = _row_indices(dataset, rows)
+    obs_all, obs, registered = _registration_rows(calibration, dataset, idx, tool)
+    setup = _parameter_space(calibration, obs_all, obs, registered, tool)
+    sp, obs, free, template = setup.space, setup.obs, setup.free, setup.template
+    fun = _residual_function(sp, obs, template, free, idx, dataset, predict)
+    res0 = fun(setup.x0)
+    _check_determined(res0, sp, free, obs.n, tool)
+    # through a prediction function the residuals carry its rounding (~1e-12 m): a step below 1e-10 m / rad is none
+    gn = gauss_newton(fun, setup.x0, free, res0=res0, max_iter=max_iter, stage="register",
+                      **({} if predict is None else {"xtol": _XTOL_PREDICT}))
+    x = gn.x
+    res = gn.residuals
+    m, p = res.r.size, free.size
+    s2 = float(gn.cost / (m - p)) if m > p else float("nan")
+    old = calibration
+    cov = None
+    if old.covariance is not None:
+        cov = _covariance(old, sp, x, obs, res.J[:, free], free, s2)
+    new = replace(template, x=x, covariance=cov)
+    pred = _predict(new, dataset, idx, predict)
+    stats = _errors(obs, pred, idx, dataset)
+    sessions = _sessions(dataset, idx)
+    info = _registration_info(old, dataset, idx, obs, registered, tool, sessions, stats, s2, gn)
+    details = dict(old.details)
+    details["registration"] = info
+    where = f" of session {', '.join(sessions)}" if sessions else ""
+    note = (f"base2meas of station(s) {', '.join(repr(s) for s in registered)}{' and the tool' if tool else ''} "
+            f"re-registered on {idx.size} rows{where} of {info['dataset'] or 'a dataset in memory'} (robot model held)")
+    new = replace(new, details=details, notes=tuple(old.notes) + (note,))
+    return Registration(
+        calibration=new,
+        stations=registered,
+        tool=bool(tool),
+        rows=idx,
+        pose_id=dataset.pose_id[idx].copy(),
+        start=setup.start,
+        residuals=stats,
+        residual_scale=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
+        converged=bool(gn.converged),
+        iterations=int(gn.iterations),
+        trace=gn.trace,
+        session=sessions,
+    )
+
+
+def _check_arguments(calibration, dataset, tool, predict, max_iter) -> None:
+    """``ValueError`` naming the argument of :func:`register` that is not what it must be."""
     if not isinstance(calibration, Calibration):
         raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
     if not isinstance(dataset, Dataset):
@@ -126,8 +174,12 @@ def register(
             "the frame")
     if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
-    _check_robot(calibration, dataset)
-    idx = _row_indices(dataset, rows)
+
+
+def _registration_rows(calibration: Calibration, dataset: Dataset, idx: np.ndarray,
+                       tool: bool) -> tuple[Observations, Observations, tuple[str, ...]]:
+    """The observations of every measured row, those of the rows ``idx`` and the stations they register; refused
+    when they give fewer scalar equations than the parameters (6 per station, 6 more with the tool)."""
     obs_all, kept = _observations(calibration, dataset)
     pos = _positions(dataset, kept, idx)
     obs = obs_all.subset(pos)
@@ -138,9 +190,26 @@ def register(
         per = "marker coordinates" if obs.kind == "spheres" else "pose components"
         raise ValueError(f"rows: {obs.n} row(s) give {m} {per}, fewer than the {n_free} parameters (6 per station"
                          f"{' + 6 of the tool' if tool else ''}); give more rows")
+    return obs_all, obs, registered
 
-    # the new parameter space: the calibration's stations, a registered one replacing one of the same name
-    old = calibration
+
+@dataclass(frozen=True)
+class _Setup:
+    """The registration's parameter space: the calibration's stations with the registered ones (a registered
+    station replacing one of the same name), the start ``x0`` (the registered bases in closed form), the free
+    parameters, the observations relabelled to the space's stations and the calibration it fills in."""
+
+    space: ParamSpace
+    obs: Observations
+    x0: np.ndarray
+    free: np.ndarray
+    start: dict[str, np.ndarray]
+    template: Calibration
+
+
+def _parameter_space(old: Calibration, obs_all: Observations, obs: Observations, registered: tuple[str, ...],
+                     tool: bool) -> _Setup:
+    """The parameter space, start and free parameters of a registration (see :class:`_Setup`)."""
     old_sp = old.space
     stations = tuple(s for s in old.stations) + tuple(s for s in registered if s not in old.stations)
     sp = ParamSpace(old_sp.chain, stations)
@@ -178,48 +247,51 @@ def register(
         for k in range(sp.tool_slice.start, sp.tool_slice.stop):
             status[k] = "identified"
     template = replace(old, stations=stations, x=x0, x_nominal=xn, status=tuple(status), covariance=None)
+    return _Setup(space=sp, obs=obs, x0=x0, free=free, start=start, template=template)
 
+
+def _residual_function(sp: ParamSpace, obs: Observations, template: Calibration, free: np.ndarray, idx: np.ndarray,
+                       dataset: Dataset, predict: PredictFn | None) -> Callable[[np.ndarray], Residuals]:
+    """The whitened residuals and their Jacobian at ``x``: the estimator's analytic ones for a geometric
+    calibration, central differences of ``predict`` over the free parameters otherwise."""
     if predict is None:
         def fun(x: np.ndarray) -> Residuals:
             return absolute_residuals(sp, x, obs)
-    else:
-        def resid(x: np.ndarray) -> np.ndarray:
-            pred = predict(replace(template, x=x), idx)
-            return _residuals_from_prediction(obs, pred, idx, dataset).r
+        return fun
 
-        def fun(x: np.ndarray) -> Residuals:
-            pred = predict(replace(template, x=x), idx)
-            res = _residuals_from_prediction(obs, pred, idx, dataset)
-            J = np.zeros((res.r.size, P))
-            for k in free:
-                e = np.zeros(P)
-                e[k] = _FD_STEP
-                J[:, k] = -(resid(x + e) - resid(x - e)) / (2.0 * _FD_STEP)
-            return replace(res, J=J)
+    P = sp.size
 
-    res0 = fun(x0)
-    names = [sp.names[k] for k in free]
-    ida = analyse_jacobian(res0.J[:, free], names)
+    def resid(x: np.ndarray) -> np.ndarray:
+        pred = predict(replace(template, x=x), idx)
+        return _residuals_from_prediction(obs, pred, idx, dataset).r
+
+    def fun(x: np.ndarray) -> Residuals:
+        pred = predict(replace(template, x=x), idx)
+        res = _residuals_from_prediction(obs, pred, idx, dataset)
+        J = np.zeros((res.r.size, P))
+        for k in free:
+            e = np.zeros(P)
+            e[k] = _FD_STEP
+            J[:, k] = -(resid(x + e) - resid(x - e)) / (2.0 * _FD_STEP)
+        return replace(res, J=J)
+    return fun
+
+
+def _check_determined(res0: Residuals, sp: ParamSpace, free: np.ndarray, n_rows: int, tool: bool) -> None:
+    """Refuse rows that leave a combination of the free parameters undetermined, naming it."""
+    ida = analyse_jacobian(res0.J[:, free], [sp.names[k] for k in free])
     if ida.dropped:
         raise ValueError(
-            f"rows: the {obs.n} rows given cannot determine {', '.join(ida.dropped)} "
+            f"rows: the {n_rows} rows given cannot determine {', '.join(ida.dropped)} "
             f"({'; '.join(c.describe() for c in ida.combinations)}); measure more varied configurations"
             + (" (the tool needs rows whose orientations differ about two axes)" if tool else ""))
-    # through a prediction function the residuals carry its rounding (~1e-12 m): a step below 1e-10 m / rad is none
-    gn = gauss_newton(fun, x0, free, res0=res0, max_iter=max_iter, stage="register",
-                      **({} if predict is None else {"xtol": _XTOL_PREDICT}))
-    x = gn.x
-    res = gn.residuals
-    m, p = res.r.size, free.size
-    s2 = float(gn.cost / (m - p)) if m > p else float("nan")
-    cov = None
-    if old.covariance is not None:
-        cov = _covariance(old, sp, x, obs, res.J[:, free], free, s2)
-    new = replace(template, x=x, covariance=cov)
-    pred = _predict(new, dataset, idx, predict)
-    stats = _errors(obs, pred, idx, dataset)
-    sessions = _sessions(dataset, idx)
-    info = {
+
+
+def _registration_info(old: Calibration, dataset: Dataset, idx: np.ndarray, obs: Observations,
+                       registered: tuple[str, ...], tool: bool, sessions: tuple[str, ...] | None,
+                       stats: dict[str, Any], s2: float, gn: GNResult) -> dict[str, Any]:
+    """``details.registration`` of the registered calibration (``docs/formats.md``)."""
+    return {
         "dataset": str(dataset.path) if dataset.path else "",
         "session": list(sessions) if sessions is not None else None,
         "stations": list(registered),
@@ -227,7 +299,7 @@ def register(
         "rows": [int(v) for v in dataset.pose_id[idx]],
         "n_rows": int(idx.size),
         "measurement": obs.kind,
-        "noise": {"position_mm": obs.sigma_position / _MM,
+        "noise": {"position_mm": obs.sigma_position / M_PER_MM,
                   **({"orientation_rad": obs.sigma_orientation} if obs.kind == "pose" else {})},
         "residuals": stats,
         "residual_scale": float(np.sqrt(s2)) if np.isfinite(s2) else None,
@@ -237,26 +309,6 @@ def register(
         "effects": "applied (held)" if old.effects else "none",
         "base2meas_before": {s: _pose_json(old.base2meas[s]) for s in registered if s in old.stations},
     }
-    details = dict(old.details)
-    details["registration"] = info
-    where = f" of session {', '.join(sessions)}" if sessions else ""
-    note = (f"base2meas of station(s) {', '.join(repr(s) for s in registered)}{' and the tool' if tool else ''} "
-            f"re-registered on {idx.size} rows{where} of {info['dataset'] or 'a dataset in memory'} (robot model held)")
-    new = replace(new, details=details, notes=tuple(old.notes) + (note,))
-    return Registration(
-        calibration=new,
-        stations=registered,
-        tool=bool(tool),
-        rows=idx,
-        pose_id=dataset.pose_id[idx].copy(),
-        start=start,
-        residuals=stats,
-        residual_scale=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
-        converged=bool(gn.converged),
-        iterations=int(gn.iterations),
-        trace=gn.trace,
-        session=sessions,
-    )
 
 
 def select_rows(
@@ -440,10 +492,10 @@ def _observations(cal: Calibration, ds: Dataset) -> tuple[Observations, np.ndarr
             k = int(np.argmax(d.max(axis=1)))
             raise ValueError(
                 f"dataset {ds.path or '(in memory)'}: its marker set differs from the calibration's (point p{k}: "
-                f"{np.round(ds.plate.spheres_flange[k] / _MM, 4).tolist()} mm against "
-                f"{np.round(cal.plate.spheres_flange[k] / _MM, 4).tolist()} mm in the flange frame); another marker set "
+                f"{np.round(ds.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm against "
+                f"{np.round(cal.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm in the flange frame); another marker set "
                 "needs a calibration of its own")
-    sp = ds.noise_position if ds.noise_position is not None else _noise(cal, "position_mm", _MM)
+    sp = ds.noise_position if ds.noise_position is not None else _noise(cal, "position_mm", M_PER_MM)
     so = ds.noise_orientation if ds.noise_orientation is not None else _noise(cal, "orientation_rad", 1.0)
     obs, kept, _ = observations_from_dataset(ds, sigma_position=sp, sigma_orientation=so)
     return replace(obs, spheres_tool=np.asarray(cal.spheres_tool, dtype=float)), kept
@@ -509,10 +561,10 @@ def _errors(obs: Observations, pred: Prediction, idx: np.ndarray, ds: Dataset) -
     _check_prediction(pred, obs.n, ds, idx)
     if obs.kind == "spheres":
         e = np.linalg.norm(obs.spheres - pred.spheres, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / _MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / M_PER_MM)}
     ep = np.linalg.norm(obs.pose_p - pred.pose[:, :3, 3], axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(pred.pose[:, :3, :3], -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / _MM), "orientation_deg": _stats(er / _DEG)}
+    return {"n_rows": obs.n, "position_mm": _stats(ep / M_PER_MM), "orientation_deg": _stats(er / RAD_PER_DEG)}
 
 
 def _sessions(ds: Dataset, idx: np.ndarray) -> tuple[str, ...] | None:
@@ -564,5 +616,5 @@ def _covariance(old: Calibration, sp: ParamSpace, x: np.ndarray, obs: Observatio
 
 def _pose_json(T: np.ndarray) -> dict[str, float]:
     v = transform_to_pose6(T)
-    return {"x_mm": float(v[0] / _MM), "y_mm": float(v[1] / _MM), "z_mm": float(v[2] / _MM),
+    return {"x_mm": float(v[0] / M_PER_MM), "y_mm": float(v[1] / M_PER_MM), "z_mm": float(v[2] / M_PER_MM),
             "rx_rad": float(v[3]), "ry_rad": float(v[4]), "rz_rad": float(v[5])}

@@ -22,11 +22,10 @@ import numpy as np
 
 from ..dataset import Dataset, default_plate, robot_from_spec
 from ..transforms import kabsch
+from ..units import M_PER_MM, deg_to_rad
 
 __all__ = ["Plan", "plan_poses", "synthetic_dataset", "effect_size", "true_model_error", "truth_effects",
            "effect_delta", "oracle_delta_fit"]
-
-_MM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -78,7 +77,7 @@ def _one_arm_branch(q: np.ndarray, tol_deg: float = 60.0) -> np.ndarray:
     branches; a far branch is an extrapolation no calibration campaign would test on)."""
     med = np.median(q[:, :3], axis=0)
     d = np.abs((q[:, :3] - med + np.pi) % (2 * np.pi) - np.pi)
-    return q[np.all(d <= np.deg2rad(tol_deg), axis=1)]
+    return q[np.all(d <= deg_to_rad(tol_deg), axis=1)]
 
 
 def synthetic_dataset(world, plan: Plan, *, sigma: float, seed: int = 0, record_temp: bool = False,
@@ -110,7 +109,7 @@ def synthetic_dataset(world, plan: Plan, *, sigma: float, seed: int = 0, record_
         station=names,
         t_s=plan.t_s.copy() if record_time else None,
         temp_c=temp,
-        provenance=f"twin.evaluation.closeloop.synthetic_dataset: world truth + N(0, {sigma / _MM:g} mm^2), seed {seed}",
+        provenance=f"twin.evaluation.closeloop.synthetic_dataset: world truth + N(0, {sigma / M_PER_MM:g} mm^2), seed {seed}",
     )
     return ds, caps
 
@@ -123,7 +122,7 @@ def effect_size(world_with_effect, plan: Plan, sigma: float, **kw) -> float:
     ds, _ = synthetic_dataset(world_with_effect, plan, sigma=0.0, **kw)
     ds = replace(ds, noise_position=1e-9)
     cal = calibrate(ds)
-    return float(cal.residuals["validation"]["position_mm"]["rms"] * _MM / np.sqrt(3) / sigma)
+    return float(cal.residuals["validation"]["position_mm"]["rms"] * M_PER_MM / np.sqrt(3) / sigma)
 
 
 def true_model_error(ds: Dataset, true_spheres: np.ndarray) -> dict[str, Any]:
@@ -144,7 +143,7 @@ def true_model_error(ds: Dataset, true_spheres: np.ndarray) -> dict[str, Any]:
         rows = st == s
         aligned[rows] = true[rows] @ R.T + t
     val = np.flatnonzero(ds.set == "validation")
-    e = np.linalg.norm(ds.spheres[val] - aligned[val], axis=-1)[ds.sphere_seen[val]] / _MM
+    e = np.linalg.norm(ds.spheres[val] - aligned[val], axis=-1)[ds.sphere_seen[val]] / M_PER_MM
     return {"n_rows": int(val.size), "position_mm": {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))),
                                                       "max": float(e.max())}}
 

@@ -25,7 +25,6 @@ in the frame the user calibrated in; results.json keeps that variant as ``truth.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol
 
@@ -35,6 +34,7 @@ from ..dataset import Plate
 from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform
+from ..units import MM_PER_M, DEG_PER_RAD
 from .statistics import (
     absolute_pose_errors,
     euler_change_error,
@@ -45,8 +45,6 @@ from .statistics import (
 
 __all__ = ["PairErrors", "MethodEvaluation", "evaluate_campaign", "parameter_comparison", "paper_orderings"]
 
-_DEG = 180.0 / math.pi
-_MM = 1e3
 # Figure 11's "almost the same" position accuracy of separation and full pose, read as after-means within 25 %
 SAME_WITHIN = 0.25
 
@@ -160,7 +158,7 @@ def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], sou
     its reason under ``absent`` (never NaN)."""
     out: dict[str, Any] = {}
     what = "measured" if source == "measured" else "true"
-    for quantity, scale, unit in (("angle", _DEG, "angle_deg"), ("position", _MM, "position_mm")):
+    for quantity, scale, unit in (("angle", DEG_PER_RAD, "angle_deg"), ("position", MM_PER_M, "position_mm")):
         having = [p for p in pairs if f"{source}_before" in getattr(p, quantity)]
         if not having:
             why = (f"no validation motion evaluates the {quantity} error" if pairs else
@@ -189,7 +187,7 @@ def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], sou
             dist = np.concatenate([p.distance for p in having])
             for d in np.unique(dist[np.isfinite(dist)]):
                 m = dist == d
-                by_d[f"{d * 1e3:g}"] = {"before": _summ(b[m], scale), "after": _summ(a[m], scale) if has_after else None}
+                by_d[f"{d * MM_PER_M:g}"] = {"before": _summ(b[m], scale), "after": _summ(a[m], scale) if has_after else None}
             if by_d:
                 block["by_distance_mm"] = by_d
         out[unit] = block
@@ -208,7 +206,7 @@ def _summary_block(pairs: list[PairErrors], absolute: dict[str, np.ndarray], sou
             if pos_a is None:
                 why_after = ("no method identified: nothing was compensated" if not identified else
                              f"no true plate pose for {need} after compensation")
-            for name, vb, va, sc in (("position_mm", pos_b, pos_a, _MM), ("rotation_deg", rot_b, rot_a, _DEG)):
+            for name, vb, va, sc in (("position_mm", pos_b, pos_a, MM_PER_M), ("rotation_deg", rot_b, rot_a, DEG_PER_RAD)):
                 blk = {"before": _summ(vb, sc), "after": _summ(va, sc) if va is not None else None}
                 if why_after is not None:
                     blk["absent"] = {"after": why_after}
@@ -299,7 +297,7 @@ def parameter_comparison(nominal: RobotModel, true_deviation: Mapping[str, float
     chain = [n for n in lay.names if not n.startswith(("base_", "tool_"))]
     for n in chain:
         i = lay.index(n)
-        scale, unit = (_MM, "mm") if lay.units[i] == "m" else (_DEG, "deg")
+        scale, unit = (MM_PER_M, "mm") if lay.units[i] == "m" else (DEG_PER_RAD, "deg")
         out[f"{n}_{unit}"] = {
             "true": float(true_deviation.get(n, 0.0) * scale),
             "identified": float(dev[i] * scale),
@@ -307,8 +305,8 @@ def parameter_comparison(nominal: RobotModel, true_deviation: Mapping[str, float
         }
     t23 = lay.indices(["theta2", "theta3"])
     out["theta2_plus_theta3_deg"] = {
-        "true": float((true_deviation.get("theta2", 0.0) + true_deviation.get("theta3", 0.0)) * _DEG),
-        "identified": float(dev[t23].sum() * _DEG),
+        "true": float((true_deviation.get("theta2", 0.0) + true_deviation.get("theta3", 0.0)) * DEG_PER_RAD),
+        "identified": float(dev[t23].sum() * DEG_PER_RAD),
         "estimated": True,
     }
     return out

@@ -36,6 +36,7 @@ import rerun.blueprint as rrb
 
 from ..camera import CameraIntrinsics
 from ..transforms import matrix_to_quat_wxyz
+from ..units import MM_PER_M
 from .images import encode_image
 
 __all__ = ["CameraView", "StationView", "CampaignRecording", "encode_image", "default_blueprint"]
@@ -598,7 +599,7 @@ def record_measured_campaign(
                 rec.log(f"{root}/points/{name}", rr.Points3D(P, colors=[col], radii=[0.003]))
                 rec.log(f"{root}/error/{name}", rr.LineStrips3D(np.stack([P, mk], axis=1), colors=[col], radii=[0.001]))
                 e = np.linalg.norm(P - mk, axis=1)
-                rec.log(f"{root}/residual/{name}", rr.Scalars(float(np.sqrt(np.mean(e**2))) * 1e3 if e.size else 0.0))
+                rec.log(f"{root}/residual/{name}", rr.Scalars(float(np.sqrt(np.mean(e**2))) * MM_PER_M if e.size else 0.0))
     finally:
         rec.flush(timeout_sec=60.0)
         rec.disconnect()

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ..benchio import atomic_write_text
+from ..files import read_json
 from .report import clean_json
 from .statistics import flatten_numbers
 
@@ -306,7 +307,7 @@ def update_regression_file(section: str, data: Mapping[str, Any], path: str | os
     lock = p.with_suffix(".lock")
     with open(lock, "w") as lf:
         fcntl.flock(lf, fcntl.LOCK_EX)
-        current = json.loads(p.read_text()) if p.exists() else {"schema_version": 1}
+        current = read_json(p) if p.exists() else {"schema_version": 1}
         current[section] = clean_json(dict(data))
         atomic_write_text(p, json.dumps(current, indent=1, sort_keys=True) + "\n")
     try:

@@ -15,6 +15,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..benchio import atomic_write_text
+from ..units import MM_PER_M
 from .targets import scored_value, target_value
 
 __all__ = [
@@ -240,7 +241,7 @@ def plot_figure10(path: str | os.PathLike, angle_before, angle_after, pos_before
         idx = np.flatnonzero(d == dv) + 1
         if k % 2 == 0:
             ax.axvspan(idx.min() - 0.5, idx.max() + 0.5, color="0.92", zorder=0)
-        ax.text(idx.mean(), 1.0, f"{dv * 1e3:g} mm", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+        ax.text(idx.mean(), 1.0, f"{dv * MM_PER_M:g} mm", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
     ax.set_xlabel("distance test")
     ax.set_ylabel("position error [mm]")
     ax.set_title("(b) position (moved-distance) error", pad=14)

@@ -81,7 +81,7 @@ class Summary:
     std: float
 
     def scaled(self, factor: float) -> "Summary":
-        """Same statistics in another unit (e.g. ``1e3`` for m -> mm)."""
+        """Same statistics in another unit (e.g. ``twin.units.MM_PER_M`` for m -> mm)."""
         return Summary(self.n, self.max * factor, self.mean * factor, self.rms * factor, self.std * factor)
 
     def to_dict(self) -> dict:

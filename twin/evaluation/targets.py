@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import os
 import re
-import tomllib
 from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any, Mapping
 
+from ..files import read_toml
 from ..resources import data_file
 
 __all__ = ["DEFAULT_SEPARATION_TARGETS", "DEFAULT_TMMDH_TARGETS", "read_targets", "target_value", "unscored_targets",
@@ -82,12 +82,7 @@ def read_targets(path: str | os.PathLike | Traversable | None = None) -> dict[st
     p = DEFAULT_SEPARATION_TARGETS if path is None else path if isinstance(path, Traversable) else Path(path)
     if not p.is_file():
         raise ValueError(f"targets file {p} does not exist (or is not a file)")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{p}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    data = read_toml(p)
     if data.get("schema_version") != 1:
         raise ValueError(f"{p}: unknown schema_version {data.get('schema_version')!r} (this reader knows 1)")
     _check_unscored(data, p)

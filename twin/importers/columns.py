@@ -35,11 +35,9 @@ from __future__ import annotations
 import csv
 import io
 import datetime as _dt
-import math
 import os
 import re
 import shutil
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -47,19 +45,19 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..dataset import (OPTIONAL_COLUMNS, POSE_COLUMNS, Dataset, DatasetError, Plate, joint_columns, marker_columns,
-                       read_text, robot_from_spec, write_dataset)
+                       read_noise_table, robot_from_spec, write_dataset)
+from ..files import parse_finite, read_text, read_toml
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec, pose6_to_transform
+from ..units import M_PER_MM, RAD_PER_DEG
 from .mocap import file_sha256, hand_eye
 
 __all__ = ["MAP_SCHEMA_VERSION", "ColumnMap", "FileSpec", "FileMap", "MappedRows", "ImportReport", "read_column_map",
            "read_mapped_csv", "read_frame_file", "fit_points_on_flange", "import_columns", "parse_file_argument"]
 
 MAP_SCHEMA_VERSION = 1
-_MM = 1e-3
-_DEG = math.pi / 180.0
-_LENGTH = {"mm": _MM, "m": 1.0}
-_ANGLE = {"deg": _DEG, "rad": 1.0}
+_LENGTH = {"mm": M_PER_MM, "m": 1.0}
+_ANGLE = {"deg": RAD_PER_DEG, "rad": 1.0}
 _TOP_KEYS = {"schema_version", "kind", "description", "attribution", "robot", "csv", "joints", "measurement", "time",
              "order", "temperature", "keep", "pose_id", "set", "session", "station", "frames", "noise", "files"}
 # what a [[files]] entry (and a CSV given on the command line) may set for its own file
@@ -255,7 +253,7 @@ def _frame(v: Any, where: str, base_dir: Path, directions: tuple[str, str]) -> t
             raise _err(where, f"x_mm .. rz_rad must be numbers, got {v!r}") from None
         if not np.all(np.isfinite(x)):
             raise _err(where, f"not finite: {v!r}")
-        x[:3] *= _MM
+        x[:3] *= M_PER_MM
         return pose6_to_transform(x), "given in the map"
     raise _err(where, f"must be \"identity\", {{ x_mm, y_mm, z_mm, rx_rad, ry_rad, rz_rad }} or {{ file, unit, "
                       f"direction }}, got {v!r}")
@@ -392,13 +390,7 @@ def read_column_map(path: str | os.PathLike) -> ColumnMap:
     naming the map and the key: unknown keys, a robot the library cannot build, joint columns that do not match
     the robot's joints, a measurement or time that cannot be read, a frame file that holds no rigid transform."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: no such column map") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise DatasetError(f"{path}: not valid TOML: {exc}") from None
+    raw = read_toml(path, DatasetError, missing="no such column map")
     where = str(path)
     _check_keys(raw, _TOP_KEYS, where)
     if raw.get("schema_version", MAP_SCHEMA_VERSION) != MAP_SCHEMA_VERSION:
@@ -431,17 +423,13 @@ def read_column_map(path: str | os.PathLike) -> ColumnMap:
         if base.kind != "points":
             raise _err(f"{where}: frames.points_mm", "applies to points; a pose is placed by frames.tool2flange")
         try:
-            pts = np.asarray(fr["points_mm"], dtype=float) * _MM
+            pts = np.asarray(fr["points_mm"], dtype=float) * M_PER_MM
         except (TypeError, ValueError):
             raise _err(f"{where}: frames.points_mm", f"must be K triples of numbers, got {fr['points_mm']!r}") from None
         if pts.shape != (base.n_points, 3) or not np.all(np.isfinite(pts)):
             raise _err(f"{where}: frames.points_mm", f"must be {base.n_points} triple(s) of finite numbers (one per "
                                                      f"measured point), got {fr['points_mm']!r}")
-    noise = raw.get("noise", {}) or {}
-    _check_keys(noise, {"position_mm", "orientation_rad"}, f"{where}: [noise]")
-    for k, v in noise.items():
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
-            raise _err(f"{where}: noise.{k}", f"must be a positive number, got {v!r}")
+    noise_position, noise_orientation = read_noise_table(raw.get("noise"), where)
     files = []
     entries = raw.get("files", [])
     if not isinstance(entries, list):
@@ -460,8 +448,7 @@ def read_column_map(path: str | os.PathLike) -> ColumnMap:
             raise _err(f"{where}: {k}", f"must be text, got {raw[k]!r}")
     return ColumnMap(path=path, raw=raw, robot_spec=spec, robot=robot, urdf=urdf, base=base, files=tuple(files),
                      tool2flange=tool, tool2flange_source=tool_src, points_flange=pts,
-                     noise_position=None if "position_mm" not in noise else float(noise["position_mm"]) * _MM,
-                     noise_orientation=None if "orientation_rad" not in noise else float(noise["orientation_rad"]),
+                     noise_position=noise_position, noise_orientation=noise_orientation,
                      description=str(raw.get("description", "")), attribution=str(raw.get("attribution", "")),
                      sha256=file_sha256(path))
 
@@ -543,13 +530,7 @@ def _number(text: str, dec: str, where: str) -> float:
     other = "," if dec == "." else "."
     if other in t:
         raise DatasetError(f"{where}: {t!r} holds {other!r} where the map's decimal mark is {dec!r}")
-    try:
-        v = float(t.replace(",", ".") if dec == "," else t)
-    except ValueError:
-        raise DatasetError(f"{where}: not a number: {t!r}") from None
-    if not math.isfinite(v):
-        raise DatasetError(f"{where}: not a finite number: {t!r}")
-    return v
+    return parse_finite(t, where, DatasetError, decimal=dec)
 
 
 def _time_value(text: str, fmt: str, dec: str, where: str) -> float:
@@ -572,7 +553,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     path, fm = spec.path, spec.map
     if not path.is_file():
         raise DatasetError(f"{path}: no such CSV")
-    text = read_text(path)
+    text = read_text(path, DatasetError)
     lines = list(csv.reader(io.StringIO(text[1:] if text.startswith("\ufeff") else text, newline=""),
                             delimiter=fm.separator))
     if len(lines) < fm.header_row:
@@ -890,8 +871,8 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
             pm = _on_flange(F[rows], pts_flange) @ B[:3, :3].T + B[:3, 3]
             ep, er = float(np.sqrt(np.mean(np.sum((pm - P[rows]) ** 2, axis=-1)))), None
         bases[sid] = B
-        stations[sid] = {"rows": int(rows.size), "position_rms_mm": ep / _MM,
-                         "orientation_rms_deg": None if er is None else er / _DEG,
+        stations[sid] = {"rows": int(rows.size), "position_rms_mm": ep / M_PER_MM,
+                         "orientation_rms_deg": None if er is None else er / RAD_PER_DEG,
                          "base2meas": b2m_src.get(sid, "registered on its rows with the nominal robot")}
     if pose and cmap.tool2flange is not None:
         # the direction of a given tool frame, checked against the data: its inverse must not fit far better
@@ -900,7 +881,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         for sid in bases:
             rows = np.flatnonzero(st_ids == sid)
             _, ep_i, _ = _register(F[rows], inv, P[rows], rot[rows])
-            worse.append((stations[sid]["position_rms_mm"], ep_i / _MM))
+            worse.append((stations[sid]["position_rms_mm"], ep_i / M_PER_MM))
         given_rms = float(np.median([a for a, _ in worse]))
         inv_rms = float(np.median([b for _, b in worse]))
         he = ""
@@ -908,7 +889,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
             rows = np.flatnonzero(st_ids == first)
             _, ep_h, er_h = _register(F[rows], he_tool, P[rows], rot[rows])
             he = (f"; a hand-eye fit instead would place the tool at {_fmt_mm(he_tool[:3, 3])} mm on the flange and fit "
-                  f"station {first} to {ep_h / _MM:.3g} mm, {er_h / _DEG:.3g} deg")
+                  f"station {first} to {ep_h / M_PER_MM:.3g} mm, {er_h / RAD_PER_DEG:.3g} deg")
         frames_txt.append(f"tool2flange checked against the data: the nominal robot fits to {given_rms:.3g} mm RMS with "
                           f"it (tool at {_fmt_mm(tool[:3, 3])} mm on the flange), {inv_rms:.3g} mm with its inverse{he}")
         if inv_rms * 3 < given_rms and given_rms - inv_rms > 1.0:
@@ -1014,7 +995,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
 
 
 def _fmt_mm(p: np.ndarray) -> str:
-    return "(" + ", ".join(f"{v / _MM:.4g}" for v in p) + ")"
+    return "(" + ", ".join(f"{v / M_PER_MM:.4g}" for v in p) + ")"
 
 
 def _on_flange(F: np.ndarray, pts_flange: np.ndarray) -> np.ndarray:

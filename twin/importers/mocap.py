@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import math
 import os
 import shutil
 from dataclasses import dataclass
@@ -35,9 +34,11 @@ from typing import Sequence
 
 import numpy as np
 
-from ..dataset import Dataset, DatasetError, Plate, open_text, write_dataset
+from ..dataset import Dataset, DatasetError, Plate, write_dataset
+from ..files import open_text, parse_finite
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
+from ..units import M_PER_MM, MM_PER_M
 
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
@@ -78,7 +79,7 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
         raise ValueError(f"marker_unit must be one of {sorted(LENGTH_UNITS)}, got {marker_unit!r}")
     if not path.is_file():
         raise DatasetError(f"{path}: no such mocap CSV")
-    with open_text(path) as f:
+    with open_text(path, DatasetError) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]
@@ -98,14 +99,7 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     P = np.zeros((n, K, 3))
 
     def num(r, k, c):
-        t = r.get(c, "")
-        try:
-            v = float(t)
-        except ValueError:
-            raise DatasetError(f"{path}: row {k + 1}, column {c!r}: not a number: {t!r}") from None
-        if not math.isfinite(v):
-            raise DatasetError(f"{path}: row {k + 1}, column {c!r}: not a finite number: {t!r}")
-        return v
+        return parse_finite(r.get(c, ""), f"{path}: row {k + 1}, column {c!r}", DatasetError)
 
     for k, r in enumerate(rows):
         for j, c in enumerate(robot.joint_names):
@@ -136,15 +130,15 @@ def check_rigid(P: np.ndarray, where: str, *, rigid_tol_mm: float = 1.0, marker_
         raise DatasetError(f"{where}: the markers are {np.median(med):.4g} m apart: the columns look like millimetres "
                            f"but the unit given is {marker_unit!r} (FIGAROH writes metres; pass marker_unit='mm')")
     if np.median(med) < 1e-3:
-        raise DatasetError(f"{where}: the markers are {np.median(med) * 1e3:.4g} mm apart: the columns look like "
+        raise DatasetError(f"{where}: the markers are {np.median(med) * MM_PER_M:.4g} mm apart: the columns look like "
                            f"metres but the unit given is {marker_unit!r}")
     spread = d.max(axis=0) - d.min(axis=0)
     worst = int(np.argmax(spread))
-    if spread[worst] > rigid_tol_mm * 1e-3:
+    if spread[worst] > rigid_tol_mm * M_PER_MM:
         a, b = pairs[worst]
         raise DatasetError(f"{where}: the points are not one rigid body: the distance between points {a + 1} and {b + 1} "
-                           f"varies by {spread[worst] * 1e3:.3f} mm over the rows (from {d[:, worst].min() * 1e3:.3f} to "
-                           f"{d[:, worst].max() * 1e3:.3f} mm; tolerance {rigid_tol_mm:g} mm)")
+                           f"varies by {spread[worst] * MM_PER_M:.3f} mm over the rows (from {d[:, worst].min() * MM_PER_M:.3f} to "
+                           f"{d[:, worst].max() * MM_PER_M:.3f} mm; tolerance {rigid_tol_mm:g} mm)")
 
 
 def marker_geometry(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -271,9 +265,9 @@ def import_mocap(
     d_ref = _pair_distances(P_all[:1])[1][0]
     for r, _ in parts:
         d = _pair_distances(r.points)[1]
-        if d.size and np.abs(np.median(d, axis=0) - d_ref).max() > rigid_tol_mm * 1e-3:
+        if d.size and np.abs(np.median(d, axis=0) - d_ref).max() > rigid_tol_mm * M_PER_MM:
             raise DatasetError(f"{r.path}: its marker distances differ from {parts[0][0].path}'s by "
-                               f"{np.abs(np.median(d, axis=0) - d_ref).max() * 1e3:.3f} mm: another rigid body?")
+                               f"{np.abs(np.median(d, axis=0) - d_ref).max() * MM_PER_M:.3f} mm: another rigid body?")
     body, poses = marker_geometry(P_all)
     q_all = np.concatenate([r.q for r, _ in parts])
     sets = np.concatenate([[s] * r.q.shape[0] for r, s in parts])
@@ -318,7 +312,7 @@ def import_mocap(
         robot=robot, robot_spec=spec, plate=Plate(0.0, pts_flange), pose_id=np.arange(n, dtype=np.int64), q=q_all,
         spheres=spheres, sphere_seen=np.ones((n, K_keep), bool), pose=np.full((n, 4, 4), np.nan),
         pose_seen=np.zeros(n, bool), set=sets.astype(object), t_s=t_s, extra=extra,
-        noise_position=None if noise_position_mm is None else noise_position_mm * 1e-3,
+        noise_position=None if noise_position_mm is None else noise_position_mm * M_PER_MM,
         stations_base2meas={"0": base2meas}, provenance="; ".join(lines), path=out,
     )
     write_dataset(out, ds)

@@ -27,7 +27,8 @@ import cv2
 import numpy as np
 
 from ..camera import CameraIntrinsics
-from ..dataset import read_text
+from ..files import read_json
+from ..units import M_PER_MM, MM_PER_M
 from .detect import as_gray
 
 __all__ = [
@@ -42,7 +43,6 @@ __all__ = [
 ]
 
 CALIBRATION_SCHEMA_VERSION = 1
-_MM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,8 @@ class BoardSpec:
             return cls(
                 squares_x=int(table["squares_x"]),
                 squares_y=int(table["squares_y"]),
-                square=float(table["square_mm"]) / 1000.0,
-                marker=float(table["marker_mm"]) / 1000.0,
+                square=float(table["square_mm"]) / MM_PER_M,
+                marker=float(table["marker_mm"]) / MM_PER_M,
                 dictionary=str(table["dictionary"]),
                 type=str(table.get("type", "charuco")),
             )
@@ -87,8 +87,8 @@ class BoardSpec:
             "type": self.type,
             "squares_x": self.squares_x,
             "squares_y": self.squares_y,
-            "square_mm": self.square * 1000.0,
-            "marker_mm": self.marker * 1000.0,
+            "square_mm": self.square * MM_PER_M,
+            "marker_mm": self.marker * MM_PER_M,
             "dictionary": self.dictionary,
         }
 
@@ -214,9 +214,9 @@ class StereoCalibration:
             "right": cam(self.right),
             "left2right": {
                 "R": [[float(x) for x in row] for row in self.left2right[:3, :3]],
-                "t_mm": [float(x) / _MM for x in self.left2right[:3, 3]],
+                "t_mm": [float(x) / M_PER_MM for x in self.left2right[:3, 3]],
             },
-            "baseline_mm": self.baseline / _MM,
+            "baseline_mm": self.baseline / M_PER_MM,
             "rms_px": self.rms_px,
             "rms_left_px": self.rms_left_px,
             "rms_right_px": self.rms_right_px,
@@ -242,7 +242,7 @@ class StereoCalibration:
 
             T = np.eye(4)
             T[:3, :3] = np.asarray(d["left2right"]["R"], float)
-            T[:3, 3] = np.asarray(d["left2right"]["t_mm"], float) * _MM
+            T[:3, 3] = np.asarray(d["left2right"]["t_mm"], float) * M_PER_MM
             views = tuple(ViewReport(**{k: (float("nan") if v is None else v) for k, v in vd.items()}) for vd in d.get("views", []))
             board = BoardSpec.from_table(d["board"]) if d.get("board") else None
             return cls(
@@ -262,13 +262,7 @@ class StereoCalibration:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "StereoCalibration":
         p = Path(path)
-        if not p.exists():
-            raise ValueError(f"{p}: no such stereo-calibration file")
-        try:
-            d = json.loads(read_text(p, ValueError))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{p}: not valid JSON ({exc})") from None
-        return cls.from_dict(d, str(p))
+        return cls.from_dict(read_json(p, missing="no such stereo-calibration file"), str(p))
 
 
 def _nan_to_none(d: dict) -> dict:

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraIntrinsics
+from ..units import rad_to_deg
 from .geometry import ConeFit, Ellipse, fit_cone_robust, fit_ellipse, pixels_to_rays, rays_to_pixels
 
 __all__ = ["DetectorConfig", "SphereImage", "detect_spheres", "estimate_noise", "as_gray"]
@@ -247,7 +248,7 @@ def _max_gap_deg(angles: np.ndarray, keep: np.ndarray) -> float:
     if a.size < 2:
         return 360.0
     gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
-    return float(np.degrees(gaps.max()))
+    return float(rad_to_deg(gaps.max()))
 
 
 def _fit_outline(gray, intr, centre, radius, sigma, cfg, *, fine: bool):

@@ -19,7 +19,6 @@ import collections
 import csv
 import os
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
@@ -33,12 +32,12 @@ from ..dataset import (
     Joints,
     Plate,
     PoseRow,
-    open_text,
     read_dataset,
     read_joints_csv,
-    read_text,
     write_dataset_toml,
 )
+from ..files import open_text, read_toml
+from ..units import MM_PER_M
 from .calibration import BoardSpec, StereoCalibration, calibrate_stereo
 from .measure import MeasureConfig, PairMeasurement, format_status, measure_pair, status_reasons
 
@@ -78,10 +77,7 @@ def read_rig_toml(path: str | os.PathLike) -> RigSpec:
     p = Path(path)
     if not p.exists():
         raise ValueError(f"{p}: missing (an image folder holds rig.toml, joints.csv, board/ and pairs/)")
-    try:
-        d = tomllib.loads(read_text(p, ValueError))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    d = read_toml(p)
     if d.get("schema_version") != RIG_SCHEMA_VERSION:
         raise ValueError(f"{p}: unknown schema_version {d.get('schema_version')!r} (this reader knows {RIG_SCHEMA_VERSION})")
     for k in ("image_width", "image_height"):
@@ -99,18 +95,13 @@ def read_rig_toml(path: str | os.PathLike) -> RigSpec:
 def read_plate_toml(path: str | os.PathLike) -> Plate:
     """The ``[plate]`` table (``sphere_diameter_mm``, ``spheres_mm``) of a TOML file, e.g. a ``dataset.toml``."""
     p = Path(path)
-    try:
-        d = tomllib.loads(read_text(p, ValueError))
-    except FileNotFoundError:
-        raise ValueError(f"{p}: no such plate file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML ({exc})") from None
+    d = read_toml(p, missing="no such plate file")
     t = d.get("plate")
     if not isinstance(t, dict):
         raise ValueError(f"{p}: missing table [plate] (sphere_diameter_mm, spheres_mm)")
     try:
-        dia = float(t["sphere_diameter_mm"]) / 1000.0
-        s = np.asarray(t["spheres_mm"], dtype=float) / 1000.0
+        dia = float(t["sphere_diameter_mm"]) / MM_PER_M
+        s = np.asarray(t["spheres_mm"], dtype=float) / MM_PER_M
     except KeyError as exc:
         raise ValueError(f"{p}: [plate] lacks field {exc.args[0]!r}") from None
     except (TypeError, ValueError):
@@ -207,7 +198,7 @@ def instrument_provenance(calib: StereoCalibration, bias_correction: bool) -> st
     sphere centres were measured."""
     return (
         f"instrument: stereo calibration from {calib.n_views_used} board views (RMS {calib.rms_px:.3f} px, "
-        f"baseline {calib.baseline * 1e3:.2f} mm); sphere centres from sub-pixel outlines, "
+        f"baseline {calib.baseline * MM_PER_M:.2f} mm); sphere centres from sub-pixel outlines, "
         f"{'cone (perspective-bias) corrected' if bias_correction else 'ellipse centres (no perspective-bias correction)'}"
     )
 

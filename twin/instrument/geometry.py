@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraIntrinsics
+from ..units import rad_to_deg
 
 __all__ = [
     "ConeFit",
@@ -221,7 +222,7 @@ def ellipse_of_cone(axis: np.ndarray, half_angle: float, intr: CameraIntrinsics)
     Fc = F + 0.5 * (D * centre[0] + E * centre[1])
     w, v = np.linalg.eigh(M)
     semi = np.sqrt(-Fc / w)
-    ang = np.degrees(np.arctan2(v[1, 0], v[0, 0]))
+    ang = rad_to_deg(np.arctan2(v[1, 0], v[0, 0]))
     return Ellipse(float(centre[0]), float(centre[1]), float(2 * semi[0]), float(2 * semi[1]), float(ang))
 
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..dataset import Plate
 from ..transforms import euler_zyx_from_matrix, kabsch
+from ..units import MM_PER_M, rad_to_deg
 
 __all__ = [
     "PlateFit",
@@ -87,7 +88,7 @@ def paper_frame_from_spheres(centres) -> np.ndarray:
 
 def paper_euler_zyx_deg(frame2meas: np.ndarray) -> np.ndarray:
     """Eq. 43: ``(Rx, Ry, Rz)`` [deg] of ``R = Rz Ry Rx`` (``twin.transforms.euler_zyx_from_matrix``)."""
-    return np.degrees(euler_zyx_from_matrix(np.asarray(frame2meas, float)[:3, :3]))
+    return rad_to_deg(euler_zyx_from_matrix(np.asarray(frame2meas, float)[:3, :3]))
 
 
 def check_plate_labelable(plate: Plate, tol: float) -> None:
@@ -97,8 +98,8 @@ def check_plate_labelable(plate: Plate, tol: float) -> None:
     gaps = [abs(d[i] - d[j]) for i, j in ((0, 1), (0, 2), (1, 2))]
     if min(gaps) <= 2 * tol:
         raise ValueError(
-            f"plate: pairwise sphere distances {np.round(d * 1e3, 3).tolist()} mm are too close to each other "
-            f"(within {2 * tol * 1e3:.1f} mm) to label the spheres; use unequal spacing"
+            f"plate: pairwise sphere distances {np.round(d * MM_PER_M, 3).tolist()} mm are too close to each other "
+            f"(within {2 * tol * MM_PER_M:.1f} mm) to label the spheres; use unequal spacing"
         )
 
 

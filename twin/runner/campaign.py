@@ -37,6 +37,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from ..benchio import atomic_write_text
 from ..evaluation.statistics import aggregate
+from ..files import read_json
 from .config import CampaignConfig
 from .executor import SerialExecutor, open_executor, run_tasks, worker_identity
 from .measure import backend_spec_for
@@ -66,7 +67,7 @@ def _check_fingerprint(work: Path, cfg: CampaignConfig) -> None:
     marker = work / "campaign.json"
     fp = cfg.fingerprint()
     if marker.exists():
-        old = json.loads(marker.read_text()).get("fingerprint")
+        old = read_json(marker).get("fingerprint")
         if old != fp:
             raise ValueError(
                 f"{work.parent} holds another campaign (fingerprint {old}, this config {fp}): "

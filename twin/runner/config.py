@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,9 +24,11 @@ from typing import Any
 import numpy as np
 
 from ..camera import FLIP_MUJOCO_OPENCV, CameraIntrinsics
-from ..dataset import Plate, default_plate, read_text
+from ..dataset import Plate, default_plate
+from ..files import read_toml
 from ..kinematics import RobotModel
 from ..transforms import invert_transform, make_transform, pose6_to_transform
+from ..units import M_PER_MM, RAD_PER_DEG
 from ..world.config import WorldConfig, nominal_robot_from_spec
 from ..world.rig import camera2rig, station_rig2world
 from .sampling import SamplingOptions, Station, ViewCamera
@@ -49,8 +50,6 @@ SCHEMA_VERSION = 1
 KNOWN_METHODS = ("distance", "full_pose", "separation", "separation_paper", "default")
 GROUP_KINDS = ("motion_pairs", "distance_moves", "configurations", "joints_csv")
 MEASUREMENT_MODES = ("images", "truth_noise")
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 
 class _Reader:
@@ -301,20 +300,20 @@ def _sampling(r: _Reader, defaults: SamplingOptions) -> SamplingOptions:
     dturn = r.vector("distance_turn_deg", 2)
     step = r.number("max_joint_step_deg", None, positive=True)
     kw: dict[str, Any] = {}
-    kw["turn"] = (float(turn[0]) * _DEG, float(turn[1]) * _DEG) if turn is not None else defaults.turn
-    kw["shift"] = (float(shift[0]) * _MM, float(shift[1]) * _MM) if shift is not None else defaults.shift
-    kw["distance_turn"] = (float(dturn[0]) * _DEG, float(dturn[1]) * _DEG) if dturn is not None else defaults.distance_turn
-    kw["max_joint_step"] = step * _DEG if step is not None else defaults.max_joint_step
+    kw["turn"] = (float(turn[0]) * RAD_PER_DEG, float(turn[1]) * RAD_PER_DEG) if turn is not None else defaults.turn
+    kw["shift"] = (float(shift[0]) * M_PER_MM, float(shift[1]) * M_PER_MM) if shift is not None else defaults.shift
+    kw["distance_turn"] = (float(dturn[0]) * RAD_PER_DEG, float(dturn[1]) * RAD_PER_DEG) if dturn is not None else defaults.distance_turn
+    kw["max_joint_step"] = step * RAD_PER_DEG if step is not None else defaults.max_joint_step
     if shift is not None and kw["turn"] is None:
         raise ValueError(f"{r.path}: [{r.where}]: shift_mm: only a local motion (turn_deg set) takes a shift")
-    kw["limit_margin"] = lim * _DEG if lim is not None else defaults.limit_margin
-    kw["max_roll"] = roll * _DEG if roll is not None else defaults.max_roll
-    kw["max_euler_pitch"] = pitch * _DEG if pitch is not None else defaults.max_euler_pitch
+    kw["limit_margin"] = lim * RAD_PER_DEG if lim is not None else defaults.limit_margin
+    kw["max_roll"] = roll * RAD_PER_DEG if roll is not None else defaults.max_roll
+    kw["max_euler_pitch"] = pitch * RAD_PER_DEG if pitch is not None else defaults.max_euler_pitch
     if depth is not None:
-        kw["depth_min"], kw["depth_max"] = float(depth[0]) * _MM, float(depth[1]) * _MM
+        kw["depth_min"], kw["depth_max"] = float(depth[0]) * M_PER_MM, float(depth[1]) * M_PER_MM
     else:
         kw["depth_min"], kw["depth_max"] = defaults.depth_min, defaults.depth_max
-    kw["max_tilt"] = tilt * _DEG if tilt is not None else defaults.max_tilt
+    kw["max_tilt"] = tilt * RAD_PER_DEG if tilt is not None else defaults.max_tilt
     kw["margin_px"] = margin if margin is not None else defaults.margin_px
     kw["branch"] = branch or defaults.branch
     kw["max_attempts"] = attempts or defaults.max_attempts
@@ -363,7 +362,7 @@ def parse_campaign_config(
     mr = r.table("measurement")
     measurement = MeasurementConfig(
         mode=mr.string("mode", "images", choices=MEASUREMENT_MODES),
-        noise_position=mr.number("noise_mm", 0.01, nonneg=True) * _MM,
+        noise_position=mr.number("noise_mm", 0.01, nonneg=True) * M_PER_MM,
         seconds_per_pose=mr.number("seconds_per_pose", 10.0, nonneg=True),
         record_temp_c=mr.boolean("record_temp_c", False),
         record_t_s=mr.boolean("record_t_s", False),
@@ -397,7 +396,7 @@ def parse_campaign_config(
                 isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in dl
             ):
                 raise gr.err("distances_mm", f"must be a non-empty list of positive numbers, got {dl!r}")
-            distances = tuple(float(d) * _MM for d in dl for _ in range(per))
+            distances = tuple(float(d) * M_PER_MM for d in dl for _ in range(per))
             count = len(distances)
         elif kind == "joints_csv":
             p = gr.string("path", required=True)
@@ -477,8 +476,4 @@ def load_campaign_config(path: str | os.PathLike, *, quick: bool = False) -> Cam
     p = Path(path)
     if not p.exists():
         raise ValueError(f"campaign config {p} does not exist")
-    try:
-        raw = tomllib.loads(read_text(p, ValueError))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{p}: not valid TOML: {exc}") from None
-    return parse_campaign_config(raw, source=p, quick=quick)
+    return parse_campaign_config(read_toml(p), source=p, quick=quick)

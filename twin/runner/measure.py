@@ -43,6 +43,7 @@ from ..dataset import Plate
 from ..evaluation.images import encode_image
 from ..instrument.folder import MeasuredRowsWriter
 from ..transforms import invert_transform
+from ..units import deg_to_rad
 from .config import CampaignConfig
 from .executor import SerialExecutor, run_tasks, worker_identity
 from .store import MemoryStore, PoseResult, PoseStore
@@ -434,7 +435,7 @@ def cv2_ellipse_points(cx: float, cy: float, width: float, height: float, angle_
     """``n`` points ``(n, 2)`` [px] on an ellipse in OpenCV's RotatedRect convention (full axes, angle)."""
     t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
     a, b = 0.5 * width, 0.5 * height
-    c, s = np.cos(np.deg2rad(angle_deg)), np.sin(np.deg2rad(angle_deg))
+    c, s = np.cos(deg_to_rad(angle_deg)), np.sin(deg_to_rad(angle_deg))
     x, y = a * np.cos(t), b * np.sin(t)
     return np.stack([cx + c * x - s * y, cy + s * x + c * y], axis=1)
 

@@ -30,6 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..dataset import Dataset
+from ..files import read_json
 from ..kinematics import RobotModel, UnreachableError, inverse_kinematics_iterative, tool2base
 
 __all__ = [
@@ -190,7 +191,7 @@ def load_method_result(folder: str | os.PathLike, method: str, dataset_sha256: s
     path = Path(folder) / f"{method}.json"
     if not path.exists():
         return None
-    d = json.loads(path.read_text())
+    d = read_json(path)
     if dataset_sha256 is not None and d.get("dataset_sha256") != dataset_sha256:
         return None
     r = d["robot"]

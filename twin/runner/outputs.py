@@ -13,11 +13,10 @@ from ..evaluation.report import plot_figure10, plot_figure11
 from ..instrument.plate import paper_frame_from_spheres
 from ..kinematics import link_frames
 from ..transforms import invert_transform
+from ..units import M_PER_MM, MM_PER_M, DEG_PER_RAD
 
 __all__ = ["code_version", "figures", "recording", "diagnosis_summary", "diagnosis_table", "diagnosis_markdown",
            "term_side"]
-
-_MM = 1e-3
 
 
 def code_version() -> dict[str, Any]:
@@ -59,7 +58,7 @@ def diagnosis_summary(res) -> dict[str, Any]:
         "structured": bool(res.structured),
         "p_value": float(res.p_value),
         "alpha": float(res.alpha),
-        "noise_floor_mm": float(res.noise.sigma / _MM),
+        "noise_floor_mm": float(res.noise.sigma / M_PER_MM),
         "effects": list(res.effects),
         "terms": terms,
         "robot_terms": [t["text"] for t in terms if t["side"] == "robot"],
@@ -125,7 +124,6 @@ def figures(out: Path, evals, cfg) -> dict[str, Path]:
     """Figure 10 (the separation method before and after) and Figure 11 (every method after) in the paper's
     style, measured; for the real-robot protocol ``figure13_15.png`` and ``methods_after.png``."""
     files: dict[str, Path] = {}
-    deg = 180.0 / np.pi
     angle_pairs = [p for p in next(iter(evals.values())).pairs if p.angle]
     pos_pairs = [p for p in next(iter(evals.values())).pairs if p.position and np.isfinite(p.distance).any()]
     if not pos_pairs:
@@ -144,8 +142,8 @@ def figures(out: Path, evals, cfg) -> dict[str, Path]:
     if angle_pairs and pos_pairs and main != "before":
         files[name10] = plot_figure10(
             out / f"{name10}.png",
-            cat(ev, "angle", "measured_before", angle_pairs) * deg, cat(ev, "angle", "measured_after", angle_pairs) * deg,
-            cat(ev, "position", "measured_before", pos_pairs) * 1e3, cat(ev, "position", "measured_after", pos_pairs) * 1e3,
+            cat(ev, "angle", "measured_before", angle_pairs) * DEG_PER_RAD, cat(ev, "angle", "measured_after", angle_pairs) * DEG_PER_RAD,
+            cat(ev, "position", "measured_before", pos_pairs) * MM_PER_M, cat(ev, "position", "measured_after", pos_pairs) * MM_PER_M,
             np.concatenate([p.distance for p in pos_pairs]),
             method_label=main, title=f"{cfg.name}: before and after compensation ({main}), measured",
         )
@@ -153,8 +151,8 @@ def figures(out: Path, evals, cfg) -> dict[str, Path]:
     if len(methods) > 1 and angle_pairs and pos_pairs:
         files[name11] = plot_figure11(
             out / f"{name11}.png",
-            {m: cat(evals[m], "angle", "measured_after", angle_pairs) * deg for m in methods},
-            {m: cat(evals[m], "position", "measured_after", pos_pairs) * 1e3 for m in methods},
+            {m: cat(evals[m], "angle", "measured_after", angle_pairs) * DEG_PER_RAD for m in methods},
+            {m: cat(evals[m], "position", "measured_after", pos_pairs) * MM_PER_M for m in methods},
             title=f"{cfg.name}: methods after compensation, measured",
         )
     return files
@@ -165,7 +163,7 @@ def _residual_series(evals) -> dict[int, dict[str, float]]:
     series: dict[int, dict[str, float]] = {}
     for m, ev in evals.items():
         for p in ev.pairs:
-            for d, scale, unit in ((p.angle, 180 / np.pi, "angle_deg"), (p.position, 1e3, "position_mm")):
+            for d, scale, unit in ((p.angle, DEG_PER_RAD, "angle_deg"), (p.position, MM_PER_M, "position_mm")):
                 for key, vals in d.items():
                     src, phase = key.split("_")
                     if src != "measured":

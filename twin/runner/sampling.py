@@ -40,6 +40,7 @@ from ..kinematics import (
 )
 from ..transforms import invert_transform, make_transform, rotvec_to_matrix
 from ..instrument.plate import paper_frame_from_spheres
+from ..units import MM_PER_M, deg_to_rad
 
 __all__ = [
     "ViewCamera",
@@ -123,18 +124,18 @@ class SamplingOptions:
 
     depth_min: float = 0.6
     depth_max: float = 0.8
-    max_tilt: float = np.deg2rad(35.0)
+    max_tilt: float = deg_to_rad(35.0)
     margin_px: float = 20.0
     max_attempts: int = 20000
-    q_home: np.ndarray = field(default_factory=lambda: np.deg2rad([0.0, 10.0, 10.0, 0.0, 45.0, 0.0]))
+    q_home: np.ndarray = field(default_factory=lambda: deg_to_rad(np.array([0.0, 10.0, 10.0, 0.0, 45.0, 0.0])))
     branch: str = "random"  # 'random' among the in-limit branches, or 'home' (nearest q_home)
-    min_q5: float = np.deg2rad(5.0)  # keep away from the wrist singularity (q5 = 0)
+    min_q5: float = deg_to_rad(5.0)  # keep away from the wrist singularity (q5 = 0)
     min_link_height: float = 0.1  # [m] every joint origin from frame 2 on stays this far above the base plane
     # [rad] planned joints stay this far inside the limits, leaving room for the compensated command
-    limit_margin: float = np.deg2rad(5.0)
+    limit_margin: float = deg_to_rad(5.0)
     # |pitch| of the plate's ZYX Euler angles (eq. 43) in the base frame stays below this [rad]: at +-90 deg
     # the paper's Euler-angle-change statistic is singular (roll and yaw are undefined there)
-    max_euler_pitch: float = np.deg2rad(60.0)
+    max_euler_pitch: float = deg_to_rad(60.0)
     # roll of the plate about its normal, from 'level' (plate x axis horizontal): uniform in [-max_roll, max_roll]
     max_roll: float = np.pi
     # motion pairs: (min, max) [rad] of the plate's turn about its centre between start and end (random axis,
@@ -146,7 +147,7 @@ class SamplingOptions:
     # orientation
     distance_turn: tuple[float, float] = (0.0, 0.0)
     # [rad] no joint moves more than this between the start and the end of a local motion or a distance move
-    max_joint_step: float = np.deg2rad(60.0)
+    max_joint_step: float = deg_to_rad(60.0)
 
     def __post_init__(self) -> None:
         if not (0 < self.depth_min <= self.depth_max):
@@ -193,7 +194,7 @@ def plate_in_view(
     ok &= np.all(frames[:, 2:, 2, 3] >= opt.min_link_height, axis=1)
     to_station = station.centre - P[:, :3, 3]
     to_station /= np.linalg.norm(to_station, axis=1, keepdims=True)
-    ok &= np.einsum("ni,ni->n", P[:, :3, 2], to_station) >= np.cos(min(opt.max_tilt + np.deg2rad(10), np.pi / 2))
+    ok &= np.einsum("ni,ni->n", P[:, :3, 2], to_station) >= np.cos(min(opt.max_tilt + deg_to_rad(10.0), np.pi / 2))
     ref = station.cameras[0]
     depth = (P[:, :3, 3] @ ref.base2cam[:3, :3].T + ref.base2cam[:3, 3])[:, 2]
     ok &= (depth >= 0.95 * opt.depth_min) & (depth <= 1.05 * opt.depth_max)
@@ -418,5 +419,5 @@ def sample_distance_moves(
                 found = True
                 break
         if not found:
-            raise SamplingError(f"no in-view move of {d * 1e3:.1f} mm found for station {station.name!r} (move {k})")
+            raise SamplingError(f"no in-view move of {d * MM_PER_M:.1f} mm found for station {station.name!r} (move {k})")
     return np.array(starts).reshape(-1, 6), np.array(ends).reshape(-1, 6)

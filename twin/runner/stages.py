@@ -22,7 +22,6 @@ the state carries goes to evaluate and report alone.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import replace
@@ -36,6 +35,7 @@ from ..dataset import Joints, read_dataset, write_dataset_toml, write_joints_csv
 from ..evaluation.evaluate import evaluate_campaign, paper_orderings, parameter_comparison
 from ..evaluation.report import comparison_rows, render_parameter_table, render_table, write_results
 from ..evaluation.targets import read_targets
+from ..files import read_json
 from ..transforms import invert_transform
 from ..world.effects import contexts_for_sequence
 from ..world.truth import write_truth
@@ -135,7 +135,7 @@ def _with_earlier_board_views(record: dict, path: Path) -> dict:
     of the views that calibration came from stay those of the run that rendered them (its truth file)."""
     if record.get("board_views") or not path.exists():
         return record
-    earlier = json.loads(path.read_text()).get("board_views") or []
+    earlier = read_json(path).get("board_views") or []
     return {**record, "board_views": earlier}
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..camera import FLIP_MUJOCO_OPENCV, CameraIntrinsics, project_points
 from ..transforms import invert_transform, rotvec_to_matrix
+from ..units import deg_to_rad
 from .config import BoardConfig
 
 __all__ = [
@@ -181,7 +182,7 @@ def sample_board_poses(
                 ok = False
                 break
             view = pc.mean(axis=1) / np.linalg.norm(pc.mean(axis=1))
-            if np.dot(n_cam, view) < np.cos(np.deg2rad(60)):
+            if np.dot(n_cam, view) < np.cos(deg_to_rad(60.0)):
                 ok = False
                 break
             # whole face in front of the camera

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
+from ..files import read_toml
 from ..kinematics import ParameterLayout, RobotModel
 from ..presets import PRESETS, preset_deviation, preset_robot
 from ..robots import ROBOTS
+from ..units import M_PER_MM, M_PER_UM, RAD_PER_DEG
 
 __all__ = [
     "StationConfig",
@@ -36,8 +37,6 @@ __all__ = [
     "MAX_SUPERSAMPLE",
 ]
 
-_MM = 1e-3
-_DEG = math.pi / 180.0
 # Largest render.supersample: 4 x 2592 = 10368 px a side is inside GL's 16384 (llvmpipe here); the sampling-grid
 # buffers grow with s^2 (0.55 GB at s = 2). The GL limit itself is checked when the renderer is built.
 MAX_SUPERSAMPLE = 4
@@ -100,13 +99,13 @@ class StationConfig:
             raise ValueError(f"{where}: missing 'target_mm' (the point the rig converges on, robot base frame)")
         standoff = None
         if "standoff_mm" in d:
-            standoff = table_number(d, "standoff_mm", 0, where, positive=True) * _MM
+            standoff = table_number(d, "standoff_mm", 0, where, positive=True) * M_PER_MM
         return cls(
             name=str(d.get("name", index)),
-            target=table_vector(d["target_mm"], 3, f"{where}.target_mm") * _MM,
-            azimuth=table_number(d, "azimuth_deg", 0.0, where) * _DEG,
-            elevation=table_number(d, "elevation_deg", 0.0, where) * _DEG,
-            roll=table_number(d, "roll_deg", 0.0, where) * _DEG,
+            target=table_vector(d["target_mm"], 3, f"{where}.target_mm") * M_PER_MM,
+            azimuth=table_number(d, "azimuth_deg", 0.0, where) * RAD_PER_DEG,
+            elevation=table_number(d, "elevation_deg", 0.0, where) * RAD_PER_DEG,
+            roll=table_number(d, "roll_deg", 0.0, where) * RAD_PER_DEG,
             standoff=standoff,
         )
 
@@ -118,10 +117,10 @@ def default_stations() -> tuple[StationConfig, ...]:
     checked by ``tests/test_world_render.py`` to see the plate in reachable configurations.
     """
     return (
-        StationConfig("front", np.array([0.50, 0.0, 0.55]), 0.0, 5 * _DEG),
-        StationConfig("left", np.array([0.42, 0.22, 0.45]), 35 * _DEG, 10 * _DEG),
-        StationConfig("right", np.array([0.42, -0.22, 0.45]), -35 * _DEG, 10 * _DEG),
-        StationConfig("above", np.array([0.45, 0.0, 0.30]), 0.0, 35 * _DEG),
+        StationConfig("front", np.array([0.50, 0.0, 0.55]), 0.0, 5 * RAD_PER_DEG),
+        StationConfig("left", np.array([0.42, 0.22, 0.45]), 35 * RAD_PER_DEG, 10 * RAD_PER_DEG),
+        StationConfig("right", np.array([0.42, -0.22, 0.45]), -35 * RAD_PER_DEG, 10 * RAD_PER_DEG),
+        StationConfig("above", np.array([0.45, 0.0, 0.30]), 0.0, 35 * RAD_PER_DEG),
     )
 
 
@@ -146,9 +145,9 @@ class RigConfig:
     focal_length: float = 0.016
     backdrop_behind: float | None = 0.30
     placement_sigma: float = 3.0e-3
-    placement_sigma_rot: float = 0.2 * math.pi / 180
+    placement_sigma_rot: float = 0.2 * RAD_PER_DEG
     camera_mount_sigma: float = 0.2e-3
-    camera_mount_sigma_rot: float = 0.05 * math.pi / 180
+    camera_mount_sigma_rot: float = 0.05 * RAD_PER_DEG
 
     @property
     def focal_px(self) -> float:
@@ -174,27 +173,27 @@ class RigConfig:
             if v > lim:
                 raise ValueError(f"{where}.{key} must be within 0..{lim} (a placement tolerance, 1 sigma), got {v!r}")
             tol[key] = v
-        vergence = None if "vergence_deg" not in d else table_number(d, "vergence_deg", 0, where) * _DEG
+        vergence = None if "vergence_deg" not in d else table_number(d, "vergence_deg", 0, where) * RAD_PER_DEG
         backdrop = bool(d.get("backdrop", True))
-        standoff = table_number(d, "standoff_mm", 700.0, where, positive=True) * _MM
+        standoff = table_number(d, "standoff_mm", 700.0, where, positive=True) * M_PER_MM
         if not 0.2 <= standoff <= 3.0:
             raise ValueError(f"{where}.standoff_mm must be within 200..3000 mm, got {d.get('standoff_mm')!r}")
         w, h = int(d.get("width_px", 2592)), int(d.get("height_px", 1944))
         if w <= 0 or h <= 0:
             raise ValueError(f"{where}: width_px/height_px must be positive, got {w}x{h}")
         return cls(
-            baseline=table_number(d, "baseline_mm", 250.0, where, positive=True) * _MM,
+            baseline=table_number(d, "baseline_mm", 250.0, where, positive=True) * M_PER_MM,
             standoff=standoff,
             vergence=vergence,
             width_px=w,
             height_px=h,
-            pixel_size=table_number(d, "pixel_um", 2.2, where, positive=True) * 1e-6,
-            focal_length=table_number(d, "focal_mm", 16.0, where, positive=True) * _MM,
-            backdrop_behind=(table_number(d, "backdrop_behind_mm", 300.0, where, positive=True) * _MM) if backdrop else None,
-            placement_sigma=tol["placement_sigma_mm"] * _MM,
-            placement_sigma_rot=tol["placement_sigma_deg"] * _DEG,
-            camera_mount_sigma=tol["camera_mount_sigma_mm"] * _MM,
-            camera_mount_sigma_rot=tol["camera_mount_sigma_deg"] * _DEG,
+            pixel_size=table_number(d, "pixel_um", 2.2, where, positive=True) * M_PER_UM,
+            focal_length=table_number(d, "focal_mm", 16.0, where, positive=True) * M_PER_MM,
+            backdrop_behind=(table_number(d, "backdrop_behind_mm", 300.0, where, positive=True) * M_PER_MM) if backdrop else None,
+            placement_sigma=tol["placement_sigma_mm"] * M_PER_MM,
+            placement_sigma_rot=tol["placement_sigma_deg"] * RAD_PER_DEG,
+            camera_mount_sigma=tol["camera_mount_sigma_mm"] * M_PER_MM,
+            camera_mount_sigma_rot=tol["camera_mount_sigma_deg"] * RAD_PER_DEG,
         )
 
 
@@ -228,8 +227,8 @@ class RenderConfig:
     distortion_right: tuple[float, ...] = _DEFAULT_DIST_RIGHT
     principal_offset_left: tuple[float, float] = _DEFAULT_PP_LEFT
     principal_offset_right: tuple[float, float] = _DEFAULT_PP_RIGHT
-    key_light_azimuth: float = 40 * _DEG
-    key_light_elevation: float = 25 * _DEG
+    key_light_azimuth: float = 40 * RAD_PER_DEG
+    key_light_elevation: float = 25 * RAD_PER_DEG
     key_light: float = 0.55
     key_ambient: float = 0.10
     headlight: float = 0.35
@@ -290,8 +289,8 @@ class RenderConfig:
             distortion_right=dr if dr is not None else _DEFAULT_DIST_RIGHT,
             principal_offset_left=pl if pl is not None else _DEFAULT_PP_LEFT,
             principal_offset_right=pr if pr is not None else _DEFAULT_PP_RIGHT,
-            key_light_azimuth=table_number(d, "key_light_azimuth_deg", 40.0, where) * _DEG,
-            key_light_elevation=table_number(d, "key_light_elevation_deg", 25.0, where) * _DEG,
+            key_light_azimuth=table_number(d, "key_light_azimuth_deg", 40.0, where) * RAD_PER_DEG,
+            key_light_elevation=table_number(d, "key_light_elevation_deg", 25.0, where) * RAD_PER_DEG,
             key_light=table_number(d, "key_light", 0.55, where, nonneg=True),
             key_ambient=table_number(d, "key_ambient", 0.10, where, nonneg=True),
             headlight=table_number(d, "headlight", 0.35, where, nonneg=True),
@@ -319,8 +318,8 @@ class BoardConfig:
     thickness: float = 0.004
     views: int = 24
     distance_range: tuple[float, float] = (0.5, 1.0)
-    max_tilt: float = 40 * _DEG
-    max_roll: float = 30 * _DEG
+    max_tilt: float = 40 * RAD_PER_DEG
+    max_roll: float = 30 * RAD_PER_DEG
     min_corners: int = 20
 
     @classmethod
@@ -334,14 +333,14 @@ class BoardConfig:
         sx, sy = int(d.get("squares_x", 11)), int(d.get("squares_y", 8))
         if sx < 3 or sy < 3:
             raise ValueError(f"{where}: squares_x/squares_y must be >= 3, got {sx}x{sy}")
-        square = table_number(d, "square_mm", 18.0, where, positive=True) * _MM
-        marker = table_number(d, "marker_mm", 13.5, where, positive=True) * _MM
+        square = table_number(d, "square_mm", 18.0, where, positive=True) * M_PER_MM
+        marker = table_number(d, "marker_mm", 13.5, where, positive=True) * M_PER_MM
         if marker >= square:
-            raise ValueError(f"{where}.marker_mm must be smaller than square_mm, got {marker / _MM} >= {square / _MM}")
-        dmin = table_number(d, "distance_min_mm", 500.0, where, positive=True) * _MM
-        dmax = table_number(d, "distance_max_mm", 1000.0, where, positive=True) * _MM
+            raise ValueError(f"{where}.marker_mm must be smaller than square_mm, got {marker / M_PER_MM} >= {square / M_PER_MM}")
+        dmin = table_number(d, "distance_min_mm", 500.0, where, positive=True) * M_PER_MM
+        dmax = table_number(d, "distance_max_mm", 1000.0, where, positive=True) * M_PER_MM
         if dmax < dmin:
-            raise ValueError(f"{where}: distance_max_mm {dmax / _MM} < distance_min_mm {dmin / _MM}")
+            raise ValueError(f"{where}: distance_max_mm {dmax / M_PER_MM} < distance_min_mm {dmin / M_PER_MM}")
         ppsq = int(d.get("texture_px_per_square", 256))
         if not 16 <= ppsq <= 512:
             raise ValueError(f"{where}.texture_px_per_square must be within 16..512, got {ppsq}")
@@ -352,12 +351,12 @@ class BoardConfig:
             marker=marker,
             dictionary=str(d.get("dictionary", "DICT_5X5_100")),
             texture_px_per_square=ppsq,
-            margin=table_number(d, "margin_mm", 12.0, where, nonneg=True) * _MM,
-            thickness=table_number(d, "thickness_mm", 4.0, where, positive=True) * _MM,
+            margin=table_number(d, "margin_mm", 12.0, where, nonneg=True) * M_PER_MM,
+            thickness=table_number(d, "thickness_mm", 4.0, where, positive=True) * M_PER_MM,
             views=int(d.get("views", 24)),
             distance_range=(dmin, dmax),
-            max_tilt=table_number(d, "max_tilt_deg", 40.0, where, nonneg=True) * _DEG,
-            max_roll=table_number(d, "max_roll_deg", 30.0, where, nonneg=True) * _DEG,
+            max_tilt=table_number(d, "max_tilt_deg", 40.0, where, nonneg=True) * RAD_PER_DEG,
+            max_roll=table_number(d, "max_roll_deg", 30.0, where, nonneg=True) * RAD_PER_DEG,
             min_corners=int(d.get("min_corners", 20)),
         )
 
@@ -370,7 +369,7 @@ class PlateConfig:
     independently (breaks the rigid nominal plate; 0 by default)."""
 
     translation_sigma: float = 0.05e-3
-    rotation_sigma: float = 0.05 * _DEG
+    rotation_sigma: float = 0.05 * RAD_PER_DEG
     error_pose6: np.ndarray = field(default_factory=lambda: np.zeros(6))
     sphere_sigma: float = 0.0
 
@@ -383,12 +382,12 @@ class PlateConfig:
             e = d["error"]
             check_keys(e, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, f"{where}.error")
             err = np.array([float(e.get(k, 0.0)) for k in ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")])
-            err = err * np.array([_MM] * 3 + [_DEG] * 3)
+            err = err * np.array([M_PER_MM] * 3 + [RAD_PER_DEG] * 3)
         return cls(
-            translation_sigma=table_number(d, "translation_sigma_mm", 0.05, where, nonneg=True) * _MM,
-            rotation_sigma=table_number(d, "rotation_sigma_deg", 0.05, where, nonneg=True) * _DEG,
+            translation_sigma=table_number(d, "translation_sigma_mm", 0.05, where, nonneg=True) * M_PER_MM,
+            rotation_sigma=table_number(d, "rotation_sigma_deg", 0.05, where, nonneg=True) * RAD_PER_DEG,
             error_pose6=err,
-            sphere_sigma=table_number(d, "sphere_sigma_mm", 0.0, where, nonneg=True) * _MM,
+            sphere_sigma=table_number(d, "sphere_sigma_mm", 0.0, where, nonneg=True) * M_PER_MM,
         )
 
 
@@ -400,9 +399,9 @@ def errors_from_edge_units(table: Mapping[str, Any], layout: ParameterLayout, wh
     out: dict[str, float] = {}
     for key, v in table.items():
         if key.endswith("_mm"):
-            name, scale, unit = key[:-3], _MM, "m"
+            name, scale, unit = key[:-3], M_PER_MM, "m"
         elif key.endswith("_deg"):
-            name, scale, unit = key[:-4], _DEG, "rad"
+            name, scale, unit = key[:-4], RAD_PER_DEG, "rad"
         else:
             raise ValueError(f"{where}.{key}: a deviation needs a unit suffix '_mm' or '_deg'")
         try:
@@ -474,7 +473,7 @@ class WorldConfig:
         mount = cfg.get("mount", {}) or {}
         check_keys(mount, {"x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"}, "world.mount")
         mount6 = np.array([float(mount.get(k, 0.0)) for k in ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")])
-        mount6 = mount6 * np.array([_MM] * 3 + [_DEG] * 3)
+        mount6 = mount6 * np.array([M_PER_MM] * 3 + [RAD_PER_DEG] * 3)
         stations_raw = cfg.get("stations")
         if stations_raw is None:
             stations = default_stations()
@@ -496,8 +495,8 @@ class WorldConfig:
             robot=robot if isinstance(robot, str) else dict(robot),
             preset=preset,
             errors=errors,
-            random_length_sigma=table_number(rnd, "length_sigma_mm", 0.0, "world.random_errors", nonneg=True) * _MM,
-            random_angle_sigma=table_number(rnd, "angle_sigma_deg", 0.0, "world.random_errors", nonneg=True) * _DEG,
+            random_length_sigma=table_number(rnd, "length_sigma_mm", 0.0, "world.random_errors", nonneg=True) * M_PER_MM,
+            random_angle_sigma=table_number(rnd, "angle_sigma_deg", 0.0, "world.random_errors", nonneg=True) * RAD_PER_DEG,
             mount_pose6=mount6,
             plate=PlateConfig.from_dict(cfg.get("plate", {}) or {}),
             rig=RigConfig.from_dict(cfg.get("rig", {}) or {}),
@@ -534,15 +533,8 @@ def nominal_robot_from_spec(spec: Any) -> RobotModel:
 
 def load_world_config(path: str | os.PathLike) -> WorldConfig:
     """Read a TOML file holding a ``[world]`` table (a campaign config or ``experiments/world_default.toml``)."""
-    from ..dataset import read_text
-
     path = Path(path)
-    try:
-        data = tomllib.loads(read_text(path, ValueError))
-    except FileNotFoundError:
-        raise ValueError(f"{path}: world config file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    data = read_toml(path, missing="world config file not found")
     try:
         return WorldConfig.from_dict(data)
     except ValueError as exc:

@@ -40,6 +40,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel
+from ..units import M_PER_MM, RAD_PER_DEG
 from .config import table_number  # the one validator of numbers in world TOML tables
 from .effects import BaseEffect, ConstantJointOffset, EffectContext, SceneState, as_effect
 
@@ -60,8 +61,6 @@ __all__ = [
     "DEFAULT_STIFFNESS_NM_PER_RAD",
 ]
 
-_MM = 1e-3
-_DEG = math.pi / 180.0
 
 #: Servo stiffness per joint [N m/rad]: RV-class reducers on joints 1-3, strain-wave gears on the wrist.
 #: With the twin's masses (52 kg arm, 0.96 kg plate) this sags the tool by 0.01-0.5 mm over the joint ranges
@@ -212,7 +211,7 @@ class Compliance(BaseEffect):
         check_keys(t, {"stiffness_nm_per_rad", "payload_kg", "payload_com_mm"}, where)
         com = t.get("payload_com_mm", (0.0, 0.0, 0.0))
         try:
-            com = np.asarray(com, dtype=float).reshape(3) * _MM
+            com = np.asarray(com, dtype=float).reshape(3) * M_PER_MM
         except (TypeError, ValueError):
             raise ValueError(f"{where}.payload_com_mm must be 3 numbers [mm], got {com!r}") from None
         return cls(
@@ -291,7 +290,7 @@ class Backlash(BaseEffect):
 
     name = "backlash"
 
-    def __init__(self, half_clearance: Sequence[float] | np.ndarray | float = 0.005 * _DEG,
+    def __init__(self, half_clearance: Sequence[float] | np.ndarray | float = 0.005 * RAD_PER_DEG,
                  initial_sign: Sequence[float] | np.ndarray | float = 1.0, move_tol: float = 1e-9):
         self.half_clearance = _per_joint(half_clearance, "backlash half_clearance [rad]", nonneg=True)
         s = _per_joint(initial_sign, "backlash initial_sign")
@@ -306,7 +305,7 @@ class Backlash(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "Backlash":
         where = "world.effects (backlash)"
         check_keys(t, {"half_clearance_deg", "initial_sign"}, where)
-        return cls(_per_joint(t.get("half_clearance_deg", 0.005), f"{where}.half_clearance_deg", nonneg=True) * _DEG,
+        return cls(_per_joint(t.get("half_clearance_deg", 0.005), f"{where}.half_clearance_deg", nonneg=True) * RAD_PER_DEG,
                    t.get("initial_sign", 1.0))
 
     def signs(self, context: EffectContext) -> np.ndarray:
@@ -354,7 +353,7 @@ class CyclicError(BaseEffect):
 
     name = "cyclic"
 
-    def __init__(self, amplitude: Any = 0.005 * _DEG, order: Any = 2.0, phase: Any = 0.0, angle: str = "joint",
+    def __init__(self, amplitude: Any = 0.005 * RAD_PER_DEG, order: Any = 2.0, phase: Any = 0.0, angle: str = "joint",
                  gear_ratio: Sequence[float] | np.ndarray | None = None):
         A = _per_joint(amplitude, "cyclic amplitude [rad]", rows=True)
         k = _per_joint(order, "cyclic order", rows=True, positive=True)
@@ -376,9 +375,9 @@ class CyclicError(BaseEffect):
         where = "world.effects (cyclic)"
         check_keys(t, {"amplitude_deg", "order", "phase_deg", "angle", "gear_ratio"}, where)
         return cls(
-            _per_joint(t.get("amplitude_deg", 0.005), f"{where}.amplitude_deg", rows=True) * _DEG,
+            _per_joint(t.get("amplitude_deg", 0.005), f"{where}.amplitude_deg", rows=True) * RAD_PER_DEG,
             _per_joint(t.get("order", 2.0), f"{where}.order", rows=True, positive=True),
-            _per_joint(t.get("phase_deg", 0.0), f"{where}.phase_deg", rows=True) * _DEG,
+            _per_joint(t.get("phase_deg", 0.0), f"{where}.phase_deg", rows=True) * RAD_PER_DEG,
             str(t.get("angle", "joint")),
             t.get("gear_ratio"),
         )
@@ -574,7 +573,7 @@ class SphereOutOfRound(BaseEffect):
         where = "world.effects (sphere_out_of_round)"
         check_keys(t, {"sphere", "semi_axis_delta_mm"}, where)
         try:
-            d = np.asarray(t.get("semi_axis_delta_mm", (0.03, 0.0, -0.03)), dtype=float).reshape(3) * _MM
+            d = np.asarray(t.get("semi_axis_delta_mm", (0.03, 0.0, -0.03)), dtype=float).reshape(3) * M_PER_MM
         except (TypeError, ValueError):
             raise ValueError(f"{where}.semi_axis_delta_mm must be 3 numbers [mm], got {t.get('semi_axis_delta_mm')!r}") from None
         sphere = t.get("sphere", 0)
@@ -626,7 +625,7 @@ def _python_effect(t: Mapping[str, Any]) -> Any:
 EFFECT_TYPES: dict[str, Callable[[Mapping[str, Any]], Any]] = {
     "constant_joint_offset": lambda t: (
         check_keys(t, {"offsets_deg"}, "world.effects (constant_joint_offset)"),
-        ConstantJointOffset(_per_joint(t["offsets_deg"], "world.effects (constant_joint_offset).offsets_deg") * _DEG),
+        ConstantJointOffset(_per_joint(t["offsets_deg"], "world.effects (constant_joint_offset).offsets_deg") * RAD_PER_DEG),
     )[1],
     "compliance": Compliance.from_table,
     "backlash": Backlash.from_table,

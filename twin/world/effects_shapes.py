@@ -35,15 +35,13 @@ import numpy as np
 
 from ..kinematics import N_JOINTS, RobotModel, link_frames
 from ..transforms import pose6_to_transform
+from ..units import M_PER_MM, RAD_PER_DEG
 from .config import check_keys, table_number
 from .config import table_vector as config_vector
 from .effects import BaseEffect, EffectContext
 
 __all__ = ["JointPolynomial", "JointProduct", "MoveLag", "LinkGrowth", "BaseShift", "PlateFlex", "Repeatability",
            "flange_repeatability", "repeatability_sigma", "SHAPE_TYPES"]
-
-_DEG = math.pi / 180.0
-_MM = 1e-3
 
 
 def _keys(t: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -93,9 +91,9 @@ class JointPolynomial(BaseEffect):
         _keys(t, {"target_joint", "source_joint", "coefficients_deg", "centre_deg", "scale_deg"}, where)
         if "coefficients_deg" not in t:
             raise ValueError(f"{where}: missing 'coefficients_deg' (one per power 1, 2, ...)")
-        c = np.asarray(t["coefficients_deg"], dtype=float).reshape(-1) * _DEG
-        return cls(t.get("target_joint"), t.get("source_joint"), c, _number(t, "centre_deg", 0.0, where) * _DEG,
-                   _number(t, "scale_deg", 57.29577951308232, where, positive=True) * _DEG)
+        c = np.asarray(t["coefficients_deg"], dtype=float).reshape(-1) * RAD_PER_DEG
+        return cls(t.get("target_joint"), t.get("source_joint"), c, _number(t, "centre_deg", 0.0, where) * RAD_PER_DEG,
+                   _number(t, "scale_deg", 57.29577951308232, where, positive=True) * RAD_PER_DEG)
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         x = (q[self.source - 1] - self.centre) / self.scale
@@ -127,8 +125,8 @@ class JointProduct(BaseEffect):
         where = "world.effects (joint_product)"
         _keys(t, {"target_joint", "joints", "coefficient_deg_per_rad2", "centres_deg"}, where)
         return cls(t.get("target_joint"), list(t.get("joints", [])),
-                   _number(t, "coefficient_deg_per_rad2", None, where) * _DEG,
-                   table_vector(t, "centres_deg", 2, where, [0.0, 0.0]) * _DEG)
+                   _number(t, "coefficient_deg_per_rad2", None, where) * RAD_PER_DEG,
+                   table_vector(t, "centres_deg", 2, where, [0.0, 0.0]) * RAD_PER_DEG)
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         out = q.copy()
@@ -158,7 +156,7 @@ class MoveLag(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "MoveLag":
         where = "world.effects (move_lag)"
         _keys(t, {"lag_deg", "width_deg"}, where)
-        return cls(table_vector(t, "lag_deg", N_JOINTS, where) * _DEG, _number(t, "width_deg", 3.0, where, positive=True) * _DEG)
+        return cls(table_vector(t, "lag_deg", N_JOINTS, where) * RAD_PER_DEG, _number(t, "width_deg", 3.0, where, positive=True) * RAD_PER_DEG)
 
     def joints(self, q: np.ndarray, context: EffectContext) -> np.ndarray:
         seq = context.command_sequence()
@@ -247,8 +245,8 @@ class BaseShift(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "BaseShift":
         where = "world.effects (base_shift)"
         _keys(t, {"at_s", "shift_mm", "rotate_deg"}, where)
-        return cls(_number(t, "at_s", None, where), table_vector(t, "shift_mm", 3, where) * _MM,
-                   table_vector(t, "rotate_deg", 3, where, [0.0, 0.0, 0.0]) * _DEG)
+        return cls(_number(t, "at_s", None, where), table_vector(t, "shift_mm", 3, where) * M_PER_MM,
+                   table_vector(t, "rotate_deg", 3, where, [0.0, 0.0, 0.0]) * RAD_PER_DEG)
 
     def geometry(self, robot: RobotModel, context: EffectContext) -> RobotModel:
         if context.t_s < self.at_s:
@@ -273,7 +271,7 @@ class PlateFlex(BaseEffect):
     def from_table(cls, t: Mapping[str, Any]) -> "PlateFlex":
         where = "world.effects (plate_flex)"
         _keys(t, {"k_mm_per_g"}, where)
-        return cls(_number(t, "k_mm_per_g", None, where) * _MM)
+        return cls(_number(t, "k_mm_per_g", None, where) * M_PER_MM)
 
     def geometry(self, robot: RobotModel, context: EffectContext) -> RobotModel:
         if context.q_cmd is None:
@@ -317,7 +315,7 @@ class Repeatability(BaseEffect):
         _keys(t, {"sigma_deg", "seed"}, where)
         if "sigma_deg" not in t:
             raise ValueError(f"{where}: missing 'sigma_deg'")
-        return cls(table_vector(t, "sigma_deg", N_JOINTS, where) * _DEG, t.get("seed", 0))
+        return cls(table_vector(t, "sigma_deg", N_JOINTS, where) * RAD_PER_DEG, t.get("seed", 0))
 
     def offsets(self, context: EffectContext) -> np.ndarray:
         """The joint offsets ``(6,)`` [rad] of the measurement ``context.pose_index``."""

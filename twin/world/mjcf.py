@@ -15,9 +15,9 @@ The robot base body sits at ``robot.base2meas`` in the MuJoCo world frame (the w
 at its origin (the tool frame) and sites ``sphere0..2`` at the sphere centres.
 
 Static parts (rendering settings, materials, rig with cameras and lights, board, backdrop) are the package's
-data files ``twin/data/models/*.xml`` (:func:`twin.resources.model_file`); :func:`compose_twin_xml` merges them with the generated robot and rewrites the
-config-dependent attributes (camera placement and field of view, backdrop distance, board size and
-texture).
+data files ``models/*.xml`` (the package ``twin.models``, :func:`twin.resources.model_file`);
+:func:`compose_twin_xml` merges them with the generated robot and rewrites the config-dependent attributes
+(camera placement and field of view, backdrop distance, board size and texture).
 """
 
 from __future__ import annotations

@@ -40,7 +40,6 @@ bilinearly. On the sampling grid the same holds with ``s fx``, ``s cx + (s - 1)/
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -49,6 +48,7 @@ import mujoco
 import numpy as np
 
 from ..camera import CameraIntrinsics, distort_normalized, undistort_normalized
+from ..units import rad_to_deg
 from .rig import check_distortion_monotonic, distortion_maps, render_focal_px
 
 __all__ = ["CameraPipeline", "scene_option", "sampling_intrinsics"]
@@ -231,7 +231,7 @@ class CameraPipeline:
     @property
     def fovy_deg(self) -> float:
         """Vertical field of view of the ideal render [deg]."""
-        return float(np.rad2deg(2.0 * np.arctan(0.5 * self.intr.height / self.f_render)))
+        return float(rad_to_deg(2.0 * np.arctan(0.5 * self.intr.height / self.f_render)))
 
 
 class _WindowTables:

@@ -27,6 +27,7 @@ from ..camera import spheres_in_view
 from ..dataset import Plate, default_plate
 from ..kinematics import N_JOINTS, RobotModel, UnreachableError, closest_branch, inverse_kinematics_closed_form
 from ..transforms import invert_transform, make_transform, pose6_to_transform, rotvec_to_matrix
+from ..units import M_PER_MM, deg_to_rad
 from . import mjcf
 from .board import board_extent, board_texcoords, board_texture
 from .config import WorldConfig, nominal_robot_from_spec
@@ -350,11 +351,11 @@ class World(WorldGeometry, WorldRobot, WorldImaging):
             tries += 1
             if tries > max_tries * n:
                 raise RuntimeError(f"station {station}: found only {len(out)} of {n} visible configurations")
-            off = rng.uniform(-1, 1, 3) * np.array(spread_mm) * 1e-3
+            off = rng.uniform(-1, 1, 3) * np.array(spread_mm) * M_PER_MM
             centre = st.target + R[:3, :3] @ np.array([off[0], off[1], off[2]])
             to_rig = R[:3, 3] - centre
             z = to_rig / np.linalg.norm(to_rig)
-            tilt = np.deg2rad(max_tilt_deg) * np.sqrt(rng.uniform())
+            tilt = deg_to_rad(max_tilt_deg) * np.sqrt(rng.uniform())
             a = rng.uniform(0, 2 * np.pi)
             perp = np.cross(z, [0.0, 0.0, 1.0])
             if np.linalg.norm(perp) < 1e-6:

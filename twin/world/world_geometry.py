@@ -14,6 +14,7 @@ import numpy as np
 from ..camera import CameraIntrinsics, mujoco_to_opencv_cam2world, project_points
 from ..kinematics import N_JOINTS, RobotModel
 from ..transforms import invert_transform, make_transform, matrix_to_quat_wxyz
+from ..units import MM_PER_M
 
 __all__ = ["WorldGeometry"]
 
@@ -46,8 +47,8 @@ class WorldGeometry:
                 "type": "charuco",
                 "squares_x": b.squares_x,
                 "squares_y": b.squares_y,
-                "square_mm": round(b.square * 1e3, 9),
-                "marker_mm": round(b.marker * 1e3, 9),
+                "square_mm": round(b.square * MM_PER_M, 9),
+                "marker_mm": round(b.marker * MM_PER_M, 9),
                 "dictionary": b.dictionary,
             },
         }

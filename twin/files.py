@@ -1,0 +1,75 @@
+"""Reading the files a user names (configs, maps, calibrations, datasets) and the numbers in them: every error
+names the file (and the row or key the caller puts in ``where``), never a bare ``UnicodeDecodeError``,
+``TOMLDecodeError`` or ``JSONDecodeError``.
+
+Each reader takes the ``ValueError`` subclass its caller reports with (``twin.dataset.DatasetError`` for a
+dataset or a column map, ``ValueError`` elsewhere). A foundation module: it imports nothing of the library.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+__all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite"]
+
+
+def read_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> str:
+    """The UTF-8 text of the file ``path`` (a path, or a :mod:`importlib.resources` traversable); a file that is not
+    UTF-8 text raises ``error`` naming it. ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
+    data = path.read_bytes() if hasattr(path, "read_bytes") else Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
+def open_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> io.StringIO:
+    """The file ``path`` as a text stream for :mod:`csv` (``newline=""``), decoded as :func:`read_text` does."""
+    return io.StringIO(read_text(path, error), newline="")
+
+
+def read_toml(path: str | os.PathLike, error: type[ValueError] = ValueError, *, missing: str = "missing") -> dict:
+    """The TOML file ``path`` as a dict. ``error`` naming the file: ``"<path>: <missing>"`` when there is no such
+    file (``missing`` says what the caller expected there), ``"<path>: not valid TOML: ..."``, not UTF-8 text."""
+    try:
+        text = read_text(path, error)
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{path}: not valid TOML: {exc}") from None
+
+
+def read_json(path: str | os.PathLike, error: type[ValueError] = ValueError, *, missing: str = "missing") -> Any:
+    """The JSON file ``path`` as Python values, with the errors of :func:`read_toml`
+    (``"<path>: not valid JSON: ..."``)."""
+    try:
+        text = read_text(path, error)
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON: {exc}") from None
+
+
+def parse_finite(text: str, where: str, error: type[ValueError] = ValueError, *, decimal: str = ".") -> float:
+    """The text of a cell or an argument as a finite float, read with the decimal mark ``decimal`` (``"."`` or
+    ``","``). ``error`` ``"<where>: not a number: '<text>'"`` or ``"<where>: not a finite number: '<text>'"``
+    (inf, nan) otherwise."""
+    if decimal not in (".", ","):
+        raise ValueError(f"decimal must be '.' or ',', got {decimal!r}")
+    try:
+        v = float(text.replace(",", ".") if decimal == "," else text)
+    except (TypeError, ValueError, AttributeError):
+        raise error(f"{where}: not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise error(f"{where}: not a finite number: {text!r}")
+    return v
