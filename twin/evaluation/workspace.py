@@ -192,7 +192,7 @@ def diagnosis_workspace(series: Mapping[str, Any], calibration: Calibration, *,
         out_meas[sel] = np.einsum("ij,nkj->nki", T[:3, :3], meas[sel]) + T[:3, 3]
         for t in res:
             out_res[t][sel] = np.einsum("ij,nkj->nki", T[:3, :3], res[t][sel])
-        notes.append(f"{int(sel.sum())} row(s) of station {s!r} mapped into station {ref!r}'s measurement frame "
+        notes.append(f"{int(sel.sum())} row(s) of station {s!r} mapped into the measurement frame of station {ref!r} "
                      "through the calibrated base2meas of both")
     drawn = _drawn_rows(n, int(max_robot_rows))
     if drawn.size < n:
