@@ -10,7 +10,7 @@ cyclic error of order 81 on joint 5 (the generator of ``tests/_diagnosis_helpers
 Timed, median of ``--runs`` runs each (after one warm-up run of the library call):
 
 * ``library``: ``twin.diagnosis.diagnose(dataset)`` on the dataset in memory, and the writing phases
-  (``write_diagnosis`` with plots, ``record_diagnosis``);
+  (``write_diagnosis`` with plots, ``record_diagnosis`` with the workspace);
 * ``cli``: ``twin diagnose DATASET --out DIR`` end to end in a fresh process (start-up, imports, reading,
   diagnosis, JSON, plots, recording), peak resident memory of that process;
 * ``steps``: where one ``diagnose`` spends its time, by its named steps and the scoring inside them (cProfile
@@ -50,6 +50,7 @@ from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # no
 from twin.dataset import read_dataset, write_dataset  # noqa: E402
 from twin.diagnosis import diagnose, diagnosis_dict, write_diagnosis  # noqa: E402
 from twin.evaluation.recording import record_diagnosis  # noqa: E402
+from twin.evaluation.workspace import diagnosis_workspace  # noqa: E402
 from twin.units import M_PER_MM, RAD_PER_DEG  # noqa: E402
 
 TARGET_S = 30.0
@@ -132,8 +133,9 @@ def main() -> int:
         read_t = _median_timing(lambda: read_dataset(work / "ds"), args.runs)
         write_t = _median_timing(lambda: write_diagnosis(res, work / "lib_out", plots=True), args.runs)
         verdict = diagnosis_dict(res)
-        rec_t = _median_timing(lambda: record_diagnosis(work / "lib_out" / "diagnosis.rrd", res.series, verdict),
-                               args.runs)
+        rec_t = _median_timing(lambda: record_diagnosis(
+            work / "lib_out" / "diagnosis.rrd", res.series, verdict,
+            workspace=diagnosis_workspace(res.series, res.calibrations_blocked["geometric"])), args.runs)
         steps = _steps(ds)
         tracemalloc.start()
         diagnose(ds)

@@ -1,4 +1,5 @@
-"""The campaign recording in a real browser: Rerun's web viewer in headless Chromium, checked by pixels."""
+"""The campaign and the diagnosis recordings in a real browser: Rerun's web viewer in headless Chromium, checked by
+pixels."""
 
 import os
 import shutil
@@ -14,7 +15,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _diagnosis_helpers as H  # noqa: E402
 from test_recording import make_synthetic_recording  # noqa: E402
+from twin.evaluation.recording import SKELETON_COLOUR  # noqa: E402
+from twin.evaluation.workspace import COLOUR_STOPS  # noqa: E402
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -58,24 +62,38 @@ def _rendered(shot: np.ndarray) -> tuple[bool, bool, dict]:
     return True, red.sum() > 30 and grey_robot.sum() > 30, info
 
 
-def test_recording_renders_in_headless_chromium(tmp_path):
-    """Served with `rerun --serve-web`, the web viewer in headless Chromium shows the 3D view and an image."""
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    """One headless Chromium (selenium) for the module's recordings."""
     chromium, driver_bin = shutil.which("chromium"), shutil.which("chromedriver")
     assert chromium and driver_bin, "chromium and chromium-driver are required: run `make sysdeps-browser` (make test does)"
-    from PIL import Image
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
 
-    rrd = make_synthetic_recording(tmp_path / "synthetic.rrd")
+    user_data = tempfile.mkdtemp(prefix="chromium-", dir=tmp_path_factory.mktemp("browser"))
+    opts = Options()
+    for f in CHROME_FLAGS + [f"--user-data-dir={user_data}", "--window-size=1600,1000"]:
+        opts.add_argument(f)
+    opts.binary_location = chromium
+    driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def _view_until(driver, rrd: Path, shot_path: Path, check, timeout_s: float = 90.0) -> tuple[bool, bool, dict]:
+    """Serve ``rrd`` with `rerun --serve-web`, open it in ``driver`` and take screenshots until ``check(shot)``
+    returns (True, True, info) or the time is up; the last check's result."""
+    from PIL import Image
+
     web_port, grpc_port = _free_port(), _free_port()
     server = subprocess.Popen(
         [_rerun_binary(), str(rrd), "--serve-web", "--bind", "127.0.0.1",
          "--web-viewer-port", str(web_port), "--port", str(grpc_port)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )
-    user_data = tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)
-    driver = None
     try:
         deadline = time.time() + 20
         while time.time() < deadline:  # wait for the web server
@@ -85,28 +103,16 @@ def test_recording_renders_in_headless_chromium(tmp_path):
             except OSError:
                 assert server.poll() is None, "rerun --serve-web exited early"
                 time.sleep(0.3)
-        opts = Options()
-        for f in CHROME_FLAGS + [f"--user-data-dir={user_data}", "--window-size=1600,1000"]:
-            opts.add_argument(f)
-        opts.binary_location = chromium
-        driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
-        url = f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
-        driver.get(url)
-        shot_path = tmp_path / "viewer.png"
-        ok_img = ok_3d = False
-        info: dict = {}
-        deadline = time.time() + 90
-        while time.time() < deadline and not (ok_img and ok_3d):
+        driver.get(f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy")
+        result: tuple[bool, bool, dict] = (False, False, {})
+        start = time.time()
+        while time.time() < start + timeout_s and not (result[0] and result[1]):
             time.sleep(2.0)
             driver.save_screenshot(str(shot_path))
-            shot = np.asarray(Image.open(shot_path).convert("RGB"))
-            ok_img, ok_3d, info = _rendered(shot)
-            print(f"{time.time() - deadline + 90:.1f}s", ok_img, ok_3d, info)
-        assert ok_img, f"no image rendered in the viewer (screenshot {shot_path}): {info}"
-        assert ok_3d, f"3D view not rendered (screenshot {shot_path}): {info}"
+            result = check(np.asarray(Image.open(shot_path).convert("RGB")))
+            print(f"{time.time() - start:.1f}s", result)
+        return result
     finally:
-        if driver is not None:
-            driver.quit()
         # The --serve-web process keeps a core busy after the browser leaves: stop it by its PID.
         os.kill(server.pid, signal.SIGTERM)
         try:
@@ -114,3 +120,55 @@ def test_recording_renders_in_headless_chromium(tmp_path):
         except subprocess.TimeoutExpired:
             os.kill(server.pid, signal.SIGKILL)
             server.wait(timeout=10)
+
+
+def test_recording_renders_in_headless_chromium(browser, tmp_path):
+    """Served with `rerun --serve-web`, the web viewer in headless Chromium shows the 3D view and an image."""
+    rrd = make_synthetic_recording(tmp_path / "synthetic.rrd")
+    shot_path = tmp_path / "viewer.png"
+    ok_img, ok_3d, info = _view_until(browser, rrd, shot_path, _rendered)
+    assert ok_img, f"no image rendered in the viewer (screenshot {shot_path}): {info}"
+    assert ok_3d, f"3D view not rendered (screenshot {shot_path}): {info}"
+
+
+# The diagnosis' 3-D views take the left part of the top row (after the viewer's own panel, before the residual
+# plot): in a 1600-pixel-wide window about x 12-55 %, y 5-45 % of the page.
+DIAGNOSIS_3D_REGION = (0.12, 0.55, 0.05, 0.45)
+
+
+def _diagnosis_rendered(shot: np.ndarray) -> tuple[bool, bool, dict]:
+    """(robot drawn, map and arrows drawn, details) in the 3-D views' region: the skeleton's bronze, and the colour
+    map's cyan, green and yellow (colours nothing else of the viewer uses there: a diagnosis recording without the
+    3-D views shows none of the three and under 50 pixels near the bronze)."""
+    h, w = shot.shape[:2]
+    x0, x1, y0, y1 = DIAGNOSIS_3D_REGION
+    region = shot[int(y0 * h):int(y1 * h), int(x0 * w):int(x1 * w)]
+    robot = _near(region, SKELETON_COLOUR, tol=12)
+    cmap = np.zeros(region.shape[:2], dtype=bool)
+    for _, name, rgb in COLOUR_STOPS:
+        if name in ("cyan", "green", "yellow"):
+            cmap |= _near(region, rgb, tol=30)
+    info = {"robot_px": int(robot.sum()), "colour_map_px": int(cmap.sum())}
+    return robot.sum() > 400, cmap.sum() > 50, info
+
+
+@pytest.fixture(scope="module")
+def diagnosis_rrd(tmp_path_factory):
+    """A diagnosis recording written by `twin diagnose` on a small backlash dataset."""
+    from twin.cli import main
+    from twin.dataset import write_dataset
+
+    root = tmp_path_factory.mktemp("diagbrowser")
+    ds, _ = H.make_dataset(seed=7, n=60, effect=H.backlash())
+    write_dataset(root / "ds", ds)
+    assert main(["diagnose", str(root / "ds"), "--out", str(root / "out"), "--no-plots"]) == 0
+    return root / "out" / "diagnosis.rrd"
+
+
+def test_diagnosis_recording_shows_the_robot_and_the_residual_map(browser, diagnosis_rrd, tmp_path):
+    """The diagnosis recording opened in the web viewer draws the robot's skeleton and the points and arrows coloured
+    by their residual in its 3-D views."""
+    shot_path = tmp_path / "diagnosis.png"
+    ok_robot, ok_map, info = _view_until(browser, diagnosis_rrd, shot_path, _diagnosis_rendered)
+    assert ok_robot, f"no robot in the diagnosis' 3-D views (screenshot {shot_path}): {info}"
+    assert ok_map, f"no residual map in the diagnosis' 3-D views (screenshot {shot_path}): {info}"

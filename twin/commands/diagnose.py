@@ -64,11 +64,14 @@ def run(args: argparse.Namespace) -> int:
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
     if not args.no_recording:
         # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording
-        # shows exactly what diagnosis.json holds
+        # shows exactly what diagnosis.json holds, and the robot of the geometric model fitted on the calibration
+        # rows (the model of "before") with the residuals of the held-out rows in the measurement frame
         from ..evaluation.recording import record_diagnosis
+        from ..evaluation.workspace import diagnosis_workspace
 
+        ws = diagnosis_workspace(res.series, res.calibrations_blocked.get("geometric", res.calibration_geometric))
         paths["recording"] = record_diagnosis(paths["diagnosis"].with_name("diagnosis.rrd"), res.series,
-                                              read_diagnosis(paths["diagnosis"]))
+                                              read_diagnosis(paths["diagnosis"]), workspace=ws)
     b, a = res.before, res.after
     out = sys.stdout
     print(f"noise floor: {res.noise.sigma * MM_PER_M:.5f} mm per coordinate ({res.noise.source})", file=out)

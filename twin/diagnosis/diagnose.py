@@ -637,9 +637,19 @@ def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
             "held_out_rule": setup.held_out.rule}
 
 
+def _point_vectors(m, r_m: np.ndarray) -> np.ndarray:
+    """Residuals [m] in ``absolute_residuals`` order (point, coordinate, row) as vectors ``(n, K, 3)``, NaN where a
+    point was not seen."""
+    out = np.full((m.obs.spheres.shape[1], 3, m.obs.n), np.nan)
+    out[np.broadcast_to(m.obs.seen.T[:, None, :], out.shape)] = r_m
+    return np.transpose(out, (2, 0, 1))
+
+
 def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
     """Per held-out row (confirmation and report rows, in dataset order): residual norms before/after [mm], the
-    block it belongs to, each term of the extended model, and the most telling variables."""
+    residual vectors before/after ``(n, K, 3)`` [m] (measured minus predicted) at the measured points ``measured_m``
+    [m] (each row's station's measurement frame, NaN where not seen), the station, the commanded joints ``q``
+    [rad; m], the block it belongs to, each term of the extended model, and the most telling variables."""
     blocks = [("confirmation", prob.rows_val, base.model_val, ext.model_val)]
     if prob.obs_rep is not None:
         blocks.append(("report", prob.rows_rep, prob.model([], "rep"), prob.model(ext.chosen, "rep")))
@@ -650,13 +660,19 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
                                   "block": np.concatenate([[name] * len(r) for name, r, _, _ in blocks])[order]}
     for tag, idx in (("before", 2), ("after", 3)):
         z = base.z if tag == "before" else ext.z
-        e_all = []
+        e_all, v_all = [], []
         for b in blocks:
             m = b[idx]
             r = m.residuals(z, jacobian=False)
             e, _ = row_rms(m.unwhiten(r.r), r.row, m.obs.n)
             e_all.append(e / _MM)
+            v_all.append(_point_vectors(m, m.unwhiten(r.r)))
         out[f"residual_rms_mm_{tag}"] = np.concatenate(e_all)[order]
+        out[f"residual_vector_m_{tag}"] = np.concatenate(v_all)[order]
+    obs = [b[2].obs for b in blocks]
+    out["measured_m"] = np.concatenate([np.where(o.seen[..., None], o.spheres, np.nan) for o in obs])[order]
+    out["station"] = np.concatenate([np.asarray(o.station_names, dtype=object)[o.station] for o in obs])[order]
+    out["q"] = np.concatenate([o.q for o in obs])[order]
     # each term of the extended model on the held-out rows, in its place's display unit
     terms = {}
     for k in range(len(ext.chosen)):

@@ -9,7 +9,8 @@
 * :mod:`.closeloop` -- the truth beside a diagnosis: synthetic datasets from the world's effects, effect sizes,
   the oracle fit, the true model's error;
 * :mod:`.recording` -- the Rerun recording, the only module of the project that imports ``rerun``;
-  :mod:`.images` -- the images it (and the runner's resume store) keeps, encoded.
+  :mod:`.images` -- the images it (and the runner's resume store) keeps, encoded; :mod:`.workspace` -- a
+  diagnosis' held-out rows in the measurement frame for it: the robot's skeleton, the residual vectors, the scales.
 
 The runner (:mod:`twin.runner`) drives a campaign through the layers and hands its truth to this one.
 """

@@ -20,7 +20,8 @@ Everything per pose is on the ``pose`` sequence timeline (the pose index in meas
 blueprint (3D view, both images, residual plots, log) is stored in the file so it opens in a useful layout.
 
 A diagnosis (``twin diagnose``) has its own recording, :func:`record_diagnosis`: ``diagnosis/residual/...``,
-``diagnosis/variables/...``, ``diagnosis/verdict``, ``diagnosis/log`` (layout in ``docs/diagnosis.md``).
+``diagnosis/variables/...``, ``diagnosis/workspace/...`` (the robot, the measured points and the residual vectors in
+the measurement frame), ``diagnosis/verdict``, ``diagnosis/log`` (layout in ``docs/diagnosis.md``).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from ..camera import CameraIntrinsics
 from ..transforms import matrix_to_quat_wxyz
 from ..units import MM_PER_M
 from .images import encode_image
+from .workspace import COLOUR_STOPS, DiagnosisWorkspace, size_colours, view_eye
 
 __all__ = ["CameraView", "StationView", "CampaignRecording", "encode_image", "default_blueprint"]
 
@@ -273,12 +275,28 @@ _AFTER_COLOUR = (40, 110, 230)
 _FLOOR_COLOUR = (90, 90, 90)
 
 
-def diagnosis_blueprint(channels: Sequence[str] = ()) -> rrb.Blueprint:
+def _workspace_views(ws: DiagnosisWorkspace) -> list[rrb.Spatial3DView]:
+    """One 3-D view per model (geometric: before; extended: after): the workspace map of that model, the robot at
+    the time cursor's row and that row's residual arrows, the scale arrow."""
+    root = f"{DIAGNOSIS_ROOT}/workspace"
+    position, target, up = view_eye(ws)
+    eye = rrb.archetypes.EyeControls3D(position=position, look_target=target, eye_up=up)
+    views = []
+    for tag, other, what in (("before", "after", "geometric"), ("after", "before", "extended")):
+        views.append(rrb.Spatial3DView(
+            origin=root, name=f"{what}: arrows x{ws.arrow_scale:g}, red {ws.colour_max_mm:g} mm",
+            contents=["+ $origin/**", f"- $origin/map/{other}", f"- $origin/arrows/{other}"], eye_controls=eye))
+    return views
+
+
+def diagnosis_blueprint(channels: Sequence[str] = (), workspace: DiagnosisWorkspace | None = None) -> rrb.Blueprint:
     """Residual per held-out row (geometric only, extended, noise floor) and the verdict on top; the telling
     variables (joints, approach directions, recorded channels) and the text log below. Every plot is drawn
     against the timeline chosen in the time panel: ``pose`` (measurement order) or a variable's own timeline
     (``q1_mdeg`` ... ``q6_mdeg``, ``temp_mdegC``, ``t_s``), which turns the residual plot into a scatter plot
-    of the residual against that variable."""
+    of the residual against that variable. With a ``workspace``, two 3-D views on the left (the geometric and
+    the extended model: the map of every held-out point coloured by its residual, the robot at the current row
+    with its residual arrows) and the legend beside the verdict."""
     def plot(origin: str, name: str) -> rrb.TimeSeriesView:
         # the whole timeline on the x axis: on a variable's timeline the rows are sparse (millidegree steps) and
         # the default view range shows only the neighbourhood of the time cursor
@@ -293,16 +311,17 @@ def diagnosis_blueprint(channels: Sequence[str] = ()) -> rrb.Blueprint:
         bottom.append(plot(f"{DIAGNOSIS_ROOT}/variables/{ch}", ch))
     bottom.append(plot(f"{DIAGNOSIS_ROOT}/terms", "terms of the extended model (vs their channel's timeline)"))
     bottom.append(rrb.TextLogView(origin=f"{DIAGNOSIS_ROOT}/log", name="verdict log"))
+    residual = plot(f"{DIAGNOSIS_ROOT}/residual", "validation residual RMS per coordinate [mm]")
+    verdict = rrb.TextDocumentView(origin=f"{DIAGNOSIS_ROOT}/verdict", name="verdict")
+    if workspace is None:
+        top = rrb.Horizontal(residual, verdict, column_shares=[3, 1])
+    else:
+        legend = rrb.TextDocumentView(origin=f"{DIAGNOSIS_ROOT}/workspace/legend", name="legend of the 3-D views")
+        top = rrb.Horizontal(*_workspace_views(workspace),
+                             rrb.Vertical(residual, rrb.Tabs(verdict, legend, active_tab=0), row_shares=[1, 1]),
+                             column_shares=[2, 2, 2])
     return rrb.Blueprint(
-        rrb.Vertical(
-            rrb.Horizontal(
-                plot(f"{DIAGNOSIS_ROOT}/residual", "validation residual RMS per coordinate [mm]"),
-                rrb.TextDocumentView(origin=f"{DIAGNOSIS_ROOT}/verdict", name="verdict"),
-                column_shares=[3, 1],
-            ),
-            rrb.Horizontal(*bottom),
-            row_shares=[3, 2],
-        ),
+        rrb.Vertical(top, rrb.Horizontal(*bottom), row_shares=[3, 2]),
         rrb.TimePanel(state="expanded", timeline="pose"),
         collapse_panels=False,
     )
@@ -366,6 +385,7 @@ def record_diagnosis(
     series: Mapping[str, np.ndarray],
     verdict: Mapping[str, object],
     *,
+    workspace: DiagnosisWorkspace | None = None,
     application_id: str = "twin-diagnosis",
 ) -> Path:
     """Write a diagnosis as an ``.rrd`` recording (no viewer needed); returns ``path``.
@@ -384,6 +404,16 @@ def record_diagnosis(
     order) and on one timeline per variable (``q<j>_mdeg`` [millidegree; micrometre for a prismatic joint],
     ``temp_mdegC`` [milli deg C],
     ``t_s`` [s, duration]) so that the residual plots against any of them.
+
+    ``workspace`` (:func:`twin.evaluation.workspace.diagnosis_workspace`, the same held-out rows): the robot and
+    the residuals in the measurement frame [m] under ``diagnosis/workspace``: ``robot`` (the calibrated skeleton,
+    a line strip through its frame origins, base to flange) and ``robot/joints`` (the origins), ``measured`` (the
+    row's measured points), ``arrows/before`` and ``arrows/after`` (the residual vectors, measured minus
+    predicted, of the geometric and the extended model at the measured points, times ``arrow_scale``, coloured by
+    size) and ``robot/tool`` (a thin line from the flange to each measured point), on the drawn rows and the same
+    timelines; static: ``map/before`` and ``map/after`` (every held-out
+    row's points coloured by their residual's size), ``base`` (the robot base's axes), ``scale`` (an arrow of
+    ``colour_max_mm`` at the arrow scale, labelled) and ``legend`` (markdown: colour map, scale, frame, rows).
     """
     for key in ("dataset_row", "residual_rms_mm_before", "residual_rms_mm_after", "q_deg"):
         if key not in series:
@@ -422,28 +452,28 @@ def record_diagnosis(
         if key not in verdict:
             raise ValueError(f"verdict lacks {key!r}: pass the content of diagnosis.json")
 
-    # One time column per timeline, shared by every per-row entity.
-    indexes = [rr.TimeColumn("pose", sequence=rows)]
-    timelines = ["pose"]
-    for j in range(nj):
-        indexes.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[:, j] * 1e3).astype(np.int64)))
-        timelines.append(f"q{j + 1}_mdeg")
-    channels: list[str] = []
-    if "temp_c" in extra:
-        temp = extra["temp_c"]
-        indexes.append(rr.TimeColumn("temp_mdegC", sequence=np.round(temp * 1e3).astype(np.int64)))
-        timelines.append("temp_mdegC")
-        channels.append("temp_c")
-    if "t_s" in extra:
-        t_s = extra["t_s"]
-        indexes.append(rr.TimeColumn("t_s", duration=t_s))
-        timelines.append("t_s")
-        channels.append("t_s")
+    if workspace is not None and not np.array_equal(np.asarray(workspace.rows), rows):
+        raise ValueError("workspace.rows must be series['dataset_row'] (the workspace of the same diagnosis)")
+    channels = [k for k in ("temp_c", "t_s") if k in extra]
+    timelines = ["pose"] + [f"q{j + 1}_mdeg" for j in range(nj)] + (["temp_mdegC"] if "temp_c" in extra else []) + (
+        ["t_s"] if "t_s" in extra else [])
 
+    def index_columns(sel=slice(None)) -> list:
+        """One time column per timeline for the rows ``sel``, shared by every per-row entity."""
+        cols = [rr.TimeColumn("pose", sequence=rows[sel])]
+        for j in range(nj):
+            cols.append(rr.TimeColumn(f"q{j + 1}_mdeg", sequence=np.round(q_deg[sel, j] * 1e3).astype(np.int64)))
+        if "temp_c" in extra:
+            cols.append(rr.TimeColumn("temp_mdegC", sequence=np.round(extra["temp_c"][sel] * 1e3).astype(np.int64)))
+        if "t_s" in extra:
+            cols.append(rr.TimeColumn("t_s", duration=extra["t_s"][sel]))
+        return cols
+
+    indexes = index_columns()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(application_id, recording_id=f"{path.parent.name}/{path.stem}")
-    rec.save(str(path), default_blueprint=diagnosis_blueprint(channels))
+    rec.save(str(path), default_blueprint=diagnosis_blueprint(channels, workspace))
     root = DIAGNOSIS_ROOT
     try:
         # series styles (static): residuals as markers so that they read as a scatter plot on a variable's
@@ -475,6 +505,8 @@ def record_diagnosis(
             rec.send_columns(ent, indexes, rr.Scalars.columns(scalars=term["value"]))
         rec.log(f"{root}/verdict", rr.TextDocument(_verdict_markdown(verdict, timelines),
                                                    media_type=rr.MediaType.MARKDOWN), static=True)
+        if workspace is not None:
+            _log_workspace(rec, workspace, index_columns(workspace.drawn))
         # the verdict log at the first held-out row (on every timeline), so that it shows from the start
         eff = list(verdict.get("effects") or [])
         level = rr.TextLogLevel.WARN if verdict.get("structured") else rr.TextLogLevel.INFO
@@ -498,7 +530,92 @@ def record_diagnosis(
     return path
 
 
-__all__ += ["record_diagnosis", "diagnosis_blueprint", "TELLING_TIMELINES"]
+SKELETON_COLOUR = (125, 100, 80)
+_MEASURED_POINT_COLOUR = (30, 30, 30)
+
+
+def _view_coordinates(up: np.ndarray):
+    """The view coordinates whose up axis is the frame's axis nearest to ``up``."""
+    k = int(np.argmax(np.abs(up)))
+    name = f"RIGHT_HAND_{'XYZ'[k]}_{'UP' if up[k] > 0 else 'DOWN'}"
+    return getattr(rr.ViewCoordinates, name)
+
+
+def _workspace_legend(ws: DiagnosisWorkspace) -> str:
+    stops = ", ".join(f"{name} {share * ws.colour_max_mm:g} mm" for share, name, _ in COLOUR_STOPS)
+    lines = [
+        "# The 3-D views",
+        "",
+        f"* frame: the measurement frame of station `{ws.station}` [m]",
+        "* left: the geometric model (before); right: the extended model (after)",
+        f"* colour of a point or an arrow: the length [mm] of its residual (measured minus predicted): {stops} and "
+        "beyond; grey: not seen",
+        f"* **arrows x{ws.arrow_scale:g}**: each residual vector is drawn {ws.arrow_scale:g} times its length, from "
+        f"the measured point; the labelled arrow `scale` is {ws.colour_max_mm:g} mm at that scale",
+        f"* the map (small points, static): every measured point of the {ws.rows.size} held-out rows",
+        "* the robot (a bronze skeleton: base, joint frames, flange; thin lines to the measured points), the row's "
+        f"measured points (black) and arrows: the row at the time cursor ({ws.drawn.size} of {ws.rows.size} rows "
+        "drawn)",
+    ]
+    lines += [f"* {n}" for n in ws.notes]
+    return "\n".join(lines) + "\n"
+
+
+def _log_workspace(rec: rr.RecordingStream, ws: DiagnosisWorkspace, indexes: list) -> None:
+    """The workspace entities (:func:`record_diagnosis`): static map, base, scale and legend; per drawn row the
+    robot, the measured points and the residual arrows on ``indexes`` (the drawn rows' time columns)."""
+    root = f"{DIAGNOSIS_ROOT}/workspace"
+    rec.log(root, _view_coordinates(ws.up), static=True)
+    seen = np.all(np.isfinite(ws.measured_m), axis=2)
+    for tag in ("before", "after"):
+        rec.log(f"{root}/map/{tag}", rr.Points3D(ws.measured_m[seen], radii=-1.5,
+                                                 colors=size_colours(ws.size_mm[tag][seen], ws.colour_max_mm)),
+                static=True)
+    axis_len = 0.1 * ws.extent_m
+    rec.log(f"{root}/base", rr.Arrows3D(origins=np.repeat(ws.base2frame[None, :3, 3], 3, axis=0),
+                                        vectors=ws.base2frame[:3, :3].T * axis_len, colors=_AXIS_COLOURS,
+                                        labels=["base x", "base y", "base z"], show_labels=False), static=True)
+    # the scale arrow: colour_max_mm at the arrow scale along the base's x, under the middle of the points (the middle
+    # of their box in the base frame, at its bottom)
+    R, t = ws.base2frame[:3, :3], ws.base2frame[:3, 3]
+    pts_base = (ws.measured_m[seen] - t) @ R
+    lo, hi = pts_base.min(axis=0), pts_base.max(axis=0)
+    under = R @ np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]]) + t
+    rec.log(f"{root}/scale", rr.Arrows3D(
+        origins=[under], vectors=[R[:, 0] * ws.colour_max_mm / MM_PER_M * ws.arrow_scale],
+        colors=[COLOUR_STOPS[-1][2]], labels=[f"{ws.colour_max_mm:g} mm, red (arrows x{ws.arrow_scale:g})"],
+        show_labels=True), static=True)
+    rec.log(f"{root}/legend", rr.TextDocument(_workspace_legend(ws), media_type=rr.MediaType.MARKDOWN), static=True)
+
+    d = ws.drawn
+    skel = ws.skeleton_m
+    rec.send_columns(f"{root}/robot", indexes,
+                     rr.LineStrips3D.columns(strips=list(skel), colors=np.tile(SKELETON_COLOUR, (d.size, 1)),
+                                             radii=np.full(d.size, -2.5)))
+    n_f = skel.shape[1]
+    rec.send_columns(f"{root}/robot/joints", indexes,
+                     rr.Points3D.columns(positions=skel.reshape(-1, 3), colors=np.tile(SKELETON_COLOUR, (d.size * n_f, 1)),
+                                         radii=np.full(d.size * n_f, -4.0)).partition(np.full(d.size, n_f)))
+    s = seen[d]
+    counts = s.sum(axis=1)
+    pts = ws.measured_m[d][s]
+    flange = np.repeat(skel[:, -1], counts, axis=0)
+    rec.send_columns(f"{root}/robot/tool", indexes,
+                     rr.LineStrips3D.columns(strips=list(np.stack([flange, pts], axis=1)),
+                                             colors=np.tile(SKELETON_COLOUR, (pts.shape[0], 1)),
+                                             radii=np.full(pts.shape[0], -1.0)).partition(counts))
+    rec.send_columns(f"{root}/measured", indexes,
+                     rr.Points3D.columns(positions=pts, colors=np.tile(_MEASURED_POINT_COLOUR, (pts.shape[0], 1)),
+                                         radii=np.full(pts.shape[0], -3.0)).partition(counts))
+    for tag in ("before", "after"):
+        vec = ws.residual_m[tag][d][s] * ws.arrow_scale
+        rec.send_columns(f"{root}/arrows/{tag}", indexes,
+                         rr.Arrows3D.columns(origins=pts, vectors=vec,
+                                             colors=size_colours(ws.size_mm[tag][d][s], ws.colour_max_mm),
+                                             radii=np.full(pts.shape[0], -3.0)).partition(counts))
+
+
+__all__ += ["record_diagnosis", "diagnosis_blueprint", "TELLING_TIMELINES", "SKELETON_COLOUR"]
 
 
 # ------------------------------------------------------------------------------------------------
