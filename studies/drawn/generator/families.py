@@ -245,11 +245,14 @@ def payload_apply(p: dict, ctx: Ctx) -> Effect:
 
 def payload_words(p: dict, ctx: Ctx) -> dict:
     ks = ", ".join(f"joint {j} k = {1 / (p['scale'] * law['c_rad_per_nm']):.4g} N m/rad" for j, law in p["per_joint"].items())
-    when = {"on": f"hung on at {_rows_text(ctx, p['row'])} and kept (the later rows too)",
-            "off": f"carried from the start and taken off at {_rows_text(ctx, p['row'])}",
-            "window": f"hung on at {_rows_text(ctx, p['row'])} and taken off at {_rows_text(ctx, p['end_row'])}"}
+    if p["timing"] == "on":
+        when = f"hung on at {_rows_text(ctx, p['row'])} and kept (the later rows too)"
+    elif p["timing"] == "off":
+        when = f"carried from the start and taken off at {_rows_text(ctx, p['row'])}"
+    else:
+        when = f"hung on at {_rows_text(ctx, p['row'])} and taken off at {_rows_text(ctx, p['end_row'])}"
     return {"description": f"compliance under gravity ({ks}); a {p['mass_kg']:.2f} kg payload (centre of mass "
-                           f"{p['com_flange_mm']} mm, flange frame) {when[p['timing']]}",
+                           f"{p['com_flange_mm']} mm, flange frame) {when}",
             "formula": "q_j += c_j (tau_j,arm(q) + L_i tau_j,payload(q)); L_i = 1 on the rows carrying it",
             "joints": [int(j) for j in p["per_joint"]], "links": [], "place": "joint",
             "channel": f"gravity torque, payload {p['timing']}"}
