@@ -107,8 +107,8 @@ def section_from_results(path: Path, quick: bool = False) -> dict:
 
 def table(data: dict) -> str:
     """The section's markdown table (one row per family)."""
-    lines = ["| family | n | named | report <= goal | after <= goal | after <= 1.2 | median / worst after/oracle "
-             "(after the campaign) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| family | n | named | report <= goal | later <= goal | later <= 1.2 | median / worst after/oracle "
+             "(later rows) |", "|---|---|---|---|---|---|---|"]
     for fam, s in data["families"].items():
         n = s["n"] - s["errors"]
         lines.append(f"| {fam} | {s['n']} | {s['named']}/{n} | {s['report']['within_goal']}/{n} | "

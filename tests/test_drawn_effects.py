@@ -196,8 +196,8 @@ SEEDS = (100, 101)
 # instances the current diagnosis fails: (family, seed) -> what was measured (the instance in brackets)
 KNOWN_MISSES: dict[tuple[str, int], str] = {
     ('compliance', 101): "named ['compliance', 'backlash', 'cyclic'] not ['compliance']; report after/oracle 1.91 > 1.2; later rows after/oracle 1.47 > 1.2 (joints 2, two_stiffness)",
-    ('payload', 100): "named ['compliance', 'tilt'] not ['compliance']; report after/oracle 1.38 > 1.2 (joints 2+3, 1.8 kg window rows 80-129/132)",
-    ('payload', 101): 'report after/oracle 5.03 > 1.2; later rows after/oracle 6.15 > 1.2 (joints 2+3, 4.0 kg window rows 91-122/125)',
+    ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
+    ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
     ('backlash_load', 101): 'later rows after/oracle 2.30 > 1.2 (joint 2, sharp)',
     ('backlash_size', 100): "named [] not ['backlash']; report after/oracle 1.24 > 1.2; later rows after/oracle 1.99 > 1.2 (joint 1, proportional 39 deg)",
     ('backlash_size', 101): "named [] not ['backlash'] (joint 2, saturating 21 deg)",

@@ -108,6 +108,12 @@ def _last_move_sign(moves: np.ndarray, j: int, initial: float) -> tuple[np.ndarr
     return s, size
 
 
+def window_tail(n: int) -> int:
+    """The fewest rows that follow a window's end in the campaign (5 % of them, at least 8): the rows that show the
+    state came back."""
+    return max(8, int(np.ceil(0.05 * n)))
+
+
 def _rows_text(ctx: Ctx, r: int) -> str:
     return f"row {r + 1} (t_s {ctx.t[r]:.1f})"
 
@@ -207,7 +213,9 @@ def payload_draw(rng, ctx: Ctx) -> dict:
     n = ctx.n_data
     if timing == "window":
         s = _row(rng, n, 0.05, 0.75)
-        e = int(min(n - 3, s + max(5, round(_uni(rng, 0.1, 0.5) * n))))
+        e = int(min(n - window_tail(n), s + max(5, round(_uni(rng, 0.1, 0.5) * n))))
+        if e - s < 5:
+            raise Redraw("no room for a window")
     else:
         s, e = _row(rng, n, 0.05, 0.95), None
     tau_arm = ctx.torques()
@@ -528,7 +536,7 @@ def zero_step_words(p: dict, ctx: Ctx) -> dict:
 def zero_glitch_draw(rng, ctx: Ctx) -> dict:
     n = ctx.n_data
     s = _row(rng, n, 0.05, 0.9)
-    length = int(np.clip(round(_logu(rng, 3, 0.4 * n)), 3, n - 2 - s))
+    length = int(min(round(_logu(rng, 3, 0.4 * n)), n - window_tail(n) - s))
     if length < 3:
         raise Redraw("no room for a window")
     return {"joint": int(rng.integers(1, 7)), "row": s, "end_row": s + length, "sign": float(rng.choice([-1.0, 1.0])),
