@@ -33,6 +33,8 @@ from studies.drawn.generator.campaign import FAMILY_ORDER  # noqa: E402
 from studies.drawn.generator.make import parse_families, parse_seeds  # noqa: E402
 from twin.benchio import atomic_write_text, provenance  # noqa: E402
 
+__all__ = ["run", "write_results", "main", "OUT"]
+
 OUT = ROOT / "studies" / "drawn" / "results"
 
 

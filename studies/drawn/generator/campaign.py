@@ -27,6 +27,12 @@ from . import cell, kin
 from .families import FAMILIES, Ctx, Effect, Redraw, air_profile
 from .robots import ROBOTS, params_from_record, params_record, robot_toml, true_params
 
+__all__ = [
+    "SEED_BASE", "FAMILY_ORDER", "RATIO", "ROWS", "LATER_ROWS", "ROBOT_WEIGHTS", "Instance", "NoInstance", "streams",
+    "build", "write", "read_context", "recompute_effect", "chain_points", "geometric_jacobian", "column_basis",
+    "visible_part", "rms_norm"
+]
+
 SEED_BASE = 20261201
 FAMILY_ORDER = tuple(FAMILIES)
 RATIO = (1.0, 20.0)  # the effect's visible RMS over the noise's RMS, log-uniform

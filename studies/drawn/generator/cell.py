@@ -26,6 +26,11 @@ from twin.units import M_PER_MM, RAD_PER_DEG
 
 from . import kin
 
+__all__ = [
+    "PLATE_SPHERES", "SPHERE_DIAMETER_MM", "Station", "Instrument", "draw_instrument", "draw_stations", "visible",
+    "sample_plan", "order", "times", "noise", "temperature_wander"
+]
+
 PLATE_SPHERES = np.array([[60.0, 0.0, 50.0], [-60.0, 0.0, 50.0], [-20.52, 56.38, 50.0]]) * M_PER_MM
 SPHERE_DIAMETER_MM = 25.4
 FLOOR_Z = 0.1  # [m]: the wrist centre and the flange stay this far above the base plane

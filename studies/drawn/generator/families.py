@@ -28,6 +28,11 @@ from twin.units import DEG_PER_RAD, MM_PER_M, M_PER_MM, RAD_PER_DEG
 
 from . import kin
 
+__all__ = [
+    "Redraw", "Ctx", "Effect", "Family", "FAMILIES", "lag", "air_profile", "window_tail", "heat_state", "payload_on",
+    "tilt_compliance", "thermal_link_temperature", "frame_change_transform"
+]
+
 
 class Redraw(Exception):
     """The drawn instance cannot act on this campaign (a joint without load, a range without a period): draw

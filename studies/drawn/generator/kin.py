@@ -17,6 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = [
+    "G_BASE", "rotx", "roty", "rotz", "rotvec_to_matrix", "rotvecs_to_matrices", "matrix_to_rotvec", "transform",
+    "inv", "about", "frames", "joint_axes", "body_positions", "gravity_torques", "base_moment", "points"
+]
+
 G_BASE = np.array([0.0, 0.0, -9.81])  # gravity in the base frame [m/s^2]: the base stands upright
 
 

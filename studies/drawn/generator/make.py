@@ -12,6 +12,8 @@ from pathlib import Path
 
 from .campaign import FAMILY_ORDER, build, write
 
+__all__ = ["main", "parse_seeds", "parse_families"]
+
 
 def parse_seeds(text: str) -> list[int]:
     """``"0-19"``, ``"3"`` or ``"1,4,7"`` -> the seeds; ``ValueError`` naming the text."""

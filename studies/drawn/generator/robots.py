@@ -21,6 +21,11 @@ from twin.units import DEG_PER_RAD, MM_PER_M, M_PER_MM, RAD_PER_DEG
 
 from . import kin
 
+__all__ = [
+    "Robot", "ROBOTS", "IRB1200", "UR5", "UR10", "true_params", "params_record", "params_from_record", "joint_table",
+    "robot_toml"
+]
+
 
 @dataclass(frozen=True)
 class Robot:
