@@ -1,10 +1,11 @@
-"""`make bench`: our calibrators side by side with the peers, the measurement pipeline, growth with the work, and the
-diagnosis at scale.
+"""`make bench`: our calibrators side by side with the peers, the measurement pipeline, growth with the work, the
+diagnosis at scale and on drawn instances of every effect family.
 
-Writes the ``peers``, ``pipeline``, ``growth`` and ``diagnosis_scale`` sections of ``results/benchmark.json``
-(other sections are left alone) and ``results/benchmark_table.md``. See ``docs/benchmark.md``.
+Writes the ``peers``, ``pipeline``, ``growth``, ``diagnosis_scale`` and ``drawn_effects`` sections of
+``results/benchmark.json`` (other sections are left alone) and ``results/benchmark_table.md``. See
+``docs/benchmark.md``.
 
-    python experiments/benchmark.py                      # everything (about half an hour on 2 cores)
+    python experiments/benchmark.py                      # everything (about an hour on 2 cores)
     python experiments/benchmark.py --sections peers --quick
 """
 
@@ -30,7 +31,7 @@ set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujo
 from experiments.peers import sections  # noqa: E402
 from twin.benchio import DEFAULT_PATH  # noqa: E402
 
-ALL = ("peers", "pipeline", "growth", "diagnosis_scale")
+ALL = ("peers", "pipeline", "growth", "diagnosis_scale", "drawn_effects")
 
 
 def main(argv: list[str] | None = None) -> int:

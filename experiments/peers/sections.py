@@ -1,5 +1,5 @@
-"""The sections `make bench` writes (``peers``, ``pipeline``, ``growth``, ``diagnosis_scale``) and the markdown
-table."""
+"""The sections `make bench` writes (``peers``, ``pipeline``, ``growth``, ``diagnosis_scale``, ``drawn_effects``)
+and the markdown table."""
 
 from __future__ import annotations
 
@@ -78,6 +78,11 @@ def run_section(name: str, *, out: Path, seeds: int, repeats: int, quick: bool) 
 
         # each run is a whole diagnosis of 12,000 rows (~1 min): at most 3
         data = section(runs=min(repeats, 3), quick=quick)
+    elif name == "drawn_effects":
+        from experiments.bench_drawn_effects import DRAWS, section
+
+        # DRAWS instances of every family (--quick: 2), each drawn and scored on both cores
+        data = section(draws=DRAWS, quick=quick)
     else:
         raise ValueError(f"unknown section {name!r}")
     update_benchmark_section(name, data, out)
@@ -111,5 +116,12 @@ def write_table(json_path: Path, table_path: Path) -> None:
                 parts += [f"Not measured: {bench[sec]['missing']}", ""]
             else:
                 parts += [fn(bench[sec]), ""]
+    if "drawn_effects" in bench:
+        from experiments.bench_drawn_effects import table as drawn_table
+
+        d = bench["drawn_effects"]
+        parts += ["## The diagnosis on drawn instances of every effect family", "",
+                  f"{d['draws_per_family']} instances per family (`{d['command']}`); per instance: "
+                  f"`{d['instances_table']}`.", "", drawn_table(d), ""]
     table_path.parent.mkdir(parents=True, exist_ok=True)
     table_path.write_text("\n".join(parts))

@@ -46,7 +46,8 @@ CATEGORIES = ("clean", "catalogue", "outside", "mixed")
 
 class BlindKey:
     """A campaign's answer key: ``meta`` (key.json) and the sequence ``(n,)`` rows with ``q`` ``(n, 6)`` [rad],
-    ``measured``, ``true``, ``effect`` ``(n, 3, 3)`` [m] (NaN where not measured), ``role``, channels."""
+    ``measured``, ``true``, ``effect`` ``(n, K, 3)`` [m] (NaN where not measured; K points: the columns
+    ``m0_x .. m<K-1>_z``, three for the sphere plate), ``role``, channels."""
 
     def __init__(self, meta: dict, rows: list[dict[str, str]], path: Path):
         self.meta = meta
@@ -55,11 +56,14 @@ class BlindKey:
         self.pose_id = np.array([int(r["pose_id"]) for r in rows])
         self.q = np.array([[float(r[f"q{j}"]) for j in range(1, 7)] for r in rows]) * RAD_PER_DEG
         self.role = np.array([r["role"].strip() for r in rows], dtype=object)
+        n_points = 0
+        while f"m{n_points}_x" in rows[0]:
+            n_points += 1
 
         def block(prefix: str) -> np.ndarray:
-            out = np.full((n, 3, 3), np.nan)
+            out = np.full((n, n_points, 3), np.nan)
             for i, r in enumerate(rows):
-                for k in range(3):
+                for k in range(n_points):
                     cells = [(r.get(f"{prefix}{k}_{c}") or "").strip() for c in "xyz"]
                     if all(cells):
                         out[i, k] = np.array([float(x) for x in cells]) * M_PER_MM

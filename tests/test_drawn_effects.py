@@ -1,0 +1,234 @@
+"""Drawn instances of every effect family (studies/drawn): the generator, and a small fixed subset of its instances
+against each family's targets.
+
+The generator (`studies/drawn/generator`) draws, per seed, the robot, the joint, the size, the timing and the law's
+shape of a family, and writes a blind campaign (dataset, answer key, rows after the campaign); it imports no part of
+the diagnosis. The rates over 20 draws per family are the benchmark's (`experiments/bench_drawn_effects.py`, section
+`drawn_effects`); here a few instances (small campaigns, fixed seeds) are a regression check: each must be named right
+(`studies/drawn/scoring.py`) with after/oracle within its family's goal (1.2 catalogue, 1.5 outside) on the report rows
+and on the rows after the campaign; a clean one must raise no alarm. An instance the diagnosis fails today is a strict
+xfail with what was measured (`KNOWN_MISSES`): when it is fixed the test fails until it is taken off the list.
+"""
+
+import functools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from studies.drawn.generator import campaign as C  # noqa: E402
+from studies.drawn.generator import families as Fam  # noqa: E402
+from studies.drawn.generator.robots import ROBOTS  # noqa: E402
+from twin.units import MM_PER_M  # noqa: E402
+
+SMALL = {"rows": (120, 150), "later_rows": (30, 40)}  # the suite's instances: small campaigns, cheap to diagnose
+
+
+def _sequence(folder: Path) -> dict[str, np.ndarray]:
+    """The key's sequence: measured, true and effect points ``(N, K, 3)`` [mm]."""
+    import csv
+
+    with open(folder / "key" / "sequence.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    K = sum(1 for c in rows[0] if c.startswith("m") and c.endswith("_x"))
+    out = {}
+    for pre in "mte":
+        out[pre] = np.array([[[float(r[f"{pre}{k}_{a}"]) for a in "xyz"] for k in range(K)] for r in rows])
+    return out
+
+
+def test_the_generator_imports_no_part_of_the_diagnosis():
+    """Drawing and writing a campaign loads no module of twin but twin.units (the diagnosis is not among them)."""
+    code = ("import sys; from studies.drawn.generator import campaign, make; "
+            "print(sorted(m for m in sys.modules if m == 'twin' or m.startswith('twin.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True).stdout
+    assert eval(out) == ["twin", "twin.units"], out
+
+
+@pytest.mark.parametrize("family", C.FAMILY_ORDER)
+def test_a_drawn_key_reproduces_the_data_it_describes(tmp_path, family):
+    """The effect recomputed from the key's parameters and the truth file equals the written true minus clean points,
+    and the written measured minus true points are the instrument's noise of the drawn size."""
+    inst = C.build(family, 7, **SMALL)
+    folder = C.write(inst, tmp_path / inst.name)
+    seq = _sequence(folder)
+    e = C.recompute_effect(folder) * MM_PER_M
+    np.testing.assert_allclose(e, seq["e"], atol=2e-6)
+    noise = seq["m"] - seq["t"]
+    rms = float(np.sqrt(np.mean(np.sum(noise[: inst.n_data] ** 2, axis=-1))))
+    if family != "clean":  # the clean family adds its own trouble (correlated noise, gross rows)
+        assert rms == pytest.approx(inst.drawn["noise_rms_mm"], rel=1e-3)
+    key = json.loads((folder / "key" / "key.json").read_text())
+    assert key["category"] == Fam.FAMILIES[family].category and key["drawn"]["family"] == family
+
+
+def _twin_points(folder: Path) -> np.ndarray:
+    """The clean points of a written campaign through twin.kinematics (the library's FK) at the true geometry."""
+    from twin.kinematics import RobotModel, flange2base
+
+    ctx, truth, _ = C.read_context(folder)
+    p = ctx.params
+    beta = {j: float(p["beta"][j - 1]) for j in ctx.robot.beta_joints}
+    model = RobotModel.from_tables("x", ctx.robot.convention, theta=p["theta"], d=p["d"], a=p["a"], alpha=p["alpha"],
+                                   beta=beta)
+    T = ctx.base2meas[ctx.station] @ flange2base(model, ctx.Q) @ np.array(truth["tool2flange"])
+    return (np.einsum("nij,kj->nki", T[:, :3, :3], ctx.points_tool) + T[:, None, :3, 3]) * MM_PER_M
+
+
+def test_the_generators_kinematics_agree_with_the_librarys(tmp_path):
+    """The written clean points (true minus effect) equal twin.kinematics' at the true geometry, for an IRB 1200 (MDH)
+    and a UR (DH) campaign."""
+    seen = {}
+    for s in range(40):
+        inst = C.build("zero_step", s, **SMALL)
+        seen.setdefault(inst.robot.convention, inst)
+        if len(seen) == 2:
+            break
+    assert set(seen) == {"mdh", "dh"}
+    for inst in seen.values():
+        folder = C.write(inst, tmp_path / inst.name)
+        seq = _sequence(folder)
+        np.testing.assert_allclose(seq["t"] - seq["e"], _twin_points(folder), atol=2e-5)
+
+
+@pytest.mark.parametrize("robot,masses", [("irb1200", True), ("ur5", False), ("ur10", True)])
+def test_the_stated_robot_is_the_nominal_chain(tmp_path, robot, masses):
+    """The dataset's robot (a name, a DH table or a joint table with masses) read by twin.dataset has the generator's
+    nominal forward kinematics."""
+    from twin.dataset import read_dataset
+    from twin.kinematics import flange2base
+
+    rb = ROBOTS[robot]
+    for s in range(40):
+        inst = C.build("clean", s, **SMALL)
+        if inst.robot.name == robot and (inst.masses_stated is not None) == masses:
+            break
+    else:
+        pytest.fail(f"no clean instance of {robot} with masses={masses} in 40 seeds")
+    ds = read_dataset(C.write(inst, tmp_path / inst.name) / "dataset")
+    q = np.random.default_rng(0).uniform(rb.box[:, 0], rb.box[:, 1], size=(20, 6))
+    np.testing.assert_allclose(flange2base(ds.robot, q), rb.frames(rb.params, q)[:, 6], atol=1e-9)
+
+
+@functools.lru_cache(maxsize=1)
+def _contexts() -> tuple:
+    """Two fixed campaigns' contexts (an IRB 1200's and a UR10's) to draw instances on."""
+    out = []
+    for name in ("irb1200", "ur10"):
+        inst = next(i for i in (C.build("clean", s) for s in range(40)) if i.robot.name == name)
+        out.append(Fam.Ctx(robot=inst.robot, params=inst.params, Q=inst.Q, F=inst.robot.frames(inst.params, inst.Q),
+                           t=inst.t, station=inst.station, n_data=inst.n_data, bodies=inst.bodies,
+                           base2meas=np.stack([s.base2meas for s in inst.stations]),
+                           points_tool=inst.instrument.points_tool, air_c=inst.air_wander_c))
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=None)
+def _draw_many(family: str, n: int = 75) -> list:
+    """``n`` draws of ``family``'s instance on each of the two fixed campaigns, no data written: ``(params, ctx)``."""
+    out = []
+    rng = np.random.default_rng([11, C.FAMILY_ORDER.index(family)])
+    for ctx in _contexts():
+        k = 0
+        while k < n:
+            try:
+                out.append((Fam.FAMILIES[family].draw(rng, ctx), ctx))
+                k += 1
+            except Fam.Redraw:
+                pass
+    return out
+
+
+def test_draws_cover_the_joints_timings_and_shapes():
+    """Over 150 draws per family: every joint where the family can act, every shape and timing, changes from the
+    first to the last tenth of the campaign, lags from a few per cent to more than the campaign's span."""
+    def values(fam, key):
+        return {str(p[key]) for p, _ in _draw_many(fam)}
+
+    for fam in ("backlash_motion", "backlash_size", "zero_step", "zero_glitch", "gear_ratio", "cyclic"):
+        assert values(fam, "joint") == {"1", "2", "3", "4", "5", "6"}, fam
+    assert values("backlash_load", "joint") >= {"2", "3", "4", "5"}
+    assert {j for p, _ in _draw_many("compliance") for j in p["per_joint"]} >= {"2", "3", "4", "5"}
+    assert values("compliance", "shape") == {"linear", "stiffening", "two_stiffness"}
+    assert values("payload", "timing") == {"on", "off", "window"}
+    assert values("backlash_load", "shape") == {"sharp", "smooth"}
+    assert values("backlash_size", "shape") == {"saturating", "proportional"}
+    assert values("thermal", "profile") == {"ramp", "step"} and values("thermal", "temp_column") == {"True", "False"}
+    assert values("frame_change", "kind") == {"knock", "bump", "slip"}
+    assert values("coupling", "driven") == {"5", "6"}
+    assert {len(p["orders"]) for p, _ in _draw_many("cyclic")} == {1, 2}
+    for fam in ("zero_step", "frame_change", "payload"):
+        at = [p["row"] / ctx.n_data for p, ctx in _draw_many(fam)]
+        assert min(at) < 0.12 and max(at) > 0.85, (fam, min(at), max(at))
+    for fam in ("thermal", "motion_heat"):
+        lag = [p["tau_s"] / (ctx.t[ctx.n_data - 1] - ctx.t[0]) for p, ctx in _draw_many(fam)]
+        assert min(lag) < 0.08 and max(lag) > 0.7, (fam, min(lag), max(lag))
+
+
+def test_the_size_is_the_drawn_ratio_to_the_noise():
+    """Over 12 instances of 4 families, the written effect's part the geometry cannot take over the written noise is
+    the drawn ratio (within 1 %), and the ratios drawn reach both ends of 1-20."""
+    got = []
+    for fam in ("backlash_load", "thermal", "zero_glitch", "tilt"):
+        for seed in range(3):
+            inst = C.build(fam, seed, **SMALL)
+            n = inst.n_data
+            B = np.stack([s.base2meas for s in inst.stations])[inst.station]
+            U = C.column_basis(C.geometric_jacobian(inst.robot, inst.params, inst.Q[:n], B[:n], inst.station[:n],
+                                                   inst.tool2flange, inst.instrument.points_tool))
+            vis = C.rms_norm(C.visible_part(U, inst.E[:n])) / C.rms_norm((inst.M - inst.P)[:n])
+            assert vis == pytest.approx(inst.drawn["ratio_drawn"], rel=0.01), (fam, seed)
+            got.append(vis)
+    ratios = [float(np.exp(np.random.default_rng(k).uniform(np.log(C.RATIO[0]), np.log(C.RATIO[1]))))
+              for k in range(200)]
+    assert min(ratios) < 1.1 and max(ratios) > 18
+
+
+# ------------------------------------------------------------------------------------------ the fixed subset
+
+SEEDS = (100, 101)
+# instances the current diagnosis fails: (family, seed) -> what was measured (the instance in brackets)
+KNOWN_MISSES: dict[tuple[str, int], str] = {
+    ('compliance', 101): "named ['compliance', 'backlash', 'cyclic'] not ['compliance']; report after/oracle 1.91 > 1.2; later rows after/oracle 1.47 > 1.2 (joints 2, two_stiffness)",
+    ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
+    ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
+    ('backlash_load', 101): 'later rows after/oracle 2.30 > 1.2 (joint 2, sharp)',
+    ('backlash_size', 100): "named [] not ['backlash']; report after/oracle 1.24 > 1.2; later rows after/oracle 1.99 > 1.2 (joint 1, proportional 39 deg)",
+    ('backlash_size', 101): "named [] not ['backlash'] (joint 2, saturating 21 deg)",
+    ('tilt', 101): "named ['compliance'] not ['tilt']; report after/oracle 1.20 > 1.2 (anisotropy 1.53 at 161 deg)",
+    ('thermal', 100): 'report after/oracle 2.11 > 1.2; later rows after/oracle 1.65 > 1.2 (step +5.9 K at 0.15 span, lag 0.09 span, all links, t_s only)',
+    ('zero_glitch', 101): 'no change, not one window of theta5 at row 57-109; report after/oracle 1.98 > 1.5 (joint 5 rows 57-109/140)',
+    ('frame_change', 101): 'report after/oracle 4.68 > 1.5 (slip at row 105/128)',
+    ('clean', 101): 'structured (a false alarm) (AR(1) rho 0.71, 0.267x noise; burst rows 20-23 x4.71)',
+}
+
+
+def _params():
+    out = []
+    for fam in C.FAMILY_ORDER:
+        for seed in SEEDS:
+            marks = [pytest.mark.xfail(strict=True, reason=KNOWN_MISSES[(fam, seed)])] if (fam, seed) in KNOWN_MISSES else []
+            out.append(pytest.param(fam, seed, marks=marks, id=f"{fam}-{seed}"))
+    return out
+
+
+@pytest.mark.parametrize("family,seed", _params())
+def test_a_drawn_instance_meets_its_familys_targets(tmp_path, family, seed):
+    """Named right (a clean campaign: no alarm) and after/oracle within the family's goal on the report rows and on
+    the rows measured after the campaign."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build(family, seed, **SMALL)
+    folder = C.write(inst, tmp_path / inst.name)
+    r = score_instance(folder, tmp_path / "work", in_process=True)
+    assert "error" not in r, r.get("error")
+    said = (r["effects"], r["changes_found"], r["labels"])
+    assert r["named"], said
+    assert r["report"]["within_goal"], (r["report"]["after_over_oracle"], said)
+    assert r["test"]["within_goal"], (r["test"]["after_over_oracle"], said)
