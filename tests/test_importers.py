@@ -159,6 +159,20 @@ def test_fit_points_on_flange_recovers_base_and_points_together():
     assert np.abs(Xf - X).max() < 1e-7 and np.abs(B - BASE).max() < 1e-7
 
 
+def test_fit_points_on_flange_places_a_point_on_a_head_whose_flange_origin_stays_put():
+    """A pan-tilt-roll head (three axes through one point: the flange origin never moves) seen from an unknown frame:
+    the fit from several starts recovers the point and the frame to 1e-7 (one start from the origin can end in a
+    wrong minimum there)."""
+    r = robot_from_spec({"convention": "dh", "theta_deg": [0, 0, 90], "d_mm": [-140, 0, 0], "a_mm": [0, 0, 0],
+                         "alpha_deg": [-90, -90, 0]})
+    F = flange2base(r, np.random.default_rng(0).uniform(-2.5, 2.5, (48, 3)))
+    assert np.ptp(F[:, :3, 3], axis=0).max() < 1e-12
+    X = np.array([[0.0734, -0.0065, 0.0719]])
+    P = np.einsum("ij,nkj->nki", BASE[:3, :3], np.einsum("nij,kj->nki", F[:, :3, :3], X) + F[:, None, :3, 3]) + BASE[:3, 3]
+    B, Xf = fit_points_on_flange(F, P)
+    assert np.abs(Xf - X).max() < 1e-7 and np.abs(B[:3, :3] - BASE[:3, :3]).max() < 1e-7
+
+
 @pytest.mark.parametrize("euler", ["XYZ", "xyz", "ZYX"])
 def test_a_pose_with_decimal_commas_and_its_euler_convention(tmp_path, euler):
     """A ';'-separated, ','-decimal tracker file with Euler angles in degrees (intrinsic XYZ, extrinsic xyz,
