@@ -252,8 +252,14 @@ def compensate_extended(
         if step < tol:
             break
     else:
-        raise ValueError(f"compensation with effects did not settle in {max_rounds} rounds (last step {step:.3g} rad)")
-    return replace(base, q=q_cmd)
+        rows, joints = np.nonzero(np.abs(dq) >= tol)
+        where = ", ".join(f"row {r} joint {j + 1}" for r, j in list(zip(rows.tolist(), joints.tolist()))[:5])
+        raise ValueError(f"compensation with effects did not settle in {max_rounds} rounds (last step {step:.3g} rad; "
+                         f"still moving: {where}; rows count from 0): a term of the history (backlash) reads the "
+                         "direction each command moves from the previous one, and where two consecutive commands of a "
+                         "joint are closer than its correction, the correction turns that direction over")
+    # the extended model's miss at the commands of the last round (its step is below tol)
+    return replace(base, q=q_cmd, position_error=np.linalg.norm(e_p, axis=1), rotation_error=np.linalg.norm(e_r, axis=1))
 
 
 def _angular(Jax: np.ndarray, R: np.ndarray) -> np.ndarray:
