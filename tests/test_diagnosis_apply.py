@@ -71,6 +71,28 @@ def test_compensation_with_effects_reaches_targets_through_the_true_robot(backla
     assert err.max() < 0.02e-3
 
 
+def test_compensation_with_a_parameter_term_lands_where_the_extended_model_predicts(backlash_case):
+    """An extended calibration with a robot-side parameter term (d3 varying with sin q5 by 0.1 mm) besides its
+    backlash: the commands of compensate_extended put the plate where predict_extended, reading the same commands in
+    their order, says the targets are (1e-7 m in the measurement frame; the term's first-order change is taken in the
+    robot base frame, not in the station's)."""
+    from dataclasses import replace
+
+    _, truth, _, cal, _ = backlash_case
+    term = {"family": "unnamed", "place": "param", "target": "d3", "features": [{"kind": "sin", "ch": "q5", "k": 1}],
+            "label": "d3 varies with sin q5", "values": [1e-4]}
+    ext = replace(cal, effects=tuple(cal.effects) + (term,))
+    q_goal = H.configurations(np.random.default_rng(5), 10, truth["true"])
+    B = cal.base2meas["0"]
+    T_meas = tool2meas(cal.model("0"), q_goal)
+    ctx = row_context(H.make_dataset(seed=21, n=20)[0])
+    start = replace(ctx, q=np.zeros((10, 6)), q_start=np.zeros(6), temp_c=None, t_s=None, station=None,
+                    history_reset=None, session_start=None, pose_id=None)
+    res = compensate_extended(ext, np.linalg.inv(B) @ T_meas, q_goal, start)
+    got = predict_extended(ext, replace(start, q=res.q), np.full(10, "0", dtype=object)).pose
+    assert np.abs(got[:, :3, 3] - T_meas[:, :3, 3]).max() < 1e-7
+
+
 @pytest.mark.slow
 def test_predict_command_applies_the_effects(backlash_case, tmp_path):
     """twin predict with an extended calibration.json gives the extended predictions (not the geometric ones)."""

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 
 
+POSITION_FIRST_M_PER_RAD = 1e-4  # [m/rad] the orientation's weight against a position-only target's position
+
 HELP = "corrected joint commands that reach target tool poses (or a marker point's positions) on the calibrated robot"
 
 
@@ -80,7 +82,8 @@ def run(args) -> int:
             geo = compensation_position(cal, tg.position, q_ref)
             T = tool2base(cal.robot.with_frames(base2meas=np.eye(4)), geo.q)
             T[:, :3, 3] = tg.position - np.einsum("nij,j->ni", T[:, :3, :3], point_frame(cal)[:3, 3])
-            res = _compensate_with_effects(cal, T, geo.q, pid, args.context)
+            # the position first where the chain cannot hold the orientation as well
+            res = _compensate_with_effects(cal, T, geo.q, pid, args.context, weight_rotation=POSITION_FIRST_M_PER_RAD)
         elif position_only:
             res = compensation_position(cal, tg.position, q_ref)
         elif cal.effects:
@@ -107,7 +110,7 @@ def run(args) -> int:
     return 0
 
 
-def _compensate_with_effects(cal, T, q_ref, pid, context_path):
+def _compensate_with_effects(cal, T, q_ref, pid, context_path, weight_rotation: float = 1.0):
     """An extended calibration (from twin diagnose): commands in file order, effects included."""
     import numpy as np
 
@@ -137,4 +140,4 @@ def _compensate_with_effects(cal, T, q_ref, pid, context_path):
                      temp_c=temp, t_s=t_s)
     print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "
           "(commands in file order, start at home)")
-    return compensate_extended(cal, T, q_ref, ctx)
+    return compensate_extended(cal, T, q_ref, ctx, weight_rotation=weight_rotation)
