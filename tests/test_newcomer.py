@@ -191,3 +191,122 @@ def test_the_seven_joint_arms_backlash_is_found_and_held_in_the_next_session(sev
     p = np.array([[float(r[c]) for c in ("p0_x", "p0_y", "p0_z")] for r in rows])
     err = np.linalg.norm(p - b_true.points[20:, 0] * 1e3, axis=1)
     assert np.sqrt(np.mean(err**2)) < ACCURACY_MM
+
+
+@pytest.fixture(scope="module")
+def six(tmp_path_factory):
+    """A 6-joint arm (a joint table) with a tracker's probe (a 6-DOF pose): a campaign of 40 rows whose last 30 % are
+    validation, calibrated; and an ISO cube of 16 rows at one probe orientation from another tracker placement."""
+    d = tmp_path_factory.mktemp("six")
+    rng = np.random.default_rng(6)
+    robot = N.make_robot(rng, "table", 6)
+    true = N.perturbed(robot, rng)
+    tool = N.transform(N.Rotation.from_rotvec([0.3, -0.2, 0.1]).as_matrix(), [0.01, -0.02, 0.09])
+    a = N.measure(true, N.sample_joints(robot, rng, 40), N.random_frame(rng), rng, tool2flange=tool, noise_mm=0.005,
+                  noise_rad=2e-5)
+    tb = N.random_frame(rng)
+    cube = N.measure(true, N.constant_orientation_joints(robot, rng, 16, tool), tb, rng, tool2flange=tool)
+    map_a = N.write_campaign(d / "lab", robot, [("a.csv", a, {"set": {"validation_last_fraction": 0.3}})],
+                             N.DIALECTS[0], noise_mm=0.005)
+    map_cube = N.write_campaign(d / "lab", robot, [("cube.csv", cube, {"station": "cube"})], N.DIALECTS[0],
+                                noise_mm=0.005, map_name="cube.toml")
+    assert C.twin(["import", "--map", map_a, "--out", d / "ds"]).code == 0
+    assert C.twin(["calibrate", d / "ds", "--out", d / "cal", "--quiet"]).code == 0
+    return d, robot, true, tool, tb, cube, map_a, map_cube
+
+
+def _register_cube(d, ds, out):
+    """``twin register`` of the calibration on the cube's first 8 rows; the registered base2meas."""
+    from twin.estimator import Calibration
+
+    s = C.twin(["register", d / "cal" / "calibration.json", ds, "--first", 8, "--out", out])
+    assert s.code == 0, s.err
+    return Calibration.load(out).base2meas["cube"]
+
+
+@pytest.mark.parametrize("with_calibration", [False, True])
+def test_an_iso_cube_of_one_tool_orientation_imports_and_registers(six, with_calibration):
+    """The cube cannot place the probe on the flange: without a calibration the import leaves its position unknown
+    and says so, with --calibration it takes the calibration's tool; twin register places the tracker either way
+    (the robot's own tool held) to 0.05 mm over the cube."""
+    d, robot, true, tool, tb, cube, _, map_cube = six
+    extra = ["--calibration", d / "cal" / "calibration.json"] if with_calibration else []
+    s = C.twin(["import", "--map", map_cube, "--out", d / f"cube_{with_calibration}", *extra])
+    assert s.code == 0, s.err
+    assert ("tool2flange: from the calibration" in s.out) == with_calibration
+    assert ("tool2flange: unknown: the rows cannot place the tool on the flange" in s.out) != with_calibration
+    from twin.estimator import Calibration
+
+    B = _register_cube(d, d / f"cube_{with_calibration}", d / f"reg_{with_calibration}.json")
+    cal = Calibration.load(d / "cal" / "calibration.json")
+    pred = B @ tool2base_of(cal, cube.q)
+    assert np.abs(pred[:, :3, 3] - cube.pose[:, :3, 3]).max() < 5e-5
+
+
+def tool2base_of(cal, q):
+    from twin.kinematics import tool2base
+
+    return tool2base(cal.robot.with_frames(base2meas=np.eye(4)), q)
+
+
+def test_import_calibration_needs_a_column_map(tmp_path):
+    """--calibration without --map is refused naming both."""
+    s = C.twin(["import", "x.csv", "--calibration", "cal.json", "--out", tmp_path / "ds"])
+    assert s.code == 2 and "--calibration goes with --map" in s.err
+
+
+def test_import_calibration_of_a_pose_for_points_is_refused_naming_both(six, tmp_path):
+    """A pose calibration's tool for a map of three points: refused, the calibration and both kinds named."""
+    d, robot, *_ = six
+    rng = np.random.default_rng(1)
+    pts = N.measure(robot, N.sample_joints(robot, rng, 10), np.eye(4), rng,
+                    markers=np.array([[0.0, 0.0, 0.1], [0.05, 0.0, 0.1], [0.0, 0.05, 0.1]]))
+    m = N.write_campaign(tmp_path, robot, [("p.csv", pts, {})], N.DIALECTS[0])
+    s = C.twin(["import", "--map", m, "--out", tmp_path / "ds", "--calibration", d / "cal" / "calibration.json"])
+    assert s.code == 2 and "calibration.json: it was fitted to 6-DOF poses of a probe, the map measures points" in s.err
+
+
+def test_a_session_of_validation_rows_only_imports_and_calibrate_says_it_has_no_calibration_rows(six, tmp_path):
+    """A later session given as --validation: every row validation, the note says the frames were fitted on all of
+    them; twin calibrate of it alone refuses, naming what is missing."""
+    d, *_, map_cube = six
+    s = C.twin(["import", "--map", map_cube, "--validation", d / "lab" / "cube.csv", "--out", tmp_path / "val"])
+    assert s.code == 0 and "(0 calibration, 16 validation)" in s.out and "every row is validation" in s.out
+    s = C.twin(["calibrate", tmp_path / "val", "--out", tmp_path / "cal"])
+    assert s.code == 2 and "no calibration rows with a usable measurement" in s.err
+
+
+def test_diagnose_honours_holdout_over_the_set_column(six, tmp_path):
+    """The campaign's last 30 % are validation; --holdout 0.2 holds out the last 20 % instead, and the diagnosis says
+    it replaced the set column's rows."""
+    import json
+
+    d, *_ = six
+    s = C.twin(["diagnose", d / "ds", "--out", tmp_path / "diag", "--holdout", "0.2", "--no-plots", "--no-recording",
+                "--threads", "1"])
+    assert s.code == 0, s.err
+    assert "the holdout given (0.2) replaces the 'set' column's validation rows: held out the last 20 %" in s.out
+    notes = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["notes"]
+    assert any("held out the last 20 % of the rows in measurement order (8 rows)" in n for n in notes)
+
+
+def test_a_full_pose_a_short_chain_cannot_take_is_refused_with_the_position_hint(tmp_path):
+    """Three joints and a target pose turned 20 deg from any the arm takes: refused naming the target, and the
+    message says to give positions only."""
+    rng = np.random.default_rng(3)
+    robot = N.make_robot(rng, "dh", 3)
+    s = N.measure(N.perturbed(robot, rng), N.sample_joints(robot, rng, 30), N.random_frame(rng), rng,
+                  markers=np.array([[0.0, 0.0, 0.1]]), noise_mm=0.005)
+    m = N.write_campaign(tmp_path, robot, [("a.csv", s, {})], N.DIALECTS[0], noise_mm=0.005)
+    assert C.twin(["import", "--map", m, "--out", tmp_path / "ds"]).code == 0
+    assert C.twin(["calibrate", tmp_path / "ds", "--out", tmp_path / "cal", "--quiet"]).code == 0
+    from twin.estimator import Calibration
+
+    T = tool2base_of(Calibration.load(tmp_path / "cal" / "calibration.json"), s.q[:3])
+    T[:, :3, :3] = T[:, :3, :3] @ N.Rotation.from_rotvec([0.35, 0.0, 0.0]).as_matrix()
+    N.write_targets_csv(tmp_path / "t.csv", T)
+    N.write_joints_csv(tmp_path / "ref.csv", robot, s.q[:3])
+    r = C.twin(["compensate", tmp_path / "cal" / "calibration.json", tmp_path / "t.csv", "--reference",
+                tmp_path / "ref.csv", "--out", tmp_path / "q.csv"])
+    assert r.code == 2 and "the identified model does not reach them" in r.err
+    assert "a chain of 3 joints reaches a position, not every pose: give TARGETS.csv without qw, qx, qy, qz" in r.err

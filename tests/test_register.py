@@ -393,7 +393,8 @@ def test_command_against_with_too_few_rows_names_the_option(judged_case, tmp_pat
     write_dataset(tmp_path / "new", gone)
     assert main(["register", str(tmp_path / "ext.json"), str(tmp_path / "new"), "--first", "3", "--against",
                  str(tmp_path / "geo.json"), "--out", str(tmp_path / "reg.json")]) != 0
-    assert re.search(r"--against \S*geo.json: --first 3: rows: 3 row\(s\) cannot make 5 folds", capsys.readouterr().err)
+    assert re.search(r"--against \S*geo.json: --first 3 less 1 row\(s\) without the history a term needs: rows: 2 "
+                     r"row\(s\) cannot make 5 folds", capsys.readouterr().err)
     assert not (tmp_path / "reg.json").exists()
 
 

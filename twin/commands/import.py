@@ -86,11 +86,16 @@ def _run_map(args) -> int:
 
 def _calibration_tool(path: str, kind: str):
     """``(frame, source)`` of the tool of the calibration ``path``: its ``tool2flange`` for a pose, its marker points
-    on the flange ``(K, 3)`` [m] for points."""
+    on the flange ``(K, 3)`` [m] for points; ``ValueError`` when the calibration measured the other kind."""
     from ..estimator import Calibration
+    from ..estimator.compensation import measured_pose
 
     cal = Calibration.load(path)
     T = cal.tool2flange
+    if measured_pose(cal) != (kind == "pose"):
+        what = "6-DOF poses of a probe" if measured_pose(cal) else f"{len(cal.spheres_tool)} marker point(s)"
+        raise ValueError(f"--calibration {path}: it was fitted to {what}, the map measures "
+                         + ("a 6-DOF pose" if kind == "pose" else "points") + ": its tool cannot place them")
     if kind == "pose":
         return T, f"from the calibration {path} (--calibration)"
     pts = cal.spheres_tool @ T[:3, :3].T + T[:3, 3]

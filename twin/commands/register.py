@@ -133,6 +133,7 @@ def run(args) -> int:
                          f"{args.calibration} needs (pose_id {ds.pose_id[rows[unknown]][:10].tolist()}): left out of "
                          "the registration")
             rows = rows[~unknown]
+            how = f"{how} less {int(unknown.sum())} row(s) without the history a term needs"
     cal, args_cal, choice = _judged(args, cal, ds, rows, how, scope)
     predict = None
     if cal.effects:

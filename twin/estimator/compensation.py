@@ -23,7 +23,7 @@ from ..kinematics import (
 from ..transforms import invert_transform, make_transform
 from .calibration import Calibration
 
-__all__ = ["CompensationResult", "compensation", "compensate", "compensation_position", "point_frame"]
+__all__ = ["CompensationResult", "compensation", "compensate", "compensation_position", "point_frame", "measured_pose"]
 
 _POSE_POINTS_TOL_M = 1e-9  # [m] a marker set this close to three points on the tool's axes is a pose read as points
 _HOLD_WEIGHT_M_PER_RAD = 0.1  # [m/rad] the held orientation against the position in the first pass of a position target
@@ -142,10 +142,17 @@ def point_frame(calibration: Calibration) -> np.ndarray:
     tool origin of a calibration on 6-DOF poses (a tracker's probe; also when ``twin diagnose`` read the poses as
     three points on the tool's axes at one distance), else the first marker point ``p0`` (a laser tracker's one
     reflector)."""
+    if measured_pose(calibration):
+        return np.eye(4)
+    return make_transform(np.eye(3), np.asarray(calibration.spheres_tool, dtype=float)[0])
+
+
+def measured_pose(calibration: Calibration) -> bool:
+    """Whether ``calibration`` was fitted to 6-DOF poses of its tool (a tracker's probe): its measurement is
+    ``pose``, or ``twin diagnose`` read the poses as three points on the tool's axes at one distance."""
     pts = np.asarray(calibration.spheres_tool, dtype=float)
-    from_pose = calibration.measurement == "pose" or (
+    return calibration.measurement == "pose" or bool(
         pts.shape == (3, 3) and pts[0, 0] > 0 and np.abs(pts - pts[0, 0] * np.eye(3)).max() < _POSE_POINTS_TOL_M)
-    return np.eye(4) if from_pose else make_transform(np.eye(3), pts[0])
 
 
 def _levenberg_marquardt(model: RobotModel, T: np.ndarray, q0: np.ndarray, *, weight_rotation: float = 1.0,
