@@ -1,4 +1,6 @@
-"""``twin compensate CALIBRATION.json TARGETS.csv --out JOINTS.csv``: corrected joint commands."""
+"""``twin compensate CALIBRATION.json TARGETS.csv --out JOINTS.csv``: corrected joint commands for tool poses, or for
+positions of the calibration's measured point (a reflector) with the orientation held at the reference joints'; the
+JOINTS.csv carries ``miss_mm`` and ``miss_deg``, how far each command lands from its target on the calibrated model."""
 
 from __future__ import annotations
 

@@ -2,7 +2,8 @@
 
 * ``twin import --map MAP.toml [CSV[:key=value,...] ...] --out DATASET``: any laser-tracker or motion-capture CSV
   read through a column map (``twin.importers.columns``); the CSVs are the map's ``[[files]]`` unless given here,
-  each with its own ``set``, ``session``, ``station``, ``time=row``, ``order``.
+  each with its own ``set``, ``session``, ``station``, ``time=row``, ``order``; ``--calibration CAL.json`` places the
+  measurement on the flange with a calibration's tool (a session whose rows cannot: an ISO cube of one orientation).
 * ``twin import CSV [--validation CSV] --urdf URDF --root LINK --end LINK --out DATASET``: a FIGAROH-style
   motion-capture campaign (joints under the robot's joint names, K points of one tracked body per row) and the
   robot's URDF (``twin.importers.mocap``).
