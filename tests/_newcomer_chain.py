@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 import _newcomer as N
 from twin.cli import main
-from twin.units import MM_PER_M, RAD_PER_DEG
+from twin.units import M_PER_MM, MM_PER_M, RAD_PER_DEG
 
 AXES = {
     "form": ("dh", "mdh", "table", "urdf"),
@@ -202,7 +202,7 @@ def make_world(case: Case) -> World:
     markers = tool = None
     if case.measurement.startswith("points"):
         K = int(case.measurement[-1])
-        markers = rng.uniform(-80, 80, (K, 3)) * 1e-3 + np.array([0.0, 0.0, 0.12])
+        markers = rng.uniform(-80, 80, (K, 3)) * M_PER_MM + np.array([0.0, 0.0, 0.12])
     else:
         tool = N.transform(Rotation.from_rotvec(rng.normal(0, 0.6, 3)).as_matrix(), rng.uniform(-0.05, 0.05, 3)
                            + [0.0, 0.0, 0.1])
@@ -345,7 +345,7 @@ def _targets(case: Case, w: World, cal_path: Path, later: np.ndarray) -> tuple[n
 
     cal = Calibration.load(cal_path)
     rng = np.random.default_rng(case.seed + 2)
-    q = np.clip(w.b.q[later] + rng.normal(0, 1.0, w.b.q[later].shape) * np.where(w.robot.prismatic, 1e-3, RAD_PER_DEG),
+    q = np.clip(w.b.q[later] + rng.normal(0, 1.0, w.b.q[later].shape) * np.where(w.robot.prismatic, M_PER_MM, RAD_PER_DEG),
                 w.robot.lo, w.robot.hi)
     T = tool2base(cal.robot.with_frames(base2meas=np.eye(4)), q)
     position_only = case.measurement in ("points1", "points2") or case.seed % 3 == 0
@@ -376,7 +376,7 @@ def _compensation_error(case: Case, w: World, folder: Path, cal_path: Path) -> d
     rows = _read_csv(folder / "corrected.csv")
     names = w.robot.names
     q = np.array([[float(r[c]) for c in names] for r in rows])
-    q = q * np.where(w.robot.prismatic, 1e-3, RAD_PER_DEG)
+    q = q * np.where(w.robot.prismatic, M_PER_MM, RAD_PER_DEG)
     position_only = (folder / "targets_kind.txt").read_text() == "position"
     T_cal, _ = _targets(case, w, cal_path, np.arange(REGISTER_ROWS, w.b.n))
     station = sorted(cal.stations)[0]

@@ -12,6 +12,7 @@ from twin.estimator.compensation import compensation_position, point_frame
 from twin.estimator.simulate import random_configurations, simulate_dataset
 from twin.kinematics import UnreachableError, tool2base
 from twin.transforms import matrix_to_rotvec, pose6_to_transform
+from twin.units import M_PER_MM, RAD_PER_DEG
 
 ARM7 = {"name": "arm7", "convention": "dh", "theta_deg": [0] * 7, "d_mm": [340, 10, 400, 5, 400, 8, 126],
         "a_mm": [20, 30, 25, 15, 10, 12, 0], "alpha_deg": [-90, 90, 90, -90, -90, 90, 0],
@@ -28,7 +29,7 @@ def _calibration(spec, seed, *, kind="spheres", points=((0.0, 0.0, 0.08),)):
     dev = np.zeros(nom.layout.size)
     for k, n in enumerate(nom.layout.names):
         if not n.startswith("base_") and not n.startswith("tool_"):
-            dev[k] = rng.normal(0, 0.3e-3 if nom.layout.units[k] == "m" else 1e-3)
+            dev[k] = rng.normal(0, 0.3 * M_PER_MM if nom.layout.units[k] == "m" else 0.06 * RAD_PER_DEG)
     truth = nom.perturbed(dev)
     q = random_configurations(nom, 60, rng)
     plate = Plate(0.0, np.array(points))
@@ -53,7 +54,7 @@ def test_a_position_target_of_a_redundant_arm_is_reached_holding_the_reference_o
     cal, nom, rng = arm7
     mid, half = 0.5 * (nom.q_min + nom.q_max), 0.5 * (nom.q_max - nom.q_min)
     q_ref = mid + 0.7 * half * rng.uniform(-1, 1, (8, 7))  # the limits away: the orientation can be held
-    q_ref[:, 3] = np.radians(rng.choice([-1, 1], 8) * rng.uniform(30, 90, 8))  # the elbow bent: 1 cm more is in reach
+    q_ref[:, 3] = rng.choice([-1, 1], 8) * rng.uniform(30, 90, 8) * RAD_PER_DEG  # the elbow bent: 1 cm more is in reach
     robot = cal.robot.with_frames(base2meas=np.eye(4))
     T_ref = tool2base(robot, q_ref) @ point_frame(cal)
     p = T_ref[:, :3, 3] + rng.normal(0, 0.01, (8, 3))
@@ -68,7 +69,7 @@ def test_at_a_joint_limit_the_position_is_reached_and_the_orientation_kept_near(
     """A reference joint 0.5 deg from its limit, where holding the orientation would cross it: the position is
     reached within the limits and the orientation stays within 0.05 rad of the held one."""
     cal, nom, rng = arm7
-    q_ref = np.radians([[4.5, 69.8, 169.5, -5.8, -69.2, 19.1, -44.9]])
+    q_ref = np.array([[4.5, 69.8, 169.5, -5.8, -69.2, 19.1, -44.9]]) * RAD_PER_DEG
     robot = cal.robot.with_frames(base2meas=np.eye(4))
     p = (tool2base(robot, q_ref) @ point_frame(cal))[:, :3, 3] + [[0.0064, -0.0039, 0.0075]]
     res = compensation_position(cal, p, q_ref)

@@ -12,6 +12,7 @@ import pytest
 
 import _newcomer as N
 import _newcomer_chain as C
+from twin.units import M_PER_MM, MM_PER_M, RAD_PER_DEG
 
 CASES = C.covering_cases()
 # the matrix's accuracy on an effect-free robot [mm]: the noise is 0.005 mm per coordinate and the injected errors
@@ -113,15 +114,14 @@ def test_newcomer_case_runs_the_readme_chain(case, tmp_path):
 
 # ---- the chain's contracts ---------------------------------------------------------------------------------------
 
-WAM = {"dh": dict(theta=np.zeros(7), d=np.array([0, 0, 550, 0, 300, 0, 60]) * 1e-3,
-                  a=np.array([0, 0, 45, -45, 0, 0, 0]) * 1e-3, alpha=np.radians([-90, 90, -90, 90, -90, 90, 0]))}
 
 
 def _wam() -> N.Robot:
     """A cable-driven 7-joint arm's DH table (the lengths of a Barrett WAM), as its lab publishes it."""
-    lim = np.radians([150, 113, 157, 180, 270, 90, 172])
-    p = WAM["dh"]
-    return N.Robot("dh", theta=p["theta"], d=p["d"], a=p["a"], alpha=p["alpha"], prismatic=np.zeros(7, bool),
+    lim = np.array([150, 113, 157, 180, 270, 90, 172]) * RAD_PER_DEG
+    return N.Robot("dh", theta=np.zeros(7), d=np.array([0, 0, 550, 0, 300, 0, 60]) * M_PER_MM,
+                   a=np.array([0, 0, 45, -45, 0, 0, 0]) * M_PER_MM,
+                   alpha=np.array([-90, 90, -90, 90, -90, 90, 0]) * RAD_PER_DEG, prismatic=np.zeros(7, bool),
                    offset=np.zeros(7), backlash=np.zeros(7), lo=-lim, hi=lim)
 
 
@@ -135,7 +135,7 @@ def seven(tmp_path_factory):
     d = tmp_path_factory.mktemp("seven")
     rng = np.random.default_rng(36)
     robot = _wam()
-    true = N.perturbed(robot, rng, length_mm=0.5, angle_deg=0.1, backlash={1: np.radians(0.03)})
+    true = N.perturbed(robot, rng, length_mm=0.5, angle_deg=0.1, backlash={1: 0.03 * RAD_PER_DEG})
     reflector = np.array([[0.0, 0.0, 0.031]])
     ta, tb = N.random_frame(rng), N.random_frame(rng)
     a = N.measure(true, N.sample_joints(robot, rng, 120), ta, rng, markers=reflector, noise_mm=0.01)
@@ -189,7 +189,7 @@ def test_the_seven_joint_arms_backlash_is_found_and_held_in_the_next_session(sev
     with open(d / "pred.csv", newline="") as f:
         rows = list(csv.DictReader(f))[20:]
     p = np.array([[float(r[c]) for c in ("p0_x", "p0_y", "p0_z")] for r in rows])
-    err = np.linalg.norm(p - b_true.points[20:, 0] * 1e3, axis=1)
+    err = np.linalg.norm(p - b_true.points[20:, 0] * MM_PER_M, axis=1)
     assert np.sqrt(np.mean(err**2)) < ACCURACY_MM
 
 
