@@ -1,5 +1,5 @@
 """``twin compensate CALIBRATION.json TARGETS.csv --out JOINTS.csv``: corrected joint commands for tool poses, or for
-positions of the calibration's measured point (a reflector) with the orientation held at the reference joints'; the
+positions of the calibration's measured point (a reflector) with the tool's orientation at the reference joints held; the
 JOINTS.csv carries ``miss_mm`` and ``miss_deg``, how far each command lands from its target on the calibrated model."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ HELP = "corrected joint commands that reach target tool poses (or a marker point
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("calibration", help="calibration.json")
     p.add_argument("targets", help="TARGETS.csv (pose_id, x, y, z [mm], qw, qx, qy, qz: the tool in the robot base frame; "
-                                   "without qw..qz: positions of the calibration's first marker point, the orientation "
-                                   "held at the reference joints')")
+                                   "without qw..qz: positions of the calibration's measured point (its first marker, or "
+                                   "a probe's origin), the tool's orientation at the reference joints held)")
     p.add_argument("--out", required=True, help="JOINTS.csv to write (with miss_mm, miss_deg: how far from each target "
                                                 "the corrected command lands on the calibrated model)")
     p.add_argument("--reference", default=None,
@@ -103,7 +103,7 @@ def run(args) -> int:
                      extra={"miss_mm": miss_mm, "miss_deg": miss_deg})
     rev = ~cal.nominal.is_prismatic
     dq = (np.abs(res.q - res.q_nominal)[:, rev] * DEG_PER_RAD).max() if rev.any() else 0.0
-    what = ("positions of the marker point, the orientation held at the reference joints'" if position_only
+    what = ("positions of the measured point, the tool's orientation at the reference joints held" if position_only
             else "tool poses")
     print(f"compensated {len(pid)} targets ({what}; largest change from the nominal inverse {dq:.4g} deg); on the "
           f"calibrated model they land within {miss_mm.max():.2g} mm"
