@@ -161,10 +161,11 @@ def _levenberg_marquardt(model: RobotModel, T: np.ndarray, q0: np.ndarray, *, we
     """Damped least squares on ``model``'s tool frame, row by row: ``min |e_p|^2 + w^2 |e_r|^2`` over the joints
     (``e_p`` the position error [m], ``e_r`` the rotation vector of ``R_target R^T`` [rad], ``w`` =
     ``weight_rotation`` [m/rad]; ``position_only``: ``|e_p|^2`` alone), steps ``(J^T J + mu D + r I) dq = J^T e``
-    with ``D`` the diagonal of ``J^T J`` (Marquardt's scaling) and ``r`` 1e-12 of its largest entry, a step kept only where it lowers the cost (``mu / 3``,
-    else ``mu x 4``), at most ``max_step`` [rad, m] per joint and cut at the joint limits (a joint at a limit the
-    step pushes against held for that step), until the kept steps are below 1e-13 or ``max_iter`` rounds. Targets ``T`` ``(n, 4, 4)`` in the base frame. Returns ``(q, |e_p| [m], |e_r| [rad],
-    rounds)``."""
+    with ``D`` the diagonal of ``J^T J`` (Marquardt's scaling) and ``r`` 1e-12 of its largest entry, a step kept
+    only where it lowers the cost (``mu / 3``, else ``mu x 4``), at most ``max_step`` [rad, m] per joint and cut at
+    the joint limits (a joint at a limit the step pushes against held for that step), until the kept steps are
+    below 1e-13 or ``max_iter`` rounds. Targets ``T`` ``(n, 4, 4)`` in the base frame. Returns ``(q, |e_p| [m],
+    |e_r| [rad], rounds)``."""
     m = model.with_frames(base2meas=np.eye(4))
     q = np.array(q0, dtype=float)
     n, N = q.shape
@@ -240,11 +241,11 @@ def compensation_position(
     free with fewer).
 
     Math (:func:`_position_first`): damped least squares ``min |e_p|^2 + w^2 |e_r|^2`` (``w`` = 0.1 m/rad, then
-    1e-4 m/rad), then ``min |e_p|^2`` alone from there, from ``q_ref`` (clipped to the joint limits), first on the nominal model
-    (``q_nominal``: an uncalibrated controller's answer), then from there on the identified one; ``e_p`` is the
-    point's position error, ``e_r`` the rotation vector of ``R_hold R^T``. ``position_error`` [m] is what remains
-    of the position on the identified model, ``rotation_error`` [rad] the orientation's departure from the held
-    one.
+    1e-4 m/rad), then ``min |e_p|^2`` alone from there, from ``q_ref`` (clipped to the joint limits), first on the
+    nominal model (``q_nominal``: an uncalibrated controller's answer), then from there on the identified one;
+    ``e_p`` is the point's position error, ``e_r`` the rotation vector of ``R_hold R^T``. ``position_error`` [m] is
+    what remains of the position on the identified model, ``rotation_error`` [rad] the orientation's departure from
+    the held one.
 
     Raises :class:`~twin.kinematics.UnreachableError` naming the targets whose position the identified model
     does not reach within ``tol_position`` x 10, or whose command leaves the joint limits."""
@@ -275,8 +276,8 @@ def compensation_position(
         q = start + wrap_angle(q - start)
     bad = np.flatnonzero(~(ep <= 10 * tol_position))
     if bad.size:
-        raise UnreachableError(f"targets {bad[:10].tolist()}: the identified model does not reach their position from the "
-                               f"reference joints (left {ep[bad].max():.3g} m from it after {it} iterations)")
+        raise UnreachableError(f"targets {bad[:10].tolist()}: the identified model does not reach their position from "
+                               f"the reference joints (left {ep[bad].max():.3g} m from it after {it} iterations)")
     out = np.flatnonzero(~robot.within_limits(q, tol=1e-9))
     if out.size:
         raise UnreachableError(f"targets {out[:10].tolist()}: the corrected joint command leaves the joint limits")
