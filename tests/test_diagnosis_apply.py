@@ -93,6 +93,22 @@ def test_compensation_with_a_parameter_term_lands_where_the_extended_model_predi
     assert np.abs(got[:, :3, 3] - T_meas[:, :3, 3]).max() < 1e-7
 
 
+def test_commands_too_close_for_their_backlash_correction_are_named(backlash_case):
+    """Two consecutive targets whose commands differ by less than the backlash correction: the correction turns the
+    approach over and back; compensate_extended refuses, naming the row and the joint that do not settle."""
+    from dataclasses import replace
+
+    _, truth, _, cal, _ = backlash_case
+    q = H.configurations(np.random.default_rng(5), 4, truth["true"])
+    q[1] = q[0]
+    q[1, 1] += 2e-5
+    T = np.linalg.inv(cal.base2meas["0"]) @ tool2meas(cal.model("0"), q)
+    ctx = replace(row_context(H.make_dataset(seed=21, n=20)[0]), q=np.zeros((4, 6)), q_start=np.zeros(6),
+                  temp_c=None, t_s=None)
+    with pytest.raises(ValueError, match=r"did not settle in 30 rounds \(last step .* rad; still moving: row 1 joint \d"):
+        compensate_extended(cal, T, q, ctx)
+
+
 @pytest.mark.slow
 def test_predict_command_applies_the_effects(backlash_case, tmp_path):
     """twin predict with an extended calibration.json gives the extended predictions (not the geometric ones)."""
