@@ -100,11 +100,13 @@ def test_a_thread_count_that_is_not_a_positive_integer_is_refused(bad):
         diagnose(ds, threads=bad)
 
 
-def test_a_set_column_without_validation_rows_is_refused():
-    """A set column with no validation rows: diagnosis asks for held-out rows."""
+def test_a_set_column_without_validation_rows_holds_out_the_end_of_the_campaign():
+    """A set column with no validation rows (a campaign imported as one set): the diagnosis runs on the last 30 % held
+    out, as without a set column, and its notes say why."""
     ds, _ = H.make_dataset(seed=0, n=40)
-    with pytest.raises(DiagnosisError, match="needs held-out rows"):
-        diagnose(H._replace(ds, set=np.full(ds.n, "calibration", dtype=object)))
+    res = diagnose(H._replace(ds, set=np.full(ds.n, "calibration", dtype=object)))
+    assert any(n.startswith("held-out rows: the 'set' column has no validation rows: held out the last 30 %")
+               for n in res.notes)
 
 
 @pytest.mark.slow

@@ -71,6 +71,44 @@ def test_compensation_with_effects_reaches_targets_through_the_true_robot(backla
     assert err.max() < 0.02e-3
 
 
+def test_compensation_with_a_parameter_term_lands_where_the_extended_model_predicts(backlash_case):
+    """An extended calibration with a robot-side parameter term (d3 varying with sin q5 by 0.1 mm) besides its
+    backlash: the commands of compensate_extended put the plate where predict_extended, reading the same commands in
+    their order, says the targets are (1e-7 m in the measurement frame; the term's first-order change is taken in the
+    robot base frame, not in the station's)."""
+    from dataclasses import replace
+
+    _, truth, _, cal, _ = backlash_case
+    term = {"family": "unnamed", "place": "param", "target": "d3", "features": [{"kind": "sin", "ch": "q5", "k": 1}],
+            "label": "d3 varies with sin q5", "values": [1e-4]}
+    ext = replace(cal, effects=tuple(cal.effects) + (term,))
+    q_goal = H.configurations(np.random.default_rng(5), 10, truth["true"])
+    B = cal.base2meas["0"]
+    T_meas = tool2meas(cal.model("0"), q_goal)
+    ctx = row_context(H.make_dataset(seed=21, n=20)[0])
+    start = replace(ctx, q=np.zeros((10, 6)), q_start=np.zeros(6), temp_c=None, t_s=None, station=None,
+                    history_reset=None, session_start=None, pose_id=None)
+    res = compensate_extended(ext, np.linalg.inv(B) @ T_meas, q_goal, start)
+    got = predict_extended(ext, replace(start, q=res.q), np.full(10, "0", dtype=object)).pose
+    assert np.abs(got[:, :3, 3] - T_meas[:, :3, 3]).max() < 1e-7
+
+
+def test_commands_too_close_for_their_backlash_correction_are_named(backlash_case):
+    """Two consecutive targets whose commands differ by less than the backlash correction: the correction turns the
+    approach over and back; compensate_extended refuses, naming the row and the joint that do not settle."""
+    from dataclasses import replace
+
+    _, truth, _, cal, _ = backlash_case
+    q = H.configurations(np.random.default_rng(5), 4, truth["true"])
+    q[1] = q[0]
+    q[1, 1] += 2e-5
+    T = np.linalg.inv(cal.base2meas["0"]) @ tool2meas(cal.model("0"), q)
+    ctx = replace(row_context(H.make_dataset(seed=21, n=20)[0]), q=np.zeros((4, 6)), q_start=np.zeros(6),
+                  temp_c=None, t_s=None)
+    with pytest.raises(ValueError, match=r"did not settle in 30 rounds \(last step .* rad; still moving: row 1 joint \d"):
+        compensate_extended(cal, T, q, ctx)
+
+
 @pytest.mark.slow
 def test_predict_command_applies_the_effects(backlash_case, tmp_path):
     """twin predict with an extended calibration.json gives the extended predictions (not the geometric ones)."""

@@ -84,3 +84,24 @@ def test_holdout_out_of_range_is_refused():
     """A held-out fraction outside [0.05, 0.8] is a ValueError naming it."""
     with pytest.raises(ValueError, match="holdout"):
         held_out_sets(_ds(), holdout=0.9)
+
+
+def test_a_set_column_without_validation_rows_holds_out_the_end_as_without_one():
+    """Every row 'calibration' (an import that wrote the set of one campaign): the end of the campaign is held out,
+    the same rows as without a set column, and the rule says why."""
+    ds = _ds()
+    cal = H._replace(ds, set=np.full(ds.n, "calibration", dtype=object))
+    out, none = held_out_sets(cal), held_out_sets(H._replace(ds, set=None))
+    assert (out.set == none.set).all() and (out.set[-int(0.3 * ds.n):] == "validation").all()
+    assert out.rule.startswith("the 'set' column has no validation rows: held out the last 30 %")
+
+
+def test_a_holdout_given_replaces_the_set_columns_validation_rows():
+    """A set column whose validation rows end the campaign, and holdout 0.2: the last 20 % are held out instead, said
+    so (--holdout is always honoured)."""
+    ds = _ds()
+    s = np.where(np.arange(ds.n) >= 30, "validation", "calibration").astype(object)
+    out = held_out_sets(H._replace(ds, set=s), holdout=0.2)
+    val = np.flatnonzero(out.set == "validation")
+    assert val.size == pytest.approx(0.2 * ds.n, abs=1) and val.max() == ds.n - 1
+    assert "the holdout given (0.2) replaces the 'set' column's validation rows" in out.rule

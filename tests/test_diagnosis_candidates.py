@@ -18,9 +18,10 @@ def _potential_gradient(model, q, masses, coms, g):
         return sum(m * g @ (F[k + 1, :3, 3] + F[k + 1, :3, :3] @ c) for k, (m, c) in enumerate(zip(masses, coms)))
 
     h = 1e-6
-    out = np.zeros(6)
-    for i in range(6):
-        e = np.zeros(6)
+    N = q.size
+    out = np.zeros(N)
+    for i in range(N):
+        e = np.zeros(N)
         e[i] = h
         out[i] = (V(q + e) - V(q - e)) / (2 * h)
     return out
@@ -38,6 +39,28 @@ def test_gravity_regressor_matches_potential_energy_gradient():
         theta = np.concatenate([masses[:, None], masses[:, None] * coms], axis=1)  # (6, 4)
         tau = np.einsum("nikc,kc->ni", Y, theta)
         for k in range(5):
+            assert np.allclose(tau[k], _potential_gradient(model, q[k], masses, coms, g), atol=1e-6)
+
+
+def test_gravity_regressor_of_a_dh_table_of_any_length_matches_the_potential_gradient():
+    """A 7-joint DH and a 3-joint MDH table (the DH tables a user gives): the regressor has one row per joint and
+    equals the gradient of the gravitational potential."""
+    from twin.dataset import robot_from_spec
+
+    rng = np.random.default_rng(3)
+    g = np.array([0.0, 0.0, -9.81])
+    wam = {"convention": "dh", "theta_deg": [0] * 7, "d_mm": [0, 0, 550, 0, 300, 0, 60], "a_mm": [0, 0, 45, -45, 0, 0, 0],
+           "alpha_deg": [-90, 90, -90, 90, -90, 90, 0]}
+    arm3 = {"convention": "mdh", "theta_deg": [0, -90, 30], "d_mm": [300, 0, 50], "a_mm": [0, 0, 400],
+            "alpha_deg": [0, -90, 0]}
+    for spec in (wam, arm3):
+        model = robot_from_spec(spec)
+        N = model.n_joints
+        masses, coms, q = rng.uniform(1, 10, N), rng.normal(0, 0.1, (N, 3)), rng.uniform(-2, 2, (4, N))
+        Y = gravity_torque_regressor(model, q, g)
+        assert Y.shape == (4, N, N, 4)
+        tau = np.einsum("nikc,kc->ni", Y, np.concatenate([masses[:, None], masses[:, None] * coms], axis=1))
+        for k in range(4):
             assert np.allclose(tau[k], _potential_gradient(model, q[k], masses, coms, g), atol=1e-6)
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from twin.dataset import DatasetError
 from twin.transforms import make_transform, rotvec_to_matrix
-from twin.estimator.files import read_targets_csv, write_targets_csv
+from twin.estimator.files import read_targets, read_targets_csv, write_targets_csv
 
 
 def _targets(n=4, seed=0):
@@ -35,6 +35,24 @@ def test_targets_errors_name_the_problem(tmp_path, edit, match):
     (tmp_path / "t.csv").write_text("\n".join(edit(L)) + "\n")
     with pytest.raises(DatasetError, match=match):
         read_targets_csv(tmp_path / "t.csv")
+
+
+def test_position_only_targets_are_read_without_an_orientation(tmp_path):
+    """A TARGETS.csv of x, y, z only (a point marker): read_targets gives the positions [m] and no rotation; the pose
+    reader still asks for the quaternion's columns."""
+    (tmp_path / "t.csv").write_text("pose_id,x,y,z\n3,100.5,-20,700\n4,0,0,812.25\n")
+    t = read_targets(tmp_path / "t.csv")
+    assert t.pose_id.tolist() == [3, 4] and t.rotation is None
+    assert np.allclose(t.position, [[0.1005, -0.02, 0.7], [0.0, 0.0, 0.81225]], atol=1e-12)
+    with pytest.raises(DatasetError, match=r"missing required columns \['qw', 'qx', 'qy', 'qz'\]"):
+        read_targets_csv(tmp_path / "t.csv")
+
+
+def test_a_partial_quaternion_is_refused_naming_its_missing_columns(tmp_path):
+    """x, y, z with qw alone: neither a position nor a pose; the missing quaternion columns are named."""
+    (tmp_path / "t.csv").write_text("pose_id,x,y,z,qw\n3,100.5,-20,700,1\n")
+    with pytest.raises(DatasetError, match=r"missing required columns \['qx', 'qy', 'qz'\]"):
+        read_targets(tmp_path / "t.csv")
 
 
 def test_pred_csv_without_a_column_names_it(tmp_path):

@@ -159,6 +159,32 @@ def test_fit_points_on_flange_recovers_base_and_points_together():
     assert np.abs(Xf - X).max() < 1e-7 and np.abs(B - BASE).max() < 1e-7
 
 
+def test_a_tool_given_from_elsewhere_places_the_points_and_one_of_another_kind_is_refused(tmp_path):
+    """import_columns(tool=...): the points on the flange of a calibration are written as given and said so; a tool
+    frame for a map of points is refused naming its source and both kinds."""
+    _points_csv(tmp_path / "grid.csv")
+    (tmp_path / "m.toml").write_text(POINTS_MAP)
+    rep = import_columns(tmp_path / "m.toml", tmp_path / "ds", tool=(np.array([[0.001, 0.0, 0.03]]), "cal.json"))
+    assert np.allclose(rep.dataset.plate.spheres_flange, [[0.001, 0.0, 0.03]])
+    assert "points on the flange: cal.json" in rep.notes
+    with pytest.raises(DatasetError, match="cal.json: holds a tool frame where the map measures 1 point"):
+        import_columns(tmp_path / "m.toml", tmp_path / "ds2", tool=(np.eye(4), "cal.json"))
+
+
+def test_fit_points_on_flange_places_a_point_on_a_head_whose_flange_origin_stays_put():
+    """A pan-tilt-roll head (three axes through one point: the flange origin never moves) seen from an unknown frame:
+    the fit from several starts recovers the point and the frame to 1e-7 (one start from the origin can end in a
+    wrong minimum there)."""
+    r = robot_from_spec({"convention": "dh", "theta_deg": [0, 0, 90], "d_mm": [-140, 0, 0], "a_mm": [0, 0, 0],
+                         "alpha_deg": [-90, -90, 0]})
+    F = flange2base(r, np.random.default_rng(0).uniform(-2.5, 2.5, (48, 3)))
+    assert np.ptp(F[:, :3, 3], axis=0).max() < 1e-12
+    X = np.array([[0.0734, -0.0065, 0.0719]])
+    P = np.einsum("ij,nkj->nki", BASE[:3, :3], np.einsum("nij,kj->nki", F[:, :3, :3], X) + F[:, None, :3, 3]) + BASE[:3, 3]
+    B, Xf = fit_points_on_flange(F, P)
+    assert np.abs(Xf - X).max() < 1e-7 and np.abs(B[:3, :3] - BASE[:3, :3]).max() < 1e-7
+
+
 @pytest.mark.parametrize("euler", ["XYZ", "xyz", "ZYX"])
 def test_a_pose_with_decimal_commas_and_its_euler_convention(tmp_path, euler):
     """A ';'-separated, ','-decimal tracker file with Euler angles in degrees (intrinsic XYZ, extrinsic xyz,

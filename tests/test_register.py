@@ -393,7 +393,8 @@ def test_command_against_with_too_few_rows_names_the_option(judged_case, tmp_pat
     write_dataset(tmp_path / "new", gone)
     assert main(["register", str(tmp_path / "ext.json"), str(tmp_path / "new"), "--first", "3", "--against",
                  str(tmp_path / "geo.json"), "--out", str(tmp_path / "reg.json")]) != 0
-    assert re.search(r"--against \S*geo.json: --first 3: rows: 3 row\(s\) cannot make 5 folds", capsys.readouterr().err)
+    assert re.search(r"--against \S*geo.json: --first 3 less 1 row\(s\) without the history a term needs: rows: 2 "
+                     r"row\(s\) cannot make 5 folds", capsys.readouterr().err)
     assert not (tmp_path / "reg.json").exists()
 
 
@@ -468,6 +469,19 @@ def test_dataset_of_another_robot_is_refused(spheres_case):
                              robot_spec="brtirus0707a", noise_position=SIGMA)
     with pytest.raises(ValueError, match="not the calibration's robot"):
         register(cal, ds, np.arange(20))
+
+
+def test_a_marker_set_placed_elsewhere_on_the_flange_registers_and_another_shape_is_refused(spheres_case):
+    """A session whose import placed the same markers 2 mm off on the flange (a fit with the nominal robot) registers
+    with the calibration's markers; a marker set of another shape is refused naming the distance that differs."""
+    cal, ds2, B = spheres_case
+    moved = replace(ds2, plate=Plate(ds2.plate.sphere_diameter, ds2.plate.spheres_flange + [0.002, -0.001, 0.0015]))
+    reg = register(cal, moved, np.arange(30))
+    assert np.abs(reg.calibration.base2meas["1"][:3, 3] - B[:3, 3]).max() < 1e-4
+    other = ds2.plate.spheres_flange.copy()
+    other[2] += [0.01, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"marker set differs from the calibration's \(distance p\d-p2 "):
+        register(cal, replace(ds2, plate=Plate(ds2.plate.sphere_diameter, other)), np.arange(30))
 
 
 # ---- the command -----------------------------------------------------------------------------------------------

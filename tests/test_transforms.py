@@ -12,6 +12,9 @@ from twin.transforms import (
     matrix_to_rotvec,
     pose6_to_transform,
     quat_wxyz_to_matrix,
+    rot_x,
+    rot_y,
+    rot_z,
     rotvec_to_matrix,
     transform_to_pose6,
 )
@@ -55,6 +58,14 @@ def test_transform_inverse_and_pose6_round_trip():
     T = pose6_to_transform(p6)
     assert np.allclose(T @ invert_transform(T), np.eye(4), atol=1e-12)
     assert np.allclose(pose6_to_transform(transform_to_pose6(T)), T, atol=1e-12)
+
+
+def test_euler_zyx_gives_the_matrix_back_at_gimbal_lock():
+    """At ry = 90 deg with rounding in the matrix (a URDF origin "1.5708 1.5708 -1.5708" behind a fixed joint) the
+    angles give the matrix back."""
+    A = rot_x(0.1) @ rot_y(-0.2) @ rot_z(0.3)
+    R = A @ np.linalg.inv(A) @ rot_z(-np.pi / 2) @ rot_y(np.pi / 2) @ rot_x(np.pi / 2)
+    assert np.abs(matrix_from_euler_zyx(euler_zyx_from_matrix(R)) - R).max() < 1e-12
 
 
 def test_euler_zyx_round_trip_matches_paper_eq43():

@@ -996,9 +996,11 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     )
 
 
-def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel | None = None) -> Path:
+def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel | None = None,
+                     extra: dict[str, np.ndarray] | None = None) -> Path:
     """Write ``JOINTS.csv`` from :class:`Joints` (SI in, degrees (millimetres for a prismatic joint) out); the
-    joint columns are ``robot``'s (default ``q1..q6``)."""
+    joint columns are ``robot``'s (default ``q1..q6``); ``extra``: further numeric columns ``(n,)`` written last as
+    given (e.g. ``twin compensate``'s ``miss_mm``; a reader ignores them)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
@@ -1006,14 +1008,16 @@ def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel 
     if np.shape(joints.q)[1:] != (len(jcols),):
         raise ValueError(f"joints.q must have shape (n, {len(jcols)}) for columns {', '.join(jcols)}, got {np.shape(joints.q)}")
     cols = ["pose_id", *jcols] + [c for c in JOINTS_OPTIONAL if getattr(joints, c) is not None]
+    extra = dict(extra or {})
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
+    w.writerow(cols + list(extra))
     for k in range(len(joints.pose_id)):
         row = [str(int(joints.pose_id[k]))] + [f"{float(x) / sc:.10f}" for x, sc in zip(joints.q[k], jscale)]
         for c in cols[1 + len(jcols):]:
             v = getattr(joints, c)[k]
             row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
+        row += [f"{float(v[k]):.6g}" for v in extra.values()]
         w.writerow(row)
     tmp = path.with_name(f".{path.name}.tmp")  # written whole, then moved: no partial output file
     try:

@@ -30,6 +30,7 @@ __all__ = [
 ]
 
 _EPS = 1e-12
+_GIMBAL_COS = 1e-6  # cos(ry) below which euler_zyx_from_matrix reads rx from R's second row
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -157,11 +158,20 @@ def rot_z(angle: np.ndarray) -> np.ndarray:
 
 
 def euler_zyx_from_matrix(R: np.ndarray) -> np.ndarray:
-    """The separation paper's eq. 43: ``R = Rz(c) Ry(b) Rx(a)`` -> ``(a, b, c)`` = (rx, ry, rz) [rad], ``(..., 3)``."""
+    """The separation paper's eq. 43: ``R = Rz(c) Ry(b) Rx(a)`` -> ``(a, b, c)`` = (rx, ry, rz) [rad], ``(..., 3)``.
+
+    At (or near) ``b = +-pi/2`` only ``a -+ c`` is defined and ``R``'s third row carries no ``a``: there ``a`` is read
+    from the second row of ``Rz(-c) R = Ry(b) Rx(a)``, ``(0, cos a, -sin a)``, so that the angles give ``R`` back
+    (a URDF origin with ``rpy = "0 1.5707963 0"``)."""
     R = np.asarray(R, dtype=float)
+    cos_b = np.hypot(R[..., 2, 1], R[..., 2, 2])
     rx = np.arctan2(R[..., 2, 1], R[..., 2, 2])
-    ry = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 2, 1], R[..., 2, 2]))
+    ry = np.arctan2(-R[..., 2, 0], cos_b)
     rz = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    near = cos_b < _GIMBAL_COS
+    if np.any(near):
+        c, s = np.cos(rz), np.sin(rz)
+        rx = np.where(near, np.arctan2(s * R[..., 0, 2] - c * R[..., 1, 2], c * R[..., 1, 1] - s * R[..., 0, 1]), rx)
     return np.stack([rx, ry, rz], axis=-1)
 
 

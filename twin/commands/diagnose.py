@@ -13,14 +13,15 @@ HELP = "find structure beyond the noise in held-out residuals, trace it to an ef
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder (poses.csv + dataset.toml); the held-out rows are a block of time after the "
                    "rows that fit: its 'set' column's validation rows when they are the end of the campaign or whole "
-                   "sessions, else the same share (or --holdout) at the end")
+                   "sessions, else the same share at the end (without a 'set' column or validation rows: the last "
+                   "30 %%; --holdout: its fraction at the end)")
     p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots, diagnosis.rrd")
     p.add_argument("--calibration", help="a geometric calibration.json to start from")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
-                   help="hold out this fraction at the end of the campaign (default: the 'set' column's share of "
-                        "validation rows, else 0.3; a 'set' column whose validation rows are the end of the campaign "
-                        "or whole sessions is used as it is)")
+                   help="hold out this fraction at the end of the campaign, whatever the 'set' column says (default: "
+                        "the 'set' column's validation rows when they are the end of the campaign or whole sessions, "
+                        "their share at the end when they interleave; 0.3 without a 'set' column or validation rows)")
     p.add_argument("--seed", type=int, default=0, help="seed of the estimator's random draws")
     p.add_argument("--max-effects", type=int, default=16, help="most terms (atoms) kept in the extended model (default 16)")
     p.add_argument("--catalogue-only", action="store_true",

@@ -25,9 +25,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def mjcf(cal) -> str:
     """MJCF text of the calibrated robot (robot base frame = MJCF world; lengths [m], angles [rad]): the world's
-    generator for the 6R arms (so that it looks like the twin), :func:`twin.urdf.chain_mjcf_xml` otherwise."""
+    generator for the 6R arms with a plate of three spheres (so that it looks like the twin),
+    :func:`twin.urdf.chain_mjcf_xml` otherwise (any chain, points or a tracker's pose)."""
     name = f"{cal.nominal.name}_calibrated_{cal.method}"
-    if cal.nominal.convention in ("mdh", "dh") and cal.nominal.n_joints == 6 and cal.spheres_tool.shape[0] == 3:
+    if (cal.nominal.convention in ("mdh", "dh") and cal.nominal.n_joints == 6 and cal.spheres_tool.shape[0] == 3
+            and cal.plate.sphere_diameter > 0):
         from ..world.mjcf import robot_mjcf_xml
 
         return robot_mjcf_xml(cal.robot, cal.spheres_tool, cal.plate.sphere_diameter, model_name=name)

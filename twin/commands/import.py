@@ -2,7 +2,8 @@
 
 * ``twin import --map MAP.toml [CSV[:key=value,...] ...] --out DATASET``: any laser-tracker or motion-capture CSV
   read through a column map (``twin.importers.columns``); the CSVs are the map's ``[[files]]`` unless given here,
-  each with its own ``set``, ``session``, ``station``, ``time=row``, ``order``.
+  each with its own ``set``, ``session``, ``station``, ``time=row``, ``order``; ``--calibration CAL.json`` places the
+  measurement on the flange with a calibration's tool (a session whose rows cannot: an ISO cube of one orientation).
 * ``twin import CSV [--validation CSV] --urdf URDF --root LINK --end LINK --out DATASET``: a FIGAROH-style
   motion-capture campaign (joints under the robot's joint names, K points of one tracked body per row) and the
   robot's URDF (``twin.importers.mocap``).
@@ -37,6 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="mocap: largest spread of a pairwise marker distance over the rows (default 1 mm)")
     p.add_argument("--noise-mm", type=float, default=None, help="mocap: instrument noise per coordinate for [noise]")
     p.add_argument("--attribution", default="", help="text kept in the dataset's provenance")
+    p.add_argument("--calibration", default=None, metavar="CAL.json",
+                   help="with --map: the robot's calibration, whose tool (a pose's tool2flange, or the marker points on "
+                        "the flange) places this session's measurement on the flange instead of a fit (a session of "
+                        "one tool orientation, e.g. an ISO cube, cannot place it itself)")
 
 
 def _run_map(args) -> int:
@@ -47,20 +52,28 @@ def _run_map(args) -> int:
         raise ValueError(f"--map: the robot, units and frames come from the map; --{', --'.join(given)} belong to the "
                          "mocap import (without --map)")
     cmap = read_column_map(args.map)
+    tool = None
+    if args.calibration is not None:
+        tool = _calibration_tool(args.calibration, cmap.base.kind)
     files = [parse_file_argument(c) for c in args.csv]
     for v in args.validation:
         path, over = parse_file_argument(v)
         if over.get("set", "validation") != "validation":
             raise ValueError(f"--validation {v}: set={over['set']} contradicts --validation")
         files.append((path, {**over, "set": "validation"}))
-    rep = import_columns(cmap, args.out, files=files or None, attribution=args.attribution)
+    rep = import_columns(cmap, args.out, files=files or None, attribution=args.attribution, tool=tool)
     ds = rep.dataset
-    n_cal = int((ds.set == "calibration").sum())
     kind = "a 6-DOF pose" if ds.has_poses else f"{ds.n_points} point(s)"
-    print(f"{ds.n} rows ({n_cal} calibration, {ds.n - n_cal} validation) from {len(rep.files)} file(s), "
+    if ds.set is None:
+        sets = "no set column"
+    else:
+        n_cal = int((ds.set == "calibration").sum())
+        sets = f"{n_cal} calibration, {ds.n - n_cal} validation"
+    print(f"{ds.n} rows ({sets}) from {len(rep.files)} file(s), "
           f"{ds.robot.n_joints} joints ({', '.join(ds.robot.joint_names)}), {kind} per row; wrote {args.out}")
     for f in rep.files:
-        print(f"  {f['path']}: {f['rows']} rows ({f['calibration']} calibration, {f['validation']} validation), "
+        split = "" if ds.set is None else f" ({f['calibration']} calibration, {f['validation']} validation)"
+        print(f"  {f['path']}: {f['rows']} rows{split}, "
               f"session {', '.join(f['session'])}" + (f", station {', '.join(f['station'])}" if f["station"] else "")
               + f", {f['time']}")
     for sid, st in rep.stations.items():
@@ -72,7 +85,27 @@ def _run_map(args) -> int:
     return 0
 
 
+def _calibration_tool(path: str, kind: str):
+    """``(frame, source)`` of the tool of the calibration ``path``: its ``tool2flange`` for a pose, its marker points
+    on the flange ``(K, 3)`` [m] for points; ``ValueError`` when the calibration measured the other kind."""
+    from ..estimator import Calibration
+    from ..estimator.compensation import measured_pose
+
+    cal = Calibration.load(path)
+    T = cal.tool2flange
+    if measured_pose(cal) != (kind == "pose"):
+        what = "6-DOF poses of a probe" if measured_pose(cal) else f"{len(cal.spheres_tool)} marker point(s)"
+        raise ValueError(f"--calibration {path}: it was fitted to {what}, the map measures "
+                         + ("a 6-DOF pose" if kind == "pose" else "points") + ": its tool cannot place them")
+    if kind == "pose":
+        return T, f"from the calibration {path} (--calibration)"
+    pts = cal.spheres_tool @ T[:3, :3].T + T[:3, 3]
+    return pts, f"from the calibration {path} (--calibration; its {len(pts)} marker point(s))"
+
+
 def run(args) -> int:
+    if args.calibration is not None and args.map is None:
+        raise ValueError("--calibration goes with --map (a column map's session placed with the robot's calibration)")
     if args.map is not None:
         return _run_map(args)
     from ..importers.mocap import import_mocap

@@ -123,6 +123,19 @@ def run(args) -> int:
     except ValueError as exc:
         raise ValueError(f"{how}{scope}: {exc}") from None
 
+    if cal.effects:
+        # a term of the history (an approach direction) reads its unknown state at the session's first rows: such a
+        # row would pull the frame by the term's size, so it registers nothing
+        from ..diagnosis.apply import history_unknown_rows
+        from ..diagnosis.floor import row_context
+
+        unknown = history_unknown_rows(cal, row_context(ds))[rows]
+        if unknown.any() and not unknown.all():
+            notes.append(f"{int(unknown.sum())} of the {rows.size} rows ({how}{scope}) lack the history a term of "
+                         f"{args.calibration} needs (pose_id {ds.pose_id[rows[unknown]][:10].tolist()}): left out of "
+                         "the registration")
+            rows = rows[~unknown]
+            how = f"{how} less {int(unknown.sum())} row(s) without the history a term needs"
     cal, args_cal, choice = _judged(args, cal, ds, rows, how, scope)
     predict = None
     if cal.effects:

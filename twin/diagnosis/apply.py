@@ -101,15 +101,17 @@ def _plate(cal: Calibration) -> Calibration:
 
 
 def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_station: np.ndarray,
-                 q_eff: np.ndarray, spheres_tool: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Change ``(n, K, 3)`` [m] of the predicted points from length, parameter and scale atoms."""
+                 q_eff: np.ndarray, spheres_tool: np.ndarray, known: np.ndarray, x: np.ndarray | None = None
+                 ) -> np.ndarray:
+    """Change ``(n, K, 3)`` [m] of the predicted points from length, parameter and scale atoms, in the frame of
+    ``space`` at the parameters ``x`` (default the calibration's own: its stations' measurement frames)."""
     n = len(q_eff)
     d = np.zeros((n, len(spheres_tool), 3))
     fo = [(a, phi) for a, phi in effect_atoms(cal) if a.first_order]
     if not fo:
         return d
     cache: dict = {}
-    x = cal.x
+    x = cal.x if x is None else x
     pts, Jk = predict_points(space, x, q_eff, rows_station, spheres_tool, jacobian=True)  # Jk (P, 3, 3, n)
     plate_axes: list[np.ndarray] = []
 
@@ -194,6 +196,7 @@ def compensate_extended(
     *,
     max_rounds: int = 30,
     tol: float = 1e-10,
+    weight_rotation: float = 1.0,
 ) -> CompensationResult:
     """Commands that put the plate at the targets on the identified robot *with* its effects.
 
@@ -204,6 +207,8 @@ def compensate_extended(
        commands move by less than ``tol`` [rad]. Measurement-side atoms (base frame, scale) do not change
        where the robot goes and are ignored here.
     ``ctx`` gives the rows' channels (``temp_c``, ``t_s``) and ``q_start``; its ``q`` is ignored.
+    ``weight_rotation`` [m/rad] weighs the orientation against the position in the least squares of a step (a
+    position target of a chain of fewer than six joints: small, the position first).
     """
     T = np.asarray(targets_tool2base, dtype=float)
     if T.ndim == 2:
@@ -231,7 +236,8 @@ def compensate_extended(
         c2 = RowContext(q=q_cmd, q_start=ctx.q_start, temp_c=ctx.temp_c, t_s=ctx.t_s, station=None, history_reset=None)
         q_eff = effective_joints(sub, c2)
         P, Jk = predict_points(sp, x, q_eff, np.zeros(n, int), pts_tool, jacobian=True)
-        d = _first_order(sub, c2, sp, np.zeros(n, int), q_eff, pts_tool, np.ones(n, bool))
+        # in the robot base frame: the space's one station at zero
+        d = _first_order(sub, c2, sp, np.zeros(n, int), q_eff, pts_tool, np.ones(n, bool), x=x)
         P = P + d
         o = P[:, 0]
         R = np.swapaxes(P[:, 1:] - o[:, None, :], 1, 2)
@@ -246,14 +252,21 @@ def compensate_extended(
         dq = np.empty((n, N))
         for i in range(n):
             Jfull = np.concatenate([Jp[:, :, i].T, _angular(Jax[:, :, :, i], R[i])], axis=0)  # (6, N)
-            dq[i] = np.linalg.lstsq(Jfull, np.concatenate([e_p[i], e_r[i]]), rcond=None)[0]
+            Jfull[3:] *= weight_rotation
+            dq[i] = np.linalg.lstsq(Jfull, np.concatenate([e_p[i], weight_rotation * e_r[i]]), rcond=None)[0]
         q_cmd = q_cmd + dq
         step = float(np.max(np.abs(dq)))
         if step < tol:
             break
     else:
-        raise ValueError(f"compensation with effects did not settle in {max_rounds} rounds (last step {step:.3g} rad)")
-    return replace(base, q=q_cmd)
+        rows, joints = np.nonzero(np.abs(dq) >= tol)
+        where = ", ".join(f"row {r} joint {j + 1}" for r, j in list(zip(rows.tolist(), joints.tolist()))[:5])
+        raise ValueError(f"compensation with effects did not settle in {max_rounds} rounds (last step {step:.3g} rad; "
+                         f"still moving: {where}; rows count from 0): a term of the history (backlash) reads the "
+                         "direction each command moves from the previous one, and where two consecutive commands of a "
+                         "joint are closer than its correction, the correction turns that direction over")
+    # the extended model's miss at the commands of the last round (its step is below tol)
+    return replace(base, q=q_cmd, position_error=np.linalg.norm(e_p, axis=1), rotation_error=np.linalg.norm(e_r, axis=1))
 
 
 def _angular(Jax: np.ndarray, R: np.ndarray) -> np.ndarray:

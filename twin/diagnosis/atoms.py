@@ -997,7 +997,7 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         P = np.asarray(points, dtype=float).reshape(-1, 3)
         if field_applicable(P):
             n_tool = None
-            if plate_spheres is not None:
+            if plate_spheres is not None and len(plate_spheres) >= 3:  # one or two points span no plate normal
                 S = np.asarray(plate_spheres, dtype=float)
                 n = np.cross(S[1] - S[0], S[2] - S[0])
                 if np.linalg.norm(n) > 0:

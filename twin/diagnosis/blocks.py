@@ -114,14 +114,16 @@ def _suffix(ds: Dataset, frac: float, vis: np.ndarray, sess: np.ndarray) -> tupl
 
 def held_out_sets(ds: Dataset, holdout: float | None = None) -> HeldOutSets:
     """The calibration and validation rows of ``ds`` as blocks of time (module docstring). ``holdout``: the held-out
-    fraction at the end (default :data:`HOLDOUT_DEFAULT`); with a ``set`` column whose validation rows interleave
-    with its calibration rows, their share (or ``holdout`` when given), at the end instead."""
+    fraction at the end, whatever the ``set`` column says (default: the ``set`` column's validation rows when they
+    are blocked, their share at the end when they interleave, :data:`HOLDOUT_DEFAULT` without a ``set`` column or
+    validation rows)."""
     if holdout is not None and not (0.05 <= holdout <= 0.8):
         raise ValueError(f"holdout must be in [0.05, 0.8], got {holdout!r}")
     n = ds.n
     sess = sessions(ds)
     vis = visits(ds)
-    if ds.set is not None and np.any(ds.set == "validation"):
+    has_val = ds.set is not None and bool(np.any(ds.set == "validation"))
+    if has_val and holdout is None:
         is_val = np.asarray(ds.set) == "validation"
         how = _blocked(is_val, sess)
         if how is not None:
@@ -140,7 +142,10 @@ def held_out_sets(ds: Dataset, holdout: float | None = None) -> HeldOutSets:
     else:
         frac = HOLDOUT_DEFAULT if holdout is None else float(holdout)
         is_val, how = _suffix(ds, frac, vis, sess)
-        rule = (f"{'no set column: ' if ds.set is None else ''}held out the last {100 * frac:.0f} % of the rows in "
+        why = ("no set column: " if ds.set is None else
+               f"the holdout given ({frac:g}) replaces the 'set' column's validation rows: " if has_val else
+               "the 'set' column has no validation rows: ")
+        rule = (f"{why}held out the last {100 * frac:.0f} % of the rows in "
                 f"measurement order" + (" as whole sessions" if how == "whole sessions" else "")
                 + f" ({int(is_val.sum())} rows)")
         source = how

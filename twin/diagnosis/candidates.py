@@ -108,9 +108,10 @@ def approach_signs(q: np.ndarray, q_start: np.ndarray | None = None, unknown: np
 
 
 def _joint_axes(model: RobotModel, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Axis origins and directions ``(n, 6, 3)`` of the six joints of a 6R chain in the base frame."""
+    """Axis origins and directions ``(n, N, 3)`` of the N joints of a DH/MDH chain in the base frame."""
     # MDH: joint i turns about z of frame i; DH: about z of frame i-1.
-    idx = np.arange(1, 7) if model.convention == "mdh" else np.arange(0, 6)
+    N = frames.shape[1] - 1
+    idx = np.arange(1, N + 1) if model.convention == "mdh" else np.arange(0, N)
     sel = frames[:, idx]  # (n, 6, 4, 4)
     return sel[:, :, :3, 3], sel[:, :, :3, 2]
 
@@ -214,7 +215,7 @@ def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = G
     ``k`` in its own frame ``k``. For a link ``k`` moved by joint ``i`` (axis through ``o_i`` along ``z_i``),
     ``tau = z_i . ((p_ck - o_i) x m_k g)`` and ``m_k p_ck = m_k o_k + R_k h_k`` give
     ``Y[:, i, k] = (z_i . ((o_k - o_i) x g), R_k^T (g x z_i))``; for a prismatic joint ``i`` (a ``"urdf"`` chain)
-    the force along its axis, ``Y[:, i, k] = (z_i . g, 0, 0, 0)``. Link frames: the 6R chains' frames 1..6; a
+    the force along its axis, ``Y[:, i, k] = (z_i . g, 0, 0, 0)``. Link frames: a DH/MDH chain's frames 1..N; a
     ``"urdf"`` chain's joint frames (:func:`joint_frames`).
     """
     if model.convention == "urdf":
@@ -225,7 +226,7 @@ def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = G
     else:
         frames = link_frames(model, q)
         o_axis, z_axis = _joint_axes(model, frames)
-        prismatic = np.zeros(N_JOINTS, bool)
+        prismatic = np.zeros(model.n_joints, bool)
     n, N = frames.shape[0], frames.shape[1] - 1
     Y = np.zeros((n, N, N, 4))
     for i in range(N):

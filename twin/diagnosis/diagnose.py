@@ -204,9 +204,10 @@ def diagnose(
 ) -> DiagnosisResult:
     """Diagnose ``dataset`` (see the module docstring for the steps and their statistics).
 
-    ``holdout``: without a ``set`` column, hold out this fraction at the end of the campaign (default
-    ``twin.diagnosis.blocks.HOLDOUT_DEFAULT``, 30 %; :func:`twin.diagnosis.blocks.held_out_sets`: the held-out rows are always a block of
-    time after the rows that fit, whatever the ``set`` column says, and the notes say which).
+    ``holdout``: hold out this fraction at the end of the campaign, whatever the ``set`` column says (default: the
+    ``set`` column's validation rows, or ``twin.diagnosis.blocks.HOLDOUT_DEFAULT``, 30 %, without a ``set`` column or
+    validation rows; :func:`twin.diagnosis.blocks.held_out_sets`: the held-out rows are always a block of time after
+    the rows that fit, and the notes say which).
     ``calibration``: a geometric calibration to start from (refitted on this dataset's calibration rows).
     ``max_effects``: most atoms kept. ``alpha_select``: family-wise false-selection rate per round (each pool
     Bonferroni-adjusted). ``z_min``: held-out confirmation threshold (terms and the neighbour smoothers).
@@ -374,8 +375,6 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     if virtual:
         # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
         dataset, note_virtual = virtual_spheres(dataset)
-    if dataset.set is not None and not np.any(dataset.set == "validation"):
-        raise DiagnosisError("diagnosis needs held-out rows: the 'set' column has no 'validation' rows")
     blocks = held_out_sets(dataset, holdout)
     dataset = replace(dataset, set=blocks.set)
     floor = noise_floor(dataset, plate=not virtual)

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..kinematics import UnreachableError
 from .calibration import CALIBRATION_SCHEMA_VERSION, Calibration, Prediction, parameter_table
-from .compensation import CompensationResult, compensate, compensation
+from .compensation import CompensationResult, compensate, compensation, compensation_position
 from .identifiability import Combination, Identifiability, analyse_jacobian, preference_order
 from .methods import METHODS, calibrate, identifiability, identify_best
 from . import paper_methods  # noqa: E402,F401  (registers the papers' methods in METHODS)
@@ -36,6 +36,7 @@ __all__ = [
     "calibrate",
     "compensate",
     "compensation",
+    "compensation_position",
     "identifiability",
     "identify_best",
     "parameter_table",

@@ -5,24 +5,27 @@ vectors, a unit quaternion (w first) for targets; SI inside."""
 from __future__ import annotations
 
 import csv
-import math
 import os
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..dataset import DatasetError, read_csv_rows
+from ..files import parse_finite
 from ..transforms import make_transform, matrix_to_quat_wxyz, quat_wxyz_to_matrix, transform_to_pose6
 from ..units import M_PER_MM
 from .calibration import Prediction
 
-__all__ = ["PRED_COLUMNS", "TARGET_COLUMNS", "write_pred_csv", "read_pred_csv", "read_targets_csv", "write_targets_csv"]
+__all__ = ["PRED_COLUMNS", "TARGET_COLUMNS", "TARGET_POSITION_COLUMNS", "Targets", "write_pred_csv", "read_pred_csv",
+           "read_targets", "read_targets_csv", "write_targets_csv"]
 
 SPHERE_COLS = tuple(f"p{k}_{c}" for k in range(3) for c in "xyz")
 POSE_COLS = ("x", "y", "z", "rx", "ry", "rz")
 PRED_COLUMNS = ("pose_id",) + SPHERE_COLS + POSE_COLS + ("frame",)
 TARGET_COLUMNS = ("pose_id", "x", "y", "z", "qw", "qx", "qy", "qz")
+TARGET_POSITION_COLUMNS = ("pose_id", "x", "y", "z")
 
 
 def _point_cols(k: int) -> tuple[str, ...]:
@@ -91,17 +94,54 @@ def read_pred_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return out
 
 
-def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read ``TARGETS.csv`` (``pose_id, x, y, z`` [mm], ``qw, qx, qy, qz``): ``(pose_id (n,), tool2base (n, 4, 4))``.
+@dataclass(frozen=True)
+class Targets:
+    """Targets of ``twin compensate``: ``pose_id`` ``(n,)``, ``position`` ``(n, 3)`` [m] in the robot base frame of the
+    calibration and ``rotation`` ``(n, 3, 3)`` of the tool, or None for position-only targets (a point marker)."""
 
-    Errors (:class:`~twin.dataset.DatasetError`) name the file, row and column: missing columns, duplicate
-    ids, non-numeric or non-finite values, quaternions whose norm is not 1 within 1e-6 (they are not
-    silently renormalised: a wrong target must not become a plausible one)."""
+    pose_id: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray | None
+
+    @property
+    def tool2base(self) -> np.ndarray:
+        """``(n, 4, 4)``; only for targets with an orientation."""
+        if self.rotation is None:
+            raise ValueError("position-only targets have no tool2base")
+        return np.stack([make_transform(R, p) for R, p in zip(self.rotation, self.position)]) if len(self.position) \
+            else np.zeros((0, 4, 4))
+
+
+def read_targets(path: str | os.PathLike) -> Targets:
+    """Read ``TARGETS.csv``: ``pose_id, x, y, z`` [mm] with ``qw, qx, qy, qz`` (a tool pose) or without them (a
+    position: the calibration's first marker point, e.g. one reflector).
+
+    Errors (:class:`~twin.dataset.DatasetError`) name the file, row and column: missing columns (some of the
+    quaternion's but not all), duplicate ids, non-numeric or non-finite values, quaternions whose norm is not 1
+    within 1e-6 (they are not silently renormalised: a wrong target must not become a plausible one)."""
     path = Path(path)
-    _, rows = read_csv_rows(path, TARGET_COLUMNS)
+    header, _ = read_csv_rows(path, TARGET_POSITION_COLUMNS)
+    quat = [c for c in TARGET_COLUMNS[4:] if c in header]
+    if quat and len(quat) < 4:
+        read_csv_rows(path, TARGET_COLUMNS)  # names the missing quaternion columns
+    if not quat:
+        pid, T = _read_target_rows(path, TARGET_POSITION_COLUMNS)
+        return Targets(pid, T[:, :3, 3].copy(), None)
+    pid, T = _read_target_rows(path, TARGET_COLUMNS)
+    return Targets(pid, T[:, :3, 3].copy(), T[:, :3, :3].copy())
+
+
+def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``TARGETS.csv`` of tool poses (``pose_id, x, y, z`` [mm], ``qw, qx, qy, qz``): ``(pose_id (n,),
+    tool2base (n, 4, 4))``; errors as :func:`read_targets` (missing quaternion columns named)."""
+    return _read_target_rows(Path(path), TARGET_COLUMNS)
+
+
+def _read_target_rows(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    _, rows = read_csv_rows(path, columns)
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
-    T = np.zeros((n, 4, 4))
+    T = np.tile(np.eye(4), (n, 1, 1))
     seen: dict[int, int] = {}
     for k, r in enumerate(rows):
         try:
@@ -111,22 +151,17 @@ def read_targets_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         if pid[k] in seen:
             raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': duplicate id {pid[k]} (first in row {seen[pid[k]]})")
         seen[int(pid[k])] = k + 1
-        vals = {}
-        for c in TARGET_COLUMNS[1:]:
-            t = (r[c] or "").strip()
-            try:
-                v = float(t)
-            except ValueError:
-                raise DatasetError(f"{path}: row {k + 1} (pose_id {pid[k]}), column {c!r}: not a number: {t!r}") from None
-            if not math.isfinite(v):
-                raise DatasetError(f"{path}: row {k + 1} (pose_id {pid[k]}), column {c!r}: not finite: {t!r}")
-            vals[c] = v
+        vals = {c: parse_finite((r[c] or "").strip(), f"{path}: row {k + 1} (pose_id {pid[k]}), column {c!r}",
+                                DatasetError) for c in columns[1:]}
+        T[k, :3, 3] = np.array([vals["x"], vals["y"], vals["z"]]) * M_PER_MM
+        if "qw" not in vals:
+            continue
         qv = np.array([vals["qw"], vals["qx"], vals["qy"], vals["qz"]])
         if abs(np.linalg.norm(qv) - 1.0) > 1e-6:
             raise DatasetError(
                 f"{path}: row {k + 1} (pose_id {pid[k]}), columns qw..qz: not a unit quaternion (norm {np.linalg.norm(qv):.9g})"
             )
-        T[k] = make_transform(quat_wxyz_to_matrix(qv), np.array([vals["x"], vals["y"], vals["z"]]) * M_PER_MM)
+        T[k, :3, :3] = quat_wxyz_to_matrix(qv)
     return pid, T
 
 

@@ -181,18 +181,35 @@ def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_
     return out
 
 
-def tool_reach(robot, *, n: int = 4000, seed: int = 0) -> tuple[float, float]:
+def tool_reach(robot, *, n: int = 4000, seed: int = 0, refine: int = 16) -> tuple[float, float]:
     """The median and largest distance [m] of the tool (plate) origin from the robot base origin over ``n``
     joint configurations drawn uniformly within the robot's limits (a fixed seed: the same answer each call).
-    ``robot``: a :class:`~twin.kinematics.RobotModel` whose base frame is the robot base."""
-    from ..kinematics import tool2base
+    ``robot``: a :class:`~twin.kinematics.RobotModel` whose base frame is the robot base.
+
+    The largest distance is then climbed from the ``refine`` farthest draws by projected gradient ascent within
+    the limits (``r(q) = |p(q)|``, ``dr/dq = p^T J_p / r``, a step that grows while ``r`` grows and halves when
+    it does not): the farthest reach lies on the limits of some joints (a prismatic joint fully out), where
+    uniform draws seldom come."""
+    from ..kinematics import joint_jacobian, tool2base
 
     if n < 10:
         raise ValueError(f"n must be at least 10, got {n!r}")
     rng = np.random.default_rng(seed)
     q = rng.uniform(robot.q_min, robot.q_max, (n, robot.n_joints))
     r = np.linalg.norm(tool2base(robot, q)[:, :3, 3], axis=-1)
-    return float(np.median(r)), float(r.max())
+    qk = q[np.argsort(r)[-refine:]] if refine > 0 else q[:0]
+    rk = np.linalg.norm(tool2base(robot, qk)[:, :3, 3], axis=-1)
+    step = np.full(len(qk), 0.05)
+    for _ in range(40 if len(qk) else 0):
+        p = tool2base(robot, qk)[:, :3, 3]
+        g = np.einsum("ki,kij->kj", p / np.maximum(rk, 1e-12)[:, None], joint_jacobian(robot, qk, frame="base")[:, :3])
+        g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        q_new = np.clip(qk + step[:, None] * g, robot.q_min, robot.q_max)
+        r_new = np.linalg.norm(tool2base(robot, q_new)[:, :3, 3], axis=-1)
+        up = r_new > rk
+        qk[up], rk[up] = q_new[up], r_new[up]
+        step = np.where(up, step * 1.5, step * 0.5)
+    return float(np.median(r)), float(max(r.max(), rk.max() if len(rk) else 0.0))
 
 
 def check_targets(tool2base_targets: np.ndarray, pose_id: np.ndarray, robot, *, where: str = "TARGETS.csv",

@@ -26,9 +26,11 @@ from .problem import Observations, ParamSpace, Residuals, absolute_residuals, ob
 from .solvers import GNResult, TraceEntry, covariance, gauss_newton
 
 __all__ = ["Registration", "register", "select_rows", "prediction_errors", "session_residuals", "SESSION_COLUMN",
-           "PredictFn"]
+           "MARKER_SHAPE_TOL_M", "PredictFn"]
 
 SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording session (docs/formats.md)
+MARKER_SHAPE_TOL_M = 1.0 * M_PER_MM  # [m] (+ 1 % of the set's size): a session's marker set is the calibration's when its
+# pairwise distances agree to this (an import fits them with the nominal robot)
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the Jacobian through a prediction function
 _XTOL_PREDICT = 1e-10  # [m] and [rad]: convergence step through a prediction function
 
@@ -487,14 +489,18 @@ def _observations(cal: Calibration, ds: Dataset) -> tuple[Observations, np.ndarr
         raise ValueError(f"dataset {ds.path or '(in memory)'}: {ds.n_points} marker points per row, the calibration's "
                          f"marker set has {cal.spheres_tool.shape[0]}")
     if ds.has_spheres:
-        d = np.abs(ds.plate.spheres_flange - cal.plate.spheres_flange)
-        if d.max() > 1e-6:
-            k = int(np.argmax(d.max(axis=1)))
+        # the shape of the marker set (its pairwise distances): where a session's import placed it on the flange is a
+        # start fitted with the nominal robot; the calibration's own placement (its tool) is what registers
+        a, b = ds.plate.spheres_flange, cal.plate.spheres_flange
+        da = np.linalg.norm(a[:, None] - a[None], axis=-1)
+        db = np.linalg.norm(b[:, None] - b[None], axis=-1)
+        d = np.abs(da - db)
+        if d.size and d.max() > MARKER_SHAPE_TOL_M + 0.01 * db.max():
+            i, j = np.unravel_index(int(np.argmax(d)), d.shape)
             raise ValueError(
-                f"dataset {ds.path or '(in memory)'}: its marker set differs from the calibration's (point p{k}: "
-                f"{np.round(ds.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm against "
-                f"{np.round(cal.plate.spheres_flange[k] / M_PER_MM, 4).tolist()} mm in the flange frame); another marker set "
-                "needs a calibration of its own")
+                f"dataset {ds.path or '(in memory)'}: its marker set differs from the calibration's (distance p{i}-p{j} "
+                f"{da[i, j] / M_PER_MM:.4f} mm against {db[i, j] / M_PER_MM:.4f} mm); another marker set needs a calibration of "
+                "its own")
     sp = ds.noise_position if ds.noise_position is not None else _noise(cal, "position_mm", M_PER_MM)
     so = ds.noise_orientation if ds.noise_orientation is not None else _noise(cal, "orientation_rad", 1.0)
     obs, kept, _ = observations_from_dataset(ds, sigma_position=sp, sigma_orientation=so)

@@ -64,6 +64,7 @@ _TOP_KEYS = {"schema_version", "kind", "description", "attribution", "robot", "c
 _FILE_KEYS = {"path", "csv", "joints", "measurement", "time", "order", "temperature", "keep", "pose_id", "set",
               "session", "station", "base2meas"}
 _SETS = ("calibration", "validation")
+_START_M = 0.1  # [m] the starts of fit_points_on_flange off the flange origin
 
 
 # ------------------------------------------------------------------------------------------------
@@ -77,7 +78,8 @@ Terms = tuple[tuple[float, str], ...]  # a coordinate: sum of sign * column
 class FileMap:
     """How to read one CSV (the map with its file's overrides applied). Columns by header name; ``points``: K
     triples of :data:`Terms` (x, y, z); ``position``/``rotation``: the pose columns; ``time_column`` None for the
-    row order; ``set_rule`` ``("fixed", label)``, ``("column", name)`` or ``("last_fraction", F)``; ``session``
+    row order; ``set_rule`` ``("fixed", label)``, ``("column", name)`` or ``("last_fraction", F)`` (``set_given``: whether
+    the map, the file's entry or the command line gave it; otherwise every row is calibration); ``session``
     and ``station`` ``("fixed", label)``, ``("column", name)`` or None (session: the file's name; station: one
     station ``"0"``)."""
 
@@ -100,6 +102,7 @@ class FileMap:
     keep: tuple[str, ...] = ()
     pose_id: str | None = None
     set_rule: tuple[str, Any] = ("fixed", "calibration")
+    set_given: bool = True
     session: tuple[str, str] | None = None
     station: tuple[str, str] | None = None
     base2meas: np.ndarray | None = None
@@ -380,7 +383,7 @@ def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: s
         separator=sep, decimal=dec, header_row=hr, joint_columns=tuple(cols), joint_scale=tuple(scale), kind=kind,
         length_scale=_LENGTH[lu], time_column=tc, time_format=tf, order=order,
         temperature=None if temp is None else temp["column"], keep=tuple(keep),
-        pose_id=None if pid is None else pid["column"], set_rule=set_rule,
+        pose_id=None if pid is None else pid["column"], set_rule=set_rule, set_given="set" in d,
         session=_label_rule(d.get("session"), f"{where}: session"),
         station=_label_rule(d.get("station"), f"{where}: station"), base2meas=b2m, base2meas_source=b2m_src, **kw)
 
@@ -704,8 +707,9 @@ def fit_points_on_flange(flange2base_T: np.ndarray, points_meas: np.ndarray, bas
 
     With ``base2meas`` given, the points are the linear least squares ``x_k = mean_i R_i^T (base2meas^-1 p_ik -
     t_i)`` (exact: the ``R_i`` are rotations). Otherwise alternately: ``base2meas`` by a rigid fit (Kabsch) of the
-    predicted points onto the measured ones, then the points as above, from the flange origins, until the points
-    move less than ``tol`` [m] (at most ``max_iter`` rounds)."""
+    predicted points onto the measured ones, then the points as above, until the points move less than ``tol`` [m]
+    (at most ``max_iter`` rounds), from seven starts (the flange origin, 0.1 m along each flange axis); the fit of
+    the least squared residual."""
     F = np.asarray(flange2base_T, dtype=float)
     P = np.asarray(points_meas, dtype=float)
     if F.ndim != 3 or F.shape[1:] != (4, 4) or P.ndim != 3 or P.shape[0] != F.shape[0] or P.shape[2] != 3:
@@ -720,18 +724,27 @@ def fit_points_on_flange(flange2base_T: np.ndarray, points_meas: np.ndarray, bas
     if base2meas is not None:
         B = np.asarray(base2meas, dtype=float)
         return B, points_given(B)
-    X = np.zeros((P.shape[1], 3))
-    B = np.eye(4)
-    for _ in range(max_iter):
+
+    def alternate(X):
+        B = np.eye(4)
+        for _ in range(max_iter):
+            pred = np.einsum("nij,kj->nki", R, X) + tt[:, None, :]
+            Rb, tb = kabsch(pred.reshape(-1, 3), P.reshape(-1, 3))
+            B = make_transform(Rb, tb)
+            X_new = points_given(B)
+            done = np.abs(X_new - X).max() < tol
+            X = X_new
+            if done:
+                break
         pred = np.einsum("nij,kj->nki", R, X) + tt[:, None, :]
-        Rb, tb = kabsch(pred.reshape(-1, 3), P.reshape(-1, 3))
-        B = make_transform(Rb, tb)
-        X_new = points_given(B)
-        done = np.abs(X_new - X).max() < tol
-        X = X_new
-        if done:
-            break
-    return B, X
+        return float(np.sum((pred @ B[:3, :3].T + B[:3, 3] - P) ** 2)), B, X
+
+    # from the flange origin, and from 0.1 m along each flange axis: where the flange origins hardly move (axes that
+    # meet in a point, a pan-tilt head) the first rigid fit is undetermined and one start can end in a wrong minimum
+    K = P.shape[1]
+    starts = [np.zeros((K, 3))] + [np.tile(sign * _START_M * e, (K, 1)) for e in np.eye(3) for sign in (1.0, -1.0)]
+    best = min((alternate(X0) for X0 in starts), key=lambda r: r[0])
+    return best[1], best[2]
 
 
 def _register(F: np.ndarray, tool: np.ndarray, P: np.ndarray, rot: np.ndarray | None) -> tuple[np.ndarray, float, float | None]:
@@ -776,12 +789,21 @@ class ImportReport:
 
 
 def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, *,
-                   files: Sequence[tuple[str | os.PathLike, dict]] | None = None, attribution: str = "") -> ImportReport:
+                   files: Sequence[tuple[str | os.PathLike, dict]] | None = None, attribution: str = "",
+                   tool: tuple[np.ndarray, str] | None = None) -> ImportReport:
     """Import the CSVs of a column map into the dataset folder ``out`` (see the module docstring).
 
     ``files``: ``(path, overrides)`` pairs read instead of the map's ``[[files]]`` (overrides: keys of a
     ``[[files]]`` entry, e.g. ``{"set": "validation", "session": "B", "station": "B", "time": "row"}``).
-    ``attribution``: text added to the provenance. Returns an :class:`ImportReport`."""
+    ``attribution``: text added to the provenance. ``tool``: ``(frame, source)``, the robot's tool known from
+    elsewhere (e.g. its calibration): a pose's ``tool2flange`` ``(4, 4)``, or the points on the flange ``(K, 3)``
+    [m]; it replaces the map's frame and any fit. Returns an :class:`ImportReport`.
+
+    No ``set`` given (in the map, a ``[[files]]`` entry or ``files``): no ``set`` column is written. No calibration
+    row (a session to predict or to score): the frames are fitted on every row. Poses that cannot place the tool
+    (one tool orientation over the rows, an ISO cube's probe; rotations about one axis only, a planar arm) with no
+    tool given: the tool's rotation is read from the rows and its position on the flange left at the flange's
+    origin, said in the notes (``twin register`` holds the calibrated robot's tool)."""
     if not isinstance(cmap, ColumnMap):
         cmap = read_column_map(cmap)
     specs = [cmap.for_file(p, o) for p, o in files] if files else list(cmap.files)
@@ -808,11 +830,25 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
     else:
         station = None
     st_ids = station if station is not None else np.full(n_tot, "0", dtype=object)
-    if not np.any(sets == "calibration"):
-        raise ValueError(f"{cmap.path}: no calibration rows (every file's set is validation)")
     F = flange2base(robot, q)
-    cal = sets == "calibration"
     notes: list[str] = [n for r in parts for n in r.notes]
+    set_given = any(s.map.set_given for s in specs)
+    if not set_given:
+        notes.append("no set column: no set was given (map, [[files]] or command line); twin diagnose holds out the "
+                     "end of the campaign, twin calibrate a seeded random fraction")
+    cal = sets == "calibration"
+    if not cal.any():
+        cal = np.ones(n_tot, bool)
+        notes.append("every row is validation (a session to predict or to score): the frames below were fitted on all "
+                     "of them")
+    tool_points = tool_frame = None
+    tool_src = ""
+    if tool is not None:
+        T_tool, tool_src = np.asarray(tool[0], dtype=float), str(tool[1])
+        if T_tool.shape != ((4, 4) if pose else (K, 3)):
+            raise DatasetError(f"{tool_src}: holds {'a tool frame' if T_tool.shape == (4, 4) else f'{len(T_tool)} point(s)'}"
+                               f" where the map measures {'a 6-DOF pose' if pose else f'{K} point(s)'}")
+        tool_frame, tool_points = (T_tool, None) if pose else (None, T_tool)
     frames_txt: list[str] = []
     # the tool (pose) or the points on the flange
     given_b2m: dict[str, np.ndarray] = {}
@@ -825,17 +861,27 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
     first = str(st_ids[np.flatnonzero(cal)[0]])
     sel = np.flatnonzero(cal & (st_ids == first))
     he_tool = None
+    from_map = pose and tool_frame is None and cmap.tool2flange is not None
+    given_tool = (tool_frame, tool_src) if tool_frame is not None else \
+        ((cmap.tool2flange, cmap.tool2flange_source) if from_map else None)
+    one_orientation = False
     if pose:
         take = sel[np.linspace(0, sel.size - 1, min(sel.size, 40)).round().astype(int)]
         try:
             _, he_tool = hand_eye(F[take], _poses(rot[take], P[take, 0]))
         except ValueError as exc:
-            if cmap.tool2flange is None:
-                raise DatasetError(f"{cmap.path}: the tool frame cannot be placed on the flange ({exc}); give "
-                                   "frames.tool2flange in the map") from None
-        if cmap.tool2flange is not None:
-            tool = cmap.tool2flange
-            frames_txt.append(f"tool2flange: {cmap.tool2flange_source}")
+            one_orientation = given_tool is None
+            he_fail = str(exc)
+        if given_tool is not None:
+            tool = given_tool[0]
+            frames_txt.append(f"tool2flange: {given_tool[1]}")
+        elif one_orientation:
+            tool = _tool_rotation(F[sel], P[sel, 0], rot[sel], given_b2m.get(first))
+            frames_txt.append(f"tool2flange: unknown: the rows cannot place the tool on the flange ({he_fail}: one "
+                              "orientation, or turns about one axis only); its rotation read from the rows with the "
+                              "nominal robot, its position left at the flange's origin. twin register with the robot's "
+                              "calibration holds the calibrated tool (twin import --calibration CAL.json, or "
+                              "frames.tool2flange in the map, gives it here)")
         else:
             tool = he_tool
             frames_txt.append(f"tool2flange: closed-form hand-eye registration of the nominal robot on {take.size} "
@@ -843,7 +889,10 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         pts_flange = tool[:3, 3][None].copy()
     else:
         tool = np.eye(4)
-        if cmap.points_flange is not None:
+        if tool_points is not None:
+            pts_flange = tool_points
+            frames_txt.append(f"points on the flange: {tool_src}")
+        elif cmap.points_flange is not None:
             pts_flange = cmap.points_flange
             frames_txt.append("points on the flange: given in the map")
         else:
@@ -861,7 +910,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         if sid in given_b2m:
             B = given_b2m[sid]
         elif pose:
-            B = _register(F[rows], tool, P[rows], r_rot)[0]
+            B = _register(F[rows], tool, P[rows], None if one_orientation else r_rot)[0]
         else:
             Rb, tb = kabsch(_on_flange(F[rows], pts_flange).reshape(-1, 3), P[rows].reshape(-1, 3))
             B = make_transform(Rb, tb)
@@ -874,7 +923,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         stations[sid] = {"rows": int(rows.size), "position_rms_mm": ep / M_PER_MM,
                          "orientation_rms_deg": None if er is None else er / RAD_PER_DEG,
                          "base2meas": b2m_src.get(sid, "registered on its rows with the nominal robot")}
-    if pose and cmap.tool2flange is not None:
+    if from_map:
         # the direction of a given tool frame, checked against the data: its inverse must not fit far better
         inv = invert_transform(tool)
         worse = []
@@ -975,7 +1024,7 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         sphere_seen=np.zeros((n_tot, K), bool) if pose else np.ones((n_tot, K), bool),
         pose=pose_T,
         pose_seen=np.full(n_tot, pose),
-        set=sets.astype(object),
+        set=sets.astype(object) if set_given else None,
         station=None if station is None else station.astype(object),
         temp_c=temp_c,
         t_s=t_s,
@@ -992,6 +1041,21 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
                   "session": sorted(set(r.session)), "station": None if r.station is None else sorted(set(r.station)),
                   "time": "row order" if r.t is None else "time stamps"} for r in parts)
     return ImportReport(dataset=ds, files=info, stations=stations, notes=tuple(frames_txt + notes))
+
+
+def _tool_rotation(F: np.ndarray, p: np.ndarray, rot: np.ndarray, base2meas: np.ndarray | None) -> np.ndarray:
+    """A tool frame ``(4, 4)`` for poses of one orientation: ``base2meas`` (given, or registered on the positions
+    ``p`` ``(n, 3)`` [m] against the flange origins ``F`` ``(n, 4, 4)``: the tool's offset is one constant shift
+    then), the rotation ``R_tool`` the mean (projected on SO(3)) of ``(R_B R_F,i)^T R_i`` over the rows, the
+    translation zero (not determined by one orientation)."""
+    if base2meas is None:
+        Rb, _ = kabsch(F[:, :3, 3], p)
+    else:
+        Rb = base2meas[:3, :3]
+    M = np.einsum("nji,njk->ik", Rb @ F[:, :3, :3], rot)
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return make_transform(U @ D @ Vt, np.zeros(3))
 
 
 def _fmt_mm(p: np.ndarray) -> str:

@@ -43,6 +43,9 @@ from ..units import M_PER_MM, MM_PER_M
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
 _TIME_COLUMNS = ("t_start_robot", "t_end_robot")
+# hand_eye: the relative rotations turn about one axis when their second singular value is below this share of the
+# largest rotation (axes within about a degree: a planar arm, whose small errors tilt them apart)
+_ONE_AXIS = 0.02
 
 
 @dataclass(frozen=True)
@@ -202,7 +205,7 @@ def hand_eye(flange2base_T: np.ndarray, tool2meas_T: np.ndarray, *, min_angle: f
     if len(a_ax) < 2:
         raise ValueError(f"hand_eye: {len(a_ax)} row pairs rotate more than {min_angle} rad; need at least two")
     a_ax, b_ax = np.array(a_ax), np.array(b_ax)
-    if np.linalg.svd(a_ax, compute_uv=False)[1] < 1e-3 * np.linalg.norm(a_ax, axis=1).max():
+    if np.linalg.svd(a_ax, compute_uv=False)[1] < _ONE_AXIS * np.linalg.norm(a_ax, axis=1).max():
         raise ValueError("hand_eye: every relative rotation turns about one axis: the tool rotation is not determined")
     RY, _ = _kabsch_dirs(a_ax, b_ax)
     lhs = np.concatenate([B[:3, :3] - np.eye(3) for B in B_list])

@@ -1,0 +1,403 @@
+"""The newcomer matrix's cases and the README's chain run on each (``tests/test_newcomer.py``).
+
+A case is one draw of the axes below: a robot (its form, joint count and kinds), what the instrument measures, how
+the campaign is laid out in files and sets, its time, the lab's CSV dialect, and whether the robot carries an effect
+the geometric model lacks. :func:`covering_cases` draws them with a seeded rng so that every value of every axis
+appears and every pair of values of the axes in :data:`PAIRS` too (a covering design, not the cross product).
+
+:func:`run_case` writes the files of a case as a user from another lab would (``tests/_newcomer.py``), runs ``twin
+import --map`` -> ``calibrate`` -> ``diagnose`` -> ``import`` of a second session -> ``register`` -> ``predict`` ->
+``compensate`` -> ``export`` in-process through :func:`twin.cli.main`, and measures the outputs against the
+generator's own forward kinematics (the oracle).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import itertools
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+import _newcomer as N
+from twin.cli import main
+from twin.units import M_PER_MM, MM_PER_M, RAD_PER_DEG
+
+AXES = {
+    "form": ("dh", "mdh", "table", "urdf"),
+    "joints": (3, 4, 5, 6, 7, 8),
+    "prismatic": (False, True),
+    "measurement": ("points1", "points2", "points3", "pose", "pose_const"),
+    "layout": ("no_set", "interleaved", "val_end", "val_only", "sessions_stations"),
+    "time": ("none", "seconds", "stamps_gaps_repeats"),
+    "dialect": (0, 1, 2),
+    "effect": ("none", "backlash"),
+    "noise": (True, False),
+}
+# the pairs of axes whose every pair of values some case takes
+PAIRS = (("form", "measurement"), ("measurement", "layout"), ("form", "layout"))
+ROWS_A = 48  # rows of the campaign that calibrates
+ROWS_B = 24  # rows of the second session (registered, predicted)
+REGISTER_ROWS = 12
+NOISE_MM = 0.005
+NOISE_RAD = 2e-5
+BACKLASH_DEG = 0.04
+
+
+@dataclass(frozen=True)
+class Case:
+    form: str
+    joints: int
+    prismatic: bool
+    measurement: str
+    layout: str
+    time: str
+    dialect: int
+    effect: str
+    noise: bool
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return (f"{self.form}{self.joints}{'p' if self.prismatic else ''}-{self.measurement}-{self.layout}-{self.time}"
+                f"-d{self.dialect}-{self.effect}{'' if self.noise else '-nonoise'}")
+
+
+def allowed(c: dict) -> bool:
+    """The combinations a user can have: a DH/MDH table has revolute joints only; one tool orientation over a cube
+    needs six joints or more."""
+    if c["prismatic"] and c["form"] in ("dh", "mdh"):
+        return False
+    if c["measurement"] == "pose_const" and c["joints"] < 6:
+        return False
+    return True
+
+
+def covering_cases(seed: int = 36, candidates: int = 60) -> list[Case]:
+    """Cases that take every value of every axis and every pair of values of the axis pairs in :data:`PAIRS`
+    (greedy: each new case the allowed random draw that covers most of what is still uncovered)."""
+    rng = np.random.default_rng(seed)
+    need = {(a, v) for a, vals in AXES.items() for v in vals}
+    need |= {((a, va), (b, vb)) for a, b in PAIRS for va in AXES[a] for vb in AXES[b]}
+    need = {n for n in need if _possible(n)}  # what no allowed case can take is not needed
+    cases: list[Case] = []
+    while need:
+        best, gain = None, -1
+        for _ in range(candidates):
+            c = {a: vals[rng.integers(len(vals))] for a, vals in AXES.items()}
+            if not allowed(c):
+                continue
+            cov = _covers(c)
+            g = len(cov & need)
+            if g > gain:
+                best, gain = c, g
+        if gain <= 0:
+            continue
+        need -= _covers(best)
+        cases.append(Case(**{k: (v.item() if hasattr(v, "item") else v) for k, v in best.items()},
+                          seed=int(rng.integers(1 << 30))))
+    return cases
+
+
+def _any() -> dict:
+    return {"form": "table", "joints": 7, "prismatic": False, "measurement": "pose", "layout": "no_set",
+            "time": "none", "dialect": 0, "effect": "none", "noise": True}
+
+
+def _possible(n) -> bool:
+    """Whether some allowed case takes the value (or the pair of values) ``n``."""
+    fixed = [n] if isinstance(n[0], str) else list(n)
+    others = [a for a in ("form", "joints", "prismatic", "measurement") if a not in {f[0] for f in fixed}]
+    return any(allowed({**_any(), **dict(zip(others, vals)), **dict(fixed)})
+               for vals in itertools.product(*(AXES[a] for a in others)))
+
+
+def _covers(c: dict) -> set:
+    out = {(a, c[a]) for a in AXES}
+    out |= {((a, c[a]), (b, c[b])) for a, b in PAIRS}
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Running the chain
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Step:
+    """One command: its argv, exit code, stdout and stderr."""
+
+    argv: list[str]
+    code: int
+    out: str
+    err: str
+    cpu_s: float = 0.0
+
+
+@dataclass
+class Outcome:
+    """What a case did: the steps, and the figures the oracle measured (mm)."""
+
+    case: Case
+    steps: dict[str, Step] = field(default_factory=dict)
+    figures: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    model: Path | None = None
+
+
+def twin(argv: list[str]) -> Step:
+    """``twin ARGV`` in this process, as the console runs it (``twin.cli.main``); stdout and stderr captured."""
+    out, err = io.StringIO(), io.StringIO()
+    t0 = time.process_time()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return Step([str(a) for a in argv], code, out.getvalue(), err.getvalue(), time.process_time() - t0)
+
+
+def _time_columns(case: Case, n: int, rng: np.random.Generator, q: np.ndarray, start_s: float) -> tuple[dict, dict]:
+    """The time column of a file and the map's ``time`` key: none, seconds, or time stamps with a gap of two hours
+    and repeated rows (a command measured twice, a time stamp written twice)."""
+    if case.time == "none":
+        return {}, {"time": "row"} if case.dialect == 1 else {}
+    dt = rng.uniform(20, 40, n)
+    dt[n // 2] = 7200.0  # a pause
+    same = np.flatnonzero(np.all(np.diff(q, axis=0) == 0, axis=1)) + 1
+    dt[same] = rng.choice([0.0, 1.0], same.size)  # a repeated row: at once, or a second later
+    t = start_s + np.cumsum(dt)
+    if case.time == "seconds":
+        return {"Time [s]": np.round(t, 3)}, {"time": {"column": "Time [s]", "format": "seconds"}}
+    import datetime as dt_
+
+    t0 = dt_.datetime(2024, 3, 4, 8, 0, 0)
+    stamps = np.array([(t0 + dt_.timedelta(seconds=float(int(v)))).strftime("%Y-%m-%d %H:%M:%S") for v in t], dtype=object)
+    return {"Timestamp": stamps}, {"time": {"column": "Timestamp", "format": "%Y-%m-%d %H:%M:%S"}}
+
+
+@dataclass
+class World:
+    """The generator's truth for a case: the nominal and true robots, the marker points or tool, the frames of the
+    campaign's stations and of the second session, and the sessions."""
+
+    robot: N.Robot
+    true: N.Robot
+    markers: np.ndarray | None
+    tool: np.ndarray | None
+    frames: dict[str, np.ndarray]
+    a_parts: list
+    b: N.Session
+    b_true: N.Session
+
+
+def make_world(case: Case) -> World:
+    rng = np.random.default_rng(case.seed)
+    pri = int(rng.integers(1, case.joints)) if case.prismatic else None
+    robot = N.make_robot(rng, case.form, case.joints, prismatic=pri)
+    bl = {int(rng.integers(0, min(case.joints, 3))): BACKLASH_DEG * RAD_PER_DEG} if case.effect == "backlash" else None
+    true = N.perturbed(robot, rng, backlash=bl)
+    markers = tool = None
+    if case.measurement.startswith("points"):
+        K = int(case.measurement[-1])
+        markers = rng.uniform(-80, 80, (K, 3)) * M_PER_MM + np.array([0.0, 0.0, 0.12])
+    else:
+        tool = N.transform(Rotation.from_rotvec(rng.normal(0, 0.6, 3)).as_matrix(), rng.uniform(-0.05, 0.05, 3)
+                           + [0.0, 0.0, 0.1])
+    repeats = 4 if case.time == "stamps_gaps_repeats" else 0
+    q = N.sample_joints(robot, rng, ROWS_A, repeats=repeats)
+    frames = {"T1": N.random_frame(rng), "T2": N.random_frame(rng), "B": N.random_frame(rng)}
+    kw = dict(markers=markers, tool2flange=tool, noise_mm=NOISE_MM, noise_rad=0.0 if markers is not None else NOISE_RAD)
+    if case.layout == "sessions_stations":
+        h = ROWS_A // 2
+        parts = [N.measure(true, q[:h], frames["T1"], rng, **kw), N.measure(true, q[h:], frames["T2"], rng, **kw)]
+    else:
+        parts = [N.measure(true, q, frames["T1"], rng, **kw)]
+    if case.measurement == "pose_const":
+        qb = N.constant_orientation_joints(robot, rng, ROWS_B, tool)
+    else:
+        qb = N.sample_joints(robot, rng, ROWS_B)
+    b = N.measure(true, qb, frames["B"], rng, **kw)
+    b_true = N.measure(true, qb, frames["B"], rng, **{**kw, "noise_mm": 0.0, "noise_rad": 0.0})
+    return World(robot, true, markers, tool, frames, parts, b, b_true)
+
+
+def write_files(case: Case, w: World, folder: Path) -> tuple[Path, Path, list[str]]:
+    """The campaign's map and CSVs and the second session's; returns the two maps and the extra arguments of the
+    second session's import."""
+    rng = np.random.default_rng(case.seed + 1)
+    d = N.DIALECTS[case.dialect]
+    top: dict = {"description": f"newcomer case {case.name}"}
+    parts = []
+    t_start = 0.0
+    for k, s in enumerate(w.a_parts):
+        cols, tkey = _time_columns(case, s.n, rng, s.q, t_start)
+        t_start += 86400.0
+        top.update(tkey)
+        extra: dict = {"__columns__": dict(cols)}
+        if case.layout == "interleaved":
+            role = np.where(np.arange(s.n) % 4 == 3, "validation", "calibration").astype(object)
+            extra["__columns__"]["Role"] = role
+            top["set"] = {"column": "Role"}
+        elif case.layout == "val_end":
+            extra["set"] = {"validation_last_fraction": 0.3}
+        elif case.layout == "val_only":
+            top["set"] = "calibration"
+        elif case.layout == "sessions_stations":
+            extra.update(session=("mon", "tue")[k], station=("T1", "T2")[k])
+        parts.append((f"campaign_{k + 1}.csv", s, extra))
+    noise = NOISE_MM if case.noise else None
+    map_a = N.write_campaign(folder / "lab", w.robot, parts, d, top=top, noise_mm=noise)
+    cols, tkey = _time_columns(case, w.b.n, rng, w.b.q, 30 * 86400.0)
+    b_extra = {"__columns__": dict(cols), "station": "tracker_B", "session": "later"}
+    args_b: list[str] = []
+    if case.layout == "val_only":
+        b_extra["__columns__"]["dummy"] = np.zeros(w.b.n)
+        map_b = N.write_campaign(folder / "lab", w.robot, [("session_b.csv", w.b, b_extra)], d, top=tkey,
+                                 noise_mm=noise, map_name="session_b.toml")
+        # the session's rows as --validation: every row a validation row
+        text = map_b.read_text()
+        map_b.write_text(text[: text.index("[[files]]")])
+        args_b = ["--validation", str(folder / "lab" / "session_b.csv") + ":station=tracker_B,session=later"]
+    else:
+        map_b = N.write_campaign(folder / "lab", w.robot, [("session_b.csv", w.b, b_extra)], d, top=tkey,
+                                 noise_mm=noise, map_name="session_b.toml")
+    return map_a, map_b, args_b
+
+
+def _read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def run_case(case: Case, folder: Path) -> Outcome:
+    """The README's chain on a case (module docstring); each step's exit code and output in ``steps``, the oracle's
+    figures in ``figures``. A step that refuses (exit 2) leaves out the steps that need its output: the geometric
+    calibration stands in for the diagnosis' model, a second session not imported is not registered or predicted."""
+    from twin.estimator import Calibration
+
+    o = Outcome(case)
+    w = make_world(case)
+    map_a, map_b, args_b = write_files(case, w, folder)
+    ds_a, ds_b = folder / "ds_a", folder / "ds_b"
+
+    def step(name, argv) -> bool:
+        o.steps[name] = twin(argv)
+        return o.steps[name].code == 0
+
+    if not step("import", ["import", "--map", map_a, "--out", ds_a]):
+        return o
+    if not step("calibrate", ["calibrate", ds_a, "--out", folder / "cal", "--quiet"]):
+        return o
+    cal_path = folder / "cal" / "calibration.json"
+    res = Calibration.load(cal_path).residuals
+    if res.get("validation", {}).get("n_rows"):
+        o.figures["calibrate_before_mm"] = res["before_calibration"]["validation"]["position_mm"]["rms"]
+        o.figures["calibrate_after_mm"] = res["validation"]["position_mm"]["rms"]
+    use = cal_path
+    if step("diagnose", ["diagnose", ds_a, "--out", folder / "diag", "--no-plots", "--no-recording", "--threads", "1"]):
+        use = folder / "diag" / "calibration.json"
+        diag = json.loads((folder / "diag" / "diagnosis.json").read_text())
+        o.figures["diagnose_before_mm"] = diag["before"]["position_mm"]["rms"]
+        o.figures["diagnose_after_mm"] = diag["after"]["position_mm"]["rms"]
+        o.notes.append(f"diagnosis: effects {diag.get('effects')}, model {diag.get('model_in_use')}")
+    o.model = use
+    b_args = ["--calibration", cal_path] if case.measurement == "pose_const" and case.seed % 2 == 0 else []
+    later = np.arange(REGISTER_ROWS, w.b.n)
+    if step("import_b", ["import", "--map", map_b, *args_b, "--out", ds_b, *b_args]):
+        reg = folder / "registered.json"
+        if step("register", ["register", use, ds_b, "--first", REGISTER_ROWS, "--out", reg]):
+            # predict the rows the registration did not use, in the session's station frame
+            joints = N.write_joints_csv(folder / "joints_b.csv", w.robot, w.b.q, station="tracker_B")
+            if step("predict", ["predict", reg, joints, "--out", folder / "pred.csv"]):
+                o.figures["predict_mm"] = _prediction_error(_read_csv(folder / "pred.csv"), w, later)
+    # compensate targets near the second session's later configurations, in the calibration's base frame
+    if step("compensate", _compensate_argv(case, w, folder, use, later)):
+        o.figures.update(_compensation_error(case, w, folder, use))
+    for name, c in (("export", cal_path), ("export_model", use)):
+        step(name, ["export", c, "--out", folder / f"robot_{name}"])
+    return o
+
+
+def _prediction_error(pred: list[dict], w: World, later: np.ndarray) -> float:
+    """RMS over the rows ``later`` of the distance between a predicted marker point (the pose origin) and the true
+    one [mm]."""
+    pred = [pred[k] for k in later]
+    if w.markers is not None:
+        K = len(w.markers)
+        p = np.array([[[float(r[f"p{k}_{a}"]) for a in "xyz"] for k in range(K)] for r in pred])
+        t = w.b_true.points[later] * MM_PER_M
+    else:
+        p = np.array([[[float(r[a]) for a in "xyz"]] for r in pred])
+        t = w.b_true.pose[later][:, None, :3, 3] * MM_PER_M
+    return float(np.sqrt(np.mean(np.sum((p - t) ** 2, axis=-1))))
+
+
+def _targets(case: Case, w: World, cal_path: Path, later: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Targets [m, base frame of the calibration]: where the calibrated model puts the tool (or the measured point)
+    at the later configurations of the second session moved by about 1 deg per joint (a pose the chain reaches);
+    position-only for points of one or two markers and every third case, else tool poses."""
+    from twin.estimator import Calibration
+    from twin.estimator.compensation import point_frame
+    from twin.kinematics import tool2base
+
+    cal = Calibration.load(cal_path)
+    rng = np.random.default_rng(case.seed + 2)
+    q = np.clip(w.b.q[later] + rng.normal(0, 1.0, w.b.q[later].shape) * np.where(w.robot.prismatic, M_PER_MM, RAD_PER_DEG),
+                w.robot.lo, w.robot.hi)
+    T = tool2base(cal.robot.with_frames(base2meas=np.eye(4)), q)
+    position_only = case.measurement in ("points1", "points2") or case.seed % 3 == 0
+    if position_only:
+        return (T @ point_frame(cal))[:, :3, 3], True
+    return T, False
+
+
+def _compensate_argv(case, w, folder, cal_path, later):
+    T, position_only = _targets(case, w, cal_path, later)
+    if position_only:
+        N.write_targets_csv(folder / "targets.csv", T, position_only=True)
+    else:
+        N.write_targets_csv(folder / "targets.csv", T)
+    N.write_joints_csv(folder / "reference.csv", w.robot, w.b.q[later], np.arange(len(later)))
+    (folder / "targets_kind.txt").write_text("position" if position_only else "pose")
+    return ["compensate", cal_path, folder / "targets.csv", "--reference", folder / "reference.csv",
+            "--out", folder / "corrected.csv"]
+
+
+def _compensation_error(case: Case, w: World, folder: Path, cal_path: Path) -> dict[str, float]:
+    """Where the true robot puts the target point (position-only) or the tool origin at the corrected commands,
+    against the target seen in the calibration's first station frame [mm]; the same for the reference commands
+    (what an uncalibrated controller would roughly do)."""
+    from twin.estimator import Calibration
+
+    cal = Calibration.load(cal_path)
+    rows = _read_csv(folder / "corrected.csv")
+    names = w.robot.names
+    q = np.array([[float(r[c]) for c in names] for r in rows])
+    q = q * np.where(w.robot.prismatic, M_PER_MM, RAD_PER_DEG)
+    position_only = (folder / "targets_kind.txt").read_text() == "position"
+    T_cal, _ = _targets(case, w, cal_path, np.arange(REGISTER_ROWS, w.b.n))
+    station = sorted(cal.stations)[0]
+    B_cal = cal.base2meas[station]
+    B_true = w.frames["T1" if station in ("0", "T1") else "T2"]
+    tip = w.markers[0] if w.markers is not None else w.tool[:3, 3]
+    F = B_true @ w.true.fk(q, q_start=np.zeros(w.robot.n))  # twin compensate: "commands in file order, start at home"
+    got = F[:, :3, :3] @ tip + F[:, :3, 3]
+    if position_only:
+        want = T_cal @ B_cal[:3, :3].T + B_cal[:3, 3]
+    else:
+        P = cal.spheres_tool[0] if w.markers is not None else np.zeros(3)
+        want = np.einsum("ij,nj->ni", B_cal[:3, :3], np.einsum("nij,j->ni", T_cal[:, :3, :3], P) + T_cal[:, :3, 3]) \
+            + B_cal[:3, 3]
+    err = np.linalg.norm(got - want, axis=1) * MM_PER_M
+    miss = np.array([float(r["miss_mm"]) for r in rows])
+    return {"compensate_mm": float(np.sqrt(np.mean(err**2))), "compensate_miss_mm": float(miss.max())}
+
+
+def summary(o: Outcome) -> str:
+    """One line per case: the steps' exit codes and the figures."""
+    codes = " ".join(f"{k}={s.code}({s.cpu_s:.2f}s)" for k, s in o.steps.items())
+    figs = " ".join(f"{k}={v:.4g}" for k, v in o.figures.items())
+    return f"{o.case.name}: {codes} | {figs}"
