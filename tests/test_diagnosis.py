@@ -424,7 +424,7 @@ def test_held_out_rows_split_into_an_earlier_confirmation_and_a_later_report_blo
     every report row after every confirmation row (a repeat in the block of its visit), no report row with an
     unknown approach history."""
     from twin.diagnosis import split_held_out
-    from twin.diagnosis.atoms import approach_unknown
+    from twin.diagnosis.values import approach_unknown
     from twin.estimator.core import prepare
 
     ds, _ = H.make_dataset(seed=0, n=120)

@@ -392,7 +392,7 @@ def test_a_new_session_reads_the_state_after_the_last_change():
 def test_the_base_moment_regressor_gives_the_arm_moment_from_its_mass_moments():
     """The base's moment regressor times the links' mass moments ``(m_k, m_k c_k)`` is the arm's gravity moment about the
     base's x and y axes, summed here link by link from the centres of mass (test-side)."""
-    from twin.diagnosis.loads import base_moment_regressor
+    from twin.diagnosis.candidates import base_moment_regressor
     from twin.robots import irb1200
 
     model = irb1200()

@@ -21,7 +21,8 @@ from ..estimator.calibration import Calibration, Prediction
 from ..estimator.compensation import CompensationResult, compensation
 from ..estimator.problem import ParamSpace, predict_points
 from ..transforms import matrix_to_rotvec
-from .atoms import Atom, feature_values, history_unknown
+from .atoms import Atom
+from .values import feature_values, history_unknown
 from .candidates import RowContext
 from .features import Station
 from .extend import param_weights

@@ -2,7 +2,7 @@
 
 A *change* acts at one *place* from one row of the campaign on (a step) or between two rows (a window): a joint
 offset (``theta<j>``), the tool frame, the measurement (base) frame (each row's station), or a joint's compliance
-(its leading gravity-torque shapes, :func:`twin.diagnosis.atoms.catalogue_atoms`: a payload put on or taken off).
+(its leading gravity-torque shapes, :func:`twin.diagnosis.pools.catalogue_atoms`: a payload put on or taken off).
 Its column is the place's column times ``1[row >= s]`` (a window: ``1[s <= row < e]``), rows in time order (``t_s``
 when recorded, else the measurement order).
 
@@ -23,7 +23,7 @@ what every term faces: held-out confirmation on the later block of time, the bac
 
 A change is reported in ``diagnosis.json`` ``changes`` (not among the ``effects``) with the row and time it starts
 (and ends), its place and its size. In prediction the step is a term of time: rows after it, and a new session,
-read the state after it (:func:`twin.diagnosis.atoms.feature_values`, ``step`` and ``window``).
+read the state after it (:func:`twin.diagnosis.values.feature_values`, ``step`` and ``window``).
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from .atoms import Atom, with_records
+from .atoms import Atom
+from .values import with_records
 from .changes import is_change
 from .extend import ExtendedModel
 from .features import Cos, Pow, Sin, feature_from_dict

@@ -41,7 +41,9 @@ from ..dataset import Dataset
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
-from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs
+from .atoms import Atom
+from .pools import catalogue_atoms, generic_atoms
+from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .changes import change_places, change_pool_sizes, describe_changes, row_times

@@ -17,11 +17,12 @@ from ..estimator import distributions as dists
 from ..estimator.core import Prepared
 from ..estimator.solvers import gauss_newton
 from ..runtime import thread_map
-from .atoms import Atom, feature_values
+from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
 from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, reduced_basis
 from .features import Const, Feature, Gated, Pow, Step
 from .floor import NoiseFloor
+from .values import feature_channel, feature_values
 
 __all__ = [
     "StructureTest", "CATALOGUE_MARGIN", "Fit", "Problem", "Scored", "ScoringBasis", "structure_test", "row_rms",
@@ -212,9 +213,7 @@ class Problem:
         key = ("order", ch)
         got = self._orders.get(key)
         if got is None:
-            from .atoms import _ch
-
-            v = np.asarray(_ch(self.ctx, None, ch), dtype=float)[self.rows_cal]
+            v = np.asarray(feature_channel(self.ctx, None, ch), dtype=float)[self.rows_cal]
             order = np.argsort(v, kind="stable")
             got = self._orders[key] = (order, v[order])
         return got
@@ -1284,8 +1283,6 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     calibration rows where the two differ (rows after a move shorter than the clearance, which does not switch
     the side). Both are the one backlash of that joint, so they compete as one candidate: a joint with a
     clearance and short moves is not left to an unnamed function of its last move."""
-    from .atoms import PLAY_HALF_DEG, play_backlash
-
     out = []
     for s in scored:
         if s.atom.family != "backlash" or {f.kind for f in s.atom.features} != {"sign"}:
@@ -1475,8 +1472,6 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
     """A one-sided pull found past a decile of its joint's range moved to the angle that explains most between the
     neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
     from scipy.optimize import minimize_scalar
-
-    from .atoms import HINGE_POINTS, hinge_atom, joint_words
 
     f0 = s.atom.features[0]
     j = int(f0.ch[1:])
