@@ -118,7 +118,7 @@ class Atom:
 
 def play_backlash(j: int, h: float) -> Atom:
     """Joint ``j``'s backlash as a play operator with half clearance ``h`` [rad] (moves shorter than the
-    clearance do not switch the side): it competes with the sign backlash (:func:`twin.diagnosis.select.prefer_play`)."""
+    clearance do not switch the side): it competes with the sign backlash (:func:`twin.diagnosis.refine.prefer_play`)."""
     hd = np.rad2deg(h)
     return Atom("backlash", "joint", f"theta{j}", (Play(j=j, h=float(h)),), f"play j{j} half {hd:.3g} deg",
                 f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",

@@ -14,7 +14,7 @@ features) explains, with a step at row ``s``,
     ``C_s = sum_{i>=s} g_i^T g_i``
 
 (the columns scaled to unit norm, directions below 1 % of a unit column dropped, as every atom is scored:
-:func:`twin.diagnosis.select.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
+:func:`twin.diagnosis.scoring.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
 ``[s, e)`` takes the difference of two of them. The best row of each place is one candidate of the selection
 (family ``change``), its evidence ``p = chi2_sf(Delta chi2, rank)`` times the number of places and row positions
 tried (its pool: a step at every row of every place, ``change``; a window at every pair of rows, ``change_window``,
@@ -241,7 +241,7 @@ def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: flo
     ``s^2 = max(1, RSS_out / m_out)`` (per residual, in the floor's units) still significant (``log p <
     logp_max``). Under scatter beyond the floor that moves over a few rows (a cell wandering in time), a window's
     mean over a stretch of them is as large as that scatter allows, not a change."""
-    from .select import chi2_logsf
+    from .structure import chi2_logsf
 
     s2 = max(1.0, (rss_all - rss_in) / max(m_all - m_in, 1.0) / scale)
     return bool(chi2_logsf(gain / s2, max(int(rank), 1)) < logp_max)
@@ -251,7 +251,7 @@ def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max:
     """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays
     significant (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
     elects a change (a gross row is fitted by a window around it)."""
-    from .select import chi2_logsf
+    from .structure import chi2_logsf
 
     C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
     full, _ = _gains(C[None], A[None], b[None], scale)
@@ -268,7 +268,7 @@ TOP = 5  # positions of a place tried, best first, for one that holds without an
 def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
     rank only (the others, and those not ``ok``, read 0: never among the best)."""
-    from .select import chi2_logsf
+    from .structure import chi2_logsf
 
     lp = np.zeros(len(gain))
     for r in np.unique(rank[ok]):
@@ -282,7 +282,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
-    from .select import _row_aggregates, scoring_basis
+    from .scoring import row_aggregates, scoring_basis
 
     sb = scoring_basis(prob, fit)
     rows, r = sb.rows, sb.r
@@ -305,7 +305,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []
         tmpl = Atom("change", pl.place, pl.target, (Const(),), "", "", "change")
-        W, QB, Br = _row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
+        W, QB, Br = row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
         c = W.shape[1]
         if pl.inner is None:
             F = np.ones((n, 1))
@@ -389,7 +389,8 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
     ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
     a stretch of it, whose evidence against the (white) floor then says nothing."""
-    from .select import row_blocks, score_atoms, scoring_basis
+    from .confirm import row_blocks
+    from .scoring import score_atoms, scoring_basis
 
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:

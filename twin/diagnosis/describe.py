@@ -13,7 +13,7 @@ from .changes import is_change
 from .extend import ExtendedModel
 from .features import Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
-from .select import Fit, Problem, covariance
+from .problem import Fit, Problem, covariance
 
 __all__ = ["name_effects", "describe_terms"]
 

@@ -51,8 +51,10 @@ from .late import late_change
 from .extend import error_stats, reduced_basis
 from .features import LoadSign
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, raw_columns, refit_with,
-                     row_rms, update_gross)
+from .problem import Fit, Problem, refit_with, update_gross
+from .structure import StructureTest, gross_rows, row_rms
+from .ordering import alternatives
+from .scoring import raw_columns
 from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
 from .describe import _place_unit, _term_values, describe_terms, name_effects
 

@@ -36,7 +36,8 @@ from .atoms import Atom, joint_words
 from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
 from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
-from .select import psi_init, score_atoms
+from .problem import psi_init
+from .scoring import score_atoms
 from .values import feature_values
 
 __all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "load_atoms", "load_sign_feature",
@@ -72,7 +73,7 @@ def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> t
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
     """A kept load-signed backlash found on the grid of directions moved to the direction in the span of the joint's
     torque shapes whose sign explains most (Nelder-Mead on the direction from the grid's best, scored as every atom
-    is: :func:`twin.diagnosis.select.score_atoms`). Returns the scored atom."""
+    is: :func:`twin.diagnosis.scoring.score_atoms`). Returns the scored atom."""
     from scipy.optimize import minimize
 
     f0 = s.atom.features[0]

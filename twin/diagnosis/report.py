@@ -13,7 +13,7 @@ import numpy as np
 
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
-from .select import StructureTest
+from .structure import StructureTest
 
 __all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis", "blocked_summary"]
 

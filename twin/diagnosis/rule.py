@@ -1,14 +1,15 @@
 """The selection rule of the diagnosis: which terms enter the extended model, in which order, and whether the
 extended model replaces the geometric one.
 
-One round (:func:`selection_round`) scores the remaining atoms on the calibration rows (:mod:`twin.diagnosis.select`),
+One round (:func:`selection_round`) scores the remaining atoms on the calibration rows (:mod:`twin.diagnosis.scoring`),
 takes the best whose evidence passes the threshold of its pool, and keeps it only if it predicts the confirmation
 block (a block of time after every calibration row, or another session); :func:`select_terms` repeats rounds,
 then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
 keeps fewer families where they do as well (:func:`_fewer_families`) and refuses terms of implausible size
 (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``). :func:`decide` states the verdict and
 :func:`adopt` whether the extended model is the model to use. The procedure around it is
-:mod:`twin.diagnosis.diagnose`; the statistics each step calls are in :mod:`twin.diagnosis.select`."""
+:mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
+:mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and :mod:`~twin.diagnosis.refine`."""
 
 from __future__ import annotations
 
@@ -21,10 +22,13 @@ from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
 from .loads import load_alternatives, refine_load_sign, tilt_angles
-from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, order_candidates,
-                     polish_in_fit, prefer_play, psi_init, refine, score_atoms, smooth_confirm, time_only,
-                     update_gross, widen)
+from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
+from .ordering import alternatives, order_candidates
+from .problem import Fit, Problem, covariance, psi_init, update_gross
+from .refine import polish_in_fit, prefer_play, refine, widen
+from .scoring import Scored, score_atoms
+from .structure import StructureTest, chi2_logsf
 
 __all__ = [
     "CandidateScore",
@@ -35,6 +39,7 @@ __all__ = [
     "decide",
     "adopt",
     "implausible_size",
+    "backward",
 ]
 
 _MM = 1e-3
@@ -202,11 +207,39 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     return sel
 
 
+def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple[Fit, list[Atom]]:
+    """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
+    dropped: list[Atom] = []
+    changed = True
+    while changed and len(fit.chosen) > 1:
+        changed = False
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        C = covariance(rc.J[:, fit.free] * sw[:, None])
+        pos = {int(f): k for k, f in enumerate(fit.free)}
+        worst = None
+        for k, (a, B) in enumerate(fit.chosen):
+            idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
+            psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            Ck = C[np.ix_(idx, idx)]
+            d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
+            lp = chi2_logsf(d / prob.evidence_scale, len(idx)) + np.log(sizes[a.pool])
+            if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
+                worst = (lp, k)
+        if worst is not None:
+            k = worst[1]
+            dropped.append(fit.chosen[k][0])
+            chosen = [c for i, c in enumerate(fit.chosen) if i != k]
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
+            changed = True
+    return fit, dropped
+
+
 def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, excess: bool,
            z_min: float) -> tuple[bool, dict | None, list[str]]:
     """Step 5: ``structured`` when the test fired (``excess``) and something in the residual is predictable on the
     confirmation rows: a confirmed term (``ext``), or, without one, the nearest calibration rows in joint space or
-    in time (:func:`twin.diagnosis.select.smooth_confirm`). An excess that nothing predicts is scatter that
+    in time (:func:`twin.diagnosis.confirm.smooth_confirm`). An excess that nothing predicts is scatter that
     changes from visit to visit (the robot's repeatability, a per-pose instrument error), however large:
     reported (``unexplained``), not called structure. Returns ``(structured, unexplained, notes)``."""
     notes: list[str] = []
