@@ -40,21 +40,27 @@ from .problem import psi_init
 from .scoring import score_atoms
 from .values import feature_values
 
-__all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "load_atoms", "load_sign_feature",
+__all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
            "refine_load_sign", "load_alternatives", "tilt_angles"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
-COM_PRIOR_M = 0.1  # [m] the compliance atoms' prior: a link's centre of mass ~0.1 m off its frame
+COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
+LOAD_SHAPES = 3  # a joint's leading torque shapes whose combinations' signs the load-signed backlash tries
 
 
 def _prior(N: int) -> np.ndarray:
     return np.tile(np.array([1.0, COM_PRIOR_M, COM_PRIOR_M, COM_PRIOR_M]), N)
 
 
-def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> tuple:
-    """Joint ``i``'s (1-based) ``rank`` leading principal gravity-torque shapes under the generic prior, as
-    ``gravmix`` features (the compliance atoms' shapes), or ``()`` when the joint carries no varying torque."""
-    Y = gravity_torque_regressor(model, q)
+def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = None,
+                  Y: np.ndarray | None = None) -> tuple[GravMix, ...]:
+    """Joint ``i``'s (1-based) leading principal gravity-torque shapes under the generic prior, as ``gravmix`` features
+    (the compliance atoms' shapes, leading first): the right singular vectors of the prior-weighted columns
+    ``Y[:, i, k, c] prior_c`` (``k >= i``; prior 1 for a mass, ``COM_PRIOR_M`` for a mass moment) whose singular values
+    pass ``1e-6`` of the largest, each scaled to unit RMS over the rows; the first ``rank`` of them (all when None), or
+    ``()`` when the joint carries no varying torque. ``Y``: :func:`~twin.diagnosis.candidates.gravity_torque_regressor`
+    on ``q`` when already computed."""
+    Y = gravity_torque_regressor(model, q) if Y is None else Y
     N = model.n_joints
     cols, prior = [], []
     for k in range(i, N + 1):
@@ -65,7 +71,8 @@ def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> t
     if not np.any(np.abs(M) > 1e-9):
         return ()
     _, sv, Vt = np.linalg.svd(M, full_matrices=False)
-    rk = min(rank, int(np.sum(sv > 1e-6 * sv[0])))
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    rk = rk if rank is None else min(rank, rk)
     return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[k] * np.array(prior)).tolist()),
                          h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
 
@@ -79,7 +86,7 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     f0 = s.atom.features[0]
     if not isinstance(f0, LoadSign) or f0.u is None:
         return s
-    shapes = _torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i))
+    shapes = torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i), LOAD_SHAPES)
     if len(shapes) < 2:
         return s
     best = [s]
@@ -136,7 +143,7 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
-            shapes = _torque_shapes(model, ctx.q, j)
+            shapes = torque_shapes(model, ctx.q, j, LOAD_SHAPES)
             if not shapes:
                 continue
             U = _hemisphere(LOAD_DIRECTIONS) if len(shapes) == 3 else np.eye(len(shapes))

@@ -14,10 +14,10 @@ import numpy as np
 from ..kinematics import RobotModel
 from .atoms import HINGE_POINTS, Atom, hinge_atom, joint_words
 from .candidates import RowContext, carried_moments, gravity_torque_regressor, gravity_torques, has_masses
-from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, GravMix, Heat, Lag, LastMove, Moment, Pow,
+from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, Heat, Lag, LastMove, Moment, Pow,
                        Prod, Settle, Sign, Sin, Station, Step, StepIn, Torque)
 from .field import field_applicable, field_atom_specs, field_constants
-from .loads import load_atoms
+from .loads import load_atoms, torque_shapes
 from .values import channel, motion_heat
 
 __all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
@@ -32,7 +32,6 @@ TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of t
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint) of a 6R arm: wrist drive shafts pass through joints 4, 5
 HINGE_POWERS = (1, 2)  # the pull grows linearly (a spring) or with the square of the overtravel
 COMPLIANCE_RANK = 3  # principal gravity-torque shapes kept per joint
-COM_PRIOR_M = 0.1  # [m] typical distance of a link's centre of mass from its frame (prior for the shapes)
 _ORD = {1: "1st", 2: "2nd", 3: "3rd"}
 
 
@@ -104,33 +103,21 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
     # the atom keeps those (a broad atom would collect a little of every other effect).
     Y = gravity_torque_regressor(model, ctx.q)
     for i in range(1, N + 1):
-        cols, prior = [], []
-        for k in range(i, N + 1):
-            for c in range(4):
-                cols.append([k, c])
-                prior.append(1.0 if c == 0 else COM_PRIOR_M)
-        M = np.stack([Y[:, i - 1, k - 1, c] for k, c in cols], axis=1) * np.array(prior)
-        if not np.any(np.abs(M) > 1e-9):
+        shapes = torque_shapes(model, ctx.q, i, Y=Y)
+        if not shapes:
             continue
-        _, sv, Vt = np.linalg.svd(M, full_matrices=False)
-        rk = int(np.sum(sv > 1e-6 * sv[0]))
-
-        def shapes(a, b):
-            return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[j] * np.array(prior)).tolist()),
-                          h=float(sv[j] / np.sqrt(len(M)))) for j in range(a, min(b, rk)))
-
-        atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(0, COMPLIANCE_RANK), f"gravity torque of joint {i}",
+        atoms.append(Atom("compliance", "joint", f"theta{i}", shapes[:COMPLIANCE_RANK], f"gravity torque of joint {i}",
                           f"joint {jw(i)} compliance under gravity", "catalogue", (i,)))
         for tch, at in _session_starts(ctx):
             # a payload added (or a brake set) at a restart changes the torque from then on
             atoms.append(Atom("compliance", "joint", f"theta{i}",
-                              tuple(Gated(f=f, ch=tch, at=at) for f in shapes(0, COMPLIANCE_RANK)),
+                              tuple(Gated(f=f, ch=tch, at=at) for f in shapes[:COMPLIANCE_RANK]),
                               f"gravity torque of joint {i} from {tch} >= {at:.6g}",
                               f"joint {jw(i)} compliance under gravity, changed at the restart ({tch} >= {at:.6g})",
                               "catalogue", (i,)))
-        if rk > COMPLIANCE_RANK:
+        if len(shapes) > COMPLIANCE_RANK:
             # the further shapes (a payload, wrist masses): a broad atom, tried after the small ones
-            atoms.append(Atom("compliance", "joint", f"theta{i}", shapes(COMPLIANCE_RANK, 3 * COMPLIANCE_RANK),
+            atoms.append(Atom("compliance", "joint", f"theta{i}", shapes[COMPLIANCE_RANK:3 * COMPLIANCE_RANK],
                               f"gravity torque of joint {i} (further shapes)",
                               f"joint {jw(i)} compliance under gravity, further torque shapes", "catalogue", (i,)))
     if has_masses(model):
