@@ -32,10 +32,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..estimator.distributions import f_sf
 from ..runtime import thread_map
 from .atoms import Atom, joint_words
 from .candidates import RowContext
+from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
+from .scoring import row_aggregates, score_atoms, scoring_basis
+from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "row_times"]
@@ -221,8 +225,6 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
     left on them, ``(RSS_in - Delta chi2) / (m_in - rank)``, against ``RSS_out / m_out`` of the rows outside, not
     larger at ``p < UNIFORM_P`` (``F`` test). A burst of noisy rows, or a gross row, is fitted by no change: a
     change is the same offset on every row it acts on."""
-    from ..estimator.distributions import f_sf
-
     d1 = np.maximum(m - rank, 1.0)
     d2 = np.maximum(m_all - m, 1.0)
     left = np.maximum(rss - gain * scale, 0.0) / d1
@@ -241,8 +243,6 @@ def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: flo
     ``s^2 = max(1, RSS_out / m_out)`` (per residual, in the floor's units) still significant (``log p <
     logp_max``). Under scatter beyond the floor that moves over a few rows (a cell wandering in time), a window's
     mean over a stretch of them is as large as that scatter allows, not a change."""
-    from .structure import chi2_logsf
-
     s2 = max(1.0, (rss_all - rss_in) / max(m_all - m_in, 1.0) / scale)
     return bool(chi2_logsf(gain / s2, max(int(rank), 1)) < logp_max)
 
@@ -251,8 +251,6 @@ def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max:
     """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays
     significant (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
     elects a change (a gross row is fitted by a window around it)."""
-    from .structure import chi2_logsf
-
     C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
     full, _ = _gains(C[None], A[None], b[None], scale)
     gain, rank = _gains(C[None] - Ci[lo:hi], A[None] - Ai[lo:hi], b[None] - bi[lo:hi], scale)
@@ -268,8 +266,6 @@ TOP = 5  # positions of a place tried, best first, for one that holds without an
 def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
     rank only (the others, and those not ``ok``, read 0: never among the best)."""
-    from .structure import chi2_logsf
-
     lp = np.zeros(len(gain))
     for r in np.unique(rank[ok]):
         idx = np.flatnonzero(ok & (rank == r))
@@ -282,8 +278,6 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
-    from .scoring import row_aggregates, scoring_basis
-
     sb = scoring_basis(prob, fit)
     rows, r = sb.rows, sb.r
     n = prob.obs_cal.n
@@ -389,9 +383,6 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
     ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
     a stretch of it, whose evidence against the (white) floor then says nothing."""
-    from .confirm import row_blocks
-    from .scoring import score_atoms, scoring_basis
-
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False

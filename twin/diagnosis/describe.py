@@ -15,7 +15,7 @@ from .features import Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
 from .problem import Fit, Problem, covariance
 
-__all__ = ["name_effects", "describe_terms"]
+__all__ = ["name_effects", "describe_terms", "place_unit", "term_values"]
 
 _MM = 1e-3
 _DEG = np.pi / 180.0
@@ -80,8 +80,9 @@ def _merged_into_unnamed(atoms_json: list[dict]) -> list[tuple[dict, dict]]:
     return out
 
 
-def _place_unit(a: Atom) -> tuple[str, float]:
-    """Display unit of an atom's effect on its place, and the factor from SI."""
+def place_unit(a: Atom) -> tuple[str, float]:
+    """The display unit of an atom's effect on its place (``"deg"``, ``"ppm"``, ``"mm"``, ``"mm|deg"``) and the factor
+    from SI to it."""
     if a.place == "joint":
         return "deg", 1 / _DEG
     if a.place in ("length", "scale"):
@@ -121,7 +122,7 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         explained = (chi2_base - fit.chi2) if chi2_base is not None else float("nan")
         share = float(wald / explained) if explained > 0 else float("nan")
         sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
-        unit, fac = _place_unit(a)
+        unit, fac = place_unit(a)
         F = prob.features(a)
         if a.place == "param" and a.target == "base_along":
             size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
@@ -205,9 +206,9 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
     return out, params
 
 
-def _term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
+def term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
     """One term of an extended model on its rows ``(n,)``, in its place's display unit."""
-    _, fac = _place_unit(t.atom)
+    _, fac = place_unit(t.atom)
     if t.atom.place == "param" and t.atom.target in ("tool", "base"):
         return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
     if t.atom.place == "plate":

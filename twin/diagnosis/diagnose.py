@@ -37,7 +37,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, Plate
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
@@ -53,10 +53,9 @@ from .features import LoadSign
 from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
 from .structure import StructureTest, gross_rows, row_rms
-from .ordering import alternatives
 from .scoring import raw_columns
 from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
-from .describe import _place_unit, _term_values, describe_terms, name_effects
+from .describe import describe_terms, name_effects, place_unit, term_values
 
 __all__ = [
     "virtual_spheres",
@@ -601,8 +600,6 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
     do not: the points are the tool frame's). The noise per point coordinate is ``sqrt(sigma_p^2 + (2/3)
     (L sigma_r)^2)`` from ``[noise]`` (a point inherits the rotation noise across its arm). Returns the dataset and
     a note."""
-    from ..dataset import Plate
-
     if not ds.has_poses:
         raise DiagnosisError("diagnosis needs sphere centres (p0_x..p2_z) or poses (x y z rx ry rz); this dataset has "
                              "neither")
@@ -669,8 +666,8 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
             m = b[3]
             t = m.terms[k]
             phi = m.split(ext.z)[1][k]
-            vals.append(_term_values(m, t, phi))
-        unit, _ = _place_unit(ext.chosen[k][0])
+            vals.append(term_values(m, t, phi))
+        unit, _ = place_unit(ext.chosen[k][0])
         a = ext.chosen[k][0]
         if a.place == "param" and a.target in ("tool", "base"):
             unit = "mm (translation)"

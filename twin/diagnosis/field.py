@@ -39,6 +39,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..transforms import kabsch
 from .features import Field
 
 __all__ = ["FIELD_NAMES", "POINT_FIELDS", "field_applicable", "field_constants", "field_values", "field_atom_specs",
@@ -79,8 +80,6 @@ def plate_normals(spheres: np.ndarray, seen: np.ndarray, spheres_tool: np.ndarra
     """The plate normal ``(n, 3)`` of every row in the measurement frame: the rigid fit of the plate's sphere
     centres ``spheres_tool`` ``(3, 3)`` to the row's measured ``spheres`` ``(n, 3, 3)``, applied to ``n_tool``;
     zero for rows with fewer than three spheres seen."""
-    from ..transforms import kabsch
-
     out = np.zeros((len(spheres), 3))
     full = np.all(seen, axis=1)
     if np.any(full):

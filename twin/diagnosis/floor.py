@@ -24,7 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataset import Dataset, Joints
-from .candidates import RowContext
+from ..estimator.distributions import f_sf
+from ..kinematics import link_frames
+from ..transforms import kabsch
+from .candidates import GRAVITY, RowContext
+from .features import Field
+from .field import POINT_FIELDS, field_applicable, field_constants, field_values
 
 __all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
            "history_resets",
@@ -84,9 +89,6 @@ def _row_regressors(ds: Dataset, full: np.ndarray) -> np.ndarray:
     """What a plate's distances may follow besides the place in the field ``(n_full, k)``: the gravity
     direction in the flange frame, linear and quadratic (a loose sphere rolling in its seat, a holder that
     flexes), and ``t_s`` / ``temp_c`` when recorded (the plate or the instrument growing)."""
-    from ..kinematics import link_frames
-    from .candidates import GRAVITY
-
     R = link_frames(ds.robot, ds.q[full])[:, -1, :3, :3]
     g = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
     cols = [g, g**2, g[:, [0]] * g[:, [1]], g[:, [0]] * g[:, [2]], g[:, [1]] * g[:, [2]]]
@@ -105,9 +107,6 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     moves the three distances together with the place; :mod:`twin.diagnosis.field`; only in a line-of-sight
     frame) and, per pair, with the row regressors ``rows`` ``(n_full, k)`` (:func:`_row_regressors`). Returns
     the deviations to use, their variance inflation ``1 / (1 - leverage)``, and what was found (or None)."""
-    from .features import Field
-    from .field import POINT_FIELDS, field_applicable, field_constants, field_values
-
     infl = [np.ones(len(x)) for x in dev]
     feats = (tuple(Field(g=g, **field_constants(P)) for g in POINT_FIELDS)
              if field_applicable(P) else ())
@@ -144,7 +143,6 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     dfn, dfd = rank - p3, n - rank
     if dfn <= 0 or dfd <= 0 or ss1 <= 0:
         return dev, infl, None
-    from ..estimator.distributions import f_sf
 
     F = ((ss0 - ss1) / dfn) / (ss1 / dfd)
     pval = float(f_sf(F, dfn, dfd))
@@ -189,7 +187,6 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarra
         us.append(v[keep] / d[keep, None])
         devs.append(d[keep] - d[keep].mean())
         var_iso.append(mad**2 / 2)
-    from ..transforms import kabsch
 
     R, t = kabsch(np.broadcast_to(ds.plate.spheres_flange, P.shape), P)
     P_fit = np.einsum("nij,sj->nsi", R, ds.plate.spheres_flange) + t[:, None, :]

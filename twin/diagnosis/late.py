@@ -30,9 +30,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..estimator.core import prepare
 from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
+from .extend import error_stats
 from .scoring import score_atoms
 
 __all__ = ["LateChange", "late_change", "rows_to_confirm"]
@@ -69,8 +71,6 @@ class LateChange:
 def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
     """The problem whose calibration rows are the campaign's rows before ``t_cut`` (time channel) and whose
     confirmation rows are the rest."""
-    from ..estimator.core import prepare
-
     _, tv = row_times(setup.ctx)
     ds = setup.dataset
     sets = np.where(tv < t_cut, "calibration", "validation").astype(object)
@@ -83,8 +83,6 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
 
 
 def _rms_mm(fit: Fit, prob: Problem) -> float:
-    from .extend import error_stats
-
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .apply import block_errors
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
 from .structure import StructureTest
@@ -223,8 +224,6 @@ def blocked_summary(res: DiagnosisResult, dataset, blocks: dict | None = None) -
     the report block and on any further named ``blocks`` of ``dataset``'s rows
     (:func:`twin.diagnosis.apply.block_errors`), with how the rows were chosen, the model in use, the adoption
     figures and every term in words."""
-    from .apply import block_errors
-
     pid = np.asarray(dataset.pose_id)
     named = {"confirmation": np.isin(pid, res.rows.get("confirmation", [])),
              "report": np.isin(pid, res.held_out.get("report_pose_ids", []))}

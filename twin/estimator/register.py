@@ -19,7 +19,7 @@ from ..dataset import Dataset
 from ..transforms import matrix_to_rotvec, transform_to_pose6
 from .calibration import Calibration, Prediction
 from .chain import Chain
-from .core import _stats, register_bases
+from .core import error_summary, register_bases
 from .identifiability import analyse_jacobian
 from .problem import Observations, ParamSpace, Residuals, absolute_residuals, observations_from_dataset
 from .solvers import TraceEntry, covariance, gauss_newton
@@ -509,10 +509,10 @@ def _errors(obs: Observations, pred: Prediction, idx: np.ndarray, ds: Dataset) -
     _check_prediction(pred, obs.n, ds, idx)
     if obs.kind == "spheres":
         e = np.linalg.norm(obs.spheres - pred.spheres, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / _MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": error_summary(e / _MM)}
     ep = np.linalg.norm(obs.pose_p - pred.pose[:, :3, 3], axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(pred.pose[:, :3, :3], -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / _MM), "orientation_deg": _stats(er / _DEG)}
+    return {"n_rows": obs.n, "position_mm": error_summary(ep / _MM), "orientation_deg": error_summary(er / _DEG)}
 
 
 def _sessions(ds: Dataset, idx: np.ndarray) -> tuple[str, ...] | None:
