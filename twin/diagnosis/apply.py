@@ -22,6 +22,7 @@ from ..estimator.compensation import CompensationResult, compensation
 from ..estimator.problem import ParamSpace, predict_points
 from ..estimator.register import prediction_errors, register, select_rows, session_residuals
 from ..transforms import kabsch, matrix_to_rotvec
+from ..units import M_PER_MM
 from .atoms import Atom
 from .values import feature_values, history_unknown
 from .candidates import RowContext
@@ -348,7 +349,6 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
 
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the residuals in the registered frames
 SESSION_Z_MIN = 3.0  # a pruned model replaces the whole one at this z over the rows (diagnose's z_min)
-_MM = 1e-3
 SESSION_FOLDS = 5  # contiguous blocks of the registration rows in time, each predicted by the others' registration
 
 
@@ -518,7 +518,7 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
         return out
 
     def score(sq: np.ndarray) -> float:
-        return float(np.sqrt(sq.sum() / n_points) * sigma / _MM)
+        return float(np.sqrt(sq.sum() / n_points) * sigma / M_PER_MM)
 
     whole = per_row([])
     dropped: list[int] = []

@@ -40,9 +40,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..kinematics import RobotModel
+from ..units import MM_PER_M, rad_to_deg
 from .features import Const, Feature, Hinge, Play, feature_from_dict
 
 __all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "HINGE_POINTS", "play_backlash", "hinge_atom", "joint_words"]
@@ -119,7 +118,7 @@ class Atom:
 def play_backlash(j: int, h: float) -> Atom:
     """Joint ``j``'s backlash as a play operator with half clearance ``h`` [rad] (moves shorter than the
     clearance do not switch the side): it competes with the sign backlash (:func:`twin.diagnosis.refine.prefer_play`)."""
-    hd = np.rad2deg(h)
+    hd = rad_to_deg(h)
     return Atom("backlash", "joint", f"theta{j}", (Play(j=j, h=float(h)),), f"play j{j} half {hd:.3g} deg",
                 f"joint {j} backlash with a half clearance of {hd:.3g} deg (play: short moves do not switch the side)",
                 "catalogue", (j,))
@@ -130,7 +129,7 @@ def hinge_atom(j: int, at: float, side: int, p: int, h: float, *, prismatic: boo
     """Joint ``j``'s angle growing as ``(max(0, side (q_j - at)) / h)^p`` [``at`` rad, ``h`` rad a scale]: zero on one
     side of the angle ``at``, a power of the overtravel past it (a cable or hose going taut and pulling). A
     prismatic joint's position likewise ([m]); ``words``: the joint in words (default ``j``)."""
-    ad, unit = (at * 1e3, "mm") if prismatic else (np.rad2deg(at), "deg")
+    ad, unit = (at * MM_PER_M, "mm") if prismatic else (rad_to_deg(at), "deg")
     rel = f"q{j} - {ad:.4g} {unit}" if side > 0 else f"{ad:.4g} {unit} - q{j}"
     ch = f"max(0, {rel})" + ("" if p == 1 else f"^{p}")
     what = "position varies with {} (a pull past a position)" if prismatic else "angle varies with {} (a pull past an angle)"

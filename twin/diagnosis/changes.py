@@ -34,6 +34,7 @@ import numpy as np
 
 from ..estimator.distributions import f_sf
 from ..runtime import thread_map
+from ..units import MM_PER_M, rad_to_deg
 from .atoms import Atom, joint_words
 from .candidates import RowContext
 from .confirm import row_blocks
@@ -432,9 +433,9 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
                       "end_t_s": None if (end is None or ctx.t_s is None) else float(ctx.t_s[end])})
         v = np.asarray(a["values"], float)
         if a["place"] == "param" and a["target"] in ("tool", "base"):
-            d["size"] = {"translation_mm": (v[:3] * 1e3).tolist(), "rotation_deg": np.rad2deg(v[3:]).tolist()}
+            d["size"] = {"translation_mm": (v[:3] * MM_PER_M).tolist(), "rotation_deg": rad_to_deg(v[3:]).tolist()}
         elif a["place"] == "joint" and isinstance(f0, (Step, Window)):
-            d["size"] = {"offset_deg": float(np.rad2deg(v[0])), "sd_deg": float(np.rad2deg(a["sd"][0]))}
+            d["size"] = {"offset_deg": float(rad_to_deg(v[0])), "sd_deg": float(rad_to_deg(a["sd"][0]))}
         else:
             d["size"] = dict(a["size"])
         out.append(d)

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ..units import DEG_PER_RAD, MM_PER_M, M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .values import with_records
 from .changes import is_change
@@ -17,8 +18,6 @@ from .problem import Fit, Problem, covariance
 
 __all__ = ["name_effects", "describe_terms", "place_unit", "term_values"]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
@@ -84,17 +83,17 @@ def place_unit(a: Atom) -> tuple[str, float]:
     """The display unit of an atom's effect on its place (``"deg"``, ``"ppm"``, ``"mm"``, ``"mm|deg"``) and the factor
     from SI to it."""
     if a.place == "joint":
-        return "deg", 1 / _DEG
+        return "deg", DEG_PER_RAD
     if a.place in ("length", "scale"):
         return "ppm", 1e6
     if a.place in ("plate", "field") or a.target == "base_along":
-        return "mm", 1 / _MM
+        return "mm", MM_PER_M
     t = a.target
     if t in ("tool", "base"):
         return "mm|deg", 1.0
     if t.rstrip("0123456789") in ("d", "a"):
-        return "mm", 1 / _MM
-    return "deg", 1 / _DEG
+        return "mm", MM_PER_M
+    return "deg", DEG_PER_RAD
 
 
 def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
@@ -125,8 +124,8 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         unit, fac = place_unit(a)
         F = prob.features(a)
         if a.place == "param" and a.target == "base_along":
-            size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
-            words = f"{phi[0] / _MM:+.5f} +- {sd[0] / _MM:.5f} mm along the direction of its last move"
+            size = {"rms": float(abs(phi[0])) / M_PER_MM, "sd": float(sd[0]) / M_PER_MM, "unit": "mm"}
+            words = f"{phi[0] / M_PER_MM:+.5f} +- {sd[0] / M_PER_MM:.5f} mm along the direction of its last move"
         elif a.place == "param" and a.target.startswith("tilt"):
             tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
@@ -141,8 +140,8 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
                          + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
         elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
-            size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
-                    "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / _DEG).item()}
+            size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / M_PER_MM).item(),
+                    "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / RAD_PER_DEG).item()}
             words = f"{size['rms_mm']:.4f} mm / {size['rms_deg']:.5f} deg RMS over the rows"
         elif a.place == "field":
             obs = prob.obs_cal
@@ -151,16 +150,16 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             rms = float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
             grad = np.einsum("mkc,mc->k", G, disp) / (len(disp) * max(rms, 1e-300))
             sd_rms = float(np.sqrt(max(grad @ Cphi @ grad, 0.0)))
-            size = {"rms": rms / _MM, "sd": sd_rms / _MM, "unit": "mm"}
-            words = f"{rms / _MM:.5f} +- {sd_rms / _MM:.5f} mm RMS displacement over the measured points"
+            size = {"rms": rms / M_PER_MM, "sd": sd_rms / M_PER_MM, "unit": "mm"}
+            words = f"{rms / M_PER_MM:.5f} +- {sd_rms / M_PER_MM:.5f} mm RMS displacement over the measured points"
         elif a.varying_plate:
             eff = F @ phi.reshape(len(a.features), 3)  # (n, 3) offset per row in the plate frame
             rms = float(np.sqrt(np.mean(np.sum(eff**2, axis=1))))
-            size = {"rms": rms / _MM, "sd": float(np.sqrt(np.sum(sd**2))) / _MM, "unit": "mm"}
-            words = f"{rms / _MM:.5f} mm RMS over the rows (offset in the plate frame)"
+            size = {"rms": rms / M_PER_MM, "sd": float(np.sqrt(np.sum(sd**2))) / M_PER_MM, "unit": "mm"}
+            words = f"{rms / M_PER_MM:.5f} mm RMS over the rows (offset in the plate frame)"
         elif a.place == "plate":
-            size = {"offset_mm": (phi / _MM).tolist(), "sd_mm": (sd / _MM).tolist()}
-            words = "offset (" + ", ".join(f"{v / _MM:+.4f} +- {e / _MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
+            size = {"offset_mm": (phi / M_PER_MM).tolist(), "sd_mm": (sd / M_PER_MM).tolist()}
+            words = "offset (" + ", ".join(f"{v / M_PER_MM:+.4f} +- {e / M_PER_MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
         else:
             eff = F @ phi
             g = F.T / max(len(F), 1)
@@ -210,15 +209,15 @@ def term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
     """One term of an extended model on its rows ``(n,)``, in its place's display unit."""
     _, fac = place_unit(t.atom)
     if t.atom.place == "param" and t.atom.target in ("tool", "base"):
-        return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
+        return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / M_PER_MM
     if t.atom.place == "plate":
-        return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
+        return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / M_PER_MM
     if t.atom.target == "base_along":
-        return np.linalg.norm(t.F, axis=1) * phi[0] / _MM
+        return np.linalg.norm(t.F, axis=1) * phi[0] / M_PER_MM
     if t.atom.place == "param" and t.atom.target.startswith("tilt"):
         return np.linalg.norm(tilt_angles(t.atom.features, t.F, phi), axis=1) * fac
     if t.atom.place == "field":
         obs = model.obs
         disp = np.linalg.norm(np.einsum("nskc,k->nsc", model.field_grid(t.atom) * t.F[:, None, :, None], phi), axis=2)
-        return np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / _MM
+        return np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / M_PER_MM
     return (t.F @ phi) * fac

@@ -41,6 +41,7 @@ from ..dataset import Dataset, Plate
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .pools import catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
@@ -95,8 +96,6 @@ __all__ = [
     "row_context",
 ]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -382,7 +381,7 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     blocks = held_out_sets(dataset, holdout)
     dataset = replace(dataset, set=blocks.set)
     floor = noise_floor(dataset, plate=not virtual)
-    notes.append(f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}")
+    notes.append(f"noise floor {floor.sigma / M_PER_MM:.5f} mm per coordinate from {floor.source}")
     if virtual:
         notes.append(note_virtual)
     notes.append(f"held-out rows: {blocks.rule}")
@@ -407,7 +406,7 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
             notes.append(note)
     if calibration is not None:
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
-    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM, **geo_opts})
+    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / M_PER_MM, **geo_opts})
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report, threads=threads)
     # rows that only register a station's frame do not make their session a fitted one
@@ -618,7 +617,7 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
     T = np.asarray(ds.robot.tool2flange, float)
     out = replace(ds, spheres=spheres, sphere_seen=seen, pose_seen=np.zeros(ds.n, bool),
                   plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]), noise_position=noise)
-    return out, (f"poses read as three points of the tool frame {L / _MM:.0f} mm along its axes (virtual spheres); "
+    return out, (f"poses read as three points of the tool frame {L / M_PER_MM:.0f} mm along its axes (virtual spheres); "
                  "the plate's own terms and the plate-distance floor do not apply")
 
 
@@ -656,7 +655,7 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
             m = b[idx]
             r = m.residuals(z, jacobian=False)
             e, _ = row_rms(m.unwhiten(r.r), r.row, m.obs.n)
-            e_all.append(e / _MM)
+            e_all.append(e / M_PER_MM)
         out[f"residual_rms_mm_{tag}"] = np.concatenate(e_all)[order]
     # each term of the extended model on the held-out rows, in its place's display unit
     terms = {}
@@ -675,7 +674,7 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
     out["terms"] = terms
     ctx = prob.ctx
     # deg, mm for a prismatic joint
-    out["q_deg"] = ctx.q[rows_val] / np.where(prob.prep.nominal.is_prismatic, _MM, _DEG)
+    out["q_deg"] = ctx.q[rows_val] / np.where(prob.prep.nominal.is_prismatic, M_PER_MM, RAD_PER_DEG)
     out["approach_sign"] = history_signs(ctx)[rows_val]
     if ctx.temp_c is not None:
         out["temp_c"] = ctx.temp_c[rows_val]

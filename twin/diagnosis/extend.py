@@ -28,11 +28,10 @@ import numpy as np
 
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
 from ..transforms import kabsch, left_jacobian_so3, matrix_to_rotvec, rotvec_to_matrix
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .field import field_values, plate_normals, station_mask
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 __all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights", "error_stats"]
 
@@ -370,7 +369,7 @@ def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = N
     rows = np.ones(obs.n, bool) if keep is None else keep
     seen = obs.seen & rows[:, None]
     e3 = np.linalg.norm(diff, axis=-1)[seen]
-    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
+    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / M_PER_MM)}
     full = seen.all(axis=1)
     if full.any() and obs.spheres.shape[1] >= 3:
         meas = obs.spheres[full]
@@ -379,5 +378,5 @@ def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = N
         Rm, _ = kabsch(A, meas)
         Rp, _ = kabsch(A, pred)
         ang = np.linalg.norm(matrix_to_rotvec(Rm @ np.swapaxes(Rp, 1, 2)), axis=-1)
-        out["orientation_deg"] = _stats(ang / _DEG)
+        out["orientation_deg"] = _stats(ang / RAD_PER_DEG)
     return out

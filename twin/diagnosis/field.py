@@ -40,6 +40,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..transforms import kabsch
+from ..units import M_PER_MM
 from .features import Field
 
 __all__ = ["FIELD_NAMES", "POINT_FIELDS", "field_applicable", "field_constants", "field_values", "field_atom_specs",
@@ -72,8 +73,8 @@ def field_constants(points: np.ndarray) -> dict[str, float]:
     z = P[:, 2]
     r = np.linalg.norm(P, axis=1)
     u2 = (P[:, 0] / z) ** 2 + (P[:, 1] / z) ** 2
-    return {"z_c": float(np.mean(z)), "z_h": float(max(0.5 * np.ptp(z), 1e-3)), "r_c": float(np.mean(r)),
-            "r_h": float(max(0.5 * np.ptp(r), 1e-3)), "rho2_h": float(max(u2.max(), 1e-6))}
+    return {"z_c": float(np.mean(z)), "z_h": float(max(0.5 * np.ptp(z), M_PER_MM)), "r_c": float(np.mean(r)),
+            "r_h": float(max(0.5 * np.ptp(r), M_PER_MM)), "rho2_h": float(max(u2.max(), 1e-6))}
 
 
 def plate_normals(spheres: np.ndarray, seen: np.ndarray, spheres_tool: np.ndarray, n_tool: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ from ..dataset import Dataset, Joints
 from ..estimator.distributions import f_sf
 from ..kinematics import link_frames
 from ..transforms import kabsch
+from ..units import M_PER_MM
 from .candidates import GRAVITY, RowContext
 from .features import Field
 from .field import POINT_FIELDS, field_applicable, field_constants, field_values
@@ -35,7 +36,6 @@ __all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKE
            "history_resets",
            "row_resets", "row_context", "joints_context"]
 
-_MM = 1e-3
 ANISOTROPY_MIN = 1.5  # a stated figure is spread over the axes only when they differ by this factor or more
 WEAK_LEVER = 0.15  # an axis the plate's distances point along less than this (mean squared component) is weakly measured
 
@@ -154,7 +154,7 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
         out.append(res[k0:k0 + len(x)])
         inf2.append(1.0 / np.clip(1.0 - h[k0:k0 + len(x)], 0.05, None))
         k0 += len(x)
-    return out, inf2, {"p_value": pval, "rms_removed_mm": float(np.sqrt(np.mean((fit - y0) ** 2))) / _MM,
+    return out, inf2, {"p_value": pval, "rms_removed_mm": float(np.sqrt(np.mean((fit - y0) ** 2))) / M_PER_MM,
                        "parameters": dfn}
 
 
@@ -236,7 +236,7 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     if not ds.has_spheres:
         if ds.noise_position is not None and stated_ok:
             return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)", 0,
-                              {"stated": {"sigma_mm": ds.noise_position / _MM, "dof": None}})
+                              {"stated": {"sigma_mm": ds.noise_position / M_PER_MM, "dof": None}})
         raise DiagnosisError("diagnosis of pose data needs [noise] position_mm/orientation_rad in dataset.toml")
     comps: dict[str, tuple[np.ndarray, float, str]] = {}
     ss, dof, groups = _repeat_floor(ds)
@@ -274,12 +274,12 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     sigma = float(np.sqrt(np.mean(axis**2)))
 
     def fmt(v):
-        return "(" + ", ".join(f"{x / _MM:.5f}" for x in v) + ") mm"
+        return "(" + ", ".join(f"{x / M_PER_MM:.5f}" for x in v) + ") mm"
 
     others = "; ".join(f"{k}: {fmt(v[0])}" for k, v in comps.items() if k not in setters)
     source = " and ".join(comps[k][2] for k in setters) + f", per axis x, y, z {fmt(axis)}" + (
         f" (the largest; {others})" if others else "")
-    components = {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / _MM, "axis_sigma_mm": (v[0] / _MM).tolist(),
+    components = {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / M_PER_MM, "axis_sigma_mm": (v[0] / M_PER_MM).tolist(),
                       "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
     if systematic is not None:
         components["plate"]["systematic"] = systematic
@@ -311,7 +311,7 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
         vals.append(v)
     if not vals:
         return None
-    return float(np.sqrt(np.mean(np.square(vals)))) * _MM, len(vals)
+    return float(np.sqrt(np.mean(np.square(vals)))) * M_PER_MM, len(vals)
 
 
 SESSION_COLUMN = "session"  # optional poses.csv column: the recording session of the row (a day, a power cycle)

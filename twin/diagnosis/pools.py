@@ -12,6 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..kinematics import RobotModel
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import HINGE_POINTS, Atom, hinge_atom, joint_words
 from .candidates import RowContext, carried_moments, gravity_torque_regressor, gravity_torques, has_masses
 from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, Heat, Lag, LastMove, Moment, Pow,
@@ -23,7 +24,6 @@ from .values import channel, motion_heat
 __all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
 
 
-_DEG = np.pi / 180.0
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
@@ -257,9 +257,9 @@ def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], le
         for w_deg in MOVE_WIDTHS_DEG:
             # hysteresis that follows the size of the last move (friction-like), on the joint angles only
             if revolute[j - 1]:
-                feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", LastMove(j=j, w=w_deg * _DEG), (j,)))
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} deg)", LastMove(j=j, w=w_deg * RAD_PER_DEG), (j,)))
             else:
-                feats.append((f"tanh(last move j{j} / {w_deg:.3g} mm)", LastMove(j=j, w=w_deg * 1e-3), (j,)))
+                feats.append((f"tanh(last move j{j} / {w_deg:.3g} mm)", LastMove(j=j, w=w_deg * M_PER_MM), (j,)))
         # the step into this row (zero for a repeat): a joint still settling from the move it just made
         feats.append((f"step into the row j{j}", StepIn(j=j), (j,)))
     for a in range(1, N + 1):

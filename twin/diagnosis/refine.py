@@ -11,6 +11,7 @@ from dataclasses import replace as replace_atom
 import numpy as np
 
 from ..estimator import distributions as dists
+from ..units import MM_PER_M, deg_to_rad, rad_to_deg
 from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
 from .extend import reduced_basis
 from .features import Feature, Pow, Step
@@ -35,7 +36,7 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
             out.append(s)
             continue
         j = s.atom.features[0].j
-        trial = score_atoms(prob, fit, [play_backlash(j, hd * np.pi / 180) for hd in PLAY_HALF_DEG], pool_sizes,
+        trial = score_atoms(prob, fit, [play_backlash(j, deg_to_rad(hd)) for hd in PLAY_HALF_DEG], pool_sizes,
                             exact_top=len(PLAY_HALF_DEG))
         top = max(trial, key=lambda t: t.dchi2, default=None)
         better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= dists.chi2_isf(0.01 / len(PLAY_HALF_DEG), 1)
@@ -208,9 +209,9 @@ def _with_constant(atom: Atom, key: str, v: float) -> Atom:
     elif key == "k":
         o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
     elif key == "w" and atom.channel.endswith(" mm)"):
-        o, n = f"{old * 1e3:.3g} mm", f"{v * 1e3:.3g} mm"  # a prismatic joint's move width
+        o, n = f"{old * MM_PER_M:.3g} mm", f"{v * MM_PER_M:.3g} mm"  # a prismatic joint's move width
     else:
-        o, n = f"{np.rad2deg(old):.3g} deg", f"{np.rad2deg(v):.3g} deg"
+        o, n = f"{rad_to_deg(old):.3g} deg", f"{rad_to_deg(v):.3g} deg"
     return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..units import M_PER_MM
 from .apply import block_errors
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
@@ -86,7 +87,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         "before": {k: v for k, v in res.before.items() if k in ("position_mm", "orientation_deg", "n_rows")},
         "after": {k: v for k, v in res.after.items() if k in ("position_mm", "orientation_deg", "n_rows")},
         "noise_floor": {
-            "position_mm": res.noise.sigma / 1e-3,
+            "position_mm": res.noise.sigma / M_PER_MM,
             "dof": None if math.isinf(res.noise.dof) else res.noise.dof,
             "source": res.noise.source,
             "components": res.noise.components,
@@ -167,7 +168,7 @@ def plot_diagnosis(res: DiagnosisResult, out: Path) -> dict[str, Path]:
         return {}
     before = s["residual_rms_mm_before"]
     after = s["residual_rms_mm_after"]
-    floor = res.noise.sigma / 1e-3
+    floor = res.noise.sigma / M_PER_MM
     paths: dict[str, Path] = {}
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), sharey=True)
     for j, ax in enumerate(axes.flat):

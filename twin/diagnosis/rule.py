@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
@@ -42,18 +43,16 @@ __all__ = [
     "backward",
 ]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
-JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
+JOINT_MAX = 0.5 * RAD_PER_DEG  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 # on the 6R industrial arms (cycloidal and harmonic drives)
 # [rad] the same for any other chain (a URDF's: service and mobile manipulators whose wrist and belt stages show up
 # to a degree of play; set after the TIAGo wrist's 0.63 deg backlash, confirmed on its other day, exceeded 0.5 deg)
-JOINT_MAX_CHAIN = 1.0 * np.pi / 180
+JOINT_MAX_CHAIN = 1.0 * RAD_PER_DEG
 # [rad] largest variation over the rows of a deflection under a known load (compliance or a support's tilt under the
 # chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
-LOAD_MAX = 1.0 * np.pi / 180
+LOAD_MAX = 1.0 * RAD_PER_DEG
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 
 
@@ -248,7 +247,7 @@ def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, exce
     if excess and not confirmed:
         smooth = smooth_confirm(prob, base, z_min)
         w = test0.whitened_rms
-        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / _MM,
+        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / M_PER_MM,
                        "predictable": smooth["confirmed"], "by": smooth["by"] if smooth["confirmed"] else None,
                        "smoothers": smooth["smoothers"]}
     structured = bool(excess and (confirmed or unexplained["predictable"]))
@@ -309,8 +308,8 @@ def _implausible(prob: Problem, s) -> str | None:
         eff = tilt_angles(a.features, F, phi) if a.place == "param" else (F @ phi)[:, None]
         dev = float(np.max(np.abs(eff - eff.mean(axis=0)))) if eff.size else 0.0
         if dev > LOAD_MAX:
-            return (f"implausible for {a.family} under the chain's own weight: {dev / _DEG:.3f} deg of variation over the "
-                    f"rows (more than {LOAD_MAX / _DEG:.1f} deg)")
+            return (f"implausible for {a.family} under the chain's own weight: {dev / RAD_PER_DEG:.3f} deg of variation over the "
+                    f"rows (more than {LOAD_MAX / RAD_PER_DEG:.1f} deg)")
         return None
     eff = prob.features(a)[prob.rows_cal] @ (s.basis @ s.psi) if a.place in ("length", "joint") else None
     if eff is None or eff.size == 0:
@@ -320,7 +319,7 @@ def _implausible(prob: Problem, s) -> str | None:
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
     cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
     if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
-        return f"implausible for {a.family}: {np.max(np.abs(eff)) / _DEG:.3f} deg (more than {cap / _DEG:.1f} deg)"
+        return f"implausible for {a.family}: {np.max(np.abs(eff)) / RAD_PER_DEG:.3f} deg (more than {cap / RAD_PER_DEG:.1f} deg)"
     return None
 
 
