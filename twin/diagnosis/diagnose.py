@@ -51,7 +51,7 @@ from .changes import change_places, change_pool_sizes, describe_changes, row_tim
 from .late import late_change
 from .extend import error_stats, reduced_basis
 from .features import LoadSign
-from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
+from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
@@ -375,12 +375,13 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     notes: list[str] = []
     if virtual:
         # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
-        dataset, note_virtual = virtual_spheres(dataset)
+        dataset, note_virtual, assumed = virtual_spheres(dataset)
     if dataset.set is not None and not np.any(dataset.set == "validation"):
         raise DiagnosisError("diagnosis needs held-out rows: the 'set' column has no 'validation' rows")
     blocks = held_out_sets(dataset, holdout)
     dataset = replace(dataset, set=blocks.set)
-    floor = noise_floor(dataset, plate=not virtual)
+    # the virtual points' noise is the diagnosis' assumption (from the stated [noise]), not a stated figure
+    floor = noise_floor(dataset, plate=not virtual, stated_ok=not virtual, assumed=assumed if virtual else None)
     notes.append(f"noise floor {floor.sigma / M_PER_MM:.5f} mm per coordinate from {floor.source}")
     if virtual:
         notes.append(note_virtual)
@@ -593,12 +594,13 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
 VIRTUAL_ARM = 0.1  # [m] distance of the virtual points from the tool origin when poses are read as points
 
 
-def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
+def virtual_spheres(ds: Dataset) -> tuple[Dataset, str, AssumedNoise | None]:
     """A pose dataset (``x y z rx ry rz``) as three points of the tool frame ``VIRTUAL_ARM`` along its x, y
     and z axes, measured where the pose puts them: every sphere-centre atom then applies (the plate's own atoms
-    do not: the points are the tool frame's). The noise per point coordinate is ``sqrt(sigma_p^2 + (2/3)
-    (L sigma_r)^2)`` from ``[noise]`` (a point inherits the rotation noise across its arm). Returns the dataset and
-    a note."""
+    do not: the points are the tool frame's). The noise the diagnosis assumes per point coordinate is ``sqrt(sigma_p^2
+    + (2/3) (L sigma_r)^2)`` from ``[noise]``'s stated ``sigma_p`` and ``sigma_r`` (a point inherits the rotation noise
+    across its arm; None without a stated position noise); the dataset's own ``[noise]`` is left as stated. Returns
+    the dataset, a note and that assumption."""
     if not ds.has_poses:
         raise DiagnosisError("diagnosis needs sphere centres (p0_x..p2_z) or poses (x y z rx ry rz); this dataset has "
                              "neither")
@@ -608,17 +610,22 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
     spheres = np.einsum("nij,sj->nsi", R, pts) + t[:, None, :]
     seen = np.repeat(ds.pose_seen[:, None], 3, axis=1)
     spheres[~seen] = np.nan
-    noise = None
+    assumed = None
     if ds.noise_position is not None:
         sr = ds.noise_orientation or 0.0
         noise = float(np.sqrt(ds.noise_position**2 + (2.0 / 3.0) * (L * sr) ** 2))
+        stated = {"position_mm": ds.noise_position / M_PER_MM, "orientation_rad": ds.noise_orientation}
+        assumed = AssumedNoise(noise, "the diagnosis' assumption for the virtual points, sqrt(sigma_p^2 + (2/3) (L "
+                               f"sigma_r)^2) with L = {L / M_PER_MM:.0f} mm from dataset.toml [noise] position_mm "
+                               f"{stated['position_mm']:.6g} and orientation_rad "
+                               f"{0.0 if ds.noise_orientation is None else ds.noise_orientation:.6g} (stated)", stated)
     # the marker set is stated in the flange frame: the virtual points through the nominal tool frame (the frame
     # the poses are measured in), so that the calibration's tool frame stays the measured one
     T = np.asarray(ds.robot.tool2flange, float)
     out = replace(ds, spheres=spheres, sphere_seen=seen, pose_seen=np.zeros(ds.n, bool),
-                  plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]), noise_position=noise)
+                  plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]))
     return out, (f"poses read as three points of the tool frame {L / M_PER_MM:.0f} mm along its axes (virtual spheres); "
-                 "the plate's own terms and the plate-distance floor do not apply")
+                 "the plate's own terms and the plate-distance floor do not apply"), assumed
 
 
 def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:

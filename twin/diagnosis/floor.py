@@ -12,6 +12,9 @@
   as the RMS over the axes: spread over them in the shape the plate shows when it has at least 100 degrees of
   freedom and the axes differ by 1.5x or more, never below the stated figure on an axis the distances barely
   measure; isotropic otherwise).
+* **Assumed**: a figure the diagnosis derives from stated ones for points it constructs (:class:`AssumedNoise`:
+  the virtual points of a pose, from its stated position and orientation noise), reported as its assumption
+  with the stated figures it came from, never as a stated figure.
 
 The floor per axis is the largest estimate available; its scalar ``sigma`` is their RMS. Never the world's truth.
 """
@@ -32,7 +35,7 @@ from .candidates import GRAVITY, RowContext
 from .features import Field
 from .field import POINT_FIELDS, field_applicable, field_constants, field_values
 
-__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
+__all__ = ["DiagnosisError", "NoiseFloor", "AssumedNoise", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
            "history_resets",
            "row_resets", "row_context", "joints_context"]
 
@@ -49,7 +52,8 @@ class NoiseFloor:
     """Measurement noise ``sigma`` [m] per sphere coordinate (RMS over the axes), per axis of the measurement
     frame ``axis_sigma`` ``(3,)`` [m] (None: isotropic), its degrees of freedom (``inf`` when stated), where
     it came from, how many repeat groups there were, and every estimate available (``components``:
-    ``repeats``, ``plate``, ``stated``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``);
+    ``repeats``, ``plate``, ``stated``, ``assumed``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``,
+    ``assumed`` with ``from_stated``, the stated figures it was derived from);
     ``lower_bound``: the floor is set by the instrument's marker noise alone (``marker_std``), which the robot's own
     pose-to-pose scatter may exceed (no repeats measured it)."""
 
@@ -60,6 +64,17 @@ class NoiseFloor:
     components: dict = field(default_factory=dict)
     axis_sigma: np.ndarray | None = None
     lower_bound: bool = False
+
+
+@dataclass(frozen=True)
+class AssumedNoise:
+    """A noise figure per point coordinate the diagnosis assumes for points it constructs, derived from figures the
+    user stated: ``sigma`` [m], ``source`` (how it was derived, in words) and ``stated`` (the stated figures it came
+    from, by name, e.g. ``{"position_mm": 0.02, "orientation_rad": 6e-05}``)."""
+
+    sigma: float
+    source: str
+    stated: dict
 
 
 def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
@@ -229,10 +244,11 @@ def _stated_axes(sig: float, pl: tuple | None) -> tuple[np.ndarray, str]:
     return shaped, ", spread over the axes as the plate shows"
 
 
-def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> NoiseFloor:
+def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True,
+                assumed: AssumedNoise | None = None) -> NoiseFloor:
     """The sphere-coordinate noise floor (see the module docstring): per axis the largest of the repeats'
-    spread, the plate-geometry spread and the stated figure, with the smallest degrees of freedom of the
-    estimates that set it."""
+    spread, the plate-geometry spread, the stated figure (``stated_ok``) and the diagnosis' ``assumed`` one, with
+    the smallest degrees of freedom of the estimates that set it."""
     if not ds.has_spheres:
         if ds.noise_position is not None and stated_ok:
             return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)", 0,
@@ -254,6 +270,9 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     if stated_ok and ds.noise_position is not None:
         stated, how = _stated_axes(float(ds.noise_position), pl)
         comps["stated"] = (stated, float("inf"), f"dataset.toml [noise] position_mm (stated){how}")
+    if assumed is not None:
+        figure, how = _stated_axes(float(assumed.sigma), pl)
+        comps["assumed"] = (figure, float("inf"), f"{assumed.source}{how}")
     ms = marker_noise(ds)
     if ms is not None:
         comps["marker_std"] = (np.full(3, ms[0]), float("inf"),
@@ -283,6 +302,8 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
                       "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
     if systematic is not None:
         components["plate"]["systematic"] = systematic
+    if assumed is not None:
+        components["assumed"]["from_stated"] = dict(assumed.stated)
     return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
 
 
