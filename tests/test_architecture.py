@@ -1,6 +1,7 @@
 """The one-way data flow, checked on the import graph (AST of every module under twin/)."""
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "twin"
@@ -267,6 +268,53 @@ def test_diagnosis_modules_import_only_modules_below_them():
     """Each module of twin/diagnosis imports only the modules before it in DIAGNOSIS_ORDER (the order
     docs/architecture.md states), and every module of the package is placed in that order."""
     assert _diagnosis_order_violations() == []
+
+
+DOC = ROOT.parent / "docs" / "architecture.md"
+
+
+def _documented_diagnosis(doc: str) -> tuple[list[str], dict[str, set[str]]]:
+    """docs/architecture.md's diagnosis modules in the order of its table, and its "who may import whom" block."""
+    part = doc[doc.index("The diagnosis (`twin.diagnosis`"):]
+    table = part[: part.index("Who may import whom")]
+    order = re.findall(r"^\| `(\w+)` \|", table, flags=re.M)
+    block = part[part.index("Who may import whom"):]
+    block = block[block.index("```\n") + 4:]
+    block = block[: block.index("\n```")]
+    deps: dict[str, set[str]] = {}
+    names: list[str] = []
+    for line in block.splitlines():
+        if not line.startswith(" "):
+            head, _, line = line.strip().partition("  ")
+            names = [m.strip() for m in head.split(",")]
+            for m in names:
+                deps[m] = set()
+        got = {d.strip() for d in line.split(",") if d.strip() and d.strip() != "none"}
+        for m in names:
+            deps[m] |= got
+    return order, deps
+
+
+def _diagnosis_imports() -> dict[str, set[str]]:
+    """The diagnosis modules each module of twin/diagnosis imports."""
+    modules = _module_names()
+    out = {}
+    for path in sorted((ROOT / "diagnosis").glob("*.py")):
+        if path.stem == "__init__":
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        out[path.stem] = {t.split(".")[2] for node in _import_nodes(tree, in_functions=False)
+                          for t in _targets(node, f"twin.diagnosis.{path.stem}", False, modules)
+                          if t.startswith("twin.diagnosis.")}
+    return out
+
+
+def test_the_architecture_doc_states_the_diagnosis_order_and_imports():
+    """docs/architecture.md's diagnosis table lists the modules in DIAGNOSIS_ORDER, and its "who may import whom"
+    block is each module's imports."""
+    order, deps = _documented_diagnosis(DOC.read_text())
+    assert tuple(order) == DIAGNOSIS_ORDER
+    assert deps == _diagnosis_imports()
 
 
 def test_checker_catches_a_forbidden_import(tmp_path, monkeypatch):
