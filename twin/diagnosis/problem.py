@@ -232,6 +232,7 @@ class ColumnStore:
                 prob._Fc[k] = F[:, :, j]
 
     def has(self, key: str) -> bool:
+        """Whether the feature set ``key`` (:meth:`Problem.feature_key`) is stored."""
         return key in self.index
 
     def stats(self, place: tuple, keys: list[str], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
@@ -265,6 +266,8 @@ def covariance(J: np.ndarray) -> np.ndarray:
 
 
 def update_gross(prob: Problem, fit: Fit) -> None:
+    """The problem's gross rows set from ``fit``: calibration rows at weight 0 (``w_cal``) and confirmation rows left
+    out of the tests (``keep_val``), by :func:`~twin.diagnosis.structure.gross_rows` of each block's residuals."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
     prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)

@@ -61,6 +61,8 @@ def fit_block_test(r: np.ndarray, n_free: int, floor: NoiseFloor) -> StructureTe
 
 
 def row_rms(r: np.ndarray, row: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The RMS ``(n,)`` of the residuals ``r`` of each of ``n`` rows (``row``: the row of each residual) and their
+    count per row (0 and 0 for a row without residuals)."""
     ss = np.bincount(row, weights=r**2, minlength=n)
     cnt = np.bincount(row, minlength=n)
     return np.sqrt(ss / np.maximum(cnt, 1)), cnt
