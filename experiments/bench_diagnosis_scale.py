@@ -52,7 +52,7 @@ import numpy as np  # noqa: E402
 from twin.benchio import peak_rss_kb, provenance, update_benchmark_section  # noqa: E402
 from twin.dataset import write_dataset  # noqa: E402
 from twin.diagnosis.floor import SESSION_GAP_S, row_resets  # noqa: E402
-from twin.diagnosis.select import THREADS_MIN_ROWS  # noqa: E402
+from twin.diagnosis.problem import THREADS_MIN_ROWS  # noqa: E402
 from twin.estimator.simulate import simulate_dataset  # noqa: E402
 from twin.kinematics import RobotModel  # noqa: E402
 from twin.transforms import pose6_to_transform, rotvec_to_matrix  # noqa: E402

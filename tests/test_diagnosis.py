@@ -421,12 +421,33 @@ def test_a_pose_dataset_is_diagnosed_through_virtual_points(tmp_path):
     H.tally(out, named=(9, SEEDS), noise=(9, SEEDS))
 
 
+def test_a_pose_datasets_floor_is_reported_as_the_diagnosis_assumption():
+    """Poses read as virtual points get the noise sqrt(sigma_p^2 + (2/3) (L sigma_r)^2) per point coordinate from the
+    stated [noise], reported as the diagnosis' assumption (with the stated figures it came from), not as stated."""
+    from twin.diagnosis.diagnose import VIRTUAL_ARM, prepare_diagnosis
+    from twin.estimator.simulate import simulate_dataset
+    from twin.robots import irb1200
+    from twin.units import MM_PER_M
+
+    nom = irb1200()
+    rng = np.random.default_rng(3)
+    q = H.configurations(rng, 90, nom)
+    ds, _ = simulate_dataset(nom, q, robot_spec="irb1200", nominal=nom, kind="pose", noise_position=5e-6,
+                             noise_orientation=2e-5, rng=rng)
+    floor = prepare_diagnosis(H._replace(ds, q=q)).floor
+    assumed = floor.components["assumed"]
+    want_mm = np.sqrt(5e-6**2 + (2.0 / 3.0) * (VIRTUAL_ARM * 2e-5) ** 2) * MM_PER_M
+    assert assumed["sigma_mm"] == pytest.approx(want_mm, rel=1e-12)
+    assert assumed["from_stated"] == {"position_mm": pytest.approx(5e-3), "orientation_rad": 2e-5}
+    assert "stated" not in floor.components and floor.source.startswith("the diagnosis' assumption")
+
+
 def test_held_out_rows_split_into_an_earlier_confirmation_and_a_later_report_block():
     """The held-out rows split in two disjoint blocks covering them: the last fifth of the held-out visits report,
     every report row after every confirmation row (a repeat in the block of its visit), no report row with an
     unknown approach history."""
     from twin.diagnosis import split_held_out
-    from twin.diagnosis.atoms import approach_unknown
+    from twin.diagnosis.values import approach_unknown
     from twin.estimator.core import prepare
 
     ds, _ = H.make_dataset(seed=0, n=120)

@@ -6,7 +6,7 @@ import pytest
 import _diagnosis_helpers as H
 from twin.diagnosis import diagnose, row_context, write_diagnosis
 from twin.diagnosis.apply import compensate_extended, predict_extended
-from twin.diagnosis.atoms import approach_unknown
+from twin.diagnosis.values import approach_unknown
 from twin.estimator import Calibration
 from twin.kinematics import tool2meas
 
@@ -281,7 +281,7 @@ def test_a_drift_goes_on_while_the_campaign_continues_and_holds_in_another_sessi
     rows further away (another session) and rows without t_s hold the state at its end."""
     from dataclasses import replace
 
-    from twin.diagnosis.atoms import feature_values
+    from twin.diagnosis.values import feature_values
     from twin.diagnosis.candidates import RowContext
     from twin.diagnosis.features import feature_from_dict
     from twin.robots import irb1200

@@ -377,7 +377,8 @@ def test_every_feature_reads_the_same_on_rows_that_continue():
     it is given."""
     from dataclasses import replace
 
-    from twin.diagnosis.atoms import catalogue_atoms, feature_values, generic_atoms
+    from twin.diagnosis.pools import catalogue_atoms, generic_atoms
+    from twin.diagnosis.values import feature_values
     from twin.diagnosis.floor import row_context
 
     ds, _ = _dataset(None, seed=18, n=120)

@@ -81,7 +81,8 @@ def test_approach_signs_follow_last_motion_and_hold_when_still():
 
 def test_every_atom_of_both_pools_has_one_feature_column_per_feature():
     """Catalogue and dictionary atoms evaluate to (rows, features) finite values on a row context."""
-    from twin.diagnosis.atoms import catalogue_atoms, feature_values, generic_atoms
+    from twin.diagnosis.pools import catalogue_atoms, generic_atoms
+    from twin.diagnosis.values import feature_values
 
     model = irb1200()
     q = np.random.default_rng(2).uniform(-1, 1, (40, 6))

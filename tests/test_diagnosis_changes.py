@@ -351,7 +351,7 @@ def test_the_scan_finds_the_row_every_step_position_scored_alone_prefers():
     alone by the selection's exact scoring, explains most of every step position of joint 3."""
     from twin.diagnosis.changes import _atom, _steps, change_places, scan_changes
     from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
-    from twin.diagnosis.select import score_atoms
+    from twin.diagnosis.scoring import score_atoms
 
     ds, _, _, _ = _joint_step(3)
     setup = prepare_diagnosis(ds)
@@ -392,7 +392,7 @@ def test_a_new_session_reads_the_state_after_the_last_change():
 def test_the_base_moment_regressor_gives_the_arm_moment_from_its_mass_moments():
     """The base's moment regressor times the links' mass moments ``(m_k, m_k c_k)`` is the arm's gravity moment about the
     base's x and y axes, summed here link by link from the centres of mass (test-side)."""
-    from twin.diagnosis.loads import base_moment_regressor
+    from twin.diagnosis.candidates import base_moment_regressor
     from twin.robots import irb1200
 
     model = irb1200()
@@ -407,7 +407,7 @@ def test_rows_to_confirm_is_the_fewest_rows_a_confirmation_can_pass_on(z_min):
     """``rows_to_confirm``: with that many rows all in favour the signed-rank score passes ``z_min`` without its most
     favourable row; with one row fewer it cannot."""
     from twin.diagnosis.late import rows_to_confirm
-    from twin.diagnosis.select import signed_rank_z
+    from twin.diagnosis.structure import signed_rank_z
 
     n = rows_to_confirm(z_min)
     c = np.arange(1.0, n + 1.0)

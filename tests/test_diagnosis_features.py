@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from twin.diagnosis.atoms import Atom, feature_values, with_records
+from twin.diagnosis.atoms import Atom
+from twin.diagnosis.values import feature_values, with_records
 from twin.diagnosis.candidates import RowContext
 from twin.diagnosis.features import (FEATURE_KINDS, BaseMoment, CartDir, Const, Cos, Exp, Feature, Field, Gated, Grav,
                                      GravityDir, GravMix, Heat, HeatRecord, Hinge, Lag, LagRecord, LastMove, LoadSign,

@@ -1,4 +1,4 @@
-"""The scoring's shortcuts compute what their definitions do (twin.diagnosis.select, twin.diagnosis.extend).
+"""The scoring's shortcuts compute what their definitions do (twin.diagnosis.scoring, grams, problem, extend).
 
 Each shortcut of the scoring at scale is checked against the plain formula it replaces, on a small problem at its
 geometric fit: per-row sums laid out by row against a sparse sum over the residuals, a step's products from suffix
@@ -12,7 +12,8 @@ import pytest
 from scipy import sparse
 
 import _diagnosis_helpers as H
-from twin.diagnosis import select as S
+from twin.diagnosis import grams, scoring
+from twin.diagnosis.problem import ColumnStore
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 from twin.diagnosis.extend import _times_weights, param_weights
@@ -31,7 +32,7 @@ def problem():
     prob = setup.problem
     fit = fit_geometry(prob, setup.x0)
     pool, sizes = atom_pool(setup)
-    return prob, fit, S.scoring_basis(prob, fit), pool, sizes
+    return prob, fit, scoring.scoring_basis(prob, fit), pool, sizes
 
 
 def _close(got, want, scale, tol=1e-12):
@@ -54,10 +55,10 @@ def test_block_products_equal_those_of_the_atoms_columns(problem):
     atoms = [a for a in pool if a.place == "joint" and a.target == "theta4" and a.pool == "generic"
              and len(a.features) == 2][:5]
     assert len(atoms) == 5
-    w, Qb, br = S._screen_aggregates(prob, fit, sb, atoms[0])
+    w, Qb, br = scoring._screen_aggregates(prob, fit, sb, atoms[0])
     F = np.stack([prob.features_cal(a) for a in atoms], axis=2)  # (n, 2, g)
-    got = S._block_stats(F, w, Qb, br)
-    b = S._kept_base(prob, fit, sb, atoms[0])[:, 0] * sb.sw_kept
+    got = grams.block_stats(F, w, Qb, br)
+    b = scoring._kept_base(prob, fit, sb, atoms[0])[:, 0] * sb.sw_kept
     for i, (nrm2, EtE, QtE, Etr) in enumerate(got):
         E = b[:, None] * F[sb.rows, :, i]
         Ea = np.abs(E)
@@ -71,10 +72,10 @@ def test_row_aggregates_are_the_sums_over_each_rows_residuals(problem):
     """The per-row sums laid out by row equal the sparse sums over the kept residuals of each row."""
     prob, fit, sb, pool, _ = problem
     atom = next(a for a in pool if a.place == "param" and a.target == "base")
-    base = S._kept_base(prob, fit, sb, atom) * sb.sw_kept[:, None]
+    base = scoring._kept_base(prob, fit, sb, atom) * sb.sw_kept[:, None]
     rows, n, m = sb.rows, prob.obs_cal.n, len(sb.rows)
     Sm = sparse.csr_matrix((np.ones(m), (rows, np.arange(m))), shape=(n, m))
-    W, QB, Br = S._row_aggregates(prob, fit, sb, atom)
+    W, QB, Br = scoring.row_aggregates(prob, fit, sb, atom)
     c = base.shape[1]
 
     def sums(b, Q, r):
@@ -90,11 +91,11 @@ def test_step_products_from_suffix_sums_equal_those_of_its_column(problem):
     prob, fit, sb, _, _ = problem
     t = prob.ctx.t_s[prob.rows_cal]
     steps = _steps("joint", "theta3", np.quantile(t, [0.0, 0.13, 0.5, 0.87]) + [0.0, 0.5, 0.0, 0.0])
-    w, Qb, br = S._screen_aggregates(prob, fit, sb, steps[0])
-    got = S._step_stats(prob, steps, w, Qb, br)
+    w, Qb, br = scoring._screen_aggregates(prob, fit, sb, steps[0])
+    got = scoring._step_stats(prob, steps, w, Qb, br)
     F = np.stack([prob.features_cal(a) for a in steps], axis=2)  # (n, 1, g)
-    want = S._block_stats(F, w, Qb, br)
-    scale = S._block_stats(F, np.abs(w), np.abs(Qb), np.abs(br))
+    want = grams.block_stats(F, w, Qb, br)
+    scale = grams.block_stats(F, np.abs(w), np.abs(Qb), np.abs(br))
     assert len(got) == len(want) == len(steps)
     for g, h, sc in zip(got, want, scale):
         for x, y, z in zip(g, h, sc):
@@ -109,11 +110,11 @@ def test_family_acting_from_different_moments_equals_its_atoms_products(problem)
     family = [Atom("compliance", "joint", "theta2", tuple(Gated(f=f, ch="t_s", at=float(at))
                                                           for f in comp.features), f"from {at}", f"from {at}",
                    "catalogue", (2,)) for at in np.quantile(t, [0.1, 0.4, 0.75])]
-    W, QB, Br = S._row_aggregates(prob, fit, sb, family[0])
-    got = S._gate_grams(prob, family, W, QB, Br)
+    W, QB, Br = scoring.row_aggregates(prob, fit, sb, family[0])
+    got = scoring._gate_grams(prob, family, W, QB, Br)
     F = np.stack([prob.features_cal(a) for a in family], axis=1)  # (n, g, K)
-    want = S._product_grams(F, W, QB, Br)
-    scale = S._product_grams(np.abs(F), np.abs(W), np.abs(QB), np.abs(Br))
+    want = grams.product_grams(F, W, QB, Br)
+    scale = grams.product_grams(np.abs(F), np.abs(W), np.abs(QB), np.abs(Br))
     for i in range(len(family)):
         for j in range(3):
             _close(got[i][j], want[j][i], scale[j][i], 1e-11)
@@ -128,24 +129,24 @@ def test_wide_product_atom_equals_one_batch_when_split_or_on_distinct_rows(probl
     at = np.quantile(t, np.linspace(0.05, 0.95, 12))
     wide = Atom("unnamed", "param", "base", tuple(Step(ch="t_s", at=float(a)) for a in at),
                 "steps", "steps", "generic")
-    W, QB, Br = S._row_aggregates(prob, fit, sb, wide)
+    W, QB, Br = scoring.row_aggregates(prob, fit, sb, wide)
     F = prob.features_cal(wide)[:, None, :]
-    want = S._product_grams(F, W, QB, Br)
-    scale = S._product_grams(np.abs(F), np.abs(W), np.abs(QB), np.abs(Br))
+    want = grams.product_grams(F, W, QB, Br)
+    scale = grams.product_grams(np.abs(F), np.abs(W), np.abs(QB), np.abs(Br))
     n = F.shape[0]
-    monkeypatch.setattr(S, "PRODUCT_BATCH_MAX", n * 12 * 12 - 1)  # the atom alone is too wide: its distinct rows
+    monkeypatch.setattr(scoring, "PRODUCT_BATCH_MAX", n * 12 * 12 - 1)  # the atom alone is too wide: its distinct rows
     assert prob.distinct_rows_cal(wide) is not None
-    for x, y, z in zip(S._product_grams_bounded(prob, [wide], F, W, QB, Br), want, scale):
+    for x, y, z in zip(scoring._product_grams_bounded(prob, [wide], F, W, QB, Br), want, scale):
         _close(x, y, z, 1e-11)
     monkeypatch.setattr(prob, "distinct_rows_cal", lambda a: None)  # no distinct rows: blocks of rows
-    for x, y, z in zip(S._product_grams_bounded(prob, [wide], F, W, QB, Br), want, scale):
+    for x, y, z in zip(scoring._product_grams_bounded(prob, [wide], F, W, QB, Br), want, scale):
         _close(x, y, z, 1e-11)
     steps = _steps("param", "base", at)
     F1 = np.stack([prob.features_cal(a) for a in steps], axis=1)  # (n, 12, 1): split into batches of 5
-    monkeypatch.setattr(S, "PRODUCT_BATCH_MAX", n * 5)
-    got = S._product_grams_bounded(prob, steps, F1, W, QB, Br)
-    want = S._product_grams(F1, W, QB, Br)
-    scale = S._product_grams(np.abs(F1), np.abs(W), np.abs(QB), np.abs(Br))
+    monkeypatch.setattr(scoring, "PRODUCT_BATCH_MAX", n * 5)
+    got = scoring._product_grams_bounded(prob, steps, F1, W, QB, Br)
+    want = grams.product_grams(F1, W, QB, Br)
+    scale = grams.product_grams(np.abs(F1), np.abs(W), np.abs(QB), np.abs(Br))
     for x, y, z in zip(got, want, scale):
         _close(x, y, z, 1e-11)
 
@@ -153,16 +154,16 @@ def test_wide_product_atom_equals_one_batch_when_split_or_on_distinct_rows(probl
 def test_column_store_screens_as_stacked_features_do(problem):
     """The screening's p-values from the column store equal those from each place's stacked features."""
     prob, fit, sb, pool, sizes = problem
-    atoms = [a for a in pool if a.pool != "catalogue" and S._screenable(a)]
+    atoms = [a for a in pool if a.pool != "catalogue" and scoring._screenable(a)]
     store = prob.column_store(atoms)
-    assert store is not None and any(store.has(prob._key(a)) for a in atoms)
-    got = S._screen(prob, fit, atoms, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes)
+    assert store is not None and any(store.has(prob.feature_key(a)) for a in atoms)
+    got = scoring._screen(prob, fit, atoms, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes)
     prob._store, kept = None, prob._store
     try:
-        S._ColumnStore.MIN_ATOMS, min_atoms = 10**9, S._ColumnStore.MIN_ATOMS
-        want = S._screen(prob, fit, atoms, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes)
+        ColumnStore.MIN_ATOMS, min_atoms = 10**9, ColumnStore.MIN_ATOMS
+        want = scoring._screen(prob, fit, atoms, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes)
     finally:
-        prob._store, S._ColumnStore.MIN_ATOMS = kept, min_atoms
+        prob._store, ColumnStore.MIN_ATOMS = kept, min_atoms
     fin = np.isfinite(want)
     assert np.array_equal(fin, np.isfinite(got)) and fin.sum() > 100
     np.testing.assert_allclose(got[fin], want[fin], rtol=1e-9, atol=1e-9)
@@ -189,7 +190,7 @@ def test_tail_sums_are_the_sums_from_each_position_on():
     rng = np.random.default_rng(3)
     X = rng.normal(size=(50, 4))
     pos = np.array([7, 0, 50, 7, 49, 23, 23])
-    got = S._tail_sums(X, pos)
+    got = grams.tail_sums(X, pos)
     want = np.array([X[p:].sum(axis=0) for p in pos])
     _close(got, want, np.array([np.abs(X[p:]).sum(axis=0) for p in pos]), 1e-13)
 
@@ -198,9 +199,9 @@ def test_leading_eigenpairs_of_a_wide_gram_matrix_are_the_full_decompositions():
     """For a wide projected Gram matrix, the leading eigenvalues equal the full decomposition's and their
     eigenvectors span the same directions."""
     rng = np.random.default_rng(5)
-    A = rng.normal(size=(S.WIDE_EIGH_MIN + 20, 900))
+    A = rng.normal(size=(grams.WIDE_EIGH_MIN + 20, 900))
     G = (A @ A.T / 900)[None]
-    lam, V = S._leading_eigh(G, 6)
+    lam, V = grams.leading_eigh(G, 6)
     full, U = np.linalg.eigh(G[0])
     np.testing.assert_allclose(lam[0], full[::-1][:6], rtol=1e-12)
     np.testing.assert_allclose(np.abs(np.sum(V[0] * U[:, ::-1][:, :6], axis=0)), 1.0, rtol=1e-9)
@@ -209,11 +210,11 @@ def test_leading_eigenpairs_of_a_wide_gram_matrix_are_the_full_decompositions():
 def test_scores_on_two_threads_equal_those_on_one(problem):
     """Scoring the pool with its places on two threads gives the same atoms and the same log p-values, bit for bit."""
     prob, fit, sb, pool, sizes = problem
-    one = S.score_atoms(prob, fit, pool, sizes)
+    one = scoring.score_atoms(prob, fit, pool, sizes)
     sb.cache.clear()  # the per-place quantities derived anew, on the threads
     prob.threads = 2
     try:
-        two = S.score_atoms(prob, fit, pool, sizes)
+        two = scoring.score_atoms(prob, fit, pool, sizes)
     finally:
         prob.threads = 1
     assert len(one) > 20

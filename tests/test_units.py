@@ -66,11 +66,7 @@ def _own_units(scope: str) -> list[str]:
     return out
 
 
-@pytest.mark.parametrize("scope", [
-    pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="twin/diagnosis still defines _MM/_DEG and converts "
-                                            "with np.radians/np.degrees: the diagnosis refactor of issue 38 replaces "
-                                            "them (remove this mark when it lands)"))
-    if s == "twin/diagnosis" else s for s in _SCOPES])
+@pytest.mark.parametrize("scope", _SCOPES)
 def test_no_module_defines_its_own_unit_constants(scope):
     """No module (twin/units.py aside) defines a unit constant of its own or converts angles with numpy/math."""
     assert _own_units(scope) == []

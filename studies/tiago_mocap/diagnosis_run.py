@@ -142,13 +142,14 @@ def fit_terms(ds, group, labels, geometry=None) -> dict:
 
 def account(days: dict, groups: dict) -> list[dict]:
     """Each physical candidate alone, both directions (four points, the default geometry): the diagnosis' own test
-    of a term against the geometric fit (:func:`twin.diagnosis.select.score_atoms`, :func:`~twin.diagnosis.select.confirm`,
+    of a term against the geometric fit (:func:`twin.diagnosis.scoring.score_atoms`, :func:`~twin.diagnosis.confirm.confirm`,
     :func:`twin.diagnosis.diagnose.implausible_size`: significant on the training day, confirmed on the other day's
     confirmation rows with ``z > 3`` also without the most favourable row and a lower held-out error, of a physical
     size), and the other day's marker-1 RMSE with the term. *Confirmed on the other day*: it passes in both
     directions."""
     from twin.diagnosis.diagnose import atom_pool, evidence_scale, fit_geometry, implausible_size, prepare_diagnosis
-    from twin.diagnosis.select import confirm, score_atoms
+    from twin.diagnosis.confirm import confirm
+    from twin.diagnosis.scoring import score_atoms
 
     tests = {}
     for d in DIRECTIONS:

@@ -7,7 +7,8 @@ Reads only datasets (``twin.dataset``) and calibrations (``twin.estimator``); ne
     q_eff = apply_joint_effects(effects, q, ctx) # what an extended calibration does to commanded joints
 """
 
-from .atoms import Atom, catalogue_atoms, generic_atoms
+from .atoms import Atom
+from .pools import catalogue_atoms, generic_atoms
 from .candidates import EFFECT_VOCABULARY, RowContext, approach_signs, gravity_torque_regressor
 from .diagnose import (
     CandidateScore,

@@ -20,11 +20,16 @@ import numpy as np
 from ..estimator.calibration import Calibration, Prediction
 from ..estimator.compensation import CompensationResult, compensation
 from ..estimator.problem import ParamSpace, predict_points
-from ..transforms import matrix_to_rotvec
-from .atoms import Atom, feature_values, history_unknown
+from ..estimator.register import prediction_errors, register, select_rows, session_residuals
+from ..transforms import kabsch, matrix_to_rotvec
+from ..units import M_PER_MM
+from .atoms import Atom
+from .values import feature_values, history_unknown
 from .candidates import RowContext
 from .features import Station
 from .extend import param_weights
+from .field import field_values, station_mask
+from .floor import row_context
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
            "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
@@ -133,8 +138,6 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             d[:, int(a.target[6:])] += np.einsum("ncj,nj->nc", plate2meas(), off)
             continue
         if a.place == "field":
-            from .field import field_values, station_mask
-
             n_tool = next((f.n_tool for f in a.features if getattr(f, "n_tool", None) is not None), None)
             nrm = None
             if n_tool is not None:
@@ -178,8 +181,6 @@ def predict_extended(cal: Calibration, ctx: RowContext, station: np.ndarray | No
     d = _first_order(c, ctx, sp, st_idx, q_eff, c.spheres_tool, known)
     spheres = pred.spheres + d
     # the plate pose follows the moved spheres (rigid fit of the plate to them)
-    from ..transforms import kabsch
-
     A = np.broadcast_to(c.spheres_tool, spheres.shape)
     R, t = kabsch(A, spheres)
     pose = pred.pose.copy()
@@ -286,8 +287,6 @@ def dataset_predictor(dataset):
     anew), for :func:`twin.estimator.register.register` and :func:`~twin.estimator.register.prediction_errors`.
     The rows are evaluated up to the last one asked for: a term reads a row and the rows before it, so the rows
     after it change nothing (and a few rows at the start of a long file cost a few rows)."""
-    from .floor import row_context
-
     ctx = row_context(dataset)
     station = dataset.station_ids
     prefixes: dict[int, RowContext] = {}
@@ -322,8 +321,6 @@ def block_errors(geometric: Calibration, extended: Calibration, dataset, blocks:
     geometric, extended, rms_ratio}``, each as :func:`twin.estimator.register.prediction_errors` gives it (3-D
     error per point [mm], and [deg] for poses), the extended model's effects evaluated from all the dataset's rows
     in measurement order (:func:`dataset_predictor`)."""
-    from ..estimator.register import prediction_errors
-
     predict = dataset_predictor(dataset)
     out = {}
     for name, rows in blocks.items():
@@ -348,8 +345,6 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
     the errors on the other rows (:func:`block_errors`), the model :func:`choose_for_session` takes for the session
     from its ``first`` rows (the one ``twin register`` writes), the terms it dropped, and that model's errors on the
     other rows (``session_model``: ``{name, n_rows, geometric, extended, rms_ratio}``, its errors as ``extended``)."""
-    from ..estimator.register import prediction_errors, select_rows
-
     rows = select_rows(dataset, first=first)
     choice = choose_for_session({"geometric": geometric, "extended": extended}, dataset, rows, tool=tool)
     geo, ext = choice.registered["geometric"], choice.registered["extended"]
@@ -367,7 +362,6 @@ def new_session_errors(geometric: Calibration, extended: Calibration, dataset, *
 
 _FD_STEP = 1e-6  # [m] and [rad]: central-difference step of the residuals in the registered frames
 SESSION_Z_MIN = 3.0  # a pruned model replaces the whole one at this z over the rows (diagnose's z_min)
-_MM = 1e-3
 SESSION_FOLDS = 5  # contiguous blocks of the registration rows in time, each predicted by the others' registration
 
 
@@ -414,8 +408,6 @@ def choose_for_session(models: dict, dataset, rows, *, tool: bool = False, folds
     ``ValueError`` naming the argument when ``models`` is empty or holds
     something else than calibrations, when ``folds`` < 2 or exceeds the rows, or when a fold's registration is
     refused (too few rows: the message names the fold)."""
-    from ..estimator.register import prediction_errors, register
-
     if not isinstance(models, dict) or not models or not all(isinstance(c, Calibration) for c in models.values()):
         raise ValueError(f"models must be a non-empty dict of name -> twin.estimator.Calibration, got {models!r:.120}")
     idx = _fold_rows(rows, folds)
@@ -499,8 +491,6 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
     significant, with no label returned). Nothing is refitted: the
     session's rows only choose (the values came from the campaign that fitted them). ``ValueError`` naming the
     argument as in :func:`choose_for_session`."""
-    from ..estimator.register import register, session_residuals
-
     if not isinstance(calibration, Calibration):
         raise ValueError(f"calibration must be a twin.estimator.Calibration, got {type(calibration).__name__}")
     idx = _fold_rows(rows, folds)
@@ -541,7 +531,7 @@ def prune_for_session(calibration: Calibration, dataset, rows, *, tool: bool = F
         return out
 
     def score(sq: np.ndarray) -> float:
-        return float(np.sqrt(sq.sum() / n_points) * sigma / _MM)
+        return float(np.sqrt(sq.sum() / n_points) * sigma / M_PER_MM)
 
     whole = per_row([])
     dropped: list[int] = []

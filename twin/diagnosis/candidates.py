@@ -1,5 +1,6 @@
 """The vocabulary of named effects and what every atom reads from the rows: the row context, the approach
-directions, and the gravity-torque regressor (the atoms themselves are in :mod:`twin.diagnosis.atoms`).
+directions, and the gravity-torque regressors of the joints and the base (the atoms themselves are in
+:mod:`twin.diagnosis.atoms`).
 
 The vocabulary (families named in ``diagnosis.json``, ``docs/formats.md``):
 
@@ -40,6 +41,7 @@ __all__ = [
     "joint_frames",
     "gravity_torques",
     "carried_moments",
+    "base_moment_regressor",
 ]
 
 EFFECT_VOCABULARY = ("compliance", "backlash", "cyclic", "gear_ratio", "coupling", "thermal", "plate_geometry", "tilt")
@@ -239,4 +241,27 @@ def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = G
             R_k = frames[:, k + 1, :3, :3]
             Y[:, i, k, 0] = np.einsum("ni,ni->n", z_axis[:, i], np.cross(o_k - o_axis[:, i], g))
             Y[:, i, k, 1:] = np.einsum("nji,nj->ni", R_k, gxz)
+    return Y
+
+
+def base_moment_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = GRAVITY) -> np.ndarray:
+    """The arm's gravity moment about the base's ``x`` and ``y`` axes through its origin as a linear map of the links'
+    mass moments: ``(n, 2, N, 4)``, ``M_a(q) = sum_k Y[:, a, k] @ (m_k, h_k)`` with ``h_k = m_k c_k`` in link frame
+    ``k`` (the frames of :func:`gravity_torque_regressor`):
+    ``Y[:, a, k] = (e_a . (o_k x g), R_k^T (g x e_a))``."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if model.convention == "urdf":
+        F = joint_frames(model, q)
+    else:
+        F = link_frames(model, q)[:, 1:model.n_joints + 1]
+    n, N = F.shape[0], F.shape[1]
+    Y = np.zeros((n, 2, N, 4))
+    for a in (0, 1):
+        e = np.zeros(3)
+        e[a] = 1.0
+        gxe = np.cross(g, e)
+        for k in range(N):
+            o, R = F[:, k, :3, 3], F[:, k, :3, :3]
+            Y[:, a, k, 0] = np.cross(o, g) @ e
+            Y[:, a, k, 1:] = np.einsum("nji,j->ni", R, gxe)
     return Y

@@ -2,7 +2,7 @@
 
 A *change* acts at one *place* from one row of the campaign on (a step) or between two rows (a window): a joint
 offset (``theta<j>``), the tool frame, the measurement (base) frame (each row's station), or a joint's compliance
-(its leading gravity-torque shapes, :func:`twin.diagnosis.atoms.catalogue_atoms`: a payload put on or taken off).
+(its leading gravity-torque shapes, :func:`twin.diagnosis.pools.catalogue_atoms`: a payload put on or taken off).
 Its column is the place's column times ``1[row >= s]`` (a window: ``1[s <= row < e]``), rows in time order (``t_s``
 when recorded, else the measurement order).
 
@@ -14,7 +14,7 @@ features) explains, with a step at row ``s``,
     ``C_s = sum_{i>=s} g_i^T g_i``
 
 (the columns scaled to unit norm, directions below 1 % of a unit column dropped, as every atom is scored:
-:func:`twin.diagnosis.select.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
+:func:`twin.diagnosis.scoring.score_atoms`). Suffix sums give every ``s`` at once, ``O(n p^2 P)``; a window
 ``[s, e)`` takes the difference of two of them. The best row of each place is one candidate of the selection
 (family ``change``), its evidence ``p = chi2_sf(Delta chi2, rank)`` times the number of places and row positions
 tried (its pool: a step at every row of every place, ``change``; a window at every pair of rows, ``change_window``,
@@ -23,7 +23,7 @@ what every term faces: held-out confirmation on the later block of time, the bac
 
 A change is reported in ``diagnosis.json`` ``changes`` (not among the ``effects``) with the row and time it starts
 (and ends), its place and its size. In prediction the step is a term of time: rows after it, and a new session,
-read the state after it (:func:`twin.diagnosis.atoms.feature_values`, ``step`` and ``window``).
+read the state after it (:func:`twin.diagnosis.values.feature_values`, ``step`` and ``window``).
 """
 
 from __future__ import annotations
@@ -32,10 +32,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..estimator.distributions import f_sf
 from ..runtime import thread_map
+from ..units import MM_PER_M, rad_to_deg
 from .atoms import Atom, joint_words
 from .candidates import RowContext
+from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
+from .scoring import row_aggregates, score_atoms, scoring_basis
+from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "row_times"]
@@ -221,8 +226,6 @@ def _uniform(rss: np.ndarray, m: np.ndarray, gain: np.ndarray, rank: np.ndarray,
     left on them, ``(RSS_in - Delta chi2) / (m_in - rank)``, against ``RSS_out / m_out`` of the rows outside, not
     larger at ``p < UNIFORM_P`` (``F`` test). A burst of noisy rows, or a gross row, is fitted by no change: a
     change is the same offset on every row it acts on."""
-    from ..estimator.distributions import f_sf
-
     d1 = np.maximum(m - rank, 1.0)
     d2 = np.maximum(m_all - m, 1.0)
     left = np.maximum(rss - gain * scale, 0.0) / d1
@@ -241,8 +244,6 @@ def _stands_out(rss_in: float, m_in: float, gain: float, rank: int, rss_all: flo
     ``s^2 = max(1, RSS_out / m_out)`` (per residual, in the floor's units) still significant (``log p <
     logp_max``). Under scatter beyond the floor that moves over a few rows (a cell wandering in time), a window's
     mean over a stretch of them is as large as that scatter allows, not a change."""
-    from .select import chi2_logsf
-
     s2 = max(1.0, (rss_all - rss_in) / max(m_all - m_in, 1.0) / scale)
     return bool(chi2_logsf(gain / s2, max(int(rank), 1)) < logp_max)
 
@@ -251,8 +252,6 @@ def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max:
     """Whether the change on the time-ordered rows ``lo..hi-1`` (per-row blocks ``Ci``, ``Ai``, ``bi``) stays
     significant (``log p < logp_max``) without any one of its rows, with at least ``LOO_SHARE`` of its evidence: no single row
     elects a change (a gross row is fitted by a window around it)."""
-    from .select import chi2_logsf
-
     C, A, b = Ci[lo:hi].sum(0), Ai[lo:hi].sum(0), bi[lo:hi].sum(0)
     full, _ = _gains(C[None], A[None], b[None], scale)
     gain, rank = _gains(C[None] - Ci[lo:hi], A[None] - Ai[lo:hi], b[None] - bi[lo:hi], scale)
@@ -268,8 +267,6 @@ TOP = 5  # positions of a place tried, best first, for one that holds without an
 def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
     rank only (the others, and those not ``ok``, read 0: never among the best)."""
-    from .select import chi2_logsf
-
     lp = np.zeros(len(gain))
     for r in np.unique(rank[ok]):
         idx = np.flatnonzero(ok & (rank == r))
@@ -282,8 +279,6 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
-    from .select import _row_aggregates, scoring_basis
-
     sb = scoring_basis(prob, fit)
     rows, r = sb.rows, sb.r
     n = prob.obs_cal.n
@@ -305,7 +300,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []
         tmpl = Atom("change", pl.place, pl.target, (Const(),), "", "", "change")
-        W, QB, Br = _row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
+        W, QB, Br = row_aggregates(prob, fit, sb, tmpl)  # (n, c, c), (n, p, c), (n, c)
         c = W.shape[1]
         if pl.inner is None:
             F = np.ones((n, 1))
@@ -389,8 +384,6 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
     ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
     a stretch of it, whose evidence against the (white) floor then says nothing."""
-    from .select import row_blocks, score_atoms, scoring_basis
-
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False
@@ -440,9 +433,9 @@ def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarra
                       "end_t_s": None if (end is None or ctx.t_s is None) else float(ctx.t_s[end])})
         v = np.asarray(a["values"], float)
         if a["place"] == "param" and a["target"] in ("tool", "base"):
-            d["size"] = {"translation_mm": (v[:3] * 1e3).tolist(), "rotation_deg": np.rad2deg(v[3:]).tolist()}
+            d["size"] = {"translation_mm": (v[:3] * MM_PER_M).tolist(), "rotation_deg": rad_to_deg(v[3:]).tolist()}
         elif a["place"] == "joint" and isinstance(f0, (Step, Window)):
-            d["size"] = {"offset_deg": float(np.rad2deg(v[0])), "sd_deg": float(np.rad2deg(a["sd"][0]))}
+            d["size"] = {"offset_deg": float(rad_to_deg(v[0])), "sd_deg": float(rad_to_deg(a["sd"][0]))}
         else:
             d["size"] = dict(a["size"])
         out.append(d)

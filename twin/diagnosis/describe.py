@@ -7,17 +7,17 @@ from typing import Any
 
 import numpy as np
 
-from .atoms import Atom, with_records
+from ..units import DEG_PER_RAD, MM_PER_M, M_PER_MM, MRAD_PER_RAD, RAD_PER_DEG
+from .atoms import Atom
+from .values import with_records
 from .changes import is_change
 from .extend import ExtendedModel
 from .features import Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
-from .select import Fit, Problem, covariance
+from .problem import Fit, Problem, covariance
 
-__all__ = ["name_effects", "describe_terms"]
+__all__ = ["name_effects", "describe_terms", "place_unit", "term_values"]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 MINOR_RMS = 0.3  # an atom whose unique effect is below this RMS (in units of the floor) is reported as minor
@@ -79,20 +79,21 @@ def _merged_into_unnamed(atoms_json: list[dict]) -> list[tuple[dict, dict]]:
     return out
 
 
-def _place_unit(a: Atom) -> tuple[str, float]:
-    """Display unit of an atom's effect on its place, and the factor from SI."""
+def place_unit(a: Atom) -> tuple[str, float]:
+    """The display unit of an atom's effect on its place (``"deg"``, ``"ppm"``, ``"mm"``, ``"mm|deg"``) and the factor
+    from SI to it."""
     if a.place == "joint":
-        return "deg", 1 / _DEG
+        return "deg", DEG_PER_RAD
     if a.place in ("length", "scale"):
         return "ppm", 1e6
     if a.place in ("plate", "field") or a.target == "base_along":
-        return "mm", 1 / _MM
+        return "mm", MM_PER_M
     t = a.target
     if t in ("tool", "base"):
         return "mm|deg", 1.0
     if t.rstrip("0123456789") in ("d", "a"):
-        return "mm", 1 / _MM
-    return "deg", 1 / _DEG
+        return "mm", MM_PER_M
+    return "deg", DEG_PER_RAD
 
 
 def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
@@ -120,27 +121,28 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         explained = (chi2_base - fit.chi2) if chi2_base is not None else float("nan")
         share = float(wald / explained) if explained > 0 else float("nan")
         sd = np.sqrt(np.clip(np.diag(Cphi), 0, None))
-        unit, fac = _place_unit(a)
+        unit, fac = place_unit(a)
         F = prob.features(a)
         if a.place == "param" and a.target == "base_along":
-            size = {"rms": float(abs(phi[0])) / _MM, "sd": float(sd[0]) / _MM, "unit": "mm"}
-            words = f"{phi[0] / _MM:+.5f} +- {sd[0] / _MM:.5f} mm along the direction of its last move"
+            size = {"rms": float(abs(phi[0])) / M_PER_MM, "sd": float(sd[0]) / M_PER_MM, "unit": "mm"}
+            words = f"{phi[0] / M_PER_MM:+.5f} +- {sd[0] / M_PER_MM:.5f} mm along the direction of its last move"
         elif a.place == "param" and a.target.startswith("tilt"):
             tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
             axes = [("xyz"[f.axis]) for f in a.features]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
-                    "compliance_mrad_per_nm": (phi * 1e3).tolist(), "compliance_sd_mrad_per_nm": (sd * 1e3).tolist()}
+                    "compliance_mrad_per_nm": (phi * MRAD_PER_RAD).tolist(),
+                    "compliance_sd_mrad_per_nm": (sd * MRAD_PER_RAD).tolist()}
             if any(getattr(f, "shape", None) is not None for f in a.features):
                 # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
                 words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
             else:
-                words = (", ".join(f"{ax}: {v * 1e3:+.4g} +- {e * 1e3:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
+                words = (", ".join(f"{ax}: {v * MRAD_PER_RAD:+.4g} +- {e * MRAD_PER_RAD:.2g} mrad/Nm" for ax, v, e in zip(axes, phi, sd))
                          + f" ({rms * fac:.5f} {unit} RMS tilt over the rows)")
         elif a.place == "param" and a.target in ("tool", "base"):
             eff = F @ phi.reshape(len(a.features), 6)  # (n, 6)
-            size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / _MM).item(),
-                    "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / _DEG).item()}
+            size = {"rms_mm": (np.sqrt(np.mean(eff[:, :3] ** 2)) / M_PER_MM).item(),
+                    "rms_deg": (np.sqrt(np.mean(eff[:, 3:] ** 2)) / RAD_PER_DEG).item()}
             words = f"{size['rms_mm']:.4f} mm / {size['rms_deg']:.5f} deg RMS over the rows"
         elif a.place == "field":
             obs = prob.obs_cal
@@ -149,16 +151,16 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
             rms = float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
             grad = np.einsum("mkc,mc->k", G, disp) / (len(disp) * max(rms, 1e-300))
             sd_rms = float(np.sqrt(max(grad @ Cphi @ grad, 0.0)))
-            size = {"rms": rms / _MM, "sd": sd_rms / _MM, "unit": "mm"}
-            words = f"{rms / _MM:.5f} +- {sd_rms / _MM:.5f} mm RMS displacement over the measured points"
+            size = {"rms": rms / M_PER_MM, "sd": sd_rms / M_PER_MM, "unit": "mm"}
+            words = f"{rms / M_PER_MM:.5f} +- {sd_rms / M_PER_MM:.5f} mm RMS displacement over the measured points"
         elif a.varying_plate:
             eff = F @ phi.reshape(len(a.features), 3)  # (n, 3) offset per row in the plate frame
             rms = float(np.sqrt(np.mean(np.sum(eff**2, axis=1))))
-            size = {"rms": rms / _MM, "sd": float(np.sqrt(np.sum(sd**2))) / _MM, "unit": "mm"}
-            words = f"{rms / _MM:.5f} mm RMS over the rows (offset in the plate frame)"
+            size = {"rms": rms / M_PER_MM, "sd": float(np.sqrt(np.sum(sd**2))) / M_PER_MM, "unit": "mm"}
+            words = f"{rms / M_PER_MM:.5f} mm RMS over the rows (offset in the plate frame)"
         elif a.place == "plate":
-            size = {"offset_mm": (phi / _MM).tolist(), "sd_mm": (sd / _MM).tolist()}
-            words = "offset (" + ", ".join(f"{v / _MM:+.4f} +- {e / _MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
+            size = {"offset_mm": (phi / M_PER_MM).tolist(), "sd_mm": (sd / M_PER_MM).tolist()}
+            words = "offset (" + ", ".join(f"{v / M_PER_MM:+.4f} +- {e / M_PER_MM:.4f}" for v, e in zip(phi, sd)) + ") mm"
         else:
             eff = F @ phi
             g = F.T / max(len(F), 1)
@@ -204,19 +206,19 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
     return out, params
 
 
-def _term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
+def term_values(model: ExtendedModel, t, phi: np.ndarray) -> np.ndarray:
     """One term of an extended model on its rows ``(n,)``, in its place's display unit."""
-    _, fac = _place_unit(t.atom)
+    _, fac = place_unit(t.atom)
     if t.atom.place == "param" and t.atom.target in ("tool", "base"):
-        return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / _MM
+        return np.linalg.norm((t.F @ phi.reshape(len(t.atom.features), 6))[:, :3], axis=1) / M_PER_MM
     if t.atom.place == "plate":
-        return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / _MM
+        return np.linalg.norm(t.F @ phi.reshape(len(t.atom.features), 3), axis=1) / M_PER_MM
     if t.atom.target == "base_along":
-        return np.linalg.norm(t.F, axis=1) * phi[0] / _MM
+        return np.linalg.norm(t.F, axis=1) * phi[0] / M_PER_MM
     if t.atom.place == "param" and t.atom.target.startswith("tilt"):
         return np.linalg.norm(tilt_angles(t.atom.features, t.F, phi), axis=1) * fac
     if t.atom.place == "field":
         obs = model.obs
         disp = np.linalg.norm(np.einsum("nskc,k->nsc", model.field_grid(t.atom) * t.F[:, None, :, None], phi), axis=2)
-        return np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / _MM
+        return np.sqrt(np.sum(disp**2, axis=1) / np.maximum(obs.seen.sum(1), 1)) / M_PER_MM
     return (t.F @ phi) * fac

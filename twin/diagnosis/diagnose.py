@@ -37,22 +37,26 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..dataset import Dataset
+from ..dataset import Dataset, Plate
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
-from .atoms import Atom, approach_unknown, catalogue_atoms, generic_atoms, history_signs
+from ..units import M_PER_MM, RAD_PER_DEG
+from .atoms import Atom
+from .pools import catalogue_atoms, generic_atoms
+from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .changes import change_places, change_pool_sizes, describe_changes, row_times
 from .late import late_change
 from .extend import error_stats, reduced_basis
 from .features import LoadSign
-from .floor import DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
-from .select import (Fit, Problem, StructureTest, alternatives, gross_rows, raw_columns, refit_with,
-                     row_rms, update_gross)
+from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
+from .problem import Fit, Problem, refit_with, update_gross
+from .structure import StructureTest, gross_rows, row_rms
+from .scoring import raw_columns
 from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
-from .describe import _place_unit, _term_values, describe_terms, name_effects
+from .describe import describe_terms, name_effects, place_unit, term_values
 
 __all__ = [
     "virtual_spheres",
@@ -92,8 +96,6 @@ __all__ = [
     "row_context",
 ]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -374,11 +376,12 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     notes: list[str] = []
     if virtual:
         # a 6-DOF instrument (a tracker's probe): its poses read as three points of the tool frame
-        dataset, note_virtual = virtual_spheres(dataset)
+        dataset, note_virtual, assumed = virtual_spheres(dataset)
     blocks = held_out_sets(dataset, holdout)
     dataset = replace(dataset, set=blocks.set)
-    floor = noise_floor(dataset, plate=not virtual)
-    notes.append(f"noise floor {floor.sigma / _MM:.5f} mm per coordinate from {floor.source}")
+    # the virtual points' noise is the diagnosis' assumption (from the stated [noise]), not a stated figure
+    floor = noise_floor(dataset, plate=not virtual, stated_ok=not virtual, assumed=assumed if virtual else None)
+    notes.append(f"noise floor {floor.sigma / M_PER_MM:.5f} mm per coordinate from {floor.source}")
     if virtual:
         notes.append(note_virtual)
     notes.append(f"held-out rows: {blocks.rule}")
@@ -403,7 +406,7 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
             notes.append(note)
     if calibration is not None:
         notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
-    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / _MM, **geo_opts})
+    geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / M_PER_MM, **geo_opts})
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report, threads=threads)
     # rows that only register a station's frame do not make their session a fitted one
@@ -590,14 +593,13 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
 VIRTUAL_ARM = 0.1  # [m] distance of the virtual points from the tool origin when poses are read as points
 
 
-def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
+def virtual_spheres(ds: Dataset) -> tuple[Dataset, str, AssumedNoise | None]:
     """A pose dataset (``x y z rx ry rz``) as three points of the tool frame ``VIRTUAL_ARM`` along its x, y
     and z axes, measured where the pose puts them: every sphere-centre atom then applies (the plate's own atoms
-    do not: the points are the tool frame's). The noise per point coordinate is ``sqrt(sigma_p^2 + (2/3)
-    (L sigma_r)^2)`` from ``[noise]`` (a point inherits the rotation noise across its arm). Returns the dataset and
-    a note."""
-    from ..dataset import Plate
-
+    do not: the points are the tool frame's). The noise the diagnosis assumes per point coordinate is ``sqrt(sigma_p^2
+    + (2/3) (L sigma_r)^2)`` from ``[noise]``'s stated ``sigma_p`` and ``sigma_r`` (a point inherits the rotation noise
+    across its arm; None without a stated position noise); the dataset's own ``[noise]`` is left as stated. Returns
+    the dataset, a note and that assumption."""
     if not ds.has_poses:
         raise DiagnosisError("diagnosis needs sphere centres (p0_x..p2_z) or poses (x y z rx ry rz); this dataset has "
                              "neither")
@@ -607,17 +609,22 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str]:
     spheres = np.einsum("nij,sj->nsi", R, pts) + t[:, None, :]
     seen = np.repeat(ds.pose_seen[:, None], 3, axis=1)
     spheres[~seen] = np.nan
-    noise = None
+    assumed = None
     if ds.noise_position is not None:
         sr = ds.noise_orientation or 0.0
         noise = float(np.sqrt(ds.noise_position**2 + (2.0 / 3.0) * (L * sr) ** 2))
+        stated = {"position_mm": ds.noise_position / M_PER_MM, "orientation_rad": ds.noise_orientation}
+        assumed = AssumedNoise(noise, "the diagnosis' assumption for the virtual points, sqrt(sigma_p^2 + (2/3) (L "
+                               f"sigma_r)^2) with L = {L / M_PER_MM:.0f} mm from dataset.toml [noise] position_mm "
+                               f"{stated['position_mm']:.6g} and orientation_rad "
+                               f"{0.0 if ds.noise_orientation is None else ds.noise_orientation:.6g} (stated)", stated)
     # the marker set is stated in the flange frame: the virtual points through the nominal tool frame (the frame
     # the poses are measured in), so that the calibration's tool frame stays the measured one
     T = np.asarray(ds.robot.tool2flange, float)
     out = replace(ds, spheres=spheres, sphere_seen=seen, pose_seen=np.zeros(ds.n, bool),
-                  plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]), noise_position=noise)
-    return out, (f"poses read as three points of the tool frame {L / _MM:.0f} mm along its axes (virtual spheres); "
-                 "the plate's own terms and the plate-distance floor do not apply")
+                  plate=Plate(ds.plate.sphere_diameter, pts @ T[:3, :3].T + T[:3, 3]))
+    return out, (f"poses read as three points of the tool frame {L / M_PER_MM:.0f} mm along its axes (virtual spheres); "
+                 "the plate's own terms and the plate-distance floor do not apply"), assumed
 
 
 def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
@@ -664,7 +671,7 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
             m = b[idx]
             r = m.residuals(z, jacobian=False)
             e, _ = row_rms(m.unwhiten(r.r), r.row, m.obs.n)
-            e_all.append(e / _MM)
+            e_all.append(e / M_PER_MM)
             v_all.append(_point_vectors(m, m.unwhiten(r.r)))
         out[f"residual_rms_mm_{tag}"] = np.concatenate(e_all)[order]
         out[f"residual_vector_m_{tag}"] = np.concatenate(v_all)[order]
@@ -680,8 +687,8 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
             m = b[3]
             t = m.terms[k]
             phi = m.split(ext.z)[1][k]
-            vals.append(_term_values(m, t, phi))
-        unit, _ = _place_unit(ext.chosen[k][0])
+            vals.append(term_values(m, t, phi))
+        unit, _ = place_unit(ext.chosen[k][0])
         a = ext.chosen[k][0]
         if a.place == "param" and a.target in ("tool", "base"):
             unit = "mm (translation)"
@@ -689,7 +696,7 @@ def _series(prob: Problem, base: Fit, ext: Fit) -> dict[str, np.ndarray]:
     out["terms"] = terms
     ctx = prob.ctx
     # deg, mm for a prismatic joint
-    out["q_deg"] = ctx.q[rows_val] / np.where(prob.prep.nominal.is_prismatic, _MM, _DEG)
+    out["q_deg"] = ctx.q[rows_val] / np.where(prob.prep.nominal.is_prismatic, M_PER_MM, RAD_PER_DEG)
     out["approach_sign"] = history_signs(ctx)[rows_val]
     if ctx.temp_c is not None:
         out["temp_c"] = ctx.temp_c[rows_val]

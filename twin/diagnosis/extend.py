@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
-from ..transforms import kabsch, matrix_to_rotvec
+from ..transforms import kabsch, left_jacobian_so3, matrix_to_rotvec, rotvec_to_matrix
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
+from .field import field_values, plate_normals, station_mask
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 __all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights", "error_stats"]
 
@@ -85,8 +85,6 @@ def tilt_weights(space: ParamSpace, x: np.ndarray, target: str) -> np.ndarray:
     i = int(target[4:])
     w = np.zeros((space.size, 2))
     if i == 0:
-        from ..transforms import left_jacobian_so3
-
         for k in range(len(space.stations)):
             sl = space.base_slice(k)
             Jr_inv = np.linalg.inv(left_jacobian_so3(x[sl.start + 3:sl.stop]).T)
@@ -129,8 +127,6 @@ def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
         if t == "base_along":
             # a displacement e_a in the robot base frame moves the measured points by R_base2meas e_a: the
             # translation of each station's base2meas along the columns of its rotation (one column per axis)
-            from ..transforms import rotvec_to_matrix
-
             w = np.zeros((P, 3))
             for k in range(len(space.stations)):
                 sl = space.base_slice(k)
@@ -246,8 +242,6 @@ class ExtendedModel:
         key = repr(a.features)
         G = self._field_cache.get(key)
         if G is None:
-            from .field import field_values, plate_normals, station_mask
-
             obs = self.obs
             K = obs.spheres.shape[1]
             pts = np.where(obs.seen[..., None], obs.spheres, np.array([0.0, 0.0, 1.0]))  # (n, K, 3)
@@ -375,7 +369,7 @@ def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = N
     rows = np.ones(obs.n, bool) if keep is None else keep
     seen = obs.seen & rows[:, None]
     e3 = np.linalg.norm(diff, axis=-1)[seen]
-    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / _MM)}
+    out: dict[str, Any] = {"n_rows": int(rows.sum()), "position_mm": _stats(e3 / M_PER_MM)}
     full = seen.all(axis=1)
     if full.any() and obs.spheres.shape[1] >= 3:
         meas = obs.spheres[full]
@@ -384,5 +378,5 @@ def error_stats(model: ExtendedModel, z: np.ndarray, keep: np.ndarray | None = N
         Rm, _ = kabsch(A, meas)
         Rp, _ = kabsch(A, pred)
         ang = np.linalg.norm(matrix_to_rotvec(Rm @ np.swapaxes(Rp, 1, 2)), axis=-1)
-        out["orientation_deg"] = _stats(ang / _DEG)
+        out["orientation_deg"] = _stats(ang / RAD_PER_DEG)
     return out

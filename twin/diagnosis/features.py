@@ -7,10 +7,10 @@ identified on. Sequences are tuples, so a feature hashes and compares by value. 
 dict ``diagnosis.json`` and ``calibration.json`` store (``{"kind": "pow", "ch": "q3", "p": 2, "c": ..., "h": ...}``:
 the kind first, then the fields in order, an optional field left out while it is ``None``, tuples as lists), and
 :func:`feature_from_dict` reads such a dict back. What a feature's values are on the rows is
-:func:`twin.diagnosis.atoms.feature_values`; nothing here computes.
+:func:`twin.diagnosis.values.feature_values`; nothing here computes.
 
 The optional fields keep what evaluating a term on other rows needs from its campaign
-(:func:`twin.diagnosis.atoms.with_records`): ``record`` (a lag's or the motion heat's record of the campaign),
+(:func:`twin.diagnosis.values.with_records`): ``record`` (a lag's or the motion heat's record of the campaign),
 ``record_pose_id`` (the campaign's pose ids, a term in the row order) and ``t_span`` (the campaign's time span [s]).
 """
 

@@ -39,6 +39,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..transforms import kabsch
+from ..units import M_PER_MM
 from .features import Field
 
 __all__ = ["FIELD_NAMES", "POINT_FIELDS", "field_applicable", "field_constants", "field_values", "field_atom_specs",
@@ -71,16 +73,14 @@ def field_constants(points: np.ndarray) -> dict[str, float]:
     z = P[:, 2]
     r = np.linalg.norm(P, axis=1)
     u2 = (P[:, 0] / z) ** 2 + (P[:, 1] / z) ** 2
-    return {"z_c": float(np.mean(z)), "z_h": float(max(0.5 * np.ptp(z), 1e-3)), "r_c": float(np.mean(r)),
-            "r_h": float(max(0.5 * np.ptp(r), 1e-3)), "rho2_h": float(max(u2.max(), 1e-6))}
+    return {"z_c": float(np.mean(z)), "z_h": float(max(0.5 * np.ptp(z), M_PER_MM)), "r_c": float(np.mean(r)),
+            "r_h": float(max(0.5 * np.ptp(r), M_PER_MM)), "rho2_h": float(max(u2.max(), 1e-6))}
 
 
 def plate_normals(spheres: np.ndarray, seen: np.ndarray, spheres_tool: np.ndarray, n_tool: np.ndarray) -> np.ndarray:
     """The plate normal ``(n, 3)`` of every row in the measurement frame: the rigid fit of the plate's sphere
     centres ``spheres_tool`` ``(3, 3)`` to the row's measured ``spheres`` ``(n, 3, 3)``, applied to ``n_tool``;
     zero for rows with fewer than three spheres seen."""
-    from ..transforms import kabsch
-
     out = np.zeros((len(spheres), 3))
     full = np.all(seen, axis=1)
     if np.any(full):

@@ -12,6 +12,9 @@
   as the RMS over the axes: spread over them in the shape the plate shows when it has at least 100 degrees of
   freedom and the axes differ by 1.5x or more, never below the stated figure on an axis the distances barely
   measure; isotropic otherwise).
+* **Assumed**: a figure the diagnosis derives from stated ones for points it constructs (:class:`AssumedNoise`:
+  the virtual points of a pose, from its stated position and orientation noise), reported as its assumption
+  with the stated figures it came from, never as a stated figure.
 
 The floor per axis is the largest estimate available; its scalar ``sigma`` is their RMS. Never the world's truth.
 """
@@ -24,13 +27,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dataset import Dataset, Joints
-from .candidates import RowContext
+from ..estimator.distributions import f_sf
+from ..kinematics import link_frames
+from ..transforms import kabsch
+from ..units import M_PER_MM
+from .candidates import GRAVITY, RowContext
+from .features import Field
+from .field import POINT_FIELDS, field_applicable, field_constants, field_values
 
-__all__ = ["DiagnosisError", "NoiseFloor", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
+__all__ = ["DiagnosisError", "NoiseFloor", "AssumedNoise", "noise_floor", "marker_noise", "MARKER_STD_COLUMN", "SESSION_COLUMN", "session_changes",
            "history_resets",
            "row_resets", "row_context", "joints_context"]
 
-_MM = 1e-3
 ANISOTROPY_MIN = 1.5  # a stated figure is spread over the axes only when they differ by this factor or more
 WEAK_LEVER = 0.15  # an axis the plate's distances point along less than this (mean squared component) is weakly measured
 
@@ -44,7 +52,8 @@ class NoiseFloor:
     """Measurement noise ``sigma`` [m] per sphere coordinate (RMS over the axes), per axis of the measurement
     frame ``axis_sigma`` ``(3,)`` [m] (None: isotropic), its degrees of freedom (``inf`` when stated), where
     it came from, how many repeat groups there were, and every estimate available (``components``:
-    ``repeats``, ``plate``, ``stated``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``);
+    ``repeats``, ``plate``, ``stated``, ``assumed``, ``marker_std`` -> ``{sigma_mm, axis_sigma_mm, dof, source}``,
+    ``assumed`` with ``from_stated``, the stated figures it was derived from);
     ``lower_bound``: the floor is set by the instrument's marker noise alone (``marker_std``), which the robot's own
     pose-to-pose scatter may exceed (no repeats measured it)."""
 
@@ -55,6 +64,17 @@ class NoiseFloor:
     components: dict = field(default_factory=dict)
     axis_sigma: np.ndarray | None = None
     lower_bound: bool = False
+
+
+@dataclass(frozen=True)
+class AssumedNoise:
+    """A noise figure per point coordinate the diagnosis assumes for points it constructs, derived from figures the
+    user stated: ``sigma`` [m], ``source`` (how it was derived, in words) and ``stated`` (the stated figures it came
+    from, by name, e.g. ``{"position_mm": 0.02, "orientation_rad": 6e-05}``)."""
+
+    sigma: float
+    source: str
+    stated: dict
 
 
 def _repeat_floor(ds: Dataset) -> tuple[np.ndarray, int, int]:
@@ -84,9 +104,6 @@ def _row_regressors(ds: Dataset, full: np.ndarray) -> np.ndarray:
     """What a plate's distances may follow besides the place in the field ``(n_full, k)``: the gravity
     direction in the flange frame, linear and quadratic (a loose sphere rolling in its seat, a holder that
     flexes), and ``t_s`` / ``temp_c`` when recorded (the plate or the instrument growing)."""
-    from ..kinematics import link_frames
-    from .candidates import GRAVITY
-
     R = link_frames(ds.robot, ds.q[full])[:, -1, :3, :3]
     g = np.einsum("nji,j->ni", R, GRAVITY / np.linalg.norm(GRAVITY))
     cols = [g, g**2, g[:, [0]] * g[:, [1]], g[:, [0]] * g[:, [2]], g[:, [1]] * g[:, [2]]]
@@ -105,9 +122,6 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     moves the three distances together with the place; :mod:`twin.diagnosis.field`; only in a line-of-sight
     frame) and, per pair, with the row regressors ``rows`` ``(n_full, k)`` (:func:`_row_regressors`). Returns
     the deviations to use, their variance inflation ``1 / (1 - leverage)``, and what was found (or None)."""
-    from .features import Field
-    from .field import POINT_FIELDS, field_applicable, field_constants, field_values
-
     infl = [np.ones(len(x)) for x in dev]
     feats = (tuple(Field(g=g, **field_constants(P)) for g in POINT_FIELDS)
              if field_applicable(P) else ())
@@ -144,7 +158,6 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
     dfn, dfd = rank - p3, n - rank
     if dfn <= 0 or dfd <= 0 or ss1 <= 0:
         return dev, infl, None
-    from ..estimator.distributions import f_sf
 
     F = ((ss0 - ss1) / dfn) / (ss1 / dfd)
     pval = float(f_sf(F, dfn, dfd))
@@ -156,7 +169,7 @@ def _systematic_distances(P: np.ndarray, keep: list[np.ndarray], dev: list[np.nd
         out.append(res[k0:k0 + len(x)])
         inf2.append(1.0 / np.clip(1.0 - h[k0:k0 + len(x)], 0.05, None))
         k0 += len(x)
-    return out, inf2, {"p_value": pval, "rms_removed_mm": float(np.sqrt(np.mean((fit - y0) ** 2))) / _MM,
+    return out, inf2, {"p_value": pval, "rms_removed_mm": float(np.sqrt(np.mean((fit - y0) ** 2))) / M_PER_MM,
                        "parameters": dfn}
 
 
@@ -189,7 +202,6 @@ def _plate_floor(ds: Dataset) -> tuple[np.ndarray, float, dict | None, np.ndarra
         us.append(v[keep] / d[keep, None])
         devs.append(d[keep] - d[keep].mean())
         var_iso.append(mad**2 / 2)
-    from ..transforms import kabsch
 
     R, t = kabsch(np.broadcast_to(ds.plate.spheres_flange, P.shape), P)
     P_fit = np.einsum("nij,sj->nsi", R, ds.plate.spheres_flange) + t[:, None, :]
@@ -232,14 +244,15 @@ def _stated_axes(sig: float, pl: tuple | None) -> tuple[np.ndarray, str]:
     return shaped, ", spread over the axes as the plate shows"
 
 
-def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> NoiseFloor:
+def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True,
+                assumed: AssumedNoise | None = None) -> NoiseFloor:
     """The sphere-coordinate noise floor (see the module docstring): per axis the largest of the repeats'
-    spread, the plate-geometry spread and the stated figure, with the smallest degrees of freedom of the
-    estimates that set it."""
+    spread, the plate-geometry spread, the stated figure (``stated_ok``) and the diagnosis' ``assumed`` one, with
+    the smallest degrees of freedom of the estimates that set it."""
     if not ds.has_spheres:
         if ds.noise_position is not None and stated_ok:
             return NoiseFloor(ds.noise_position, float("inf"), "dataset.toml [noise] position_mm (stated)", 0,
-                              {"stated": {"sigma_mm": ds.noise_position / _MM, "dof": None}})
+                              {"stated": {"sigma_mm": ds.noise_position / M_PER_MM, "dof": None}})
         raise DiagnosisError("diagnosis of pose data needs [noise] position_mm/orientation_rad in dataset.toml")
     comps: dict[str, tuple[np.ndarray, float, str]] = {}
     ss, dof, groups = _repeat_floor(ds)
@@ -257,6 +270,9 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     if stated_ok and ds.noise_position is not None:
         stated, how = _stated_axes(float(ds.noise_position), pl)
         comps["stated"] = (stated, float("inf"), f"dataset.toml [noise] position_mm (stated){how}")
+    if assumed is not None:
+        figure, how = _stated_axes(float(assumed.sigma), pl)
+        comps["assumed"] = (figure, float("inf"), f"{assumed.source}{how}")
     ms = marker_noise(ds)
     if ms is not None:
         comps["marker_std"] = (np.full(3, ms[0]), float("inf"),
@@ -277,15 +293,17 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True) -> N
     sigma = float(np.sqrt(np.mean(axis**2)))
 
     def fmt(v):
-        return "(" + ", ".join(f"{x / _MM:.5f}" for x in v) + ") mm"
+        return "(" + ", ".join(f"{x / M_PER_MM:.5f}" for x in v) + ") mm"
 
     others = "; ".join(f"{k}: {fmt(v[0])}" for k, v in comps.items() if k not in setters)
     source = " and ".join(comps[k][2] for k in setters) + f", per axis x, y, z {fmt(axis)}" + (
         f" (the largest; {others})" if others else "")
-    components = {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / _MM, "axis_sigma_mm": (v[0] / _MM).tolist(),
+    components = {k: {"sigma_mm": float(np.sqrt(np.mean(v[0] ** 2))) / M_PER_MM, "axis_sigma_mm": (v[0] / M_PER_MM).tolist(),
                       "dof": None if np.isinf(v[1]) else v[1], "source": v[2]} for k, v in comps.items()}
     if systematic is not None:
         components["plate"]["systematic"] = systematic
+    if assumed is not None:
+        components["assumed"]["from_stated"] = dict(assumed.stated)
     return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
 
 
@@ -314,7 +332,7 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
         vals.append(v)
     if not vals:
         return None
-    return float(np.sqrt(np.mean(np.square(vals)))) * _MM, len(vals)
+    return float(np.sqrt(np.mean(np.square(vals)))) * M_PER_MM, len(vals)
 
 
 SESSION_COLUMN = "session"  # optional poses.csv column: the recording session of the row (a day, a power cycle)

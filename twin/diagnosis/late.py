@@ -16,7 +16,7 @@ on, sequentially in time:
    the scan runs again on them alone; its best step after the last rows that fit is the change. The rows after the
    cut must be enough for the confirmation to reach ``z_min`` without its most favourable row (:func:`rows_to_confirm`).
 3. **Confirmed after the cut.** The rows after the cut are its held-out block: the per-row gains' signed-rank score
-   (:func:`twin.diagnosis.select.confirm`) above ``z_min``, also without the most favourable row, the held-out error
+   (:func:`twin.diagnosis.confirm.confirm`) above ``z_min``, also without the most favourable row, the held-out error
    lower, and no better predicted by the state of the rows just before them (a wander, not a change).
 
 A confirmed change joins the models to use (refitted on every row with it): rows after it and a new session read
@@ -30,8 +30,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..estimator.core import prepare
 from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
-from .select import Fit, Problem, confirm, psi_init, refit_with, score_atoms
+from .problem import Fit, Problem, psi_init, refit_with
+from .confirm import confirm
+from .extend import error_stats
+from .scoring import score_atoms
 
 __all__ = ["LateChange", "late_change", "rows_to_confirm"]
 
@@ -67,8 +71,6 @@ class LateChange:
 def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
     """The problem whose calibration rows are the campaign's rows before ``t_cut`` (time channel) and whose
     confirmation rows are the rest."""
-    from ..estimator.core import prepare
-
     _, tv = row_times(setup.ctx)
     ds = setup.dataset
     sets = np.where(tv < t_cut, "calibration", "validation").astype(object)
@@ -81,8 +83,6 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
 
 
 def _rms_mm(fit: Fit, prob: Problem) -> float:
-    from .extend import error_stats
-
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 

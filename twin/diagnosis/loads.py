@@ -4,7 +4,7 @@
   the flank its load pushes it to, whatever the direction of the last move: the offset's sign follows the sign of
   the joint's gravity torque. The torque is the URDF masses' (:func:`twin.diagnosis.candidates.gravity_torques`)
   when the chain has them. Without masses it is a combination of the joint's three leading principal torque shapes
-  under the generic prior the compliance atoms use (:func:`twin.diagnosis.atoms.catalogue_atoms`; the load lies
+  under the generic prior the compliance atoms use (:func:`twin.diagnosis.pools.catalogue_atoms`; the load lies
   close to their span, and the leading shape alone puts the sign's change ~10 % of the rows off): the sign of the
   combination along each of ``LOAD_DIRECTIONS`` directions over a hemisphere of that span (a pool of its own,
   ``load``, whose size is its Bonferroni factor), the kept one refined (:func:`refine_load_sign`). The sign is
@@ -14,7 +14,7 @@
 * **Base compliance** without masses: the robot's base rotating about its horizontal axes ``x``, ``y`` through its
   origin under the gravity moment of the arm, ``(delta_x, delta_y) = (c_x M_x(q), c_y M_y(q))``. The moment is
   linear in the links' unknown mass moments ``(m_k, h_k = m_k c_k)``: ``M_a = sum_k e_a . ((m_k o_k + R_k h_k)
-  x g)``, so ``Y[:, a, k] = (e_a . (o_k x g), R_k^T (g x e_a))`` (:func:`base_moment_regressor`; the joint
+  x g)``, so ``Y[:, a, k] = (e_a . (o_k x g), R_k^T (g x e_a))`` (:func:`twin.diagnosis.candidates.base_moment_regressor`; the joint
   gravity-torque regressor with the axis ``e_a`` through the base origin). One compliance ``c`` for both axes: the
   tilt ``c (Y_x w, Y_y w)`` is linear in ``c w``; the prior-weighted columns of both axes stacked (the compliance
   atoms' prior: masses of one order, centres ~0.1 m off the frames) are reduced to their ``TILT_RANK`` leading
@@ -27,52 +27,40 @@
 
 from __future__ import annotations
 
+from dataclasses import replace as replace_atom
+
 import numpy as np
 
-from ..kinematics import RobotModel, link_frames
-from .candidates import GRAVITY, RowContext, gravity_torque_regressor, gravity_torques, has_masses
+from ..kinematics import RobotModel
+from .atoms import Atom, joint_words
+from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
+from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
+from .problem import psi_init
+from .scoring import score_atoms
+from .values import feature_values
 
-__all__ = ["TILT_RANK", "LOAD_DIRECTIONS", "base_moment_regressor", "load_atoms", "load_sign_feature",
+__all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
            "refine_load_sign", "load_alternatives", "tilt_angles"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
-COM_PRIOR_M = 0.1  # [m] the compliance atoms' prior: a link's centre of mass ~0.1 m off its frame
-
-
-def base_moment_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = GRAVITY) -> np.ndarray:
-    """The arm's gravity moment about the base's ``x`` and ``y`` axes through its origin as a linear map of the links'
-    mass moments: ``(n, 2, N, 4)``, ``M_a(q) = sum_k Y[:, a, k] @ (m_k, h_k)`` with ``h_k = m_k c_k`` in link frame
-    ``k`` (the frames of :func:`twin.diagnosis.candidates.gravity_torque_regressor`):
-    ``Y[:, a, k] = (e_a . (o_k x g), R_k^T (g x e_a))``."""
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    if model.convention == "urdf":
-        from .candidates import joint_frames
-
-        F = joint_frames(model, q)
-    else:
-        F = link_frames(model, q)[:, 1:model.n_joints + 1]
-    n, N = F.shape[0], F.shape[1]
-    Y = np.zeros((n, 2, N, 4))
-    for a in (0, 1):
-        e = np.zeros(3)
-        e[a] = 1.0
-        gxe = np.cross(g, e)
-        for k in range(N):
-            o, R = F[:, k, :3, 3], F[:, k, :3, :3]
-            Y[:, a, k, 0] = np.cross(o, g) @ e
-            Y[:, a, k, 1:] = np.einsum("nji,j->ni", R, gxe)
-    return Y
+COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
+LOAD_SHAPES = 3  # a joint's leading torque shapes whose combinations' signs the load-signed backlash tries
 
 
 def _prior(N: int) -> np.ndarray:
     return np.tile(np.array([1.0, COM_PRIOR_M, COM_PRIOR_M, COM_PRIOR_M]), N)
 
 
-def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> tuple:
-    """Joint ``i``'s (1-based) ``rank`` leading principal gravity-torque shapes under the generic prior, as
-    ``gravmix`` features (the compliance atoms' shapes), or ``()`` when the joint carries no varying torque."""
-    Y = gravity_torque_regressor(model, q)
+def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = None,
+                  Y: np.ndarray | None = None) -> tuple[GravMix, ...]:
+    """Joint ``i``'s (1-based) leading principal gravity-torque shapes under the generic prior, as ``gravmix`` features
+    (the compliance atoms' shapes, leading first): the right singular vectors of the prior-weighted columns
+    ``Y[:, i, k, c] prior_c`` (``k >= i``; prior 1 for a mass, ``COM_PRIOR_M`` for a mass moment) whose singular values
+    pass ``1e-6`` of the largest, each scaled to unit RMS over the rows; the first ``rank`` of them (all when None), or
+    ``()`` when the joint carries no varying torque. ``Y``: :func:`~twin.diagnosis.candidates.gravity_torque_regressor`
+    on ``q`` when already computed."""
+    Y = gravity_torque_regressor(model, q) if Y is None else Y
     N = model.n_joints
     cols, prior = [], []
     for k in range(i, N + 1):
@@ -83,7 +71,8 @@ def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> t
     if not np.any(np.abs(M) > 1e-9):
         return ()
     _, sv, Vt = np.linalg.svd(M, full_matrices=False)
-    rk = min(rank, int(np.sum(sv > 1e-6 * sv[0])))
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    rk = rk if rank is None else min(rank, rk)
     return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[k] * np.array(prior)).tolist()),
                          h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
 
@@ -91,17 +80,13 @@ def _torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int = 3) -> t
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
     """A kept load-signed backlash found on the grid of directions moved to the direction in the span of the joint's
     torque shapes whose sign explains most (Nelder-Mead on the direction from the grid's best, scored as every atom
-    is: :func:`twin.diagnosis.select.score_atoms`). Returns the scored atom."""
-    from dataclasses import replace as replace_atom
-
+    is: :func:`twin.diagnosis.scoring.score_atoms`). Returns the scored atom."""
     from scipy.optimize import minimize
-
-    from .select import score_atoms
 
     f0 = s.atom.features[0]
     if not isinstance(f0, LoadSign) or f0.u is None:
         return s
-    shapes = _torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i))
+    shapes = torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i), LOAD_SHAPES)
     if len(shapes) < 2:
         return s
     best = [s]
@@ -147,14 +132,10 @@ def load_sign_feature(shapes: tuple, u: np.ndarray) -> LoadSign:
 def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     """The load-signed backlash of every joint whose gravity load changes sign over the rows, and, on a chain without
     mass properties, the base tilting under the arm's unknown gravity moment (module docstring)."""
-    from .atoms import Atom, joint_words
-
     atoms = []
     N = model.n_joints
     masses = has_masses(model)
     tau = gravity_torques(model, ctx.q) if masses else None
-    from .atoms import feature_values
-
     cache: dict = {}
     for j in range(1, N + 1):
         if masses:
@@ -162,7 +143,7 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
-            shapes = _torque_shapes(model, ctx.q, j)
+            shapes = torque_shapes(model, ctx.q, j, LOAD_SHAPES)
             if not shapes:
                 continue
             U = _hemisphere(LOAD_DIRECTIONS) if len(shapes) == 3 else np.eye(len(shapes))
@@ -230,9 +211,6 @@ def load_alternatives(prob, fit, pool: list, sizes: dict, alpha_select: float) -
     by the strongest significant term of its other reading (:func:`_counterparts`), the model refitted; when that
     predicts the confirmation rows within ``ALT_RMS`` of the model as kept, it is reported as the kept term's
     alternative (``held_out_rms_mm``: the alternative's and the kept model's confirmation RMS)."""
-    from .extend import error_stats
-    from .select import psi_init, score_atoms
-
     out = []
     P = prob.prep.space.size
     e_now = None

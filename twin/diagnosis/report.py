@@ -11,9 +11,11 @@ from typing import Any
 
 import numpy as np
 
+from ..units import M_PER_MM
+from .apply import block_errors
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
-from .select import StructureTest
+from .structure import StructureTest
 
 __all__ = ["DIAGNOSIS_SCHEMA_VERSION", "diagnosis_dict", "write_diagnosis", "read_diagnosis", "blocked_summary"]
 
@@ -85,7 +87,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         "before": {k: v for k, v in res.before.items() if k in ("position_mm", "orientation_deg", "n_rows")},
         "after": {k: v for k, v in res.after.items() if k in ("position_mm", "orientation_deg", "n_rows")},
         "noise_floor": {
-            "position_mm": res.noise.sigma / 1e-3,
+            "position_mm": res.noise.sigma / M_PER_MM,
             "dof": None if math.isinf(res.noise.dof) else res.noise.dof,
             "source": res.noise.source,
             "components": res.noise.components,
@@ -166,7 +168,7 @@ def plot_diagnosis(res: DiagnosisResult, out: Path) -> dict[str, Path]:
         return {}
     before = s["residual_rms_mm_before"]
     after = s["residual_rms_mm_after"]
-    floor = res.noise.sigma / 1e-3
+    floor = res.noise.sigma / M_PER_MM
     paths: dict[str, Path] = {}
     fig, axes = plt.subplots(2, 3, figsize=(13, 7), sharey=True)
     for j, ax in enumerate(axes.flat):
@@ -223,8 +225,6 @@ def blocked_summary(res: DiagnosisResult, dataset, blocks: dict | None = None) -
     the report block and on any further named ``blocks`` of ``dataset``'s rows
     (:func:`twin.diagnosis.apply.block_errors`), with how the rows were chosen, the model in use, the adoption
     figures and every term in words."""
-    from .apply import block_errors
-
     pid = np.asarray(dataset.pose_id)
     named = {"confirmation": np.isin(pid, res.rows.get("confirmation", [])),
              "report": np.isin(pid, res.held_out.get("report_pose_ids", []))}

@@ -1,14 +1,15 @@
 """The selection rule of the diagnosis: which terms enter the extended model, in which order, and whether the
 extended model replaces the geometric one.
 
-One round (:func:`selection_round`) scores the remaining atoms on the calibration rows (:mod:`twin.diagnosis.select`),
+One round (:func:`selection_round`) scores the remaining atoms on the calibration rows (:mod:`twin.diagnosis.scoring`),
 takes the best whose evidence passes the threshold of its pool, and keeps it only if it predicts the confirmation
 block (a block of time after every calibration row, or another session); :func:`select_terms` repeats rounds,
 then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
 keeps fewer families where they do as well (:func:`_fewer_families`) and refuses terms of implausible size
 (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``). :func:`decide` states the verdict and
 :func:`adopt` whether the extended model is the model to use. The procedure around it is
-:mod:`twin.diagnosis.diagnose`; the statistics each step calls are in :mod:`twin.diagnosis.select`."""
+:mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
+:mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and :mod:`~twin.diagnosis.refine`."""
 
 from __future__ import annotations
 
@@ -17,14 +18,18 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
 from .loads import load_alternatives, refine_load_sign, tilt_angles
-from .select import (Fit, Problem, Scored, StructureTest, alternatives, backward, confirm, order_candidates,
-                     polish_in_fit, prefer_play, psi_init, refine, score_atoms, smooth_confirm, time_only,
-                     update_gross, widen)
+from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
+from .ordering import alternatives, order_candidates
+from .problem import Fit, Problem, covariance, psi_init, update_gross
+from .refine import polish_in_fit, prefer_play, refine, widen
+from .scoring import Scored, score_atoms
+from .structure import StructureTest, chi2_logsf
 
 __all__ = [
     "CandidateScore",
@@ -35,20 +40,19 @@ __all__ = [
     "decide",
     "adopt",
     "implausible_size",
+    "backward",
 ]
 
-_MM = 1e-3
-_DEG = np.pi / 180.0
 
 
-JOINT_MAX = 0.5 * np.pi / 180  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
+JOINT_MAX = 0.5 * RAD_PER_DEG  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 # on the 6R industrial arms (cycloidal and harmonic drives)
 # [rad] the same for any other chain (a URDF's: service and mobile manipulators whose wrist and belt stages show up
 # to a degree of play; set after the TIAGo wrist's 0.63 deg backlash, confirmed on its other day, exceeded 0.5 deg)
-JOINT_MAX_CHAIN = 1.0 * np.pi / 180
+JOINT_MAX_CHAIN = 1.0 * RAD_PER_DEG
 # [rad] largest variation over the rows of a deflection under a known load (compliance or a support's tilt under the
 # chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
-LOAD_MAX = 1.0 * np.pi / 180
+LOAD_MAX = 1.0 * RAD_PER_DEG
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 
 
@@ -202,11 +206,39 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     return sel
 
 
+def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple[Fit, list[Atom]]:
+    """Drop atoms whose removal costs no significant calibration evidence (one pass, weakest first)."""
+    dropped: list[Atom] = []
+    changed = True
+    while changed and len(fit.chosen) > 1:
+        changed = False
+        rc = fit.model_cal.residuals(fit.z)
+        sw = np.sqrt(prob.w_cal[rc.row])
+        C = covariance(rc.J[:, fit.free] * sw[:, None])
+        pos = {int(f): k for k, f in enumerate(fit.free)}
+        worst = None
+        for k, (a, B) in enumerate(fit.chosen):
+            idx = [pos[i] for i in range(fit.model_cal.offsets[k], fit.model_cal.offsets[k + 1])]
+            psi = fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+            Ck = C[np.ix_(idx, idx)]
+            d = float(psi @ np.linalg.lstsq(Ck, psi, rcond=None)[0])  # chi2 cost of removing it (Wald)
+            lp = chi2_logsf(d / prob.evidence_scale, len(idx)) + np.log(sizes[a.pool])
+            if lp >= np.log(alpha_select) and (worst is None or lp > worst[0]):
+                worst = (lp, k)
+        if worst is not None:
+            k = worst[1]
+            dropped.append(fit.chosen[k][0])
+            chosen = [c for i, c in enumerate(fit.chosen) if i != k]
+            fit = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
+            changed = True
+    return fit, dropped
+
+
 def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, excess: bool,
            z_min: float) -> tuple[bool, dict | None, list[str]]:
     """Step 5: ``structured`` when the test fired (``excess``) and something in the residual is predictable on the
     confirmation rows: a confirmed term (``ext``), or, without one, the nearest calibration rows in joint space or
-    in time (:func:`twin.diagnosis.select.smooth_confirm`). An excess that nothing predicts is scatter that
+    in time (:func:`twin.diagnosis.confirm.smooth_confirm`). An excess that nothing predicts is scatter that
     changes from visit to visit (the robot's repeatability, a per-pose instrument error), however large:
     reported (``unexplained``), not called structure. Returns ``(structured, unexplained, notes)``."""
     notes: list[str] = []
@@ -215,7 +247,7 @@ def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, exce
     if excess and not confirmed:
         smooth = smooth_confirm(prob, base, z_min)
         w = test0.whitened_rms
-        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / _MM,
+        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / M_PER_MM,
                        "predictable": smooth["confirmed"], "by": smooth["by"] if smooth["confirmed"] else None,
                        "smoothers": smooth["smoothers"]}
     structured = bool(excess and (confirmed or unexplained["predictable"]))
@@ -276,8 +308,8 @@ def _implausible(prob: Problem, s) -> str | None:
         eff = tilt_angles(a.features, F, phi) if a.place == "param" else (F @ phi)[:, None]
         dev = float(np.max(np.abs(eff - eff.mean(axis=0)))) if eff.size else 0.0
         if dev > LOAD_MAX:
-            return (f"implausible for {a.family} under the chain's own weight: {dev / _DEG:.3f} deg of variation over the "
-                    f"rows (more than {LOAD_MAX / _DEG:.1f} deg)")
+            return (f"implausible for {a.family} under the chain's own weight: {dev / RAD_PER_DEG:.3f} deg of variation over the "
+                    f"rows (more than {LOAD_MAX / RAD_PER_DEG:.1f} deg)")
         return None
     eff = prob.features(a)[prob.rows_cal] @ (s.basis @ s.psi) if a.place in ("length", "joint") else None
     if eff is None or eff.size == 0:
@@ -287,7 +319,7 @@ def _implausible(prob: Problem, s) -> str | None:
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
     cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
     if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
-        return f"implausible for {a.family}: {np.max(np.abs(eff)) / _DEG:.3f} deg (more than {cap / _DEG:.1f} deg)"
+        return f"implausible for {a.family}: {np.max(np.abs(eff)) / RAD_PER_DEG:.3f} deg (more than {cap / RAD_PER_DEG:.1f} deg)"
     return None
 
 

@@ -34,6 +34,7 @@ __all__ = [
     "check_design",
     "analyse",
     "residual_stats",
+    "error_summary",
     "predicted_error",
     "ErrorModel",
 ]
@@ -292,16 +293,17 @@ def residual_stats(space: ParamSpace, x: np.ndarray, obs: Observations) -> dict[
     if obs.kind == "spheres":
         pred, _ = predict_points(space, x, obs.q, obs.station, obs.spheres_tool)
         e = np.linalg.norm(obs.spheres - pred, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / M_PER_MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": error_summary(e / M_PER_MM)}
     from .problem import station_eval
 
     R, p, _ = station_eval(space, x, obs.q, obs.station, False)
     ep = np.linalg.norm(obs.pose_p - p, axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(R, -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / M_PER_MM), "orientation_deg": _stats(er / RAD_PER_DEG)}
+    return {"n_rows": obs.n, "position_mm": error_summary(ep / M_PER_MM), "orientation_deg": error_summary(er / RAD_PER_DEG)}
 
 
-def _stats(e: np.ndarray) -> dict[str, float]:
+def error_summary(e: np.ndarray) -> dict[str, float]:
+    """The mean, RMS, largest and smallest of the errors ``e`` (any shape, in the unit they come in)."""
     return {
         "mean": float(np.mean(e)),
         "rms": float(np.sqrt(np.mean(e**2))),

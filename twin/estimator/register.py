@@ -20,7 +20,7 @@ from ..transforms import matrix_to_rotvec, transform_to_pose6
 from ..units import M_PER_MM, RAD_PER_DEG
 from .calibration import Calibration, Prediction
 from .chain import Chain
-from .core import _stats, register_bases
+from .core import error_summary, register_bases
 from .identifiability import analyse_jacobian
 from .problem import Observations, ParamSpace, Residuals, absolute_residuals, observations_from_dataset
 from .solvers import GNResult, TraceEntry, covariance, gauss_newton
@@ -567,10 +567,10 @@ def _errors(obs: Observations, pred: Prediction, idx: np.ndarray, ds: Dataset) -
     _check_prediction(pred, obs.n, ds, idx)
     if obs.kind == "spheres":
         e = np.linalg.norm(obs.spheres - pred.spheres, axis=-1)[obs.seen]
-        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": _stats(e / M_PER_MM)}
+        return {"n_rows": obs.n, "n_spheres": int(e.size), "position_mm": error_summary(e / M_PER_MM)}
     ep = np.linalg.norm(obs.pose_p - pred.pose[:, :3, 3], axis=-1)
     er = np.linalg.norm(matrix_to_rotvec(obs.pose_R @ np.swapaxes(pred.pose[:, :3, :3], -1, -2)), axis=-1)
-    return {"n_rows": obs.n, "position_mm": _stats(ep / M_PER_MM), "orientation_deg": _stats(er / RAD_PER_DEG)}
+    return {"n_rows": obs.n, "position_mm": error_summary(ep / M_PER_MM), "orientation_deg": error_summary(er / RAD_PER_DEG)}
 
 
 def _sessions(ds: Dataset, idx: np.ndarray) -> tuple[str, ...] | None:

@@ -1,0 +1,187 @@
+"""Confirming a term on the held-out rows: a scored atom's prediction of the confirmation rows tested against their
+residual (:func:`confirm`: Wilcoxon's signed ranks per row, without the most favourable row, the held-out error, and
+for a term of time whether the nearest rows in time predict as well), and whether the held-out residual is
+predictable from the nearest rows in joint space or time at all (:func:`smooth_confirm`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .atoms import Atom
+from .extend import ExtendedModel
+from .features import Const
+from .problem import Fit, Problem
+from .scoring import Scored, raw_columns, scoring_basis
+from .structure import signed_rank_z
+
+__all__ = ["time_only", "Confirmation", "confirm", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
+           "neighbour_predictions", "earlier_rows_prediction", "smooth_confirm"]
+
+
+def time_only(atom: Atom) -> bool:
+    """Whether an atom's features are functions of the time channel alone (a drift, a step or a window, a transient,
+    an oscillation in ``t_s`` or the row order, on any place)."""
+    kinds = {f.kind for f in atom.features} - {"const"}
+    return bool(kinds) and kinds <= {"pow", "step", "window", "exp", "sin", "cos"} and all(
+        getattr(f, "ch", None) in ("t_s", "row") for f in atom.features if not isinstance(f, Const))
+
+
+@dataclass(frozen=True)
+class Confirmation:
+    """The held-out check of a scored atom on the confirmation rows: ``z``, ``z`` without the most favourable row,
+    whether the held-out residual norm drops (``better``), and for an atom of time alone, whether the mean
+    residual of the nearest calibration rows in time predicts those rows at least as well (``local``: a wander
+    of the cell correlated over a few rows, which a drift, a step or an oscillation fitted to this campaign
+    follows only by chance and which does not continue into later rows)."""
+
+    z: float
+    z_without_best_row: float
+    better: bool
+    local: bool = False
+
+
+def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
+    """Held-out check of a scored atom (:class:`Confirmation`); its prediction ``u`` on the confirmation rows is
+    linearised, the geometry re-adjusting to it."""
+    sb = scoring_basis(prob, fit)
+    A = (sb.rc.J[:, fit.free] * sb.sw[:, None])[sb.keep]
+    # geometry re-adjusts to the atom: beta_A = -A^+ E B psi
+    beta_A = -np.linalg.lstsq(A, s.E @ s.psi, rcond=None)[0]
+    rv = fit.model_val.residuals(fit.z)
+    kv = prob.keep_val[rv.row]
+    Fv = prob.features(s.atom)[prob.rows_val]
+    Ev = raw_columns(fit.model_val, s.atom, Fv, fit.z, rv) @ s.basis
+    u_all = Ev @ s.psi + rv.J[:, fit.free] @ beta_A
+    u = u_all[kv]
+    r = rv.r[kv]
+    nu = float(np.linalg.norm(u))
+    if nu <= 0:
+        return Confirmation(0.0, 0.0, False)
+    # per row c_k = r_k . u_k: under the null (u independent of the held-out residual) each is symmetric about zero
+    # and the rows are independent, whatever the residual's size and its correlation within a row (an unmodelled
+    # effect moves every coordinate of a row together: a coordinate-wise z would count them as independent and pass
+    # a chance correlation as a confirmation). The rank test of their sum (Wilcoxon's signed ranks, as a normal
+    # score) keeps that level and the power a few rows of large residual would take from a ratio of sums.
+    contrib = np.bincount(rv.row[kv], weights=r * u, minlength=fit.model_val.obs.n)
+    c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
+    z = signed_rank_z(c)
+    z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
+    err_term = float(np.sum((r - u) ** 2))
+    better = err_term < float(r @ r)
+    local = False
+    if time_only(s.atom):
+        U, Rv = neighbour_predictions(prob, fit)["time"]
+        Ut = row_blocks(fit.model_val, u_all)
+        ok = np.isfinite(Rv) & np.isfinite(U) & np.isfinite(Ut)
+        # strictly better: a change that happened before the held-out block is predicted alike by the term and by
+        # the last rows' state, and the term is the model that says so
+        local = float(np.sum((Rv - U)[ok] ** 2)) < float(np.sum((Rv - Ut)[ok] ** 2))
+    return Confirmation(z, z_minus, better, local)
+
+
+NEIGHBOURS = 4  # rows a neighbour smoother averages
+JOINT_WEIGHTS = np.array([1.0, 1.0, 1.0, 0.3, 0.3, 0.3])  # arm joints move the plate more than the wrist's
+
+
+def joint_weights(n_joints: int) -> np.ndarray:
+    """Weights ``(N,)`` of the joints in the neighbours' distance: the last three (the wrist) ``0.3``, the others 1
+    (``JOINT_WEIGHTS`` for six joints)."""
+    w = np.ones(n_joints)
+    w[max(n_joints - 3, 0):] = 0.3
+    return w
+
+
+def row_blocks(model: ExtendedModel, r: np.ndarray) -> np.ndarray:
+    """Whitened residuals ``(m,)`` as ``(n, 3 K)`` per row (point-major, x y z), NaN where not measured."""
+    obs = model.obs
+    K = obs.spheres.shape[1]
+    shape = (K, 3, obs.n)
+    mask = np.broadcast_to(obs.seen.T[:, None, :], shape)
+    tmp = np.full(shape, np.nan)
+    tmp[mask] = r
+    return np.transpose(tmp, (2, 0, 1)).reshape(obs.n, 3 * K)
+
+
+def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per smoother (``joints``, ``time``): the mean whitened residual ``(n_v, 9)`` of the ``NEIGHBOURS`` nearest
+    calibration rows of each confirmation row (joint space: joints scaled by their spread and ``JOINT_WEIGHTS``;
+    time: ``t_s``, else the row order; rows with the same commanded joints excluded: a repeat shares the visit's
+    error), and the confirmation rows' own residual ``(n_v, 9)`` (NaN where not measured or gross)."""
+    key = ("neighbours", id(prob.w_cal), id(prob.keep_val))
+    got = fit.cache.get(key)
+    if got is not None:
+        return got
+    rc = fit.model_cal.residuals(fit.z, jacobian=False)
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    Rc = row_blocks(fit.model_cal, rc.r)
+    Rv = row_blocks(fit.model_val, rv.r)
+    Rc[prob.w_cal <= 0] = np.nan
+    Rv[~prob.keep_val] = np.nan
+    qc, qv = prob.ctx.q[prob.rows_cal], prob.ctx.q[prob.rows_val]
+    scale = np.ptp(np.vstack([qc, qv]), axis=0)
+    w = (JOINT_WEIGHTS if qc.shape[1] == 6 else joint_weights(qc.shape[1])) / np.where(scale > 1e-9, scale, 1.0)
+    same = np.all(np.abs(qv[:, None, :] - qc[None, :, :]) < 1e-9, axis=2)
+    t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
+    out = {}
+    for name, D in (("joints", np.linalg.norm((qv[:, None, :] - qc[None, :, :]) * w, axis=2)),
+                    ("time", np.abs(t[prob.rows_val][:, None] - t[prob.rows_cal][None, :]))):
+        D = np.where(same | np.all(np.isnan(Rc), axis=1)[None, :], np.inf, D)
+        k = min(NEIGHBOURS, D.shape[1])
+        nb = np.argsort(D, axis=1)[:, :k]
+        with np.errstate(invalid="ignore"):
+            U = np.nanmean(Rc[nb], axis=1)  # (n_v, 9)
+        out[name] = (U, Rv)
+    fit.cache[key] = out
+    return out
+
+
+def earlier_rows_prediction(prob: Problem, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
+    """The time smoother of a block of held-out rows: each confirmation row's residual predicted by the mean
+    residual ``(n_v, 3 K)`` of the ``NEIGHBOURS`` confirmation rows measured before it (other visits only: a repeat
+    shares its visit's error; NaN for the first rows), and the rows' own residual. The held-out rows are a block of
+    time after the rows that fit: the calibration rows nearest in time are the same few for every one of them, and a
+    prediction shared by every row is no test. Under the null (noise independent from row to row) each ``c_k =
+    r_k . u_k`` has mean zero given the rows before it, so the self-normalised sum is still ~N(0, 1)."""
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    Rv = row_blocks(fit.model_val, rv.r)
+    Rv[~prob.keep_val] = np.nan
+    rows = prob.rows_val
+    qv = np.round(prob.ctx.q[rows], 9)
+    U = np.full_like(Rv, np.nan)
+    for k in range(len(rows)):
+        prev = [i for i in range(k - 1, -1, -1) if not np.array_equal(qv[i], qv[k]) and np.isfinite(Rv[i]).any()]
+        prev = prev[:NEIGHBOURS]
+        if prev:
+            with np.errstate(invalid="ignore"):
+                U[k] = np.nanmean(Rv[prev], axis=0)
+    return U, Rv
+
+
+def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
+    """Is the held-out residual predictable from the rows nearest to it, in joint space or in time?
+
+    Joint space: each confirmation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest
+    calibration rows (joints scaled by their spread and ``JOINT_WEIGHTS``), rows with the same commanded joints
+    excluded (a repeat shares the visit's error); the calibration residuals are independent of the held-out ones.
+    Time: by the confirmation rows measured just before it (:func:`earlier_rows_prediction`). A structure that is
+    smooth in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the
+    robot's repeatability, an instrument error per pose) does not. Under that null per confirmation row ``c_k =
+    r_k . u_k`` is zero-mean (given what predicts it), so ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever
+    the noise's size and its correlation within a row. Confirmed when ``z > z_min`` also without the most favourable
+    row (either smoother)."""
+    out = {}
+    smoothers = {"joints": neighbour_predictions(prob, fit)["joints"], "time": earlier_rows_prediction(prob, fit)}
+    for name, (U, Rv) in smoothers.items():
+        c = np.nansum(Rv * U, axis=1)
+        ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
+        c = c[ok_rows]
+        den = float(np.sqrt(np.sum(c**2)))
+        z = float(c.sum() / den) if den > 0 else 0.0
+        z_minus = float((c.sum() - c.max()) / np.sqrt(max(np.sum(c**2) - c.max() ** 2, 1e-300))) if c.size > 1 else 0.0
+        out[name] = {"z": z, "z_without_best_row": z_minus, "rows": int(c.size)}
+    best = max(out, key=lambda k: out[k]["z"])
+    return {"by": best, "z": out[best]["z"], "confirmed": any(v["z"] > z_min and v["z_without_best_row"] > z_min
+                                                              for v in out.values()), "smoothers": out}

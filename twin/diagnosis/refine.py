@@ -1,0 +1,265 @@
+"""Refining a kept term: its continuous constant (a change point's time, a time constant, a move width, a clearance, a
+period, an order, a pull's angle) moved from the coarse grid it was found on to the value that explains most, a sign
+backlash replaced by the play operator that explains significantly more, a broad term widened to its further
+directions when they add evidence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace as replace_atom
+
+import numpy as np
+
+from ..estimator import distributions as dists
+from ..units import MM_PER_M, deg_to_rad, rad_to_deg
+from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
+from .extend import reduced_basis
+from .features import Feature, Pow, Step
+from .problem import Fit, Problem
+from .scoring import Scored, raw_columns, score_atoms, scoring_basis
+from .structure import chi2_logsf
+from .values import feature_values
+
+__all__ = ["prefer_play", "refine", "polish_in_fit", "widen"]
+
+
+def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """Each scored sign backlash (the offset follows the direction of the last move) replaced by the backlash as
+    a play operator with the half clearance that explains most (``PLAY_HALF_DEG``, then refined), when that
+    explains significantly more: beyond ``chi2_1`` at 1 % / the number of clearances tried, on at least 3
+    calibration rows where the two differ (rows after a move shorter than the clearance, which does not switch
+    the side). Both are the one backlash of that joint, so they compete as one candidate: a joint with a
+    clearance and short moves is not left to an unnamed function of its last move."""
+    out = []
+    for s in scored:
+        if s.atom.family != "backlash" or {f.kind for f in s.atom.features} != {"sign"}:
+            out.append(s)
+            continue
+        j = s.atom.features[0].j
+        trial = score_atoms(prob, fit, [play_backlash(j, deg_to_rad(hd)) for hd in PLAY_HALF_DEG], pool_sizes,
+                            exact_top=len(PLAY_HALF_DEG))
+        top = max(trial, key=lambda t: t.dchi2, default=None)
+        better = top is not None and (top.dchi2 - s.dchi2) / prob.evidence_scale >= dists.chi2_isf(0.01 / len(PLAY_HALF_DEG), 1)
+        if better:
+            f_sign = prob.features(s.atom)[prob.rows_cal, 0]
+            f_play = prob.features(top.atom)[prob.rows_cal, 0]
+            better = int(np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5)) >= 3
+        out.append(top if better else s)
+    return out
+
+
+def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
+    point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
+    grid); a time constant (``exp``, ``lag``), a move width (``lastmove``), a clearance (``play``) or a period
+    in time (``sin``/``cos`` of ``t_s``) over a log grid around it, zoomed twice, then to the maximum of the
+    evidence within the last grid step (bounded scalar search: a play's clearance must be right to a fraction of
+    a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
+    come back as they are."""
+    kinds = {f.kind for f in s.atom.features}
+    if "step" in kinds:
+        return _refine_step(prob, fit, s, pool_sizes)
+    if kinds == {"hinge"}:
+        return _refine_hinge(prob, fit, s, pool_sizes)
+    if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
+        # an order off the whole cycles per joint turn only where terms are confirmed on another session
+        return _refine_order(prob, fit, s, pool_sizes) if prob.cross_session else s
+    timely = all(getattr(f, "ch", None) in ("t_s", "row") for f in s.atom.features)
+    if any(_has(f, "tau") for f in s.atom.features):  # exp, lag, heat, settle, a field warming up
+        key = "tau"
+    elif "lastmove" in kinds or "play" in kinds:
+        key = "w" if "lastmove" in kinds else "h"
+    elif kinds <= {"sin", "cos"} and timely:
+        key = "k"
+    else:
+        key = None
+    if key is None:
+        return s
+    span_max = 4.0 if key != "k" else 1.25  # a period is sharp: zoom within +-25 % of the grid's
+    best = s
+    v0 = _constant(s.atom.features, key)
+    for span in (span_max, span_max ** 0.25):
+        vals = [v0 * span ** x for x in np.linspace(-1, 1, 9) if x != 0]
+        trial = [_with_constant(best.atom, key, v) for v in vals]
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        top = max(scored, key=lambda t: t.dchi2, default=None)
+        if top is not None and top.dchi2 > best.dchi2:
+            best = top
+        v0 = _constant(best.atom.features, key)
+    return _polish(prob, fit, best, key, span_max ** (0.25 * 0.25), pool_sizes)
+
+
+def polish_in_fit(prob: Problem, fit: Fit, k: int, key: str, ratio: float = 1.05) -> Fit:
+    """The kept atom ``k`` of ``fit`` with its constant ``key`` moved to the minimum of the calibration chi2 of the
+    whole model refitted (Gauss-Newton, the joint terms applied exactly), within a factor ``ratio`` of its value
+    (bounded Brent search on its log, to 1e-4 of it). The linearised evidence that placed it is biased at the
+    noise level when the effect is large (a 0.3 deg clearance moves the plate ~4 mm: its second-order term is
+    ~10 um), and a clearance must be right to a fraction of a per cent."""
+    from scipy.optimize import minimize_scalar
+
+    atom, B = fit.chosen[k]
+    v0 = _constant(atom.features, key)
+    x = fit.z[: prob.prep.space.size]
+    best = [fit]
+
+    def cost(u: float) -> float:
+        chosen = list(fit.chosen)
+        chosen[k] = (_with_constant(atom, key, v0 * np.exp(u)), B)
+        f = prob.fit(x, chosen, _psi_like(fit, chosen))
+        if f.chi2 < best[0].chi2:
+            best[0] = f
+        return f.chi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _psi_like(fit: Fit, chosen: list) -> list[np.ndarray]:
+    """Start values: the fit's reduced coordinates position by position (a term whose constant changed keeps
+    its coefficients)."""
+    return [fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]].copy() for k in range(len(chosen))]
+
+
+def _polish(prob: Problem, fit: Fit, s: Scored, key: str, ratio: float, pool_sizes: dict[str, int],
+            make=None) -> Scored:
+    """``s`` with its constant ``key`` moved to the maximum of the calibration evidence within a factor ``ratio``
+    of its value (bounded Brent search on the log of the constant, to 1e-4 of it); ``make(atom, v)`` builds the
+    atom with the constant ``v`` (default: :func:`_with_constant`)."""
+    from scipy.optimize import minimize_scalar
+
+    make = make or (lambda atom, v: _with_constant(atom, key, v))
+    v0 = _constant(s.atom.features, key)
+    best = [s]
+
+    def cost(u: float) -> float:
+        got = score_atoms(prob, fit, [make(s.atom, v0 * np.exp(u))], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize_scalar(cost, bounds=(-np.log(ratio), np.log(ratio)), method="bounded", options={"xatol": 1e-4})
+    return best[0]
+
+
+def _with_order(atom: Atom, k: float) -> Atom:
+    """A scanned cyclic atom with its order (cycles per joint turn) set to ``k``; channel and label to match."""
+    k0 = atom.features[0].k
+    feats = tuple(replace_atom(f, k=float(k)) for f in atom.features)
+    ch = atom.features[0].ch
+    return replace_atom(atom, features=feats, channel=f"sin/cos({k:.4g} {ch})",
+                label=atom.label.replace(f"order {k0:.4g}", f"order {k:.4g}"), meta=dict(atom.meta, order=float(k)))
+
+
+def _refine_order(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A scanned cyclic order (half-order grid) moved to the order that explains most within half a grid step
+    (a stage's ratio need not be a half-integer), zoomed twice, then polished within the last grid step."""
+    best = s
+    for half in (0.25, 0.06):
+        k0 = best.atom.features[0].k
+        trial = [_with_order(best.atom, k) for k in k0 + np.linspace(-half, half, 9) if k > 0 and k != k0]
+        scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+        top = max(scored, key=lambda t: t.dchi2, default=None)
+        if top is not None and top.dchi2 > best.dchi2:
+            best = top
+    k0 = best.atom.features[0].k
+    return _polish(prob, fit, best, "k", 1.0 + 0.015 / k0, pool_sizes, make=_with_order)
+
+
+def widen(prob: Problem, fit: Fit, s: Scored, alpha_select: float, max_rank: int = 18) -> Scored:
+    """An accepted atom was scored on at most 6 directions (a broad atom must not fit noise); its further
+    directions above 1 % of a unit column are kept when together they add significant calibration evidence
+    (``chi2_sf(Delta chi2_more - Delta chi2, extra) < alpha_select``): a frame swaying in time moves along its
+    six axes with a sine and a cosine, twelve directions."""
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep, Q = sb.rc, sb.sw, sb.keep, sb.Q
+    F = prob.features(s.atom)[prob.rows_cal]
+    E = raw_columns(fit.model_cal, s.atom, F, fit.z, rc)[keep] * sw[keep][:, None]
+    B = reduced_basis(E, Q=Q, max_rank=max_rank)
+    if B.shape[1] <= s.basis.shape[1]:
+        return s
+    EB = E @ B
+    Ep = EB - Q @ (Q.T @ EB)
+    psi, *_ = np.linalg.lstsq(Ep, s.r, rcond=None)
+    fitted = Ep @ psi
+    d = float(fitted @ fitted)
+    if chi2_logsf(max(d - s.dchi2, 0.0) / prob.evidence_scale, B.shape[1] - s.basis.shape[1]) >= np.log(alpha_select):
+        return s
+    return Scored(s.atom, B, psi, d, s.logp_adj, s.r, E=EB, Ep=Ep)
+
+
+def _has(f: Feature, key: str) -> bool:
+    """Whether the feature ``f`` has the constant ``key`` (a field of its kind, set)."""
+    return getattr(f, key, None) is not None
+
+
+def _constant(features, key: str):
+    """The constant ``key`` of the first of ``features`` that has it (:func:`_has`)."""
+    return next(getattr(f, key) for f in features if _has(f, key))
+
+
+def _with_constant(atom: Atom, key: str, v: float) -> Atom:
+    """``atom`` with the constant ``key`` (``tau`` [s], ``w`` or ``h`` [rad], ``k`` [rad/s]) of its features set to
+    ``v``; channel and label renamed to match."""
+    old = _constant(atom.features, key)
+    feats = tuple(replace_atom(f, **{key: float(v)}) if _has(f, key) else f for f in atom.features)
+    if key == "tau":
+        o, n = f"{old:.4g}", f"{v:.4g}"
+    elif key == "k":
+        o, n = f"{2 * np.pi / old:.4g}", f"{2 * np.pi / v:.4g}"
+    elif key == "w" and atom.channel.endswith(" mm)"):
+        o, n = f"{old * MM_PER_M:.3g} mm", f"{v * MM_PER_M:.3g} mm"  # a prismatic joint's move width
+    else:
+        o, n = f"{rad_to_deg(old):.3g} deg", f"{rad_to_deg(v):.3g} deg"
+    return replace_atom(atom, features=feats, channel=atom.channel.replace(o, n), label=atom.label.replace(o, n))
+
+
+def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A one-sided pull found past a decile of its joint's range moved to the angle that explains most between the
+    neighbouring deciles (bounded Brent search on the angle, to 1e-5 rad)."""
+    from scipy.optimize import minimize_scalar
+
+    f0 = s.atom.features[0]
+    j = int(f0.ch[1:])
+    model = prob.prep.nominal
+    prismatic = model.joint_kinds[j - 1] == "prismatic"
+    x = prob.ctx.q[:, j - 1]
+    grid = np.quantile(x, np.linspace(0, 1, HINGE_POINTS + 2))
+    k = int(np.argmin(np.abs(grid - f0.at)))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = [s]
+
+    def cost(at: float) -> float:
+        got = score_atoms(prob, fit, [hinge_atom(j, at, f0.side, f0.p, f0.h, prismatic=prismatic,
+                                                 words=joint_words(model, j))], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    if hi > lo:
+        minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-5})
+    return best[0]
+
+
+def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
+    neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
+    f0 = next(f for f in s.atom.features if isinstance(f, Step))
+    ch = f0.ch
+    values = np.unique(feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx,
+                                      prob.prep.nominal)[:, 0])
+    grid = np.quantile(values, np.linspace(0, 1, 11))
+    k = int(np.argmin(np.abs(grid - f0.at)))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    cands = [v for v in values if lo < v < hi and v != f0.at]
+    trial = []
+    for v in cands:
+        feats = tuple(replace_atom(f, at=float(v)) if isinstance(f, Step) else f for f in s.atom.features)
+        label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
+        trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
+    scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
+    best = max(scored, key=lambda t: t.dchi2, default=None)
+    return best if best is not None and best.dchi2 > s.dchi2 else s
