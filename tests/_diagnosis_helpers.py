@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from twin.dataset import Dataset
+from twin.diagnosis.apply import predict_extended
+from twin.diagnosis.candidates import RowContext
 from twin.estimator.simulate import simulate_dataset
 from twin.presets import preset_deviation
 from twin.robots import irb1200
@@ -262,9 +264,6 @@ def between_grid_rms(cal, truth, seed=0, n=200, step1_deg=5.0):
     """RMS [mm] of the 3-D sphere-centre error of the calibration ``cal`` (its effects applied) on ``n`` rows whose
     joint 1 lies between its grid's values (drawn uniformly over its range; the other joints on their grids),
     against the noise-free truth: what a model that holds only at the sampled values gets wrong."""
-    from twin.diagnosis.apply import predict_extended
-    from twin.diagnosis.candidates import RowContext
-
     rng = np.random.default_rng(10_000 + seed)
     vals = grid_values(step1_deg)
     q = np.stack([rng.choice(v, n) for v in vals], axis=1)
