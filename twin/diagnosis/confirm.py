@@ -11,13 +11,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .atoms import Atom
+from .configurations import RIVAL_MARGIN, Z_MIN as CONFIGURATION_Z
+from .configurations import FoldConfirmation, block_widths, configuration_folds, fold_confirmation, joints_read
 from .extend import ExtendedModel
 from .features import Const
 from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "Confirmation", "confirm", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
+__all__ = ["time_only", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "earlier_rows_prediction", "smooth_confirm"]
 
 
@@ -80,6 +82,31 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
         # the last rows' state, and the term is the model that says so
         local = float(np.sum((Rv - U)[ok] ** 2)) < float(np.sum((Rv - Ut)[ok] ** 2))
     return Confirmation(z, z_minus, better, local)
+
+
+def confirm_configurations(prob: Problem, fit: Fit, s: Scored, scored: list[Scored],
+                           sizes: dict[str, int]) -> FoldConfirmation | None:
+    """The check of a scored atom between the sampled configurations
+    (:func:`twin.diagnosis.configurations.fold_confirmation`): on each fold of the joint values it reads, the rows of
+    the other folds choose again among it and its rivals (the atoms of ``scored`` at its place reading the same
+    joints within :data:`twin.diagnosis.configurations.RIVAL_MARGIN` of its evidence) and the one chosen predicts the
+    fold, the geometry re-adjusting, judged at :data:`twin.diagnosis.configurations.Z_MIN`; None when it reads no
+    joint angle or its joints have too few blocks of values."""
+    joints = joints_read(s.atom.features)
+    if not joints:
+        return None
+    q = prob.ctx.q[prob.rows_cal][:, [j - 1 for j in joints]]
+    folds = configuration_folds(q, block_widths(s.atom.features, joints, np.ptp(q, axis=0)))
+    if folds is None:
+        return None
+    place = (s.atom.place, s.atom.target)
+    rivals = [o for o in scored if o.atom.key != s.atom.key and (o.atom.place, o.atom.target) == place
+              and joints_read(o.atom.features) == joints and o.logp_adj < s.logp_adj + RIVAL_MARGIN]
+    sb = scoring_basis(prob, fit)
+    A = (sb.rc.J[:, fit.free] * sb.sw[:, None])[sb.keep]
+    return fold_confirmation(A, s.E, (sb.rc.r * sb.sw)[sb.keep], sb.rows, folds, CONFIGURATION_Z,
+                             rivals=[o.E for o in rivals], log_pool=[np.log(sizes[o.atom.pool]) for o in [s, *rivals]],
+                             evidence_scale=prob.evidence_scale)
 
 
 NEIGHBOURS = 4  # rows a neighbour smoother averages

@@ -43,11 +43,12 @@ from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
-from .pools import catalogue_atoms, generic_atoms
+from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
 from .changes import change_places, change_pool_sizes, describe_changes, row_times
+from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .late import late_change
 from .extend import error_stats, reduced_basis
 from .features import LoadSign
@@ -72,6 +73,7 @@ __all__ = [
     "prepare_diagnosis",
     "fit_geometry",
     "atom_pool",
+    "campaign_sampling",
     "selection_round",
     "select_terms",
     "decide",
@@ -152,6 +154,7 @@ class DiagnosisResult:
     calibration_candidate: Calibration | None = None
     calibrations_blocked: dict[str, Calibration] = field(default_factory=dict)
     changes: tuple[dict, ...] = ()
+    sampling: dict[str, Any] = field(default_factory=dict)  # [configurations] each joint's sampling and order bound
 
 
 @dataclass(frozen=True)
@@ -350,6 +353,7 @@ def diagnose(
         calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
         changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id))
         + (late_json(late, extended.effects[-1], setup) if late is not None else ()),
+        sampling=sampling_report(campaign_sampling(setup)),  # [configurations]
     )
 
 
@@ -490,9 +494,20 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
                               n_change_points=0)
     if setup.virtual:
         pool = [a for a in pool if a.place != "plate"]  # the points are the tool frame's: no sphere to move
+    # [configurations] a harmonic above the order its joint's sampling supports is not offered (aliasing)
+    bounds = campaign_sampling(setup)
+    pool = [a for a in pool if offered(a.features, bounds)]
     sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic", "load")}
     sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
     return pool, sizes
+
+
+def campaign_sampling(setup: Setup) -> tuple[JointSampling, ...]:
+    """How the calibration rows sampled each joint and the highest harmonic order each supports
+    (:func:`twin.diagnosis.configurations.joint_sampling`)."""
+    prep = setup.prep
+    return joint_sampling(setup.ctx.q[prep.rows[prep.cal]], [k == "revolute" for k in prep.nominal.joint_kinds],
+                          max_order_checked=int(SCAN_ORDERS[1]))
 
 
 def link_lengths(model) -> list[str]:

@@ -93,6 +93,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
             "components": res.noise.components,
         },
         "held_out": res.held_out,
+        "sampling": res.sampling,  # [configurations]
         "rows": res.rows,
         "unexplained": res.unexplained,
         "candidates": [
@@ -103,6 +104,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
                 "delta_chi2_calibration": s.delta_chi2,
                 "p_adjusted": s.p_adjusted,
                 "z_validation": s.z_validation,
+                "z_configurations": s.z_configurations,  # [configurations]
                 "decision": s.decision,
             }
             for s in res.scores

@@ -23,7 +23,7 @@ from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
 from .loads import load_alternatives, refine_load_sign, tilt_angles
-from .confirm import confirm, smooth_confirm, time_only
+from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, update_gross
@@ -68,6 +68,7 @@ class CandidateScore:
     p_adjusted: float
     z_validation: float
     decision: str
+    z_configurations: float = float("nan")  # [configurations] the check between the sampled values (nan: not made)
 
 
 @dataclass
@@ -128,12 +129,17 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                     s, c = refined, c_refined
         implausible = _implausible(prob, s)
         ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
+        # [configurations] a term of joint angles also holds between the sampled values (folds of them left out)
+        cc = confirm_configurations(prob, fit, s, scored, sizes) if ok else None
+        held_in_time, ok = ok, ok and (cc is None or cc.passed)
         sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
-                            "kept" if ok else ("not confirmed on held-out rows" if not (c.z > z_min) else
+                            "kept" if ok else cc.decision if held_in_time else
+                            ("not confirmed on held-out rows" if not (c.z > z_min) else
                                                "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
                                                "held-out error not reduced" if not c.better else
                                                "the nearest rows in time predict the held-out rows as well (a wander, "
-                                               "not a term of time)" if c.local else implausible))
+                                               "not a term of time)" if c.local else implausible),
+                            float("nan") if cc is None else cc.z)
         out.scores.append(sc)
         if callback:
             callback(sc)
