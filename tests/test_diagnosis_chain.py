@@ -170,7 +170,7 @@ def test_marker_noise_column_sets_a_lower_bound_floor_and_bad_values_are_named(t
     assert f.sigma == pytest.approx(np.sqrt(np.mean(ms**2)) * 1e-3, rel=1e-12)
     bad = ms.astype(object).astype(str)
     bad[7] = "n/a"
-    with pytest.raises(ValueError, match=r"marker_std_mm: row 8 \(pose_id 7\) has 'n/a'"):
+    with pytest.raises(ValueError, match=r"marker_std_mm: row 8 \(pose_id 7\): not a number: 'n/a'"):
         noise_floor(replace(ds, extra={"marker_std_mm": bad}))
 
 

@@ -30,6 +30,7 @@ from ..dataset import Dataset, Joints
 from ..estimator.distributions import f_sf
 from ..kinematics import link_frames
 from ..transforms import kabsch
+from ..files import parse_finite
 from ..units import M_PER_MM
 from .candidates import GRAVITY, RowContext
 from .features import Field
@@ -322,11 +323,9 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
     rows = ds.sphere_seen.any(axis=1) if ds.has_spheres else ds.pose_seen
     vals = []
     for k in np.flatnonzero(rows):
-        try:
-            v = float(raw[k])
-        except (TypeError, ValueError):
-            v = float("nan")
-        if not (np.isfinite(v) and v >= 0):
+        where = f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]})"
+        v = parse_finite(str(raw[k]).strip(), where)
+        if v < 0:
             raise ValueError(f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]}) has {str(raw[k])!r}, expected a "
                              "finite number >= 0 [mm]")
         vals.append(v)

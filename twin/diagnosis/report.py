@@ -13,6 +13,7 @@ import numpy as np
 
 from ..units import M_PER_MM
 from .apply import block_errors
+from ..files import read_json
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
 from .structure import StructureTest
@@ -144,12 +145,9 @@ def write_diagnosis(res: DiagnosisResult, out_dir: str | os.PathLike, *, plots: 
 def read_diagnosis(path: str | os.PathLike) -> dict[str, Any]:
     """Read ``diagnosis.json``; ``ValueError`` naming the file when it is not one."""
     path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: missing") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON: {exc}") from None
+    d = read_json(path)
+    if not isinstance(d, dict):
+        raise ValueError(f"{path}: not a diagnosis (a JSON object expected)")
     if d.get("schema_version") != DIAGNOSIS_SCHEMA_VERSION:
         raise ValueError(f"{path}: schema_version {d.get('schema_version')!r} is not supported")
     for k in ("structured", "p_value", "effects", "before", "after", "calibration", "calibration_geometric"):
