@@ -82,12 +82,7 @@ def compensation(
     n = T.shape[0]
     nominal = calibration.nominal
     nj = nominal.n_joints
-    try:
-        q_ref = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, nj))
-    except ValueError:
-        raise ValueError(f"q_ref must have shape ({n}, {nj}) or ({nj},), got {np.shape(q_ref)}") from None
-    if not np.all(np.isfinite(q_ref)):
-        raise ValueError("q_ref must be finite [rad, m for prismatic joints]")
+    q_ref = _reference_joints(q_ref, n, nj)
     flange_nom = T @ invert_transform(nominal.tool2flange)
     try:
         sols = inverse_kinematics_closed_form(nominal, flange_nom)
@@ -257,12 +252,7 @@ def compensation_position(
     n = p.shape[0]
     nominal = calibration.nominal
     nj = nominal.n_joints
-    try:
-        q_ref = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, nj))
-    except ValueError:
-        raise ValueError(f"q_ref must have shape ({n}, {nj}) or ({nj},), got {np.shape(q_ref)}") from None
-    if not np.all(np.isfinite(q_ref)):
-        raise ValueError("q_ref must be finite [rad, m for prismatic joints]")
+    q_ref = _reference_joints(q_ref, n, nj)
     P = point_frame(calibration)
     robot = calibration.robot.with_frames(tool2flange=calibration.robot.tool2flange @ P)
     nom = nominal.with_frames(tool2flange=nominal.tool2flange @ P)
@@ -282,3 +272,15 @@ def compensation_position(
     if out.size:
         raise UnreachableError(f"targets {out[:10].tolist()}: the corrected joint command leaves the joint limits")
     return CompensationResult(q=q, q_nominal=q0, position_error=ep, rotation_error=er, iterations=it, trace=())
+
+
+def _reference_joints(q_ref, n: int, nj: int) -> np.ndarray:
+    """``q_ref`` ``(nj,)`` or ``(n, nj)`` [rad; m for prismatic joints] as an ``(n, nj)`` array; ``ValueError`` naming
+    it when its shape does not broadcast or a value is not finite."""
+    try:
+        q = np.broadcast_to(np.asarray(q_ref, dtype=float), (n, nj))
+    except ValueError:
+        raise ValueError(f"q_ref must have shape ({n}, {nj}) or ({nj},), got {np.shape(q_ref)}") from None
+    if not np.all(np.isfinite(q)):
+        raise ValueError("q_ref must be finite [rad, m for prismatic joints]")
+    return q
