@@ -1,11 +1,11 @@
 """Benchmark of the diagnosis' pass rates: every seed of the costly rate tests, against the rate each one states.
 
 A rate test claims an outcome on at least k of n seeds (``tests/_diagnosis_helpers.py``, ``tally``). The suite runs
-the first seeds of the costly ones as a regression (``rate_seeds``); this benchmark runs the test files that use
+three seeds of the costly ones as a regression (``rate_seeds``); this benchmark runs the test files that use
 ``rate_seeds`` with every seed (``TWIN_FULL_RATES=1``), where each test asserts its stated rate, and writes the
 ``diagnosis_rates`` section of ``results/benchmark.json``: per test its rule, what all the seeds gave, whether the rule
-holds, the seeds the suite runs and whether each of them passes, each seed's record; the pytest outcome (a failed test
-is listed), the wall time and the load averages.
+holds, the seeds the suite runs and whether they pass there, the seeds that miss; the pytest outcome (a failed test is
+listed), the wall time and the load averages.
 
     .venv/bin/python experiments/bench_diagnosis_rates.py [--jobs 2]
 """
@@ -79,17 +79,20 @@ def main() -> int:
     tests = {}
     for r in sorted(records, key=lambda r: r["test"]):
         ns = [rule[1] for rule in r["need"].values() if rule[0] != "median<="]
+        bools = [k for k, rule in r["need"].items() if rule[0] != "median<="]
         holds = all(_holds(r["need"][k], r["got"][k]) for k in r["need"])
         picked = r["suite_seeds"]  # the seeds the suite runs where they are fewer (else every one, as here)
         suite = [s for s in r["seeds"] if s.get("seed", s.get("case")) in picked] if picked else r["seeds"]
         tests[r["test"]] = {
-            "rule": {k: (f"median <= {v[1]}" if v[0] == "median<=" else f">= {v[0]}/{v[1]}") for k, v in r["need"].items()},
+            "rule": {k: (f"median <= {v[1]}" if v[0] == "median<=" else f">= {v[0]}/{v[1]}")
+                     for k, v in r["need"].items()},
             "got": {k: (round(v, 4) if isinstance(v, float) else f"{v[0]}/{v[1]}") for k, v in r["got"].items()},
             "holds": holds,
             "all_seeds_run": not ns or len(r["seeds"]) == max(ns),
             "suite_seeds": [s.get("seed", s.get("case")) for s in suite],
             "suite_seeds_pass": all(_suite_passes(r["need"][k], suite, k) for k in r["need"]),
-            "seeds": r["seeds"],
+            "misses": [{"seed": s.get("seed", s.get("case")), "false": [k for k in bools if not s[k]]}
+                       for s in r["seeds"] if not all(s[k] for k in bools)],
         }
     data = {
         "command": "TWIN_FULL_RATES=1 pytest -q -n {} --dist worksteal {}".format(a.jobs, " ".join(files)),
@@ -105,7 +108,8 @@ def main() -> int:
         "tests": tests,
         "note": "per test: its rule over every seed ('>= k/n' seeds true, or a median bound), what the seeds gave, "
                 "whether the rule holds; suite_seeds: the seeds the suite runs as a regression (every one must pass "
-                "there); xfail tests are recorded as they ran; load averages (1, 5, 15 min) at start and end",
+                "there); misses: the seeds where an outcome counted by a rate is false; xfail tests are recorded as "
+                "they ran; load averages (1, 5, 15 min) at start and end",
     }
     update_benchmark_section("diagnosis_rates", data)
     print(f"{data['n_rates_hold']}/{len(tests)} rates hold; pytest exit {p.returncode}: {tail}")

@@ -5,8 +5,9 @@ diagnosis (gravity torques by differentiating the potential energy); the twin's 
 live in ``twin.world``. Noise: the instrument's order of magnitude (5 um per coordinate).
 
 Rate tests: a selection outcome is claimed over 10 seeds with a pass rate (``tally(out, named=(9, 10))``). The
-suite runs the first :data:`SUITE_SEEDS` of a costly rate test's seeds (:func:`rate_seeds`), where every one of
-them must pass (the misses the rate allows, scaled to the seeds run, round down to none); the benchmark
+suite runs :data:`SUITE_SEEDS` of a costly rate test's seeds (:func:`rate_seeds`: the first ones, or others where
+one of those is a miss the rate allows), where every one of them must pass (the misses the rate allows, scaled to
+the seeds run, round down to none); the benchmark
 ``experiments/bench_diagnosis_rates.py`` runs every seed (``TWIN_FULL_RATES=1``) against the stated rate and writes
 each test's tally to the ``diagnosis_rates`` section of ``results/benchmark.json``.
 """
@@ -152,7 +153,7 @@ def noise_rms(ds, true_spheres, pose_ids):
 
 def tally(outcomes, **need):
     """A multi-seed verdict: ``outcomes`` a list of dicts per seed (``seed`` and named booleans or numbers);
-    ``need``: ``name=(k, n)`` at least ``k`` of ``n`` seeds true, or ``name=("median<=", x)``. On the first seeds
+    ``need``: ``name=(k, n)`` at least ``k`` of ``n`` seeds true, or ``name=("median<=", x)``. On the suite's seeds
     of a rate test (:func:`rate_seeds`, fewer than ``n``) the misses allowed are ``n - k`` scaled to the seeds run,
     rounded down. Writes the tally where the rate benchmark asks (``TWIN_RATES_DIR``); returns the message listing
     every seed, and asserts."""

@@ -220,7 +220,8 @@ def test_compliance_from_the_urdf_masses_and_a_wrist_backlash_are_named_on_a_cha
         named = (any(lab.startswith("joint 4 (arm_3_joint) compliance under gravity (the torque") for lab in labels)
                  and any(lab.startswith("joint 7 (arm_6_joint) backlash") for lab in labels))
         after_over_noise = res.after["position_mm"]["rms"] / (np.sqrt(3) * sigma * 1e3)
-        out.append({"seed": seed, "named": named, "after_over_noise": after_over_noise, "below": after_over_noise < 1.5})
+        out.append({"seed": seed, "named": named, "after_over_noise": after_over_noise,
+                    "below": after_over_noise < 1.5})
     H.tally(out, named=(9, SEEDS), below=(9, SEEDS))
 
 
