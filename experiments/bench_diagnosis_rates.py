@@ -1,7 +1,7 @@
 """Benchmark of the diagnosis' pass rates: every seed of the costly rate tests, against the rate each one states.
 
 A rate test claims an outcome on at least k of n seeds (``tests/_diagnosis_helpers.py``, ``tally``). The suite runs
-three seeds of the costly ones as a regression (``rate_seeds``); this benchmark runs the test files that use
+two seeds of the costly ones as a regression (``rate_seeds``); this benchmark runs the test files that use
 ``rate_seeds`` with every seed (``TWIN_FULL_RATES=1``), where each test asserts its stated rate, and writes the
 ``diagnosis_rates`` section of ``results/benchmark.json``: per test its rule, what all the seeds gave, whether the rule
 holds, the seeds the suite runs and whether they pass there, the seeds that miss; the pytest outcome (a failed test is
