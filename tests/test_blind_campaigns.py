@@ -14,10 +14,8 @@ order also predict every held-out row alone as inside the whole file (except row
 """
 
 import json
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +23,7 @@ import pytest
 
 STUDY = Path(__file__).resolve().parent.parent / "studies" / "blind"
 sys.path.insert(0, str(STUDY))
+from _shared import built_once  # noqa: E402
 from blind_scoring import alone_and_in_file, score_campaign  # noqa: E402
 from run import GENERATORS  # noqa: E402
 
@@ -90,26 +89,12 @@ def _params():
 
 
 def _batch(tmp_path_factory, gen: str) -> Path:
-    """Generator ``gen``'s batch, written once per test session and shared by the test workers (a directory made
-    atomically is the lock; the others wait for the 'done' marker)."""
-    base = tmp_path_factory.getbasetemp()
-    # this session's folder: with test workers, the parent of each worker's folder; alone, the session's own
-    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "blind-campaigns"
-    root.mkdir(exist_ok=True)
-    out, done, lock = root / f"batch{gen.upper()}", root / f"batch{gen.upper()}.done", root / f"batch{gen.upper()}.lock"
-    try:
-        lock.mkdir()
-    except FileExistsError:
-        t0 = time.time()
-        while not done.exists():
-            if time.time() - t0 > 600:
-                raise TimeoutError(f"waited 600 s for another worker to write {out}")
-            time.sleep(0.5)
-        return out
-    subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out", str(out),
-                    "--seed", str(GENERATORS[gen])], check=True, capture_output=True)
-    done.touch()
-    return out
+    """Generator ``gen``'s batch, written once per test session and shared by the test workers."""
+    def build(out: Path) -> None:
+        subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out",
+                        str(out), "--seed", str(GENERATORS[gen])], check=True, capture_output=True)
+
+    return built_once(tmp_path_factory, f"blind-batch{gen.upper()}", build)
 
 
 def _folder(batch: Path, name: str) -> Path:

@@ -151,7 +151,7 @@ def test_unnamed_frame_term_is_predicted_from_the_rows_time(tmp_path):
     """The extended calibration of a camera bump has a change (a step in t_s) of the measurement frame and predicts
     every row to the noise from its t_s after reload (>= 9/10 seeds)."""
     out = []
-    for seed in range(4, 4 + 10):
+    for seed in H.rate_seeds(range(4, 4 + 10)):
         ds = _bumped(seed)
         res = diagnose(ds)
         write_diagnosis(res, tmp_path / str(seed), plots=False)

@@ -202,7 +202,7 @@ def test_compliance_from_the_urdf_masses_and_a_wrist_backlash_are_named_on_a_cha
     noise stated: the diagnosis names both at their joints (compliance from the URDF masses) on >= 9 of 10 seeds
     and the extended model's report rows fall below 1.5x the noise's 3-D RMS on >= 9 of 10."""
     out = []
-    for seed in range(SEEDS):
+    for seed in H.rate_seeds(range(SEEDS)):
         rng = np.random.default_rng(100 + seed)
         q = _postures(rng, tiago, 160)
         h = 1e-6
@@ -219,9 +219,10 @@ def test_compliance_from_the_urdf_masses_and_a_wrist_backlash_are_named_on_a_cha
         labels = [a["label"] for a in res.atoms if not a["minor"]]
         named = (any(lab.startswith("joint 4 (arm_3_joint) compliance under gravity (the torque") for lab in labels)
                  and any(lab.startswith("joint 7 (arm_6_joint) backlash") for lab in labels))
-        out.append({"seed": seed, "named": named, "after_over_noise": res.after["position_mm"]["rms"] / (np.sqrt(3) * sigma * 1e3)})
-    H.tally(out, named=(9, SEEDS))
-    assert sum(o["after_over_noise"] < 1.5 for o in out) >= 9, out
+        after_over_noise = res.after["position_mm"]["rms"] / (np.sqrt(3) * sigma * 1e3)
+        out.append({"seed": seed, "named": named, "after_over_noise": after_over_noise,
+                    "below": after_over_noise < 1.5})
+    H.tally(out, named=(9, SEEDS), below=(9, SEEDS))
 
 
 def _figaroh_to_ours(model, name):
