@@ -26,14 +26,39 @@ def session_root(tmp_path_factory) -> Path:
     return root
 
 
-def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+def build_if_unclaimed(tmp_path_factory, name: str, build: Callable[[Path], None]) -> bool:
+    """Build ``<session root>/<name>`` as :func:`built_once` does when no worker has claimed it yet, and return
+    True; return False at once when another worker has (a worker that would wait builds something else instead)."""
+    root = session_root(tmp_path_factory)
+    try:
+        (root / f"{name}.lock").mkdir()
+    except FileExistsError:
+        return False
+    _build(root, name, build)
+    return True
+
+
+def _build(root: Path, name: str, build: Callable[[Path], None]) -> None:
+    try:
+        build(root / name)
+    except BaseException as e:
+        (root / f"{name}.failed").write_text(f"{type(e).__name__}: {e}")
+        raise
+    (root / f"{name}.done").touch()
+
+
+def built_once(tmp_path_factory, name: str, build: Callable[[Path], None],
+               meanwhile: Callable[[], object] | None = None) -> Path:
     """``<session root>/<name>``, written by ``build(path)`` once per test session whichever worker asks first; a
-    build that raised raises again, with its message, in every worker that asks."""
+    build that raised raises again, with its message, in every worker that asks. A worker that finds another
+    building it first calls ``meanwhile()`` (e.g. builds what the tests will ask for next), then waits."""
     root = session_root(tmp_path_factory)
     out, done, failed, lock = (root / name, root / f"{name}.done", root / f"{name}.failed", root / f"{name}.lock")
     try:
         lock.mkdir()
     except FileExistsError:
+        if meanwhile is not None and not done.exists():
+            meanwhile()
         t0 = time.time()
         while not done.exists():
             if failed.exists():
@@ -42,12 +67,7 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Pa
                 raise TimeoutError(f"waited {WAIT_S:.0f} s for another test worker to build {out}")
             time.sleep(0.2)
         return out
-    try:
-        build(out)
-    except BaseException as e:
-        failed.write_text(f"{type(e).__name__}: {e}")
-        raise
-    done.touch()
+    _build(root, name, build)
     return out
 
 

@@ -23,7 +23,7 @@ import pytest
 
 STUDY = Path(__file__).resolve().parent.parent / "studies" / "blind"
 sys.path.insert(0, str(STUDY))
-from _shared import built_once  # noqa: E402
+from _shared import build_if_unclaimed, built_once  # noqa: E402
 from blind_scoring import alone_and_in_file, score_campaign  # noqa: E402
 from run import GENERATORS  # noqa: E402
 
@@ -88,13 +88,23 @@ def _params():
     return out
 
 
-def _batch(tmp_path_factory, gen: str) -> Path:
-    """Generator ``gen``'s batch, written once per test session and shared by the test workers."""
+def _builder(gen: str):
     def build(out: Path) -> None:
         subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out",
                         str(out), "--seed", str(GENERATORS[gen])], check=True, capture_output=True)
 
-    return built_once(tmp_path_factory, f"blind-batch{gen.upper()}", build)
+    return build
+
+
+def _batch(tmp_path_factory, gen: str) -> Path:
+    """Generator ``gen``'s batch, written once per test session and shared by the test workers; a worker that finds
+    another writing it writes the next batch nobody has claimed meanwhile."""
+    def next_batch() -> None:
+        for other in list(GENERATORS)[list(GENERATORS).index(gen) + 1:]:
+            if build_if_unclaimed(tmp_path_factory, f"blind-batch{other.upper()}", _builder(other)):
+                return
+
+    return built_once(tmp_path_factory, f"blind-batch{gen.upper()}", _builder(gen), meanwhile=next_batch)
 
 
 def _folder(batch: Path, name: str) -> Path:
