@@ -221,11 +221,13 @@ class Sign(Feature):
 @dataclass(**_FROZEN)
 class LastMove(Feature):
     """``tanh(last move of joint j / w)`` (``w`` [rad, or m on a prismatic joint]): hysteresis following the size of
-    the last move."""
+    the last move; ``law`` ``"clip"``: ``clip(last move / w, -1, 1)`` instead (in proportion to the move up to ``w``,
+    the full size beyond it)."""
 
     kind: ClassVar[str] = "lastmove"
     j: int
     w: float
+    law: str | None = None
 
 
 @dataclass(**_FROZEN)
@@ -327,11 +329,13 @@ class GravityDir(Feature):
 @dataclass(**_FROZEN)
 class LoadSign(Feature):
     """The sign of the gravity load feature ``f`` (a :class:`Torque` or a :class:`GravMix`); ``u``: the direction
-    in the span of the joint's torque shapes it was built from (refined when kept)."""
+    in the span of the joint's torque shapes it was built from (refined when kept); ``width``: a smooth flank,
+    ``tanh(f / width)`` instead of the sign (``width`` in the unit of ``f``'s values)."""
 
     kind: ClassVar[str] = "loadsign"
     f: Feature
     u: tuple[float, ...] | None = None
+    width: float | None = None
 
 
 # ------------------------------------------------------------------------------------------------

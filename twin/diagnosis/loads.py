@@ -31,6 +31,7 @@ from dataclasses import replace as replace_atom
 
 import numpy as np
 
+from ..estimator import distributions as dists
 from ..kinematics import RobotModel
 from .atoms import Atom, joint_words
 from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
@@ -41,7 +42,9 @@ from .scoring import score_atoms
 from .values import feature_values
 
 __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
-           "refine_load_sign", "load_alternatives", "tilt_angles"]
+           "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH",
+           "STIFFENING_GRID", "law_atom", "stiffening_atoms", "fitted_load",
+           "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -77,35 +80,200 @@ def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = N
                          h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
 
 
+# a smooth flank's widths tried, as fractions of the load's RMS over the rows (beyond STIFFENING_WIDTH: a stiffening)
+FLANK_WIDTHS = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+STIFFENING_GRID = (0.7, 1.5, 3.0)  # widths (fractions of the load's RMS) of the stiffening compliance atoms
+REFINE_SHAPES = 5  # a joint's leading torque shapes the direction of a kept load-signed backlash is refined in
+# [fraction of the load's RMS] a load law taken up over a wider width than this is the joint's stiffness rising with
+# its load (a compliance), over a narrower one a gear's flank changing sides (a backlash)
+STIFFENING_WIDTH = 0.5
+SIMPLEX_STEP = 0.1  # the refinement's first steps along each direction (each of unit RMS over the rows)
+
+
+def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
+    """A law of joint ``atom.target``'s gravity load with the feature ``f`` (its load, direction and width as set;
+    ``rms``: the RMS of the load over the rows, the width's unit): a backlash (offset signed by the load) when the
+    law changes sides sharply or within ``STIFFENING_WIDTH`` of the load's RMS, else a compliance stiffening with the
+    load; channel and label to match, pool as ``atom``'s."""
+    j = int(atom.target[5:])
+    jw = joint_words(model, j)
+    u = "" if f.u is None else f" ({', '.join(f'{x:+.3f}' for x in f.u)})"
+    if f.width is None:
+        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u}",
+                            label=f"joint {jw} backlash (offset signed by its gravity load)")
+    rel = f.width / rms
+    law = f"tanh(load / {f.width:.3g} N m)" if isinstance(f.f, Torque) else f"tanh(load / {rel:.3g} of its RMS)"
+    if rel <= STIFFENING_WIDTH:
+        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u} tanh width {rel:.3g} rms",
+                            label=f"joint {jw} backlash (offset signed by its gravity load, its flank taken up "
+                                  f"smoothly: {law})")
+    return replace_atom(atom, family="compliance", features=(f,), channel=f"stiffening_j{j}{u} tanh width {rel:.3g} rms",
+                        label=f"joint {jw} compliance under gravity, stiffening with the load (its deflection follows "
+                              f"{law})")
+
+
+def stiffening_atoms(model: RobotModel, ctx: RowContext, j: int, load) -> list[Atom]:
+    """Joint ``j``'s compliance stiffening with its gravity load ``load`` (a :class:`Torque` of the stated masses, or a
+    :class:`GravMix` combination of its torque shapes: a linear compliance's fitted torque): ``tanh(load / w)`` for
+    ``w`` in ``STIFFENING_GRID`` of the load's RMS over the rows (refined when kept, :func:`refine_load_sign`). Softer
+    near zero load than under a large one: a harmonic drive's first stiffness, a gear's teeth coming into contact."""
+    v = feature_values((load,), ctx, model)[:, 0]
+    rms = float(np.sqrt(np.mean(v ** 2)))
+    if not rms > 0:
+        return []
+    base = Atom("compliance", "joint", f"theta{j}", (), "", "", "catalogue", (j,))
+    return [law_atom(model, base, LoadSign(f=load, width=float(fr * rms)), rms) for fr in STIFFENING_GRID]
+
+
+def fitted_load(fit, atom: Atom, B: np.ndarray, k: int) -> GravMix | None:
+    """The torque a kept linear compliance ``atom`` (its torque shapes, ``gravmix`` features, reduced basis ``B``, the
+    ``k``-th term of ``fit``) fitted: its coefficients' combination of the shapes as one ``gravmix`` feature."""
+    if not atom.features or not all(isinstance(f, GravMix) for f in atom.features):
+        return None
+    phi = B @ fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+    f0 = atom.features[0]
+    if any(f.cols != f0.cols for f in atom.features) or not np.any(phi):
+        return None
+    w = sum(p * np.asarray(f.w, float) / f.h for p, f in zip(phi, atom.features))
+    return GravMix(i=f0.i, cols=f0.cols, w=tuple(w.tolist()), h=1.0)
+
+
+def stated_load_mix(model: RobotModel, i: int, cols: tuple) -> GravMix | None:
+    """Joint ``i``'s gravity torque from the chain's stated mass properties as a ``gravmix`` feature over the regressor
+    columns ``cols`` (``(k, c)`` pairs of :func:`torque_shapes`): the weights are the links' mass moments ``(m_k,
+    m_k c_k)`` in their joint frames (``h`` 1); None without masses."""
+    if not has_masses(model):
+        return None
+    pi = {}
+    for k, j in enumerate(model.structure.joints, start=1):
+        m = float(j.inertial["mass"]) if j.inertial else 0.0
+        c = np.asarray(j.inertial["com"], float) if j.inertial else np.zeros(3)
+        pi[(k, 0)] = m
+        for a in range(3):
+            pi[(k, a + 1)] = m * float(c[a])
+    return GravMix(i=i, cols=cols, w=tuple(pi.get((int(k), int(c)), 0.0) for k, c in cols), h=1.0)
+
+
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
-    """A kept load-signed backlash found on the grid of directions moved to the direction in the span of the joint's
-    torque shapes whose sign explains most (Nelder-Mead on the direction from the grid's best, scored as every atom
-    is: :func:`twin.diagnosis.scoring.score_atoms`). Returns the scored atom."""
+    """A kept load-signed backlash refined: its load (the stated masses' torque, or the grid's best direction when
+    the masses are unknown) moved within the span of that load and the joint's ``REFINE_SHAPES`` leading torque
+    shapes to the combination whose sign explains most (Nelder-Mead from the start, scored as every atom is:
+    :func:`twin.diagnosis.scoring.score_atoms`): stated masses are off by some per cent and three shapes hold the
+    load only to a few per cent, and either moves the sign's change past rows near zero load. Then its flank: a
+    gear whose flank is taken up over a range of the load (friction, a preload, the teeth's compliance) follows
+    ``tanh(load / w)``, not the load's sign, and the sign alone misplaces every row near the flank's change. The
+    smooth flank (its width from ``FLANK_WIDTHS`` of the load's RMS, then refined on its log with the direction)
+    replaces the sign when it explains significantly more: beyond ``chi2_1`` at 1 % / the number of widths tried,
+    with at least 3 calibration rows inside the flank (``|tanh| < 0.5``). Returns the scored atom."""
     from scipy.optimize import minimize
 
     f0 = s.atom.features[0]
-    if not isinstance(f0, LoadSign) or f0.u is None:
+    if not isinstance(f0, LoadSign):
         return s
-    shapes = torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i), LOAD_SHAPES)
-    if len(shapes) < 2:
+    model, rows = prob.prep.nominal, prob.rows_cal
+    i = int(f0.f.i) if isinstance(f0.f, GravMix) else int(f0.f.j)
+    shapes = torque_shapes(model, prob.ctx.q, i, REFINE_SHAPES)
+    if not shapes:
         return s
+    cols = shapes[0].cols
+    # the stated masses' torque (when known) beside the shapes: it lies in their full span, not in the leading few
+    stated = [stated_load_mix(model, i, cols)] if isinstance(f0.f, Torque) else []
+    basis = stated + [GravMix(i=i, cols=cols, w=tuple((np.asarray(f.w, float) / f.h).tolist()), h=1.0) for f in shapes]
+    V = feature_values(tuple(basis), prob.ctx, model)
+    scale = np.sqrt(np.mean(V[rows] ** 2, axis=0))
+    ok = scale > 0
+    basis = [f for f, k in zip(basis, ok) if k]
+    W = np.array([np.asarray(f.w, float) / sc for f, sc in zip(basis, scale[ok])])  # each unit RMS over the rows
+    V = V[:, ok] / scale[ok]
+    if stated:
+        u0 = np.zeros(len(basis))
+        u0[0] = 1.0
+    else:
+        # the grid's direction in the refinement's coordinates
+        v0 = feature_values((f0.f,), prob.ctx, model)[rows, 0]
+        u0 = np.linalg.lstsq(V[rows], v0 / np.sqrt(np.mean(v0 ** 2)), rcond=None)[0]
     best = [s]
+    rec = {}
 
-    def cost(u):
+    def feature(u, frac):
         u = np.asarray(u, float)
-        if not np.linalg.norm(u) > 0:
+        v = V @ u
+        rms = float(np.sqrt(np.mean(v[rows] ** 2)))
+        mix = GravMix(i=i, cols=cols, w=tuple((u @ W).tolist()), h=1.0)
+        return LoadSign(f=mix, u=tuple(float(x) for x in u), width=None if frac is None else float(frac * rms)), rms
+
+    def score(u, frac):
+        f, rms = feature(u, frac)
+        if not rms > 0:
             return 0.0
-        a = replace_atom(s.atom, features=(load_sign_feature(shapes, u / np.linalg.norm(u)),))
-        got = score_atoms(prob, fit, [a], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
         if not got:
             return 0.0
         if got[0].dchi2 > best[0].dchi2:
             best[0] = got[0]
-        return -got[0].dchi2
+        d = got[0].dchi2
+        key = "sharp" if frac is None else "smooth"
+        if d > rec.get(key, (-1.0,))[0]:
+            rec[key] = (d, got[0])
+        return d
 
-    minimize(cost, np.asarray(f0.u, float), method="Nelder-Mead",
-             options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 80, "initial_simplex": None})
-    return best[0]
+    def simplex(x0, steps):
+        return np.vstack([x0] + [x0 + np.eye(len(x0))[k] * steps[k] for k in range(len(x0))])
+
+    m = len(basis)
+    opts = {"xatol": 1e-3, "fatol": 1e-3}
+    # the direction and a flank's width together on the smooth flank (the sign is a step function of the direction:
+    # a search on it flips single rows, and a boundary placed by a few rows' noise mispredicts the rows near it);
+    # from the best width of the grid at the start, steps of SIMPLEX_STEP of the load along each direction
+    top = max(FLANK_WIDTHS, key=lambda fr: score(u0, fr))
+    x0 = np.concatenate([u0, [0.0]])
+    minimize(lambda x: -score(x[:-1], top * np.exp(x[-1])), x0, method="Nelder-Mead",
+             options=dict(opts, maxfev=60 * (m + 1), initial_simplex=simplex(x0, [SIMPLEX_STEP] * m + [0.5])))
+    # the sign at the start and at the smooth flank's direction
+    score(u0, None)
+    score(np.asarray(rec["smooth"][1].atom.features[0].u, float), None)
+    sharp, smooth = rec["sharp"][1], rec.get("smooth", (0.0, None))[1]
+    if smooth is None or (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale < dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
+        sharp = sharp if sharp.dchi2 >= s.dchi2 else s
+        if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
+            return sharp
+        # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
+        # calibration row on the same side, the one farthest from all of them (the largest margin relative to the
+        # load's RMS); the rows near zero load after the campaign are then on the side the rows around them suggest,
+        # not on the side a search happened to stop at
+        u_mm = _max_margin(V[rows], np.asarray(sharp.atom.features[0].u, float))
+        if u_mm is not None:
+            f, rms = feature(u_mm, None)
+            got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
+            if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
+                return got[0]
+        return sharp
+    fo = smooth.atom.features[0]
+    v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
+    inside = np.abs(np.tanh(v / fo.width)) < 0.5
+    if int(np.sum(inside)) < 3:
+        return sharp
+    return smooth
+
+
+def _max_margin(V: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    """The direction ``u'`` (unit norm) that puts every row of ``V`` ``(n, m)`` on the side ``u`` puts it on with the
+    largest margin ``min_i s_i V_i u'`` (``s = sign(V u)``; a hard-margin separation through the origin, solved as
+    ``min |w|^2`` subject to ``s_i V_i w >= 1``, SLSQP from ``u``); None when that fails or ``V u`` has a zero."""
+    from scipy.optimize import minimize
+
+    sgn = np.sign(V @ u)
+    if not np.all(sgn != 0):
+        return None
+    A = sgn[:, None] * V
+    w0 = u / max(float(np.min(A @ u)), 1e-12)
+    res = minimize(lambda w: float(w @ w), w0, jac=lambda w: 2 * w, method="SLSQP",
+                   constraints=[{"type": "ineq", "fun": lambda w: A @ w - 1.0, "jac": lambda w: A}],
+                   options={"maxiter": 200, "ftol": 1e-10})
+    w = res.x
+    if not np.all(np.isfinite(w)) or np.any(A @ w <= 0):
+        return None
+    return w / np.linalg.norm(w)
 
 
 LOAD_DIRECTIONS = 300  # directions in the span of a joint's leading torque shapes whose sign is tried (then refined)
@@ -140,6 +308,10 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     for j in range(1, N + 1):
         if masses:
             feats = [LoadSign(f=Torque(j=j, h=1.0))]
+            if np.ptp(tau[:, j - 1]) > 1e-9 * max(1.0, float(np.max(np.abs(tau[:, j - 1])))):
+                # the stated load known: its compliance stiffening with it (without masses, from a kept linear
+                # compliance's fitted torque: the selection's rounds add them)
+                atoms += stiffening_atoms(model, ctx, j, Torque(j=j, h=1.0))
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
@@ -195,7 +367,7 @@ def _counterparts(a, pool: list) -> list:
     base's moment follow the same mass moments)."""
     kinds = {f.kind for f in a.features}
     if a.family == "backlash":
-        want = "loadsign" if kinds <= {"sign", "play"} else "sign"
+        want = "loadsign" if kinds <= {"sign", "play", "lastmove"} else "sign"
         return [c for c in pool if c.family == "backlash" and c.target == a.target
                 and {f.kind for f in c.features} == {want}]
     if a.family == "compliance" and a.pool == "catalogue" and kinds == {"gravmix"}:

@@ -26,6 +26,9 @@ __all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
 
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
+# widths of the catalogue's backlash growing with the size of the joint's own last move (then refined): up to a
+# lag in proportion to moves of tens of degrees
+BACKLASH_MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0, 60.0)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
 MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of their own
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
@@ -148,6 +151,15 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
     for j in range(1, N + 1):
         atoms.append(Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
                           f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        for w, law in ((w, law) for law in (None, "clip") for w in BACKLASH_MOVE_WIDTHS_DEG):
+            # a backlash whose size follows the size of the last move (the gear taken up by a short move only part
+            # of the way, or wound up in proportion to it): signed by the last move, saturating smoothly
+            # (tanh(move / w)) or in proportion up to w (clip(move / w, -1, 1)), the width refined when kept;
+            # w -> 0 is the sign backlash
+            unit, scale = ("deg", RAD_PER_DEG) if revolute[j - 1] else ("mm", M_PER_MM)
+            ch = f"{'tanh' if law is None else 'clip'}(last move j{j} / {w:.3g} {unit})"
+            atoms.append(Atom("backlash", "joint", f"theta{j}", (LastMove(j=j, w=w * scale, law=law),), ch,
+                              f"joint {jw(j)} backlash growing with the size of its last move ({ch})", "catalogue", (j,)))
         if revolute[j - 1]:
             for k in harmonic_orders:
                 atoms.append(Atom("cyclic", "joint", f"theta{j}",

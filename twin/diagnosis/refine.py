@@ -57,6 +57,26 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
     come back as they are."""
     kinds = {f.kind for f in s.atom.features}
+    if kinds == {"lastmove"} and s.atom.family == "backlash":
+        # a backlash growing with the size of the last move: each law (saturating smoothly, or in proportion up to a
+        # size) at its own best width; the one that explains more
+        twin = score_atoms(prob, fit, [_with_other_law(s.atom)], pool_sizes, exact_top=1)
+        return max([_refine_constant(prob, fit, c, pool_sizes) for c in [s] + twin], key=lambda t: t.dchi2)
+    return _refine_constant(prob, fit, s, pool_sizes)
+
+
+def _with_other_law(atom: Atom) -> Atom:
+    """A backlash growing with the size of the last move (``lastmove`` features) with the other law: ``tanh`` <->
+    ``clip``; channel and label to match."""
+    f = atom.features[0]
+    old, new = ("tanh(", "clip(") if f.law is None else ("clip(", "tanh(")
+    return replace_atom(atom, features=tuple(replace_atom(g, law=None if g.law else "clip") for g in atom.features),
+                        channel=atom.channel.replace(old, new), label=atom.label.replace(old, new))
+
+
+def _refine_constant(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """:func:`refine` of one atom (its law as given)."""
+    kinds = {f.kind for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
     if kinds == {"hinge"}:

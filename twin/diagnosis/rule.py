@@ -22,7 +22,7 @@ from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
-from .loads import load_alternatives, refine_load_sign, tilt_angles
+from .loads import fitted_load, load_alternatives, refine_load_sign, stiffening_atoms, tilt_angles
 from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
@@ -184,6 +184,13 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.entry_chi2[accepted.atom.key] = accepted.dchi2
         fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
         update_gross(prob, fit)
+        if accepted.atom.family == "compliance":
+            # a linear compliance of unknown masses fitted its torque: its stiffening with that torque joins the pool
+            load = fitted_load(fit, accepted.atom, accepted.basis, len(chosen) - 1)
+            if load is not None:
+                have = {a.key for a in pool}
+                pool = pool + [a for a in stiffening_atoms(prob.prep.nominal, prob.ctx, int(accepted.atom.target[5:]),
+                                                           load) if a.key not in have]
         if any(isinstance(f, Play) for f in accepted.atom.features):
             # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
             # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
