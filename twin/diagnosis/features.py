@@ -298,24 +298,30 @@ class Torque(Feature):
 @dataclass(**_FROZEN)
 class Moment(Feature):
     """Component ``axis`` of the gravity moment [N m] of what joint ``j`` carries (``j = 0``: the base), in its frame,
-    over ``h`` (1 when absent)."""
+    over ``h`` (1 when absent). In a tilt it turns the pivot about its ``about`` axis (``axis`` when absent: a
+    compliance per axis; the other: the cross term of a compliance whose principal axes are turned), with the
+    coefficient of ``shape`` (its own when absent)."""
 
     kind: ClassVar[str] = "moment"
     j: int
     axis: int
     h: float | None = None
+    about: int | None = None
+    shape: int | None = None
 
 
 @dataclass(**_FROZEN)
 class BaseMoment(Feature):
     """The arm's gravity moment about the base's horizontal axis ``axis`` as the combination ``w`` of the links'
-    unknown mass moments (principal shape ``shape``), over ``h`` (1 when absent)."""
+    unknown mass moments (principal shape ``shape``: the coefficient it shares), over ``h`` (1 when absent); in a
+    tilt it turns the base about its ``about`` axis (``axis`` when absent)."""
 
     kind: ClassVar[str] = "basemoment"
     axis: int
     shape: int
     w: tuple[float, ...]
     h: float | None = None
+    about: int | None = None
 
 
 @dataclass(**_FROZEN)

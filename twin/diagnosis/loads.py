@@ -33,7 +33,7 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..kinematics import RobotModel
-from .atoms import Atom, joint_words
+from .atoms import Atom, joint_words, tilt_axis, tilt_coefficient
 from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
 from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
@@ -231,7 +231,10 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
              options=dict(opts, maxfev=60 * (m + 1), initial_simplex=simplex(x0, [SIMPLEX_STEP] * m + [0.5])))
     # the sign at the start and at the smooth flank's direction
     score(u0, None)
-    score(np.asarray(rec["smooth"][1].atom.features[0].u, float), None)
+    if "smooth" in rec:
+        score(np.asarray(rec["smooth"][1].atom.features[0].u, float), None)
+    if "sharp" not in rec:
+        return s  # no law of this load scores against the fit (its columns lie within the model's)
     sharp, smooth = rec["sharp"][1], rec.get("smooth", (0.0, None))[1]
     if smooth is None or (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale < dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
         sharp = sharp if sharp.dchi2 >= s.dchi2 else s
@@ -346,6 +349,20 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
             atoms.append(Atom("tilt", "param", "tilt0", tuple(feats), "gravity moment carried by the base (shapes)",
                               "the robot's base tilting about its horizontal axes under the arm's gravity moment "
                               "(base compliance; the moment's shapes from unknown link masses)", "catalogue"))
+            # a base stiffer about one horizontal axis than the other (principal axes anywhere): the compliance
+            # c I + d1 diag(1, -1) + d2 [[0, 1], [1, 0]]; its anisotropic part acts on the leading shape of the moment
+            # (the arm's reach), two coefficients beside the shapes' own
+            w0, h0 = feats[0].w, feats[0].h
+            neg = tuple(-x for x in w0)
+            aniso = (BaseMoment(axis=0, shape=len(feats) // 2, w=w0, h=h0, about=0),
+                     BaseMoment(axis=1, shape=len(feats) // 2, w=neg, h=h0, about=1),
+                     BaseMoment(axis=1, shape=len(feats) // 2 + 1, w=w0, h=h0, about=0),
+                     BaseMoment(axis=0, shape=len(feats) // 2 + 1, w=w0, h=h0, about=1))
+            atoms.append(Atom("tilt", "param", "tilt0", tuple(feats) + aniso,
+                              "gravity moment carried by the base (shapes), axes turned",
+                              "the robot's base tilting about its horizontal axes under the arm's gravity moment, stiffer "
+                              "about one axis than the other (base compliance per axis; the moment's shapes from unknown "
+                              "link masses)", "catalogue"))
     return atoms
 
 
@@ -354,7 +371,7 @@ def tilt_angles(features, F: np.ndarray, phi: np.ndarray) -> np.ndarray:
     the pivot about its ``axis``), values ``F`` ``(n, K)`` and coefficients ``phi`` ``(K,)``."""
     out = np.zeros((F.shape[0], 2))
     for k, f in enumerate(features):
-        out[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
+        out[:, tilt_axis(f, k)] += F[:, k] * phi[tilt_coefficient(f, k)]
     return out
 
 

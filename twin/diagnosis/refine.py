@@ -12,15 +12,16 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
+                    joint_words, play_backlash)
 from .extend import reduced_basis
-from .features import Feature, Pow, Step
+from .features import Feature, Pow, Step, StepIn
 from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "refine", "polish_in_fit", "widen"]
+__all__ = ["prefer_play", "prefer_sign", "refine", "polish_in_fit", "widen"]
 
 
 def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
@@ -45,6 +46,47 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
             f_play = prob.features(top.atom)[prob.rows_cal, 0]
             better = int(np.sum(np.abs(np.abs(f_play) - np.abs(f_sign)) > 0.5)) >= 3
         out.append(top if better else s)
+    return out
+
+
+def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """The backlashes growing with the size of the last move (``lastmove``) of a joint left out of ``scored`` where a
+    simpler reading explains nearly as much: the joint's sign (or play) backlash, scored beside them, or the step
+    into the row in proportion (a joint still settling from the move it just made: the same numbers wherever the
+    joint moves into every row; it differs from the last move only on the rows that did not move). The size of the
+    move must add evidence beyond ``chi2_1`` at 1 % / the number of laws and widths tried
+    (``BACKLASH_MOVE_WIDTHS_DEG``, ``BACKLASH_MOVE_LAWS``) over each. Both backlashes are the one backlash of the
+    joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign."""
+    sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
+    if not sizes:
+        return scored
+    rival: dict[str, float] = {}
+    for s in scored:
+        if s.atom.family == "backlash" and {f.kind for f in s.atom.features} <= {"sign", "play"}:
+            rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+    targets = sorted({s.atom.target for s in sizes})
+    steps = [Atom("unnamed", "joint", t, (StepIn(j=int(t[5:])),), f"step into the row j{t[5:]}",
+                  f"unnamed: joint {t[5:]} angle varies with step into the row j{t[5:]}", "generic", (int(t[5:]),))
+             for t in targets]
+    for s in score_atoms(prob, fit, steps, pool_sizes, exact_top=len(steps)):
+        rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+    bar = dists.chi2_isf(0.01 / (len(BACKLASH_MOVE_WIDTHS_DEG) * len(BACKLASH_MOVE_LAWS)), 1) * prob.evidence_scale
+    keep: dict[str, Scored] = {}
+    for t in targets:
+        top = max((s for s in sizes if s.atom.target == t), key=lambda s: s.dchi2)
+        if top.logp_adj >= np.log(0.01):
+            continue  # not significant: it competes as scored (it will not be tried)
+        # at its best law and width, not the grid's (the linear step is the wide limit of both laws)
+        top = refine(prob, fit, top, pool_sizes)
+        if top.dchi2 - rival.get(t, -np.inf) >= bar:
+            keep[t] = top
+    out = []
+    for s in scored:
+        if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove":
+            if s.atom.target in keep:
+                out.append(keep.pop(s.atom.target))  # the refined one, in the place of the joint's grid atoms
+            continue
+        out.append(s)
     return out
 
 

@@ -27,7 +27,7 @@ from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, update_gross
-from .refine import polish_in_fit, prefer_play, refine, widen
+from .refine import polish_in_fit, prefer_play, prefer_sign, refine, widen
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf
 
@@ -107,7 +107,7 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
     confirmation rows and of a physical size is accepted."""
-    scored = prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes)
+    scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
