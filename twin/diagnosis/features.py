@@ -336,12 +336,14 @@ class GravityDir(Feature):
 class LoadSign(Feature):
     """The sign of the gravity load feature ``f`` (a :class:`Torque` or a :class:`GravMix`); ``u``: the direction
     in the span of the joint's torque shapes it was built from (refined when kept); ``width``: a smooth flank,
-    ``tanh(f / width)`` instead of the sign (``width`` in the unit of ``f``'s values)."""
+    ``tanh(f / width)`` instead of the sign (``width`` in the unit of ``f``'s values); ``law`` ``"clip"``:
+    ``clip(f / width, -1, 1)`` instead (in proportion up to the width, constant beyond)."""
 
     kind: ClassVar[str] = "loadsign"
     f: Feature
     u: tuple[float, ...] | None = None
     width: float | None = None
+    law: str | None = None
 
 
 # ------------------------------------------------------------------------------------------------

@@ -43,7 +43,7 @@ from .values import feature_values
 
 __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
            "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH",
-           "STIFFENING_GRID", "law_atom", "stiffening_atoms", "fitted_load",
+           "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom",
            "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
@@ -83,10 +83,15 @@ def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = N
 # a smooth flank's widths tried, as fractions of the load's RMS over the rows (beyond STIFFENING_WIDTH: a stiffening)
 FLANK_WIDTHS = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 STIFFENING_GRID = (0.7, 1.5, 3.0)  # widths (fractions of the load's RMS) of the stiffening compliance atoms
+# the stiffening's laws: saturating smoothly (tanh of the load over the width), or two stiffnesses (in proportion to
+# the load up to the width, stiffer beyond: clip)
+STIFFENING_LAWS = (None, "clip")
 REFINE_SHAPES = 5  # a joint's leading torque shapes the direction of a kept load-signed backlash is refined in
 # [fraction of the load's RMS] a load law taken up over a wider width than this is the joint's stiffness rising with
-# its load (a compliance), over a narrower one a gear's flank changing sides (a backlash)
-STIFFENING_WIDTH = 0.5
+# its load (a compliance), over a narrower one a gear's flank changing sides (a backlash: the flank changes while the
+# load crosses zero, within the joint's friction, a fraction of its load)
+STIFFENING_WIDTH = 1.0 / 3.0
+STATED_SPREAD = 0.1  # the stated masses' error, as a share of the generic prior's spread of the torque shapes
 SIMPLEX_STEP = 0.1  # the refinement's first steps along each direction (each of unit RMS over the rows)
 
 
@@ -102,12 +107,13 @@ def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
         return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u}",
                             label=f"joint {jw} backlash (offset signed by its gravity load)")
     rel = f.width / rms
-    law = f"tanh(load / {f.width:.3g} N m)" if isinstance(f.f, Torque) else f"tanh(load / {rel:.3g} of its RMS)"
+    fn = "tanh" if f.law is None else f.law
+    law = f"{fn}(load / {f.width:.3g} N m)" if isinstance(f.f, Torque) else f"{fn}(load / {rel:.3g} of its RMS)"
     if rel <= STIFFENING_WIDTH:
-        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u} tanh width {rel:.3g} rms",
+        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u} {fn} width {rel:.3g} rms",
                             label=f"joint {jw} backlash (offset signed by its gravity load, its flank taken up "
                                   f"smoothly: {law})")
-    return replace_atom(atom, family="compliance", features=(f,), channel=f"stiffening_j{j}{u} tanh width {rel:.3g} rms",
+    return replace_atom(atom, family="compliance", features=(f,), channel=f"stiffening_j{j}{u} {fn} width {rel:.3g} rms",
                         label=f"joint {jw} compliance under gravity, stiffening with the load (its deflection follows "
                               f"{law})")
 
@@ -115,14 +121,57 @@ def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
 def stiffening_atoms(model: RobotModel, ctx: RowContext, j: int, load) -> list[Atom]:
     """Joint ``j``'s compliance stiffening with its gravity load ``load`` (a :class:`Torque` of the stated masses, or a
     :class:`GravMix` combination of its torque shapes: a linear compliance's fitted torque): ``tanh(load / w)`` for
-    ``w`` in ``STIFFENING_GRID`` of the load's RMS over the rows (refined when kept, :func:`refine_load_sign`). Softer
-    near zero load than under a large one: a harmonic drive's first stiffness, a gear's teeth coming into contact."""
+    ``w`` in ``STIFFENING_GRID`` of the load's RMS over the rows, and ``clip(load / w, -1, 1)`` (two stiffnesses, the
+    change at ``w``), refined when kept (:func:`refine_load_sign`). Softer near zero load than under a large one: a
+    harmonic drive's first stiffness, a gear's teeth coming into contact."""
     v = feature_values((load,), ctx, model)[:, 0]
     rms = float(np.sqrt(np.mean(v ** 2)))
     if not rms > 0:
         return []
     base = Atom("compliance", "joint", f"theta{j}", (), "", "", "catalogue", (j,))
-    return [law_atom(model, base, LoadSign(f=load, width=float(fr * rms)), rms) for fr in STIFFENING_GRID]
+    return [law_atom(model, base, LoadSign(f=load, width=float(fr * rms), law=law), rms)
+            for law in STIFFENING_LAWS for fr in STIFFENING_GRID]
+
+
+def own_link_atom(model: RobotModel, q: np.ndarray, j: int) -> Atom | None:
+    """Joint ``j``'s compliance under the weight of the link it moves itself (its first mass moment ``m_j c_j``: the
+    regressor's columns of link ``j``, the mass itself lying on the axis), the directions they span over the rows as
+    ``gravmix`` features: a heavy upper arm whose centre of mass lies far along it, which the torque shapes of the
+    generic prior (centres of mass ~0.1 m off each frame) carry only in part. None when they carry no torque."""
+    Y = gravity_torque_regressor(model, q)
+    cols = tuple((j, c) for c in (1, 2, 3))
+    M = np.stack([Y[:, j - 1, j - 1, c] for _, c in cols], axis=1)
+    if not np.any(np.abs(M) > 1e-9):
+        return None
+    _, sv, Vt = np.linalg.svd(M, full_matrices=False)
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    feats = tuple(GravMix(i=j, cols=cols, w=tuple(Vt[k].tolist()), h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
+    return Atom("compliance", "joint", f"theta{j}", feats, f"gravity torque of link {j} on joint {j}",
+                f"joint {joint_words(model, j)} compliance under gravity, the weight of the link it moves", "catalogue",
+                (j,))
+
+
+def link_tilt_atom(model: RobotModel, q: np.ndarray, k: int) -> Atom | None:
+    """The base tilting under the gravity moment of link ``k``'s first mass moment (``m_k c_k``: a heavy upper arm
+    whose centre of mass lies far along it, which the moment's shapes under the generic prior carry only in part), as
+    :func:`load_atoms`' tilt: each shape a pair of ``basemoment`` features (both axes, one coefficient); without the
+    chain's masses only. None when that moment does not vary."""
+    if has_masses(model):
+        return None
+    Y = base_moment_regressor(model, q)
+    n, N = len(q), model.n_joints
+    sel = np.zeros((N, 4))
+    sel[k - 1, 1:] = 1.0
+    M = np.concatenate([(Y[:, 0] * sel).reshape(n, -1), (Y[:, 1] * sel).reshape(n, -1)])
+    if not np.any(np.abs(M) > 1e-9):
+        return None
+    _, sv, Vt = np.linalg.svd(M, full_matrices=False)
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    feats = tuple(BaseMoment(axis=a, shape=r, w=tuple(Vt[r].tolist()), h=float(sv[r] / np.sqrt(n)))
+                  for r in range(rk) for a in (0, 1))
+    return Atom("tilt", "param", "tilt0", feats, f"gravity moment of link {k} carried by the base",
+                f"the robot's base tilting about its horizontal axes under the weight of link {k} (base compliance; "
+                "the link's own first mass moment)", "catalogue")
 
 
 def fitted_load(fit, atom: Atom, B: np.ndarray, k: int) -> GravMix | None:
@@ -185,7 +234,11 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     basis = [f for f, k in zip(basis, ok) if k]
     W = np.array([np.asarray(f.w, float) / sc for f, sc in zip(basis, scale[ok])])  # each unit RMS over the rows
     V = V[:, ok] / scale[ok]
+    # each direction's prior scale (in its unit-RMS coordinate): a torque shape's under the generic prior, relative to
+    # the leading one; beside the stated masses' torque, their error spread like those shapes (STATED_SPREAD of it)
+    prior = np.array(([1.0] if stated else []) + [f.h / shapes[0].h for f in shapes])[ok]
     if stated:
+        prior[1:] *= STATED_SPREAD
         u0 = np.zeros(len(basis))
         u0[0] = 1.0
     else:
@@ -200,7 +253,8 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
         v = V @ u
         rms = float(np.sqrt(np.mean(v[rows] ** 2)))
         mix = GravMix(i=i, cols=cols, w=tuple((u @ W).tolist()), h=1.0)
-        return LoadSign(f=mix, u=tuple(float(x) for x in u), width=None if frac is None else float(frac * rms)), rms
+        return LoadSign(f=mix, u=tuple(float(x) for x in u), width=None if frac is None else float(frac * rms),
+                        law=None if frac is None else f0.law), rms
 
     def score(u, frac):
         f, rms = feature(u, frac)
@@ -241,10 +295,12 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
         if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
             return sharp
         # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
-        # calibration row on the same side, the one farthest from all of them (the largest margin relative to the
-        # load's RMS); the rows near zero load after the campaign are then on the side the rows around them suggest,
-        # not on the side a search happened to stop at
-        u_mm = _max_margin(V[rows], np.asarray(sharp.atom.features[0].u, float))
+        # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
+        # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
+        # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
+        # side a search happened to stop at
+        u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
+        u_mm = None if u_mm is None else u_mm * prior
         if u_mm is not None:
             f, rms = feature(u_mm, None)
             got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)

@@ -396,7 +396,14 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             # masses' torque, or a combination of the gravity-torque shapes when the masses are unknown), or a
             # smooth flank taken up over a width of the load
             v = feature_values((f.f,), ctx, model, cache)[:, 0]
-            out[:, k] = np.sign(v) if f.width is None else np.tanh(v / f.width)
+            if f.width is None:
+                out[:, k] = np.sign(v)
+            elif f.law is None:
+                out[:, k] = np.tanh(v / f.width)
+            elif f.law == "clip":
+                out[:, k] = np.clip(v / f.width, -1.0, 1.0)
+            else:
+                raise ValueError(f"unknown law {f.law!r} of a loadsign feature (known: tanh when absent, 'clip')")
         elif isinstance(f, Hinge):
             # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
             out[:, k] = (np.clip(f.side * (channel(ctx, f.ch) - f.at), 0.0, None) / f.h) ** f.p
