@@ -107,17 +107,30 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted."""
+    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
-    for s in order_candidates(scored)[:tries]:
+    order = order_candidates(scored)
+    first = order[:tries]
+    # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
+    # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
+    # from being tried at all
+    seen = {c.atom.pool for c in first}
+    more = []
+    for c in order[tries:]:
+        if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
+            seen.add(c.atom.pool)
+            more.append(c)
+    for k, s in enumerate(first + more):
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
-            break
+            if k < len(first):
+                break
+            continue
         c = confirm(prob, fit, s, z_min)
         if c.local and time_only(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
