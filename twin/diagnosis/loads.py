@@ -99,7 +99,7 @@ def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
     """A law of joint ``atom.target``'s gravity load with the feature ``f`` (its load, direction and width as set;
     ``rms``: the RMS of the load over the rows, the width's unit): a backlash (offset signed by the load) when the
     law changes sides sharply or within ``STIFFENING_WIDTH`` of the load's RMS, else a compliance stiffening with the
-    load; channel and label to match, pool as ``atom``'s."""
+    load (the law and the load itself: two coefficients); channel and label to match, pool as ``atom``'s."""
     j = int(atom.target[5:])
     jw = joint_words(model, j)
     u = "" if f.u is None else f" ({', '.join(f'{x:+.3f}' for x in f.u)})"
@@ -113,7 +113,10 @@ def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
         return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u} {fn} width {rel:.3g} rms",
                             label=f"joint {jw} backlash (offset signed by its gravity load, its flank taken up "
                                   f"smoothly: {law})")
-    return replace_atom(atom, family="compliance", features=(f,), channel=f"stiffening_j{j}{u} {fn} width {rel:.3g} rms",
+    # the law with its load in proportion beside it (the stiffness beyond the change): the law alone would read a
+    # linear compliance wherever the load stays within the width, and stand in for one
+    return replace_atom(atom, family="compliance", features=(f, f.f),
+                        channel=f"stiffening_j{j}{u} {fn} width {rel:.3g} rms",
                         label=f"joint {jw} compliance under gravity, stiffening with the load (its deflection follows "
                               f"{law})")
 
@@ -174,17 +177,29 @@ def link_tilt_atom(model: RobotModel, q: np.ndarray, k: int) -> Atom | None:
                 "the link's own first mass moment)", "catalogue")
 
 
-def fitted_load(fit, atom: Atom, B: np.ndarray, k: int) -> GravMix | None:
-    """The torque a kept linear compliance ``atom`` (its torque shapes, ``gravmix`` features, reduced basis ``B``, the
-    ``k``-th term of ``fit``) fitted: its coefficients' combination of the shapes as one ``gravmix`` feature."""
-    if not atom.features or not all(isinstance(f, GravMix) for f in atom.features):
+def fitted_load(fit, j: int) -> GravMix | None:
+    """Joint ``j``'s torque as the kept linear compliances of the joint fitted it (``fit``'s atoms of the joint whose
+    features are ``gravmix`` shapes: the leading shapes, their further shapes, the weight of the link it moves): their
+    coefficients' combination as one ``gravmix`` feature over the leading shapes' regressor columns. None unless the
+    leading shapes are kept (the joint's load is theirs; a part of it is no load a law follows)."""
+    main = f"gravity torque of joint {j}"
+    kept = [(k, a, B) for k, (a, B) in enumerate(fit.chosen) if a.family == "compliance" and a.target == f"theta{j}"
+            and a.features and all(isinstance(f, GravMix) for f in a.features)]
+    lead = [a for _, a, _ in kept if a.channel == main]
+    if not lead:
         return None
-    phi = B @ fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
-    f0 = atom.features[0]
-    if any(f.cols != f0.cols for f in atom.features) or not np.any(phi):
+    cols = lead[0].features[0].cols
+    at = {c: n for n, c in enumerate(cols)}
+    w = np.zeros(len(cols))
+    for k, a, B in kept:
+        phi = B @ fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+        for p, f in zip(phi, a.features):
+            for c, x in zip(f.cols, f.w):
+                if tuple(c) in at:
+                    w[at[tuple(c)]] += p * x / f.h
+    if not np.any(w):
         return None
-    w = sum(p * np.asarray(f.w, float) / f.h for p, f in zip(phi, atom.features))
-    return GravMix(i=f0.i, cols=f0.cols, w=tuple(w.tolist()), h=1.0)
+    return GravMix(i=j, cols=cols, w=tuple(w.tolist()), h=1.0)
 
 
 def stated_load_mix(model: RobotModel, i: int, cols: tuple) -> GravMix | None:

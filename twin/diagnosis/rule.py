@@ -23,7 +23,7 @@ from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, refine_load_sign, stiffening_atoms,
-                    tilt_angles, torque_shapes)
+                    tilt_angles)
 from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
@@ -200,7 +200,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         update_gross(prob, fit)
         if accepted.atom.family == "compliance":
             # a linear compliance of unknown masses fitted its torque: its stiffening with that torque joins the pool
-            load = fitted_load(fit, accepted.atom, accepted.basis, len(chosen) - 1)
+            load = fitted_load(fit, int(accepted.atom.target[5:]))
             if load is not None:
                 have = {a.key for a in pool}
                 pool = pool + [a for a in stiffening_atoms(prob.prep.nominal, prob.ctx, int(accepted.atom.target[5:]),
@@ -487,16 +487,15 @@ def _load_candidates(prob: Problem, fit: Fit, pool: list[Atom], targets: set[str
         own = own_link_atom(model, prob.ctx.q, int(t[5:]))
         if own is not None and own.key not in have:
             out.append(own)
-    for k, (a, B) in enumerate(fit.chosen):
-        if a.family == "compliance" and a.target in targets:
-            load = fitted_load(fit, a, B, k)
-            if load is not None:
-                out += [c for c in stiffening_atoms(model, prob.ctx, int(a.target[5:]), load) if c.key not in have]
+    for t in sorted(targets):
+        load = fitted_load(fit, int(t[5:]))
+        if load is not None:
+            out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
     return out
 
 
 def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
-                  z_min: float) -> tuple[Fit, list[str], list[dict]]:  # noqa: C901
+                  z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """No extra term where the load family explains the rows. Where a term of the arm's own load is kept (a joint's
     compliance, a backlash signed by the load, the base's tilt) beside harmonics, a ratio or unnamed functions acting
     on the same joint (for the tilt: the shoulder's and the elbow's, whose torques follow the base's moment), those
@@ -511,28 +510,18 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
     P = prob.prep.space.size
     done: set[frozenset] = set()
     N = prob.prep.nominal.n_joints
-    # the kept load terms, then each joint carrying a varying gravity torque whose angle only terms outside the
-    # family follow (a nonlinear law of its load taken by a quadratic and a pull past an angle)
-    anchors = [a for a, _ in fit.chosen if _load_term(a)]
-    loaded = {a.target for a in anchors if a.place == "joint"}
-    anchors += [f"theta{j}" for j in range(2, N + 1) if f"theta{j}" not in loaded
-                and torque_shapes(prob.prep.nominal, prob.ctx.q, j, 1)]
-    for a in anchors:
-        if isinstance(a, str):
-            targets = {a}
-        elif a not in [c for c, _ in fit.chosen]:
+    for a in [a for a, _ in fit.chosen if _load_term(a)]:
+        if a not in [c for c, _ in fit.chosen]:
             continue
-        elif a.place == "joint":
+        if a.place == "joint":
             targets = {a.target}
         else:
             # a support's tilt: the joints about whose axes it turns (the base's: the shoulder's and the elbow's,
             # whose torques follow its moment)
             i = int(a.target[4:])
             targets = {"theta2", "theta3"} if i == 0 else {f"theta{j}" for j in (i - 1, i, i + 1) if 1 <= j <= N}
-        # beside a load term: harmonics, ratios and unnamed functions; at a joint no load term holds, the unnamed
-        # ones only (a harmonic named alone is its own family)
         others = [c for c, _ in fit.chosen if c.place == "joint" and c.target in targets and not is_change(c)
-                  and (c.pool == "generic" or (not isinstance(a, str) and c.family in ("cyclic", "gear_ratio")))]
+                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
         tag = frozenset(c.key for c in others)
         if not others or tag in done:
             continue
@@ -540,13 +529,13 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
         keep = [(c, B) for c, B in fit.chosen if c not in others]
         cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
         e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        if not isinstance(a, str) and error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
+        if error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
             rounds = 0  # the load term alone predicts as well: nothing in their place
         else:
             rounds = len(others) + 1
         for _ in range(rounds):
             have = {c.key for c, _ in cur.chosen}
-            if not isinstance(a, str) and a.family == "tilt":
+            if a.family == "tilt":
                 # a tilt's own terms: its shapes, and the weight of the shoulder's and the elbow's links
                 cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
                 cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
@@ -571,16 +560,12 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
         alt, _ = backward(prob, cur, alpha_select, sizes)
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
-        if isinstance(a, str) and not any(_load_term(c) for c in new):
-            continue  # nothing of the family holds the joint: its terms stay
         if e_alt <= 1.02 * e_now:
-            beside = f" beside '{a.label}'" if not isinstance(a, str) else ""
             notes.append(f"{'; '.join(repr(c.label) for c in others)} replaced by the load family's terms of "
-                         f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}){beside}: they "
-                         f"predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
-            of = new[0].label if isinstance(a, str) else a.label
+                         f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}) beside "
+                         f"'{a.label}': they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
             for o in others:
-                alts.append({"of": of, "alternative": o.label, "family": o.family, "channel": o.channel,
+                alts.append({"of": a.label, "alternative": o.label, "family": o.family, "channel": o.channel,
                              "target": o.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
                              "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
             fit = alt
