@@ -195,13 +195,10 @@ def test_the_size_is_the_drawn_ratio_to_the_noise():
 SEEDS = (100, 101)
 # instances the current diagnosis fails: (family, seed) -> what was measured (the instance in brackets)
 KNOWN_MISSES: dict[tuple[str, int], str] = {
-    ('compliance', 101): "named ['compliance', 'backlash', 'cyclic'] not ['compliance']; report after/oracle 1.91 > 1.2; later rows after/oracle 1.47 > 1.2 (joints 2, two_stiffness)",
+    ('compliance', 101): 'later rows after/oracle 1.22 > 1.2 (joints 2, two_stiffness)',
     ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
     ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
-    ('backlash_load', 101): 'later rows after/oracle 2.30 > 1.2 (joint 2, sharp)',
-    ('backlash_size', 100): "named [] not ['backlash']; report after/oracle 1.24 > 1.2; later rows after/oracle 1.99 > 1.2 (joint 1, proportional 39 deg)",
-    ('backlash_size', 101): "named [] not ['backlash'] (joint 2, saturating 21 deg)",
-    ('tilt', 101): "named ['compliance'] not ['tilt']; report after/oracle 1.20 > 1.2 (anisotropy 1.53 at 161 deg)",
+    ('backlash_load', 101): 'later rows after/oracle 2.31 > 1.2 (joint 2, sharp)',
     ('thermal', 100): 'report after/oracle 2.11 > 1.2; later rows after/oracle 1.65 > 1.2 (step +5.9 K at 0.15 span, lag 0.09 span, all links, t_s only)',
     ('zero_glitch', 101): 'no change, not one window of theta5 at row 57-109; report after/oracle 1.98 > 1.5 (joint 5 rows 57-109/140)',
     ('frame_change', 101): 'report after/oracle 4.68 > 1.5 (slip at row 105/128)',

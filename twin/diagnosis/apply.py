@@ -23,7 +23,7 @@ from ..estimator.problem import ParamSpace, predict_points
 from ..estimator.register import prediction_errors, register, select_rows, session_residuals
 from ..transforms import kabsch, matrix_to_rotvec
 from ..units import M_PER_MM
-from .atoms import Atom
+from .atoms import Atom, tilt_axis, tilt_coefficient
 from .values import feature_values, history_unknown
 from .candidates import RowContext
 from .features import Station
@@ -155,7 +155,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             # (n, 2): each feature turns the pivot about its axis (one rotation axis per feature)
             dx = np.zeros((n, 2))
             for k, f in enumerate(a.features):
-                dx[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
+                dx[:, tilt_axis(f, k)] += F[:, k] * phi[tilt_coefficient(f, k)]
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)

@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 
 from ..units import DEG_PER_RAD, MM_PER_M, M_PER_MM, MRAD_PER_RAD, RAD_PER_DEG
-from .atoms import Atom
+from .atoms import Atom, tilt_axis, tilt_coefficient
 from .values import with_records
 from .changes import is_change
 from .extend import ExtendedModel
-from .features import Cos, Pow, Sin, feature_from_dict
+from .features import BaseMoment, Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
 from .problem import Fit, Problem, covariance
 
@@ -129,11 +129,17 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         elif a.place == "param" and a.target.startswith("tilt"):
             tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
-            axes = [("xyz"[f.axis]) for f in a.features]
+            # each coefficient by the axes it couples: "x" (the moment about x turning the pivot about x), "xy" (the
+            # cross term of a compliance whose principal axes are turned)
+            axes_of: dict[int, str] = {}
+            for k, f in enumerate(a.features):
+                ax, about = "xyz"[f.axis], "xyz"[tilt_axis(f, k)]
+                axes_of.setdefault(tilt_coefficient(f, k), ax if ax == about else "".join(sorted(ax + about)))
+            axes = [axes_of[c] for c in sorted(axes_of)]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
                     "compliance_mrad_per_nm": (phi * MRAD_PER_RAD).tolist(),
                     "compliance_sd_mrad_per_nm": (sd * MRAD_PER_RAD).tolist()}
-            if any(getattr(f, "shape", None) is not None for f in a.features):
+            if any(isinstance(f, BaseMoment) for f in a.features):
                 # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
                 words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
             else:

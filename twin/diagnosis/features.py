@@ -221,11 +221,13 @@ class Sign(Feature):
 @dataclass(**_FROZEN)
 class LastMove(Feature):
     """``tanh(last move of joint j / w)`` (``w`` [rad, or m on a prismatic joint]): hysteresis following the size of
-    the last move."""
+    the last move; ``law`` ``"clip"``: ``clip(last move / w, -1, 1)`` instead (in proportion to the move up to ``w``,
+    the full size beyond it)."""
 
     kind: ClassVar[str] = "lastmove"
     j: int
     w: float
+    law: str | None = None
 
 
 @dataclass(**_FROZEN)
@@ -296,24 +298,30 @@ class Torque(Feature):
 @dataclass(**_FROZEN)
 class Moment(Feature):
     """Component ``axis`` of the gravity moment [N m] of what joint ``j`` carries (``j = 0``: the base), in its frame,
-    over ``h`` (1 when absent)."""
+    over ``h`` (1 when absent). In a tilt it turns the pivot about its ``about`` axis (``axis`` when absent: a
+    compliance per axis; the other: the cross term of a compliance whose principal axes are turned), with the
+    coefficient of ``shape`` (its own when absent)."""
 
     kind: ClassVar[str] = "moment"
     j: int
     axis: int
     h: float | None = None
+    about: int | None = None
+    shape: int | None = None
 
 
 @dataclass(**_FROZEN)
 class BaseMoment(Feature):
     """The arm's gravity moment about the base's horizontal axis ``axis`` as the combination ``w`` of the links'
-    unknown mass moments (principal shape ``shape``), over ``h`` (1 when absent)."""
+    unknown mass moments (principal shape ``shape``: the coefficient it shares), over ``h`` (1 when absent); in a
+    tilt it turns the base about its ``about`` axis (``axis`` when absent)."""
 
     kind: ClassVar[str] = "basemoment"
     axis: int
     shape: int
     w: tuple[float, ...]
     h: float | None = None
+    about: int | None = None
 
 
 @dataclass(**_FROZEN)
@@ -327,11 +335,15 @@ class GravityDir(Feature):
 @dataclass(**_FROZEN)
 class LoadSign(Feature):
     """The sign of the gravity load feature ``f`` (a :class:`Torque` or a :class:`GravMix`); ``u``: the direction
-    in the span of the joint's torque shapes it was built from (refined when kept)."""
+    in the span of the joint's torque shapes it was built from (refined when kept); ``width``: a smooth flank,
+    ``tanh(f / width)`` instead of the sign (``width`` in the unit of ``f``'s values); ``law`` ``"clip"``:
+    ``clip(f / width, -1, 1)`` instead (in proportion up to the width, constant beyond)."""
 
     kind: ClassVar[str] = "loadsign"
     f: Feature
     u: tuple[float, ...] | None = None
+    width: float | None = None
+    law: str | None = None
 
 
 # ------------------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..kinematics import RobotModel
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import HINGE_POINTS, Atom, hinge_atom, joint_words
+from .atoms import BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, Atom, hinge_atom, joint_words
 from .candidates import RowContext, carried_moments, gravity_torque_regressor, gravity_torques, has_masses
 from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, Heat, Lag, LastMove, Moment, Pow,
                        Prod, Settle, Sign, Sin, Station, Step, StepIn, Torque)
@@ -145,9 +145,26 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             atoms.append(Atom("tilt", "param", f"tilt{i}", feats, f"gravity moment carried by {'the base' if i == 0 else f'joint {i}'}",
                               f"{where} under the gravity moment it carries (URDF masses)", "catalogue",
                               (i,) if i else ()))
+            # stiffer about one horizontal axis than the other, the principal axes turned anywhere: a symmetric
+            # compliance, its cross term turning the pivot about x with the moment about y and about y with x
+            cross = (Moment(j=i, axis=0, h=1.0, shape=0), Moment(j=i, axis=1, h=1.0, shape=1),
+                     Moment(j=i, axis=1, h=1.0, about=0, shape=2), Moment(j=i, axis=0, h=1.0, about=1, shape=2))
+            atoms.append(Atom("tilt", "param", f"tilt{i}", cross,
+                              f"gravity moment carried by {'the base' if i == 0 else f'joint {i}'}, axes turned",
+                              f"{where} under the gravity moment it carries, stiffer about one axis than the other "
+                              "(URDF masses)", "catalogue", (i,) if i else ()))
     for j in range(1, N + 1):
         atoms.append(Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
                           f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        for w, law in ((w, law) for law in BACKLASH_MOVE_LAWS for w in BACKLASH_MOVE_WIDTHS_DEG):
+            # a backlash whose size follows the size of the last move (the gear taken up by a short move only part
+            # of the way, or wound up in proportion to it): signed by the last move, saturating smoothly
+            # (tanh(move / w)) or in proportion up to w (clip(move / w, -1, 1)), the width refined when kept;
+            # w -> 0 is the sign backlash
+            unit, scale = ("deg", RAD_PER_DEG) if revolute[j - 1] else ("mm", M_PER_MM)
+            ch = f"{'tanh' if law is None else 'clip'}(last move j{j} / {w:.3g} {unit})"
+            atoms.append(Atom("backlash", "joint", f"theta{j}", (LastMove(j=j, w=w * scale, law=law),), ch,
+                              f"joint {jw(j)} backlash growing with the size of its last move ({ch})", "catalogue", (j,)))
         if revolute[j - 1]:
             for k in harmonic_orders:
                 atoms.append(Atom("cyclic", "joint", f"theta{j}",

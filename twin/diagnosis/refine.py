@@ -12,15 +12,16 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
+                    joint_words, play_backlash)
 from .extend import reduced_basis
-from .features import Feature, Pow, Step
+from .features import Feature, Pow, Step, StepIn
 from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "refine", "polish_in_fit", "widen"]
+__all__ = ["prefer_play", "prefer_sign", "refine", "polish_in_fit", "widen"]
 
 
 def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
@@ -48,6 +49,47 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     return out
 
 
+def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """The backlashes growing with the size of the last move (``lastmove``) of a joint left out of ``scored`` where a
+    simpler reading explains nearly as much: the joint's sign (or play) backlash, scored beside them, or the step
+    into the row in proportion (a joint still settling from the move it just made: the same numbers wherever the
+    joint moves into every row; it differs from the last move only on the rows that did not move). The size of the
+    move must add evidence beyond ``chi2_1`` at 1 % / the number of laws and widths tried
+    (``BACKLASH_MOVE_WIDTHS_DEG``, ``BACKLASH_MOVE_LAWS``) over each. Both backlashes are the one backlash of the
+    joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign."""
+    sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
+    if not sizes:
+        return scored
+    rival: dict[str, float] = {}
+    for s in scored:
+        if s.atom.family == "backlash" and {f.kind for f in s.atom.features} <= {"sign", "play"}:
+            rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+    targets = sorted({s.atom.target for s in sizes})
+    steps = [Atom("unnamed", "joint", t, (StepIn(j=int(t[5:])),), f"step into the row j{t[5:]}",
+                  f"unnamed: joint {t[5:]} angle varies with step into the row j{t[5:]}", "generic", (int(t[5:]),))
+             for t in targets]
+    for s in score_atoms(prob, fit, steps, pool_sizes, exact_top=len(steps)):
+        rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+    bar = dists.chi2_isf(0.01 / (len(BACKLASH_MOVE_WIDTHS_DEG) * len(BACKLASH_MOVE_LAWS)), 1) * prob.evidence_scale
+    keep: dict[str, Scored] = {}
+    for t in targets:
+        top = max((s for s in sizes if s.atom.target == t), key=lambda s: s.dchi2)
+        if top.logp_adj >= np.log(0.01):
+            continue  # not significant: it competes as scored (it will not be tried)
+        # at its best law and width, not the grid's (the linear step is the wide limit of both laws)
+        top = refine(prob, fit, top, pool_sizes)
+        if top.dchi2 - rival.get(t, -np.inf) >= bar:
+            keep[t] = top
+    out = []
+    for s in scored:
+        if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove":
+            if s.atom.target in keep:
+                out.append(keep.pop(s.atom.target))  # the refined one, in the place of the joint's grid atoms
+            continue
+        out.append(s)
+    return out
+
+
 def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
@@ -56,6 +98,26 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     evidence within the last grid step (bounded scalar search: a play's clearance must be right to a fraction of
     a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
     come back as they are."""
+    kinds = {f.kind for f in s.atom.features}
+    if kinds == {"lastmove"} and s.atom.family == "backlash":
+        # a backlash growing with the size of the last move: each law (saturating smoothly, or in proportion up to a
+        # size) at its own best width; the one that explains more
+        twin = score_atoms(prob, fit, [_with_other_law(s.atom)], pool_sizes, exact_top=1)
+        return max([_refine_constant(prob, fit, c, pool_sizes) for c in [s] + twin], key=lambda t: t.dchi2)
+    return _refine_constant(prob, fit, s, pool_sizes)
+
+
+def _with_other_law(atom: Atom) -> Atom:
+    """A backlash growing with the size of the last move (``lastmove`` features) with the other law: ``tanh`` <->
+    ``clip``; channel and label to match."""
+    f = atom.features[0]
+    old, new = ("tanh(", "clip(") if f.law is None else ("clip(", "tanh(")
+    return replace_atom(atom, features=tuple(replace_atom(g, law=None if g.law else "clip") for g in atom.features),
+                        channel=atom.channel.replace(old, new), label=atom.label.replace(old, new))
+
+
+def _refine_constant(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """:func:`refine` of one atom (its law as given)."""
     kinds = {f.kind for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)

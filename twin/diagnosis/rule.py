@@ -21,13 +21,14 @@ import numpy as np
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
-from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
-from .loads import load_alternatives, refine_load_sign, tilt_angles
+from .features import BaseMoment, Cos, LoadSign, Moment, Play, Pow, Sin, Torque
+from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, refine_load_sign, stiffening_atoms,
+                    tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, update_gross
-from .refine import polish_in_fit, prefer_play, refine, widen
+from .refine import polish_in_fit, prefer_play, prefer_sign, refine, widen
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf
 
@@ -107,17 +108,30 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted."""
-    scored = prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes)
+    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from."""
+    scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
-    for s in order_candidates(scored)[:tries]:
+    order = order_candidates(scored)
+    first = order[:tries]
+    # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
+    # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
+    # from being tried at all
+    seen = {c.atom.pool for c in first}
+    more = []
+    for c in order[tries:]:
+        if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
+            seen.add(c.atom.pool)
+            more.append(c)
+    for k, s in enumerate(first + more):
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
-            break
+            if k < len(first):
+                break
+            continue
         c = confirm(prob, fit, s, z_min)
         if c.local and time_only(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
@@ -190,6 +204,13 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.entry_chi2[accepted.atom.key] = accepted.dchi2
         fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
         update_gross(prob, fit)
+        if accepted.atom.family == "compliance":
+            # a linear compliance of unknown masses fitted its torque: its stiffening with that torque joins the pool
+            load = fitted_load(fit, int(accepted.atom.target[5:]))
+            if load is not None:
+                have = {a.key for a in pool}
+                pool = pool + [a for a in stiffening_atoms(prob.prep.nominal, prob.ctx, int(accepted.atom.target[5:]),
+                                                           load) if a.key not in have]
         if any(isinstance(f, Play) for f in accepted.atom.features):
             # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
             # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
@@ -204,7 +225,9 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        alts = alts + alts2 + load_alternatives(prob, fit, pool, sizes, alpha_select)
+        fit, lawed, alts3 = _one_load_law(prob, fit, pool, sizes, alpha_select, z_min)
+        sel.notes += lawed
+        alts = alts + alts2 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
         update_gross(prob, fit)
         fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
@@ -448,6 +471,108 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
             for c in new:
                 alts.append({"of": c.label, "alternative": a.label, "family": a.family, "channel": a.channel,
                              "target": a.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
+                             "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            fit = alt
+    return fit, notes, alts
+
+
+def _load_term(a: Atom) -> bool:
+    """Whether a kept term is one of the arm's own load: a joint's compliance (linear or stiffening), a backlash
+    signed by the load, a support's tilt."""
+    return ((a.family == "compliance" and a.place == "joint") or a.family == "tilt"
+            or (a.family == "backlash" and bool(a.features) and isinstance(a.features[0], LoadSign)))
+
+
+def _load_candidates(prob: Problem, fit: Fit, pool: list[Atom], targets: set[str], have: set[str]) -> list[Atom]:
+    """The load family's terms of the joints ``targets`` not in ``have``: the pool's compliances of those joints, the
+    compliance under the weight of the link each moves, and the stiffening of each linear compliance ``fit`` holds."""
+    model = prob.prep.nominal
+    out = [c for c in pool if c.family == "compliance" and c.place == "joint" and c.target in targets
+           and c.pool == "catalogue" and c.key not in have]
+    for t in sorted(targets):
+        own = own_link_atom(model, prob.ctx.q, int(t[5:]))
+        if own is not None and own.key not in have:
+            out.append(own)
+    for t in sorted(targets):
+        load = fitted_load(fit, int(t[5:]))
+        if load is not None:
+            out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
+    return out
+
+
+def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                  z_min: float) -> tuple[Fit, list[str], list[dict]]:
+    """No extra term where the load family explains the rows. Where a term of the arm's own load is kept (a joint's
+    compliance, a backlash signed by the load, the base's tilt) beside harmonics, a ratio or unnamed functions acting
+    on the same joint (for the tilt: the shoulder's and the elbow's, whose torques follow the base's moment), those
+    are taken out and the load family's own terms of the joint tried in their place, each held to the forward pass'
+    rules (significant, confirmed on the held-out rows, of a physical size): the joint's compliance shapes, the weight
+    of the link it moves, the compliance stiffening with its fitted torque (a nonlinear law of the load is followed by
+    harmonics of the joint that carries it, which say nothing of the load elsewhere). When that model predicts the
+    confirmation rows as well (within 2 %), it is kept and the terms it replaced are reported as the alternative the
+    data cannot tell from it. Returns the fit, notes and alternatives."""
+    notes: list[str] = []
+    alts: list[dict] = []
+    P = prob.prep.space.size
+    done: set[frozenset] = set()
+    N = prob.prep.nominal.n_joints
+    for a in [a for a, _ in fit.chosen if _load_term(a)]:
+        if a not in [c for c, _ in fit.chosen]:
+            continue
+        if a.place == "joint":
+            targets = {a.target}
+        else:
+            # a support's tilt: the joints about whose axes it turns (the base's: the shoulder's and the elbow's,
+            # whose torques follow its moment)
+            i = int(a.target[4:])
+            targets = {"theta2", "theta3"} if i == 0 else {f"theta{j}" for j in (i - 1, i, i + 1) if 1 <= j <= N}
+        others = [c for c, _ in fit.chosen if c.place == "joint" and c.target in targets and not is_change(c)
+                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
+        tag = frozenset(c.key for c in others)
+        if not others or tag in done:
+            continue
+        done.add(tag)
+        keep = [(c, B) for c, B in fit.chosen if c not in others]
+        cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        if error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
+            rounds = 0  # the load term alone predicts as well: nothing in their place
+        else:
+            rounds = len(others) + 1
+        for _ in range(rounds):
+            have = {c.key for c, _ in cur.chosen}
+            if a.family == "tilt":
+                # a tilt's own terms: its shapes, and the weight of the shoulder's and the elbow's links
+                cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
+                cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
+                          if c is not None and a.target == "tilt0" and c.key not in have]
+            else:
+                cands = _load_candidates(prob, cur, pool, targets, have)
+            scored = sorted((sc for sc in score_atoms(prob, cur, cands, sizes, exact_top=len(cands))
+                             if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
+            best = None
+            for sc in scored[:3]:
+                sc = refine_load_sign(prob, cur, sc, sizes)
+                if _implausible(prob, sc) is not None:
+                    continue
+                c = confirm(prob, cur, sc, z_min)
+                if c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local:
+                    best = sc
+                    break
+            if best is None:
+                break
+            chosen = list(cur.chosen) + [(best.atom, best.basis)]
+            cur = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
+        alt, _ = backward(prob, cur, alpha_select, sizes)
+        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        if e_alt <= 1.02 * e_now:
+            notes.append(f"{'; '.join(repr(c.label) for c in others)} replaced by the load family's terms of "
+                         f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}) beside "
+                         f"'{a.label}': they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+            for o in others:
+                alts.append({"of": a.label, "alternative": o.label, "family": o.family, "channel": o.channel,
+                             "target": o.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
                              "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
             fit = alt
     return fit, notes, alts

@@ -349,7 +349,13 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
         elif isinstance(f, LastMove):
             if "moves" not in cache:
                 cache["moves"] = _last_moves(ctx)
-            out[:, k] = np.tanh(cache["moves"][:, f.j - 1] / f.w)
+            x = cache["moves"][:, f.j - 1] / f.w
+            if f.law is None:
+                out[:, k] = np.tanh(x)
+            elif f.law == "clip":
+                out[:, k] = np.clip(x, -1.0, 1.0)
+            else:
+                raise ValueError(f"unknown law {f.law!r} of a lastmove feature (known: tanh when absent, 'clip')")
         elif isinstance(f, GravMix):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
@@ -387,8 +393,17 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = ((x >= f.at) & (x < f.until)).astype(float)
         elif isinstance(f, LoadSign):
             # the side of the gear flank the joint's gravity load pushes it to: the sign of the load (the URDF
-            # masses' torque, or the leading gravity-torque shape when the masses are unknown)
-            out[:, k] = np.sign(feature_values((f.f,), ctx, model, cache)[:, 0])
+            # masses' torque, or a combination of the gravity-torque shapes when the masses are unknown), or a
+            # smooth flank taken up over a width of the load
+            v = feature_values((f.f,), ctx, model, cache)[:, 0]
+            if f.width is None:
+                out[:, k] = np.sign(v)
+            elif f.law is None:
+                out[:, k] = np.tanh(v / f.width)
+            elif f.law == "clip":
+                out[:, k] = np.clip(v / f.width, -1.0, 1.0)
+            else:
+                raise ValueError(f"unknown law {f.law!r} of a loadsign feature (known: tanh when absent, 'clip')")
         elif isinstance(f, Hinge):
             # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
             out[:, k] = (np.clip(f.side * (channel(ctx, f.ch) - f.at), 0.0, None) / f.h) ** f.p
