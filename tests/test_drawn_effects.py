@@ -202,7 +202,6 @@ KNOWN_MISSES: dict[tuple[str, int], str] = {
     ('backlash_size', 100): "named [] not ['backlash']; report after/oracle 1.24 > 1.2; later rows after/oracle 1.99 > 1.2 (joint 1, proportional 39 deg)",
     ('backlash_size', 101): "named [] not ['backlash'] (joint 2, saturating 21 deg)",
     ('tilt', 101): "named ['compliance'] not ['tilt']; report after/oracle 1.20 > 1.2 (anisotropy 1.53 at 161 deg)",
-    ('thermal', 100): 'report after/oracle 2.11 > 1.2; later rows after/oracle 1.65 > 1.2 (step +5.9 K at 0.15 span, lag 0.09 span, all links, t_s only)',
     ('zero_glitch', 101): 'no change, not one window of theta5 at row 57-109; report after/oracle 1.98 > 1.5 (joint 5 rows 57-109/140)',
     ('frame_change', 101): 'report after/oracle 4.68 > 1.5 (slip at row 105/128)',
     ('clean', 101): 'structured (a false alarm) (AR(1) rho 0.71, 0.267x noise; burst rows 20-23 x4.71)',

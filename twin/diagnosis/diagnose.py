@@ -47,12 +47,13 @@ from .pools import catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import change_places, change_pool_sizes, describe_changes, row_times
-from .late import late_change
+from .changes import change_places, change_pool_sizes, describe_changes, is_change, row_times
+from .late import late_change, late_templates, late_term
 from .extend import error_stats, reduced_basis
 from .features import LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
+from .refine import retime
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
 from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
@@ -286,6 +287,7 @@ def diagnose(
     effects, unnamed, notes_n = name_effects(atoms_json)
     rows = _rows_report(prob, setup)
     notes = setup.notes + sel.notes + notes_v + notes_r + notes_n + [rep["note"]]
+    at_n = len(notes) - len(notes_n) - 1  # where the naming's notes go (named again from the models to use)
     if rows["gross_validation"] or rows["gross_calibration"]:
         notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
                      f"validation {rows['gross_validation']}")
@@ -305,16 +307,32 @@ def diagnose(
         late, note_late = late_change(setup, prob_all, ext_all if ext_all is not None else geo_all, places,
                                       alpha=alpha_select, z_min=z_min)
         notes.append(note_late)
+        if late is None:
+            # the air's temperature changing after the rows that fit (a door opened late in the campaign)
+            late, note_late = late_term(setup, prob_all, ext_all if ext_all is not None else geo_all,
+                                        late_templates(pool), alpha=alpha_select, z_min=z_min)
+            if note_late:
+                notes.append(note_late)
     if late is not None:
         structured = True
         src = ext_all if ext_all is not None else geo_all
         ext_all = refit_with(prob_all, src, list(src.chosen) + [(late.atom, late.basis)])
+        if not is_change(late.atom):
+            ext_all = retime(prob_all, ext_all)
         entries.append({"minor": False, "entry_chi2": late.dchi2})
     if ext_all is not None:
         final, _ = describe_terms(prob_all, ext_all, geo_all.chi2)
-        final = tuple({**f, **e} for f, e in zip(final, entries))
+        # a term minor on the calibration rows that the whole campaign needs (a lag fitted to the first block's wander
+        # of the temperature, whose step came later) is not minor
+        final = tuple({**f, **e, "minor": bool(e["minor"] and f["minor"])} for f, e in zip(final, entries))
+        for a, f in zip(atoms_json, final):
+            a["minor"] = f["minor"]
         extended = replace(ext_blocked, method="best+effects", x=ext_all.z[:P], effects=final,
                            details={**ext_blocked.details, "refitted_on_every_row": True})
+    atoms_out = tuple(atoms_json) + ((dict(extended.effects[-1], found=LATE_FOUND),) if late is not None else ())
+    if ext_all is not None:
+        effects, unnamed, named_notes = name_effects(list(atoms_out))
+        notes[at_n:at_n + len(notes_n)] = named_notes
     notes.append(f"calibration.json and calibration_geometric.json are the chosen models refitted on every row of the "
                  f"campaign ({prob_all.obs_cal.n} rows); before/after are those of the models fitted on the "
                  f"{prob.obs_cal.n} calibration rows, on report rows they never saw")
@@ -335,7 +353,7 @@ def diagnose(
         calibration=extended,
         series=_series(prob, base, use),
         notes=tuple(notes),
-        atoms=tuple(atoms_json) + ((dict(extended.effects[-1], found=LATE_FOUND),) if late is not None else ()),
+        atoms=atoms_out,
         unnamed=unnamed,
         alternatives=tuple(sel.alternatives),
         explained_fraction=frac,
@@ -349,7 +367,7 @@ def diagnose(
         calibration_candidate=calibration_candidate,
         calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
         changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id))
-        + (late_json(late, extended.effects[-1], setup) if late is not None else ()),
+        + (late_json(late, extended.effects[-1], setup) if late is not None and is_change(late.atom) else ()),
     )
 
 
@@ -583,7 +601,7 @@ def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, F
     geo = refit_with(prob, base, [])
     if ext is None:
         return geo, None, prob
-    return geo, refit_with(prob, ext, ext.chosen), prob
+    return geo, retime(prob, refit_with(prob, ext, ext.chosen)), prob
 
 
 # ------------------------------------------------------------------------------------------------

@@ -32,12 +32,15 @@ import numpy as np
 
 from ..estimator.core import prepare
 from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
+from .features import Lag
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
-from .scoring import score_atoms
+from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
+from .scoring import Scored, score_atoms
+from .structure import chi2_logsf
 
-__all__ = ["LateChange", "late_change", "rows_to_confirm"]
+__all__ = ["LateChange", "late_change", "late_templates", "late_term", "rows_to_confirm"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -134,3 +137,104 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     if not ok:
         return None, "a change after the rows that fit not confirmed on the rows after the cut: " + words
     return got, "a change after the rows that fit, confirmed on later rows: " + words
+
+
+def late_templates(pool: list) -> list:
+    """The thermal terms a change of the air after the rows that fit may take, one per place (all links, each link):
+    against the recorded temperature through a lag, or, without a record, a step or a ramp of the air at an onset
+    through the links' lag (:func:`twin.diagnosis.refine.is_onset`)."""
+    out, seen = [], set()
+    for a in pool:
+        if a.family != "thermal" or a.target in seen:
+            continue
+        if is_onset(a) or (len(a.features) == 1 and isinstance(a.features[0], Lag) and a.features[0].ch == "temp_c"):
+            out.append(a)
+            seen.add(a.target)
+    return out
+
+
+def _fit_template(prob: Problem, fit: Fit, a, after: float, sizes: dict) -> tuple[Scored | None, int]:
+    """The thermal template ``a`` at its best constants on ``prob``'s calibration rows against ``fit`` (an onset no
+    earlier than ``after`` [s]; a lag of the recorded temperature over every time constant of the onset grid, then
+    refined) and the number of constants' values tried."""
+    got = score_atoms(prob, fit, [a], sizes, exact_top=1)
+    if not got:
+        return None, 1
+    if is_onset(a):
+        s = refine_onset(prob, fit, got[0], sizes, after=after)
+        return (None if s is got[0] else s), ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)
+    t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
+    trial = [onset_lag(a, fc * float(np.ptp(t))) for fc in ONSET_TAUS]
+    s = max(got + score_atoms(prob, fit, trial, sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
+    return refine(prob, fit, s, sizes), len(ONSET_TAUS)
+
+
+def _start(setup, a, t_fit_end: float) -> float | None:
+    """When the late change of the template ``a`` starts: an onset's time; for a lag of the recorded temperature, the
+    first row after ``t_fit_end`` whose temperature leaves the range of the rows before it by more than that range's
+    width (None when it never does)."""
+    if is_onset(a):
+        return float(a.features[0].t0)
+    _, tv = row_times(setup.ctx)
+    temp = np.asarray(setup.ctx.temp_c, float)
+    before = tv <= t_fit_end
+    lo, hi = float(np.min(temp[before])), float(np.max(temp[before]))
+    w = hi - lo
+    out = (~before) & ((temp < lo - w) | (temp > hi + w))
+    return float(np.min(tv[out])) if np.any(out) else None
+
+
+def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha: float,
+              z_min: float) -> tuple[LateChange | None, str]:
+    """A change of the air's temperature after the rows that fit, through the links' lag (thermal growth), judged as
+    :func:`late_change` judges a step: the best thermal term of ``templates`` (:func:`late_templates`) on every row
+    against the model in use (significant after the factor of places and constants tried), starting after the rows
+    that fit (an onset, or the recorded temperature leaving the range those rows saw); located and fitted on the rows
+    before a cut (the fewest rows after its start the step scan needs), confirmed on the rows after it. Places that
+    already have a thermal term are not tried. Returns the confirmed term (or ``None``) and a note."""
+    ch, tv = row_times(setup.ctx)
+    have = {a.target for a, _ in use_all.chosen if a.family == "thermal"}
+    templates = [a for a in templates if a.target not in have]
+    if ch != "t_s" or not templates:
+        return None, ""
+    t_fit = np.sort(tv[setup.problem.rows_cal])
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_fit))))
+    t_fit_end = float(t_fit[max(len(t_fit) - side, 0)])
+    sizes = {a.pool: 1 for a in templates}
+    found = []
+    for a in templates:
+        s, tried = _fit_template(prob_all, use_all, a, t_fit_end, sizes)
+        if s is None:
+            continue
+        logp = chi2_logsf(s.dchi2 / prob_all.evidence_scale, s.basis.shape[1]) + np.log(len(templates) * tried)
+        start = _start(setup, s.atom, t_fit_end)
+        if logp < np.log(alpha) and start is not None and start >= t_fit_end:
+            found.append((s.dchi2, s, start))
+    if not found:
+        return None, "no change of the air's temperature after the rows that fit"
+    _, s_all, start = max(found, key=lambda x: x[0])
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    later = t_rows[t_rows >= start]
+    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
+    need = n_locate + rows_to_confirm(z_min)
+    if len(later) < need:
+        return None, (f"a change after the rows that fit ({s_all.atom.label}) has {len(later)} rows after its start, "
+                      f"fewer than the {need} it takes to locate it on some and confirm it on others: not kept")
+    t_cut = float(later[n_locate])
+    prob = _prob_before(setup, prob_all, t_cut)
+    fit0 = refit_with(prob, use_all, use_all.chosen)
+    s, _ = _fit_template(prob, fit0, s_all.atom, t_fit_end, sizes)
+    if s is None:
+        return None, f"a change after the rows that fit ({s_all.atom.label}) could not be fitted before the cut: not kept"
+    c = confirm(prob, fit0, s, z_min)
+    ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+    P = prob.prep.space.size
+    fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
+    got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),
+                     int(prob.obs_val.n), _rms_mm(fit0, prob), _rms_mm(fit1, prob), float(s.dchi2))
+    words = (f"{s.atom.label}: located and fitted on the {got.n_before} rows before {ch} {t_cut:.6g}, on the "
+             f"{got.n_after} rows after it RMS {got.rms_without_mm:.4f} -> {got.rms_with_mm:.4f} mm (z {c.z:.1f}, "
+             f"{c.z_without_best_row:.1f} without the best row)")
+    if not ok:
+        return None, "a change of the air's temperature after the rows that fit not confirmed on the rows after the cut: " + words
+    return got, "a change of the air's temperature after the rows that fit, confirmed on later rows: " + words

@@ -14,13 +14,18 @@ from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
 from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
 from .extend import reduced_basis
-from .features import Feature, Pow, Step
-from .problem import Fit, Problem
+from .features import Exp, Feature, Lag, Pow, Step
+from .problem import Fit, Problem, refit_with
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "refine", "polish_in_fit", "widen"]
+__all__ = ["prefer_play", "refine", "refine_onset", "retime", "is_onset", "onset_atom", "onset_lag", "polish_in_fit",
+           "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+
+ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
+ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
+ONSET_RAMPS = (0.0, 0.25, 0.5, 1.0)  # the air's ramp durations tried (0: a step), as fractions of that span
 
 
 def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
@@ -59,6 +64,24 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     kinds = {f.kind for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
+    if is_onset(s.atom):
+        return refine_onset(prob, fit, s, pool_sizes)
+    if _time_linear(s.atom):
+        # a drift of the links linear in time is the air's ramp that the rows did not see end, through no lag: the
+        # onset's shapes hold it (and, seen to end, its end)
+        t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
+        got = score_atoms(prob, fit, [_as_onset(s.atom, float(np.min(t)), float(np.ptp(t)))], pool_sizes, exact_top=1)
+        top = refine_onset(prob, fit, got[0], pool_sizes) if got else s
+        return top if top.dchi2 > s.dchi2 else s
+    if _temp_linear(s.atom) and prob.ctx.t_s is not None:
+        # the links follow the recorded temperature through a lag, of any length, zero included
+        span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal]))
+        trial = [_temp_lagged(s.atom, fc * span) for fc in ONSET_TAUS] if span > 0 else []
+        top = max(score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2, default=None)
+        if top is None or top.dchi2 <= s.dchi2:
+            return s
+        s = top
+        kinds = {f.kind for f in s.atom.features}
     if kinds == {"hinge"}:
         return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
@@ -263,3 +286,126 @@ def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int])
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
     best = max(scored, key=lambda t: t.dchi2, default=None)
     return best if best is not None and best.dchi2 > s.dchi2 else s
+
+
+def _time_linear(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth linear in ``t_s``."""
+    return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Pow) \
+        and atom.features[0].ch == "t_s" and atom.features[0].p == 1
+
+
+def _as_onset(atom: Atom, t0: float, span: float) -> Atom:
+    """The thermal ``atom`` linear in ``t_s`` (:func:`_time_linear`) as the air's ramp from ``t0`` over ``span`` [s]
+    through a short lag (the start of :func:`refine_onset`)."""
+    return onset_atom(replace_atom(atom, features=(Exp(ch="t_s", t0=t0, tau=span),)), t0, 1e-3 * span, span)
+
+
+def _temp_linear(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth linear in the recorded temperature, without a lag."""
+    return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Pow) \
+        and atom.features[0].ch == "temp_c" and atom.features[0].p == 1
+
+
+def _temp_lagged(atom: Atom, tau: float) -> Atom:
+    """The thermal ``atom`` linear in ``temp_c`` (:func:`_temp_linear`) against ``temp_c`` through a lag of ``tau`` [s]."""
+    f = atom.features[0]
+    ch = f"temp_c lagged {tau:.4g} s"
+    return replace_atom(atom, features=(Lag(ch="temp_c", tau=float(tau), c=f.c, h=f.h),), channel=ch,
+                        label=atom.label.replace(f"vs {atom.channel}", f"vs {ch}"))
+
+
+def onset_lag(atom: Atom, tau: float) -> Atom:
+    """A thermal ``atom`` against a lag of the recorded temperature with the time constant ``tau`` [s]."""
+    return _with_constant(atom, "tau", tau)
+
+
+def is_onset(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth against a change of the air's temperature through the links' lag (its
+    features all :class:`~twin.diagnosis.features.Exp` in ``t_s``: a warm-up, a step or a ramp at an onset)."""
+    return atom.family == "thermal" and bool(atom.features) and all(
+        isinstance(f, Exp) and f.ch == "t_s" for f in atom.features)
+
+
+def onset_atom(atom: Atom, t0: float, tau: float, ramp: float) -> Atom:
+    """The thermal ``atom`` (:func:`is_onset`) with its air change at ``t0`` [s], a ramp over ``ramp`` [s] (0: a step)
+    and the links' lag ``tau`` [s]; channel and label to match."""
+    feats = tuple(replace_atom(f, t0=float(t0), tau=float(tau), ramp=float(ramp) if ramp > 0 else None)
+                  for f in atom.features)
+    if ramp > 0:
+        ch = f"the air's ramp from t_s {t0:.6g} over {ramp:.4g} s, lagged {tau:.4g} s"
+    else:
+        ch = f"the air's step at t_s {t0:.6g}, lagged {tau:.4g} s"
+    head = atom.label.split(" vs ")[0]
+    return replace_atom(atom, features=feats, channel=ch, label=f"{head} vs {ch}")
+
+
+def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int], *, after: float | None = None) -> Scored:
+    """A thermal term against the air's temperature without a record of it (``t_s`` only): the links follow the air
+    through a first-order lag ``tau``, and the air changed at an unknown ``t0``, at once (a door opened) or over a
+    ramp of ``T`` (:func:`twin.diagnosis.values.lag_response`; a warm-up from the first row is the step at its time).
+    The three constants are the effect's, not a grid's: every onset (or ramp's middle) on ``ONSET_POINTS`` quantiles
+    of the calibration rows' times, time constant in ``ONSET_TAUS`` and ramp in ``ONSET_RAMPS`` (fractions of their
+    span), the maximum of the calibration evidence, then a simplex search from it on ``(t0, log tau, log T)``. ``after``
+    [s]: the onset no earlier than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
+    from scipy.optimize import minimize
+
+    t = np.sort(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])
+    span = float(t[-1] - t[0])
+    lo = -np.inf if after is None else float(after)
+    if span <= 0 or not np.any(t > lo):
+        return s
+    middles = np.quantile(t[t > lo], np.linspace(0.0, 0.95, ONSET_POINTS))
+    trial = [onset_atom(s.atom, max(m - 0.5 * fr * span, lo), fc * span, fr * span)
+             for m in middles for fc in ONSET_TAUS for fr in ONSET_RAMPS]
+    scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+    best = [max(([s] if after is None else []) + scored, key=lambda x: x.dchi2, default=s)]
+    f0 = best[0].atom.features[0]
+    x0 = np.array([(f0.t0 - t[0]) / span, np.log(f0.tau / span), np.log(max(f0.ramp or 0.0, 1e-3 * span) / span)])
+
+    def cost(x: np.ndarray) -> float:
+        ramp = float(np.exp(x[2]) * span)
+        got = score_atoms(prob, fit, [onset_atom(s.atom, max(t[0] + x[0] * span, lo), float(np.exp(x[1]) * span),
+                                                 ramp if ramp > 1e-3 * span else 0.0)], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 150,
+                                                       "initial_simplex": x0 + np.vstack([np.zeros(3), 0.05 * np.eye(3)])})
+    return best[0]
+
+
+def retime(prob: Problem, fit: Fit) -> Fit:
+    """``fit`` with the time constants of its thermal terms (a lag of the recorded temperature, the motion heat's,
+    the air's onset, ramp and lag without a record) refined again on ``prob``'s rows (:func:`refine`, each term
+    against the others refitted without it), the model refitted after each: a value of a term, like its
+    coefficient. A model chosen on the first block of a campaign refitted on every row of it: an air step after that
+    block fixes the lag the block could not see."""
+    for k in range(len(fit.chosen)):
+        atom, _ = fit.chosen[k]
+        if atom.family != "thermal" or not (any(_has(f, "tau") for f in atom.features) or _temp_linear(atom)
+                                            or _time_linear(atom)):
+            continue
+        others = [c for i, c in enumerate(fit.chosen) if i != k]
+        without = refit_with(prob, fit, others)
+        sizes = {atom.pool: 1}
+        got = score_atoms(prob, without, [atom], sizes, exact_top=1)
+        if not got:
+            continue
+        start = got[0]
+        if not (is_onset(atom) or _temp_linear(atom) or _time_linear(atom)):
+            # a time constant the first block could not see may lie far from its value: the whole grid first
+            t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
+            span = float(np.ptp(t))
+            trial = [_with_constant(atom, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
+            start = max([start] + score_atoms(prob, without, trial, sizes, exact_top=len(trial)),
+                        key=lambda x: x.dchi2)
+        new = refine(prob, without, start, sizes)
+        if new.atom == atom:
+            continue
+        chosen = list(fit.chosen)
+        chosen[k] = (new.atom, new.basis)
+        fit = refit_with(prob, fit, chosen)
+    return fit

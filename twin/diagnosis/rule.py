@@ -27,7 +27,7 @@ from .confirm import confirm, smooth_confirm, time_only
 from .extend import error_stats
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, update_gross
-from .refine import polish_in_fit, prefer_play, refine, widen
+from .refine import is_onset, polish_in_fit, prefer_play, refine, widen
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf
 
@@ -117,8 +117,12 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
             break
+        if is_onset(s.atom):
+            # the air's change (its onset, ramp and the links' lag) is the effect's, not the grid's: judged at its
+            # best constants
+            s = refine(prob, fit, s, sizes)
         c = confirm(prob, fit, s, z_min)
-        if c.local and time_only(s.atom):
+        if c.local and time_only(s.atom) and not is_onset(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
             # period), not at the coarse grid value it was found at: a slip between two grid times is a step
             refined = refine(prob, fit, s, sizes)
@@ -175,7 +179,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             break
         accepted = r.accepted
         taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
-        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
+        refined = refine_load_sign(prob, fit, accepted if is_onset(accepted.atom) else refine(prob, fit, accepted, sizes),
+                                   sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
         taken.add(_slot(accepted.atom))
         kept += 1
