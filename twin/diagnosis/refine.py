@@ -14,18 +14,20 @@ from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
 from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
 from .extend import reduced_basis
-from .features import Exp, Feature, Lag, Pow, Step
-from .problem import Fit, Problem, refit_with
+from .features import Exp, Feature, Heat, Lag, Pow, Step
+from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "refine", "refine_onset", "retime", "is_onset", "onset_atom", "onset_lag", "polish_in_fit",
+__all__ = ["prefer_play", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit",
            "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
 ONSET_RAMPS = (0.0, 0.25, 0.5, 1.0)  # the air's ramp durations tried (0: a step), as fractions of that span
+ONSET_TRIALS = ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)  # the onset grid's size (its Bonferroni factor)
+ONSET_SIDE = 0.05  # rows after an onset, at least this share of them and 3 (a change's: twin.diagnosis.changes.MIN_SIDE)
 
 
 def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
@@ -300,6 +302,33 @@ def _as_onset(atom: Atom, t0: float, span: float) -> Atom:
     return onset_atom(replace_atom(atom, features=(Exp(ch="t_s", t0=t0, tau=span),)), t0, 1e-3 * span, span)
 
 
+def retimeable(atom: Atom) -> bool:
+    """Whether ``atom`` is a thermal term with a time constant, or one a lag or an onset generalises (growth linear in
+    ``temp_c`` or in ``t_s``): what :func:`refine_time` moves."""
+    return atom.family == "thermal" and (any(_has(f, "tau") for f in atom.features) or _temp_linear(atom)
+                                         or _time_linear(atom))
+
+
+def follows_the_air(atom: Atom) -> bool:
+    """Whether ``atom`` is a thermal term of the air's temperature (recorded, through a lag; or without a record, its
+    change at an onset, a drift in time): a change of the air may come late in a campaign, after the rows that chose
+    the term, unlike the motors' heat, which every move brings from the first on."""
+    return retimeable(atom) and not any(isinstance(f, Heat) for f in atom.features)
+
+
+def refine_time(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A kept thermal term's time constants (:func:`retimeable`) at the maximum of the evidence on ``prob``'s
+    calibration rows, searched over their whole range: a lag or the motion heat's time constant over the onset grid
+    ``ONSET_TAUS`` first (a constant the first block could not see may lie far from its value), then :func:`refine`;
+    an onset over :func:`refine_onset`'s grid."""
+    a = s.atom
+    if not (is_onset(a) or _temp_linear(a) or _time_linear(a)):
+        span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal]))
+        trial = [_with_constant(a, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
+        s = max([s] + score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
+    return refine(prob, fit, s, pool_sizes)
+
+
 def _temp_linear(atom: Atom) -> bool:
     """Whether ``atom`` is thermal growth linear in the recorded temperature, without a lag."""
     return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Pow) \
@@ -345,27 +374,38 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
     ramp of ``T`` (:func:`twin.diagnosis.values.lag_response`; a warm-up from the first row is the step at its time).
     The three constants are the effect's, not a grid's: every onset (or ramp's middle) on ``ONSET_POINTS`` quantiles
     of the calibration rows' times, time constant in ``ONSET_TAUS`` and ramp in ``ONSET_RAMPS`` (fractions of their
-    span), the maximum of the calibration evidence, then a simplex search from it on ``(t0, log tau, log T)``. ``after``
-    [s]: the onset no earlier than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
+    span), the maximum of the calibration evidence, then a simplex search from it on ``(t0, log tau, log T)``, within
+    bounds that keep a state the rows hold: the onset at most a span before the first row and with at least
+    ``max(3, ONSET_SIDE n)`` rows after it (as a change's), the lag and the ramp within ``ONSET_TAUS``' range (a lag
+    far longer than the rows is a feature too small to be a change of the air). ``after`` [s]: the onset no earlier
+    than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
     from scipy.optimize import minimize
 
     t = np.sort(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])
     span = float(t[-1] - t[0])
-    lo = -np.inf if after is None else float(after)
-    if span <= 0 or not np.any(t > lo):
+    side = max(3, int(np.ceil(ONSET_SIDE * len(t))))
+    lo = t[0] - span if after is None else float(after)
+    hi = float(t[max(len(t) - side, 0)])
+    if span <= 0 or hi < lo:
         return s
-    middles = np.quantile(t[t > lo], np.linspace(0.0, 0.95, ONSET_POINTS))
-    trial = [onset_atom(s.atom, max(m - 0.5 * fr * span, lo), fc * span, fr * span)
-             for m in middles for fc in ONSET_TAUS for fr in ONSET_RAMPS]
+    tau_lo, tau_hi = min(ONSET_TAUS) * span, max(ONSET_TAUS) * span
+
+    def make(t0: float, tau: float, ramp: float) -> Atom:
+        ramp = float(np.clip(ramp, 0.0, tau_hi))
+        return onset_atom(s.atom, float(np.clip(t0, lo, hi)), float(np.clip(tau, tau_lo, tau_hi)),
+                          ramp if ramp > 1e-3 * span else 0.0)
+
+    middles = np.quantile(t[(t >= lo) & (t <= hi)] if np.any((t >= lo) & (t <= hi)) else [hi],
+                          np.linspace(0.0, 1.0, ONSET_POINTS))
+    trial = [make(m - 0.5 * fr * span, fc * span, fr * span) for m in middles for fc in ONSET_TAUS for fr in ONSET_RAMPS]
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
     best = [max(([s] if after is None else []) + scored, key=lambda x: x.dchi2, default=s)]
     f0 = best[0].atom.features[0]
     x0 = np.array([(f0.t0 - t[0]) / span, np.log(f0.tau / span), np.log(max(f0.ramp or 0.0, 1e-3 * span) / span)])
 
     def cost(x: np.ndarray) -> float:
-        ramp = float(np.exp(x[2]) * span)
-        got = score_atoms(prob, fit, [onset_atom(s.atom, max(t[0] + x[0] * span, lo), float(np.exp(x[1]) * span),
-                                                 ramp if ramp > 1e-3 * span else 0.0)], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [make(t[0] + x[0] * span, float(np.exp(x[1]) * span), float(np.exp(x[2]) * span))],
+                          pool_sizes, exact_top=1)
         if not got:
             return 0.0
         if got[0].dchi2 > best[0].dchi2:
@@ -374,38 +414,10 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
 
     minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 150,
                                                        "initial_simplex": x0 + np.vstack([np.zeros(3), 0.05 * np.eye(3)])})
-    return best[0]
-
-
-def retime(prob: Problem, fit: Fit) -> Fit:
-    """``fit`` with the time constants of its thermal terms (a lag of the recorded temperature, the motion heat's,
-    the air's onset, ramp and lag without a record) refined again on ``prob``'s rows (:func:`refine`, each term
-    against the others refitted without it), the model refitted after each: a value of a term, like its
-    coefficient. A model chosen on the first block of a campaign refitted on every row of it: an air step after that
-    block fixes the lag the block could not see."""
-    for k in range(len(fit.chosen)):
-        atom, _ = fit.chosen[k]
-        if atom.family != "thermal" or not (any(_has(f, "tau") for f in atom.features) or _temp_linear(atom)
-                                            or _time_linear(atom)):
-            continue
-        others = [c for i, c in enumerate(fit.chosen) if i != k]
-        without = refit_with(prob, fit, others)
-        sizes = {atom.pool: 1}
-        got = score_atoms(prob, without, [atom], sizes, exact_top=1)
-        if not got:
-            continue
-        start = got[0]
-        if not (is_onset(atom) or _temp_linear(atom) or _time_linear(atom)):
-            # a time constant the first block could not see may lie far from its value: the whole grid first
-            t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
-            span = float(np.ptp(t))
-            trial = [_with_constant(atom, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
-            start = max([start] + score_atoms(prob, without, trial, sizes, exact_top=len(trial)),
-                        key=lambda x: x.dchi2)
-        new = refine(prob, without, start, sizes)
-        if new.atom == atom:
-            continue
-        chosen = list(fit.chosen)
-        chosen[k] = (new.atom, new.basis)
-        fit = refit_with(prob, fit, chosen)
-    return fit
+    got = best[0]
+    if got is s:
+        return s
+    # the constants were chosen among ONSET_TRIALS on these rows (as a change's row among the rows): its evidence pays
+    # for them
+    return Scored(got.atom, got.basis, got.psi, got.dchi2, got.logp_adj + np.log(ONSET_TRIALS), got.r, E=got.E,
+                  Ep=got.Ep)
