@@ -28,6 +28,7 @@ read the state after it (:func:`twin.diagnosis.values.feature_values`, ``step`` 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,8 +108,7 @@ def as_window(atom: Atom, until: float) -> Atom:
     else:
         feats = tuple(Gated(f=f.f, ch=f.ch, at=f.at, until=float(until)) for f in atom.features)
     chan = f"change({at:.6g} <= {ch} < {until:.6g})"
-    old = f"from {ch} {at:.6g} on" if is_step(atom) else f"from {ch} {at:.6g} until {float(f0.until):.6g}"
-    label = atom.label.replace(old, f"from {ch} {at:.6g} until {until:.6g}")
+    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} until {until:.6g}", atom.label)
     return Atom(atom.family, atom.place, atom.target, feats, chan, label, "change_window", atom.joints, dict(atom.meta))
 
 

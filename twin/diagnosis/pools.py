@@ -219,12 +219,13 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             variants.append(((*heat,
                               Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
                              f"motion heat lagged {tau:.4g} s"))
-            # one motor heating the arm (a joint that travels more than the others): all links together
+            # one motor heating the arm (a joint that travels more than the others): all links together, by its travel
+            # alone (a warm-up beside it is the group's or the warm-up's atom: with one it would follow any smooth
+            # drift of the cell, a recorded temperature's too)
             for j in range(1, N + 1):
                 h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
                 if h > 0:
-                    one = ((Heat(tau=float(tau), joints=(j,), h=h), Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
-                           f"joint {j}'s motion heat lagged {tau:.4g} s")
+                    one = ((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s")
                     atoms.append(Atom("thermal", "length", "all_lengths", one[0], one[1],
                                       f"thermal growth of all link lengths vs {one[1]}", "catalogue"))
     for fs, chan in variants:
