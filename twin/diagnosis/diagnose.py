@@ -41,6 +41,7 @@ from ..dataset import Dataset, Plate
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
+from ..estimator.solvers import gauss_newton
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .pools import catalogue_atoms, generic_atoms
@@ -287,13 +288,13 @@ def diagnose(
         before_report[prob.rows_rep] = False
         _, _, prob_pre, after_pre = models(before_report)
         if after_pre.found:
-            fit_rep = with_found(prob, use, after_pre.fit)
+            fit_rep = with_found(prob, prob_pre, use, after_pre.fit)
             rep = report_before_after(prob, base, fit_rep, found=[a.label for a, *_ in after_pre.found])
             cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, after_pre,
                                             fit=Fit(fit_rep.chosen, fit_rep.z, fit_rep.free, float("nan"),
                                                     prob_pre.model(fit_rep.chosen, "cal"),
                                                     prob_pre.model(fit_rep.chosen, "val")))
-            calibrations_blocked["extended"] = replace(cal_rep, x=ext_blocked.x, details=ext_blocked.details)
+            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     rep["held_out"].update(held_out_rows=setup.held_out.sets, blocks=setup.held_out.rule)
     candidate_terms: tuple = ()
     calibration_candidate = None
@@ -569,10 +570,12 @@ def report_before_after(prob: Problem, base: Fit, ext: Fit | None, *, found: lis
     return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
 
 
-def with_found(prob: Problem, use: Fit, after: Fit) -> Fit:
-    """The model ``use`` (fitted on ``prob``'s calibration rows) with what was found after the blocks on other rows
-    (``after``: its atoms, the kept ones first, a kept step ended there as a window; the terms found after them):
-    the kept terms and the geometry at ``use``'s values, the terms found at ``after``'s; on ``prob``'s rows."""
+def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
+    """The model ``use`` (fitted on ``prob``'s calibration rows) with what was found after the blocks on the rows of
+    ``prob_pre`` (every row before the report block; ``after``, fitted there: its atoms, the kept ones first, a kept
+    step ended there as a window, then the terms found): the kept terms at ``use``'s values, the geometry and the
+    terms found fitted on ``prob_pre``'s rows with them held (a glitch in the rows that fit biased the geometry they
+    gave; the kept terms keep the values their rows gave them). On ``prob``'s rows."""
     P = prob.prep.space.size
     n = len(use.chosen)
     old = [use.z[use.model_cal.offsets[k]:use.model_cal.offsets[k + 1]] for k in range(n)]
@@ -580,10 +583,13 @@ def with_found(prob: Problem, use: Fit, after: Fit) -> Fit:
     # a kept change takes its end from there; the other kept terms stay as chosen (constants and values)
     chosen = [after.chosen[k] if is_change(use.chosen[k][0]) else use.chosen[k] for k in range(n)] + \
         list(after.chosen[n:])
-    mc, mv = prob.model(chosen, "cal"), prob.model(chosen, "val")
-    z = np.concatenate([use.z[:P]] + old + new)
+    mc = prob_pre.model(chosen, "cal")
+    z0 = np.concatenate([after.z[:P]] + old + new)
+    moving = np.concatenate([prob_pre.free_geo, np.arange(mc.offsets[n], mc.size)]).astype(int)
+    gn = gauss_newton(lambda z: mc.residuals(z), z0, moving, row_weights=prob_pre.w_cal, max_iter=30, xtol=1e-11,
+                      ftol=1e-10, stage="report")
     free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)
-    return Fit(chosen, z, free, float("nan"), mc, mv)
+    return Fit(chosen, gn.x, free, float("nan"), prob.model(chosen, "cal"), prob.model(chosen, "val"))
 
 
 FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
@@ -605,10 +611,10 @@ def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None
     base_cal = replace(setup.geometric, x=geo_x.z[:P], details={**setup.geometric.details, "refitted_on_every_row": True})
     if ext_x is None:
         return base_cal, tuple(atoms_json), []
-    # a change confirmed after a cut is never minor; a change and back is minor as a term entering the selection is,
-    # by what it explained when it entered
+    # a term found after the blocks is minor as a term entering the selection is, by what it explained when it
+    # entered
     entries = [{"minor": a["minor"], "entry_chi2": a["entry_chi2"]} for a in atoms_json] + \
-        [{"minor": how == "glitch", "entry_chi2": float(dchi2)} for _, how, _, dchi2 in after.found]
+        [{"minor": True, "entry_chi2": float(dchi2)} for *_, dchi2 in after.found]
     final, _ = describe_terms(prob_x, ext_x, geo_x.chi2, {a.key: float(dchi2) for a, *_, dchi2 in after.found})
     final = [{**f, **e, "minor": bool(e["minor"] and f["minor"])} for f, e in zip(final, entries)]
     if update_minor:

@@ -213,9 +213,7 @@ def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha:
             continue
         logp = chi2_logsf(s.dchi2 / prob_all.evidence_scale, s.basis.shape[1]) + np.log(len(templates) * tried)
         start = _start(setup, s.atom, t_fit_end)
-        # an onset held at the first time allowed wants an earlier one: a change within the rows that fit (the
-        # selection's), or the held-out block's mean against the rows that fit, not a change after them
-        if logp < np.log(alpha) and start is not None and start > t_fit_end:
+        if logp < np.log(alpha) and start is not None and start >= t_fit_end:
             found.append((s.dchi2, s, start))
     if not found:
         return None, "no change of the air's temperature after the rows that fit"

@@ -222,9 +222,12 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             # one motor heating the arm (a joint that travels more than the others): all links together, by its travel
             # alone (a warm-up beside it is the group's or the warm-up's atom: with one it would follow any smooth
             # drift of the cell, a recorded temperature's too)
+            # (a joint that travels a small part of the arm's travel is left out: its heat barely varies over the
+            # rows, and a coefficient fitted there multiplies whatever it travels later)
+            h_all = float(np.mean(motion_heat(ctx, float(tau), tuple(range(1, N + 1)))))
             for j in range(1, N + 1):
                 h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
-                if h > 0:
+                if h > h_all / (2 * N):
                     one = ((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s")
                     atoms.append(Atom("thermal", "length", "all_lengths", one[0], one[1],
                                       f"thermal growth of all link lengths vs {one[1]}", "catalogue"))

@@ -377,7 +377,9 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
     span), the maximum of the calibration evidence, then a simplex search from it on ``(t0, log tau, log T)``, within
     bounds that keep a state the rows hold: the onset at most a span before the first row and with at least
     ``max(3, ONSET_SIDE n)`` rows after it (as a change's), the lag and the ramp within ``ONSET_TAUS``' range (a lag
-    far longer than the rows is a feature too small to be a change of the air). ``after`` [s]: the onset no earlier
+    far longer than the rows is a feature too small to be a change of the air), the lag at most four times the time
+    the rows last after the onset (they see a fifth of its response at least: a slower one is a drift they see
+    start, which later rows would extrapolate). ``after`` [s]: the onset no earlier
     than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
     from scipy.optimize import minimize
 
@@ -392,8 +394,11 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
 
     def make(t0: float, tau: float, ramp: float) -> Atom:
         ramp = float(np.clip(ramp, 0.0, tau_hi))
-        return onset_atom(s.atom, float(np.clip(t0, lo, hi)), float(np.clip(tau, tau_lo, tau_hi)),
-                          ramp if ramp > 1e-3 * span else 0.0)
+        t0 = float(np.clip(t0, lo, hi))
+        # the rows after the onset see at least a fifth of its response (a lag four times longer than they last is
+        # a drift they see start, which any later row would extrapolate)
+        tau = float(np.clip(tau, tau_lo, max(tau_lo, min(tau_hi, 4.0 * (t[-1] - t0)))))
+        return onset_atom(s.atom, t0, tau, ramp if ramp > 1e-3 * span else 0.0)
 
     middles = np.quantile(t[(t >= lo) & (t <= hi)] if np.any((t >= lo) & (t <= hi)) else [hi],
                           np.linspace(0.0, 1.0, ONSET_POINTS))

@@ -335,6 +335,10 @@ def _implausible(prob: Problem, s) -> str | None:
     if a.place == "length" and float(np.ptp(eff)) > THERMAL_MAX:
         return (f"implausible for thermal growth: {np.ptp(eff) * 1e6:.0f} ppm over the rows (more than "
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
+    if a.place == "length" and is_onset(a) and float(np.sum(np.abs(s.basis @ s.psi))) > THERMAL_MAX:
+        # the air's change settles to its full size after the rows: the size it settles to
+        return (f"implausible for thermal growth: {np.sum(np.abs(s.basis @ s.psi)) * 1e6:.0f} ppm once the air's change "
+                f"has settled (more than {THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
     cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
     if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
         return f"implausible for {a.family}: {np.max(np.abs(eff)) / RAD_PER_DEG:.3f} deg (more than {cap / RAD_PER_DEG:.1f} deg)"
