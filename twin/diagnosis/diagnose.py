@@ -119,9 +119,11 @@ class DiagnosisResult:
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
     ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
-    A change found after the rows that fit (:mod:`twin.diagnosis.late`) is the last of ``atoms`` and of ``changes``,
-    with ``found``; it is in ``calibration`` (then ``model_in_use`` is ``"extended"``) but not in
-    ``calibrations_blocked``, whose rows never saw it."""
+    The terms found after the blocks on every row (:func:`twin.diagnosis.rule.after_blocks`: a change after the rows
+    that fit, the air's temperature changing there, a change and back of a joint's zero) are the last of ``atoms``
+    (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
+    ``"extended"``); ``calibrations_blocked["extended"]`` holds those found on the rows before the report block (the
+    state the report rows read), the kept terms at their calibration rows' values."""
 
     structured: bool
     p_value: float
