@@ -299,7 +299,7 @@ def test_each_term_says_which_state_it_reads_on_report_later_and_new_session_row
     history starts anew in a new session, a function of the joints has no state."""
     from twin.diagnosis.apply import STATE_BLOCKS, term_state
     from twin.diagnosis.atoms import Atom
-    from twin.diagnosis.features import Lag, Pow, Sign, Step, Window
+    from twin.diagnosis.features import Const, Exp, Lag, Pow, Sign, Step, Window
 
     def atom(f, place="joint", target="theta2"):
         return Atom("change", place, target, (f,), "", "a term", "catalogue")
@@ -311,6 +311,8 @@ def test_each_term_says_which_state_it_reads_on_report_later_and_new_session_row
     lag = atom(Lag(ch="temp_c", tau=300.0, c=20.0, h=1.0), "length", "all_lengths")
     assert "last row" in term_state(lag, "rows_after_the_campaign") and "settled" in term_state(lag, "new_session")
     assert "new history" in term_state(atom(Sign(j=2)), "new_session")
+    settling = Atom("unnamed", "scale", "meas_scale", (Const(), Exp(ch="t_s", t0=0.0, tau=800.0)), "", "a term", "generic")
+    assert "ended in" in term_state(settling, "new_session")  # the state is the feature's that has one
     assert all(term_state(atom(Pow(ch="q2", p=1, c=0.0, h=1.0)), b) is None for b in STATE_BLOCKS)
     with pytest.raises(ValueError, match="block"):
         term_state(step, "later")

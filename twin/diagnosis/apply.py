@@ -125,11 +125,10 @@ def term_state(atom: Atom, block: str) -> str | None:
     is not recorded or another session); None for a term that has none (a function of the row's own joints)."""
     if block not in STATE_BLOCKS:
         raise ValueError(f"block must be one of {STATE_BLOCKS}, got {block!r}")
-    kinds = [k for k in (_stateful(f) for f in atom.features) if k is not None]
-    if not kinds:
+    stateful = [(k, f) for k, f in ((_stateful(f), f) for f in atom.features) if k is not None]
+    if not stateful:
         return None
-    kind = kinds[0]
-    f0 = atom.features[0]
+    kind, f0 = stateful[0]
     if kind == "change":
         until = getattr(f0, "until", None)
         if until is None:
@@ -193,10 +192,10 @@ def row_states(cal: Calibration, ctx: RowContext) -> list[str]:
     out = []
     t = ctx.t_s
     for a, _ in effect_atoms(cal):
-        kinds = [k for k in (_stateful(f) for f in a.features) if k is not None]
-        if not kinds:
+        stateful = [(k, f) for k, f in ((_stateful(f), f) for f in a.features) if k is not None]
+        if not stateful:
             continue
-        f0 = a.features[0]
+        kinds, f0 = [stateful[0][0]], stateful[0][1]
         if kinds[0] == "change":
             x = feature_channel(ctx, f0, f0.ch) if (f0.ch != "t_s" or t is not None) else None
             until = getattr(f0, "until", None)
