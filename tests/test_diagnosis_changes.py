@@ -484,3 +484,19 @@ def test_the_scan_on_two_threads_finds_what_it_finds_on_one():
     two = scan_changes(prob, base, places)
     assert len(one) >= 1
     assert [(a.key, a.features) for a in two] == [(a.key, a.features) for a in one]
+
+
+def test_a_step_ended_at_a_time_is_the_window_from_its_start_to_that_time():
+    """as_window turns a kept step into a window ending at the time given (its features, channel and label), and a
+    window into one with that end."""
+    from twin.diagnosis.atoms import Atom
+    from twin.diagnosis.changes import as_window, is_step, is_window
+    from twin.diagnosis.features import Step, Window
+
+    a = Atom("change", "joint", "theta3", (Step(ch="t_s", at=120.5),), "change(t_s >= 120.5)",
+             "change of the joint 3 offset from t_s 118 on", "change", (3,))
+    w = as_window(a, 300.25)
+    assert is_step(a) and is_window(w) and not is_step(w)
+    assert w.features == (Window(ch="t_s", at=120.5, until=300.25),) and w.pool == "change_window"
+    assert w.label == "change of the joint 3 offset from t_s 120.5 until 300.25"
+    assert as_window(w, 280.0).label == "change of the joint 3 offset from t_s 120.5 until 280"

@@ -389,12 +389,16 @@ class Gated(Feature):
 
 @dataclass(**_FROZEN)
 class Exp(Feature):
-    """``1 - exp(-(x - t0) / tau)`` of the channel ``ch`` (zero before ``t0``; ``t0``, ``tau`` [s]): a warm-up."""
+    """``1 - exp(-(x - t0) / tau)`` of the channel ``ch`` (zero before ``t0``; ``t0``, ``tau`` [s]): a warm-up, the
+    response of a first-order lag to a unit step of its input at ``t0``. With ``ramp`` [s], the response to a unit
+    ramp of the input from ``t0`` over ``ramp`` (the air warming over that time): ``u / T - (tau / T) (1 - e^{-u /
+    tau})`` while ``u = x - t0 <= T``, ``1 - (tau / T) (e^{-(u - T) / tau} - e^{-u / tau})`` after."""
 
     kind: ClassVar[str] = "exp"
     ch: str
     t0: float
     tau: float
+    ramp: float | None = None
     record_pose_id: tuple[int, ...] | None = None
     t_span: tuple[float, float] | None = None
 

@@ -27,6 +27,7 @@ __all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
+ONSET_QUANTILES = (0.2, 0.4, 0.6)  # onsets of the air's change without a temperature record, on the rows' times (refined)
 MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of their own
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint) of a 6R arm: wrist drive shafts pass through joints 4, 5
@@ -221,6 +222,12 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             else:
                 f = Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))
                 variants.append(((f,), f"warm-up 1-exp(-t/{tau:.4g} s)"))
+                if tau < span:
+                    # the air changed later (a door opened, the heating switched): a step at an onset through the
+                    # links' lag (onset, ramp and lag refined when tried: twin.diagnosis.refine.refine_onset)
+                    for at in np.quantile(ctx.t_s, ONSET_QUANTILES):
+                        f = Exp(ch="t_s", t0=float(at), tau=float(tau))
+                        variants.append(((f,), f"the air's step at t_s {at:.6g}, lagged {tau:.4g} s"))
             # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
             # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
             heat = [Heat(tau=float(tau), joints=tuple(js),
@@ -229,6 +236,18 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             variants.append(((*heat,
                               Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
                              f"motion heat lagged {tau:.4g} s"))
+            # one motor heating the arm (a joint that travels more than the others): all links together, by its travel
+            # alone (a warm-up beside it is the group's or the warm-up's atom: with one it would follow any smooth
+            # drift of the cell, a recorded temperature's too)
+            # (a joint that travels a small part of the arm's travel is left out: its heat barely varies over the
+            # rows, and a coefficient fitted there multiplies whatever it travels later)
+            h_all = float(np.mean(motion_heat(ctx, float(tau), tuple(range(1, N + 1)))))
+            for j in range(1, N + 1):
+                h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
+                if h > h_all / (2 * N):
+                    one = ((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s")
+                    atoms.append(Atom("thermal", "length", "all_lengths", one[0], one[1],
+                                      f"thermal growth of all link lengths vs {one[1]}", "catalogue"))
     for fs, chan in variants:
         atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
                           "catalogue"))

@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
@@ -26,9 +27,11 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
+from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term
 from .ordering import alternatives, order_candidates
-from .problem import Fit, Problem, covariance, psi_init, update_gross
-from .refine import polish_in_fit, prefer_play, prefer_sign, refine, widen
+from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
+from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
+                     refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf
 
@@ -42,6 +45,9 @@ __all__ = [
     "adopt",
     "implausible_size",
     "backward",
+    "retime",
+    "AfterBlocks",
+    "after_blocks",
 ]
 
 
@@ -132,8 +138,19 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             if k < len(first):
                 break
             continue
+        if retimeable(s.atom):
+            # a thermal term's time constants (the air's onset and ramp, the links' lag, the motors' heat) are the
+            # effect's, not the grid's: judged at their best values (an onset's evidence then pays for the onsets,
+            # ramps and lags tried: refine_onset)
+            s = refine(prob, fit, s, sizes)
+            if is_onset(s.atom) and s.logp_adj >= np.log(alpha_select):
+                out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
+                                                 float(np.exp(s.logp_adj)), float("nan"),
+                                                 "not significant on the calibration rows after the onsets tried"))
+                out.rejected.append(s.atom.key)
+                continue
         c = confirm(prob, fit, s, z_min)
-        if c.local and time_only(s.atom):
+        if c.local and time_only(s.atom) and not is_onset(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
             # period), not at the coarse grid value it was found at: a slip between two grid times is a step
             refined = refine(prob, fit, s, sizes)
@@ -195,7 +212,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             break
         accepted = r.accepted
         taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
-        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
+        refined = refine_load_sign(prob, fit, accepted if retimeable(accepted.atom) else refine(prob, fit, accepted, sizes),
+                                   sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
         taken.add(_slot(accepted.atom))
         kept += 1
@@ -346,6 +364,10 @@ def _implausible(prob: Problem, s) -> str | None:
     if a.place == "length" and float(np.ptp(eff)) > THERMAL_MAX:
         return (f"implausible for thermal growth: {np.ptp(eff) * 1e6:.0f} ppm over the rows (more than "
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
+    if a.place == "length" and is_onset(a) and float(np.sum(np.abs(s.basis @ s.psi))) > THERMAL_MAX:
+        # the air's change settles to its full size after the rows: the size it settles to
+        return (f"implausible for thermal growth: {np.sum(np.abs(s.basis @ s.psi)) * 1e6:.0f} ppm once the air's change "
+                f"has settled (more than {THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
     cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
     if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
         return f"implausible for {a.family}: {np.max(np.abs(eff)) / RAD_PER_DEG:.3f} deg (more than {cap / RAD_PER_DEG:.1f} deg)"
@@ -576,3 +598,87 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
                              "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
             fit = alt
     return fit, notes, alts
+def retime(prob: Problem, fit: Fit) -> Fit:
+    """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
+    model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
+    the thermal terms of the air (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
+    :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`) and the direction of a
+    load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`), each term against
+    the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of every row
+    significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved), stay within the onset grid's
+    range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates
+    as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use, chosen on
+    the first block of a campaign and refitted on every row: an air step after that block fixes the lag the block
+    could not see; the flank a load pushes a gear to is read on every row."""
+    span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
+    for k in range(len(fit.chosen)):
+        atom, _ = fit.chosen[k]
+        load = isinstance(atom.features[0], LoadSign) and atom.features[0].u is not None
+        if not (follows_the_air(atom) or load):
+            continue
+        others = [c for i, c in enumerate(fit.chosen) if i != k]
+        without = refit_with(prob, fit, others)
+        sizes = {atom.pool: 1}
+        got = score_atoms(prob, without, [atom], sizes, exact_top=1)
+        if not got:
+            continue
+        new = refine_load_sign(prob, without, got[0], sizes) if load else refine_time(prob, without, got[0], sizes)
+        if new.atom is atom:
+            continue
+        taus = [f.tau for f in new.atom.features if getattr(f, "tau", None) is not None]
+        if not load and (not taus or max(taus) > max(ONSET_TAUS) * span):
+            continue
+        chosen = list(fit.chosen)
+        chosen[k] = (new.atom, new.basis)
+        trial = refit_with(prob, fit, chosen)
+        psi = trial.z[trial.model_cal.offsets[k]:trial.model_cal.offsets[k + 1]]
+        moved = 2 if load else 3 if is_onset(new.atom) else 1
+        gain = (fit.chi2 - trial.chi2) / prob.evidence_scale
+        if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
+            fit = trial
+    return fit
+
+
+@dataclass(frozen=True)
+class AfterBlocks:
+    """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
+    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"`` or ``"glitch"``; ``late``: the
+    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), and notes."""
+
+    fit: Fit
+    found: tuple
+    notes: tuple
+
+
+def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
+                 z_min: float) -> AfterBlocks:
+    """Step 9, on the rows of ``prob_x`` (every row of the campaign; or every row before the report block) from the
+    chosen model refitted on them (``src``): a change after the rows that fit, located before a cut and confirmed after
+    it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
+    :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
+    block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
+    ends (:func:`~twin.diagnosis.late.end_steps`) and a change and back of a joint's zero
+    (:func:`~twin.diagnosis.late.glitches`)."""
+    found, notes = [], []
+    if late and pool:
+        got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
+        notes.append(note)
+        if got is None:
+            # the air's temperature changing after the rows that fit (a door opened late in the campaign)
+            got, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
+            if note:
+                notes.append(note)
+        if got is not None:
+            src = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
+            if not is_change(got.atom):
+                src = retime(prob_x, src)
+            found.append((got.atom, "late", got, got.dchi2))
+    if (pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any():
+        # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
+        # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
+        src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
+        zeros = [p for p in places if p.place == "joint" and p.inner is None]
+        src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
+        notes += notes_end + notes_win
+        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    return AfterBlocks(src, tuple(found), tuple(notes))
