@@ -16,7 +16,7 @@ from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, 
                     joint_words, play_backlash)
 from .extend import reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
-from .problem import Fit, Problem
+from .problem import Fit, Problem, refit_with
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
@@ -63,14 +63,20 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     joint moves into every row; it differs from the last move only on the rows that did not move). The size of the
     move must add evidence beyond ``chi2_1`` at 1 % / the number of laws and widths tried
     (``BACKLASH_MOVE_WIDTHS_DEG``, ``BACKLASH_MOVE_LAWS``) over each. Both backlashes are the one backlash of the
-    joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign."""
+    joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign. Against
+    the sign the size is also judged nested: scored on the model refitted with the joint's sign backlash, it must add
+    that evidence beyond it (two readings of one strong backlash differ by a linearised score's small error of it,
+    which a difference of their scores takes for evidence)."""
     sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
     if not sizes:
         return scored
     rival: dict[str, float] = {}
+    sign: dict[str, Scored] = {}
     for s in scored:
         if s.atom.family == "backlash" and {f.kind for f in s.atom.features} <= {"sign", "play"}:
             rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+            if s.dchi2 >= max((x.dchi2 for x in sign.values() if x.atom.target == s.atom.target), default=-np.inf):
+                sign[s.atom.target] = s
     targets = sorted({s.atom.target for s in sizes})
     steps = [Atom("unnamed", "joint", t, (StepIn(j=int(t[5:])),), f"step into the row j{t[5:]}",
                   f"unnamed: joint {t[5:]} angle varies with step into the row j{t[5:]}", "generic", (int(t[5:]),))
@@ -85,7 +91,7 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
             continue  # not significant: it competes as scored (it will not be tried)
         # at its best law and width, not the grid's (the linear step is the wide limit of both laws)
         top = refine(prob, fit, top, pool_sizes)
-        if top.dchi2 - rival.get(t, -np.inf) >= bar:
+        if top.dchi2 - rival.get(t, -np.inf) >= bar and _beyond_sign(prob, fit, top, sign.get(t), pool_sizes) >= bar:
             keep[t] = top
     out = []
     for s in scored:
@@ -95,6 +101,16 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
             continue
         out.append(s)
     return out
+
+
+def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, pool_sizes: dict[str, int]) -> float:
+    """The evidence ``size`` (a backlash growing with the last move) adds to ``fit`` refitted with the joint's sign
+    backlash ``sign`` (inf without one)."""
+    if sign is None:
+        return np.inf
+    with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
+    got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
+    return got[0].dchi2 if got else 0.0
 
 
 def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
