@@ -108,8 +108,12 @@ def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, poo
     backlash ``sign`` (inf without one)."""
     if sign is None:
         return np.inf
-    with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
-    got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
+    gross = (prob.w_cal, prob.keep_val)  # the rows the sign leaves gross, for this score only
+    try:
+        with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
+        got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
+    finally:
+        prob.w_cal, prob.keep_val = gross
     return got[0].dchi2 if got else 0.0
 
 
