@@ -14,7 +14,7 @@ from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
 from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
                     joint_words, play_backlash)
-from .extend import reduced_basis
+from .extend import error_stats, reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
@@ -66,7 +66,8 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign. Against
     the sign the size is also judged nested: scored on the model refitted with the joint's sign backlash, it must add
     that evidence beyond it (two readings of one strong backlash differ by a linearised score's small error of it,
-    which a difference of their scores takes for evidence)."""
+    which a difference of their scores takes for evidence), and the model with it must predict the confirmation rows
+    better than the model with the sign."""
     sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
     if not sizes:
         return scored
@@ -105,16 +106,19 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
 
 def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, pool_sizes: dict[str, int]) -> float:
     """The evidence ``size`` (a backlash growing with the last move) adds to ``fit`` refitted with the joint's sign
-    backlash ``sign`` (inf without one)."""
+    backlash ``sign``; 0 when the model with ``size`` in place of ``sign`` does not predict the confirmation rows
+    better than the model with ``sign`` (inf without a sign backlash)."""
     if sign is None:
         return np.inf
-    gross = (prob.w_cal, prob.keep_val)  # the rows the sign leaves gross, for this score only
+    gross = (prob.w_cal, prob.keep_val)  # each reading's own gross rows, for this comparison only
     try:
         with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
         got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
+        with_size = refit_with(prob, fit, list(fit.chosen) + [(size.atom, size.basis)])
     finally:
         prob.w_cal, prob.keep_val = gross
-    return got[0].dchi2 if got else 0.0
+    held = [error_stats(f.model_val, f.z, gross[1])["position_mm"]["rms"] for f in (with_size, with_sign)]
+    return got[0].dchi2 if got and held[0] < held[1] else 0.0
 
 
 def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
