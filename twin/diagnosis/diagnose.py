@@ -512,7 +512,10 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     # [configurations] a harmonic above the order its joint's sampling supports is not offered (aliasing)
     bounds = campaign_sampling(setup)
     pool = [a for a in pool if offered(a.features, bounds)]
-    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic", "load")}
+    # a joint's backlash growing with the last move is one more reading of its backlash, its grid of laws and widths
+    # paid for where it is preferred to the sign (twin.diagnosis.refine.prefer_sign): not more hypotheses of the pool
+    counted = [a for a in pool if not (a.family == "backlash" and a.features[0].kind == "lastmove")]
+    sizes = {k: max(1, sum(a.pool == k for a in counted)) for k in ("catalogue", "scan", "generic", "load")}
     sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
     return pool, sizes
 

@@ -45,6 +45,9 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
             margin = top.logp_adj - cand.logp_adj if cand.dchi2 >= top.dchi2 else 0.0
         if cand is not None and cand.logp_adj < top.logp_adj + margin:
             order = [cand] + [s for s in order if s is not cand]
+        elif same and named[0] is not cand and named[0].logp_adj < top.logp_adj + CATALOGUE_MARGIN:
+            # the named atom at the same place is far behind, but a named atom elsewhere is not: it leads
+            order = [named[0]] + [s for s in order if s is not named[0]]
     if not order or order[0].basis.shape[1] < broad_dim:
         return order
     best = order[0]
