@@ -312,20 +312,26 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
         prob_all.w_cal = np.maximum(w_gross, gross_runs(setup, prob_all))
         cands = scan_changes(prob_all, use_all, every_place, windows=True, alpha=alpha, short=MIN_ROWS)
         # a place a kept change or a kept joint term holds is not a glitch's (a window there is that term's misfit)
+        # (a joint's zero: a kept change or joint term there; a payload's window at a joint's compliance: a kept change
+        # of that compliance, the load's own term being the state outside the window)
         kept = [a for a, _ in use_all.chosen if is_change(a) or a.place == "joint"]
-        at = {(p.place, p.target) for p in places if p.inner is None}
+        at = {(p.place, p.target, p.inner is None) for p in places}
         pick = None
         for a in cands:
-            if not is_window(a) or (a.place, a.target) not in at or not isinstance(a.features[0], Window):
+            zero = isinstance(a.features[0], Window)
+            if not is_window(a) or (a.place, a.target, zero) not in at:
                 continue
             if any(is_step(c) for c in cands[:cands.index(a)]):
                 continue  # a step explains more (a window over most of the rows is a step's complement): no return
-            if any((c.place, c.target) == (a.place, a.target) for c in kept):
+            if any((c.place, c.target) == (a.place, a.target) and (zero or is_change(c)) for c in kept):
                 continue
             got = score_atoms(prob_all, use_all, [a], sizes, exact_top=1)
             if not got:
                 continue
-            s2 = _place_scatter(setup, prob_all, use_all, a)
+            # the scatter the rows outside show: a payload's window measured against the model with it (the rows
+            # inside pull a fit on every row along the load's shapes, and the rows outside then carry that pull)
+            s2 = _place_scatter(setup, prob_all, use_all if zero else
+                                refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)]), a)
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
             if logp < np.log(alpha):

@@ -677,7 +677,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
         # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
         src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
-        zeros = [p for p in places if p.place == "joint" and p.inner is None]
+        # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
+        zeros = [p for p in places if p.place == "joint"]
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
