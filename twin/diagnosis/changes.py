@@ -430,14 +430,20 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
 
 
 def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
-    """The same change (its rows) at every other joint's compliance of ``places`` when ``atom`` is a change of a
-    joint's compliance: a payload hangs at the flange, and gravity loads every joint below it at once (the arm's
-    torque shapes at each of them change together); else none."""
+    """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
+    at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
+    shapes on every row. A payload hangs at the flange and gravity loads every joint below it at once (the torque
+    shapes at each of them change together), on top of the arm's own weight, which the joints carry on every row
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``). Else none."""
     f0 = atom.features[0]
     if not isinstance(f0, Gated) or atom.place != "joint":
         return []
-    return [_atom(pl, f0.ch, f0.at, f0.until) for pl in places
-            if pl.inner is not None and pl.place == "joint" and pl.target != atom.target]
+    loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
+    same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
+    if f0.until is not None:
+        return same
+    return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words, "change",
+                pl.joints) for pl in loads]
 
 
 def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:
