@@ -34,7 +34,7 @@ from ..estimator.core import prepare
 from ..estimator import distributions as dists
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_window, change_pool_sizes, is_change, is_step, is_window,
                       row_times, scan_changes)
-from .features import Lag, Window
+from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
@@ -43,7 +43,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "late_change", "late_templates", "late_term", "end_steps", "glitches", "gross_runs",
-           "rows_to_confirm"]
+           "rows_to_confirm", "own_weight"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -394,3 +394,32 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
         else:
             k += 1
     return out
+
+
+def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> tuple[Fit, list, list[str]]:
+    """A joint whose compliance changes with a payload (a kept change of its gravity-torque shapes, a step or a
+    window) carries the arm's own weight on every row through the same compliance
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``): where the model has no compliance of that joint under the arm's
+    own weight (the block that chose the terms rejected it while a payload it did not hold loaded the later rows),
+    the catalogue's term joins on every row when significant there, after the factor of the joints tried (``chi2``
+    of its rank at ``alpha``), strongest first. Returns the fit with them, the terms (atom, ``Delta chi2``) and
+    notes."""
+    loaded = {a.target for a, _ in use_all.chosen
+              if is_change(a) and a.place == "joint" and a.features and isinstance(a.features[0], Gated)}
+    have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
+    cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
+             and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
+    found, notes = [], []
+    while cands:
+        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
+        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        k = int(np.argmin(logp))
+        g = got[k]
+        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
+        found.append((g.atom, float(g.dchi2)))
+        notes.append(f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight "
+                     f"on every row; p = {np.exp(logp[k]):.2g} after the factor {len(cands)} of the joints tried)")
+        cands = [a for a in cands if a.target != g.atom.target]
+    return use_all, found, notes

@@ -27,7 +27,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term
+from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
@@ -680,6 +680,7 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
         zeros = [p for p in places if p.place == "joint"]
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
-        notes += notes_end + notes_win
-        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+        src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
+        notes += notes_end + notes_win + notes_load
+        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins] + [(a, "load", None, dchi2) for a, dchi2 in loads]
     return AfterBlocks(src, tuple(found), tuple(notes))
