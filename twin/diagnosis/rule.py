@@ -669,10 +669,19 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             if note:
                 notes.append(note)
         if got is not None:
-            src = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
+            with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
             if not is_change(got.atom):
-                src = retime(prob_x, src)
-            found.append((got.atom, "late", got, got.dchi2))
+                with_got = retime(prob_x, with_got)
+                # a kept change that ends (a payload taken off) is preferred over a change of the air after the rows
+                # that fit where it explains every row as well: the kept term with one more constant, its end
+                ended, ends = end_steps(setup, prob_x, src, alpha=alpha)
+                if ends and ended.chi2 - with_got.chi2 < prob_x.evidence_scale * chi2_isf(alpha, 1):
+                    notes.append(f"not kept: {got.atom.label}; a kept change that ends explains every row as well "
+                                 f"(chi2 {ended.chi2:.1f} against {with_got.chi2:.1f})")
+                    got = None
+            if got is not None:
+                src = with_got
+                found.append((got.atom, "late", got, got.dchi2))
     if (pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any():
         # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
         # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
