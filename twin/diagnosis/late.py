@@ -302,7 +302,10 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
     everything else (a zero off on 40 rows pulls the joint's offset of a fit on every row by a fraction of it, and
     every later row with it). At most ``most``, strongest first, none at a place a kept change or joint term holds
     (a window there is that term's misfit on a few rows). Returns the
-    fit with them, the windows (atom, calibration Delta chi2) and notes."""
+    fit with them, the windows (atom, calibration Delta chi2) and notes. ``places`` may hold a joint's compliance
+    (its gravity-torque shapes: a payload hung on and taken off again); its window's scatter is measured on the
+    model with it (the rows inside pull a fit on every row along the load's shapes, and the rows outside carry that
+    pull), and only a kept change of that compliance excludes it."""
     sizes = change_pool_sizes(prob_all.obs_cal.n, every_place, short=MIN_ROWS)
     found, notes = [], []
     for _ in range(most):

@@ -657,8 +657,10 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
-    ends (:func:`~twin.diagnosis.late.end_steps`) and a change and back of a joint's zero
-    (:func:`~twin.diagnosis.late.glitches`)."""
+    ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`), and the arm's own weight at a joint a payload's
+    change shows compliant (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is
+    not kept where a kept change that ends explains every row as well."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
