@@ -199,8 +199,6 @@ KNOWN_MISSES: dict[tuple[str, int], str] = {
     ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
     ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
     ('backlash_load', 101): 'later rows after/oracle 2.31 > 1.2 (joint 2, sharp)',
-    ('thermal', 100): 'report after/oracle 2.11 > 1.2; later rows after/oracle 1.65 > 1.2 (step +5.9 K at 0.15 span, lag 0.09 span, all links, t_s only)',
-    ('zero_glitch', 101): 'no change, not one window of theta5 at row 57-109; report after/oracle 1.98 > 1.5 (joint 5 rows 57-109/140)',
     ('frame_change', 101): 'report after/oracle 4.68 > 1.5 (slip at row 105/128)',
     ('clean', 101): 'structured (a false alarm) (AR(1) rho 0.71, 0.267x noise; burst rows 20-23 x4.71)',
 }
