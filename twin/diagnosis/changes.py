@@ -425,22 +425,48 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         return out
 
     out = [c for got in thread_map(place_scan, places, prob.threads) for c in got]
-    return [a for _, a in sorted(out, key=lambda t: t[0]) if _white_after(prob, fit, a, sizes, order)]
+    return [a for _, a in sorted(out, key=lambda t: t[0])
+            if _white_after(prob, fit, a, sizes, order, _payload_companions(a, places))]
 
 
-def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
+def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
+    """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
+    at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
+    shapes on every row. A payload hangs at the flange and gravity loads every joint below it at once (the torque
+    shapes at each of them change together), on top of the arm's own weight, which the joints carry on every row
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``). Else none."""
+    f0 = atom.features[0]
+    if not isinstance(f0, Gated) or atom.place != "joint":
+        return []
+    loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
+    same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
+    if f0.until is not None:
+        return same
+    return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
+                        "change", pl.joints) for pl in loads]
+
+
+def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:
     """Whether the residual the change leaves is white in time: the lag-1 correlation of consecutive rows' whitened
     residual vectors (time order, rows of the same commanded joints not paired: a repeat shares its visit's error),
     ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
-    a stretch of it, whose evidence against the (white) floor then says nothing."""
+    a stretch of it, whose evidence against the (white) floor then says nothing. ``companions``: changes of the same
+    rows fitted with it for this test (:func:`_payload_companions`: a payload changes every joint's load at once,
+    and one joint's change alone leaves the others' steps in the rows)."""
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False
     sb = scoring_basis(prob, fit)
     e = np.zeros(len(sb.keep))
-    fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
-    e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
+    if companions:
+        more = score_atoms(prob, fit, list(companions), sizes, exact_top=len(companions))
+        Ep = np.hstack([got[0].Ep] + [m.Ep for m in more])
+        psi = np.linalg.lstsq(Ep, got[0].r, rcond=None)[0]
+        e[sb.keep] = got[0].r - Ep @ psi
+    else:
+        fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
+        e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
     R = row_blocks(fit.model_cal, e)[order]
     R[~np.isfinite(R)] = 0.0
     q = np.round(prob.ctx.q[prob.rows_cal][order], 9)

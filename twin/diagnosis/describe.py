@@ -35,8 +35,8 @@ def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, .
                      f"{', '.join(sorted(_joint_channels(a)))} on joint {a['target'][5:]} that the catalogue does not "
                      f"name (not as {a['family']})")
     unnamed_shape = {id(a) for a, _ in merged}
-    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed" and not is_change(a)
-                                  and not a["minor"] and id(a) not in unnamed_shape))
+    effects = tuple(dict.fromkeys(_named_family(a) for a in atoms_json if not a["minor"] and id(a) not in unnamed_shape
+                                  and _named_family(a) is not None))
     minor = [a["label"] for a in atoms_json if a["minor"]]
     if minor:
         notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
@@ -47,6 +47,18 @@ def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, .
         notes.append("terms on the measurement side (scale, field or frame of the measurements) describe the instrument or "
                      f"the cell, not the robot: {'; '.join(instrument)}")
     return effects, unnamed, notes
+
+
+def _named_family(a: dict) -> str | None:
+    """The catalogue family a term names: its own (none for an unnamed term); a change names none (a zero, a frame
+    or a tool moved is reported in ``changes``), except a change of a joint's gravity-torque shapes (a payload hung
+    on or taken off), which shows the joint deflecting under load: ``compliance``."""
+    if a["family"] == "unnamed":
+        return None
+    if not is_change(a):
+        return a["family"]
+    f0 = a["features"][0] if a["features"] else {}
+    return "compliance" if a["place"] == "joint" and f0.get("kind") == "gated" else None
 
 
 def _joint_channels(a: dict) -> set[str]:

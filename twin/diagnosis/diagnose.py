@@ -613,7 +613,8 @@ def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
 
 
 FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
-         "glitch": "on every row, a change and back (its own rows and the rows after it; nothing later depends on it)"}
+         "glitch": "on every row, a change and back (its own rows and the rows after it; nothing later depends on it)",
+         "load": "on every row, the arm's own weight at a joint whose compliance a payload's change shows"}
 
 
 def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None, atoms_json: list[dict],

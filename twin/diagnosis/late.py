@@ -34,7 +34,7 @@ from ..estimator.core import prepare
 from ..estimator import distributions as dists
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_window, change_pool_sizes, is_change, is_step, is_window,
                       row_times, scan_changes)
-from .features import Lag, Window
+from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
@@ -43,7 +43,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "late_change", "late_templates", "late_term", "end_steps", "glitches", "gross_runs",
-           "rows_to_confirm"]
+           "rows_to_confirm", "own_weight"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -302,7 +302,10 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
     everything else (a zero off on 40 rows pulls the joint's offset of a fit on every row by a fraction of it, and
     every later row with it). At most ``most``, strongest first, none at a place a kept change or joint term holds
     (a window there is that term's misfit on a few rows). Returns the
-    fit with them, the windows (atom, calibration Delta chi2) and notes."""
+    fit with them, the windows (atom, calibration Delta chi2) and notes. ``places`` may hold a joint's compliance
+    (its gravity-torque shapes: a payload hung on and taken off again); its window's scatter is measured on the
+    model with it (the rows inside pull a fit on every row along the load's shapes, and the rows outside carry that
+    pull), and only a kept change of that compliance excludes it."""
     sizes = change_pool_sizes(prob_all.obs_cal.n, every_place, short=MIN_ROWS)
     found, notes = [], []
     for _ in range(most):
@@ -312,20 +315,26 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
         prob_all.w_cal = np.maximum(w_gross, gross_runs(setup, prob_all))
         cands = scan_changes(prob_all, use_all, every_place, windows=True, alpha=alpha, short=MIN_ROWS)
         # a place a kept change or a kept joint term holds is not a glitch's (a window there is that term's misfit)
+        # (a joint's zero: a kept change or joint term there; a payload's window at a joint's compliance: a kept change
+        # of that compliance, the load's own term being the state outside the window)
         kept = [a for a, _ in use_all.chosen if is_change(a) or a.place == "joint"]
-        at = {(p.place, p.target) for p in places if p.inner is None}
+        at = {(p.place, p.target, p.inner is None) for p in places}
         pick = None
         for a in cands:
-            if not is_window(a) or (a.place, a.target) not in at or not isinstance(a.features[0], Window):
+            zero = isinstance(a.features[0], Window)
+            if not is_window(a) or (a.place, a.target, zero) not in at:
                 continue
             if any(is_step(c) for c in cands[:cands.index(a)]):
                 continue  # a step explains more (a window over most of the rows is a step's complement): no return
-            if any((c.place, c.target) == (a.place, a.target) for c in kept):
+            if any((c.place, c.target) == (a.place, a.target) and (zero or is_change(c)) for c in kept):
                 continue
             got = score_atoms(prob_all, use_all, [a], sizes, exact_top=1)
             if not got:
                 continue
-            s2 = _place_scatter(setup, prob_all, use_all, a)
+            # the scatter the rows outside show: a payload's window measured against the model with it (the rows
+            # inside pull a fit on every row along the load's shapes, and the rows outside then carry that pull)
+            s2 = _place_scatter(setup, prob_all, use_all if zero else
+                                refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)]), a)
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
             if logp < np.log(alpha):
@@ -388,3 +397,32 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
         else:
             k += 1
     return out
+
+
+def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> tuple[Fit, list, list[str]]:
+    """A joint whose compliance changes with a payload (a kept change of its gravity-torque shapes, a step or a
+    window) carries the arm's own weight on every row through the same compliance
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``): where the model has no compliance of that joint under the arm's
+    own weight (the block that chose the terms rejected it while a payload it did not hold loaded the later rows),
+    the catalogue's term joins on every row when significant there, after the factor of the joints tried (``chi2``
+    of its rank at ``alpha``), strongest first. Returns the fit with them, the terms (atom, ``Delta chi2``) and
+    notes."""
+    loaded = {a.target for a, _ in use_all.chosen
+              if is_change(a) and a.place == "joint" and a.features and isinstance(a.features[0], Gated)}
+    have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
+    cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
+             and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
+    found, notes = [], []
+    while cands:
+        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
+        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        k = int(np.argmin(logp))
+        g = got[k]
+        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
+        found.append((g.atom, float(g.dchi2)))
+        notes.append(f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight "
+                     f"on every row; p = {np.exp(logp[k]):.2g} after the factor {len(cands)} of the joints tried)")
+        cands = [a for a in cands if a.target != g.atom.target]
+    return use_all, found, notes

@@ -27,7 +27,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term
+from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
@@ -657,8 +657,10 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
-    ends (:func:`~twin.diagnosis.late.end_steps`) and a change and back of a joint's zero
-    (:func:`~twin.diagnosis.late.glitches`)."""
+    ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`), and the arm's own weight at a joint a payload's
+    change shows compliant (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is
+    not kept where a kept change that ends explains every row as well."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
@@ -669,16 +671,27 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             if note:
                 notes.append(note)
         if got is not None:
-            src = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
+            with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
             if not is_change(got.atom):
-                src = retime(prob_x, src)
-            found.append((got.atom, "late", got, got.dchi2))
+                with_got = retime(prob_x, with_got)
+                # a kept change that ends (a payload taken off) is preferred over a change of the air after the rows
+                # that fit where it explains every row as well: the kept term with one more constant, its end
+                ended, ends = end_steps(setup, prob_x, src, alpha=alpha)
+                if ends and ended.chi2 - with_got.chi2 < prob_x.evidence_scale * chi2_isf(alpha, 1):
+                    notes.append(f"not kept: {got.atom.label}; a kept change that ends explains every row as well "
+                                 f"(chi2 {ended.chi2:.1f} against {with_got.chi2:.1f})")
+                    got = None
+            if got is not None:
+                src = with_got
+                found.append((got.atom, "late", got, got.dchi2))
     if (pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any():
         # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
         # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
         src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
-        zeros = [p for p in places if p.place == "joint" and p.inner is None]
+        # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
+        zeros = [p for p in places if p.place == "joint"]
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
-        notes += notes_end + notes_win
-        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+        src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
+        notes += notes_end + notes_win + notes_load
+        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins] + [(a, "load", None, dchi2) for a, dchi2 in loads]
     return AfterBlocks(src, tuple(found), tuple(notes))
