@@ -51,7 +51,7 @@ from .candidates import EFFECT_VOCABULARY, RowContext
 from .changes import change_places, change_pool_sizes, describe_changes, is_change, row_times
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .extend import error_stats, reduced_basis
-from .features import LoadSign
+from .features import LastMove, LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
 from .structure import StructureTest, gross_rows, row_rms
@@ -852,10 +852,11 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:
             raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
-        # a backlash by name is the sign of the last move (the load-signed one is searched over directions: an Atom)
+        # a backlash by name is the sign of the last move (the load-signed one is searched over directions, the one
+        # growing with the last move over laws and widths: an Atom)
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
                if a.family in fams and a.target != "all_lengths" and a.pool == "catalogue"
-               and not any(isinstance(f, LoadSign) for f in a.features)]
+               and not any(isinstance(f, (LoadSign, LastMove)) for f in a.features)]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)
