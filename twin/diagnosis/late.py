@@ -94,6 +94,15 @@ def _rms_mm(fit: Fit, prob: Problem) -> float:
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 
+
+def _cut(t_rows: np.ndarray, later: np.ndarray, z_min: float) -> tuple[float | None, int]:
+    """Where a change found after the rows that fit is cut (``t_rows`` every calibration row's time, sorted; ``later``
+    those after the change): the time of the row that leaves enough rows before it to locate the change, and the
+    rows it takes to locate and confirm it (None when fewer follow the change)."""
+    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
+    need = n_locate + rows_to_confirm(z_min)
+    return (float(later[n_locate]) if len(later) >= need else None), need
+
 def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], *, alpha: float,
                 z_min: float) -> tuple[LateChange | None, str]:
     """Steps 1-3 of the module docstring. ``use_all``: the model in use refitted on every row (``prob_all``).
@@ -111,12 +120,10 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
         return None, "no change after the rows that fit (step scan on every row)"
     at = float(found[0].features[0].at)
     later = t_rows[t_rows > at]
-    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
-    need = n_locate + rows_to_confirm(z_min)
-    if len(later) < need:
+    t_cut, need = _cut(t_rows, later, z_min)
+    if t_cut is None:
         return None, (f"a change after the rows that fit ({found[0].label}) has {len(later)} rows after it, fewer than "
                       f"the {need} it takes to locate it on some and confirm it on others: not kept")
-    t_cut = float(later[n_locate])
     prob = _prob_before(setup, prob_all, t_cut)
     fit0 = refit_with(prob, use_all, use_all.chosen)
     cands = [a for a in scan_changes(prob, fit0, places, windows=False, alpha=alpha)
@@ -220,12 +227,10 @@ def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha:
     _, s_all, start = max(found, key=lambda x: x[0])
     t_rows = np.sort(tv[prob_all.rows_cal])
     later = t_rows[t_rows >= start]
-    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
-    need = n_locate + rows_to_confirm(z_min)
-    if len(later) < need:
+    t_cut, need = _cut(t_rows, later, z_min)
+    if t_cut is None:
         return None, (f"a change after the rows that fit ({s_all.atom.label}) has {len(later)} rows after its start, "
                       f"fewer than the {need} it takes to locate it on some and confirm it on others: not kept")
-    t_cut = float(later[n_locate])
     prob = _prob_before(setup, prob_all, t_cut)
     fit0 = refit_with(prob, use_all, use_all.chosen)
     s, _ = _fit_template(prob, fit0, s_all.atom, t_fit_end, sizes)

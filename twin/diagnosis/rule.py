@@ -451,6 +451,14 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
     return fit, notes, alts
 
 
+
+def _replaced(kept: Atom, replaced: Atom, e_alt: float, e_now: float) -> dict:
+    """The ``alternatives`` entry of a term ``replaced`` by ``kept`` because the model with ``kept`` predicts the held-out
+    rows as well (``e_alt`` against ``e_now`` [mm] RMS); the evidence columns do not apply (nan)."""
+    return {"of": kept.label, "alternative": replaced.label, "family": replaced.family, "channel": replaced.channel,
+            "target": replaced.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
+            "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]}
+
 def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """Where a catalogue family is named by one term only, at one joint, and another named family has terms of that
@@ -490,10 +498,7 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         if e_alt <= 1.02 * e_now:
             notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
                          f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
-            for c in new:
-                alts.append({"of": c.label, "alternative": a.label, "family": a.family, "channel": a.channel,
-                             "target": a.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
-                             "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            alts += [_replaced(c, a, e_alt, e_now) for c in new]
             fit = alt
     return fit, notes, alts
 
@@ -592,12 +597,11 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
             notes.append(f"{'; '.join(repr(c.label) for c in others)} replaced by the load family's terms of "
                          f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}) beside "
                          f"'{a.label}': they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
-            for o in others:
-                alts.append({"of": a.label, "alternative": o.label, "family": o.family, "channel": o.channel,
-                             "target": o.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
-                             "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            alts += [_replaced(a, o, e_alt, e_now) for o in others]
             fit = alt
     return fit, notes, alts
+
+
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
