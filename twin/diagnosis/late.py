@@ -94,7 +94,6 @@ def _rms_mm(fit: Fit, prob: Problem) -> float:
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 
-
 def _cut(t_rows: np.ndarray, later: np.ndarray, z_min: float) -> tuple[float | None, int]:
     """Where a change found after the rows that fit is cut (``t_rows`` every calibration row's time, sorted; ``later``
     those after the change): the time of the row that leaves enough rows before it to locate the change, and the
@@ -136,20 +135,25 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     if not scored:
         return None, f"a change after the rows that fit ({cands[0].label}) could not be scored: not kept"
     s = scored[0]
+    return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
+
+
+def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str, z_min: float,
+               what: str) -> tuple[LateChange | None, str]:
+    """The change ``s`` (scored on ``prob``'s rows before the cut ``t_cut`` on channel ``ch``, against ``fit0``) judged
+    on the rows after the cut: the :class:`LateChange` when confirmed there (else None) and a note on ``what`` it is."""
     c = confirm(prob, fit0, s, z_min)
     ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
     P = prob.prep.space.size
-    chosen = list(use_all.chosen) + [(s.atom, s.basis)]
-    fit1 = prob.fit(fit0.z[:P], chosen, psi_init(fit0, use_all.chosen) + [s.psi])
+    fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
     got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),
                      int(prob.obs_val.n), _rms_mm(fit0, prob), _rms_mm(fit1, prob), float(s.dchi2))
     words = (f"{s.atom.label}: located and fitted on the {got.n_before} rows before {ch} {t_cut:.6g}, on the "
              f"{got.n_after} rows after it RMS {got.rms_without_mm:.4f} -> {got.rms_with_mm:.4f} mm (z {c.z:.1f}, "
              f"{c.z_without_best_row:.1f} without the best row)")
     if not ok:
-        return None, "a change after the rows that fit not confirmed on the rows after the cut: " + words
-    return got, "a change after the rows that fit, confirmed on later rows: " + words
-
+        return None, f"{what} not confirmed on the rows after the cut: " + words
+    return got, f"{what}, confirmed on later rows: " + words
 
 def late_templates(pool: list) -> list:
     """The thermal terms a change of the air after the rows that fit may take, one per place (all links, each link):
@@ -236,18 +240,8 @@ def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha:
     s, _ = _fit_template(prob, fit0, s_all.atom, t_fit_end, sizes)
     if s is None:
         return None, f"a change after the rows that fit ({s_all.atom.label}) could not be fitted before the cut: not kept"
-    c = confirm(prob, fit0, s, z_min)
-    ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
-    P = prob.prep.space.size
-    fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
-    got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),
-                     int(prob.obs_val.n), _rms_mm(fit0, prob), _rms_mm(fit1, prob), float(s.dchi2))
-    words = (f"{s.atom.label}: located and fitted on the {got.n_before} rows before {ch} {t_cut:.6g}, on the "
-             f"{got.n_after} rows after it RMS {got.rms_without_mm:.4f} -> {got.rms_with_mm:.4f} mm (z {c.z:.1f}, "
-             f"{c.z_without_best_row:.1f} without the best row)")
-    if not ok:
-        return None, "a change of the air's temperature after the rows that fit not confirmed on the rows after the cut: " + words
-    return got, "a change of the air's temperature after the rows that fit, confirmed on later rows: " + words
+    return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min,
+                      "a change of the air's temperature after the rows that fit")
 
 
 def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, list[str]]:
