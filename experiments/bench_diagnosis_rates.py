@@ -33,8 +33,10 @@ TESTS = ROOT / "tests"
 
 
 def rate_files() -> list[str]:
-    """The test files with costly rate tests (those that call ``rate_seeds``), relative to the repository."""
-    return sorted(str(p.relative_to(ROOT)) for p in TESTS.glob("test_*.py") if "rate_seeds(" in p.read_text())
+    """The test files with costly rate tests (those that call ``rate_seeds`` or run more cases under
+    ``FULL_RATES``), relative to the repository."""
+    return sorted(str(p.relative_to(ROOT)) for p in TESTS.glob("test_*.py")
+                  if "rate_seeds(" in p.read_text() or "FULL_RATES" in p.read_text())
 
 
 def _holds(rule: list, got) -> bool:

@@ -33,7 +33,7 @@ set_process_defaults()  # one BLAS thread (2 shared cores) before numpy loads, i
 from studies.drawn.generator.campaign import FAMILY_ORDER, LATER_ROWS, RATIO, ROBOT_WEIGHTS, ROWS  # noqa: E402
 from studies.drawn.generator.make import parse_families  # noqa: E402
 from studies.drawn.run import OUT, run, write_results  # noqa: E402
-from studies.drawn.scoring import GOAL, summarise  # noqa: E402
+from studies.drawn.scoring import GOAL, summarise, totals  # noqa: E402
 from twin.benchio import update_benchmark_section  # noqa: E402
 
 SECTION = "drawn_effects"
@@ -58,8 +58,6 @@ def section_from_results(path: Path, quick: bool = False) -> dict:
     res = json.loads(Path(path).read_text())
     summary = summarise(res["instances"])
     seeds = sorted({r["seed"] for r in res["instances"]})
-    effect = [s for s in summary.values() if s["category"] != "clean"]
-    clean = [s for s in summary.values() if s["category"] == "clean"]
     return {
         "quick": quick,
         "command": res["command"],
@@ -77,19 +75,7 @@ def section_from_results(path: Path, quick: bool = False) -> dict:
                               "log-uniform"},
         "goals": {"catalogue": GOAL["catalogue"], "outside": GOAL["outside"]},
         "families": summary,
-        "totals": {
-            "effect_families": len(effect),
-            "effect_instances": sum(s["n"] for s in effect),
-            "errors": sum(s["errors"] for s in summary.values()),
-            "named": sum(s["named"] for s in effect),
-            "report_within_goal": sum(s["report"]["within_goal"] for s in effect),
-            "test_within_goal": sum(s["test"]["within_goal"] for s in effect),
-            "test_within_1.2": sum(s["test"]["within_1.2"] for s in effect),
-            "named_and_test_within_1.2": sum(s["named_and_test_within_1.2"] for s in effect),
-            "families_at_9_of_10": sum(s["named_and_test_within_1.2"] >= 0.9 * (s["n"] - s["errors"]) for s in effect),
-            "clean_instances": sum(s["n"] for s in clean),
-            "clean_false_alarms": sum(s["false_alarms"] for s in clean),
-        },
+        "totals": totals(summary),
         "instances_table": "studies/drawn/results/summary.md",
         "wall_s": res["wall_s"],
         "cpu_s": res["cpu_s_jobs"],

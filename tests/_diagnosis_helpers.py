@@ -227,10 +227,14 @@ def _gravity_torque(model, q):
         return sum(m * (F[:, k + 1, :3, 3] + np.einsum("nij,j->ni", F[:, k + 1, :3, :3], c)) @ G
                    for k, (m, c) in enumerate(zip(MASSES, COMS)))
 
-    h = 1e-6
+    return potential_torques(V, q)
+
+
+def potential_torques(V, q, h=1e-6):
+    """Joint torques ``(n, N)`` [N m] ``-dV/dq`` of a potential energy ``V(q) -> (n,)`` [J] by central differences."""
     tau = np.zeros_like(q)
-    for i in range(6):
-        e = np.zeros(6)
+    for i in range(q.shape[1]):
+        e = np.zeros(q.shape[1])
         e[i] = h
         tau[:, i] = -(V(q + e) - V(q - e)) / (2 * h)
     return tau

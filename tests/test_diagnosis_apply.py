@@ -291,3 +291,28 @@ def test_a_drift_goes_on_while_the_campaign_continues_and_holds_in_another_sessi
     v = feature_values((f,), ctx, irb1200())[:, 0]
     assert v.tolist() == pytest.approx([0.0, 2.0, 2.998, 1.0])
     assert feature_values((f,), replace(ctx, t_s=None), irb1200())[:, 0].tolist() == pytest.approx([1.0] * 4)
+
+
+def test_each_term_says_which_state_it_reads_on_report_later_and_new_session_rows():
+    """term_state: a change reads the state after it (before it once it ended) after the campaign and in a new
+    session, a lag of the temperature is carried from the campaign's last row or settled without t_s, the approach
+    history starts anew in a new session, a function of the joints has no state."""
+    from twin.diagnosis.apply import STATE_BLOCKS, term_state
+    from twin.diagnosis.atoms import Atom
+    from twin.diagnosis.features import Const, Exp, Lag, Pow, Sign, Step, Window
+
+    def atom(f, place="joint", target="theta2"):
+        return Atom("change", place, target, (f,), "", "a term", "catalogue")
+
+    step, win = atom(Step(ch="t_s", at=100.0)), atom(Window(ch="t_s", at=100.0, until=200.0))
+    assert "after the change" in term_state(step, "rows_after_the_campaign")
+    assert "after the change" in term_state(step, "new_session")
+    assert "before the change" in term_state(win, "rows_after_the_campaign")
+    lag = atom(Lag(ch="temp_c", tau=300.0, c=20.0, h=1.0), "length", "all_lengths")
+    assert "last row" in term_state(lag, "rows_after_the_campaign") and "settled" in term_state(lag, "new_session")
+    assert "new history" in term_state(atom(Sign(j=2)), "new_session")
+    settling = Atom("unnamed", "scale", "meas_scale", (Const(), Exp(ch="t_s", t0=0.0, tau=800.0)), "", "a term", "generic")
+    assert "ended in" in term_state(settling, "new_session")  # the state is the feature's that has one
+    assert all(term_state(atom(Pow(ch="q2", p=1, c=0.0, h=1.0)), b) is None for b in STATE_BLOCKS)
+    with pytest.raises(ValueError, match="block"):
+        term_state(step, "later")

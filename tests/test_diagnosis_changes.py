@@ -484,3 +484,76 @@ def test_the_scan_on_two_threads_finds_what_it_finds_on_one():
     two = scan_changes(prob, base, places)
     assert len(one) >= 1
     assert [(a.key, a.features) for a in two] == [(a.key, a.features) for a in one]
+
+
+def test_a_step_ended_at_a_time_is_the_window_from_its_start_to_that_time():
+    """as_window turns a kept step into a window ending at the time given (its features, channel and label), and a
+    window into one with that end."""
+    from twin.diagnosis.atoms import Atom
+    from twin.diagnosis.changes import as_window, is_step, is_window
+    from twin.diagnosis.features import Step, Window
+
+    a = Atom("change", "joint", "theta3", (Step(ch="t_s", at=120.5),), "change(t_s >= 120.5)",
+             "change of the joint 3 offset from t_s 118 on", "change", (3,))
+    w = as_window(a, 300.25)
+    assert is_step(a) and is_window(w) and not is_step(w)
+    assert w.features == (Window(ch="t_s", at=120.5, until=300.25),) and w.pool == "change_window"
+    assert w.label == "change of the joint 3 offset from t_s 120.5 until 300.25"
+    assert as_window(w, 280.0).label == "change of the joint 3 offset from t_s 120.5 until 280"
+
+
+# ---- a payload hung on and taken off again ------------------------------------------------------------------------
+
+
+def _payload_torque(model, q, mass_kg=5.0, com_flange_m=(0.01, -0.02, 0.08)):
+    """Joint torques ``(n, 6)`` [N m] of a point mass at the flange (test-side: central differences of its potential
+    energy)."""
+    from twin.kinematics import link_frames
+
+    c = np.asarray(com_flange_m)
+
+    def V(qq):
+        F = link_frames(model, qq)[:, -1]
+        return mass_kg * (F[:, :3, 3] + np.einsum("nij,j->ni", F[:, :3, :3], c)) @ H.G
+
+    return H.potential_torques(V, q)
+
+
+def test_a_payload_hung_on_and_off_in_the_held_out_block_is_a_window_of_the_compliance():
+    """Joints 2 and 3 yield to the arm's weight on every row and to a 5 kg payload hung on in the held-out block and
+    taken off 25 rows later (the rows after the campaign without it): a window of a joint's compliance within 2
+    rows of both ends, found on every row, named compliance, and the rows after the campaign within 1.2x the oracle."""
+    seed = 0
+    ds, truth = _dataset(None, seed=seed)
+    m = ds.n - LATER
+    s = int(0.74 * m)
+    e = s + 25
+    c = np.array([0, 3e-6, 6e-6, 0, 0, 0])  # [rad / N m]
+
+    def eff(q, model):
+        on = ((np.arange(len(q)) >= s) & (np.arange(len(q)) < e)).astype(float)
+        return q + c * (H._gravity_torque(model, q) + on[:, None] * _payload_torque(model, q))
+
+    ds, truth = _dataset(eff, seed=seed)
+    early = np.arange(ds.n) < m
+    campaign, later = ds.subset(early), ds.subset(~early)
+    res = diagnose(campaign)
+    wins = [ch for ch in res.changes if ch["kind"] == "window" and ch["target"] in ("theta2", "theta3")]
+    ratio = _later_ratio(res, campaign, later, truth["delta"][early], truth["delta"][~early])
+    assert wins and all(abs(w["row"] - s) <= 2 and abs(w["end_row"] - e) <= 2 for w in wins), res.changes
+    assert "compliance" in res.effects, res.effects
+    assert ratio <= 1.2, ratio
+
+
+def test_a_change_of_a_joints_gravity_torque_shapes_names_compliance():
+    """A non-minor change of a joint's gravity-torque shapes (a payload) names compliance; a change of a joint's zero
+    names no family (it is reported among the changes only)."""
+    from twin.diagnosis.describe import name_effects
+
+    gate = {"ch": "t_s", "at": 10.0, "t_span": [0.0, 20.0]}
+    load = {"family": "change", "place": "joint", "target": "theta2", "label": "a payload", "minor": False,
+            "features": [{"kind": "gated", "f": {"kind": "const"}, **gate}]}
+    zero = {"family": "change", "place": "joint", "target": "theta3", "label": "a zero", "minor": False,
+            "features": [{"kind": "step", **gate}]}
+    assert name_effects([load])[0] == ("compliance",)
+    assert name_effects([zero])[0] == ()

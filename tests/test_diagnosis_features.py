@@ -29,15 +29,20 @@ def _one_of_each() -> list[Feature]:
         Sign(j=4),
         Grav(i=2, k=3, c=1),
         LastMove(j=1, w=0.1),
+        LastMove(j=3, w=0.5, law="clip"),
         gm,
         Torque(j=2, h=1.0),
         Moment(j=0, axis=1, h=1.0),
+        Moment(j=0, axis=1, h=1.0, about=0, shape=2),
         BaseMoment(axis=0, shape=1, w=(0.25, 0.5), h=2.0),
+        BaseMoment(axis=1, shape=3, w=(0.25, 0.5), h=2.0, about=0),
         GravityDir(axis=2),
         Step(ch="row", at=12.0, record_pose_id=(3, 1, 2)),
         Window(ch="t_s", at=100.0, until=200.0),
         LoadSign(f=gm, u=(0.6, 0.8)),
         LoadSign(f=Torque(j=3, h=1.0)),
+        LoadSign(f=gm, u=(0.6, 0.8), width=0.2),
+        LoadSign(f=Torque(j=3, h=1.0), width=4.0, law="clip"),
         Hinge(ch="q2", at=0.3, side=-1, p=2, h=0.7),
         StepIn(j=5),
         Heat(tau=120.0, joints=(1, 2, 3), h=0.5, record=HeatRecord(t_s=(0.0, 1.0), q=((0.0,) * 6, (0.1,) * 6),
@@ -47,6 +52,7 @@ def _one_of_each() -> list[Feature]:
         Play(j=2, h=0.001),
         CartDir(axis=1, tcp=(0.0, 0.0, 0.05)),
         Exp(ch="t_s", t0=0.0, tau=30.0),
+        Exp(ch="t_s", t0=5.0, tau=30.0, ramp=60.0, t_span=(0.0, 40.0)),
         Lag(ch="temp_c", tau=300.0, c=21.0, h=1.0, record=LagRecord(t_s=(0.0, 10.0), x=(20.5, 21.5))),
         Station(name="B"),
         Const(),
@@ -160,3 +166,30 @@ def test_an_unknown_kind_or_key_is_refused_with_its_name():
         feature_from_dict({"kind": "step", "ch": "t_s"})
     with pytest.raises(ValueError, match="unknown feature kind 'spline'"):
         Atom.from_spec({"family": "unnamed", "place": "joint", "target": "theta1", "features": [{"kind": "spline"}]})
+
+
+def test_the_air_s_step_and_ramp_through_the_lag_is_the_lag_of_their_input():
+    """An Exp feature (the links' lag of the air's change at t0, a step or a ramp over `ramp`) equals the air's
+    profile through a first-order lag integrated finely; a ramp the campaign did not see end holds the air at the
+    state the campaign's last row reached."""
+    from twin.diagnosis.values import lag_response
+
+    t = np.linspace(0.0, 400.0, 400001)
+    dt = t[1] - t[0]
+
+    def lagged(u, tau):
+        y = np.zeros_like(u)
+        for k in range(1, len(u)):
+            y[k] = y[k - 1] + (1 - np.exp(-dt / tau)) * (u[k] - y[k - 1])
+        return y
+
+    step = (t >= 50.0).astype(float)
+    ramp = np.clip((t - 50.0) / 120.0, 0.0, 1.0)
+    np.testing.assert_allclose(lag_response(t - 50.0, 30.0), lagged(step, 30.0), atol=2e-4)
+    np.testing.assert_allclose(lag_response(t - 50.0, 30.0, 120.0), lagged(ramp, 30.0), atol=2e-4)
+    # the campaign ends at t = 110 s, mid-ramp: after it the air holds what it reached at 110 s
+    f = Exp(ch="t_s", t0=50.0, tau=30.0, ramp=120.0, t_span=(0.0, 110.0))
+    rows = t[::4000]
+    ctx = RowContext(q=np.zeros((len(rows), 6)), t_s=rows)
+    held = np.where(t <= 110.0, ramp, 0.5)
+    np.testing.assert_allclose(feature_values((f,), ctx, irb1200())[:, 0], lagged(held, 30.0)[::4000], atol=2e-4)

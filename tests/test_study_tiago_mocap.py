@@ -82,7 +82,7 @@ def test_quoted_diagnosis_figures_match_the_diagnosis_results():
         assert f"{g:.2f} to {e:.2f}" in text
     assert [t["label"] for t in m1["terms"]] == ["joint 7 (arm_6_joint) backlash (offset signed by the direction of its last move)"]
     confirmed = [r["term"] for r in d["account"] if r["confirmed_on_the_other_day"]]
-    assert sorted(confirmed) == sorted(d["physical_model"]["terms"]) and len(confirmed) == 2
+    assert sorted(confirmed) == sorted(d["physical_model"]["terms"]) and len(confirmed) == 3
     fits = d["physical_model"]["fits"]
     for k, f in fits.items():
         g, e = f["geometric"]["marker1"]["all"]["rmse"], f["extended"]["marker1"]["all"]["rmse"]

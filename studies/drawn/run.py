@@ -84,12 +84,12 @@ def run(families: list[str], seeds: list[int], *, workers: int = 2, keep: Path |
 
 
 def write_results(results: list[dict], facts: dict, out: Path, command: str) -> dict:
-    from studies.drawn.scoring import summarise, summary_markdown
+    from studies.drawn.scoring import summarise, summary_markdown, totals
 
     summary = summarise(results)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "results.json", json.dumps({"command": command, **facts, "summary": summary,
-                                                        "instances": results}, indent=1) + "\n")
+                                                        "totals": totals(summary), "instances": results}, indent=1) + "\n")
     atomic_write_text(out / "summary.md", summary_markdown(
         results, summary, f"Drawn instances: `twin diagnose` per family ({command})"))
     return summary

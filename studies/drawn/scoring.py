@@ -227,6 +227,27 @@ def summarise(results: list[dict]) -> dict[str, Any]:
     return out
 
 
+def totals(summary: dict[str, Any]) -> dict[str, Any]:
+    """Over the families of ``summary`` (:func:`summarise`): the effect instances, named, within the goals, the
+    families at the issue's target (named and the rows after the campaign within 1.2x on 9 of 10 instances), the
+    clean instances and their false alarms."""
+    effect = [s for s in summary.values() if s["category"] != "clean"]
+    clean = [s for s in summary.values() if s["category"] == "clean"]
+    return {
+        "effect_families": len(effect),
+        "effect_instances": sum(s["n"] for s in effect),
+        "errors": sum(s["errors"] for s in summary.values()),
+        "named": sum(s["named"] for s in effect),
+        "report_within_goal": sum(s["report"]["within_goal"] for s in effect),
+        "test_within_goal": sum(s["test"]["within_goal"] for s in effect),
+        "test_within_1.2": sum(s["test"]["within_1.2"] for s in effect),
+        "named_and_test_within_1.2": sum(s["named_and_test_within_1.2"] for s in effect),
+        "families_at_9_of_10": sum(s["named_and_test_within_1.2"] >= 0.9 * (s["n"] - s["errors"]) for s in effect),
+        "clean_instances": sum(s["n"] for s in clean),
+        "clean_false_alarms": sum(s["false_alarms"] for s in clean),
+    }
+
+
 def _ratio(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 

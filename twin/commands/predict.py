@@ -40,6 +40,10 @@ def run(args) -> int:
               "(rows in file order; approach directions unknown until each joint moves)")
         from ..diagnosis.apply import history_unknown_rows
 
+        from ..diagnosis.apply import row_states
+
+        for line in row_states(cal, ctx):
+            print(f"state: {line}")
         lack = j.pose_id[history_unknown_rows(cal, ctx)]
         if lack.size:
             print(f"warning: {lack.size} row(s) lack the history an order-dependent term needs (the joint had not moved "

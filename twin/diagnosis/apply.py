@@ -23,16 +23,16 @@ from ..estimator.problem import ParamSpace, predict_points
 from ..estimator.register import prediction_errors, register, select_rows, session_residuals
 from ..transforms import kabsch, matrix_to_rotvec
 from ..units import M_PER_MM
-from .atoms import Atom
-from .values import feature_values, history_unknown
+from .atoms import Atom, tilt_axis, tilt_coefficient
+from .values import HISTORY_FEATURES, feature_channel, feature_values, history_unknown
 from .candidates import RowContext
-from .features import Station
+from .features import Exp, Gated, Heat, Lag, Pow, Station, Step, Window
 from .extend import param_weights
 from .field import field_values, station_mask
 from .floor import row_context
 
 __all__ = ["effect_atoms", "required_channels", "effective_joints", "predict_extended", "compensate_extended",
-           "history_unknown_rows", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
+           "history_unknown_rows", "STATE_BLOCKS", "term_state", "prediction_states", "row_states", "dataset_predictor", "block_errors", "new_session_errors", "SessionChoice",
            "choose_for_session", "prune_for_session", "SESSION_FOLDS", "SESSION_Z_MIN"]
 
 
@@ -97,6 +97,129 @@ def history_unknown_rows(cal: Calibration, ctx: RowContext) -> np.ndarray:
     return history_unknown([a.features for a, _ in effect_atoms(cal)], ctx)
 
 
+STATE_BLOCKS = ("report_rows", "rows_after_the_campaign", "new_session")
+
+
+def _stateful(f):
+    """The feature of ``f`` that carries a state (a gated feature's gate), and its kind of state."""
+    if isinstance(f, (Step, Window)) or (isinstance(f, Gated)):
+        return "change"
+    if isinstance(f, Lag):
+        return "lag"
+    if isinstance(f, Heat):
+        return "heat"
+    if isinstance(f, Exp):
+        return "air"
+    if isinstance(f, Pow) and f.ch == "t_s":
+        return "drift"
+    if isinstance(f, Pow) and f.ch == "row":
+        return "rows"
+    if f.kind in HISTORY_FEATURES:
+        return "history"
+    return None
+
+
+def term_state(atom: Atom, block: str) -> str | None:
+    """In words, the state the term ``atom`` reads when it predicts the rows of ``block`` (one of ``STATE_BLOCKS``:
+    the diagnosis' report rows, the rows measured after the campaign with their ``t_s``, a new session whose ``t_s``
+    is not recorded or another session); None for a term that has none (a function of the row's own joints)."""
+    if block not in STATE_BLOCKS:
+        raise ValueError(f"block must be one of {STATE_BLOCKS}, got {block!r}")
+    stateful = [(k, f) for k, f in ((_stateful(f), f) for f in atom.features) if k is not None]
+    if not stateful:
+        return None
+    kind, f0 = stateful[0]
+    if kind == "change":
+        until = getattr(f0, "until", None)
+        if until is None:
+            return {"report_rows": f"the state after the change for the rows at or after {f0.ch} {f0.at:.6g}, the state "
+                                   "before it for earlier rows",
+                    "rows_after_the_campaign": "the state after the change (the last state the campaign held)",
+                    "new_session": "the state after the change"}[block]
+        return {"report_rows": f"the changed state inside {f0.ch} {f0.at:.6g} to {until:.6g}, the state before it "
+                               "elsewhere",
+                "rows_after_the_campaign": "the state before the change (it ended within the campaign)",
+                "new_session": "the state before the change (it ended within the campaign)"}[block]
+    if kind == "lag":
+        return {"report_rows": f"the recorded {f0.ch} through the lag of {f0.tau:.4g} s over the campaign's record to "
+                               "each row",
+                "rows_after_the_campaign": f"the lag of {f0.tau:.4g} s carried from the campaign's last row, driven by "
+                                           f"the rows' own {f0.ch} (merged with the campaign's record by t_s)",
+                "new_session": f"the row's own {f0.ch}, settled (rows without t_s: the lag has run its course)"}[block]
+    if kind == "heat":
+        return {"report_rows": "the motors' heat over the campaign's moves to each row",
+                "rows_after_the_campaign": "the motors' heat carried from the campaign's last row, leaking over the "
+                                           "time since and fed by the rows' own moves (merged by t_s)",
+                "new_session": "the heat the campaign ended with (rows without t_s)"}[block]
+    if kind == "air":
+        ramp = f" over {f0.ramp:.4g} s" if f0.ramp else ""
+        return {"report_rows": f"the air's change from t_s {f0.t0:.6g}{ramp} through the lag of {f0.tau:.4g} s at the "
+                               "row's t_s",
+                "rows_after_the_campaign": f"the air's change through the lag of {f0.tau:.4g} s at the row's t_s, going "
+                                           "on from the campaign's end (a ramp not seen to end: the air held at the "
+                                           "state the campaign's last row reached)",
+                "new_session": "the state the campaign ended in (rows without t_s)"}[block]
+    if kind == "drift":
+        return {"report_rows": "the drift at the row's t_s",
+                "rows_after_the_campaign": "the drift at the row's t_s within as long again as the campaign lasted, "
+                                           "the state the campaign ended in beyond",
+                "new_session": "the state the campaign ended in"}[block]
+    if kind == "rows":
+        return {"report_rows": "the row's place in the campaign",
+                "rows_after_the_campaign": "the row count continued after the campaign's last row",
+                "new_session": "the row count continued after the campaign's last row"}[block]
+    return {"report_rows": "the approach history from the campaign's rows before each row",
+            "rows_after_the_campaign": "the approach history from the rows before in the same file (unknown, read as "
+                                       "0, until each joint moves)",
+            "new_session": "a new history (unknown, read as 0, until each joint moves)"}[block]
+
+
+def prediction_states(cal: Calibration, block: str) -> list[dict]:
+    """``[{label, state}]``: every term of ``cal`` that carries a state and the state it reads for ``block``
+    (:func:`term_state`)."""
+    out = []
+    for a, _ in effect_atoms(cal):
+        st = term_state(a, block)
+        if st is not None:
+            out.append({"label": a.label, "state": st})
+    return out
+
+
+def row_states(cal: Calibration, ctx: RowContext) -> list[str]:
+    """For the rows of ``ctx`` (a ``twin predict`` file), one line per term of ``cal`` that carries a state: which state
+    its rows read (before or after a change, the campaign's record continued or the state it ended in, the history
+    from the rows before)."""
+    out = []
+    t = ctx.t_s
+    for a, _ in effect_atoms(cal):
+        stateful = [(k, f) for k, f in ((_stateful(f), f) for f in a.features) if k is not None]
+        if not stateful:
+            continue
+        kinds, f0 = [stateful[0][0]], stateful[0][1]
+        if kinds[0] == "change":
+            x = feature_channel(ctx, f0, f0.ch) if (f0.ch != "t_s" or t is not None) else None
+            until = getattr(f0, "until", None)
+            if x is None:
+                words = ("the state after it (rows without t_s)" if until is None else
+                         "the state before it (rows without t_s; it ended within the campaign)")
+            elif until is None:
+                words = f"{int(np.sum(x >= f0.at))} row(s) after it (its state), {int(np.sum(x < f0.at))} before"
+            else:
+                inside = (x >= f0.at) & (x < until)
+                words = f"{int(inside.sum())} row(s) inside it, {int((~inside).sum())} outside (the state before it)"
+        elif kinds[0] in ("lag", "heat", "air", "drift"):
+            words = ("the state the campaign ended in (rows without t_s)" if t is None else
+                     "the campaign's record continued to the rows' t_s" if kinds[0] in ("lag", "heat") else
+                     "its value at the rows' t_s")
+        elif kinds[0] == "rows":
+            words = "the rows' place in the campaign (others continue its row count)"
+        else:
+            lack = int(np.sum(history_unknown([a.features], ctx)))
+            words = f"the approach history from the rows before in this file ({lack} row(s) unknown: read as 0)"
+        out.append(f"{a.label}: {words}")
+    return out
+
+
 def _plate(cal: Calibration) -> Calibration:
     off = np.zeros_like(np.asarray(cal.spheres_tool, dtype=float))
     for a, phi in effect_atoms(cal):
@@ -155,7 +278,7 @@ def _first_order(cal: Calibration, ctx: RowContext, space: ParamSpace, rows_stat
             # (n, 2): each feature turns the pivot about its axis (one rotation axis per feature)
             dx = np.zeros((n, 2))
             for k, f in enumerate(a.features):
-                dx[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
+                dx[:, tilt_axis(f, k)] += F[:, k] * phi[tilt_coefficient(f, k)]
         else:
             dx = np.einsum("nf,fc->nc", F, phi.reshape(len(a.features), c))  # (n, c) per-row change along W
         d += np.einsum("pscn,pk,nk->nsc", Jk, W, dx)

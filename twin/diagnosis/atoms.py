@@ -44,10 +44,15 @@ from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
 from .features import Const, Feature, Hinge, Play, feature_from_dict
 
-__all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "HINGE_POINTS", "play_backlash", "hinge_atom", "joint_words"]
+__all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS", "HINGE_POINTS",
+           "play_backlash", "hinge_atom", "joint_words", "tilt_axis", "tilt_coefficient"]
 
 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
+# widths of the catalogue's backlash growing with the size of the joint's last move, each law's (then refined): up to
+# a lag in proportion to moves of tens of degrees
+BACKLASH_MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0, 60.0)
+BACKLASH_MOVE_LAWS = (None, "clip")  # tanh of the move over the width; in proportion up to the width
 HINGE_POINTS = 9  # angles (deciles of a joint's range) past which a one-sided pull may start (then refined)
 PLACES = ("joint", "length", "param", "plate", "scale", "field")
 
@@ -79,7 +84,8 @@ class Atom:
             return 1
         if self.place == "param" and self.target.startswith("tilt") and \
                 any(getattr(f, "shape", None) is not None for f in self.features):
-            return len({int(f.shape) for f in self.features})  # one coefficient per shape, both axes
+            # one coefficient per shape (both axes of a moment's shape; the two halves of a cross term)
+            return len({tilt_coefficient(f, k) for k, f in enumerate(self.features)})
         return len(self.features)
 
     @property
@@ -141,3 +147,17 @@ def hinge_atom(j: int, at: float, side: int, p: int, h: float, *, prismatic: boo
 def joint_words(model: RobotModel, j: int) -> str:
     """How a joint is named in words: ``"3"`` on the 6R robots, ``"3 (arm_2_joint)"`` on a named chain."""
     return str(j) if model.convention != "urdf" else f"{j} ({model.joint_names[j - 1]})"
+
+
+def tilt_axis(f: Feature, k: int) -> int:
+    """The pivot axis (0: x, 1: y) the ``k``-th feature ``f`` of a tilt atom turns: its ``about`` axis, else the axis of
+    its moment, else ``k``."""
+    about = getattr(f, "about", None)
+    return int(about) if about is not None else int(getattr(f, "axis", k))
+
+
+def tilt_coefficient(f: Feature, k: int) -> int:
+    """The coefficient of a tilt atom the ``k``-th feature ``f`` goes with: its ``shape`` (features of one shape share
+    one), else its own ``k``."""
+    shape = getattr(f, "shape", None)
+    return int(shape) if shape is not None else k

@@ -28,6 +28,7 @@ read the state after it (:func:`twin.diagnosis.values.feature_values`, ``step`` 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,11 +44,11 @@ from .scoring import row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
-           "scan_changes", "describe_changes", "is_change", "row_times"]
+           "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "row_times"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
-WINDOW_MIN_ROWS = 5  # rows inside a window
+WINDOW_MIN_ROWS = 5  # rows inside a window (a glitch scan on every row takes MIN_ROWS: twin.diagnosis.late.glitches)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 60  # most boundary positions the window scan takes (every k-th row beyond, then refined)
 CHANGE_POOLS = ("change", "change_window")
@@ -85,6 +86,32 @@ def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
     return out
 
 
+def is_step(atom: Atom) -> bool:
+    """Whether ``atom`` is a change from a row on (a step, or a gated shape without an end)."""
+    f0 = atom.features[0] if atom.features else None
+    return is_change(atom) and (isinstance(f0, Step) or (isinstance(f0, Gated) and f0.until is None))
+
+
+def is_window(atom: Atom) -> bool:
+    """Whether ``atom`` is a change and back (a window, or a gated shape with an end)."""
+    f0 = atom.features[0] if atom.features else None
+    return is_change(atom) and (isinstance(f0, Window) or (isinstance(f0, Gated) and f0.until is not None))
+
+
+def as_window(atom: Atom, until: float) -> Atom:
+    """The change ``atom`` (a step, :func:`is_step`, or a window) ending at ``until`` (its time channel's value): a
+    step and back, a window; channel and label to match, in the window pool."""
+    f0 = atom.features[0]
+    ch, at = f0.ch, float(f0.at)
+    if isinstance(f0, (Step, Window)):
+        feats = tuple(Window(ch=f.ch, at=f.at, until=float(until)) for f in atom.features)
+    else:
+        feats = tuple(Gated(f=f.f, ch=f.ch, at=f.at, until=float(until)) for f in atom.features)
+    chan = f"change({at:.6g} <= {ch} < {until:.6g})"
+    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} until {until:.6g}", atom.label)
+    return Atom(atom.family, atom.place, atom.target, feats, chan, label, "change_window", atom.joints, dict(atom.meta))
+
+
 def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:
     """The time channel of the rows (``t_s`` when it varies, else the row order) and its values ``(n,)``."""
     if ctx.t_s is not None and np.ptp(ctx.t_s) > 0:
@@ -104,16 +131,31 @@ def _grid(n: int) -> np.ndarray:
     return s[::stride]
 
 
-def _pairs(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pairs(g: np.ndarray, min_rows: int = WINDOW_MIN_ROWS) -> tuple[np.ndarray, np.ndarray]:
     a, b = np.meshgrid(g, g, indexing="ij")
-    ok = b - a >= WINDOW_MIN_ROWS
+    ok = b - a >= min_rows
     return a[ok], b[ok]
 
 
-def change_pool_sizes(n_cal: int, places: list[ChangePlace]) -> dict[str, int]:
-    """The Bonferroni factor of each change pool: places times row positions (steps) or pairs of them (windows)."""
+def _short_pairs(n: int, min_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Windows shorter than two of the grid's strides at every row (a glitch of a few rows falls between the grid's
+    boundaries): every start of :func:`_steps` with ``min_rows`` to ``2 stride - 1`` rows."""
+    s = _steps(n)
+    stride = max(1, int(np.ceil(len(s) / WINDOW_GRID)))
+    if len(s) == 0 or 2 * stride <= min_rows:
+        return np.zeros(0, int), np.zeros(0, int)
+    a, w = np.meshgrid(s, np.arange(min_rows, 2 * stride), indexing="ij")
+    b = a + w
+    ok = b <= s[-1]
+    return a[ok], b[ok]
+
+
+def change_pool_sizes(n_cal: int, places: list[ChangePlace], *, short: int | None = None) -> dict[str, int]:
+    """The Bonferroni factor of each change pool: places times row positions (steps) or pairs of them (windows; with
+    ``short``, also the short windows of at least that many rows at every row, :func:`scan_changes`)."""
+    n_short = len(_short_pairs(n_cal, short)[0]) if short else 0
     return {"change": max(1, len(places) * len(_steps(n_cal))),
-            "change_window": max(1, len(places) * len(_pairs(_grid(n_cal))[0]))}
+            "change_window": max(1, len(places) * (len(_pairs(_grid(n_cal), short or WINDOW_MIN_ROWS)[0]) + n_short))}
 
 
 def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
@@ -275,10 +317,14 @@ def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return lp
 
 
-def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01) -> list[Atom]:
+def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01,
+                 short: int | None = None) -> list[Atom]:
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
-    candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`)."""
+    candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`). ``short``: windows
+    of at least this many rows (default ``WINDOW_MIN_ROWS``), and those shorter than two of the grid's strides tried
+    at every row (a glitch of a few rows)."""
+    min_rows = short or WINDOW_MIN_ROWS
     sb = scoring_basis(prob, fit)
     rows, r = sb.rows, sb.r
     n = prob.obs_cal.n
@@ -295,7 +341,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     # per-row residual sums of squares and residual counts, in time order (the uniformity check)
     rr = np.concatenate([[0.0], np.cumsum(np.bincount(rows, weights=r * r, minlength=n)[order])])
     mm = np.concatenate([[0.0], np.cumsum(np.bincount(rows, minlength=n)[order].astype(float))])
-    sizes = change_pool_sizes(n, places)
+    sizes = change_pool_sizes(n, places, short=short)
 
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []
@@ -329,7 +375,11 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                     break
         if not windows or len(g) < 2:
             return out
-        a, b = _pairs(g)
+        a, b = _pairs(g, min_rows)
+        if short:
+            sa_, sb_ = _short_pairs(n, min_rows)
+            inside = (ts[sa_] > ts[sa_ - 1]) & (ts[sb_] > ts[sb_ - 1])
+            a, b = np.concatenate([a, sa_[inside]]), np.concatenate([b, sb_[inside]])
         lp_all = np.zeros(len(a))
         gain_all, rank_all = np.zeros(len(a)), np.zeros(len(a), int)
         for lo in range(0, len(a), 4000):
@@ -357,7 +407,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
             sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
-            pair = (B2 - A2 >= WINDOW_MIN_ROWS) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
+            pair = (B2 - A2 >= min_rows) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
             A2, B2 = A2[pair], B2[pair]
             if len(A2):
                 gain, rank = _window_gains(Cc, Ac, bc, sa, sb2, pair, prob.evidence_scale)
@@ -375,22 +425,48 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         return out
 
     out = [c for got in thread_map(place_scan, places, prob.threads) for c in got]
-    return [a for _, a in sorted(out, key=lambda t: t[0]) if _white_after(prob, fit, a, sizes, order)]
+    return [a for _, a in sorted(out, key=lambda t: t[0])
+            if _white_after(prob, fit, a, sizes, order, _payload_companions(a, places))]
 
 
-def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray) -> bool:
+def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
+    """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
+    at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
+    shapes on every row. A payload hangs at the flange and gravity loads every joint below it at once (the torque
+    shapes at each of them change together), on top of the arm's own weight, which the joints carry on every row
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``). Else none."""
+    f0 = atom.features[0]
+    if not isinstance(f0, Gated) or atom.place != "joint":
+        return []
+    loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
+    same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
+    if f0.until is not None:
+        return same
+    return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
+                        "change", pl.joints) for pl in loads]
+
+
+def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:
     """Whether the residual the change leaves is white in time: the lag-1 correlation of consecutive rows' whitened
     residual vectors (time order, rows of the same commanded joints not paired: a repeat shares its visit's error),
     ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
-    a stretch of it, whose evidence against the (white) floor then says nothing."""
+    a stretch of it, whose evidence against the (white) floor then says nothing. ``companions``: changes of the same
+    rows fitted with it for this test (:func:`_payload_companions`: a payload changes every joint's load at once,
+    and one joint's change alone leaves the others' steps in the rows)."""
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False
     sb = scoring_basis(prob, fit)
     e = np.zeros(len(sb.keep))
-    fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
-    e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
+    if companions:
+        more = score_atoms(prob, fit, list(companions), sizes, exact_top=len(companions))
+        Ep = np.hstack([got[0].Ep] + [m.Ep for m in more])
+        psi = np.linalg.lstsq(Ep, got[0].r, rcond=None)[0]
+        e[sb.keep] = got[0].r - Ep @ psi
+    else:
+        fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
+        e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
     R = row_blocks(fit.model_cal, e)[order]
     R[~np.isfinite(R)] = 0.0
     q = np.round(prob.ctx.q[prob.rows_cal][order], 9)

@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 
 from ..units import DEG_PER_RAD, MM_PER_M, M_PER_MM, MRAD_PER_RAD, RAD_PER_DEG
-from .atoms import Atom
+from .atoms import Atom, tilt_axis, tilt_coefficient
 from .values import with_records
 from .changes import is_change
 from .extend import ExtendedModel
-from .features import Cos, Pow, Sin, feature_from_dict
+from .features import BaseMoment, Cos, Pow, Sin, feature_from_dict
 from .loads import tilt_angles
 from .problem import Fit, Problem, covariance
 
@@ -35,8 +35,8 @@ def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, .
                      f"{', '.join(sorted(_joint_channels(a)))} on joint {a['target'][5:]} that the catalogue does not "
                      f"name (not as {a['family']})")
     unnamed_shape = {id(a) for a, _ in merged}
-    effects = tuple(dict.fromkeys(a["family"] for a in atoms_json if a["family"] != "unnamed" and not is_change(a)
-                                  and not a["minor"] and id(a) not in unnamed_shape))
+    effects = tuple(dict.fromkeys(_named_family(a) for a in atoms_json if not a["minor"] and id(a) not in unnamed_shape
+                                  and _named_family(a) is not None))
     minor = [a["label"] for a in atoms_json if a["minor"]]
     if minor:
         notes.append(f"minor terms kept in the model but not named as effects (each explained less than {MINOR_RMS} "
@@ -47,6 +47,18 @@ def name_effects(atoms_json: list[dict]) -> tuple[tuple[str, ...], tuple[dict, .
         notes.append("terms on the measurement side (scale, field or frame of the measurements) describe the instrument or "
                      f"the cell, not the robot: {'; '.join(instrument)}")
     return effects, unnamed, notes
+
+
+def _named_family(a: dict) -> str | None:
+    """The catalogue family a term names: its own (none for an unnamed term); a change names none (a zero, a frame
+    or a tool moved is reported in ``changes``), except a change of a joint's gravity-torque shapes (a payload hung
+    on or taken off), which shows the joint deflecting under load: ``compliance``."""
+    if a["family"] == "unnamed":
+        return None
+    if not is_change(a):
+        return a["family"]
+    f0 = a["features"][0] if a["features"] else {}
+    return "compliance" if a["place"] == "joint" and f0.get("kind") == "gated" else None
 
 
 def _joint_channels(a: dict) -> set[str]:
@@ -129,11 +141,17 @@ def describe_terms(prob: Problem, fit: Fit, chi2_base: float | None = None,
         elif a.place == "param" and a.target.startswith("tilt"):
             tilt = tilt_angles(a.features, F, phi)  # (n, 2) [rad] about the pivot frame's x and y
             rms = float(np.sqrt(np.mean(np.sum(tilt**2, axis=1))))
-            axes = [("xyz"[f.axis]) for f in a.features]
+            # each coefficient by the axes it couples: "x" (the moment about x turning the pivot about x), "xy" (the
+            # cross term of a compliance whose principal axes are turned)
+            axes_of: dict[int, str] = {}
+            for k, f in enumerate(a.features):
+                ax, about = "xyz"[f.axis], "xyz"[tilt_axis(f, k)]
+                axes_of.setdefault(tilt_coefficient(f, k), ax if ax == about else "".join(sorted(ax + about)))
+            axes = [axes_of[c] for c in sorted(axes_of)]
             size = {"rms": rms * fac, "sd": None, "unit": unit,
                     "compliance_mrad_per_nm": (phi * MRAD_PER_RAD).tolist(),
                     "compliance_sd_mrad_per_nm": (sd * MRAD_PER_RAD).tolist()}
-            if any(getattr(f, "shape", None) is not None for f in a.features):
+            if any(isinstance(f, BaseMoment) for f in a.features):
                 # shapes of a moment whose masses are unknown: their coefficients have no unit of their own
                 words = f"{rms * fac:.5f} {unit} RMS tilt over the rows ({len(phi)} shapes of the moment)"
             else:

@@ -25,9 +25,9 @@ named steps, each a function of this module (``docs/diagnosis.md`` has the reaso
    are left out: no model can predict a history-dependent term there).
 7. :func:`describe_terms` and :func:`name_effects`: every kept term in words, the catalogue families among them.
 8. :func:`refit_on_every_row`: the chosen models refitted on every row of the campaign (the models to use).
-9. :func:`twin.diagnosis.late.late_change` (when the model in use leaves the confirmation rows beyond the floor): a
-   step after the rows that fit, located on the rows up to a cut and confirmed on the rows after it, joins the
-   models to use (``docs/diagnosis.md``, step 7b).
+9. :func:`twin.diagnosis.rule.after_blocks`: what every row holds after the blocks (a step after the rows that fit,
+   located on the rows up to a cut and confirmed on the rows after it; the air's temperature changing there; a
+   change and back of a joint's zero) joins the models to use (``docs/diagnosis.md``, step 7b).
 """
 
 from __future__ import annotations
@@ -41,22 +41,23 @@ from ..dataset import Dataset, Plate
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
+from ..estimator.solvers import gauss_newton
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import change_places, change_pool_sizes, describe_changes, row_times
+from .changes import change_places, change_pool_sizes, describe_changes, is_change, row_times
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
-from .late import late_change
 from .extend import error_stats, reduced_basis
-from .features import LoadSign
+from .features import LastMove, LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
-from .rule import CandidateScore, Selection, adopt, decide, implausible_size, select_terms, selection_round
+from .rule import (CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime, select_terms,
+                   selection_round)
 from .describe import describe_terms, name_effects, place_unit, term_values
 
 __all__ = [
@@ -120,9 +121,11 @@ class DiagnosisResult:
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
     ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
-    A change found after the rows that fit (:mod:`twin.diagnosis.late`) is the last of ``atoms`` and of ``changes``,
-    with ``found``; it is in ``calibration`` (then ``model_in_use`` is ``"extended"``) but not in
-    ``calibrations_blocked``, whose rows never saw it."""
+    The terms found after the blocks on every row (:func:`twin.diagnosis.rule.after_blocks`: a change after the rows
+    that fit, the air's temperature changing there, a change and back of a joint's zero) are the last of ``atoms``
+    (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
+    ``"extended"``); ``calibrations_blocked["extended"]`` holds those found on the rows before the report block (the
+    state the report rows read), the kept terms at their calibration rows' values."""
 
     structured: bool
     p_value: float
@@ -262,7 +265,41 @@ def diagnose(
         if not adoption["adopted"]:
             candidate, ext = ext, None
     structured, unexplained, notes_v = decide(prob, base, ext if candidate is None else candidate, test0, excess, z_min)
+    use = ext if ext is not None else base
+    atoms_json, params = describe_terms(prob, use, base.chi2, sel.entry_chi2) if ext is not None else ([], {})
+    P = setup.prep.space.size
+    geo_blocked = setup.geometric
+    ext_blocked = replace(geo_blocked, method="best+effects" if ext is not None else geo_blocked.method,
+                          x=use.z[:P] if ext is not None else geo_blocked.x, effects=tuple(atoms_json))
+    # the models to use: the chosen terms refitted on every row of the campaign (the choice was made on the blocks;
+    # the values take the campaign's whole time), with what every row holds after the blocks (step 9); the report
+    # rows are predicted as the rows after the campaign are: by the same models on every row before them
+    places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"])
+    late_gate = bool(pool) and prob.test(use).p_value < alpha
+
+    def models(rows: np.ndarray | None):
+        geo_x, ext_x, prob_x = refit_on_every_row(setup, base, ext, rows=rows)
+        ab = after_blocks(setup, prob_x, ext_x if ext_x is not None else geo_x, pool, places, late=late_gate,
+                          alpha=alpha_select, z_min=z_min)
+        return geo_x, (ab.fit if ext_x is not None or ab.found else None), prob_x, ab
+
+    geo_all, ext_all, prob_all, after_all = models(None)
     rep = report_before_after(prob, base, ext)
+    calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
+    if prob.obs_rep is not None and after_all.found:
+        # the report rows read the state the rows before them leave (a change found there, with its size as they show
+        # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
+        before_report = np.ones(setup.dataset.n, bool)
+        before_report[prob.rows_rep] = False
+        _, _, prob_pre, after_pre = models(before_report)
+        if after_pre.found:
+            fit_rep = with_found(prob, prob_pre, use, after_pre.fit)
+            rep = report_before_after(prob, base, fit_rep, found=[a.label for a, *_ in after_pre.found])
+            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, after_pre,
+                                            fit=Fit(fit_rep.chosen, fit_rep.z, fit_rep.free, float("nan"),
+                                                    prob_pre.model(fit_rep.chosen, "cal"),
+                                                    prob_pre.model(fit_rep.chosen, "val")))
+            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     rep["held_out"].update(held_out_rows=setup.held_out.sets, blocks=setup.held_out.rule)
     candidate_terms: tuple = ()
     calibration_candidate = None
@@ -276,7 +313,7 @@ def diagnose(
                                      "extended": rep_c["after"]["position_mm"]["rms"]}
         notes_v.append(adoption["note"])
     frac, explained, notes_r = 0.0, False, []
-    if ext is not None:
+    if rep["test_after"] is not None:
         tb, ta = rep["test_before"], rep["test_after"]
         explained = bool(structured and ta.p_value >= alpha)
         ex = tb.statistic - tb.dof
@@ -284,43 +321,22 @@ def diagnose(
         if not explained:
             notes_r.append(f"partial explanation: {100 * frac:.0f} % of the held-out excess (report rows) explained; "
                            f"the remainder is still structured (p = {ta.p_value:.2g})")
-    use = ext if ext is not None else base
-    atoms_json, params = describe_terms(prob, use, base.chi2, sel.entry_chi2) if ext is not None else ([], {})
-    effects, unnamed, notes_n = name_effects(atoms_json)
     rows = _rows_report(prob, setup)
-    notes = setup.notes + sel.notes + notes_v + notes_r + notes_n + [rep["note"]]
+    notes = setup.notes + sel.notes + notes_v + notes_r + [rep["note"]]
     if rows["gross_validation"] or rows["gross_calibration"]:
         notes.append(f"down-weighted gross rows (pose_id): calibration {rows['gross_calibration']}, "
                      f"validation {rows['gross_validation']}")
-    P = setup.prep.space.size
-    geo_blocked = setup.geometric
-    ext_blocked = replace(geo_blocked, method="best+effects" if ext is not None else geo_blocked.method,
-                          x=use.z[:P] if ext is not None else geo_blocked.x, effects=tuple(atoms_json))
-    # the models to use: the chosen terms refitted on every row of the campaign (the choice and before/after were
-    # made on the blocks; the values take the campaign's whole time)
-    geo_all, ext_all, prob_all = refit_on_every_row(setup, base, ext)
+    notes += list(after_all.notes)
+    extended, atoms_out, changes = describe_models(setup, prob_all, geo_all, ext_all, atoms_json, after_all,
+                                                   update_minor=True)
     geo = replace(geo_blocked, x=geo_all.z[:P], details={**geo_blocked.details, "refitted_on_every_row": True})
-    extended = geo
-    # step 9: a change in the held-out block, located before a cut and confirmed after it
-    late, entries = None, [{"minor": a["minor"], "entry_chi2": a["entry_chi2"]} for a in atoms_json]
-    if pool and prob.test(use).p_value < alpha:
-        places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"])
-        late, note_late = late_change(setup, prob_all, ext_all if ext_all is not None else geo_all, places,
-                                      alpha=alpha_select, z_min=z_min)
-        notes.append(note_late)
-    if late is not None:
-        structured = True
-        src = ext_all if ext_all is not None else geo_all
-        ext_all = refit_with(prob_all, src, list(src.chosen) + [(late.atom, late.basis)])
-        entries.append({"minor": False, "entry_chi2": late.dchi2})
-    if ext_all is not None:
-        final, _ = describe_terms(prob_all, ext_all, geo_all.chi2)
-        final = tuple({**f, **e} for f, e in zip(final, entries))
-        extended = replace(ext_blocked, method="best+effects", x=ext_all.z[:P], effects=final,
-                           details={**ext_blocked.details, "refitted_on_every_row": True})
+    effects, unnamed, notes_n = name_effects(list(atoms_out))
+    notes += notes_n
+    structured = structured or bool(after_all.found)
     notes.append(f"calibration.json and calibration_geometric.json are the chosen models refitted on every row of the "
-                 f"campaign ({prob_all.obs_cal.n} rows); before/after are those of the models fitted on the "
-                 f"{prob.obs_cal.n} calibration rows, on report rows they never saw")
+                 f"campaign ({prob_all.obs_cal.n} rows), with what those rows hold after the blocks (a change late in "
+                 f"the campaign, a change and back); before/after are those of the models fitted on the {prob.obs_cal.n} "
+                 "calibration rows, on report rows they never saw")
     return DiagnosisResult(
         structured=structured,
         p_value=float(test0.p_value),
@@ -338,7 +354,7 @@ def diagnose(
         calibration=extended,
         series=_series(prob, base, use),
         notes=tuple(notes),
-        atoms=tuple(atoms_json) + ((dict(extended.effects[-1], found=LATE_FOUND),) if late is not None else ()),
+        atoms=atoms_out,
         unnamed=unnamed,
         alternatives=tuple(sel.alternatives),
         explained_fraction=frac,
@@ -346,13 +362,12 @@ def diagnose(
         unexplained=unexplained,
         held_out=rep["held_out"],
         test_report={"before": rep["test_before"], "after": rep["test_after"]},
-        model_in_use="extended" if ext is not None or late is not None else "geometric",
+        model_in_use="extended" if ext_all is not None else "geometric",
         adoption=adoption,
         candidate_terms=candidate_terms,
         calibration_candidate=calibration_candidate,
-        calibrations_blocked={"geometric": geo_blocked, "extended": ext_blocked},
-        changes=tuple(describe_changes(atoms_json, setup.ctx, setup.dataset.pose_id))
-        + (late_json(late, extended.effects[-1], setup) if late is not None else ()),
+        calibrations_blocked=calibrations_blocked,
+        changes=tuple(changes),
         sampling=sampling_report(campaign_sampling(setup)),  # [configurations]
     )
 
@@ -497,7 +512,10 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     # [configurations] a harmonic above the order its joint's sampling supports is not offered (aliasing)
     bounds = campaign_sampling(setup)
     pool = [a for a in pool if offered(a.features, bounds)]
-    sizes = {k: max(1, sum(a.pool == k for a in pool)) for k in ("catalogue", "scan", "generic", "load")}
+    # a joint's backlash growing with the last move is one more reading of its backlash, its grid of laws and widths
+    # paid for where it is preferred to the sign (twin.diagnosis.refine.prefer_sign): not more hypotheses of the pool
+    counted = [a for a in pool if not (a.family == "backlash" and a.features[0].kind == "lastmove")]
+    sizes = {k: max(1, sum(a.pool == k for a in counted)) for k in ("catalogue", "scan", "generic", "load")}
     sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
     return pool, sizes
 
@@ -538,10 +556,12 @@ def dictionary_parameters(model) -> list[str]:
     return out
 
 
-def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, Any]:
+def report_before_after(prob: Problem, base: Fit, ext: Fit | None, *, found: list[str] | None = None) -> dict[str, Any]:
     """Step 6: errors and structure tests of the geometric (``base``) and the extended model (``ext``, or the
     geometric one) on the report rows, which took no part in choosing or fitting the model (gross rows of the
-    final model left out alike). Without a report block, on the confirmation rows, and ``held_out`` says so."""
+    final model left out alike). Without a report block, on the confirmation rows, and ``held_out`` says so.
+    ``found``: the terms found after the blocks on the rows before the report block that ``ext`` holds
+    (:func:`with_found`), for the note."""
     use = ext if ext is not None else base
     if prob.obs_rep is not None:
         block = "report"
@@ -564,41 +584,111 @@ def report_before_after(prob: Problem, base: Fit, ext: Fit | None) -> dict[str, 
             f"on the calibration rows and confirmed on {prob.obs_val.n} other held-out rows)" if block == "report" else
             f"before/after on the {int(keep.sum())} held-out rows that also confirmed the terms (too few held-out "
             "visits for a separate report block): optimistic")
+    if found:
+        note += (f"; the extended model reads the state the rows before the report block leave: {'; '.join(found)} "
+                 "(found on those rows after the blocks, its size as they show it)")
     return {"before": before, "after": after, "test_before": tb, "test_after": ta, "held_out": held, "note": note}
 
 
-LATE_FOUND = "after the rows that fit (located before a cut, confirmed after it)"
+def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
+    """The model ``use`` (fitted on ``prob``'s calibration rows) with what was found after the blocks on the rows of
+    ``prob_pre`` (every row before the report block; ``after``, fitted there: its atoms, the kept ones first, a kept
+    step ended there as a window, then the terms found): the kept terms at ``use``'s values, the geometry and the
+    terms found fitted on ``prob_pre``'s rows with them held (a glitch in the rows that fit biased the geometry they
+    gave; the kept terms keep the values their rows gave them). On ``prob``'s rows."""
+    P = prob.prep.space.size
+    n = len(use.chosen)
+    old = [use.z[use.model_cal.offsets[k]:use.model_cal.offsets[k + 1]] for k in range(n)]
+    new = [after.z[after.model_cal.offsets[k]:after.model_cal.offsets[k + 1]] for k in range(n, len(after.chosen))]
+    # a kept change takes its end from there; the other kept terms stay as chosen (constants and values)
+    chosen = [after.chosen[k] if is_change(use.chosen[k][0]) else use.chosen[k] for k in range(n)] + \
+        list(after.chosen[n:])
+    mc = prob_pre.model(chosen, "cal")
+    z0 = np.concatenate([after.z[:P]] + old + new)
+    moving = np.concatenate([prob_pre.free_geo, np.arange(mc.offsets[n], mc.size)]).astype(int)
+    gn = gauss_newton(lambda z: mc.residuals(z), z0, moving, row_weights=prob_pre.w_cal, max_iter=30, xtol=1e-11,
+                      ftol=1e-10, stage="report")
+    free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)
+    return Fit(chosen, gn.x, free, float("nan"), prob.model(chosen, "cal"), prob.model(chosen, "val"))
 
 
-def late_json(late, term: dict, setup: Setup) -> tuple[dict, ...]:
-    """The ``changes`` entry of a change confirmed after the block that fits (:mod:`twin.diagnosis.late`): as
-    :func:`describe_changes` gives it from its term refitted on every row, with where it was found and its
-    confirmation."""
-    (d,) = describe_changes([term], setup.ctx, setup.dataset.pose_id)
+FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
+         "glitch": "on every row, a change and back (its own rows and the rows after it; nothing later depends on it)",
+         "load": "on every row, the arm's own weight at a joint whose compliance a payload's change shows"}
+
+
+def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None, atoms_json: list[dict],
+                    after, *, update_minor: bool = False,
+                    fit: Fit | None = None) -> tuple[Calibration, tuple[dict, ...], list[dict]]:
+    """The extended model refitted on ``prob_x``'s rows (``ext_x``; the geometric ``geo_x`` when None) as a calibration,
+    its terms (``atoms_json``, the chosen terms described on the calibration rows, then those ``after``
+    (:class:`twin.diagnosis.rule.AfterBlocks`) found, described on ``prob_x``'s rows, with how each was found) and its
+    changes (:func:`describe_changes`, those found after the blocks with their confirmation). A term minor on the
+    calibration rows that these rows need (a lag fitted to the first block's wander of the temperature, whose step
+    came later) is not minor: with ``update_minor``, ``atoms_json``'s flags are set so. ``fit``: the extended model
+    to describe instead of ``ext_x`` (on ``prob_x``'s rows)."""
+    P = setup.prep.space.size
+    ext_x = fit if fit is not None else ext_x
+    base_cal = replace(setup.geometric, x=geo_x.z[:P], details={**setup.geometric.details, "refitted_on_every_row": True})
+    if ext_x is None:
+        return base_cal, tuple(atoms_json), []
+    # a term found after the blocks is minor as a term entering the selection is, by what it explained when it
+    # entered
+    entries = [{"minor": a["minor"], "entry_chi2": a["entry_chi2"]} for a in atoms_json] + \
+        [{"minor": True, "entry_chi2": float(dchi2)} for *_, dchi2 in after.found]
+    final, _ = describe_terms(prob_x, ext_x, geo_x.chi2, {a.key: float(dchi2) for a, *_, dchi2 in after.found})
+    final = [{**f, **e, "minor": bool(e["minor"] and f["minor"])} for f, e in zip(final, entries)]
+    if update_minor:
+        for a, f in zip(atoms_json, final):
+            a["minor"] = f["minor"]
+    extra = final[len(atoms_json):]  # the terms found after the blocks, in the order found
+    for f, (_, how, _, _) in zip(extra, after.found):
+        f["found"] = FOUND[how]
+    late = {f["label"]: got for f, (_, _, got, _) in zip(extra, after.found)}
+    changes = [late_json(late[c["label"]], c, setup) if c["label"] in late else c
+               for c in describe_changes(final, setup.ctx, setup.dataset.pose_id)]
+    cal = replace(base_cal, method="best+effects", effects=tuple(final), x=ext_x.z[:P])
+    return cal, tuple(atoms_json) + tuple(extra), changes
+
+
+def late_json(late, change: dict, setup: Setup) -> dict:
+    """The ``changes`` entry of a change found after the blocks (:mod:`twin.diagnosis.late`): ``change`` as
+    :func:`describe_changes` gives it from its term refitted on every row, with where it was found and, for one
+    confirmed after a cut (``late``), its confirmation."""
+    d = dict(change)
+    if late is None:
+        d["found"] = FOUND["glitch"]
+        return d
     ch, _ = row_times(setup.ctx)
-    d.update({"found": LATE_FOUND,
+    d.update({"found": FOUND["late"],
               "confirmation": {f"cut_{ch}": late.cut, "n_rows_before_cut": late.n_before,
                                "n_rows_after_cut": late.n_after, "z": late.z,
                                "z_without_best_row": late.z_without_best_row,
                                "rms_after_cut_mm": {"without": late.rms_without_mm, "with": late.rms_with_mm}}})
-    return (d,)
+    return d
 
 
-def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None) -> tuple[Fit, Fit | None, Problem]:
+def refit_on_every_row(setup: Setup, base: Fit, ext: Fit | None, *,
+                       rows: np.ndarray | None = None) -> tuple[Fit, Fit | None, Problem]:
     """Step 8: the geometric model and the chosen extended model (its atoms and bases as chosen) refitted on every
-    row of the campaign, calibration, confirmation and report rows alike, gross rows down-weighted anew: the terms
-    were chosen, and before/after measured, on blocks of time; the models a user takes to the next session use the
-    whole campaign (a term of time ends where the campaign ends). Returns both fits and their problem."""
-    ds_all = replace(setup.dataset, set=np.full(setup.dataset.n, "calibration", dtype=object))
+    row of the campaign, calibration, confirmation and report rows alike, gross rows down-weighted anew, the time
+    constants of its terms of the air refined again (:func:`twin.diagnosis.rule.retime`): the terms were chosen on
+    blocks of time; the models a user takes to the next session use the whole campaign (a term of time ends where the
+    campaign ends). ``rows`` (a mask of the dataset's rows): on those rows only, the others (the report block) the
+    problem's confirmation rows. Returns both fits and their problem."""
+    n = setup.dataset.n
+    sets = np.full(n, "calibration", dtype=object) if rows is None else \
+        np.where(rows, "calibration", "validation").astype(object)
+    ds_all = replace(setup.dataset, set=sets)
     prep = prepare(ds_all, noise_position=setup.floor.sigma, validation_fraction=0.0)
-    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, val=prep.cal[-1:],
-                   threads=setup.problem.threads_asked)
+    prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo,
+                   val=prep.cal[-1:] if rows is None else prep.val, threads=setup.problem.threads_asked)
     prob.evidence_scale = setup.problem.evidence_scale
     prob.cross_session = setup.problem.cross_session
     geo = refit_with(prob, base, [])
     if ext is None:
         return geo, None, prob
-    return geo, refit_with(prob, ext, ext.chosen), prob
+    return geo, retime(prob, refit_with(prob, ext, ext.chosen)), prob
 
 
 # ------------------------------------------------------------------------------------------------
@@ -762,10 +852,11 @@ def fit_with_effects(dataset: Dataset, atoms: list, *, holdout: float | None = N
         unknown = fams - set(EFFECT_VOCABULARY)
         if unknown:
             raise ValueError(f"atoms: unknown effect families {sorted(unknown)}; known: {list(EFFECT_VOCABULARY)}")
-        # a backlash by name is the sign of the last move (the load-signed one is searched over directions: an Atom)
+        # a backlash by name is the sign of the last move (the load-signed one is searched over directions, the one
+        # growing with the last move over laws and widths: an Atom)
         cat = [a for a in catalogue_atoms(prep.nominal, ctx, link_lengths(prep.nominal), n_points=dataset.spheres.shape[1])
                if a.family in fams and a.target != "all_lengths" and a.pool == "catalogue"
-               and not any(isinstance(f, LoadSign) for f in a.features)]
+               and not any(isinstance(f, (LoadSign, LastMove)) for f in a.features)]
         atoms = [a for a in atoms if isinstance(a, Atom)] + cat
     base = prob.fit(setup.x0, [])
     rc = base.model_cal.residuals(base.z)

@@ -29,7 +29,7 @@ import numpy as np
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
 from ..transforms import kabsch, left_jacobian_so3, matrix_to_rotvec, rotvec_to_matrix
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import Atom
+from .atoms import Atom, tilt_axis, tilt_coefficient
 from .field import field_values, plate_normals, station_mask
 
 
@@ -221,13 +221,13 @@ class ExtendedModel:
             # one rotation axis of the pivot per feature (the moment about that axis, its ``axis``): a diagonal
             # compliance; several features may turn about one axis (shapes of an unknown moment)
             base = res.J[:, : self.space.size] @ param_weights(self.space, x, a)  # (m, 2)
-            cols = Fr * base[:, [int(getattr(f, "axis", k)) for k, f in enumerate(a.features)]]
+            cols = Fr * base[:, [tilt_axis(f, k) for k, f in enumerate(a.features)]]
             if not any(getattr(f, "shape", None) is not None for f in a.features):
                 return cols
             # a shape of the moment turns the pivot about both axes with one coefficient
             out = np.zeros((len(res.r), a.K))
             for k, f in enumerate(a.features):
-                out[:, int(f.shape)] += cols[:, k]
+                out[:, tilt_coefficient(f, k)] += cols[:, k]
             return out
         if a.place == "field":
             return Fr * (self._field(a, obs) * self._f[:, None])

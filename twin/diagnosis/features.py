@@ -221,11 +221,13 @@ class Sign(Feature):
 @dataclass(**_FROZEN)
 class LastMove(Feature):
     """``tanh(last move of joint j / w)`` (``w`` [rad, or m on a prismatic joint]): hysteresis following the size of
-    the last move."""
+    the last move; ``law`` ``"clip"``: ``clip(last move / w, -1, 1)`` instead (in proportion to the move up to ``w``,
+    the full size beyond it)."""
 
     kind: ClassVar[str] = "lastmove"
     j: int
     w: float
+    law: str | None = None
 
 
 @dataclass(**_FROZEN)
@@ -296,24 +298,30 @@ class Torque(Feature):
 @dataclass(**_FROZEN)
 class Moment(Feature):
     """Component ``axis`` of the gravity moment [N m] of what joint ``j`` carries (``j = 0``: the base), in its frame,
-    over ``h`` (1 when absent)."""
+    over ``h`` (1 when absent). In a tilt it turns the pivot about its ``about`` axis (``axis`` when absent: a
+    compliance per axis; the other: the cross term of a compliance whose principal axes are turned), with the
+    coefficient of ``shape`` (its own when absent)."""
 
     kind: ClassVar[str] = "moment"
     j: int
     axis: int
     h: float | None = None
+    about: int | None = None
+    shape: int | None = None
 
 
 @dataclass(**_FROZEN)
 class BaseMoment(Feature):
     """The arm's gravity moment about the base's horizontal axis ``axis`` as the combination ``w`` of the links'
-    unknown mass moments (principal shape ``shape``), over ``h`` (1 when absent)."""
+    unknown mass moments (principal shape ``shape``: the coefficient it shares), over ``h`` (1 when absent); in a
+    tilt it turns the base about its ``about`` axis (``axis`` when absent)."""
 
     kind: ClassVar[str] = "basemoment"
     axis: int
     shape: int
     w: tuple[float, ...]
     h: float | None = None
+    about: int | None = None
 
 
 @dataclass(**_FROZEN)
@@ -327,11 +335,15 @@ class GravityDir(Feature):
 @dataclass(**_FROZEN)
 class LoadSign(Feature):
     """The sign of the gravity load feature ``f`` (a :class:`Torque` or a :class:`GravMix`); ``u``: the direction
-    in the span of the joint's torque shapes it was built from (refined when kept)."""
+    in the span of the joint's torque shapes it was built from (refined when kept); ``width``: a smooth flank,
+    ``tanh(f / width)`` instead of the sign (``width`` in the unit of ``f``'s values); ``law`` ``"clip"``:
+    ``clip(f / width, -1, 1)`` instead (in proportion up to the width, constant beyond)."""
 
     kind: ClassVar[str] = "loadsign"
     f: Feature
     u: tuple[float, ...] | None = None
+    width: float | None = None
+    law: str | None = None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -377,12 +389,16 @@ class Gated(Feature):
 
 @dataclass(**_FROZEN)
 class Exp(Feature):
-    """``1 - exp(-(x - t0) / tau)`` of the channel ``ch`` (zero before ``t0``; ``t0``, ``tau`` [s]): a warm-up."""
+    """``1 - exp(-(x - t0) / tau)`` of the channel ``ch`` (zero before ``t0``; ``t0``, ``tau`` [s]): a warm-up, the
+    response of a first-order lag to a unit step of its input at ``t0``. With ``ramp`` [s], the response to a unit
+    ramp of the input from ``t0`` over ``ramp`` (the air warming over that time): ``u / T - (tau / T) (1 - e^{-u /
+    tau})`` while ``u = x - t0 <= T``, ``1 - (tau / T) (e^{-(u - T) / tau} - e^{-u / tau})`` after."""
 
     kind: ClassVar[str] = "exp"
     ch: str
     t0: float
     tau: float
+    ramp: float | None = None
     record_pose_id: tuple[int, ...] | None = None
     t_span: tuple[float, float] | None = None
 

@@ -31,13 +31,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..estimator.core import prepare
-from .changes import MIN_ROWS, MIN_SIDE, ChangePlace, change_pool_sizes, row_times, scan_changes
+from ..estimator import distributions as dists
+from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_window, change_pool_sizes, is_change, is_step, is_window,
+                      row_times, scan_changes)
+from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
-from .scoring import score_atoms
+from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
+from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
+from .structure import chi2_logsf
 
-__all__ = ["LateChange", "late_change", "rows_to_confirm"]
+__all__ = ["LateChange", "late_change", "late_templates", "late_term", "end_steps", "glitches", "gross_runs",
+           "rows_to_confirm", "own_weight"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -69,11 +75,13 @@ class LateChange:
 
 
 def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
-    """The problem whose calibration rows are the campaign's rows before ``t_cut`` (time channel) and whose
-    confirmation rows are the rest."""
+    """The problem whose calibration rows are ``prob_all``'s calibration rows before ``t_cut`` (time channel) and whose
+    confirmation rows are the rest of them (the dataset's other rows, a report block after them, in neither)."""
     _, tv = row_times(setup.ctx)
     ds = setup.dataset
-    sets = np.where(tv < t_cut, "calibration", "validation").astype(object)
+    inside = np.zeros(ds.n, bool)
+    inside[prob_all.rows_cal] = True
+    sets = np.where(inside, np.where(tv < t_cut, "calibration", "validation"), "none").astype(object)
     ds_cut = replace(ds, set=sets)
     prep = prepare(ds_cut, noise_position=setup.floor.sigma, validation_fraction=0.0)
     prob = Problem(prep, setup.floor, setup.ctx, setup.problem.free_geo, threads=setup.problem.threads_asked)
@@ -85,6 +93,14 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
 def _rms_mm(fit: Fit, prob: Problem) -> float:
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
+
+def _cut(t_rows: np.ndarray, later: np.ndarray, z_min: float) -> tuple[float | None, int]:
+    """Where a change found after the rows that fit is cut (``t_rows`` every calibration row's time, sorted; ``later``
+    those after the change): the time of the row that leaves enough rows before it to locate the change, and the
+    rows it takes to locate and confirm it (None when fewer follow the change)."""
+    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
+    need = n_locate + rows_to_confirm(z_min)
+    return (float(later[n_locate]) if len(later) >= need else None), need
 
 def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], *, alpha: float,
                 z_min: float) -> tuple[LateChange | None, str]:
@@ -103,12 +119,10 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
         return None, "no change after the rows that fit (step scan on every row)"
     at = float(found[0].features[0].at)
     later = t_rows[t_rows > at]
-    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
-    need = n_locate + rows_to_confirm(z_min)
-    if len(later) < need:
+    t_cut, need = _cut(t_rows, later, z_min)
+    if t_cut is None:
         return None, (f"a change after the rows that fit ({found[0].label}) has {len(later)} rows after it, fewer than "
                       f"the {need} it takes to locate it on some and confirm it on others: not kept")
-    t_cut = float(later[n_locate])
     prob = _prob_before(setup, prob_all, t_cut)
     fit0 = refit_with(prob, use_all, use_all.chosen)
     cands = [a for a in scan_changes(prob, fit0, places, windows=False, alpha=alpha)
@@ -121,16 +135,293 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     if not scored:
         return None, f"a change after the rows that fit ({cands[0].label}) could not be scored: not kept"
     s = scored[0]
+    return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
+
+
+def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str, z_min: float,
+               what: str) -> tuple[LateChange | None, str]:
+    """The change ``s`` (scored on ``prob``'s rows before the cut ``t_cut`` on channel ``ch``, against ``fit0``) judged
+    on the rows after the cut: the :class:`LateChange` when confirmed there (else None) and a note on ``what`` it is."""
     c = confirm(prob, fit0, s, z_min)
     ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
     P = prob.prep.space.size
-    chosen = list(use_all.chosen) + [(s.atom, s.basis)]
-    fit1 = prob.fit(fit0.z[:P], chosen, psi_init(fit0, use_all.chosen) + [s.psi])
+    fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
     got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),
                      int(prob.obs_val.n), _rms_mm(fit0, prob), _rms_mm(fit1, prob), float(s.dchi2))
     words = (f"{s.atom.label}: located and fitted on the {got.n_before} rows before {ch} {t_cut:.6g}, on the "
              f"{got.n_after} rows after it RMS {got.rms_without_mm:.4f} -> {got.rms_with_mm:.4f} mm (z {c.z:.1f}, "
              f"{c.z_without_best_row:.1f} without the best row)")
     if not ok:
-        return None, "a change after the rows that fit not confirmed on the rows after the cut: " + words
-    return got, "a change after the rows that fit, confirmed on later rows: " + words
+        return None, f"{what} not confirmed on the rows after the cut: " + words
+    return got, f"{what}, confirmed on later rows: " + words
+
+def late_templates(pool: list) -> list:
+    """The thermal terms a change of the air after the rows that fit may take, one per place (all links, each link):
+    against the recorded temperature through a lag, or, without a record, a step or a ramp of the air at an onset
+    through the links' lag (:func:`twin.diagnosis.refine.is_onset`)."""
+    out, seen = [], set()
+    for a in pool:
+        if a.family != "thermal" or a.target in seen:
+            continue
+        if is_onset(a) or (len(a.features) == 1 and isinstance(a.features[0], Lag) and a.features[0].ch == "temp_c"):
+            out.append(a)
+            seen.add(a.target)
+    return out
+
+
+def _fit_template(prob: Problem, fit: Fit, a, after: float, sizes: dict) -> tuple[Scored | None, int]:
+    """The thermal template ``a`` at its best constants on ``prob``'s calibration rows against ``fit`` (an onset no
+    earlier than ``after`` [s]; a lag of the recorded temperature over every time constant of the onset grid, then
+    refined) and the number of constants' values tried."""
+    got = score_atoms(prob, fit, [a], sizes, exact_top=1)
+    if not got:
+        return None, 1
+    if is_onset(a):
+        s = refine_onset(prob, fit, got[0], sizes, after=after)
+        return (None if s is got[0] else s), ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)
+    t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
+    trial = [onset_lag(a, fc * float(np.ptp(t))) for fc in ONSET_TAUS]
+    s = max(got + score_atoms(prob, fit, trial, sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
+    return refine(prob, fit, s, sizes), len(ONSET_TAUS)
+
+
+def _start(setup, a, t_fit_end: float) -> float | None:
+    """When the late change of the template ``a`` starts: an onset's time; for a lag of the recorded temperature, the
+    first row after ``t_fit_end`` whose temperature leaves the range of the rows before it by more than that range's
+    width (None when it never does)."""
+    if is_onset(a):
+        return float(a.features[0].t0)
+    _, tv = row_times(setup.ctx)
+    temp = np.asarray(setup.ctx.temp_c, float)
+    before = tv <= t_fit_end
+    lo, hi = float(np.min(temp[before])), float(np.max(temp[before]))
+    w = hi - lo
+    out = (~before) & ((temp < lo - w) | (temp > hi + w))
+    return float(np.min(tv[out])) if np.any(out) else None
+
+
+def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha: float,
+              z_min: float) -> tuple[LateChange | None, str]:
+    """A change of the air's temperature after the rows that fit, through the links' lag (thermal growth), judged as
+    :func:`late_change` judges a step: the best thermal term of ``templates`` (:func:`late_templates`) on every row
+    against the model in use (significant after the factor of places and constants tried), starting after the rows
+    that fit (an onset, or the recorded temperature leaving the range those rows saw); located and fitted on the rows
+    before a cut (the fewest rows after its start the step scan needs), confirmed on the rows after it. Places that
+    already have a thermal term are not tried. Returns the confirmed term (or ``None``) and a note."""
+    ch, tv = row_times(setup.ctx)
+    have = {a.target for a, _ in use_all.chosen if a.family == "thermal"}
+    templates = [a for a in templates if a.target not in have]
+    if ch != "t_s" or not templates:
+        return None, ""
+    t_fit = np.sort(tv[setup.problem.rows_cal])
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_fit))))
+    t_fit_end = float(t_fit[max(len(t_fit) - side, 0)])
+    sizes = {a.pool: 1 for a in templates}
+    found = []
+    for a in templates:
+        s, tried = _fit_template(prob_all, use_all, a, t_fit_end, sizes)
+        if s is None:
+            continue
+        logp = chi2_logsf(s.dchi2 / prob_all.evidence_scale, s.basis.shape[1]) + np.log(len(templates) * tried)
+        start = _start(setup, s.atom, t_fit_end)
+        if logp < np.log(alpha) and start is not None and start >= t_fit_end:
+            found.append((s.dchi2, s, start))
+    if not found:
+        return None, "no change of the air's temperature after the rows that fit"
+    _, s_all, start = max(found, key=lambda x: x[0])
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    later = t_rows[t_rows >= start]
+    t_cut, need = _cut(t_rows, later, z_min)
+    if t_cut is None:
+        return None, (f"a change after the rows that fit ({s_all.atom.label}) has {len(later)} rows after its start, "
+                      f"fewer than the {need} it takes to locate it on some and confirm it on others: not kept")
+    prob = _prob_before(setup, prob_all, t_cut)
+    fit0 = refit_with(prob, use_all, use_all.chosen)
+    s, _ = _fit_template(prob, fit0, s_all.atom, t_fit_end, sizes)
+    if s is None:
+        return None, f"a change after the rows that fit ({s_all.atom.label}) could not be fitted before the cut: not kept"
+    return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min,
+                      "a change of the air's temperature after the rows that fit")
+
+
+def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, list[str]]:
+    """Each kept change of the models to use ends, on every row, where the rows after it return to the state before
+    it: a step is a window that has not ended, and a window's end is a constant of the term like its start (the block
+    that chose it may have ended before the change did). The end is placed between two rows with at least
+    ``max(MIN_ROWS, MIN_SIDE n)`` rows after it (a state held by a handful of rows at an end is no state); the change
+    with its new end replaces it (the same coefficients) where that lowers the chi2 of every row beyond ``chi2_1`` at
+    ``alpha`` over the ends tried. A glitch whose return comes too late in the campaign for the rows after a cut to
+    confirm it (:func:`late_change`) is still a return to a state the campaign held. Returns the fit and a note per
+    change ended."""
+    ch, tv = row_times(setup.ctx)
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    n = len(t_rows)
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * n)))
+    notes = []
+    for k in range(len(use_all.chosen)):
+        a, _ = use_all.chosen[k]
+        if not (is_step(a) or is_window(a)):
+            continue
+        at = float(a.features[0].at)
+        first = int(np.searchsorted(t_rows, at))
+        ends = [0.5 * (t_rows[i - 1] + t_rows[i]) for i in range(first + MIN_ROWS, n - side + 1)
+                if t_rows[i] > t_rows[i - 1]]
+        if not ends:
+            continue
+        others = [c for i, c in enumerate(use_all.chosen) if i != k]
+        without = refit_with(prob_all, use_all, others)
+        sizes = {"change": 1, "change_window": 1}
+        got = score_atoms(prob_all, without, [a] + [as_window(a, e) for e in ends], sizes, exact_top=len(ends) + 1)
+        step = next((g for g in got if g.atom is a), None)
+        wins = [g for g in got if g.atom is not a]
+        if step is None or not wins:
+            continue
+        best = max(wins, key=lambda g: g.dchi2)
+        gain = (best.dchi2 - step.dchi2) / prob_all.evidence_scale
+        if gain <= dists.chi2_isf(alpha / len(ends), 1):
+            continue
+        chosen = list(use_all.chosen)
+        chosen[k] = (best.atom, best.basis)
+        use_all = refit_with(prob_all, use_all, chosen)
+        notes.append(f"a change ends on every row: {best.atom.label} (the rows after its end back in the state before it: "
+                     f"chi2 {gain:.1f} lower than with the end the first block gave it, {len(ends)} ends tried)")
+    return use_all, notes
+
+
+def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], every_place: list[ChangePlace], *,
+             alpha: float, most: int = 3) -> tuple[Fit, list, list[str]]:
+    """A change and back at one of ``places`` (a glitch: a joint's zero off for a few rows, an encoder's count lost
+    and found again) anywhere in the campaign, on every row against the models to use: the window scan of
+    :func:`twin.diagnosis.changes.scan_changes` (its rules: the rows in the window fitted by it to the scatter of the
+    others, significant without any one of its rows, the residual it leaves white in time), significant after the
+    window pool's Bonferroni factor over every row and ``every_place`` a change may take, its evidence measured
+    against the scatter the rows outside it show along its place (:func:`_place_scatter`), and better than the best
+    step of any place (a window over most of the rows is the complement of a step). A glitch that is over predicts nothing of the later rows by
+    itself: no later block can confirm it, and none is asked to; it takes the rows it holds out of the fit of
+    everything else (a zero off on 40 rows pulls the joint's offset of a fit on every row by a fraction of it, and
+    every later row with it). At most ``most``, strongest first, none at a place a kept change or joint term holds
+    (a window there is that term's misfit on a few rows). Returns the
+    fit with them, the windows (atom, calibration Delta chi2) and notes. ``places`` may hold a joint's compliance
+    (its gravity-torque shapes: a payload hung on and taken off again); its window's scatter is measured on the
+    model with it (the rows inside pull a fit on every row along the load's shapes, and the rows outside carry that
+    pull), and only a kept change of that compliance excludes it."""
+    sizes = change_pool_sizes(prob_all.obs_cal.n, every_place, short=MIN_ROWS)
+    found, notes = [], []
+    for _ in range(most):
+        # a run of gross rows in time is a glitch's candidate too (a zero off by much on a few rows): the scan sees them,
+        # and judges them as any window (one offset fitting every row of it to the floor)
+        w_gross = prob_all.w_cal.copy()
+        prob_all.w_cal = np.maximum(w_gross, gross_runs(setup, prob_all))
+        cands = scan_changes(prob_all, use_all, every_place, windows=True, alpha=alpha, short=MIN_ROWS)
+        # a place a kept change or a kept joint term holds is not a glitch's (a window there is that term's misfit)
+        # (a joint's zero: a kept change or joint term there; a payload's window at a joint's compliance: a kept change
+        # of that compliance, the load's own term being the state outside the window)
+        kept = [a for a, _ in use_all.chosen if is_change(a) or a.place == "joint"]
+        at = {(p.place, p.target, p.inner is None) for p in places}
+        pick = None
+        for a in cands:
+            zero = isinstance(a.features[0], Window)
+            if not is_window(a) or (a.place, a.target, zero) not in at:
+                continue
+            if any(is_step(c) for c in cands[:cands.index(a)]):
+                continue  # a step explains more (a window over most of the rows is a step's complement): no return
+            if any((c.place, c.target) == (a.place, a.target) and (zero or is_change(c)) for c in kept):
+                continue
+            got = score_atoms(prob_all, use_all, [a], sizes, exact_top=1)
+            if not got:
+                continue
+            # the scatter the rows outside show: a payload's window measured against the model with it (the rows
+            # inside pull a fit on every row along the load's shapes, and the rows outside then carry that pull)
+            s2 = _place_scatter(setup, prob_all, use_all if zero else
+                                refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)]), a)
+            logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
+                + np.log(sizes[a.pool])
+            if logp < np.log(alpha):
+                pick = got[0]
+                break
+        if pick is None:
+            prob_all.w_cal = w_gross
+            break
+        # fitted with the rows it holds (gross without it), whose weights the refit then sets anew
+        chosen = list(use_all.chosen) + [(pick.atom, pick.basis)]
+        use_all = refit_with(prob_all, use_all, chosen)
+        found.append((pick.atom, float(pick.dchi2)))
+        notes.append(f"a change and back on every row: {pick.atom.label} (p = {np.exp(pick.logp_adj):.2g} after the "
+                     f"window pool's factor {sizes['change_window']})")
+    return use_all, found, notes
+
+
+def _place_scatter(setup, prob: Problem, fit: Fit, window) -> float:
+    """The variance, in the floor's units, of the mean residual along the ``window``'s place over a stretch of rows,
+    from the rows outside it: each row's evidence for an offset of the place, ``z_i = g_i . r_i / sqrt(|g_i|^2 -
+    |Q^T g_i|^2)``, their mean square ``s^2`` (at least 1) and their correlation from one row to the next in time
+    ``rho`` (clipped to [0, 0.9]): ``s^2 (1 + rho) / (1 - rho)``, the variance of a long stretch's mean of an AR(1)
+    process. A wander of the cell moves whole rows together, shows along a joint's direction more than the floor
+    says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor)."""
+    sb = scoring_basis(prob, fit)
+    W, QB, Br = row_aggregates(prob, fit, sb, window)
+    inside = prob.features(window)[prob.rows_cal, 0] != 0
+    den = W[:, 0, 0] - np.einsum("np,np->n", QB[:, :, 0], QB[:, :, 0])
+    ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, 0, 0])), 1e-300)) & (prob.w_cal > 0)
+    if np.sum(ok) < 10:
+        return 1.0
+    z = np.where(ok, Br[:, 0] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
+    s2 = max(1.0, float(np.mean(z[ok] ** 2)))
+    _, tv = row_times(setup.ctx)
+    order = np.argsort(tv[prob.rows_cal], kind="stable")
+    zo, oko = z[order], ok[order]
+    pair = oko[1:] & oko[:-1]
+    a, b = zo[:-1][pair], zo[1:][pair]
+    den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
+    return s2 * (1.0 + rho) / (1.0 - rho)
+
+
+def gross_runs(setup, prob: Problem) -> np.ndarray:
+    """``(n,)`` 1 on the calibration rows at weight 0 (gross) that are ``MIN_ROWS`` or more in a row in time order
+    (a glitch's shortest window), else 0."""
+    _, tv = row_times(setup.ctx)
+    order = np.argsort(tv[prob.rows_cal], kind="stable")
+    g = (prob.w_cal[order] == 0).astype(int)
+    out = np.zeros(len(g))
+    k = 0
+    while k < len(g):
+        if g[k]:
+            e = k
+            while e < len(g) and g[e]:
+                e += 1
+            if e - k >= MIN_ROWS:
+                out[order[k:e]] = 1.0
+            k = e
+        else:
+            k += 1
+    return out
+
+
+def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> tuple[Fit, list, list[str]]:
+    """A joint whose compliance changes with a payload (a kept change of its gravity-torque shapes, a step or a
+    window) carries the arm's own weight on every row through the same compliance
+    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``): where the model has no compliance of that joint under the arm's
+    own weight (the block that chose the terms rejected it while a payload it did not hold loaded the later rows),
+    the catalogue's term joins on every row when significant there, after the factor of the joints tried (``chi2``
+    of its rank at ``alpha``), strongest first. Returns the fit with them, the terms (atom, ``Delta chi2``) and
+    notes."""
+    loaded = {a.target for a, _ in use_all.chosen
+              if is_change(a) and a.place == "joint" and a.features and isinstance(a.features[0], Gated)}
+    have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
+    cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
+             and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
+    found, notes = [], []
+    while cands:
+        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
+        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        k = int(np.argmin(logp))
+        g = got[k]
+        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
+        found.append((g.atom, float(g.dchi2)))
+        notes.append(f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight "
+                     f"on every row; p = {np.exp(logp[k]):.2g} after the factor {len(cands)} of the joints tried)")
+        cands = [a for a in cands if a.target != g.atom.target]
+    return use_all, found, notes

@@ -31,8 +31,9 @@ from dataclasses import replace as replace_atom
 
 import numpy as np
 
+from ..estimator import distributions as dists
 from ..kinematics import RobotModel
-from .atoms import Atom, joint_words
+from .atoms import Atom, joint_words, tilt_axis, tilt_coefficient
 from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
 from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
@@ -41,7 +42,9 @@ from .scoring import score_atoms
 from .values import feature_values
 
 __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
-           "refine_load_sign", "load_alternatives", "tilt_angles"]
+           "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH",
+           "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom",
+           "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -77,35 +80,274 @@ def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = N
                          h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
 
 
+# a smooth flank's widths tried, as fractions of the load's RMS over the rows (beyond STIFFENING_WIDTH: a stiffening)
+FLANK_WIDTHS = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+STIFFENING_GRID = (0.7, 1.5, 3.0)  # widths (fractions of the load's RMS) of the stiffening compliance atoms
+# the stiffening's laws: saturating smoothly (tanh of the load over the width), or two stiffnesses (in proportion to
+# the load up to the width, stiffer beyond: clip)
+STIFFENING_LAWS = (None, "clip")
+REFINE_SHAPES = 5  # a joint's leading torque shapes the direction of a kept load-signed backlash is refined in
+# [fraction of the load's RMS] a load law taken up over a wider width than this is the joint's stiffness rising with
+# its load (a compliance), over a narrower one a gear's flank changing sides (a backlash: the flank changes while the
+# load crosses zero, within the joint's friction, a fraction of its load)
+STIFFENING_WIDTH = 1.0 / 3.0
+STATED_SPREAD = 0.1  # the stated masses' error, as a share of the generic prior's spread of the torque shapes
+SIMPLEX_STEP = 0.1  # the refinement's first steps along each direction (each of unit RMS over the rows)
+
+
+def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
+    """A law of joint ``atom.target``'s gravity load with the feature ``f`` (its load, direction and width as set;
+    ``rms``: the RMS of the load over the rows, the width's unit): a backlash (offset signed by the load) when the
+    law changes sides sharply or within ``STIFFENING_WIDTH`` of the load's RMS, else a compliance stiffening with the
+    load (the law and the load itself: two coefficients); channel and label to match, pool as ``atom``'s."""
+    j = int(atom.target[5:])
+    jw = joint_words(model, j)
+    u = "" if f.u is None else f" ({', '.join(f'{x:+.3f}' for x in f.u)})"
+    if f.width is None:
+        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u}",
+                            label=f"joint {jw} backlash (offset signed by its gravity load)")
+    rel = f.width / rms
+    fn = "tanh" if f.law is None else f.law
+    law = f"{fn}(load / {f.width:.3g} N m)" if isinstance(f.f, Torque) else f"{fn}(load / {rel:.3g} of its RMS)"
+    if rel <= STIFFENING_WIDTH:
+        return replace_atom(atom, family="backlash", features=(f,), channel=f"load_sign_j{j}{u} {fn} width {rel:.3g} rms",
+                            label=f"joint {jw} backlash (offset signed by its gravity load, its flank taken up "
+                                  f"smoothly: {law})")
+    # the law with its load in proportion beside it (the stiffness beyond the change): the law alone would read a
+    # linear compliance wherever the load stays within the width, and stand in for one
+    return replace_atom(atom, family="compliance", features=(f, f.f),
+                        channel=f"stiffening_j{j}{u} {fn} width {rel:.3g} rms",
+                        label=f"joint {jw} compliance under gravity, stiffening with the load (its deflection follows "
+                              f"{law})")
+
+
+def stiffening_atoms(model: RobotModel, ctx: RowContext, j: int, load) -> list[Atom]:
+    """Joint ``j``'s compliance stiffening with its gravity load ``load`` (a :class:`Torque` of the stated masses, or a
+    :class:`GravMix` combination of its torque shapes: a linear compliance's fitted torque): ``tanh(load / w)`` for
+    ``w`` in ``STIFFENING_GRID`` of the load's RMS over the rows, and ``clip(load / w, -1, 1)`` (two stiffnesses, the
+    change at ``w``), refined when kept (:func:`refine_load_sign`). Softer near zero load than under a large one: a
+    harmonic drive's first stiffness, a gear's teeth coming into contact."""
+    v = feature_values((load,), ctx, model)[:, 0]
+    rms = float(np.sqrt(np.mean(v ** 2)))
+    if not rms > 0:
+        return []
+    base = Atom("compliance", "joint", f"theta{j}", (), "", "", "catalogue", (j,))
+    return [law_atom(model, base, LoadSign(f=load, width=float(fr * rms), law=law), rms)
+            for law in STIFFENING_LAWS for fr in STIFFENING_GRID]
+
+
+def own_link_atom(model: RobotModel, q: np.ndarray, j: int) -> Atom | None:
+    """Joint ``j``'s compliance under the weight of the link it moves itself (its first mass moment ``m_j c_j``: the
+    regressor's columns of link ``j``, the mass itself lying on the axis), the directions they span over the rows as
+    ``gravmix`` features: a heavy upper arm whose centre of mass lies far along it, which the torque shapes of the
+    generic prior (centres of mass ~0.1 m off each frame) carry only in part. None when they carry no torque."""
+    Y = gravity_torque_regressor(model, q)
+    cols = tuple((j, c) for c in (1, 2, 3))
+    M = np.stack([Y[:, j - 1, j - 1, c] for _, c in cols], axis=1)
+    if not np.any(np.abs(M) > 1e-9):
+        return None
+    _, sv, Vt = np.linalg.svd(M, full_matrices=False)
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    feats = tuple(GravMix(i=j, cols=cols, w=tuple(Vt[k].tolist()), h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
+    return Atom("compliance", "joint", f"theta{j}", feats, f"gravity torque of link {j} on joint {j}",
+                f"joint {joint_words(model, j)} compliance under gravity, the weight of the link it moves", "catalogue",
+                (j,))
+
+
+def link_tilt_atom(model: RobotModel, q: np.ndarray, k: int) -> Atom | None:
+    """The base tilting under the gravity moment of link ``k``'s first mass moment (``m_k c_k``: a heavy upper arm
+    whose centre of mass lies far along it, which the moment's shapes under the generic prior carry only in part), as
+    :func:`load_atoms`' tilt: each shape a pair of ``basemoment`` features (both axes, one coefficient); without the
+    chain's masses only. None when that moment does not vary."""
+    if has_masses(model):
+        return None
+    Y = base_moment_regressor(model, q)
+    n, N = len(q), model.n_joints
+    sel = np.zeros((N, 4))
+    sel[k - 1, 1:] = 1.0
+    M = np.concatenate([(Y[:, 0] * sel).reshape(n, -1), (Y[:, 1] * sel).reshape(n, -1)])
+    if not np.any(np.abs(M) > 1e-9):
+        return None
+    _, sv, Vt = np.linalg.svd(M, full_matrices=False)
+    rk = int(np.sum(sv > 1e-6 * sv[0]))
+    feats = tuple(BaseMoment(axis=a, shape=r, w=tuple(Vt[r].tolist()), h=float(sv[r] / np.sqrt(n)))
+                  for r in range(rk) for a in (0, 1))
+    return Atom("tilt", "param", "tilt0", feats, f"gravity moment of link {k} carried by the base",
+                f"the robot's base tilting about its horizontal axes under the weight of link {k} (base compliance; "
+                "the link's own first mass moment)", "catalogue")
+
+
+def fitted_load(fit, j: int) -> GravMix | None:
+    """Joint ``j``'s torque as the kept linear compliances of the joint fitted it (``fit``'s atoms of the joint whose
+    features are ``gravmix`` shapes: the leading shapes, their further shapes, the weight of the link it moves): their
+    coefficients' combination as one ``gravmix`` feature over the leading shapes' regressor columns. None unless the
+    leading shapes are kept (the joint's load is theirs; a part of it is no load a law follows)."""
+    main = f"gravity torque of joint {j}"
+    kept = [(k, a, B) for k, (a, B) in enumerate(fit.chosen) if a.family == "compliance" and a.target == f"theta{j}"
+            and a.features and all(isinstance(f, GravMix) for f in a.features)]
+    lead = [a for _, a, _ in kept if a.channel == main]
+    if not lead:
+        return None
+    cols = lead[0].features[0].cols
+    at = {c: n for n, c in enumerate(cols)}
+    w = np.zeros(len(cols))
+    for k, a, B in kept:
+        phi = B @ fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+        for p, f in zip(phi, a.features):
+            for c, x in zip(f.cols, f.w):
+                if tuple(c) in at:
+                    w[at[tuple(c)]] += p * x / f.h
+    if not np.any(w):
+        return None
+    return GravMix(i=j, cols=cols, w=tuple(w.tolist()), h=1.0)
+
+
+def stated_load_mix(model: RobotModel, i: int, cols: tuple) -> GravMix | None:
+    """Joint ``i``'s gravity torque from the chain's stated mass properties as a ``gravmix`` feature over the regressor
+    columns ``cols`` (``(k, c)`` pairs of :func:`torque_shapes`): the weights are the links' mass moments ``(m_k,
+    m_k c_k)`` in their joint frames (``h`` 1); None without masses."""
+    if not has_masses(model):
+        return None
+    pi = {}
+    for k, j in enumerate(model.structure.joints, start=1):
+        m = float(j.inertial["mass"]) if j.inertial else 0.0
+        c = np.asarray(j.inertial["com"], float) if j.inertial else np.zeros(3)
+        pi[(k, 0)] = m
+        for a in range(3):
+            pi[(k, a + 1)] = m * float(c[a])
+    return GravMix(i=i, cols=cols, w=tuple(pi.get((int(k), int(c)), 0.0) for k, c in cols), h=1.0)
+
+
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
-    """A kept load-signed backlash found on the grid of directions moved to the direction in the span of the joint's
-    torque shapes whose sign explains most (Nelder-Mead on the direction from the grid's best, scored as every atom
-    is: :func:`twin.diagnosis.scoring.score_atoms`). Returns the scored atom."""
+    """A kept load-signed backlash refined: its load (the stated masses' torque, or the grid's best direction when
+    the masses are unknown) moved within the span of that load and the joint's ``REFINE_SHAPES`` leading torque
+    shapes to the combination whose sign explains most (Nelder-Mead from the start, scored as every atom is:
+    :func:`twin.diagnosis.scoring.score_atoms`): stated masses are off by some per cent and three shapes hold the
+    load only to a few per cent, and either moves the sign's change past rows near zero load. Then its flank: a
+    gear whose flank is taken up over a range of the load (friction, a preload, the teeth's compliance) follows
+    ``tanh(load / w)``, not the load's sign, and the sign alone misplaces every row near the flank's change. The
+    smooth flank (its width from ``FLANK_WIDTHS`` of the load's RMS, then refined on its log with the direction)
+    replaces the sign when it explains significantly more: beyond ``chi2_1`` at 1 % / the number of widths tried,
+    with at least 3 calibration rows inside the flank (``|tanh| < 0.5``). Returns the scored atom."""
     from scipy.optimize import minimize
 
     f0 = s.atom.features[0]
-    if not isinstance(f0, LoadSign) or f0.u is None:
+    if not isinstance(f0, LoadSign):
         return s
-    shapes = torque_shapes(prob.prep.nominal, prob.ctx.q, int(f0.f.i), LOAD_SHAPES)
-    if len(shapes) < 2:
+    model, rows = prob.prep.nominal, prob.rows_cal
+    i = int(f0.f.i) if isinstance(f0.f, GravMix) else int(f0.f.j)
+    shapes = torque_shapes(model, prob.ctx.q, i, REFINE_SHAPES)
+    if not shapes:
         return s
+    cols = shapes[0].cols
+    # the stated masses' torque (when known) beside the shapes: it lies in their full span, not in the leading few
+    stated = [stated_load_mix(model, i, cols)] if isinstance(f0.f, Torque) else []
+    basis = stated + [GravMix(i=i, cols=cols, w=tuple((np.asarray(f.w, float) / f.h).tolist()), h=1.0) for f in shapes]
+    V = feature_values(tuple(basis), prob.ctx, model)
+    scale = np.sqrt(np.mean(V[rows] ** 2, axis=0))
+    ok = scale > 0
+    basis = [f for f, k in zip(basis, ok) if k]
+    W = np.array([np.asarray(f.w, float) / sc for f, sc in zip(basis, scale[ok])])  # each unit RMS over the rows
+    V = V[:, ok] / scale[ok]
+    # each direction's prior scale (in its unit-RMS coordinate): a torque shape's under the generic prior, relative to
+    # the leading one; beside the stated masses' torque, their error spread like those shapes (STATED_SPREAD of it)
+    prior = np.array(([1.0] if stated else []) + [f.h / shapes[0].h for f in shapes])[ok]
+    if stated:
+        prior[1:] *= STATED_SPREAD
+        u0 = np.zeros(len(basis))
+        u0[0] = 1.0
+    else:
+        # the grid's direction in the refinement's coordinates
+        v0 = feature_values((f0.f,), prob.ctx, model)[rows, 0]
+        u0 = np.linalg.lstsq(V[rows], v0 / np.sqrt(np.mean(v0 ** 2)), rcond=None)[0]
     best = [s]
+    rec = {}
 
-    def cost(u):
+    def feature(u, frac):
         u = np.asarray(u, float)
-        if not np.linalg.norm(u) > 0:
+        v = V @ u
+        rms = float(np.sqrt(np.mean(v[rows] ** 2)))
+        mix = GravMix(i=i, cols=cols, w=tuple((u @ W).tolist()), h=1.0)
+        return LoadSign(f=mix, u=tuple(float(x) for x in u), width=None if frac is None else float(frac * rms),
+                        law=None if frac is None else f0.law), rms
+
+    def score(u, frac):
+        f, rms = feature(u, frac)
+        if not rms > 0:
             return 0.0
-        a = replace_atom(s.atom, features=(load_sign_feature(shapes, u / np.linalg.norm(u)),))
-        got = score_atoms(prob, fit, [a], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
         if not got:
             return 0.0
         if got[0].dchi2 > best[0].dchi2:
             best[0] = got[0]
-        return -got[0].dchi2
+        d = got[0].dchi2
+        key = "sharp" if frac is None else "smooth"
+        if d > rec.get(key, (-1.0,))[0]:
+            rec[key] = (d, got[0])
+        return d
 
-    minimize(cost, np.asarray(f0.u, float), method="Nelder-Mead",
-             options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 80, "initial_simplex": None})
-    return best[0]
+    def simplex(x0, steps):
+        return np.vstack([x0] + [x0 + np.eye(len(x0))[k] * steps[k] for k in range(len(x0))])
+
+    m = len(basis)
+    opts = {"xatol": 1e-3, "fatol": 1e-3}
+    # the direction and a flank's width together on the smooth flank (the sign is a step function of the direction:
+    # a search on it flips single rows, and a boundary placed by a few rows' noise mispredicts the rows near it);
+    # from the best width of the grid at the start, steps of SIMPLEX_STEP of the load along each direction
+    top = max(FLANK_WIDTHS, key=lambda fr: score(u0, fr))
+    x0 = np.concatenate([u0, [0.0]])
+    minimize(lambda x: -score(x[:-1], top * np.exp(x[-1])), x0, method="Nelder-Mead",
+             options=dict(opts, maxfev=60 * (m + 1), initial_simplex=simplex(x0, [SIMPLEX_STEP] * m + [0.5])))
+    # the sign at the start and at the smooth flank's direction
+    score(u0, None)
+    if "smooth" in rec:
+        score(np.asarray(rec["smooth"][1].atom.features[0].u, float), None)
+    if "sharp" not in rec:
+        return s  # no law of this load scores against the fit (its columns lie within the model's)
+    sharp, smooth = rec["sharp"][1], rec.get("smooth", (0.0, None))[1]
+    if smooth is None or (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale < dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
+        sharp = sharp if sharp.dchi2 >= s.dchi2 else s
+        if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
+            return sharp
+        # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
+        # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
+        # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
+        # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
+        # side a search happened to stop at
+        u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
+        u_mm = None if u_mm is None else u_mm * prior
+        if u_mm is not None:
+            f, rms = feature(u_mm, None)
+            got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
+            if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
+                return got[0]
+        return sharp
+    fo = smooth.atom.features[0]
+    v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
+    inside = np.abs(np.tanh(v / fo.width)) < 0.5
+    if int(np.sum(inside)) < 3:
+        return sharp
+    return smooth
+
+
+def _max_margin(V: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    """The direction ``u'`` (unit norm) that puts every row of ``V`` ``(n, m)`` on the side ``u`` puts it on with the
+    largest margin ``min_i s_i V_i u'`` (``s = sign(V u)``; a hard-margin separation through the origin, solved as
+    ``min |w|^2`` subject to ``s_i V_i w >= 1``, SLSQP from ``u``); None when that fails or ``V u`` has a zero."""
+    from scipy.optimize import minimize
+
+    sgn = np.sign(V @ u)
+    if not np.all(sgn != 0):
+        return None
+    A = sgn[:, None] * V
+    w0 = u / max(float(np.min(A @ u)), 1e-12)
+    res = minimize(lambda w: float(w @ w), w0, jac=lambda w: 2 * w, method="SLSQP",
+                   constraints=[{"type": "ineq", "fun": lambda w: A @ w - 1.0, "jac": lambda w: A}],
+                   options={"maxiter": 200, "ftol": 1e-10})
+    w = res.x
+    if not np.all(np.isfinite(w)) or np.any(A @ w <= 0):
+        return None
+    return w / np.linalg.norm(w)
 
 
 LOAD_DIRECTIONS = 300  # directions in the span of a joint's leading torque shapes whose sign is tried (then refined)
@@ -140,6 +382,10 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     for j in range(1, N + 1):
         if masses:
             feats = [LoadSign(f=Torque(j=j, h=1.0))]
+            if np.ptp(tau[:, j - 1]) > 1e-9 * max(1.0, float(np.max(np.abs(tau[:, j - 1])))):
+                # the stated load known: its compliance stiffening with it (without masses, from a kept linear
+                # compliance's fitted torque: the selection's rounds add them)
+                atoms += stiffening_atoms(model, ctx, j, Torque(j=j, h=1.0))
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
@@ -174,6 +420,20 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
             atoms.append(Atom("tilt", "param", "tilt0", tuple(feats), "gravity moment carried by the base (shapes)",
                               "the robot's base tilting about its horizontal axes under the arm's gravity moment "
                               "(base compliance; the moment's shapes from unknown link masses)", "catalogue"))
+            # a base stiffer about one horizontal axis than the other (principal axes anywhere): the compliance
+            # c I + d1 diag(1, -1) + d2 [[0, 1], [1, 0]]; its anisotropic part acts on the leading shape of the moment
+            # (the arm's reach), two coefficients beside the shapes' own
+            w0, h0 = feats[0].w, feats[0].h
+            neg = tuple(-x for x in w0)
+            aniso = (BaseMoment(axis=0, shape=len(feats) // 2, w=w0, h=h0, about=0),
+                     BaseMoment(axis=1, shape=len(feats) // 2, w=neg, h=h0, about=1),
+                     BaseMoment(axis=1, shape=len(feats) // 2 + 1, w=w0, h=h0, about=0),
+                     BaseMoment(axis=0, shape=len(feats) // 2 + 1, w=w0, h=h0, about=1))
+            atoms.append(Atom("tilt", "param", "tilt0", tuple(feats) + aniso,
+                              "gravity moment carried by the base (shapes), axes turned",
+                              "the robot's base tilting about its horizontal axes under the arm's gravity moment, stiffer "
+                              "about one axis than the other (base compliance per axis; the moment's shapes from unknown "
+                              "link masses)", "catalogue"))
     return atoms
 
 
@@ -182,7 +442,7 @@ def tilt_angles(features, F: np.ndarray, phi: np.ndarray) -> np.ndarray:
     the pivot about its ``axis``), values ``F`` ``(n, K)`` and coefficients ``phi`` ``(K,)``."""
     out = np.zeros((F.shape[0], 2))
     for k, f in enumerate(features):
-        out[:, int(getattr(f, "axis", k))] += F[:, k] * phi[int(getattr(f, "shape", k))]
+        out[:, tilt_axis(f, k)] += F[:, k] * phi[tilt_coefficient(f, k)]
     return out
 
 
@@ -195,7 +455,7 @@ def _counterparts(a, pool: list) -> list:
     base's moment follow the same mass moments)."""
     kinds = {f.kind for f in a.features}
     if a.family == "backlash":
-        want = "loadsign" if kinds <= {"sign", "play"} else "sign"
+        want = "loadsign" if kinds <= {"sign", "play", "lastmove"} else "sign"
         return [c for c in pool if c.family == "backlash" and c.target == a.target
                 and {f.kind for f in c.features} == {want}]
     if a.family == "compliance" and a.pool == "catalogue" and kinds == {"gravmix"}:

@@ -38,8 +38,16 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
         # at high signal-to-noise, effects not yet modelled leak a few per cent into any broader atom: the
         # margin grows with the evidence (5 % of it) for a named atom acting at the same place
         margin = max(CATALOGUE_MARGIN, CATALOGUE_SHARE * abs(cand.logp_adj)) if same else CATALOGUE_MARGIN
+        if cand is not None and _settling_rival(top, cand):
+            # a joint still settling from the step into the row and a backlash growing with its last move differ only
+            # on the rows that did not move (the step is zero there, the last move is not): the one the rows follow
+            # better leads, without a margin
+            margin = top.logp_adj - cand.logp_adj if cand.dchi2 >= top.dchi2 else 0.0
         if cand is not None and cand.logp_adj < top.logp_adj + margin:
             order = [cand] + [s for s in order if s is not cand]
+        elif same and named[0] is not cand and named[0].logp_adj < top.logp_adj + CATALOGUE_MARGIN:
+            # the named atom at the same place is far behind, but a named atom elsewhere is not: it leads
+            order = [named[0]] + [s for s in order if s is not named[0]]
     if not order or order[0].basis.shape[1] < broad_dim:
         return order
     best = order[0]
@@ -50,6 +58,14 @@ def order_candidates(scored: list[Scored], broad_dim: int = 4) -> list[Scored]:
     if gain >= best.dchi2 and small:
         return small[:1] + [s for s in order if s is not small[0]]
     return order
+
+
+def _settling_rival(unnamed: Scored, named: Scored) -> bool:
+    """Whether ``unnamed`` is the step into the row of a joint acting on that joint's angle and ``named`` a backlash of
+    the same joint growing with the size of its last move."""
+    a, b = unnamed.atom, named.atom
+    return (a.place == b.place == "joint" and a.target == b.target and len(a.features) == len(b.features) == 1
+            and a.features[0].kind == "stepin" and b.features[0].kind == "lastmove" and b.family == "backlash")
 
 
 def _nested(small: Scored, big: Scored, share: float = 0.99) -> bool:

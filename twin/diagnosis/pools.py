@@ -13,7 +13,7 @@ import numpy as np
 
 from ..kinematics import RobotModel
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import HINGE_POINTS, Atom, hinge_atom, joint_words
+from .atoms import BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, Atom, hinge_atom, joint_words
 from .candidates import RowContext, carried_moments, gravity_torque_regressor, gravity_torques, has_masses
 from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, Heat, Lag, LastMove, Moment, Pow,
                        Prod, Settle, Sign, Sin, Station, Step, StepIn, Torque)
@@ -27,6 +27,7 @@ __all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
 MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0)  # widths of the move-size hysteresis shapes in the dictionary (then refined)
 TAU_FRACTIONS = (0.125, 0.5, 2.0)  # time constants of transients and lags, as fractions of the campaign's span (then refined)
+ONSET_QUANTILES = (0.2, 0.4, 0.6)  # onsets of the air's change without a temperature record, on the rows' times (refined)
 MIN_THERMAL_LENGTH = 0.01  # [m] links shorter than this get no thermal atom of their own
 TIME_CYCLES = tuple(np.arange(1.5, 20.01, 0.5))  # cycles over the campaign of the periodic time terms (then refined)
 WRIST_COUPLINGS = ((5, 4), (6, 4), (6, 5))  # (driven joint, driving joint) of a 6R arm: wrist drive shafts pass through joints 4, 5
@@ -145,9 +146,26 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             atoms.append(Atom("tilt", "param", f"tilt{i}", feats, f"gravity moment carried by {'the base' if i == 0 else f'joint {i}'}",
                               f"{where} under the gravity moment it carries (URDF masses)", "catalogue",
                               (i,) if i else ()))
+            # stiffer about one horizontal axis than the other, the principal axes turned anywhere: a symmetric
+            # compliance, its cross term turning the pivot about x with the moment about y and about y with x
+            cross = (Moment(j=i, axis=0, h=1.0, shape=0), Moment(j=i, axis=1, h=1.0, shape=1),
+                     Moment(j=i, axis=1, h=1.0, about=0, shape=2), Moment(j=i, axis=0, h=1.0, about=1, shape=2))
+            atoms.append(Atom("tilt", "param", f"tilt{i}", cross,
+                              f"gravity moment carried by {'the base' if i == 0 else f'joint {i}'}, axes turned",
+                              f"{where} under the gravity moment it carries, stiffer about one axis than the other "
+                              "(URDF masses)", "catalogue", (i,) if i else ()))
     for j in range(1, N + 1):
         atoms.append(Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
                           f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        for w, law in ((w, law) for law in BACKLASH_MOVE_LAWS for w in BACKLASH_MOVE_WIDTHS_DEG):
+            # a backlash whose size follows the size of the last move (the gear taken up by a short move only part
+            # of the way, or wound up in proportion to it): signed by the last move, saturating smoothly
+            # (tanh(move / w)) or in proportion up to w (clip(move / w, -1, 1)), the width refined when kept;
+            # w -> 0 is the sign backlash
+            unit, scale = ("deg", RAD_PER_DEG) if revolute[j - 1] else ("mm", M_PER_MM)
+            ch = f"{'tanh' if law is None else 'clip'}(last move j{j} / {w:.3g} {unit})"
+            atoms.append(Atom("backlash", "joint", f"theta{j}", (LastMove(j=j, w=w * scale, law=law),), ch,
+                              f"joint {jw(j)} backlash growing with the size of its last move ({ch})", "catalogue", (j,)))
         if revolute[j - 1]:
             for k in harmonic_orders:
                 atoms.append(Atom("cyclic", "joint", f"theta{j}",
@@ -204,6 +222,12 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             else:
                 f = Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))
                 variants.append(((f,), f"warm-up 1-exp(-t/{tau:.4g} s)"))
+                if tau < span:
+                    # the air changed later (a door opened, the heating switched): a step at an onset through the
+                    # links' lag (onset, ramp and lag refined when tried: twin.diagnosis.refine.refine_onset)
+                    for at in np.quantile(ctx.t_s, ONSET_QUANTILES):
+                        f = Exp(ch="t_s", t0=float(at), tau=float(tau))
+                        variants.append(((f,), f"the air's step at t_s {at:.6g}, lagged {tau:.4g} s"))
             # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
             # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
             heat = [Heat(tau=float(tau), joints=tuple(js),
@@ -212,6 +236,18 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             variants.append(((*heat,
                               Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
                              f"motion heat lagged {tau:.4g} s"))
+            # one motor heating the arm (a joint that travels more than the others): all links together, by its travel
+            # alone (a warm-up beside it is the group's or the warm-up's atom: with one it would follow any smooth
+            # drift of the cell, a recorded temperature's too)
+            # (a joint that travels a small part of the arm's travel is left out: its heat barely varies over the
+            # rows, and a coefficient fitted there multiplies whatever it travels later)
+            h_all = float(np.mean(motion_heat(ctx, float(tau), tuple(range(1, N + 1)))))
+            for j in range(1, N + 1):
+                h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
+                if h > h_all / (2 * N):
+                    one = ((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s")
+                    atoms.append(Atom("thermal", "length", "all_lengths", one[0], one[1],
+                                      f"thermal growth of all link lengths vs {one[1]}", "catalogue"))
     for fs, chan in variants:
         atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
                           "catalogue"))

@@ -12,15 +12,23 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash
-from .extend import reduced_basis
-from .features import Feature, Pow, Step
-from .problem import Fit, Problem
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
+                    joint_words, play_backlash)
+from .extend import error_stats, reduced_basis
+from .features import Exp, Feature, Heat, Lag, Pow, Sign, Step, StepIn
+from .problem import Fit, Problem, refit_with
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "refine", "polish_in_fit", "widen"]
+__all__ = ["prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air",
+           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+
+ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
+ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
+ONSET_RAMPS = (0.0, 0.25, 0.5, 1.0)  # the air's ramp durations tried (0: a step), as fractions of that span
+ONSET_TRIALS = ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)  # the onset grid's size (its Bonferroni factor)
+ONSET_SIDE = 0.05  # rows after an onset, at least this share of them and 3 (a change's: twin.diagnosis.changes.MIN_SIDE)
 
 
 def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
@@ -48,6 +56,76 @@ def prefer_play(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     return out
 
 
+def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[str, int]) -> list[Scored]:
+    """The backlashes growing with the size of the last move (``lastmove``) of a joint left out of ``scored`` where a
+    simpler reading explains nearly as much: the joint's sign (or play) backlash, scored beside them, or the step
+    into the row in proportion (a joint still settling from the move it just made: the same numbers wherever the
+    joint moves into every row; it differs from the last move only on the rows that did not move). The size of the
+    move must add evidence beyond ``chi2_1`` at 1 % / the number of laws and widths tried
+    (``BACKLASH_MOVE_WIDTHS_DEG``, ``BACKLASH_MOVE_LAWS``) over each. Both backlashes are the one backlash of the
+    joint; a sign followed by the size of a few moves' noise mispredicts every short move after the campaign. Against
+    the sign the size is also judged nested: scored on the model refitted with the joint's sign backlash, it must add
+    that evidence beyond it (two readings of one strong backlash differ by a linearised score's small error of it,
+    which a difference of their scores takes for evidence), and the model with it must predict the confirmation rows
+    better than the model with the sign."""
+    sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
+    if not sizes:
+        return scored
+    rival: dict[str, float] = {}
+    sign: dict[str, Scored] = {}
+    for s in scored:
+        if s.atom.family == "backlash" and {f.kind for f in s.atom.features} <= {"sign", "play"}:
+            rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+            if s.dchi2 >= max((x.dchi2 for x in sign.values() if x.atom.target == s.atom.target), default=-np.inf):
+                sign[s.atom.target] = s
+    targets = sorted({s.atom.target for s in sizes})
+    steps = [Atom("unnamed", "joint", t, (StepIn(j=int(t[5:])),), f"step into the row j{t[5:]}",
+                  f"unnamed: joint {t[5:]} angle varies with step into the row j{t[5:]}", "generic", (int(t[5:]),))
+             for t in targets]
+    # the joint's sign backlash, scored here where the round's pool no longer holds it (rejected in an earlier round:
+    # its size law is the same backlash and no better reading of it)
+    signs = [Atom("backlash", "joint", t, (Sign(j=int(t[5:])),), f"approach_sign_j{t[5:]}",
+                  f"joint {t[5:]} backlash (offset signed by the direction of its last move)", "catalogue", (int(t[5:]),))
+             for t in targets if t not in sign]
+    for s in score_atoms(prob, fit, steps + signs, pool_sizes, exact_top=len(steps) + len(signs)):
+        rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+    bar = dists.chi2_isf(0.01 / (len(BACKLASH_MOVE_WIDTHS_DEG) * len(BACKLASH_MOVE_LAWS)), 1) * prob.evidence_scale
+    keep: dict[str, Scored] = {}
+    for t in targets:
+        top = max((s for s in sizes if s.atom.target == t), key=lambda s: s.dchi2)
+        if top.logp_adj >= np.log(0.01):
+            continue  # not significant: it competes as scored (it will not be tried)
+        # at its best law and width, not the grid's (the linear step is the wide limit of both laws)
+        top = refine(prob, fit, top, pool_sizes)
+        if top.dchi2 - rival.get(t, -np.inf) >= bar and _beyond_sign(prob, fit, top, sign.get(t), pool_sizes) >= bar:
+            keep[t] = top
+    out = []
+    for s in scored:
+        if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove":
+            if s.atom.target in keep:
+                out.append(keep.pop(s.atom.target))  # the refined one, in the place of the joint's grid atoms
+            continue
+        out.append(s)
+    return out
+
+
+def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, pool_sizes: dict[str, int]) -> float:
+    """The evidence ``size`` (a backlash growing with the last move) adds to ``fit`` refitted with the joint's sign
+    backlash ``sign``; 0 when the model with ``size`` in place of ``sign`` does not predict the confirmation rows
+    better than the model with ``sign`` (inf without a sign backlash)."""
+    if sign is None:
+        return np.inf
+    gross = (prob.w_cal, prob.keep_val)  # each reading's own gross rows, for this comparison only
+    try:
+        with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
+        got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
+        with_size = refit_with(prob, fit, list(fit.chosen) + [(size.atom, size.basis)])
+    finally:
+        prob.w_cal, prob.keep_val = gross
+    held = [error_stats(f.model_val, f.z, gross[1])["position_mm"]["rms"] for f in (with_size, with_sign)]
+    return got[0].dchi2 if got and held[0] < held[1] else 0.0
+
+
 def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
@@ -57,8 +135,46 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     a per cent, or the rows after short moves are mispredicted by that fraction of the clearance). Other atoms
     come back as they are."""
     kinds = {f.kind for f in s.atom.features}
+    if kinds == {"lastmove"} and s.atom.family == "backlash":
+        # a backlash growing with the size of the last move: each law (saturating smoothly, or in proportion up to a
+        # size) at its own best width; the one that explains more
+        twin = score_atoms(prob, fit, [_with_other_law(s.atom)], pool_sizes, exact_top=1)
+        return max([_refine_constant(prob, fit, c, pool_sizes) for c in [s] + twin], key=lambda t: t.dchi2)
+    return _refine_constant(prob, fit, s, pool_sizes)
+
+
+def _with_other_law(atom: Atom) -> Atom:
+    """A backlash growing with the size of the last move (``lastmove`` features) with the other law: ``tanh`` <->
+    ``clip``; channel and label to match."""
+    f = atom.features[0]
+    old, new = ("tanh(", "clip(") if f.law is None else ("clip(", "tanh(")
+    return replace_atom(atom, features=tuple(replace_atom(g, law=None if g.law else "clip") for g in atom.features),
+                        channel=atom.channel.replace(old, new), label=atom.label.replace(old, new))
+
+
+def _refine_constant(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """:func:`refine` of one atom (its law as given)."""
+    kinds = {f.kind for f in s.atom.features}
     if "step" in kinds:
         return _refine_step(prob, fit, s, pool_sizes)
+    if is_onset(s.atom):
+        return refine_onset(prob, fit, s, pool_sizes)
+    if _time_linear(s.atom):
+        # a drift of the links linear in time is the air's ramp that the rows did not see end, through no lag: the
+        # onset's shapes hold it (and, seen to end, its end)
+        t = np.asarray(prob.ctx.t_s, float)[prob.rows_cal]
+        got = score_atoms(prob, fit, [_as_onset(s.atom, float(np.min(t)), float(np.ptp(t)))], pool_sizes, exact_top=1)
+        top = refine_onset(prob, fit, got[0], pool_sizes) if got else s
+        return top if top.dchi2 > s.dchi2 else s
+    if _temp_linear(s.atom) and prob.ctx.t_s is not None:
+        # the links follow the recorded temperature through a lag, of any length, zero included
+        span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal]))
+        trial = [_temp_lagged(s.atom, fc * span) for fc in ONSET_TAUS] if span > 0 else []
+        top = max(score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2, default=None)
+        if top is None or top.dchi2 <= s.dchi2:
+            return s
+        s = top
+        kinds = {f.kind for f in s.atom.features}
     if kinds == {"hinge"}:
         return _refine_hinge(prob, fit, s, pool_sizes)
     if s.atom.pool == "scan" and kinds <= {"sin", "cos"}:
@@ -263,3 +379,141 @@ def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int])
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)) if trial else []
     best = max(scored, key=lambda t: t.dchi2, default=None)
     return best if best is not None and best.dchi2 > s.dchi2 else s
+
+
+def _time_linear(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth linear in ``t_s``."""
+    return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Pow) \
+        and atom.features[0].ch == "t_s" and atom.features[0].p == 1
+
+
+def _as_onset(atom: Atom, t0: float, span: float) -> Atom:
+    """The thermal ``atom`` linear in ``t_s`` (:func:`_time_linear`) as the air's ramp from ``t0`` over ``span`` [s]
+    through a short lag (the start of :func:`refine_onset`)."""
+    return onset_atom(replace_atom(atom, features=(Exp(ch="t_s", t0=t0, tau=span),)), t0, 1e-3 * span, span)
+
+
+def retimeable(atom: Atom) -> bool:
+    """Whether ``atom`` is a thermal term with a time constant, or one a lag or an onset generalises (growth linear in
+    ``temp_c`` or in ``t_s``): what :func:`refine_time` moves."""
+    return atom.family == "thermal" and (any(_has(f, "tau") for f in atom.features) or _temp_linear(atom)
+                                         or _time_linear(atom))
+
+
+def follows_the_air(atom: Atom) -> bool:
+    """Whether ``atom`` is a thermal term of the air's temperature (recorded, through a lag; or without a record, its
+    change at an onset, a drift in time): a change of the air may come late in a campaign, after the rows that chose
+    the term, unlike the motors' heat, which every move brings from the first on."""
+    return retimeable(atom) and not any(isinstance(f, Heat) for f in atom.features)
+
+
+def refine_time(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A kept thermal term's time constants (:func:`retimeable`) at the maximum of the evidence on ``prob``'s
+    calibration rows, searched over their whole range: a lag or the motion heat's time constant over the onset grid
+    ``ONSET_TAUS`` first (a constant the first block could not see may lie far from its value), then :func:`refine`;
+    an onset over :func:`refine_onset`'s grid."""
+    a = s.atom
+    if not (is_onset(a) or _temp_linear(a) or _time_linear(a)):
+        span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal]))
+        trial = [_with_constant(a, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
+        s = max([s] + score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
+    return refine(prob, fit, s, pool_sizes)
+
+
+def _temp_linear(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth linear in the recorded temperature, without a lag."""
+    return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Pow) \
+        and atom.features[0].ch == "temp_c" and atom.features[0].p == 1
+
+
+def _temp_lagged(atom: Atom, tau: float) -> Atom:
+    """The thermal ``atom`` linear in ``temp_c`` (:func:`_temp_linear`) against ``temp_c`` through a lag of ``tau`` [s]."""
+    f = atom.features[0]
+    ch = f"temp_c lagged {tau:.4g} s"
+    return replace_atom(atom, features=(Lag(ch="temp_c", tau=float(tau), c=f.c, h=f.h),), channel=ch,
+                        label=atom.label.replace(f"vs {atom.channel}", f"vs {ch}"))
+
+
+def onset_lag(atom: Atom, tau: float) -> Atom:
+    """A thermal ``atom`` against a lag of the recorded temperature with the time constant ``tau`` [s]."""
+    return _with_constant(atom, "tau", tau)
+
+
+def is_onset(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth against a change of the air's temperature through the links' lag (its
+    features all :class:`~twin.diagnosis.features.Exp` in ``t_s``: a warm-up, a step or a ramp at an onset)."""
+    return atom.family == "thermal" and bool(atom.features) and all(
+        isinstance(f, Exp) and f.ch == "t_s" for f in atom.features)
+
+
+def onset_atom(atom: Atom, t0: float, tau: float, ramp: float) -> Atom:
+    """The thermal ``atom`` (:func:`is_onset`) with its air change at ``t0`` [s], a ramp over ``ramp`` [s] (0: a step)
+    and the links' lag ``tau`` [s]; channel and label to match."""
+    feats = tuple(replace_atom(f, t0=float(t0), tau=float(tau), ramp=float(ramp) if ramp > 0 else None)
+                  for f in atom.features)
+    if ramp > 0:
+        ch = f"the air's ramp from t_s {t0:.6g} over {ramp:.4g} s, lagged {tau:.4g} s"
+    else:
+        ch = f"the air's step at t_s {t0:.6g}, lagged {tau:.4g} s"
+    head = atom.label.split(" vs ")[0]
+    return replace_atom(atom, features=feats, channel=ch, label=f"{head} vs {ch}")
+
+
+def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int], *, after: float | None = None) -> Scored:
+    """A thermal term against the air's temperature without a record of it (``t_s`` only): the links follow the air
+    through a first-order lag ``tau``, and the air changed at an unknown ``t0``, at once (a door opened) or over a
+    ramp of ``T`` (:func:`twin.diagnosis.values.lag_response`; a warm-up from the first row is the step at its time).
+    The three constants are the effect's, not a grid's: every onset (or ramp's middle) on ``ONSET_POINTS`` quantiles
+    of the calibration rows' times, time constant in ``ONSET_TAUS`` and ramp in ``ONSET_RAMPS`` (fractions of their
+    span), the maximum of the calibration evidence, then a simplex search from it on ``(t0, log tau, log T)``, within
+    bounds that keep a state the rows hold: the onset at most a span before the first row and with at least
+    ``max(3, ONSET_SIDE n)`` rows after it (as a change's), the lag and the ramp within ``ONSET_TAUS``' range (a lag
+    far longer than the rows is a feature too small to be a change of the air), the lag at most four times the time
+    the rows last after the onset (they see a fifth of its response at least: a slower one is a drift they see
+    start, which later rows would extrapolate). ``after`` [s]: the onset no earlier
+    than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
+    from scipy.optimize import minimize
+
+    t = np.sort(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])
+    span = float(t[-1] - t[0])
+    side = max(3, int(np.ceil(ONSET_SIDE * len(t))))
+    lo = t[0] - span if after is None else float(after)
+    hi = float(t[max(len(t) - side, 0)])
+    if span <= 0 or hi < lo:
+        return s
+    tau_lo, tau_hi = min(ONSET_TAUS) * span, max(ONSET_TAUS) * span
+
+    def make(t0: float, tau: float, ramp: float) -> Atom:
+        ramp = float(np.clip(ramp, 0.0, tau_hi))
+        t0 = float(np.clip(t0, lo, hi))
+        # the rows after the onset see at least a fifth of its response (a lag four times longer than they last is
+        # a drift they see start, which any later row would extrapolate)
+        tau = float(np.clip(tau, tau_lo, max(tau_lo, min(tau_hi, 4.0 * (t[-1] - t0)))))
+        return onset_atom(s.atom, t0, tau, ramp if ramp > 1e-3 * span else 0.0)
+
+    middles = np.quantile(t[(t >= lo) & (t <= hi)] if np.any((t >= lo) & (t <= hi)) else [hi],
+                          np.linspace(0.0, 1.0, ONSET_POINTS))
+    trial = [make(m - 0.5 * fr * span, fc * span, fr * span) for m in middles for fc in ONSET_TAUS for fr in ONSET_RAMPS]
+    scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
+    best = [max(([s] if after is None else []) + scored, key=lambda x: x.dchi2, default=s)]
+    f0 = best[0].atom.features[0]
+    x0 = np.array([(f0.t0 - t[0]) / span, np.log(f0.tau / span), np.log(max(f0.ramp or 0.0, 1e-3 * span) / span)])
+
+    def cost(x: np.ndarray) -> float:
+        got = score_atoms(prob, fit, [make(t[0] + x[0] * span, float(np.exp(x[1]) * span), float(np.exp(x[2]) * span))],
+                          pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
+        return -got[0].dchi2
+
+    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 150,
+                                                       "initial_simplex": x0 + np.vstack([np.zeros(3), 0.05 * np.eye(3)])})
+    got = best[0]
+    if got is s:
+        return s
+    # the constants were chosen among ONSET_TRIALS on these rows (as a change's row among the rows): its evidence pays
+    # for them
+    return Scored(got.atom, got.basis, got.psi, got.dchi2, got.logp_adj + np.log(ONSET_TRIALS), got.r, E=got.E,
+                  Ep=got.Ep)

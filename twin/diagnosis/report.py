@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..units import M_PER_MM
-from .apply import block_errors
+from .apply import STATE_BLOCKS, block_errors, prediction_states
 from ..files import read_json
 from .candidates import EFFECT_VOCABULARY
 from .diagnose import DiagnosisResult
@@ -52,6 +52,18 @@ def _clean(o: Any) -> Any:
     if isinstance(o, np.bool_):
         return bool(o)
     return o
+
+
+def prediction_states_dict(res: DiagnosisResult, calibration: str = "calibration.json") -> dict[str, Any]:
+    """Per block of rows a prediction serves (the report rows, the rows measured after the campaign, a new session),
+    the model it uses and the state each of its terms reads (:func:`twin.diagnosis.apply.term_state`)."""
+    rep = res.calibrations_blocked.get("extended") if res.held_out.get("before_after_on") == "report" else None
+    out = {}
+    for block in STATE_BLOCKS:
+        cal = res.calibration if block != "report_rows" else (rep if rep is not None else res.calibration)
+        model = calibration if block != "report_rows" else BLOCKED_FILES["extended"]
+        out[block] = {"model": model, "terms": prediction_states(cal, block) if cal.effects else []}
+    return out
 
 
 def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
@@ -114,6 +126,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         "calibration_geometric": calibration_geometric,
         "calibration_candidate": "calibration_candidate.json" if res.calibration_candidate is not None else None,
         "calibrations_blocked": {k: BLOCKED_FILES[k] for k in res.calibrations_blocked},
+        "prediction_states": prediction_states_dict(res, calibration),
         "notes": list(res.notes),
     })
 

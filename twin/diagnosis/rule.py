@@ -18,16 +18,20 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
-from .features import BaseMoment, Cos, Moment, Play, Pow, Sin, Torque
-from .loads import load_alternatives, refine_load_sign, tilt_angles
+from .features import BaseMoment, Cos, LoadSign, Moment, Play, Pow, Sin, Torque
+from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, refine_load_sign, stiffening_atoms,
+                    tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
+from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight
 from .ordering import alternatives, order_candidates
-from .problem import Fit, Problem, covariance, psi_init, update_gross
-from .refine import polish_in_fit, prefer_play, refine, widen
+from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
+from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
+                     refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf
 
@@ -41,6 +45,9 @@ __all__ = [
     "adopt",
     "implausible_size",
     "backward",
+    "retime",
+    "AfterBlocks",
+    "after_blocks",
 ]
 
 
@@ -107,19 +114,43 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted."""
-    scored = prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes)
+    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from."""
+    scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
-    for s in order_candidates(scored)[:tries]:
+    order = order_candidates(scored)
+    first = order[:tries]
+    # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
+    # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
+    # from being tried at all
+    seen = {c.atom.pool for c in first}
+    more = []
+    for c in order[tries:]:
+        if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
+            seen.add(c.atom.pool)
+            more.append(c)
+    for k, s in enumerate(first + more):
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
-            break
+            if k < len(first):
+                break
+            continue
+        if retimeable(s.atom):
+            # a thermal term's time constants (the air's onset and ramp, the links' lag, the motors' heat) are the
+            # effect's, not the grid's: judged at their best values (an onset's evidence then pays for the onsets,
+            # ramps and lags tried: refine_onset)
+            s = refine(prob, fit, s, sizes)
+            if is_onset(s.atom) and s.logp_adj >= np.log(alpha_select):
+                out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
+                                                 float(np.exp(s.logp_adj)), float("nan"),
+                                                 "not significant on the calibration rows after the onsets tried"))
+                out.rejected.append(s.atom.key)
+                continue
         c = confirm(prob, fit, s, z_min)
-        if c.local and time_only(s.atom):
+        if c.local and time_only(s.atom) and not is_onset(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
             # period), not at the coarse grid value it was found at: a slip between two grid times is a step
             refined = refine(prob, fit, s, sizes)
@@ -181,7 +212,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             break
         accepted = r.accepted
         taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
-        refined = refine_load_sign(prob, fit, refine(prob, fit, accepted, sizes), sizes)
+        refined = refine_load_sign(prob, fit, accepted if retimeable(accepted.atom) else refine(prob, fit, accepted, sizes),
+                                   sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
         taken.add(_slot(accepted.atom))
         kept += 1
@@ -190,6 +222,13 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.entry_chi2[accepted.atom.key] = accepted.dchi2
         fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
         update_gross(prob, fit)
+        if accepted.atom.family == "compliance":
+            # a linear compliance of unknown masses fitted its torque: its stiffening with that torque joins the pool
+            load = fitted_load(fit, int(accepted.atom.target[5:]))
+            if load is not None:
+                have = {a.key for a in pool}
+                pool = pool + [a for a in stiffening_atoms(prob.prep.nominal, prob.ctx, int(accepted.atom.target[5:]),
+                                                           load) if a.key not in have]
         if any(isinstance(f, Play) for f in accepted.atom.features):
             # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
             # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
@@ -204,7 +243,9 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        alts = alts + alts2 + load_alternatives(prob, fit, pool, sizes, alpha_select)
+        fit, lawed, alts3 = _one_load_law(prob, fit, pool, sizes, alpha_select, z_min)
+        sel.notes += lawed
+        alts = alts + alts2 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
         update_gross(prob, fit)
         fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
@@ -323,6 +364,10 @@ def _implausible(prob: Problem, s) -> str | None:
     if a.place == "length" and float(np.ptp(eff)) > THERMAL_MAX:
         return (f"implausible for thermal growth: {np.ptp(eff) * 1e6:.0f} ppm over the rows (more than "
                 f"{THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
+    if a.place == "length" and is_onset(a) and float(np.sum(np.abs(s.basis @ s.psi))) > THERMAL_MAX:
+        # the air's change settles to its full size after the rows: the size it settles to
+        return (f"implausible for thermal growth: {np.sum(np.abs(s.basis @ s.psi)) * 1e6:.0f} ppm once the air's change "
+                f"has settled (more than {THERMAL_MAX * 1e6:.0f} ppm, 43 K of aluminium)")
     cap = JOINT_MAX if prob.prep.nominal.convention != "urdf" else JOINT_MAX_CHAIN
     if a.place == "joint" and float(np.max(np.abs(eff))) > cap:
         return f"implausible for {a.family}: {np.max(np.abs(eff)) / RAD_PER_DEG:.3f} deg (more than {cap / RAD_PER_DEG:.1f} deg)"
@@ -406,6 +451,14 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
     return fit, notes, alts
 
 
+
+def _replaced(kept: Atom, replaced: Atom, e_alt: float, e_now: float) -> dict:
+    """The ``alternatives`` entry of a term ``replaced`` by ``kept`` because the model with ``kept`` predicts the held-out
+    rows as well (``e_alt`` against ``e_now`` [mm] RMS); the evidence columns do not apply (nan)."""
+    return {"of": kept.label, "alternative": replaced.label, "family": replaced.family, "channel": replaced.channel,
+            "target": replaced.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
+            "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]}
+
 def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """Where a catalogue family is named by one term only, at one joint, and another named family has terms of that
@@ -445,9 +498,204 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         if e_alt <= 1.02 * e_now:
             notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
                          f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
-            for c in new:
-                alts.append({"of": c.label, "alternative": a.label, "family": a.family, "channel": a.channel,
-                             "target": a.target, "delta_chi2": float("nan"), "delta_chi2_chosen": float("nan"),
-                             "share_reproduced": float("nan"), "held_out_rms_mm": [e_alt, e_now]})
+            alts += [_replaced(c, a, e_alt, e_now) for c in new]
             fit = alt
     return fit, notes, alts
+
+
+def _load_term(a: Atom) -> bool:
+    """Whether a kept term is one of the arm's own load: a joint's compliance (linear or stiffening), a backlash
+    signed by the load, a support's tilt."""
+    return ((a.family == "compliance" and a.place == "joint") or a.family == "tilt"
+            or (a.family == "backlash" and bool(a.features) and isinstance(a.features[0], LoadSign)))
+
+
+def _load_candidates(prob: Problem, fit: Fit, pool: list[Atom], targets: set[str], have: set[str]) -> list[Atom]:
+    """The load family's terms of the joints ``targets`` not in ``have``: the pool's compliances of those joints, the
+    compliance under the weight of the link each moves, and the stiffening of each linear compliance ``fit`` holds."""
+    model = prob.prep.nominal
+    out = [c for c in pool if c.family == "compliance" and c.place == "joint" and c.target in targets
+           and c.pool == "catalogue" and c.key not in have]
+    for t in sorted(targets):
+        own = own_link_atom(model, prob.ctx.q, int(t[5:]))
+        if own is not None and own.key not in have:
+            out.append(own)
+    for t in sorted(targets):
+        load = fitted_load(fit, int(t[5:]))
+        if load is not None:
+            out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
+    return out
+
+
+def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                  z_min: float) -> tuple[Fit, list[str], list[dict]]:
+    """No extra term where the load family explains the rows. Where a term of the arm's own load is kept (a joint's
+    compliance, a backlash signed by the load, the base's tilt) beside harmonics, a ratio or unnamed functions acting
+    on the same joint (for the tilt: the shoulder's and the elbow's, whose torques follow the base's moment), those
+    are taken out and the load family's own terms of the joint tried in their place, each held to the forward pass'
+    rules (significant, confirmed on the held-out rows, of a physical size): the joint's compliance shapes, the weight
+    of the link it moves, the compliance stiffening with its fitted torque (a nonlinear law of the load is followed by
+    harmonics of the joint that carries it, which say nothing of the load elsewhere). When that model predicts the
+    confirmation rows as well (within 2 %), it is kept and the terms it replaced are reported as the alternative the
+    data cannot tell from it. Returns the fit, notes and alternatives."""
+    notes: list[str] = []
+    alts: list[dict] = []
+    P = prob.prep.space.size
+    done: set[frozenset] = set()
+    N = prob.prep.nominal.n_joints
+    for a in [a for a, _ in fit.chosen if _load_term(a)]:
+        if a not in [c for c, _ in fit.chosen]:
+            continue
+        if a.place == "joint":
+            targets = {a.target}
+        else:
+            # a support's tilt: the joints about whose axes it turns (the base's: the shoulder's and the elbow's,
+            # whose torques follow its moment)
+            i = int(a.target[4:])
+            targets = {"theta2", "theta3"} if i == 0 else {f"theta{j}" for j in (i - 1, i, i + 1) if 1 <= j <= N}
+        others = [c for c, _ in fit.chosen if c.place == "joint" and c.target in targets and not is_change(c)
+                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
+        tag = frozenset(c.key for c in others)
+        if not others or tag in done:
+            continue
+        done.add(tag)
+        keep = [(c, B) for c, B in fit.chosen if c not in others]
+        cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        if error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
+            rounds = 0  # the load term alone predicts as well: nothing in their place
+        else:
+            rounds = len(others) + 1
+        for _ in range(rounds):
+            have = {c.key for c, _ in cur.chosen}
+            if a.family == "tilt":
+                # a tilt's own terms: its shapes, and the weight of the shoulder's and the elbow's links
+                cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
+                cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
+                          if c is not None and a.target == "tilt0" and c.key not in have]
+            else:
+                cands = _load_candidates(prob, cur, pool, targets, have)
+            scored = sorted((sc for sc in score_atoms(prob, cur, cands, sizes, exact_top=len(cands))
+                             if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
+            best = None
+            for sc in scored[:3]:
+                sc = refine_load_sign(prob, cur, sc, sizes)
+                if _implausible(prob, sc) is not None:
+                    continue
+                c = confirm(prob, cur, sc, z_min)
+                if c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local:
+                    best = sc
+                    break
+            if best is None:
+                break
+            chosen = list(cur.chosen) + [(best.atom, best.basis)]
+            cur = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
+        alt, _ = backward(prob, cur, alpha_select, sizes)
+        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        if e_alt <= 1.02 * e_now:
+            notes.append(f"{'; '.join(repr(c.label) for c in others)} replaced by the load family's terms of "
+                         f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}) beside "
+                         f"'{a.label}': they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+            alts += [_replaced(a, o, e_alt, e_now) for o in others]
+            fit = alt
+    return fit, notes, alts
+
+
+def retime(prob: Problem, fit: Fit) -> Fit:
+    """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
+    model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
+    the thermal terms of the air (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
+    :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`) and the direction of a
+    load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`), each term against
+    the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of every row
+    significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved), stay within the onset grid's
+    range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates
+    as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use, chosen on
+    the first block of a campaign and refitted on every row: an air step after that block fixes the lag the block
+    could not see; the flank a load pushes a gear to is read on every row."""
+    span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
+    for k in range(len(fit.chosen)):
+        atom, _ = fit.chosen[k]
+        load = isinstance(atom.features[0], LoadSign) and atom.features[0].u is not None
+        if not (follows_the_air(atom) or load):
+            continue
+        others = [c for i, c in enumerate(fit.chosen) if i != k]
+        without = refit_with(prob, fit, others)
+        sizes = {atom.pool: 1}
+        got = score_atoms(prob, without, [atom], sizes, exact_top=1)
+        if not got:
+            continue
+        new = refine_load_sign(prob, without, got[0], sizes) if load else refine_time(prob, without, got[0], sizes)
+        if new.atom is atom:
+            continue
+        taus = [f.tau for f in new.atom.features if getattr(f, "tau", None) is not None]
+        if not load and (not taus or max(taus) > max(ONSET_TAUS) * span):
+            continue
+        chosen = list(fit.chosen)
+        chosen[k] = (new.atom, new.basis)
+        trial = refit_with(prob, fit, chosen)
+        psi = trial.z[trial.model_cal.offsets[k]:trial.model_cal.offsets[k + 1]]
+        moved = 2 if load else 3 if is_onset(new.atom) else 1
+        gain = (fit.chi2 - trial.chi2) / prob.evidence_scale
+        if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
+            fit = trial
+    return fit
+
+
+@dataclass(frozen=True)
+class AfterBlocks:
+    """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
+    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"`` or ``"glitch"``; ``late``: the
+    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), and notes."""
+
+    fit: Fit
+    found: tuple
+    notes: tuple
+
+
+def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
+                 z_min: float) -> AfterBlocks:
+    """Step 9, on the rows of ``prob_x`` (every row of the campaign; or every row before the report block) from the
+    chosen model refitted on them (``src``): a change after the rows that fit, located before a cut and confirmed after
+    it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
+    :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
+    block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
+    ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`), and the arm's own weight at a joint a payload's
+    change shows compliant (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is
+    not kept where a kept change that ends explains every row as well."""
+    found, notes = [], []
+    if late and pool:
+        got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
+        notes.append(note)
+        if got is None:
+            # the air's temperature changing after the rows that fit (a door opened late in the campaign)
+            got, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
+            if note:
+                notes.append(note)
+        if got is not None:
+            with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
+            if not is_change(got.atom):
+                with_got = retime(prob_x, with_got)
+                # a kept change that ends (a payload taken off) is preferred over a change of the air after the rows
+                # that fit where it explains every row as well: the kept term with one more constant, its end
+                ended, ends = end_steps(setup, prob_x, src, alpha=alpha)
+                if ends and ended.chi2 - with_got.chi2 < prob_x.evidence_scale * chi2_isf(alpha, 1):
+                    notes.append(f"not kept: {got.atom.label}; a kept change that ends explains every row as well "
+                                 f"(chi2 {ended.chi2:.1f} against {with_got.chi2:.1f})")
+                    got = None
+            if got is not None:
+                src = with_got
+                found.append((got.atom, "late", got, got.dchi2))
+    if (pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any():
+        # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
+        # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
+        src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
+        # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
+        zeros = [p for p in places if p.place == "joint"]
+        src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
+        src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
+        notes += notes_end + notes_win + notes_load
+        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins] + [(a, "load", None, dchi2) for a, dchi2 in loads]
+    return AfterBlocks(src, tuple(found), tuple(notes))

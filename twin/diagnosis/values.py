@@ -21,7 +21,7 @@ from .features import (BaseMoment, CartDir, Const, Cos, Exp, Feature, Field, Gat
                        HeatRecord, Hinge, Lag, LagRecord, LastMove, LoadSign, Moment, Play, Pow, Prod, Settle, Sign, Sin,
                        Station, Step, StepIn, Torque, Window)
 
-__all__ = ["channel", "feature_channel", "history_signs", "motion_heat", "with_records", "HISTORY_FEATURES",
+__all__ = ["channel", "feature_channel", "history_signs", "lag_response", "motion_heat", "with_records", "HISTORY_FEATURES",
            "history_unknown", "approach_unknown", "feature_values"]
 
 
@@ -254,6 +254,20 @@ def _cartesian_moves(ctx: RowContext, model: RobotModel, tcp: np.ndarray) -> np.
     return out[-len(ctx.q):]
 
 
+def lag_response(u: np.ndarray, tau: float, ramp: float | None = None) -> np.ndarray:
+    """The response of a first-order lag of time constant ``tau`` [s], at rest at 0, to a unit step of its input at
+    ``u = 0`` (``ramp`` None or 0), or to a unit ramp of its input over ``u`` in ``[0, ramp]`` [s] (then held at 1):
+    ``y = u / T - (tau / T) (1 - e^{-u / tau})`` for ``0 <= u <= T``, ``y = 1 - (tau / T) (e^{-(u - T) / tau} -
+    e^{-u / tau})`` after; 0 before ``u = 0``."""
+    u = np.clip(np.asarray(u, float), 0.0, None)
+    if not ramp:
+        return -np.expm1(-u / tau)
+    T = float(ramp)
+    during = u / T + (tau / T) * np.expm1(-u / tau)
+    after = 1.0 - (tau / T) * (np.exp(-np.clip(u - T, 0.0, None) / tau) - np.exp(-u / tau))
+    return np.where(u <= T, during, after)
+
+
 def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
     """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)``
     [s]: ``y_k = y_{k-1} + (1 - exp(-(t_k - t_{k-1}) / tau)) (x_k - y_{k-1})``, ``y_0 = x_0``."""
@@ -349,7 +363,13 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
         elif isinstance(f, LastMove):
             if "moves" not in cache:
                 cache["moves"] = _last_moves(ctx)
-            out[:, k] = np.tanh(cache["moves"][:, f.j - 1] / f.w)
+            x = cache["moves"][:, f.j - 1] / f.w
+            if f.law is None:
+                out[:, k] = np.tanh(x)
+            elif f.law == "clip":
+                out[:, k] = np.clip(x, -1.0, 1.0)
+            else:
+                raise ValueError(f"unknown law {f.law!r} of a lastmove feature (known: tanh when absent, 'clip')")
         elif isinstance(f, GravMix):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
@@ -387,8 +407,17 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = ((x >= f.at) & (x < f.until)).astype(float)
         elif isinstance(f, LoadSign):
             # the side of the gear flank the joint's gravity load pushes it to: the sign of the load (the URDF
-            # masses' torque, or the leading gravity-torque shape when the masses are unknown)
-            out[:, k] = np.sign(feature_values((f.f,), ctx, model, cache)[:, 0])
+            # masses' torque, or a combination of the gravity-torque shapes when the masses are unknown), or a
+            # smooth flank taken up over a width of the load
+            v = feature_values((f.f,), ctx, model, cache)[:, 0]
+            if f.width is None:
+                out[:, k] = np.sign(v)
+            elif f.law is None:
+                out[:, k] = np.tanh(v / f.width)
+            elif f.law == "clip":
+                out[:, k] = np.clip(v / f.width, -1.0, 1.0)
+            else:
+                raise ValueError(f"unknown law {f.law!r} of a loadsign feature (known: tanh when absent, 'clip')")
         elif isinstance(f, Hinge):
             # zero on one side of an angle, growing as a power of the overtravel past it (a cable going taut)
             out[:, k] = (np.clip(f.side * (channel(ctx, f.ch) - f.at), 0.0, None) / f.h) ** f.p
@@ -436,9 +465,15 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 cache[key] = _cartesian_moves(ctx, model, np.asarray(tcp, dtype=float))
             out[:, k] = cache[key][:, f.axis]
         elif isinstance(f, Exp):
-            # a transient settling with time constant tau from t0 (a warm-up): 1 - exp(-(t - t0) / tau)
-            # (zero before t0: rows of an earlier session)
-            out[:, k] = -np.expm1(-np.clip(feature_channel(ctx, f) - f.t0, 0.0, None) / f.tau)
+            # a transient settling with time constant tau from t0 (a warm-up; a step or a ramp of the air's
+            # temperature through the links' lag): zero before t0 (rows of an earlier session)
+            ramp, scale = f.ramp, 1.0
+            if ramp and f.t_span is not None and f.t0 + ramp > f.t_span[1]:
+                # a ramp the campaign did not see end: the air holds the state it reached at the campaign's last
+                # row, and the links go on following it through the lag
+                seen = max(f.t_span[1] - f.t0, 0.0)
+                ramp, scale = seen, seen / ramp
+            out[:, k] = scale * lag_response(feature_channel(ctx, f) - f.t0, f.tau, ramp) if ramp or not f.ramp else 0.0
         elif isinstance(f, Lag):
             # the channel seen through a first-order lag of time constant tau (a link's temperature follows
             # the air's): exact for a channel constant between rows, started at the first row's value

@@ -1,0 +1,121 @@
+"""Tests of twin.diagnosis.loads: the laws of the arm's own load (a backlash's flank, a compliance stiffening with the
+load), the stated masses' torque as a combination of the regressor, the weight of a joint's own link, the base's tilt
+per axis, and the sign's change at the largest margin."""
+
+from pathlib import Path
+
+import numpy as np
+
+from twin.diagnosis.atoms import Atom
+from twin.diagnosis.candidates import RowContext, gravity_torques
+from twin.diagnosis.features import BaseMoment, GravMix, LoadSign, Moment, Torque
+from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, law_atom, link_tilt_atom, own_link_atom,
+                                  stated_load_mix, stiffening_atoms, tilt_angles, torque_shapes)
+from twin.diagnosis.values import feature_values
+from twin.robots import irb1200
+from twin.urdf import read_urdf_chain
+
+DATA = Path(__file__).resolve().parent.parent / "data" / "tiago_mocap"
+
+
+def _rows(model, n=80, seed=0):
+    rng = np.random.default_rng(seed)
+    lo, hi = np.full(model.n_joints, -1.5), np.full(model.n_joints, 1.5)
+    return rng.uniform(lo, hi, (n, model.n_joints))
+
+
+def test_a_load_law_is_a_backlash_up_to_a_third_of_the_loads_rms_and_a_compliance_beyond():
+    """The same law of a joint's load is named by its width: the sign or a narrow flank a backlash, a wider one the
+    joint's compliance stiffening with its load."""
+    model = irb1200()
+    base = Atom("backlash", "joint", "theta2", (), "", "", "load", (2,))
+    gm = torque_shapes(model, _rows(model), 2, 1)[0]
+    assert law_atom(model, base, LoadSign(f=gm), 1.0).family == "backlash"
+    assert law_atom(model, base, LoadSign(f=gm, width=0.9 * STIFFENING_WIDTH), 1.0).family == "backlash"
+    wide = law_atom(model, base, LoadSign(f=gm, width=1.1 * STIFFENING_WIDTH, law="clip"), 1.0)
+    assert wide.family == "compliance" and "stiffening" in wide.label and "clip(" in wide.label
+    assert wide.pool == "load"
+
+
+def test_a_flank_reads_tanh_or_clip_of_the_load_and_the_sign_without_a_width():
+    """A load-signed feature reads sign(load), tanh(load / w) or clip(load / w, -1, 1)."""
+    model = irb1200()
+    q = _rows(model)
+    ctx = RowContext(q=q)
+    gm = torque_shapes(model, q, 3, 1)[0]
+    v = feature_values((gm,), ctx, model)[:, 0]
+    got = feature_values((LoadSign(f=gm), LoadSign(f=gm, width=0.3), LoadSign(f=gm, width=0.3, law="clip")), ctx, model)
+    assert np.array_equal(got[:, 0], np.sign(v))
+    assert np.allclose(got[:, 1], np.tanh(v / 0.3))
+    assert np.allclose(got[:, 2], np.clip(v / 0.3, -1, 1))
+
+
+def test_stated_masses_torque_is_a_combination_of_the_regressor_columns():
+    """The stated masses' torque written as one gravmix feature over a joint's regressor columns equals the torque
+    the chain's masses give, on every joint that carries one."""
+    model = read_urdf_chain(DATA / "tiago_48_schunk.urdf", "base_link", "wrist_ft_tool_link")
+    q = _rows(model, 40)
+    tau = gravity_torques(model, q)
+    ctx = RowContext(q=q)
+    checked = 0
+    for j in range(1, model.n_joints + 1):
+        shapes = torque_shapes(model, q, j, 1)
+        if not shapes:
+            continue
+        v = feature_values((stated_load_mix(model, j, shapes[0].cols),), ctx, model)[:, 0]
+        assert np.allclose(v, tau[:, j - 1], atol=1e-9 * max(1.0, np.max(np.abs(tau[:, j - 1]))))
+        checked += 1
+    assert checked >= 4
+
+
+def test_the_weight_of_the_upper_arm_is_the_first_harmonic_of_the_shoulder():
+    """On the IRB 1200 the compliance under the weight of the link joint 2 moves spans sin q2 and cos q2: the 1st
+    harmonic a compliance of joint 2 used to be named beside."""
+    model = irb1200()
+    q = _rows(model)
+    a = own_link_atom(model, q, 2)
+    F = feature_values(a.features, RowContext(q=q), model)
+    for h in (np.sin(q[:, 1]), np.cos(q[:, 1])):
+        c, *_ = np.linalg.lstsq(F, h, rcond=None)
+        assert np.max(np.abs(F @ c - h)) < 1e-9
+    assert a.family == "compliance" and a.target == "theta2"
+
+
+def test_stiffening_atoms_are_compliances_of_both_laws_on_a_grid_of_widths():
+    """The stiffening of a known load: compliance atoms of the joint, tanh and clip, each width beyond a backlash's."""
+    model = irb1200()
+    q = _rows(model)
+    atoms = stiffening_atoms(model, RowContext(q=q), 2, torque_shapes(model, q, 2, 1)[0])
+    assert {a.family for a in atoms} == {"compliance"} and {a.features[0].law for a in atoms} == {None, "clip"}
+    assert len({a.key for a in atoms}) == len(atoms)
+
+
+def test_a_cross_term_turns_the_pivot_about_the_other_axis():
+    """A tilt's features turn the pivot about their ``about`` axis with the coefficient of their ``shape``: the cross
+    term of a symmetric compliance turns about x with the moment about y and about y with the moment about x."""
+    feats = (Moment(j=0, axis=0, shape=0), Moment(j=0, axis=1, shape=1), Moment(j=0, axis=1, about=0, shape=2),
+             Moment(j=0, axis=0, about=1, shape=2))
+    M = np.array([[2.0, 3.0], [-1.0, 4.0]])
+    F = np.column_stack([M[:, 0], M[:, 1], M[:, 1], M[:, 0]])
+    C = np.array([[0.5, 0.2], [0.2, 0.1]])  # cxx, cxy; cxy, cyy
+    got = tilt_angles(feats, F, np.array([C[0, 0], C[1, 1], C[0, 1]]))
+    assert np.allclose(got, M @ C.T)
+
+
+def test_the_weight_of_a_link_tilts_the_base_about_both_axes():
+    """Without masses, the base's tilt under link 2's first mass moment is a tilt atom of pairs of base-moment
+    features (both axes, one coefficient per shape)."""
+    model = irb1200()
+    a = link_tilt_atom(model, _rows(model), 2)
+    assert a.family == "tilt" and a.target == "tilt0" and all(isinstance(f, BaseMoment) for f in a.features)
+    assert a.K == len(a.features) // 2
+
+
+def test_the_sign_change_is_placed_in_the_middle_of_the_gap():
+    """Of the directions that put every row on the same side, the one farthest from all of them: rows on a line at
+    +-1 and +-3 apart from a gap around 0 give the direction across the gap, not one that grazes a row."""
+    V = np.array([[1.0, 0.0], [3.0, 0.5], [-1.0, 0.3], [-3.0, -0.2], [2.0, -0.4], [-2.0, 0.1]])
+    u = np.array([1.0, 0.9])  # separates the rows too, close to the rows at +-1
+    got = _max_margin(V, u)
+    assert np.array_equal(np.sign(V @ got), np.sign(V @ u))
+    assert np.min(np.abs(V @ got)) > np.min(np.abs(V @ (u / np.linalg.norm(u)))) + 0.1
