@@ -54,6 +54,7 @@ from .extend import error_stats, reduced_basis
 from .features import LastMove, LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
+from .refine import follows_the_air
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
 from .rule import (AfterBlocks, CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime,
@@ -286,17 +287,32 @@ def diagnose(
     geo_all, ext_all, prob_all, after_all = models(None)
     rep = report_before_after(prob, base, ext)
     calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
-    fit_rep, prob_pre = None, None
+    fit_rep, prob_pre, use_rep = None, None, use
+    before_report = np.ones(setup.dataset.n, bool)
+    if prob.obs_rep is not None:
+        before_report[prob.rows_rep] = False
+    if prob.obs_rep is not None and ext is not None and any(follows_the_air(a) for a, _ in ext.chosen):
+        # a term of the air's temperature: the report rows read its time constants refined on every row before them
+        # (the model refitted there), as the rows after the campaign read them refined on every row
+        _, ext_pre, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
+        if [a.key for a, _ in ext_pre.chosen] != [a.key for a, _ in ext.chosen]:
+            use_rep = Fit(ext_pre.chosen, ext_pre.z, ext_pre.free, float("nan"), prob.model(ext_pre.chosen, "cal"),
+                          prob.model(ext_pre.chosen, "val"))
+            note = report_before_after(prob, base, use_rep)
+            note["note"] += ("; the report rows read the time constants of the terms of the air refined on every row "
+                             "before the report block (the model refitted there)")
+            rep = note
+            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
+                                            fit=ext_pre)
+            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     if prob.obs_rep is not None and after_all.found:
         # the report rows read the state the rows before them leave (a change found there, with its size as they show
         # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
-        before_report = np.ones(setup.dataset.n, bool)
-        before_report[prob.rows_rep] = False
         _, _, prob_pre, after_pre = models(before_report)
         if not after_pre.found:
-            after_pre = AfterBlocks(use, (), ())
+            after_pre = AfterBlocks(use_rep, (), ())
         else:
-            fit_rep = with_found(prob, prob_pre, use, after_pre.fit)
+            fit_rep = with_found(prob, prob_pre, use_rep, after_pre.fit)
             rep = report_before_after(prob, base, fit_rep, found=[a.label for a, *_ in after_pre.found])
             cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, after_pre,
                                             fit=Fit(fit_rep.chosen, fit_rep.z, fit_rep.free, float("nan"),
@@ -306,12 +322,11 @@ def diagnose(
     if prob.obs_rep is not None and ext_all is not None and any(is_change(a) for a, _ in ext_all.chosen):
         # the report rows read the changes where every row places them (a kept step that ends, a change late in the
         # campaign), their sizes as the rows before the report block show them
-        before_report = np.ones(setup.dataset.n, bool)
-        before_report[prob.rows_rep] = False
         if prob_pre is None:
             _, _, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
-            after_pre = AfterBlocks(use, (), ())
-        got = every_row_changes(prob, prob_pre, fit_rep if fit_rep is not None else use, ext_all, len(use.chosen))
+        if fit_rep is None:
+            after_pre = AfterBlocks(use_rep, (), ())
+        got = every_row_changes(prob, prob_pre, fit_rep if fit_rep is not None else use_rep, ext_all, len(use.chosen))
         if got is not None:
             fit_state, extra = got
             how = {a.key: f for f in list(after_all.found) + list(after_pre.found) for a in f[:1]}
