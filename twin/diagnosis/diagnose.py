@@ -54,7 +54,7 @@ from .extend import error_stats, reduced_basis
 from .features import LastMove, LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
-from .refine import follows_the_air
+from .refine import retimeable
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
 from .rule import (AfterBlocks, CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime,
@@ -291,20 +291,21 @@ def diagnose(
     before_report = np.ones(setup.dataset.n, bool)
     if prob.obs_rep is not None:
         before_report[prob.rows_rep] = False
-    if prob.obs_rep is not None and ext is not None and any(follows_the_air(a) for a, _ in ext.chosen):
-        # a term of the air's temperature: the report rows read its time constants refined on every row before them
-        # (the model refitted there), as the rows after the campaign read them refined on every row
+    if prob.obs_rep is not None and ext is not None and any(retimeable(a) for a, _ in ext.chosen):
+        # a thermal term (the air's temperature, the motors' heat: a state that moves with time): the report rows read
+        # the model refitted on every row before them, the air's time constants refined there, as the rows after the
+        # campaign read it refitted on every row
         _, ext_pre, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
-        if [a.key for a, _ in ext_pre.chosen] != [a.key for a, _ in ext.chosen]:
-            use_rep = Fit(ext_pre.chosen, ext_pre.z, ext_pre.free, float("nan"), prob.model(ext_pre.chosen, "cal"),
-                          prob.model(ext_pre.chosen, "val"))
-            note = report_before_after(prob, base, use_rep)
-            note["note"] += ("; the report rows read the time constants of the terms of the air refined on every row "
-                             "before the report block (the model refitted there)")
-            rep = note
-            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
-                                            fit=ext_pre)
-            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+        use_rep = Fit(ext_pre.chosen, ext_pre.z, ext_pre.free, float("nan"), prob.model(ext_pre.chosen, "cal"),
+                      prob.model(ext_pre.chosen, "val"))
+        note = report_before_after(prob, base, use_rep)
+        note["note"] += ("; the report rows read the model with its thermal terms refitted on every row before the "
+                         "report block (the time constants of the air refined there)")
+        rep = note
+        rep["held_out"]["report_state"] = "thermal terms refitted on every row before the report block"
+        cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
+                                        fit=ext_pre)
+        calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     if prob.obs_rep is not None and after_all.found:
         # the report rows read the state the rows before them leave (a change found there, with its size as they show
         # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
@@ -331,12 +332,12 @@ def diagnose(
             fit_state, extra = got
             how = {a.key: f for f in list(after_all.found) + list(after_pre.found) for a in f[:1]}
             found = tuple(how.get(a.key, (a, "glitch", None, 0.0)) for a, _ in extra)
-            note = rep["note"]
+            note, rep_state = rep["note"], rep["held_out"].get("report_state")
             rep = report_before_after(prob, base, fit_state)
             rep["note"] = note + ("; the report rows read the changes where every row of the campaign places them ("
                                   + "; ".join(a.label for a, _ in fit_state.chosen if is_change(a))
                                   + "), their sizes as the rows before the report block show them")
-            rep["held_out"]["report_state"] = "changes timed on every row"
+            rep["held_out"]["report_state"] = (rep_state + "; " if rep_state else "") + "changes timed on every row"
             cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json,
                                             AfterBlocks(fit_state, found, ()),
                                             fit=Fit(fit_state.chosen, fit_state.z, fit_state.free, float("nan"),
