@@ -251,3 +251,13 @@ def test_a_change_in_the_held_out_rows_is_read_by_the_report_rows(tmp_path):
     r = _scored(tmp_path, "frame_change", 101)
     assert r["named"], r["changes_found"]
     assert r["report"]["after_over_oracle"] <= 1.5
+
+
+def test_the_report_rows_read_a_thermal_term_refitted_on_the_rows_before_them(tmp_path):
+    """A drawn thermal instance (seed 5, small): the report rows read the thermal term refitted on every row before
+    them, within 1.2x the oracle there (1.64x when they read the calibration rows' fit), and the key says so."""
+    r = _scored(tmp_path, "thermal", 5)
+    assert r["named"], r["effects"]
+    assert r["report"]["after_over_oracle"] <= 1.2
+    held = json.loads((tmp_path / "work" / "diagnosis" / "diagnosis.json").read_text())["held_out"]
+    assert held["report_state"].startswith("thermal terms refitted")
