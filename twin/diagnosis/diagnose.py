@@ -83,6 +83,7 @@ __all__ = [
     "choose_geometry",
     "geometry_candidates",
     "report_before_after",
+    "every_row_changes",
     "refit_on_every_row",
     "describe_terms",
     "implausible_size",
