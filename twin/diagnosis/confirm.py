@@ -20,7 +20,7 @@ from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
 __all__ = ["time_only", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
-           "neighbour_predictions", "earlier_rows_prediction", "smooth_confirm"]
+           "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
 
 def time_only(atom: Atom) -> bool:
@@ -165,25 +165,41 @@ def neighbour_predictions(prob: Problem, fit: Fit) -> dict[str, tuple[np.ndarray
     return out
 
 
+def time_blocks(prob: Problem) -> np.ndarray:
+    """Block number ``(n_v,)`` of each confirmation row: consecutive runs of ``ceil(m^(1/3))`` of its ``m`` visits in
+    measurement order (a visit, consecutive rows at the same commanded joints, stays in one block). The noise may be
+    correlated from row to row over a few rows (an instrument frame or a cell that wanders); sums over blocks of
+    that length are nearly independent where single rows are not (batch means; ``m^(1/3)`` blocks' length, the
+    usual rate for a correlation of short range)."""
+    q = np.round(prob.ctx.q[prob.rows_val], 9)
+    new = np.ones(len(q), bool)
+    if len(q):
+        new[1:] = np.any(q[1:] != q[:-1], axis=1)
+    vis = np.cumsum(new) - 1
+    m = int(vis[-1]) + 1 if len(q) else 0
+    length = max(1, int(np.ceil(m ** (1.0 / 3.0) - 1e-9)))
+    return vis // length
+
+
 def earlier_rows_prediction(prob: Problem, fit: Fit) -> tuple[np.ndarray, np.ndarray]:
     """The time smoother of a block of held-out rows: each confirmation row's residual predicted by the mean
-    residual ``(n_v, 3 K)`` of the ``NEIGHBOURS`` confirmation rows measured before it (other visits only: a repeat
-    shares its visit's error; NaN for the first rows), and the rows' own residual. The held-out rows are a block of
-    time after the rows that fit: the calibration rows nearest in time are the same few for every one of them, and a
-    prediction shared by every row is no test. Under the null (noise independent from row to row) each ``c_k =
-    r_k . u_k`` has mean zero given the rows before it, so the self-normalised sum is still ~N(0, 1)."""
+    residual ``(n_v, 3 K)`` of the confirmation rows of the block of time two before its own
+    (:func:`time_blocks`; NaN for the rows of the first two blocks), and the rows' own residual. The held-out rows
+    are a block of time after the rows that fit: the calibration rows nearest in time are the same few for every one
+    of them, and a prediction shared by every row is no test. The block between them keeps the noise's correlation
+    from row to row (over less than a block) out of the prediction: noise correlated in time over a few rows is
+    noise, and a structure in time worth the name lasts longer than that. Under that null each block's ``sum c_k``
+    (``c_k = r_k . u_k``) has mean zero given the rows before it."""
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     Rv = row_blocks(fit.model_val, rv.r)
     Rv[~prob.keep_val] = np.nan
-    rows = prob.rows_val
-    qv = np.round(prob.ctx.q[rows], 9)
+    blk = time_blocks(prob)
     U = np.full_like(Rv, np.nan)
-    for k in range(len(rows)):
-        prev = [i for i in range(k - 1, -1, -1) if not np.array_equal(qv[i], qv[k]) and np.isfinite(Rv[i]).any()]
-        prev = prev[:NEIGHBOURS]
-        if prev:
+    for b in np.unique(blk):
+        src = blk == b - 2
+        if src.any() and np.isfinite(Rv[src]).any():
             with np.errstate(invalid="ignore"):
-                U[k] = np.nanmean(Rv[prev], axis=0)
+                U[blk == b] = np.nanmean(Rv[src], axis=0)
     return U, Rv
 
 
@@ -193,22 +209,26 @@ def smooth_confirm(prob: Problem, fit: Fit, z_min: float) -> dict:
     Joint space: each confirmation row's residual is predicted by the mean residual of its ``NEIGHBOURS`` nearest
     calibration rows (joints scaled by their spread and ``JOINT_WEIGHTS``), rows with the same commanded joints
     excluded (a repeat shares the visit's error); the calibration residuals are independent of the held-out ones.
-    Time: by the confirmation rows measured just before it (:func:`earlier_rows_prediction`). A structure that is
-    smooth in the configuration or in time makes neighbours alike; noise that changes from visit to visit (the
-    robot's repeatability, an instrument error per pose) does not. Under that null per confirmation row ``c_k =
-    r_k . u_k`` is zero-mean (given what predicts it), so ``z = sum c_k / sqrt(sum c_k^2)`` is ~N(0, 1) whatever
-    the noise's size and its correlation within a row. Confirmed when ``z > z_min`` also without the most favourable
-    row (either smoother)."""
+    Time: by the confirmation rows of the block of time two before its own (:func:`earlier_rows_prediction`). A
+    structure that is smooth in the configuration or in time makes neighbours alike; noise that changes from visit
+    to visit (the robot's repeatability, an instrument error per pose), or within a few rows, does not. Per
+    confirmation row ``c_k = r_k . u_k``, summed over the blocks of time of :func:`time_blocks` (the noise may be
+    correlated from row to row within a block: the sums over blocks are the independent units, batch means): under
+    that null each block's ``C_b`` is zero-mean (given what predicts it), so ``z = sum C_b / sqrt(sum C_b^2)`` is
+    ~N(0, 1) or narrower whatever the noise's size, its correlation within a row and over a few rows. Confirmed when
+    ``z > z_min`` also without the most favourable block (either smoother)."""
     out = {}
     smoothers = {"joints": neighbour_predictions(prob, fit)["joints"], "time": earlier_rows_prediction(prob, fit)}
+    blk = time_blocks(prob)
     for name, (U, Rv) in smoothers.items():
         c = np.nansum(Rv * U, axis=1)
         ok_rows = np.isfinite(c) & np.any(np.isfinite(Rv * U), axis=1)
-        c = c[ok_rows]
-        den = float(np.sqrt(np.sum(c**2)))
-        z = float(c.sum() / den) if den > 0 else 0.0
-        z_minus = float((c.sum() - c.max()) / np.sqrt(max(np.sum(c**2) - c.max() ** 2, 1e-300))) if c.size > 1 else 0.0
-        out[name] = {"z": z, "z_without_best_row": z_minus, "rows": int(c.size)}
+        C = np.bincount(blk[ok_rows], weights=c[ok_rows], minlength=int(blk.max(initial=-1)) + 1)
+        C = C[np.bincount(blk[ok_rows], minlength=C.size) > 0]
+        den = float(np.sqrt(np.sum(C**2)))
+        z = float(C.sum() / den) if den > 0 else 0.0
+        z_minus = float((C.sum() - C.max()) / np.sqrt(max(np.sum(C**2) - C.max() ** 2, 1e-300))) if C.size > 1 else 0.0
+        out[name] = {"z": z, "z_without_best_block": z_minus, "rows": int(ok_rows.sum()), "blocks": int(C.size)}
     best = max(out, key=lambda k: out[k]["z"])
-    return {"by": best, "z": out[best]["z"], "confirmed": any(v["z"] > z_min and v["z_without_best_row"] > z_min
+    return {"by": best, "z": out[best]["z"], "confirmed": any(v["z"] > z_min and v["z_without_best_block"] > z_min
                                                               for v in out.values()), "smoothers": out}

@@ -54,10 +54,11 @@ from .extend import error_stats, reduced_basis
 from .features import LastMove, LoadSign
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
+from .refine import retimeable
 from .structure import StructureTest, gross_rows, row_rms
 from .scoring import raw_columns
-from .rule import (CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime, select_terms,
-                   selection_round)
+from .rule import (AfterBlocks, CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime,
+                   select_terms, selection_round)
 from .describe import describe_terms, name_effects, place_unit, term_values
 
 __all__ = [
@@ -82,6 +83,7 @@ __all__ = [
     "choose_geometry",
     "geometry_candidates",
     "report_before_after",
+    "every_row_changes",
     "refit_on_every_row",
     "describe_terms",
     "implausible_size",
@@ -286,19 +288,62 @@ def diagnose(
     geo_all, ext_all, prob_all, after_all = models(None)
     rep = report_before_after(prob, base, ext)
     calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
+    fit_rep, prob_pre, use_rep = None, None, use
+    before_report = np.ones(setup.dataset.n, bool)
+    if prob.obs_rep is not None:
+        before_report[prob.rows_rep] = False
+    if prob.obs_rep is not None and ext is not None and any(retimeable(a) for a, _ in ext.chosen):
+        # a thermal term (the air's temperature, the motors' heat: a state that moves with time): the report rows read
+        # the model refitted on every row before them, the air's time constants refined there, as the rows after the
+        # campaign read it refitted on every row
+        _, ext_pre, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
+        use_rep = Fit(ext_pre.chosen, ext_pre.z, ext_pre.free, float("nan"), prob.model(ext_pre.chosen, "cal"),
+                      prob.model(ext_pre.chosen, "val"))
+        note = report_before_after(prob, base, use_rep)
+        note["note"] += ("; the report rows read the model with its thermal terms refitted on every row before the "
+                         "report block (the time constants of the air refined there)")
+        rep = note
+        rep["held_out"]["report_state"] = "thermal terms refitted on every row before the report block"
+        cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
+                                        fit=ext_pre)
+        calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     if prob.obs_rep is not None and after_all.found:
         # the report rows read the state the rows before them leave (a change found there, with its size as they show
         # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
-        before_report = np.ones(setup.dataset.n, bool)
-        before_report[prob.rows_rep] = False
         _, _, prob_pre, after_pre = models(before_report)
-        if after_pre.found:
-            fit_rep = with_found(prob, prob_pre, use, after_pre.fit)
+        if not after_pre.found:
+            after_pre = AfterBlocks(use_rep, (), ())
+        else:
+            fit_rep = with_found(prob, prob_pre, use_rep, after_pre.fit)
             rep = report_before_after(prob, base, fit_rep, found=[a.label for a, *_ in after_pre.found])
             cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, after_pre,
                                             fit=Fit(fit_rep.chosen, fit_rep.z, fit_rep.free, float("nan"),
                                                     prob_pre.model(fit_rep.chosen, "cal"),
                                                     prob_pre.model(fit_rep.chosen, "val")))
+            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+    if prob.obs_rep is not None and ext_all is not None and any(is_change(a) for a, _ in ext_all.chosen):
+        # the report rows read the changes where every row places them (a kept step that ends, a change late in the
+        # campaign), their sizes as the rows before the report block show them
+        if prob_pre is None:
+            _, _, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
+        if fit_rep is None:
+            after_pre = AfterBlocks(use_rep, (), ())
+        got = every_row_changes(prob, prob_pre, fit_rep if fit_rep is not None else use_rep, ext_all, len(use.chosen))
+        if got is not None:
+            fit_state, extra = got
+            how = {a.key: f for f in list(after_all.found) + list(after_pre.found) for a in f[:1]}
+            found = tuple(how.get(a.key, (a, "glitch", None, 0.0)) for a, _ in extra)
+            note, rep_state = rep["note"], rep["held_out"].get("report_state")
+            rep = report_before_after(prob, base, fit_state)
+            rep["note"] = note + ("; the report rows read the changes where every row of the campaign places them ("
+                                  + "; ".join(a.label for a, _ in fit_state.chosen if is_change(a))
+                                  + "), their sizes as the rows before the report block show them")
+            rep["held_out"]["report_state"] = (rep_state + "; " if rep_state else "") + "changes timed on every row"
+            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json,
+                                            AfterBlocks(fit_state, found, ()),
+                                            fit=Fit(fit_state.chosen, fit_state.z, fit_state.free, float("nan"),
+                                                    prob_pre.model(fit_state.chosen, "cal"),
+                                                    prob_pre.model(fit_state.chosen, "val")))
             calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
     rep["held_out"].update(held_out_rows=setup.held_out.sets, blocks=setup.held_out.rule)
     candidate_terms: tuple = ()
@@ -610,6 +655,48 @@ def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
                       ftol=1e-10, stage="report")
     free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)
     return Fit(chosen, gn.x, free, float("nan"), prob.model(chosen, "cal"), prob.model(chosen, "val"))
+
+
+def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_kept: int
+                      ) -> tuple[Fit, list] | None:
+    """The report model ``cur`` (on ``prob``'s rows; its first ``n_kept`` terms the kept ones, then those found after
+    the blocks on the rows before the report block) with its changes where every row of the campaign places them
+    (``every``, the model refitted on every row, its first ``n_kept`` terms the same): a kept change as ``every`` has
+    it (a step that ends there, a window), and each change ``every`` found after the blocks whose rows the rows before
+    the report block (``prob_pre``'s calibration rows) include, in place of ``cur``'s own changes found after the
+    blocks. Their sizes and the geometry are fitted on ``prob_pre``'s rows, the other terms held at ``cur``'s values:
+    a change is located by every row, its size by the rows before the report block only. Returns the fit (on
+    ``prob``'s rows) and its terms after the kept ones, or None when ``cur`` already holds ``every``'s changes."""
+    P = prob.prep.space.size
+
+    def seg(fit: Fit, k: int) -> np.ndarray:
+        return fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
+
+    def shown(atom) -> bool:
+        return bool(np.any(np.abs(prob_pre.features(atom)[prob_pre.rows_cal]) > 0))
+
+    terms = []  # (term, value, moving)
+    for k in range(n_kept):
+        if is_change(cur.chosen[k][0]):
+            terms.append((every.chosen[k], seg(every, k), True))
+        else:
+            terms.append((cur.chosen[k], seg(cur, k), False))
+    terms += [(cur.chosen[k], seg(cur, k), False) for k in range(n_kept, len(cur.chosen))
+              if not is_change(cur.chosen[k][0])]
+    terms += [(every.chosen[k], seg(every, k), True) for k in range(n_kept, len(every.chosen))
+              if is_change(every.chosen[k][0]) and shown(every.chosen[k][0])]
+    old = sorted(a.key for a, _ in cur.chosen if is_change(a))
+    if sorted(t[0].key for t, _, mv in terms if mv) == old:
+        return None
+    chosen = [t for t, _, _ in terms]
+    mc = prob_pre.model(chosen, "cal")
+    z0 = np.concatenate([cur.z[:P]] + [v for _, v, _ in terms])
+    moving = np.concatenate([prob_pre.free_geo] + [np.arange(mc.offsets[k], mc.offsets[k + 1])
+                                                   for k, (_, _, mv) in enumerate(terms) if mv]).astype(int)
+    gn = gauss_newton(lambda z: mc.residuals(z), z0, moving, row_weights=prob_pre.w_cal, max_iter=30, xtol=1e-11,
+                      ftol=1e-10, stage="report")
+    free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)
+    return Fit(chosen, gn.x, free, float("nan"), prob.model(chosen, "cal"), prob.model(chosen, "val")), chosen[n_kept:]
 
 
 FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
