@@ -474,10 +474,8 @@ def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
         return []
     loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
     same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
-    if f0.until is not None:
-        return same
     return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
-                        "change", pl.joints) for pl in loads]
+                        "change", pl.joints) for pl in loads if not pl.payload]
 
 
 def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:
