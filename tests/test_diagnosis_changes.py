@@ -600,3 +600,27 @@ def test_a_payloads_change_at_one_joint_is_the_same_change_at_every_other_loaded
     assert all(a.features[0].until is None for a in same_event(step, places))
     assert same_event(Atom("change", "joint", "theta2", (Step(ch="t_s", at=10.0),), "", "", "change", (2,)),
                       places) == []
+
+
+def test_a_payload_taken_off_late_is_one_change_at_every_loaded_joint():
+    """Joints 2 and 3 yield to the arm's weight on every row and to a 5 kg payload taken off in the held-out block:
+    each joint's compliance changes at the same row (one event, within 2 rows of it), and the rows after the campaign
+    are within 1.2x the oracle."""
+    seed = 1
+    ds, truth = _dataset(None, seed=seed)
+    m = ds.n - LATER
+    s = int(0.76 * m)
+    c = np.array([0, 3e-6, 6e-6, 0, 0, 0])  # [rad / N m]
+
+    def eff(q, model):
+        on = (np.arange(len(q)) < s).astype(float)
+        return q + c * (H._gravity_torque(model, q) + on[:, None] * _payload_torque(model, q))
+
+    ds, truth = _dataset(eff, seed=seed)
+    early = np.arange(ds.n) < m
+    campaign, later = ds.subset(early), ds.subset(~early)
+    res = diagnose(campaign)
+    rows = {ch["target"]: ch["row"] for ch in res.changes if ch["target"] in ("theta2", "theta3")}
+    ratio = _later_ratio(res, campaign, later, truth["delta"][early], truth["delta"][~early])
+    assert set(rows) == {"theta2", "theta3"} and all(abs(r - s) <= 2 for r in rows.values()), res.changes
+    assert ratio <= 1.2, ratio
