@@ -579,8 +579,8 @@ def test_a_payloads_torque_lies_in_the_span_of_its_shapes_at_every_joint():
 
 def test_a_payloads_change_at_one_joint_is_the_same_change_at_every_other_loaded_joint():
     """The same event of a payload's change (its start and end) is proposed at every other joint's payload place,
-    never at a joint's zero, a frame or a compliance under the arm's own weight; a step's companions are steps, and a window taken from its start on is a
-    step."""
+    never at a joint's zero, a frame or a compliance under the arm's own weight; a step's companions are steps, and a
+    window taken from its start on is a step."""
     from twin.diagnosis.atoms import Atom
     from twin.diagnosis.changes import ChangePlace, as_step, same_event
     from twin.diagnosis.features import Const, Gated, Step

@@ -92,8 +92,8 @@ def change_places(model, catalogue: list[Atom], q: np.ndarray | None = None) -> 
                                    f"joint {joint_words(model, j)} compliance (under gravity)", a.joints))
             shapes = () if q is None else payload_shapes(model, q, j, Y)
             if shapes:
-                out.append(ChangePlace("joint", a.target, shapes, f"joint {joint_words(model, j)} compliance (a payload)",
-                                       a.joints, payload=True))
+                words = f"joint {joint_words(model, j)} compliance (a payload)"
+                out.append(ChangePlace("joint", a.target, shapes, words, a.joints, payload=True))
     return out
 
 

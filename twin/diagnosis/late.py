@@ -32,8 +32,8 @@ import numpy as np
 
 from ..estimator.core import prepare
 from ..estimator import distributions as dists
-from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step, is_window,
-                      row_times, same_event, scan_changes)
+from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
+                      is_window, row_times, same_event, scan_changes)
 from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm

@@ -41,10 +41,10 @@ from .problem import psi_init
 from .scoring import score_atoms
 from .values import feature_values
 
-__all__ = ["payload_shapes", "TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
-           "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH",
-           "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom",
-           "stated_load_mix"]
+__all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "payload_shapes",
+           "load_atoms", "load_sign_feature", "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS",
+           "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom",
+           "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
