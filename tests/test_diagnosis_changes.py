@@ -557,3 +557,70 @@ def test_a_change_of_a_joints_gravity_torque_shapes_names_compliance():
             "features": [{"kind": "step", **gate}]}
     assert name_effects([load])[0] == ("compliance",)
     assert name_effects([zero])[0] == ()
+
+
+def test_a_payloads_torque_lies_in_the_span_of_its_shapes_at_every_joint():
+    """The torque a point mass at any offset from the flange gives each joint 2-6 is a combination of that joint's
+    payload shapes (the last link's mass and mass moments), on rows they were not built on."""
+    from twin.diagnosis.candidates import RowContext
+    from twin.diagnosis.loads import payload_shapes
+    from twin.diagnosis.values import feature_values
+    from twin.robots import irb1200
+
+    model = irb1200()
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-1.5, 1.5, (60, 6))
+    tau = _payload_torque(model, q, mass_kg=4.0, com_flange_m=(0.03, -0.025, 0.12))
+    for j in range(2, 7):
+        F = feature_values(payload_shapes(model, rng.uniform(-1.5, 1.5, (40, 6)), j), RowContext(q=q), model)
+        coef = np.linalg.lstsq(F, tau[:, j - 1], rcond=None)[0]
+        assert np.linalg.norm(F @ coef - tau[:, j - 1]) <= 1e-8 * max(np.linalg.norm(tau[:, j - 1]), 1e-9), j
+
+
+def test_a_payloads_change_at_one_joint_is_the_same_change_at_every_other_loaded_joint():
+    """The same event of a payload's change (its start and end) is proposed at every other joint's payload place,
+    never at a joint's zero, a frame or a compliance under the arm's own weight; a step's companions are steps, and a
+    window taken from its start on is a step."""
+    from twin.diagnosis.atoms import Atom
+    from twin.diagnosis.changes import ChangePlace, as_step, same_event
+    from twin.diagnosis.features import Const, Gated, Step
+
+    places = [ChangePlace("joint", "theta2", None, "joint 2 offset", (2,)),
+              ChangePlace("param", "tool", None, "tool (plate) frame")]
+    places += [ChangePlace("joint", f"theta{j}", (Const(),), f"joint {j} compliance (a payload)", (j,), payload=True)
+               for j in (2, 3, 5)] + [ChangePlace("joint", "theta4", (Const(),), "joint 4 compliance", (4,))]
+    win = Atom("change", "joint", "theta3", (Gated(f=Const(), ch="t_s", at=10.0, until=30.0),),
+               "change(10 <= t_s < 30)", "change of the joint 3 compliance (a payload) from t_s 10 until 30",
+               "change_window", (3,))
+    got = same_event(win, places)
+    assert sorted(a.target for a in got) == ["theta2", "theta5"]
+    assert all(a.features[0].at == 10.0 and a.features[0].until == 30.0 and a.pool == "change_window" for a in got)
+    step = as_step(win)
+    assert step.features[0].until is None and step.pool == "change" and step.label.endswith("from t_s 10 on")
+    assert all(a.features[0].until is None for a in same_event(step, places))
+    assert same_event(Atom("change", "joint", "theta2", (Step(ch="t_s", at=10.0),), "", "", "change", (2,)),
+                      places) == []
+
+
+def test_a_payload_taken_off_late_is_one_change_at_every_loaded_joint():
+    """Joints 2 and 3 yield to the arm's weight on every row and to a 5 kg payload taken off in the held-out block:
+    each joint's compliance changes at the same row (one event, within 2 rows of it), and the rows after the campaign
+    are within 1.2x the oracle."""
+    seed = 1
+    ds, truth = _dataset(None, seed=seed)
+    m = ds.n - LATER
+    s = int(0.76 * m)
+    c = np.array([0, 3e-6, 6e-6, 0, 0, 0])  # [rad / N m]
+
+    def eff(q, model):
+        on = (np.arange(len(q)) < s).astype(float)
+        return q + c * (H._gravity_torque(model, q) + on[:, None] * _payload_torque(model, q))
+
+    ds, truth = _dataset(eff, seed=seed)
+    early = np.arange(ds.n) < m
+    campaign, later = ds.subset(early), ds.subset(~early)
+    res = diagnose(campaign)
+    rows = {ch["target"]: ch["row"] for ch in res.changes if ch["target"] in ("theta2", "theta3")}
+    ratio = _later_ratio(res, campaign, later, truth["delta"][early], truth["delta"][~early])
+    assert set(rows) == {"theta2", "theta3"} and all(abs(r - s) <= 2 for r in rows.values()), res.changes
+    assert ratio <= 1.2, ratio

@@ -37,14 +37,16 @@ from ..estimator.distributions import f_sf
 from ..runtime import thread_map
 from ..units import MM_PER_M, rad_to_deg
 from .atoms import Atom, joint_words
-from .candidates import RowContext
+from .candidates import RowContext, gravity_torque_regressor
 from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
+from .loads import payload_shapes
 from .scoring import row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
-           "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "row_times"]
+           "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
+           "same_event"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -64,6 +66,7 @@ class ChangePlace:
     inner: tuple | None
     words: str
     joints: tuple[int, ...] = ()
+    payload: bool = False  # a joint's compliance under a point mass at the flange (one event at every joint below it)
 
 
 def is_change(atom) -> bool:
@@ -72,17 +75,25 @@ def is_change(atom) -> bool:
     return fam == "change"
 
 
-def change_places(model, catalogue: list[Atom]) -> list[ChangePlace]:
-    """Every joint offset, the tool frame, the measurement (base) frame, and each joint's compliance (the catalogue's
-    leading gravity-torque shapes of that joint)."""
+def change_places(model, catalogue: list[Atom], q: np.ndarray | None = None) -> list[ChangePlace]:
+    """Every joint offset, the tool frame, the measurement (base) frame, and each joint's compliance where the
+    catalogue has one under gravity, twice: under the arm's own weight (the catalogue's leading gravity-torque shapes
+    of that joint: a brake released, a stiffness changed) and, with the rows' joints ``q`` ``(n, N)``, under a payload
+    put on or taken off (:func:`twin.diagnosis.loads.payload_shapes`: a point mass at the flange)."""
     out = [ChangePlace("joint", f"theta{j}", None, f"joint {joint_words(model, j)} offset", (j,))
            for j in range(1, model.n_joints + 1)]
+    Y = None if q is None else gravity_torque_regressor(model, q)
     out += [ChangePlace("param", "tool", None, "tool (plate) frame"),
             ChangePlace("param", "base", None, "base (measurement) frame")]
     for a in catalogue:
         if a.family == "compliance" and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}":
-            words = f"joint {joint_words(model, int(a.target[5:]))} compliance (a payload)"
-            out.append(ChangePlace("joint", a.target, tuple(a.features), words, a.joints))
+            j = int(a.target[5:])
+            out.append(ChangePlace("joint", a.target, tuple(a.features),
+                                   f"joint {joint_words(model, j)} compliance (under gravity)", a.joints))
+            shapes = () if q is None else payload_shapes(model, q, j, Y)
+            if shapes:
+                words = f"joint {joint_words(model, j)} compliance (a payload)"
+                out.append(ChangePlace("joint", a.target, shapes, words, a.joints, payload=True))
     return out
 
 
@@ -110,6 +121,19 @@ def as_window(atom: Atom, until: float) -> Atom:
     chan = f"change({at:.6g} <= {ch} < {until:.6g})"
     label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} until {until:.6g}", atom.label)
     return Atom(atom.family, atom.place, atom.target, feats, chan, label, "change_window", atom.joints, dict(atom.meta))
+
+
+def as_step(atom: Atom) -> Atom:
+    """The change ``atom`` (a step or a window) from its start on, without an end: a step, in the step pool."""
+    f0 = atom.features[0]
+    ch, at = f0.ch, float(f0.at)
+    if isinstance(f0, (Step, Window)):
+        feats = tuple(Step(ch=f.ch, at=f.at) for f in atom.features)
+    else:
+        feats = tuple(Gated(f=f.f, ch=f.ch, at=f.at) for f in atom.features)
+    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
+    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, "change", atom.joints,
+                dict(atom.meta))
 
 
 def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:
@@ -429,6 +453,16 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             if _white_after(prob, fit, a, sizes, order, _payload_companions(a, places))]
 
 
+def same_event(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
+    """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its start and
+    end) at every other joint's payload place of ``places`` (a payload hangs at the flange and loads every joint below
+    it at once). Else none."""
+    f0 = atom.features[0]
+    if not isinstance(f0, Gated) or atom.place != "joint":
+        return []
+    return [_atom(pl, f0.ch, f0.at, f0.until) for pl in places if pl.payload and pl.target != atom.target]
+
+
 def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
     """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
     at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
@@ -440,10 +474,8 @@ def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
         return []
     loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
     same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
-    if f0.until is not None:
-        return same
     return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
-                        "change", pl.joints) for pl in loads]
+                        "change", pl.joints) for pl in loads if not pl.payload]
 
 
 def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:

@@ -276,7 +276,7 @@ def diagnose(
     # the models to use: the chosen terms refitted on every row of the campaign (the choice was made on the blocks;
     # the values take the campaign's whole time), with what every row holds after the blocks (step 9); the report
     # rows are predicted as the rows after the campaign are: by the same models on every row before them
-    places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"])
+    places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"], setup.ctx.q)
     late_gate = bool(pool) and prob.test(use).p_value < alpha
 
     def models(rows: np.ndarray | None):
@@ -307,11 +307,11 @@ def diagnose(
         cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
                                         fit=ext_pre)
         calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
-    if prob.obs_rep is not None and after_all.found:
+    if prob.obs_rep is not None and (after_all.found or after_all.changed):
         # the report rows read the state the rows before them leave (a change found there, with its size as they show
         # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
         _, _, prob_pre, after_pre = models(before_report)
-        if not after_pre.found:
+        if not (after_pre.found or after_pre.changed):
             after_pre = AfterBlocks(use_rep, (), ())
         else:
             fit_rep = with_found(prob, prob_pre, use_rep, after_pre.fit)
@@ -561,7 +561,7 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     # paid for where it is preferred to the sign (twin.diagnosis.refine.prefer_sign): not more hypotheses of the pool
     counted = [a for a in pool if not (a.family == "backlash" and a.features[0].kind == "lastmove")]
     sizes = {k: max(1, sum(a.pool == k for a in counted)) for k in ("catalogue", "scan", "generic", "load")}
-    sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat)))
+    sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat, setup.ctx.q)))
     return pool, sizes
 
 
@@ -701,7 +701,8 @@ def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_
 
 FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
          "glitch": "on every row, a change and back (its own rows and the rows after it; nothing later depends on it)",
-         "load": "on every row, the arm's own weight at a joint whose compliance a payload's change shows"}
+         "load": "on every row, the arm's own weight at a joint whose compliance a payload's change shows",
+         "event": "on every row, the same payload's change (one timing) at another joint's compliance"}
 
 
 def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None, atoms_json: list[dict],
@@ -731,20 +732,20 @@ def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None
     extra = final[len(atoms_json):]  # the terms found after the blocks, in the order found
     for f, (_, how, _, _) in zip(extra, after.found):
         f["found"] = FOUND[how]
-    late = {f["label"]: got for f, (_, _, got, _) in zip(extra, after.found)}
-    changes = [late_json(late[c["label"]], c, setup) if c["label"] in late else c
+    late = {f["label"]: (got, how) for f, (_, how, got, _) in zip(extra, after.found)}
+    changes = [late_json(*late[c["label"]], c, setup) if c["label"] in late else c
                for c in describe_changes(final, setup.ctx, setup.dataset.pose_id)]
     cal = replace(base_cal, method="best+effects", effects=tuple(final), x=ext_x.z[:P])
     return cal, tuple(atoms_json) + tuple(extra), changes
 
 
-def late_json(late, change: dict, setup: Setup) -> dict:
-    """The ``changes`` entry of a change found after the blocks (:mod:`twin.diagnosis.late`): ``change`` as
-    :func:`describe_changes` gives it from its term refitted on every row, with where it was found and, for one
-    confirmed after a cut (``late``), its confirmation."""
+def late_json(late, how: str, change: dict, setup: Setup) -> dict:
+    """The ``changes`` entry of a change found after the blocks (:mod:`twin.diagnosis.late`; ``how`` it was found, a
+    key of ``FOUND``): ``change`` as :func:`describe_changes` gives it from its term refitted on every row, with where
+    it was found and, for one confirmed after a cut (``late``), its confirmation."""
     d = dict(change)
     if late is None:
-        d["found"] = FOUND["glitch"]
+        d["found"] = FOUND[how]
         return d
     ch, _ = row_times(setup.ctx)
     d.update({"found": FOUND["late"],

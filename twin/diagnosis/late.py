@@ -32,8 +32,8 @@ import numpy as np
 
 from ..estimator.core import prepare
 from ..estimator import distributions as dists
-from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_window, change_pool_sizes, is_change, is_step, is_window,
-                      row_times, scan_changes)
+from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
+                      is_window, row_times, same_event, scan_changes)
 from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
@@ -43,7 +43,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "late_change", "late_templates", "late_term", "end_steps", "glitches", "gross_runs",
-           "rows_to_confirm", "own_weight"]
+           "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -425,3 +425,66 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
                      f"on every row; p = {np.exp(logp[k]):.2g} after the factor {len(cands)} of the joints tried)")
         cands = [a for a in cands if a.target != g.atom.target]
     return use_all, found, notes
+
+
+def is_load_change(atom) -> bool:
+    """Whether ``atom`` is a change of a joint's compliance (its gravity-torque shapes gated in time: a payload)."""
+    return is_change(atom) and atom.place == "joint" and bool(atom.features) and isinstance(atom.features[0], Gated)
+
+
+def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
+                  alpha: float) -> tuple[Fit, list, list[str]]:
+    """A payload hangs at the flange: hung on or taken off, it changes the gravity torque of every joint below it at
+    once, each joint deflecting through its own compliance (``q_j += c_j L_i tau_j,payload``, ``L_i`` one timing for
+    all). So every kept change of a joint's compliance (:func:`is_load_change`) is one event: first, the changes of
+    one start take one end, the one (among their own ends, or none) that gives every row the lowest chi2 (a joint
+    whose return the rows showed less clearly keeps the state the others show); then each other compliance place of
+    ``places`` takes the same change (the same start and end, :func:`twin.diagnosis.changes.same_event`) when
+    significant on every row after the factor of the places tried (``chi2`` of its rank at ``alpha``), strongest
+    first. Returns the fit, the changes added (atom, ``Delta chi2``) and notes."""
+    notes: list[str] = []
+    starts = sorted({float(a.features[0].at) for a, _ in use_all.chosen if is_load_change(a)})
+    for at in starts:
+        idx = [k for k, (a, _) in enumerate(use_all.chosen) if is_load_change(a) and float(a.features[0].at) == at]
+        ends = list(dict.fromkeys(a.features[0].until for k, (a, _) in enumerate(use_all.chosen) if k in idx))
+        if len(ends) < 2:
+            continue
+        best = None
+        for e in ends:
+            chosen = [(_with_end(c, e) if k in idx else c, B) for k, (c, B) in enumerate(use_all.chosen)]
+            trial = refit_with(prob_all, use_all, chosen)
+            if best is None or trial.chi2 < best.chi2:
+                best = trial
+        use_all = best
+        notes.append(f"one payload, one timing: the changes of the joints' compliance from {at:.6g} take one end "
+                     f"({[a.label for k, (a, _) in enumerate(use_all.chosen) if k in idx][0]}; {len(ends)} ends "
+                     "compared on every row)")
+    found = []
+    while True:
+        events = {(float(a.features[0].at), a.features[0].until): a for a, _ in use_all.chosen if is_load_change(a)}
+        held = {(a.target, float(a.features[0].at), a.features[0].until) for a, _ in use_all.chosen
+                if is_load_change(a)}
+        cands = [c for a in events.values() for c in same_event(a, places)
+                 if (c.target, float(c.features[0].at), c.features[0].until) not in held]
+        if not cands:
+            break
+        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
+        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        k = int(np.argmin(logp))
+        g = got[k]
+        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
+        found.append((g.atom, float(g.dchi2)))
+        notes.append(f"the same payload at another joint: {g.atom.label} (one event loads every joint below the "
+                     f"flange; p = {np.exp(logp[k]):.2g} on every row after the factor {len(cands)} of the places "
+                     "tried)")
+    return use_all, found, notes
+
+
+
+def _with_end(atom, until):
+    """The change ``atom`` ending at ``until`` (None: without an end, a step)."""
+    if atom.features[0].until == until:
+        return atom
+    return as_step(atom) if until is None else as_window(atom, until)

@@ -41,10 +41,10 @@ from .problem import psi_init
 from .scoring import score_atoms
 from .values import feature_values
 
-__all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "load_atoms", "load_sign_feature",
-           "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH",
-           "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom",
-           "stated_load_mix"]
+__all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "payload_shapes",
+           "load_atoms", "load_sign_feature", "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS",
+           "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom",
+           "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -56,17 +56,18 @@ def _prior(N: int) -> np.ndarray:
 
 
 def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = None,
-                  Y: np.ndarray | None = None) -> tuple[GravMix, ...]:
+                  Y: np.ndarray | None = None, links: tuple[int, ...] | None = None) -> tuple[GravMix, ...]:
     """Joint ``i``'s (1-based) leading principal gravity-torque shapes under the generic prior, as ``gravmix`` features
     (the compliance atoms' shapes, leading first): the right singular vectors of the prior-weighted columns
     ``Y[:, i, k, c] prior_c`` (``k >= i``; prior 1 for a mass, ``COM_PRIOR_M`` for a mass moment) whose singular values
     pass ``1e-6`` of the largest, each scaled to unit RMS over the rows; the first ``rank`` of them (all when None), or
     ``()`` when the joint carries no varying torque. ``Y``: :func:`~twin.diagnosis.candidates.gravity_torque_regressor`
-    on ``q`` when already computed."""
+    on ``q`` when already computed. ``links``: the links whose mass moments load the joint (1-based; default every
+    link from ``i`` on)."""
     Y = gravity_torque_regressor(model, q) if Y is None else Y
     N = model.n_joints
     cols, prior = [], []
-    for k in range(i, N + 1):
+    for k in (range(i, N + 1) if links is None else links):
         for c in range(4):
             cols.append([k, c])
             prior.append(1.0 if c == 0 else COM_PRIOR_M)
@@ -78,6 +79,15 @@ def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = N
     rk = rk if rank is None else min(rank, rk)
     return tuple(GravMix(i=i, cols=tuple(map(tuple, cols)), w=tuple((Vt[k] * np.array(prior)).tolist()),
                          h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
+
+
+def payload_shapes(model: RobotModel, q: np.ndarray, i: int, Y: np.ndarray | None = None) -> tuple[GravMix, ...]:
+    """Joint ``i``'s gravity-torque shapes of a payload: a point mass ``m`` at an unknown offset ``c`` from the flange
+    loads joint ``i`` with ``tau_i = Y[:, i, N] @ (m, m c')`` (``c'``: the offset in the last link's frame, the flange's
+    offset and turn from it absorbed: ``m c' = m d + R m c`` is linear in ``(m, m c)``), the last link's four
+    columns of :func:`~twin.diagnosis.candidates.gravity_torque_regressor`: :func:`torque_shapes` of them alone
+    (``()`` when the payload gives the joint no varying torque)."""
+    return torque_shapes(model, q, i, Y=Y, links=(model.n_joints,))
 
 
 # a smooth flank's widths tried, as fractions of the load's RMS over the rows (beyond STIFFENING_WIDTH: a stiffening)

@@ -27,7 +27,8 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight
+from .late import (end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
+                   payload_event)
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
@@ -195,7 +196,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     taken: set[str] = set()
     rnd, kept = 0, 0
     P = prob.prep.space.size
-    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"]) if "change" in sizes else []
+    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"], prob.ctx.q) \
+        if "change" in sizes else []
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
         remaining = [a for a in pool if a.key not in rejected and _slot(a) not in taken]
@@ -646,12 +648,14 @@ def retime(prob: Problem, fit: Fit) -> Fit:
 @dataclass(frozen=True)
 class AfterBlocks:
     """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
-    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"`` or ``"glitch"``; ``late``: the
-    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), and notes."""
+    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"glitch"``, ``"event"`` or ``"load"``; ``late``: the
+    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), notes, and whether a term
+    it was given took another end there (``changed``: the state later rows read changed)."""
 
     fit: Fit
     found: tuple
     notes: tuple
+    changed: bool = False  # a term the rows brought was given another end (its state on later rows changed)
 
 
 def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
@@ -697,14 +701,24 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             if got is not None:
                 src = with_got
                 found.append((got.atom, "late", got, got.dchi2))
-    if (pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any():
+    src0 = src
+    beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
+    if beyond:
         # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
         # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
         src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
         # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
         zeros = [p for p in places if p.place == "joint"]
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
+        notes += notes_end + notes_win
+        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    # a payload is one event at every joint below the flange: one timing, every loaded joint
+    src, events, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
+    notes += notes_ev
+    found += [(a, "event", None, dchi2) for a, dchi2 in events]
+    if beyond or events:
         src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
-        notes += notes_end + notes_win + notes_load
-        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins] + [(a, "load", None, dchi2) for a, dchi2 in loads]
-    return AfterBlocks(src, tuple(found), tuple(notes))
+        notes += notes_load
+        found += [(a, "load", None, dchi2) for a, dchi2 in loads]
+    changed = [a.label for a, _ in src.chosen[:len(src0.chosen)]] != [a.label for a, _ in src0.chosen]
+    return AfterBlocks(src, tuple(found), tuple(notes), changed)
