@@ -5,10 +5,11 @@ One round (:func:`selection_round`) scores the remaining atoms on the calibratio
 takes the best whose evidence passes the threshold of its pool, and keeps it only if it predicts the confirmation
 block (a block of time after every calibration row, or another session); :func:`select_terms` repeats rounds,
 then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
-keeps fewer families where they do as well (:func:`_fewer_families`) and refuses terms of implausible size
-(:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``). :func:`decide` states the verdict and
-:func:`adopt` whether the extended model is the model to use. The procedure around it is
-:mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
+keeps fewer families where they do as well (:func:`_fewer_families`), keeps no term of another family beside a
+named one unless it predicts the confirmation block beyond the family's own shapes (:func:`_no_extra_family`) and
+refuses terms of implausible size (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``).
+:func:`decide` states the verdict and :func:`adopt` whether the extended model is the model to use. The procedure
+around it is :mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
 :mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and :mod:`~twin.diagnosis.refine`."""
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gros
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
                      refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf
+from .structure import StructureTest, chi2_logsf, signed_rank_z
 
 __all__ = [
     "CandidateScore",
@@ -187,8 +188,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                  callback: Callable[[CandidateScore], None] | None = None) -> Selection:
     """Step 4: forward rounds (:func:`selection_round`) from the geometric ``fit``: an accepted atom is refined
     (its continuous constant), widened (its further directions when they add evidence), added and the model
-    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`) and
-    fewer families (:func:`_fewer_families`)."""
+    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`), fewer
+    families (:func:`_fewer_families`) and no extra term beside a named family (:func:`_no_extra_family`)."""
     sel = Selection(fit)
     chosen: list = []
     rejected: set[str] = set()
@@ -243,7 +244,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        fit, lawed, alts3 = _one_load_law(prob, fit, pool, sizes, alpha_select, z_min)
+        fit, lawed, alts3 = _no_extra_family(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += lawed
         alts = alts + alts2 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
@@ -569,6 +570,23 @@ def _admitted(prob: Problem, fit: Fit, sc: Scored, z_min: float) -> bool:
     return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
 
 
+def _row_errors(prob: Problem, fit: Fit) -> np.ndarray:
+    """Each confirmation row's squared (whitened) error under ``fit`` ``(n_val,)``; nan for a row left out."""
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    n = fit.model_val.obs.n
+    err = np.bincount(rv.row, weights=rv.r ** 2, minlength=n)
+    seen = np.bincount(rv.row, minlength=n) > 0
+    return np.where(seen & prob.keep_val, err, np.nan)
+
+
+def _better_rows(prob: Problem, fit: Fit, other: Fit) -> float:
+    """Wilcoxon's signed-rank score (a normal score) of how much better ``other`` predicts the confirmation rows than
+    ``fit``, row by row (each row's squared error under ``fit`` minus under ``other``): beyond ``z_min`` the rows
+    say ``other`` predicts better, whatever the size of their errors."""
+    d = _row_errors(prob, fit) - _row_errors(prob, other)
+    return signed_rank_z(d[np.isfinite(d)])
+
+
 def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_select: float,
             z_min: float) -> tuple[Fit, list[Atom]]:
     """``fit`` with those of the terms ``extra`` that predict the confirmation rows beyond it, added back one at a time
@@ -594,19 +612,21 @@ def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_selec
     return fit, back
 
 
-def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
-                  z_min: float) -> tuple[Fit, list[str], list[dict]]:
+def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """No extra term where the named family explains the rows. For each kept named term (in the order they entered:
     the family that explains most first), the terms of another family, or unnamed, acting where it acts (its joint;
     for a support's tilt the support and the joints whose torques follow its moment; a joint's load also the base's
-    tilt, and a support's tilt the loads of those joints) are taken out, the family's own richer shapes tried in their
-    place, each held to the forward pass' rules (:func:`_own_candidates`: a joint's load its compliance shapes, the
-    weight of the link it moves, the stiffening of its fitted torque; a tilt its own atoms; a harmonic its other
-    orders), and the terms taken out added back only where they predict the confirmation rows beyond that model,
-    judged nested (:func:`_nested`: significant on the calibration rows and confirmed on the held-out rows against
-    the model without them). The family alone is tried first: when it predicts the confirmation rows within 2 % of
-    the model with the extra terms, nothing is added in their place. The terms not added back are reported as the
-    alternatives the data cannot tell from the family's reading. Returns the fit, notes and alternatives."""
+    tilt, and a support's tilt the loads of those joints) are taken out, the family's own richer shapes tried in
+    their place, each held to the forward pass' rules (:func:`_own_candidates`: a joint's load its compliance
+    shapes, the weight of the link it moves, the stiffening of its fitted torque; a tilt its own atoms; a harmonic
+    its other orders), and the terms taken out added back only where they predict the confirmation rows beyond that
+    model, judged nested (:func:`_nested`: significant on the calibration rows and confirmed on the held-out rows
+    against the model without them); all of them stay where together they predict the confirmation rows better row
+    by row (:func:`_better_rows` beyond ``z_min``). The family alone is tried first: when it predicts the
+    confirmation rows within 2 % of the model with the extra terms, nothing is added in their place. The terms not
+    added back are reported as the alternatives the data cannot tell from the family's reading. Returns the fit,
+    notes and alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
     P = prob.prep.space.size
@@ -625,10 +645,13 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
         if a not in [c for c, _ in fit.chosen]:
             continue
         targets = {t for t in places if t.startswith("theta")}
+        # beside a load: harmonics, a ratio, unnamed functions and the other load families; beside any other family
+        # the named terms of another (an unnamed function beside a harmonic is the catalogue's shapes' question:
+        # _named_shapes)
         others = [c for c, _ in fit.chosen if c is not a and not is_change(c) and c.family != a.family
-                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio", "tilt", "compliance", "backlash"))
                   and (_places(prob, c) & places)
-                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio") or _load_term(c) == _load_term(a))]
+                  and ((c.pool == "generic" and _load_term(a)) or c.family in ("cyclic", "gear_ratio")
+                       or (_load_term(c) and _load_term(a)))]
         tag = (a.key, frozenset(c.key for c in others))
         if not others or tag in done:
             continue
@@ -667,6 +690,8 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
             continue  # every term taken out predicts beyond the family: all stay as they were
         alt, _ = backward(prob, alt, alpha_select, sizes)
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        if _better_rows(prob, alt, fit) > z_min:
+            continue  # together the terms taken out predict the confirmation rows beyond the family: they stay
         out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
         notes.append(f"{'; '.join(repr(c.label) for c in out)} taken out beside '{a.label}' (the family's own terms in "
