@@ -674,7 +674,10 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
                              if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
             best = None
             for sc in scored[:3]:
-                sc = refine_load_sign(prob, cur, sc, sizes)
+                # the family's own shape: a law refined past the family's range (a compliance's stiffening into a
+                # backlash's narrow flank) is another family's term, judged with the terms taken out
+                refined = refine_load_sign(prob, cur, sc, sizes)
+                sc = refined if refined.atom.family == sc.atom.family else sc
                 if _admitted(prob, cur, sc, z_min):
                     best = sc
                     break
