@@ -9,7 +9,7 @@ import numpy as np
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext, gravity_torques
 from twin.diagnosis.features import BaseMoment, GravMix, LoadSign, Moment, Torque
-from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, law_atom, link_tilt_atom, own_link_atom,
+from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, fitted_load, law_atom, link_tilt_atom, own_link_atom,
                                   stated_load_mix, stiffening_atoms, tilt_angles, torque_shapes)
 from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
@@ -79,6 +79,23 @@ def test_the_weight_of_the_upper_arm_is_the_first_harmonic_of_the_shoulder():
         c, *_ = np.linalg.lstsq(F, h, rcond=None)
         assert np.max(np.abs(F @ c - h)) < 1e-9
     assert a.family == "compliance" and a.target == "theta2"
+
+
+def test_the_weight_of_its_own_link_kept_alone_is_the_load_a_stiffening_law_follows():
+    """A joint whose compliance is held by the weight of the link it moves alone (no leading torque shapes kept) has
+    that fitted deflection as its load: the combination fitted_load returns reproduces it on every row."""
+    from types import SimpleNamespace
+
+    model = irb1200()
+    q = _rows(model)
+    a = own_link_atom(model, q, 2)
+    F = feature_values(a.features, RowContext(q=q), model)
+    psi = np.array([2e-6, -1e-6])[:F.shape[1]]
+    fit = SimpleNamespace(chosen=[(a, np.eye(F.shape[1]))], z=psi, model_cal=SimpleNamespace(offsets=[0, F.shape[1]]))
+    load = fitted_load(fit, 2)
+    assert isinstance(load, GravMix) and load.i == 2
+    v = feature_values((load,), RowContext(q=q), model)[:, 0]
+    np.testing.assert_allclose(v, F @ psi, atol=1e-12 * np.max(np.abs(F @ psi)) + 1e-18)
 
 
 def test_stiffening_atoms_are_compliances_of_both_laws_on_a_grid_of_widths():

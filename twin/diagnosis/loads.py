@@ -190,12 +190,15 @@ def link_tilt_atom(model: RobotModel, q: np.ndarray, k: int) -> Atom | None:
 def fitted_load(fit, j: int) -> GravMix | None:
     """Joint ``j``'s torque as the kept linear compliances of the joint fitted it (``fit``'s atoms of the joint whose
     features are ``gravmix`` shapes: the leading shapes, their further shapes, the weight of the link it moves): their
-    coefficients' combination as one ``gravmix`` feature over the leading shapes' regressor columns. None unless the
-    leading shapes are kept (the joint's load is theirs; a part of it is no load a law follows)."""
+    coefficients' combination as one ``gravmix`` feature over the leading shapes' regressor columns (without them, the
+    weight of the link the joint moves, when that is kept: the joint's load is then its own link's). None unless one
+    of those is kept (the joint's load is theirs; a part of it is no load a law follows)."""
     main = f"gravity torque of joint {j}"
     kept = [(k, a, B) for k, (a, B) in enumerate(fit.chosen) if a.family == "compliance" and a.target == f"theta{j}"
             and a.features and all(isinstance(f, GravMix) for f in a.features)]
-    lead = [a for _, a, _ in kept if a.channel == main]
+    # the leading shapes; without them the weight of the link the joint moves (its own first mass moment) is the load
+    lead = ([a for _, a, _ in kept if a.channel == main]
+            or [a for _, a, _ in kept if a.channel == f"gravity torque of link {j} on joint {j}"])
     if not lead:
         return None
     cols = lead[0].features[0].cols

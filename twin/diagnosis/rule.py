@@ -5,10 +5,11 @@ One round (:func:`selection_round`) scores the remaining atoms on the calibratio
 takes the best whose evidence passes the threshold of its pool, and keeps it only if it predicts the confirmation
 block (a block of time after every calibration row, or another session); :func:`select_terms` repeats rounds,
 then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
-keeps fewer families where they do as well (:func:`_fewer_families`) and refuses terms of implausible size
-(:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``). :func:`decide` states the verdict and
-:func:`adopt` whether the extended model is the model to use. The procedure around it is
-:mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
+keeps fewer families where they do as well (:func:`_fewer_families`), keeps no term of another family beside a
+named one unless it predicts the confirmation block beyond the family's own shapes (:func:`_no_extra_family`) and
+refuses terms of implausible size (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``).
+:func:`decide` states the verdict and :func:`adopt` whether the extended model is the model to use. The procedure
+around it is :mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
 :mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and :mod:`~twin.diagnosis.refine`."""
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gros
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
                      refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf
+from .structure import StructureTest, chi2_logsf, signed_rank_z
 
 __all__ = [
     "CandidateScore",
@@ -188,8 +189,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                  callback: Callable[[CandidateScore], None] | None = None) -> Selection:
     """Step 4: forward rounds (:func:`selection_round`) from the geometric ``fit``: an accepted atom is refined
     (its continuous constant), widened (its further directions when they add evidence), added and the model
-    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`) and
-    fewer families (:func:`_fewer_families`)."""
+    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`), fewer
+    families (:func:`_fewer_families`) and no extra term beside a named family (:func:`_no_extra_family`)."""
     sel = Selection(fit)
     chosen: list = []
     rejected: set[str] = set()
@@ -245,7 +246,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
-        fit, lawed, alts3 = _one_load_law(prob, fit, pool, sizes, alpha_select, z_min)
+        fit, lawed, alts3 = _no_extra_family(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += lawed
         alts = alts + alts2 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
@@ -529,63 +530,157 @@ def _load_candidates(prob: Problem, fit: Fit, pool: list[Atom], targets: set[str
     return out
 
 
-def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
-                  z_min: float) -> tuple[Fit, list[str], list[dict]]:
-    """No extra term where the load family explains the rows. Where a term of the arm's own load is kept (a joint's
-    compliance, a backlash signed by the load, the base's tilt) beside harmonics, a ratio or unnamed functions acting
-    on the same joint (for the tilt: the shoulder's and the elbow's, whose torques follow the base's moment), those
-    are taken out and the load family's own terms of the joint tried in their place, each held to the forward pass'
-    rules (significant, confirmed on the held-out rows, of a physical size): the joint's compliance shapes, the weight
-    of the link it moves, the compliance stiffening with its fitted torque (a nonlinear law of the load is followed by
-    harmonics of the joint that carries it, which say nothing of the load elsewhere). When that model predicts the
-    confirmation rows as well (within 2 %), it is kept and the terms it replaced are reported as the alternative the
-    data cannot tell from it. Returns the fit, notes and alternatives."""
+def _places(prob: Problem, a: Atom) -> set[str]:
+    """The joints (``theta<j>``) and supports (``tilt<i>``) a kept term acts at: a joint term its joint; a support's
+    tilt the support and the joints about whose axes it turns (the base's: the shoulder's and the elbow's, whose
+    torques follow its moment; link ``i``'s support: joints ``i - 1`` to ``i + 1``); any other term none."""
+    if a.place == "joint":
+        return {a.target}
+    if a.family == "tilt":
+        i, N = int(a.target[4:]), prob.prep.nominal.n_joints
+        joints = {"theta2", "theta3"} if i == 0 else {f"theta{j}" for j in (i - 1, i, i + 1) if 1 <= j <= N}
+        return joints | {a.target}
+    return set()
+
+
+def _own_candidates(prob: Problem, fit: Fit, pool: list[Atom], a: Atom, targets: set[str],
+                    have: set[str]) -> list[Atom]:
+    """The family of the kept term ``a``'s own terms at ``targets`` not in ``have``, its richer shapes first in
+    line: for a joint's load (a compliance, a backlash signed by the load) the joints' compliance shapes, the weight
+    of the link each moves and the stiffening of each linear compliance ``fit`` holds (:func:`_load_candidates`); for
+    a support's tilt its own atoms and (the base's) the weight of the shoulder's and the elbow's links; for any other
+    family the pool's terms of that family at those joints (a backlash's other laws, a harmonic's other orders)."""
+    if a.family == "tilt":
+        cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
+        if a.target == "tilt0":
+            cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
+                      if c is not None and c.key not in have]
+        return cands
+    if _load_term(a):
+        return _load_candidates(prob, fit, pool, targets, have)
+    return [c for c in pool if c.pool != "generic" and c.family == a.family and c.place == "joint"
+            and c.target in targets and c.key not in have and not is_change(c)]
+
+
+def _admitted(prob: Problem, fit: Fit, sc: Scored, z_min: float) -> bool:
+    """The forward pass' rules for a term scored against ``fit``: of a physical size and confirmed on the
+    confirmation rows (``z`` beyond ``z_min`` with and without its best row, a lower error there, not a wander the
+    nearest rows in time predict as well)."""
+    if _implausible(prob, sc) is not None:
+        return False
+    c = confirm(prob, fit, sc, z_min)
+    return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+
+
+def _row_errors(prob: Problem, fit: Fit) -> np.ndarray:
+    """Each confirmation row's squared (whitened) error under ``fit`` ``(n_val,)``; nan for a row left out."""
+    rv = fit.model_val.residuals(fit.z, jacobian=False)
+    n = fit.model_val.obs.n
+    err = np.bincount(rv.row, weights=rv.r ** 2, minlength=n)
+    seen = np.bincount(rv.row, minlength=n) > 0
+    return np.where(seen & prob.keep_val, err, np.nan)
+
+
+def _better_rows(prob: Problem, fit: Fit, other: Fit) -> float:
+    """Wilcoxon's signed-rank score (a normal score) of how much better ``other`` predicts the confirmation rows than
+    ``fit``, row by row (each row's squared error under ``fit`` minus under ``other``): beyond ``z_min`` the rows
+    say ``other`` predicts better, whatever the size of their errors."""
+    d = _row_errors(prob, fit) - _row_errors(prob, other)
+    return signed_rank_z(d[np.isfinite(d)])
+
+
+def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_select: float,
+            z_min: float) -> tuple[Fit, list[Atom]]:
+    """``fit`` with those of the terms ``extra`` that predict the confirmation rows beyond it, added back one at a time
+    by the forward pass' rules (significant on the calibration rows, confirmed on the held-out ones against the model
+    without them, of a physical size), the strongest first. Returns the fit and the terms added back."""
+    P = prob.prep.space.size
+    back: list[Atom] = []
+    left = list(extra)
+    while left:
+        got = None
+        scored = sorted((sc for sc in score_atoms(prob, fit, left, sizes, exact_top=len(left))
+                         if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
+        for sc in scored:
+            if _admitted(prob, fit, sc, z_min):
+                got = sc
+                break
+        if got is None:
+            break
+        chosen = list(fit.chosen) + [(got.atom, got.basis)]
+        fit = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
+        back.append(got.atom)
+        left = [c for c in left if c.key != got.atom.key]
+    return fit, back
+
+
+def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
+    """No extra term where the named family explains the rows. For each kept named term (in the order they entered:
+    the family that explains most first), the terms of another family, or unnamed, acting where it acts (its joint;
+    for a support's tilt the support and the joints whose torques follow its moment; a joint's load also the base's
+    tilt, and a support's tilt the loads of those joints) are taken out, the family's own richer shapes tried in
+    their place, each held to the forward pass' rules (:func:`_own_candidates`: a joint's load its compliance
+    shapes, the weight of the link it moves, the stiffening of its fitted torque; a tilt its own atoms; a harmonic
+    its other orders), and the terms taken out added back only where they predict the confirmation rows beyond that
+    model, judged nested (:func:`_nested`: significant on the calibration rows and confirmed on the held-out rows
+    against the model without them); all of them stay where together they predict the confirmation rows better row
+    by row (:func:`_better_rows` beyond ``z_min``). The family alone is tried first: when it predicts the
+    confirmation rows within 2 % of the model with the extra terms, nothing is added in their place. The terms not
+    added back are reported as the alternatives the data cannot tell from the family's reading. Returns the fit,
+    notes and alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
     P = prob.prep.space.size
-    done: set[frozenset] = set()
-    N = prob.prep.nominal.n_joints
-    for a in [a for a, _ in fit.chosen if _load_term(a)]:
+    done: set[tuple] = set()
+    named = [a for a, _ in fit.chosen if a.pool != "generic" and not is_change(a) and _places(prob, a)]
+    anchors = [(a, _places(prob, a)) for a in named]
+    # a joint's compliance named: another loaded joint whose angle only harmonics, a ratio or unnamed functions hold
+    # is tried with the family's terms there too (a load's law is the same family at every joint it bends)
+    loaded = {c.target for c in pool if c.family == "compliance" and c.place == "joint" and c.pool != "generic"}
+    for a in [a for a in named if a.family == "compliance" and a.place == "joint"]:
+        held = {c.target for c, _ in fit.chosen if c.place == "joint" and not is_change(c)
+                and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))}
+        bent = {c.target for c in named if c.family == a.family and c.place == "joint"}
+        anchors += [(a, {t}) for t in sorted((held & loaded) - bent)]
+    for a, places in anchors:
         if a not in [c for c, _ in fit.chosen]:
             continue
-        if a.place == "joint":
-            targets = {a.target}
-        else:
-            # a support's tilt: the joints about whose axes it turns (the base's: the shoulder's and the elbow's,
-            # whose torques follow its moment)
-            i = int(a.target[4:])
-            targets = {"theta2", "theta3"} if i == 0 else {f"theta{j}" for j in (i - 1, i, i + 1) if 1 <= j <= N}
-        others = [c for c, _ in fit.chosen if c.place == "joint" and c.target in targets and not is_change(c)
-                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
-        tag = frozenset(c.key for c in others)
+        targets = {t for t in places if t.startswith("theta")}
+        # beside a load: harmonics, a ratio, unnamed functions and the other load families; beside any other family
+        # the named terms of another (an unnamed function beside a harmonic is the catalogue's shapes' question:
+        # _named_shapes)
+        others = [c for c, _ in fit.chosen if c is not a and not is_change(c) and c.family != a.family
+                  and (_places(prob, c) & places)
+                  and ((c.pool == "generic" and _load_term(a)) or c.family in ("cyclic", "gear_ratio")
+                       or (_load_term(c) and _load_term(a)))]
+        tag = (a.key, frozenset(c.key for c in others))
         if not others or tag in done:
             continue
         done.add(tag)
         keep = [(c, B) for c, B in fit.chosen if c not in others]
-        cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+        # the family's constants (a load law's direction among the torque shapes) read again without the others,
+        # which took part of the load when the law was placed
+        cur = retime(prob, prob.fit(fit.z[:P], keep, psi_init(fit, keep)))
         e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
         if error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
-            rounds = 0  # the load term alone predicts as well: nothing in their place
+            rounds = 0  # the family alone predicts as well: nothing in their place
         else:
             rounds = len(others) + 1
         for _ in range(rounds):
             have = {c.key for c, _ in cur.chosen}
-            if a.family == "tilt":
-                # a tilt's own terms: its shapes, and the weight of the shoulder's and the elbow's links
-                cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
-                cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
-                          if c is not None and a.target == "tilt0" and c.key not in have]
-            else:
-                cands = _load_candidates(prob, cur, pool, targets, have)
+            cands = _own_candidates(prob, cur, pool, a, targets, have)
+            if not cands:
+                break
             scored = sorted((sc for sc in score_atoms(prob, cur, cands, sizes, exact_top=len(cands))
                              if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
             best = None
             for sc in scored[:3]:
-                sc = refine_load_sign(prob, cur, sc, sizes)
-                if _implausible(prob, sc) is not None:
-                    continue
-                c = confirm(prob, cur, sc, z_min)
-                if c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local:
+                # the family's own shape: a law refined past the family's range (a compliance's stiffening into a
+                # backlash's narrow flank) is another family's term, judged with the terms taken out
+                refined = refine_load_sign(prob, cur, sc, sizes)
+                sc = refined if refined.atom.family == sc.atom.family else sc
+                if _admitted(prob, cur, sc, z_min):
                     best = sc
                     break
             if best is None:
@@ -593,14 +688,22 @@ def _one_load_law(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_
             chosen = list(cur.chosen) + [(best.atom, best.basis)]
             cur = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
         alt, _ = backward(prob, cur, alpha_select, sizes)
+        if a not in [c for c, _ in alt.chosen] and not any(c.family == a.family for c, _ in alt.chosen):
+            continue  # the family itself did not survive without the others: no reading of its own
+        alt, back = _nested(prob, alt, others, sizes, alpha_select, z_min)
+        if len(back) == len(others):
+            continue  # every term taken out predicts beyond the family: all stay as they were
+        alt, _ = backward(prob, alt, alpha_select, sizes)
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        if _better_rows(prob, alt, fit) > z_min:
+            continue  # together the terms taken out predict the confirmation rows beyond the family: they stay
+        out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
-        if e_alt <= 1.02 * e_now:
-            notes.append(f"{'; '.join(repr(c.label) for c in others)} replaced by the load family's terms of "
-                         f"{', '.join(sorted(targets))} ({'; '.join(c.label for c in new) or 'none'}) beside "
-                         f"'{a.label}': they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
-            alts += [_replaced(a, o, e_alt, e_now) for o in others]
-            fit = alt
+        notes.append(f"{'; '.join(repr(c.label) for c in out)} taken out beside '{a.label}' (the family's own terms in "
+                     f"their place: {'; '.join(c.label for c in new) or 'none'}): not confirmed on the held-out rows "
+                     f"beyond it ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+        alts += [_replaced(a, o, e_alt, e_now) for o in out]
+        fit = alt
     return fit, notes, alts
 
 

@@ -1,0 +1,58 @@
+"""Tests of twin.diagnosis.rule's judgement of an extra term beside a named family: where a kept term acts, and the
+row-by-row comparison of two models on the confirmation rows (the nested test of the terms taken out)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from twin.diagnosis.atoms import Atom
+from twin.diagnosis.rule import _better_rows, _places
+
+
+def _prob(n_joints=6, keep_val=None):
+    return SimpleNamespace(prep=SimpleNamespace(nominal=SimpleNamespace(n_joints=n_joints)), keep_val=keep_val)
+
+
+def _fit(row_errors, coords=3):
+    """A fit whose model predicts each confirmation row with the whitened residual ``row_errors[k]`` on every
+    coordinate of row ``k``."""
+    e = np.asarray(row_errors, float)
+    row = np.repeat(np.arange(e.size), coords)
+    res = SimpleNamespace(r=np.repeat(e, coords), row=row)
+    model = SimpleNamespace(residuals=lambda z, jacobian=True: res, obs=SimpleNamespace(n=e.size))
+    return SimpleNamespace(model_val=model, z=np.zeros(1))
+
+
+def test_a_kept_term_acts_at_its_joint_a_supports_tilt_at_the_joints_its_moment_bends():
+    """A joint term acts at its joint; the base's tilt at itself and joints 2 and 3; a wrist support's tilt at itself
+    and the joints on either side; a link's growth at no joint."""
+    prob = _prob()
+    joint = Atom("cyclic", "joint", "theta4", (), "q4", "joint 4, 1st harmonic", "catalogue", (4,))
+    base = Atom("tilt", "param", "tilt0", (), "", "base tilt", "catalogue")
+    wrist = Atom("tilt", "param", "tilt5", (), "", "support 5 tilt", "catalogue")
+    grow = Atom("thermal", "length", "a2", (), "t_s", "growth of a2", "catalogue")
+    assert _places(prob, joint) == {"theta4"}
+    assert _places(prob, base) == {"tilt0", "theta2", "theta3"}
+    assert _places(prob, wrist) == {"tilt5", "theta4", "theta5", "theta6"}
+    assert _places(prob, grow) == set()
+
+
+def test_rows_each_predicted_better_by_the_other_model_score_beyond_three():
+    """Forty confirmation rows each predicted better with the extra terms score beyond 3 (the terms stay); the same
+    model against itself scores 0; rows left out count for nothing."""
+    rng = np.random.default_rng(3)
+    e = 1.0 + rng.uniform(0.0, 1.0, 40)
+    family_alone, with_extra = _fit(e), _fit(0.8 * e)
+    assert _better_rows(_prob(keep_val=np.ones(40, bool)), family_alone, with_extra) > 3.0
+    assert _better_rows(_prob(keep_val=np.ones(40, bool)), family_alone, family_alone) == 0.0
+    keep = np.zeros(40, bool)
+    keep[:2] = True
+    assert abs(_better_rows(_prob(keep_val=keep), family_alone, with_extra)) < 3.0
+
+
+def test_rows_predicted_better_on_half_and_worse_on_the_other_half_do_not_keep_the_terms():
+    """Rows predicted better and worse alike by the extra terms (an error moved, not removed) score below 3."""
+    rng = np.random.default_rng(4)
+    e = 1.0 + rng.uniform(0.0, 1.0, 40)
+    f = np.where(np.arange(40) % 2 == 0, 0.8, 1.2) * e
+    assert abs(_better_rows(_prob(keep_val=np.ones(40, bool)), _fit(e), _fit(f))) < 3.0
