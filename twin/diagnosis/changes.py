@@ -46,7 +46,7 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event"]
+           "same_event", "started_at"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -134,6 +134,19 @@ def as_step(atom: Atom) -> Atom:
     label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
     return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, "change", atom.joints,
                 dict(atom.meta))
+
+
+def started_at(atom: Atom, at: float) -> Atom:
+    """The step ``atom`` (:func:`is_step`) from ``at`` (its time channel's value) on instead."""
+    f0 = atom.features[0]
+    ch = f0.ch
+    if isinstance(f0, Step):
+        feats = tuple(Step(ch=f.ch, at=float(at)) for f in atom.features)
+    else:
+        feats = tuple(Gated(f=f.f, ch=f.ch, at=float(at)) for f in atom.features)
+    label = re.sub(r"from \S+ \S+ on$", f"from {ch} {at:.6g} on", atom.label)
+    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, atom.pool,
+                atom.joints, dict(atom.meta))
 
 
 def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:

@@ -32,8 +32,9 @@ import numpy as np
 
 from ..estimator.core import prepare
 from ..estimator import distributions as dists
+from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
-                      is_window, row_times, same_event, scan_changes)
+                      is_window, row_times, same_event, scan_changes, started_at)
 from .features import Gated, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
@@ -134,8 +135,64 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     scored = score_atoms(prob, fit0, cands[:1], sizes, exact_top=1)
     if not scored:
         return None, f"a change after the rows that fit ({cands[0].label}) could not be scored: not kept"
-    s = scored[0]
-    return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
+    s, note = _as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
+    got, words = _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
+    return got, words + note
+
+
+EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's event is located as a whole
+
+
+def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
+              t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
+    """The change ``s`` (a step of a joint's zero, scored against ``fit0`` on ``prob``'s rows), or the payload's
+    change the scan found at the same joint (``cands``) read as one event: a payload hangs at the flange and changes
+    the gravity torque of every joint below it at once (:func:`payload_event`), so the event is that joint's change
+    with the same change at every other joint's payload place (:func:`~twin.diagnosis.changes.same_event`) added
+    while significant after the factor of the places tried. The event replaces the zero's step where its
+    ``Delta chi2`` beyond the step's exceeds ``chi2`` of its extra columns at ``alpha`` (``k_event - k_step`` degrees
+    of freedom, at least one); its start is then the row (``t_rows``: the rows' times, sorted), within
+    :data:`EVENT_ROWS` of the two candidates' starts, at which the whole event fits the rows best (each joint's start
+    alone is located less surely than all of them together). Returns the change to confirm and a note (empty when
+    ``s`` stands)."""
+    a = s.atom
+    if not (is_step(a) and a.place == "joint" and not is_load_change(a)):
+        return s, ""
+    alts = [c for c in cands if is_load_change(c) and is_step(c) and c.target == a.target]
+    if not alts:
+        return s, ""
+    first = score_atoms(prob, fit0, alts[:1], sizes, exact_top=1)
+    if not first:
+        return s, ""
+    lead = first[0]
+    fit = refit_with(prob, fit0, list(fit0.chosen) + [(lead.atom, lead.basis)])
+    k_event = lead.basis.shape[1]
+    others = same_event(lead.atom, places)
+    while others:
+        got = score_atoms(prob, fit, others, {c.pool: 1 for c in others}, exact_top=len(others))
+        logp = [chi2_logsf(g.dchi2 / prob.evidence_scale, g.basis.shape[1]) + np.log(len(others)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        g = got[int(np.argmin(logp))]
+        fit = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
+        k_event += g.basis.shape[1]
+        others = [c for c in others if c.target != g.atom.target]
+    gain = (fit0.chi2 - fit.chi2 - s.dchi2) / prob.evidence_scale
+    extra = max(k_event - s.basis.shape[1], 1)
+    # scored again against fit0 (a Scored reads its columns from the last scoring of the problem)
+    if gain <= chi2_isf(alpha, extra):
+        return score_atoms(prob, fit0, [a], sizes, exact_top=1)[0], ""
+    members = list(fit.chosen[len(fit0.chosen):])
+    ats = sorted((float(a.features[0].at), float(lead.atom.features[0].at)))
+    i0, i1 = np.searchsorted(t_rows, ats[0]), np.searchsorted(t_rows, ats[1])
+    best, best_at = fit, float(lead.atom.features[0].at)
+    for t in t_rows[max(i0 - EVENT_ROWS, 1):i1 + EVENT_ROWS + 1]:
+        trial = refit_with(prob, fit0, list(fit0.chosen) + [(started_at(c, t), B) for c, B in members])
+        if trial.chi2 < best.chi2:
+            best, best_at = trial, float(t)
+    lead = score_atoms(prob, fit0, [started_at(lead.atom, best_at)], sizes, exact_top=1)[0]
+    return lead, (f"; read as a payload's change ({lead.atom.label} with the same change at every loaded joint "
+                  f"beside it: Delta chi2 {gain:.1f} beyond {a.label} for {extra} more columns)")
 
 
 def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str, z_min: float,
