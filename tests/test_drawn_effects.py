@@ -197,7 +197,6 @@ def test_the_size_is_the_drawn_ratio_to_the_noise():
 SEEDS = (100, 101)
 # instances the current diagnosis fails: (family, seed) -> what was measured (the instance in brackets)
 KNOWN_MISSES: dict[tuple[str, int], str] = {
-    ('compliance', 101): 'later rows after/oracle 1.22 > 1.2 (joints 2, two_stiffness)',
     ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
     ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
     ('backlash_load', 101): 'later rows after/oracle 2.31 > 1.2 (joint 2, sharp)',
