@@ -166,17 +166,8 @@ def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[Cha
         return s, ""
     lead = first[0]
     fit = refit_with(prob, fit0, list(fit0.chosen) + [(lead.atom, lead.basis)])
-    k_event = lead.basis.shape[1]
-    others = same_event(lead.atom, places)
-    while others:
-        got = score_atoms(prob, fit, others, {c.pool: 1 for c in others}, exact_top=len(others))
-        logp = [chi2_logsf(g.dchi2 / prob.evidence_scale, g.basis.shape[1]) + np.log(len(others)) for g in got]
-        if not got or min(logp) >= np.log(alpha):
-            break
-        g = got[int(np.argmin(logp))]
-        fit = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
-        k_event += g.basis.shape[1]
-        others = [c for c in others if c.target != g.atom.target]
+    fit, added = _while_significant(prob, fit, same_event(lead.atom, places), alpha=alpha)
+    k_event = lead.basis.shape[1] + sum(g.basis.shape[1] for g, _, _ in added)
     gain = (fit0.chi2 - fit.chi2 - s.dchi2) / prob.evidence_scale
     extra = max(k_event - s.basis.shape[1], 1)
     # scored again against fit0 (a Scored reads its columns from the last scoring of the problem)
@@ -455,6 +446,24 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
     return out
 
 
+def _while_significant(prob: Problem, fit: Fit, cands: list, *, alpha: float) -> tuple[Fit, list]:
+    """The strongest of ``cands`` joins ``fit`` while significant on ``prob``'s calibration rows after the factor of the
+    candidates left (``chi2`` of its columns at ``alpha`` over their number); each one added leaves the candidates.
+    Returns the fit and, per term added, ``(scored, p adjusted, candidates counted)``."""
+    added = []
+    while cands:
+        got = score_atoms(prob, fit, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
+        logp = [chi2_logsf(g.dchi2 / prob.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
+        if not got or min(logp) >= np.log(alpha):
+            break
+        k = int(np.argmin(logp))
+        g = got[k]
+        fit = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
+        added.append((g, float(np.exp(logp[k])), len(cands)))
+        cands = [a for a in cands if a.key != g.atom.key]
+    return fit, added
+
+
 def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> tuple[Fit, list, list[str]]:
     """A joint whose compliance changes with a payload (a kept change of its gravity-torque shapes, a step or a
     window) carries the arm's own weight on every row through the same compliance
@@ -468,20 +477,10 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
     have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
     cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
              and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
-    found, notes = [], []
-    while cands:
-        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
-        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
-        if not got or min(logp) >= np.log(alpha):
-            break
-        k = int(np.argmin(logp))
-        g = got[k]
-        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
-        found.append((g.atom, float(g.dchi2)))
-        notes.append(f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight "
-                     f"on every row; p = {np.exp(logp[k]):.2g} after the factor {len(cands)} of the joints tried)")
-        cands = [a for a in cands if a.target != g.atom.target]
-    return use_all, found, notes
+    use_all, added = _while_significant(prob_all, use_all, cands, alpha=alpha)
+    notes = [f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight on "
+             f"every row; p = {p:.2g} after the factor {n} of the joints tried)" for g, p, n in added]
+    return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
 
 
 def is_load_change(atom) -> bool:
@@ -516,27 +515,14 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
         notes.append(f"one payload, one timing: the changes of the joints' compliance from {at:.6g} take one end "
                      f"({[a.label for k, (a, _) in enumerate(use_all.chosen) if k in idx][0]}; {len(ends)} ends "
                      "compared on every row)")
-    found = []
-    while True:
-        events = {(float(a.features[0].at), a.features[0].until): a for a, _ in use_all.chosen if is_load_change(a)}
-        held = {(a.target, float(a.features[0].at), a.features[0].until) for a, _ in use_all.chosen
-                if is_load_change(a)}
-        cands = [c for a in events.values() for c in same_event(a, places)
-                 if (c.target, float(c.features[0].at), c.features[0].until) not in held]
-        if not cands:
-            break
-        got = score_atoms(prob_all, use_all, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
-        logp = [chi2_logsf(g.dchi2 / prob_all.evidence_scale, g.basis.shape[1]) + np.log(len(cands)) for g in got]
-        if not got or min(logp) >= np.log(alpha):
-            break
-        k = int(np.argmin(logp))
-        g = got[k]
-        use_all = refit_with(prob_all, use_all, list(use_all.chosen) + [(g.atom, g.basis)])
-        found.append((g.atom, float(g.dchi2)))
-        notes.append(f"the same payload at another joint: {g.atom.label} (one event loads every joint below the "
-                     f"flange; p = {np.exp(logp[k]):.2g} on every row after the factor {len(cands)} of the places "
-                     "tried)")
-    return use_all, found, notes
+    events = {(float(a.features[0].at), a.features[0].until): a for a, _ in use_all.chosen if is_load_change(a)}
+    held = {(a.target, float(a.features[0].at), a.features[0].until) for a, _ in use_all.chosen if is_load_change(a)}
+    cands = [c for a in events.values() for c in same_event(a, places)
+             if (c.target, float(c.features[0].at), c.features[0].until) not in held]
+    use_all, added = _while_significant(prob_all, use_all, cands, alpha=alpha)
+    notes += [f"the same payload at another joint: {g.atom.label} (one event loads every joint below the flange; "
+              f"p = {p:.2g} on every row after the factor {n} of the places tried)" for g, p, n in added]
+    return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
 
 
 

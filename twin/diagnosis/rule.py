@@ -589,6 +589,20 @@ def _better_rows(prob: Problem, fit: Fit, other: Fit) -> float:
     return signed_rank_z(d[np.isfinite(d)])
 
 
+def _first_admitted(prob: Problem, fit: Fit, cands: list[Atom], sizes: dict, alpha_select: float, z_min: float, *,
+                    top: int | None = None, reshape=None):
+    """The strongest of ``cands`` against ``fit`` (by ``Delta chi2``, among those significant after their pool's
+    factor at ``alpha_select``; the first ``top`` of them) that the forward pass' rules admit (:func:`_admitted`),
+    each first passed through ``reshape`` when given; None when none is."""
+    scored = sorted((sc for sc in score_atoms(prob, fit, cands, sizes, exact_top=len(cands))
+                     if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
+    for sc in scored[:top]:
+        sc = reshape(sc) if reshape is not None else sc
+        if _admitted(prob, fit, sc, z_min):
+            return sc
+    return None
+
+
 def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_select: float,
             z_min: float) -> tuple[Fit, list[Atom]]:
     """``fit`` with those of the terms ``extra`` that predict the confirmation rows beyond it, added back one at a time
@@ -598,13 +612,7 @@ def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_selec
     back: list[Atom] = []
     left = list(extra)
     while left:
-        got = None
-        scored = sorted((sc for sc in score_atoms(prob, fit, left, sizes, exact_top=len(left))
-                         if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
-        for sc in scored:
-            if _admitted(prob, fit, sc, z_min):
-                got = sc
-                break
+        got = _first_admitted(prob, fit, left, sizes, alpha_select, z_min)
         if got is None:
             break
         chosen = list(fit.chosen) + [(got.atom, got.basis)]
@@ -672,17 +680,13 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
             cands = _own_candidates(prob, cur, pool, a, targets, have)
             if not cands:
                 break
-            scored = sorted((sc for sc in score_atoms(prob, cur, cands, sizes, exact_top=len(cands))
-                             if sc.logp_adj < np.log(alpha_select)), key=lambda sc: -sc.dchi2)
-            best = None
-            for sc in scored[:3]:
+            def own_shape(sc, cur=cur):
                 # the family's own shape: a law refined past the family's range (a compliance's stiffening into a
                 # backlash's narrow flank) is another family's term, judged with the terms taken out
                 refined = refine_load_sign(prob, cur, sc, sizes)
-                sc = refined if refined.atom.family == sc.atom.family else sc
-                if _admitted(prob, cur, sc, z_min):
-                    best = sc
-                    break
+                return refined if refined.atom.family == sc.atom.family else sc
+
+            best = _first_admitted(prob, cur, cands, sizes, alpha_select, z_min, top=3, reshape=own_shape)
             if best is None:
                 break
             chosen = list(cur.chosen) + [(best.atom, best.basis)]
