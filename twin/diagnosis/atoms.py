@@ -42,10 +42,10 @@ from dataclasses import dataclass, field
 
 from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
-from .features import Const, Feature, Hinge, Play, feature_from_dict
+from .features import Const, Feature, Hinge, Play, Sign, feature_from_dict
 
 __all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS", "HINGE_POINTS",
-           "play_backlash", "hinge_atom", "joint_words", "tilt_axis", "tilt_coefficient"]
+           "sign_backlash", "play_backlash", "hinge_atom", "joint_words", "tilt_axis", "tilt_coefficient"]
 
 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
@@ -119,6 +119,13 @@ class Atom:
                    features=tuple(feature_from_dict(f) for f in d["features"]),
                    channel=d.get("channel", ""), label=d.get("label", ""), pool=d.get("pool", ""),
                    joints=tuple(d.get("joints", ())))
+
+
+def sign_backlash(j: int, name: str | None = None) -> Atom:
+    """Joint ``j``'s backlash as an offset signed by the direction of its last move (the catalogue's); ``name``: the
+    joint's words in the label (default its number)."""
+    return Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
+                f"joint {name or j} backlash (offset signed by the direction of its last move)", "catalogue", (j,))
 
 
 def play_backlash(j: int, h: float) -> Atom:

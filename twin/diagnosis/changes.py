@@ -125,28 +125,25 @@ def as_window(atom: Atom, until: float) -> Atom:
 
 def as_step(atom: Atom) -> Atom:
     """The change ``atom`` (a step or a window) from its start on, without an end: a step, in the step pool."""
-    f0 = atom.features[0]
-    ch, at = f0.ch, float(f0.at)
-    if isinstance(f0, (Step, Window)):
-        feats = tuple(Step(ch=f.ch, at=f.at) for f in atom.features)
-    else:
-        feats = tuple(Gated(f=f.f, ch=f.ch, at=f.at) for f in atom.features)
-    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
-    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, "change", atom.joints,
-                dict(atom.meta))
+    return _step(atom, float(atom.features[0].at), "change")
 
 
 def started_at(atom: Atom, at: float) -> Atom:
     """The step ``atom`` (:func:`is_step`) from ``at`` (its time channel's value) on instead."""
-    f0 = atom.features[0]
-    ch = f0.ch
-    if isinstance(f0, Step):
-        feats = tuple(Step(ch=f.ch, at=float(at)) for f in atom.features)
+    return _step(atom, float(at), atom.pool)
+
+
+def _step(atom: Atom, at: float, pool: str) -> Atom:
+    """The change ``atom``'s features from ``at`` on without an end (a step, or a gated shape), its label to match,
+    in ``pool``."""
+    ch = atom.features[0].ch
+    if isinstance(atom.features[0], (Step, Window)):
+        feats = tuple(Step(ch=f.ch, at=at) for f in atom.features)
     else:
-        feats = tuple(Gated(f=f.f, ch=f.ch, at=float(at)) for f in atom.features)
-    label = re.sub(r"from \S+ \S+ on$", f"from {ch} {at:.6g} on", atom.label)
-    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, atom.pool,
-                atom.joints, dict(atom.meta))
+        feats = tuple(Gated(f=f.f, ch=f.ch, at=at) for f in atom.features)
+    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
+    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, pool, atom.joints,
+                dict(atom.meta))
 
 
 def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:

@@ -84,6 +84,7 @@ __all__ = [
     "geometry_candidates",
     "report_before_after",
     "every_row_changes",
+    "on_rows",
     "refit_on_every_row",
     "describe_terms",
     "implausible_size",
@@ -279,53 +280,58 @@ def diagnose(
     places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"], setup.ctx.q)
     late_gate = bool(pool) and prob.test(use).p_value < alpha
 
-    def models(rows: np.ndarray | None):
-        geo_x, ext_x, prob_x = refit_on_every_row(setup, base, ext, rows=rows)
+    before_report = np.ones(setup.dataset.n, bool)
+    if prob.obs_rep is not None:
+        before_report[prob.rows_rep] = False
+    refits: dict[bool, tuple] = {}  # the chosen models refitted on every row (False) or every row before the report
+
+    def refit(pre: bool) -> tuple[Fit, Fit | None, Problem]:
+        if pre not in refits:
+            refits[pre] = refit_on_every_row(setup, base, ext, rows=before_report if pre else None)
+        return refits[pre]
+
+    def models(pre: bool):
+        geo_x, ext_x, prob_x = refit(pre)
         ab = after_blocks(setup, prob_x, ext_x if ext_x is not None else geo_x, pool, places, late=late_gate,
                           alpha=alpha_select, z_min=z_min)
         return geo_x, (ab.fit if ext_x is not None or ab.found else None), prob_x, ab
 
-    geo_all, ext_all, prob_all, after_all = models(None)
+    def blocked_extended(prob_x: Problem, after: AfterBlocks, fit: Fit) -> None:
+        # the report's extended model: ``fit`` on the rows before the report block, what they hold after the blocks
+        cal_rep, _, _ = describe_models(setup, prob_x, geo_all, ext_all, atoms_json, after, fit=on_rows(prob_x, fit))
+        calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+
+    geo_all, ext_all, prob_all, after_all = models(False)
     rep = report_before_after(prob, base, ext)
     calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
     fit_rep, prob_pre, use_rep = None, None, use
-    before_report = np.ones(setup.dataset.n, bool)
-    if prob.obs_rep is not None:
-        before_report[prob.rows_rep] = False
     if prob.obs_rep is not None and ext is not None and any(retimeable(a) for a, _ in ext.chosen):
         # a thermal term (the air's temperature, the motors' heat: a state that moves with time): the report rows read
         # the model refitted on every row before them, the air's time constants refined there, as the rows after the
         # campaign read it refitted on every row
-        _, ext_pre, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
-        use_rep = Fit(ext_pre.chosen, ext_pre.z, ext_pre.free, float("nan"), prob.model(ext_pre.chosen, "cal"),
-                      prob.model(ext_pre.chosen, "val"))
+        _, ext_pre, prob_pre = refit(True)
+        use_rep = on_rows(prob, ext_pre)
         note = report_before_after(prob, base, use_rep)
         note["note"] += ("; the report rows read the model with its thermal terms refitted on every row before the "
                          "report block (the time constants of the air refined there)")
         rep = note
         rep["held_out"]["report_state"] = "thermal terms refitted on every row before the report block"
-        cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, AfterBlocks(ext_pre, (), ()),
-                                        fit=ext_pre)
-        calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+        blocked_extended(prob_pre, AfterBlocks(ext_pre, (), ()), ext_pre)
     if prob.obs_rep is not None and (after_all.found or after_all.changed):
         # the report rows read the state the rows before them leave (a change found there, with its size as they show
         # it), as the rows after the campaign read the state every row leaves; all else as the calibration rows fitted it
-        _, _, prob_pre, after_pre = models(before_report)
+        _, _, prob_pre, after_pre = models(True)
         if not (after_pre.found or after_pre.changed):
             after_pre = AfterBlocks(use_rep, (), ())
         else:
             fit_rep = with_found(prob, prob_pre, use_rep, after_pre.fit)
             rep = report_before_after(prob, base, fit_rep, found=[a.label for a, *_ in after_pre.found])
-            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json, after_pre,
-                                            fit=Fit(fit_rep.chosen, fit_rep.z, fit_rep.free, float("nan"),
-                                                    prob_pre.model(fit_rep.chosen, "cal"),
-                                                    prob_pre.model(fit_rep.chosen, "val")))
-            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+            blocked_extended(prob_pre, after_pre, fit_rep)
     if prob.obs_rep is not None and ext_all is not None and any(is_change(a) for a, _ in ext_all.chosen):
         # the report rows read the changes where every row places them (a kept step that ends, a change late in the
         # campaign), their sizes as the rows before the report block show them
         if prob_pre is None:
-            _, _, prob_pre = refit_on_every_row(setup, base, ext, rows=before_report)
+            _, _, prob_pre = refit(True)
         if fit_rep is None:
             after_pre = AfterBlocks(use_rep, (), ())
         got = every_row_changes(prob, prob_pre, fit_rep if fit_rep is not None else use_rep, ext_all, len(use.chosen))
@@ -339,12 +345,7 @@ def diagnose(
                                   + "; ".join(a.label for a, _ in fit_state.chosen if is_change(a))
                                   + "), their sizes as the rows before the report block show them")
             rep["held_out"]["report_state"] = (rep_state + "; " if rep_state else "") + "changes timed on every row"
-            cal_rep, _, _ = describe_models(setup, prob_pre, geo_all, ext_all, atoms_json,
-                                            AfterBlocks(fit_state, found, ()),
-                                            fit=Fit(fit_state.chosen, fit_state.z, fit_state.free, float("nan"),
-                                                    prob_pre.model(fit_state.chosen, "cal"),
-                                                    prob_pre.model(fit_state.chosen, "val")))
-            calibrations_blocked["extended"] = replace(cal_rep, details=ext_blocked.details)
+            blocked_extended(prob_pre, AfterBlocks(fit_state, found, ()), fit_state)
     rep["held_out"].update(held_out_rows=setup.held_out.sets, blocks=setup.held_out.rule)
     candidate_terms: tuple = ()
     calibration_candidate = None
@@ -655,6 +656,12 @@ def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
                       ftol=1e-10, stage="report")
     free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)
     return Fit(chosen, gn.x, free, float("nan"), prob.model(chosen, "cal"), prob.model(chosen, "val"))
+
+
+def on_rows(prob: Problem, fit: Fit) -> Fit:
+    """``fit``'s terms and values as a model of ``prob``'s rows (its calibration and confirmation models; the chi2
+    left unknown)."""
+    return Fit(fit.chosen, fit.z, fit.free, float("nan"), prob.model(fit.chosen, "cal"), prob.model(fit.chosen, "val"))
 
 
 def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_kept: int

@@ -13,7 +13,8 @@ import numpy as np
 
 from ..kinematics import RobotModel
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, Atom, hinge_atom, joint_words
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, Atom, hinge_atom, joint_words,
+                    sign_backlash)
 from .candidates import RowContext, carried_moments, gravity_torque_regressor, gravity_torques, has_masses
 from .features import (CartDir, Const, Cos, Exp, Feature, Gated, GravityDir, Heat, Lag, LastMove, Moment, Pow,
                        Prod, Settle, Sign, Sin, Station, Step, StepIn, Torque)
@@ -155,8 +156,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                               f"{where} under the gravity moment it carries, stiffer about one axis than the other "
                               "(URDF masses)", "catalogue", (i,) if i else ()))
     for j in range(1, N + 1):
-        atoms.append(Atom("backlash", "joint", f"theta{j}", (Sign(j=j),), f"approach_sign_j{j}",
-                          f"joint {jw(j)} backlash (offset signed by the direction of its last move)", "catalogue", (j,)))
+        atoms.append(sign_backlash(j, jw(j)))
         for w, law in ((w, law) for law in BACKLASH_MOVE_LAWS for w in BACKLASH_MOVE_WIDTHS_DEG):
             # a backlash whose size follows the size of the last move (the gear taken up by a short move only part
             # of the way, or wound up in proportion to it): signed by the last move, saturating smoothly

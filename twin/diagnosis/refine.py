@@ -13,9 +13,9 @@ import numpy as np
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
 from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
-                    joint_words, play_backlash)
+                    joint_words, play_backlash, sign_backlash)
 from .extend import error_stats, reduced_basis
-from .features import Exp, Feature, Heat, Lag, Pow, Sign, Step, StepIn
+from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
 from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
@@ -84,9 +84,7 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
              for t in targets]
     # the joint's sign backlash, scored here where the round's pool no longer holds it (rejected in an earlier round:
     # its size law is the same backlash and no better reading of it)
-    signs = [Atom("backlash", "joint", t, (Sign(j=int(t[5:])),), f"approach_sign_j{t[5:]}",
-                  f"joint {t[5:]} backlash (offset signed by the direction of its last move)", "catalogue", (int(t[5:]),))
-             for t in targets if t not in sign]
+    signs = [sign_backlash(int(t[5:])) for t in targets if t not in sign]
     for s in score_atoms(prob, fit, steps + signs, pool_sizes, exact_top=len(steps) + len(signs)):
         rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
     bar = dists.chi2_isf(0.01 / (len(BACKLASH_MOVE_WIDTHS_DEG) * len(BACKLASH_MOVE_LAWS)), 1) * prob.evidence_scale
