@@ -11,8 +11,9 @@ effect category <= 1.5x the oracle after the campaign. A campaign that misses a 
 (KNOWN_MISSES, with the target it misses): when it is fixed the test fails until it is taken off the list.
 Campaigns whose extended model reads the order of the moves, a lagged temperature, the motion heat or the row
 order also predict every held-out row alone as inside the whole file (except rows flagged as lacking history).
-The suite runs every 6th campaign of each batch (``SUITE_EVERY``) as a regression; the rate benchmark
-(``experiments/bench_diagnosis_rates.py``, ``TWIN_FULL_RATES=1``) and ``studies/blind/run.py`` run all of them.
+The suite runs every 6th campaign of each batch (``SUITE_EVERY``) as a regression, and its generators write only
+those (``--names``); the rate benchmark (``experiments/bench_diagnosis_rates.py``, ``TWIN_FULL_RATES=1``) and
+``studies/blind/run.py`` run all of them.
 """
 
 import json
@@ -96,10 +97,18 @@ def _params():
     return out
 
 
+PARAMS = _params()
+
+
 def _builder(gen: str):
+    """Writes generator ``gen``'s campaigns this session runs (``--names``; every one under ``FULL_RATES``): a
+    campaign's bytes depend on the batch's seed and its name only, not on which others are written beside it."""
+    names = [p.values[1] for p in PARAMS if p.values[0] == gen]
+
     def build(out: Path) -> None:
+        subset = [] if FULL_RATES else ["--names", *names]
         subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out",
-                        str(out), "--seed", str(GENERATORS[gen])], check=True, capture_output=True)
+                        str(out), "--seed", str(GENERATORS[gen]), *subset], check=True, capture_output=True)
 
     return build
 
@@ -125,7 +134,7 @@ ORDERED = ("sign", "play", "lastmove", "stepin", "cartdir", "lag", "heat")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("gen,name,category", _params())
+@pytest.mark.parametrize("gen,name,category", PARAMS)
 def test_blind_campaign_meets_its_category_targets(tmp_path_factory, tmp_path, gen, name, category):
     """The diagnosis meets the targets of the campaign's category (module docstring), and a held-out row predicted
     alone reads what it reads inside the whole file."""
@@ -159,3 +168,18 @@ def test_blind_campaign_meets_its_category_targets(tmp_path_factory, tmp_path, g
         assert np.all(same | got["flagged"]), f"{int(np.sum(~same & ~got['flagged']))} rows differ unflagged"
         if not any(f.get("kind") in ORDERED[:5] for f in feats):
             assert not got["flagged"].any()  # no order-dependent term: nothing to flag
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gen", list(GENERATORS))
+def test_a_campaign_written_alone_is_the_campaign_its_batch_holds(tmp_path_factory, tmp_path, gen):
+    """A generator's campaign written alone (``--names``) has the bytes of the same campaign written with the others
+    of the session's batch: the suite may write only the campaigns it runs."""
+    batch = _batch(tmp_path_factory, gen)
+    name = [p.values[1] for p in PARAMS if p.values[0] == gen][-1]
+    subprocess.run([sys.executable, str(STUDY / "generators" / f"generator_{gen}" / "make_all.py"), "--out",
+                    str(tmp_path), "--seed", str(GENERATORS[gen]), "--names", name], check=True, capture_output=True)
+    together, alone = _folder(batch, name), _folder(tmp_path, name)
+    files = sorted(p.relative_to(together) for p in together.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(alone) for p in alone.rglob("*") if p.is_file())
+    assert all((together / f).read_bytes() == (alone / f).read_bytes() for f in files)

@@ -132,12 +132,16 @@ def main(argv=None):
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--only", default="", help="comma-separated internal tags (debugging)")
+    ap.add_argument("--names", nargs="*", default=None, help="write only these campaigns (folder names, e.g. c01 c07); the others are left as they are")
     args = ap.parse_args(argv)
     t0 = time.time()
     S = specs()
     rng = np.random.default_rng(args.seed)
     order = rng.permutation(len(S))
-    if os.path.isdir(args.out) and not args.only:
+    known = {f"c{k + 1:02d}" for k in range(len(S))}
+    if args.names is not None and set(args.names) - known:
+        ap.error(f"unknown campaign names: {sorted(set(args.names) - known)}")
+    if os.path.isdir(args.out) and not args.only and args.names is None:
         shutil.rmtree(args.out)
     os.makedirs(args.out, exist_ok=True)
     index = []
@@ -147,13 +151,15 @@ def main(argv=None):
         name = f"c{pos + 1:02d}"
         if only and spec["tag"] not in only:
             continue
+        if args.names is not None and name not in args.names:
+            continue
         res = campaign.build(spec, args.seed, args.out, name)
         row = write.write_campaign(spec, res, args.out, name, args.seed, spec["cat"], spec["expected"])
         index.append(row)
         print(f"{name} {spec['tag']:4s} {spec['cat']:9s} rows={row['rows']} noise={row['noise']} "
               f"left/noise={[round(e['left'] / res['sigma_ref'], 2) for e in res['eff_out']]} "
               f"all={res['left_all'] / res['sigma_ref']:.2f} amp/phys={[round(e['eff'].amp / e['amp_phys'], 2) for e in res['eff_out']]} ({time.time() - t0:.1f} s)", flush=True)
-    if not only:
+    if not only and args.names is None:
         with open(os.path.join(args.out, "index.csv"), "w", newline="") as f:
             w = csv.DictWriter(f, ["name", "category", "rows", "noise", "channels", "stations", "repeats"], lineterminator="\n")
             w.writeheader()

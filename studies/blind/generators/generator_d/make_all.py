@@ -163,11 +163,14 @@ def main(argv=None):
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--only", type=int, nargs="*", help="spec indices (debug)")
+    ap.add_argument("--names", nargs="*", default=None, help="write only these campaigns (folder names, e.g. d01 d07); the others are left as they are")
     a = ap.parse_args(argv)
     n = len(SPECS)
     perm = np.random.default_rng([a.seed, 999]).permutation(n)
     names = [f"d{perm[i] + 1:02d}" for i in range(n)]
-    if os.path.isdir(a.out) and not a.only:
+    if a.names is not None and set(a.names) - set(names):
+        ap.error(f"unknown campaign names: {sorted(set(a.names) - set(names))}")
+    if os.path.isdir(a.out) and not a.only and a.names is None:
         for d in os.listdir(a.out):
             p = os.path.join(a.out, d)
             if os.path.isdir(p) and len(d) == 3 and d.startswith("d"):
@@ -177,11 +180,13 @@ def main(argv=None):
     for i, spec in enumerate(SPECS):
         if a.only and i not in a.only:
             continue
+        if a.names is not None and names[i] not in a.names:
+            continue
         c = build(spec, a.seed, i, names[i])
         rows.append(write(c, a.out))
         print(f"{names[i]} [{i:2d}] {spec['category']:9s} rows {c['n_data']:3d} "
               f"effects {[round(r, 4) for r in c['per_effect']]}", flush=True)
-    if not a.only:
+    if not a.only and a.names is None:
         rows.sort(key=lambda r: r["name"])
         with open(os.path.join(a.out, "index.csv"), "w", newline="\n") as f:
             f.write("name,category,rows,noise,channels,stations\n")

@@ -24,7 +24,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=31)
-    ap.add_argument("--only", nargs="*", default=None, help="campaign folder names, e.g. e03 e17")
+    ap.add_argument("--only", "--names", nargs="*", default=None, help="campaign folder names, e.g. e03 e17")
     a = ap.parse_args(argv)
     nm = names(a.seed)
     inv = {v: k for k, v in nm.items()}

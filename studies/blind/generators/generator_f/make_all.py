@@ -27,7 +27,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=43)
-    ap.add_argument("--only", nargs="*", default=None, help="campaign folder names, e.g. f03 f17")
+    ap.add_argument("--only", "--names", nargs="*", default=None, help="campaign folder names, e.g. f03 f17")
     a = ap.parse_args(argv)
     nm = names(a.seed)
     inv = {v: k for k, v in nm.items()}
