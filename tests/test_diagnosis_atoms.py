@@ -402,3 +402,33 @@ def test_every_feature_reads_the_same_on_rows_that_continue():
         assert np.allclose(feature_values(a.features, full, ds.robot)[:k], feature_values(a.features, part, ds.robot),
                            rtol=1e-9, atol=1e-12), a.label
     assert {"heat", "lag", "exp", "settle", "stepin", "cartdir", "gated", "step", "sign", "lastmove"} <= kinds
+
+
+def test_the_catalogue_reads_the_heat_of_each_moving_motor_on_each_link():
+    """The thermal catalogue of a campaign with t_s offers, per link and for all links, the heat of each motor group
+    alone, of the groups with a warm-up, and of every joint that moves alone, a joint that travels little beside a
+    wide-ranging wrist joint included; a joint that never moves has no heat of its own."""
+    from twin.diagnosis.candidates import RowContext
+    from twin.diagnosis.features import Heat
+    from twin.diagnosis.pools import catalogue_atoms, heat_alternatives
+    from twin.robots import irb1200
+
+    rng = np.random.default_rng(3)
+    n = 60
+    q = rng.uniform(-0.5, 0.5, size=(n, 6))
+    q[:, 0] = 0.01 * rng.uniform(size=n)  # joint 1 travels little
+    q[:, 5] = rng.uniform(-3.0, 3.0, size=n)  # joint 6 sweeps a wide range
+    q[:, 3] = 0.2  # joint 4 never moves
+    ctx = RowContext(q=q, t_s=np.cumsum(rng.uniform(10.0, 30.0, size=n)))
+    cat = catalogue_atoms(irb1200(), ctx, ["a3", "d4"])
+    heat = {(a.target, tuple(f.joints for f in a.features if isinstance(f, Heat))) for a in cat
+            if a.family == "thermal" and any(isinstance(f, Heat) for f in a.features)}
+    for target in ("all_lengths", "a3", "d4"):
+        assert {(target, ((j,),)) for j in (1, 2, 3, 5, 6)} <= heat
+        assert (target, ((4,),)) not in heat
+        assert {(target, ((1, 2, 3),)), (target, ((4, 5, 6),)), (target, ((1, 2, 3), (4, 5, 6)))} <= heat
+    one = next(a for a in cat if a.target == "a3" and a.channel.startswith("joint 1's motion heat"))
+    alts = heat_alternatives(ctx, one)
+    assert all(a.target == "a3" and a.family == "thermal" for a in alts)
+    assert {tuple(f.joints for f in a.features if isinstance(f, Heat)) for a in alts} >= {((1, 2, 3),), ((6,),)}
+    assert ((1,),) not in {tuple(f.joints for f in a.features if isinstance(f, Heat)) for a in alts}

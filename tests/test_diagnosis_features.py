@@ -193,3 +193,21 @@ def test_the_air_s_step_and_ramp_through_the_lag_is_the_lag_of_their_input():
     ctx = RowContext(q=np.zeros((len(rows), 6)), t_s=rows)
     held = np.where(t <= 110.0, ramp, 0.5)
     np.testing.assert_allclose(feature_values((f,), ctx, irb1200())[:, 0], lagged(held, 30.0)[::4000], atol=2e-4)
+
+
+def test_a_lagged_temperature_reads_the_channel_linear_between_rows():
+    """A Lag feature of temp_c equals the lag of the recorded temperature interpolated linearly between the rows
+    (integrated finely), across gaps of many time constants and a repeat at one time: a ramp recorded before and
+    after a pause is not read as a jump at the pause's start."""
+    rows = np.array([0.0, 20.0, 40.0, 40.0, 300.0, 320.0, 900.0, 910.0])
+    temp = np.array([20.0, 20.1, 20.2, 20.2, 22.0, 22.1, 20.5, 20.4])
+    ctx = RowContext(q=np.zeros((len(rows), 6)), t_s=rows, temp_c=temp)
+    f = Lag(ch="temp_c", tau=60.0, c=20.0, h=1.0)
+    t = np.linspace(0.0, 910.0, 910001)
+    u = np.interp(t, rows, temp)
+    y = np.empty_like(u)
+    y[0] = u[0]
+    a = -np.expm1(-(t[1] - t[0]) / 60.0)
+    for k in range(1, len(t)):
+        y[k] = y[k - 1] + a * (0.5 * (u[k] + u[k - 1]) - y[k - 1])
+    np.testing.assert_allclose(feature_values((f,), ctx, irb1200())[:, 0], np.interp(rows, t, y) - 20.0, atol=1e-4)

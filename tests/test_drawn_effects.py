@@ -260,3 +260,13 @@ def test_the_report_rows_read_a_thermal_term_refitted_on_the_rows_before_them(tm
     assert r["report"]["after_over_oracle"] <= 1.2
     held = json.loads((tmp_path / "work" / "diagnosis" / "diagnosis.json").read_text())["held_out"]
     assert held["report_state"].startswith("thermal terms refitted")
+
+
+def test_one_link_grown_by_one_motors_heat_is_read_with_that_motor(tmp_path):
+    """A drawn motion-heat instance (seed 153, small: a UR5's upper arm growing with joint 2's heat alone): named
+    thermal against joint 2's heat of that one link, within 1.2x the oracle on the rows after the campaign."""
+    r = _scored(tmp_path, "motion_heat", 153)
+    assert r["params"]["heat_joints"] == [2] and len(r["params"]["links"]) == 1
+    assert r["named"] and len(r["labels"]) == 1 and "joint 2's motion heat" in r["labels"][0], r["labels"]
+    assert "all link lengths" not in r["labels"][0]
+    assert r["test"]["after_over_oracle"] <= 1.2

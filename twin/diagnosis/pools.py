@@ -22,7 +22,7 @@ from .field import field_applicable, field_atom_specs, field_constants
 from .loads import load_atoms, torque_shapes
 from .values import channel, motion_heat
 
-__all__ = ["catalogue_atoms", "generic_atoms", "wrist_couplings"]
+__all__ = ["catalogue_atoms", "generic_atoms", "heat_alternatives", "heat_variants", "wrist_couplings"]
 
 
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
@@ -228,26 +228,8 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                     for at in np.quantile(ctx.t_s, ONSET_QUANTILES):
                         f = Exp(ch="t_s", t0=float(at), tau=float(tau))
                         variants.append(((f,), f"the air's step at t_s {at:.6g}, lagged {tau:.4g} s"))
-            # the motors' holding current heats too, from servo-on: the same lag applied to a constant input
-            # the arm's motors (joints 1-3) and the wrist's (4-6) each heat what is near them
-            heat = [Heat(tau=float(tau), joints=tuple(js),
-                     h=float(max(np.mean(motion_heat(ctx, float(tau), tuple(js))), 1e-9)))
-                    for js in (list(range(1, N - 2)), list(range(N - 2, N + 1))) if js]
-            variants.append(((*heat,
-                              Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))),
-                             f"motion heat lagged {tau:.4g} s"))
-            # one motor heating the arm (a joint that travels more than the others): all links together, by its travel
-            # alone (a warm-up beside it is the group's or the warm-up's atom: with one it would follow any smooth
-            # drift of the cell, a recorded temperature's too)
-            # (a joint that travels a small part of the arm's travel is left out: its heat barely varies over the
-            # rows, and a coefficient fitted there multiplies whatever it travels later)
-            h_all = float(np.mean(motion_heat(ctx, float(tau), tuple(range(1, N + 1)))))
-            for j in range(1, N + 1):
-                h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
-                if h > h_all / (2 * N):
-                    one = ((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s")
-                    atoms.append(Atom("thermal", "length", "all_lengths", one[0], one[1],
-                                      f"thermal growth of all link lengths vs {one[1]}", "catalogue"))
+            # the motors' heat: each link against the joints' travel through a first-order lag
+            variants += heat_variants(ctx, float(tau))
     for fs, chan in variants:
         atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
                           "catalogue"))
@@ -260,6 +242,39 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
                           f"sphere {s} off its nominal plate position", "catalogue"))
     # the arm's own load without its masses: backlash signed by the load, the base tilting under the arm's moment
     return atoms + load_atoms(model, ctx)
+
+
+def heat_variants(ctx: RowContext, tau: float) -> list[tuple[tuple[Feature, ...], str]]:
+    """The catalogue's readings of the motors' heat at the time constant ``tau`` [s] (features and channel): the arm's
+    motors (joints 1-3) and the wrist's (4-6) each heating what is near them, with the holding current's warm-up from
+    servo-on beside them (the same lag applied to a constant input); one group of motors alone; one motor alone (any
+    joint that moves: how far it travels beside the others says nothing of how much its motor heats, a wrist joint
+    sweeping a wide range beside a shoulder joint that moves little). A warm-up is the groups' atom only: beside one
+    group or one motor it would follow any smooth drift of the cell, a recorded temperature's too."""
+    N = ctx.q.shape[1]
+    groups = [tuple(js) for js in (range(1, N - 2), range(N - 2, N + 1)) if len(js)]
+    heat = [Heat(tau=float(tau), joints=js, h=float(max(np.mean(motion_heat(ctx, float(tau), js)), 1e-9)))
+            for js in groups]
+    out = [((*heat, Exp(ch="t_s", t0=float(ctx.t_s[0]), tau=float(tau))), f"motion heat lagged {tau:.4g} s")]
+    out += [((f,), f"joints {js[0]}-{js[-1]}'s motion heat lagged {tau:.4g} s") for js, f in zip(groups, heat)
+            if len(js) > 1]
+    for j in range(1, N + 1):
+        h = float(np.mean(motion_heat(ctx, float(tau), (j,))))
+        if h > 0:
+            out.append(((Heat(tau=float(tau), joints=(j,), h=h),), f"joint {j}'s motion heat lagged {tau:.4g} s"))
+    return out
+
+
+def heat_alternatives(ctx: RowContext, atom: Atom) -> list[Atom]:
+    """The thermal ``atom`` against the motors' heat (:class:`~twin.diagnosis.features.Heat` features) read with the
+    other joint sets of :func:`heat_variants` at its time constant: the same link(s)' growth with the heat of other
+    motors."""
+    tau = next(f.tau for f in atom.features if isinstance(f, Heat))
+    mine = tuple(f.joints if isinstance(f, Heat) else None for f in atom.features)
+    what = atom.label.split(" vs ")[0]
+    return [replace(atom, features=fs, channel=ch, label=f"{what} vs {ch}")
+            for fs, ch in heat_variants(ctx, tau)
+            if tuple(f.joints if isinstance(f, Heat) else None for f in fs) != mine]
 
 
 def generic_atoms(model: RobotModel, ctx: RowContext, param_names: list[str], length_names: list[str],

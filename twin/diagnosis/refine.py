@@ -22,7 +22,7 @@ from .structure import chi2_logsf
 from .values import feature_values
 
 __all__ = ["prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air",
-           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
@@ -416,6 +416,20 @@ def refine_time(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) 
         trial = [_with_constant(a, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
         s = max([s] + score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
     return refine(prob, fit, s, pool_sizes)
+
+
+def prefer_heat(prob: Problem, fit: Fit, s: Scored, alternatives: list[Atom], pool_sizes: dict[str, int]) -> Scored:
+    """A thermal term of the motors' heat ``s`` or one of its ``alternatives`` (the same link(s)' growth with the heat
+    of other motors: :func:`twin.diagnosis.pools.heat_alternatives`), each at its own best time constant
+    (:func:`refine_time`): the most significant on ``prob``'s calibration rows. The joints whose travel heats the links
+    are a constant of the effect as its time constant is, and the grid of time constants the pool offers is coarse:
+    each reading is judged at its best."""
+    out = refine_time(prob, fit, s, pool_sizes)
+    for c in score_atoms(prob, fit, alternatives, pool_sizes, exact_top=len(alternatives)):
+        got = refine_time(prob, fit, c, pool_sizes)
+        if got.logp_adj < out.logp_adj:
+            out = got
+    return out
 
 
 def _temp_linear(atom: Atom) -> bool:

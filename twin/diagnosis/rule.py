@@ -23,7 +23,7 @@ from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
-from .features import BaseMoment, Cos, LoadSign, Moment, Play, Pow, Sin, Torque
+from .features import BaseMoment, Cos, Heat, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, refine_load_sign, stiffening_atoms,
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
@@ -32,7 +32,8 @@ from .late import (end_steps, glitches, gross_runs, late_change, late_templates,
                    payload_event)
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
-from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_play, prefer_sign, refine,
+from .pools import heat_alternatives
+from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
                      refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf, signed_rank_z
@@ -92,6 +93,11 @@ class Selection:
     notes: list[str] = field(default_factory=list)
 
 
+def _heat(atom: Atom) -> bool:
+    """Whether ``atom`` is a thermal term of the motors' heat (:class:`~twin.diagnosis.features.Heat` features)."""
+    return atom.family == "thermal" and any(isinstance(f, Heat) for f in atom.features)
+
+
 def _slot(atom: Atom) -> str:
     """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
     occupies its own key."""
@@ -144,7 +150,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             # a thermal term's time constants (the air's onset and ramp, the links' lag, the motors' heat) are the
             # effect's, not the grid's: judged at their best values (an onset's evidence then pays for the onsets,
             # ramps and lags tried: refine_onset)
-            s = refine(prob, fit, s, sizes)
+            # the motors' heat: the joints whose travel heats the links chosen at the best time constant of each
+            s = prefer_heat(prob, fit, s, heat_alternatives(prob.ctx, s.atom), sizes) if _heat(s.atom) \
+                else refine(prob, fit, s, sizes)
             if is_onset(s.atom) and s.logp_adj >= np.log(alpha_select):
                 out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
                                                  float(np.exp(s.logp_adj)), float("nan"),
@@ -714,20 +722,23 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
-    the thermal terms of the air (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
-    :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`) and the direction of a
-    load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`), each term against
-    the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of every row
-    significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved), stay within the onset grid's
-    range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates
-    as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use, chosen on
-    the first block of a campaign and refitted on every row: an air step after that block fixes the lag the block
-    could not see; the flank a load pushes a gear to is read on every row."""
+    the thermal terms (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
+    :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`; the motors' heat, its
+    time constant and the motors whose travel heats the links: :func:`twin.diagnosis.refine.prefer_heat`) and the
+    direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`),
+    each term against the others refitted without it. A term keeps the constants it has unless the new ones lower the
+    chi2 of every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column
+    added), stay within the onset grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a
+    longer one is a drift that extrapolates as a polynomial) and leave the term of a plausible size
+    (:func:`implausible_size`). The models to use, chosen on the first block of a campaign and refitted on every row: an
+    air step after that block fixes the lag the block could not see; the heat's time constant and motors are read on
+    the whole campaign's moves; the flank a load pushes a gear to is read on every row."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
         load = isinstance(atom.features[0], LoadSign) and atom.features[0].u is not None
-        if not (follows_the_air(atom) or load):
+        heat = _heat(atom) and prob.ctx.t_s is not None
+        if not (follows_the_air(atom) or load or heat):
             continue
         others = [c for i, c in enumerate(fit.chosen) if i != k]
         without = refit_with(prob, fit, others)
@@ -735,7 +746,12 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         got = score_atoms(prob, without, [atom], sizes, exact_top=1)
         if not got:
             continue
-        new = refine_load_sign(prob, without, got[0], sizes) if load else refine_time(prob, without, got[0], sizes)
+        if load:
+            new = refine_load_sign(prob, without, got[0], sizes)
+        elif heat:
+            new = prefer_heat(prob, without, got[0], heat_alternatives(prob.ctx, atom), sizes)
+        else:
+            new = refine_time(prob, without, got[0], sizes)
         if new.atom is atom:
             continue
         taus = [f.tau for f in new.atom.features if getattr(f, "tau", None) is not None]
@@ -746,6 +762,8 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         trial = refit_with(prob, fit, chosen)
         psi = trial.z[trial.model_cal.offsets[k]:trial.model_cal.offsets[k + 1]]
         moved = 2 if load else 3 if is_onset(new.atom) else 1
+        if heat and new.atom.channel.split(" lagged ")[0] != atom.channel.split(" lagged ")[0]:
+            moved += 1 + max(new.basis.shape[1] - fit.chosen[k][1].shape[1], 0)  # other motors, more columns
         gain = (fit.chi2 - trial.chi2) / prob.evidence_scale
         if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial

@@ -269,15 +269,23 @@ def lag_response(u: np.ndarray, tau: float, ramp: float | None = None) -> np.nda
 
 
 def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
-    """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)``
-    [s]: ``y_k = y_{k-1} + (1 - exp(-(t_k - t_{k-1}) / tau)) (x_k - y_{k-1})``, ``y_0 = x_0``."""
-    y = np.empty_like(x, dtype=float)
+    """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)`` [s], the
+    channel linear between rows (a temperature recorded at the rows changes continuously between them; exact for a
+    piecewise-linear channel): with ``h = t_k - t_{k-1}``, ``a = exp(-h / tau)`` and the slope ``s = (x_k - x_{k-1}) /
+    h``, ``y_k = x_k - s tau + (y_{k-1} - x_{k-1} + s tau) a``; ``y_0 = x_0``."""
+    x = np.asarray(x, float)
+    y = np.empty_like(x)
     if len(x) == 0:
         return y
-    a = -np.expm1(-np.clip(np.diff(t), 0.0, None) / tau)
+    h = np.clip(np.diff(t), 0.0, None)
+    a = np.exp(-h / tau)
+    # s tau (1 - a) / h -> the step x_k - x_{k-1} times (1 - a) tau / h, which is 1 at h = 0 (a repeat: no time passes)
+    g = np.where(h > 0, -np.expm1(-h / tau) * tau / np.where(h > 0, h, 1.0), 1.0)
+    dx = np.diff(x)
     y[0] = x[0]
     for k in range(1, len(x)):
-        y[k] = y[k - 1] + a[k - 1] * (x[k] - y[k - 1])
+        # y_k = a y_{k-1} + (1 - a) x_{k-1} + (1 - g) (x_k - x_{k-1})
+        y[k] = a[k - 1] * y[k - 1] + (1.0 - a[k - 1]) * x[k - 1] + (1.0 - g[k - 1]) * dx[k - 1]
     return y
 
 
