@@ -331,32 +331,33 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     if "sharp" not in rec:
         return s  # no law of this load scores against the fit (its columns lie within the model's)
     sharp, smooth = rec["sharp"][1], rec.get("smooth", (0.0, None))[1]
-    if smooth is None or (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale < dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
-        sharp = sharp if sharp.dchi2 >= s.dchi2 else s
-        read = _flank_read(prob, fit, sharp, i, stated, pool_sizes)
-        if read is not None:
-            return read
-        if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
-            return sharp
-        # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
-        # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
-        # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
-        # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
-        # side a search happened to stop at
-        u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
-        u_mm = None if u_mm is None else u_mm * prior
-        if u_mm is not None:
-            f, rms = feature(u_mm, None)
-            got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
-            if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
-                return got[0]
+    if smooth is not None and (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale >= \
+            dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
+        fo = smooth.atom.features[0]
+        v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
+        if int(np.sum(np.abs(np.tanh(v / fo.width)) < 0.5)) >= 3:
+            return smooth
+        # a flank with fewer than 3 rows inside it is a sharp one (its width fits the rows near zero load the
+        # direction put on the wrong side)
+    sharp = sharp if sharp.dchi2 >= s.dchi2 else s
+    read = _flank_read(prob, fit, sharp, i, stated, pool_sizes)
+    if read is not None:
+        return read
+    if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
         return sharp
-    fo = smooth.atom.features[0]
-    v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
-    inside = np.abs(np.tanh(v / fo.width)) < 0.5
-    if int(np.sum(inside)) < 3:
-        return sharp
-    return smooth
+    # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
+    # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
+    # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
+    # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
+    # side a search happened to stop at
+    u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
+    u_mm = None if u_mm is None else u_mm * prior
+    if u_mm is not None:
+        f, rms = feature(u_mm, None)
+        got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
+        if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
+            return got[0]
+    return sharp
 
 
 def _flank_sides(prob, fit, sharp) -> np.ndarray:
