@@ -1,6 +1,6 @@
 """Tests of twin.diagnosis.loads: the laws of the arm's own load (a backlash's flank, a compliance stiffening with the
 load), the stated masses' torque as a combination of the regressor, the weight of a joint's own link, the base's tilt
-per axis, and the sign's change at the largest margin."""
+per axis, the sign's change at the largest margin, and a carried load beside the stated masses."""
 
 from pathlib import Path
 
@@ -9,8 +9,9 @@ import numpy as np
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext, gravity_torques
 from twin.diagnosis.features import BaseMoment, GravMix, LoadSign, Moment, Torque
-from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, fitted_load, law_atom, link_tilt_atom, own_link_atom,
-                                  stated_load_mix, stiffening_atoms, tilt_angles, torque_shapes)
+from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, carried_shapes, fitted_load, law_atom, link_tilt_atom,
+                                  load_atoms, own_link_atom, stated_load_mix, stiffening_atoms, tilt_angles,
+                                  torque_shapes)
 from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
 from twin.urdf import read_urdf_chain
@@ -136,3 +137,33 @@ def test_the_sign_change_is_placed_in_the_middle_of_the_gap():
     got = _max_margin(V, u)
     assert np.array_equal(np.sign(V @ got), np.sign(V @ u))
     assert np.min(np.abs(V @ got)) > np.min(np.abs(V @ (u / np.linalg.norm(u)))) + 0.1
+
+
+def test_the_sign_change_puts_each_row_on_the_flank_its_residual_reads():
+    """Given the side each row was read on, the largest margin puts every row there, also those the start direction
+    puts on the other side (a direction within fewer shapes that misses rows near zero load)."""
+    rng = np.random.default_rng(3)
+    V = rng.normal(size=(60, 4))
+    sides = np.sign(V @ np.array([1.0, 0.5, -0.3, 0.2]))
+    u = np.array([1.0, 0.5, 0.0, 0.0])  # the first two shapes only
+    assert np.any(np.sign(V @ u) != sides)
+    got = _max_margin(V, u, sides)
+    assert np.array_equal(np.sign(V @ got), sides)
+
+
+def test_a_carried_load_beside_the_stated_masses_is_a_load_of_its_own_pool():
+    """With the chain's masses, a joint's load is read as the stated masses' torque (its sign in the catalogue) and as
+    that torque with a carried load's leading torque shapes beside it (directions of the pool ``load``), each of unit
+    RMS over the rows."""
+    model = read_urdf_chain(DATA / "tiago_48_schunk.urdf", "base_link", "wrist_ft_tool_link")
+    q = _rows(model, 60)
+    ctx = RowContext(q=q)
+    j = model.n_joints - 2
+    shapes = carried_shapes(model, ctx, j)
+    assert len(shapes) == 3
+    V = feature_values(shapes, ctx, model)
+    assert np.allclose(np.sqrt(np.mean(V ** 2, axis=0)), 1.0)
+    assert np.allclose(V[:, 0] * shapes[0].h, gravity_torques(model, q)[:, j - 1])
+    mine = [a for a in load_atoms(model, ctx) if a.family == "backlash" and a.target == f"theta{j}"]
+    assert {a.pool for a in mine} == {"catalogue", "load"}
+    assert [a.features[0].u for a in mine if a.pool == "catalogue"] == [None]

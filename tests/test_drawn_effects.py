@@ -199,7 +199,7 @@ SEEDS = (100, 101)
 KNOWN_MISSES: dict[tuple[str, int], str] = {
     ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
     ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
-    ('backlash_load', 101): 'later rows after/oracle 2.31 > 1.2 (joint 2, sharp)',
+    ('backlash_load', 101): 'later rows after/oracle 2.05 > 1.2 (joint 2, sharp: later rows near zero load outside the campaign\'s configurations put on the wrong flank)',
 }
 
 
@@ -269,4 +269,24 @@ def test_one_link_grown_by_one_motors_heat_is_read_with_that_motor(tmp_path):
     assert r["params"]["heat_joints"] == [2] and len(r["params"]["links"]) == 1
     assert r["named"] and len(r["labels"]) == 1 and "joint 2's motion heat" in r["labels"][0], r["labels"]
     assert "all link lengths" not in r["labels"][0]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_wrist_backlash_signed_by_a_load_the_stated_masses_miss_is_named_backlash(tmp_path):
+    """A sharp load-signed backlash of joint 4 on an IRB 1200 with a URDF's masses (seed 210, small), whose load the
+    instrument's nest it carries sets (the stated masses' sign differs on many rows): named backlash, within 1.2x the
+    oracle on the report and later rows (read as the joint's compliance, 3.9x / 4.5x, when only the stated torque's
+    sign was offered)."""
+    r = _scored(tmp_path, "backlash_load", 210)
+    assert r["named"], r["labels"]
+    assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_load_signed_backlash_reads_each_rows_flank_on_every_row(tmp_path):
+    """A sharp load-signed backlash of joint 2 at ~19x the noise without masses (seed 217, small): each row's flank read
+    from its residual and the sign's change placed in the full span of the torque shapes, the rows after the
+    campaign within 1.2x the oracle (28x when a few rows near zero load were left on the wrong flank, set aside as
+    gross)."""
+    r = _scored(tmp_path, "backlash_load", 217)
+    assert r["named"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2

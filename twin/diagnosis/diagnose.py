@@ -52,6 +52,7 @@ from .changes import change_places, change_pool_sizes, describe_changes, is_chan
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .extend import error_stats, reduced_basis
 from .features import LastMove, LoadSign
+from .loads import reads_its_load
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .problem import Fit, Problem, refit_with, update_gross
 from .refine import retimeable
@@ -305,17 +306,21 @@ def diagnose(
     rep = report_before_after(prob, base, ext)
     calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
     fit_rep, prob_pre, use_rep = None, None, use
-    if prob.obs_rep is not None and ext is not None and any(retimeable(a) for a, _ in ext.chosen):
-        # a thermal term (the air's temperature, the motors' heat: a state that moves with time): the report rows read
-        # the model refitted on every row before them, the air's time constants refined there, as the rows after the
-        # campaign read it refitted on every row
+    thermal = ext is not None and any(retimeable(a) for a, _ in ext.chosen)
+    if prob.obs_rep is not None and ext is not None and (thermal or any(reads_its_load(a) for a, _ in ext.chosen)):
+        # a thermal term (the air's temperature, the motors' heat: a state that moves with time) or a law of a joint's
+        # load whose direction the rows read (the flank each row rests on): the report rows read the model refitted on
+        # every row before them, those constants refined there, as the rows after the campaign read it refitted on
+        # every row
         _, ext_pre, prob_pre = refit(True)
         use_rep = on_rows(prob, ext_pre)
         note = report_before_after(prob, base, use_rep)
-        note["note"] += ("; the report rows read the model with its thermal terms refitted on every row before the "
-                         "report block (the time constants of the air refined there)")
+        what = "thermal terms" if thermal else "load laws"
+        how = "the time constants of the air" if thermal else "the direction of each joint's load"
+        note["note"] += (f"; the report rows read the model with its {what} refitted on every row before the "
+                         f"report block ({how} refined there)")
         rep = note
-        rep["held_out"]["report_state"] = "thermal terms refitted on every row before the report block"
+        rep["held_out"]["report_state"] = f"{what} refitted on every row before the report block"
         blocked_extended(prob_pre, AfterBlocks(ext_pre, (), ()), ext_pre)
     if prob.obs_rep is not None and (after_all.found or after_all.changed):
         # the report rows read the state the rows before them leave (a change found there, with its size as they show

@@ -3,13 +3,17 @@
 * **Load-signed backlash** of joint ``j``: ``dtheta_j = b sign(tau_j(q))``. A gear held against gravity rests on
   the flank its load pushes it to, whatever the direction of the last move: the offset's sign follows the sign of
   the joint's gravity torque. The torque is the URDF masses' (:func:`twin.diagnosis.candidates.gravity_torques`)
-  when the chain has them. Without masses it is a combination of the joint's three leading principal torque shapes
+  when the chain has them, alone or with a carried load's torque beside it (the masses hold the arm, not the tool or
+  the instrument's nest it carries, which may set a wrist's load: :func:`carried_shapes`, directions of the pool
+  ``load``). Without masses it is a combination of the joint's three leading principal torque shapes
   under the generic prior the compliance atoms use (:func:`twin.diagnosis.pools.catalogue_atoms`; the load lies
   close to their span, and the leading shape alone puts the sign's change ~10 % of the rows off): the sign of the
   combination along each of ``LOAD_DIRECTIONS`` directions over a hemisphere of that span (a pool of its own,
-  ``load``, whose size is its Bonferroni factor), the kept one refined (:func:`refine_load_sign`). The sign is
-  known from the first row on (no motion
-  history); it competes with the motion-signed backlash for the joint's one backlash slot, and where the rows
+  ``load``, whose size is its Bonferroni factor), the kept one refined (:func:`refine_load_sign`). A sharp flank's
+  load is then placed from the flank each row's own residual reads (a row on the wrong flank is off by twice the
+  backlash), in the full span of the joint's torque shapes, with the largest margin (:func:`_flank_read`); the models
+  to use read it on every row, the report rows on every row before them. The sign is known from the first row on
+  (no motion history); it competes with the motion-signed backlash for the joint's one backlash slot, and where the rows
   cannot tell the two apart the other is reported as the alternative.
 * **Base compliance** without masses: the robot's base rotating about its horizontal axes ``x``, ``y`` through its
   origin under the gravity moment of the arm, ``(delta_x, delta_y) = (c_x M_x(q), c_y M_y(q))``. The moment is
@@ -38,13 +42,14 @@ from .candidates import RowContext, base_moment_regressor, gravity_torque_regres
 from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
 from .problem import psi_init
-from .scoring import score_atoms
+from .scoring import raw_columns, score_atoms, scoring_basis
 from .values import feature_values
 
 __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "payload_shapes",
-           "load_atoms", "load_sign_feature", "refine_load_sign", "load_alternatives", "tilt_angles", "FLANK_WIDTHS",
-           "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID", "STIFFENING_LAWS", "STATED_SPREAD", "law_atom",
-           "stiffening_atoms", "fitted_load", "own_link_atom", "link_tilt_atom", "stated_load_mix"]
+           "carried_shapes", "load_atoms", "load_sign_feature", "refine_load_sign", "reads_its_load",
+           "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID",
+           "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom",
+           "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -231,6 +236,12 @@ def stated_load_mix(model: RobotModel, i: int, cols: tuple) -> GravMix | None:
     return GravMix(i=i, cols=cols, w=tuple(pi.get((int(k), int(c)), 0.0) for k, c in cols), h=1.0)
 
 
+def reads_its_load(atom: Atom) -> bool:
+    """Whether ``atom`` is a law of a joint's gravity load whose direction among the torque shapes is read from the rows
+    (what :func:`refine_load_sign` moves): a load-signed backlash or a stiffening, each with its direction ``u``."""
+    return bool(atom.features) and isinstance(atom.features[0], LoadSign) and atom.features[0].u is not None
+
+
 def refine_load_sign(prob, fit, s, pool_sizes: dict):
     """A kept load-signed backlash refined: its load (the stated masses' torque, or the grid's best direction when
     the masses are unknown) moved within the span of that load and the joint's ``REFINE_SHAPES`` leading torque
@@ -253,8 +264,9 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     if not shapes:
         return s
     cols = shapes[0].cols
-    # the stated masses' torque (when known) beside the shapes: it lies in their full span, not in the leading few
-    stated = [stated_load_mix(model, i, cols)] if isinstance(f0.f, Torque) else []
+    # the stated masses' torque (when the chain has them) beside the shapes: it lies in their full span, not in the
+    # leading few, and a load read with a carried one beside it is read about it as well
+    stated = [m for m in (stated_load_mix(model, i, cols),) if m is not None]
     basis = stated + [GravMix(i=i, cols=cols, w=tuple((np.asarray(f.w, float) / f.h).tolist()), h=1.0) for f in shapes]
     V = feature_values(tuple(basis), prob.ctx, model)
     scale = np.sqrt(np.mean(V[rows] ** 2, axis=0))
@@ -267,6 +279,7 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     prior = np.array(([1.0] if stated else []) + [f.h / shapes[0].h for f in shapes])[ok]
     if stated:
         prior[1:] *= STATED_SPREAD
+    if isinstance(f0.f, Torque):
         u0 = np.zeros(len(basis))
         u0[0] = 1.0
     else:
@@ -318,42 +331,118 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     if "sharp" not in rec:
         return s  # no law of this load scores against the fit (its columns lie within the model's)
     sharp, smooth = rec["sharp"][1], rec.get("smooth", (0.0, None))[1]
-    if smooth is None or (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale < dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
-        sharp = sharp if sharp.dchi2 >= s.dchi2 else s
-        if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
-            return sharp
-        # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
-        # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
-        # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
-        # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
-        # side a search happened to stop at
-        u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
-        u_mm = None if u_mm is None else u_mm * prior
-        if u_mm is not None:
-            f, rms = feature(u_mm, None)
-            got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
-            if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
-                return got[0]
+    if smooth is not None and (smooth.dchi2 - sharp.dchi2) / prob.evidence_scale >= \
+            dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
+        fo = smooth.atom.features[0]
+        v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
+        if int(np.sum(np.abs(np.tanh(v / fo.width)) < 0.5)) >= 3:
+            return smooth
+        # a flank with fewer than 3 rows inside it is a sharp one (its width fits the rows near zero load the
+        # direction put on the wrong side)
+    sharp = sharp if sharp.dchi2 >= s.dchi2 else s
+    read = _flank_read(prob, fit, sharp, i, stated, pool_sizes)
+    if read is not None:
+        return read
+    if sharp.atom.features[0].u is None or len(sharp.atom.features[0].u) != m:
         return sharp
-    fo = smooth.atom.features[0]
-    v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
-    inside = np.abs(np.tanh(v / fo.width)) < 0.5
-    if int(np.sum(inside)) < 3:
-        return sharp
-    return smooth
+    # the sign's change placed in the middle of the gap the rows leave: of the directions that put every
+    # calibration row on the same side, the one farthest from all of them (the largest margin, each direction
+    # measured on its prior scale: the load lies close to the leading shapes, or to the stated masses' torque);
+    # the rows near zero load after the campaign are then on the side the rows around them suggest, not on the
+    # side a search happened to stop at
+    u_mm = _max_margin(V[rows] * prior, np.asarray(sharp.atom.features[0].u, float) / prior)
+    u_mm = None if u_mm is None else u_mm * prior
+    if u_mm is not None:
+        f, rms = feature(u_mm, None)
+        got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
+        if got and got[0].dchi2 >= sharp.dchi2 - 1e-9 * abs(sharp.dchi2):
+            return got[0]
+    return sharp
 
 
-def _max_margin(V: np.ndarray, u: np.ndarray) -> np.ndarray | None:
-    """The direction ``u'`` (unit norm) that puts every row of ``V`` ``(n, m)`` on the side ``u`` puts it on with the
-    largest margin ``min_i s_i V_i u'`` (``s = sign(V u)``; a hard-margin separation through the origin, solved as
-    ``min |w|^2`` subject to ``s_i V_i w >= 1``, SLSQP from ``u``); None when that fails or ``V u`` has a zero."""
+def _flank_sides(prob, fit, sharp) -> np.ndarray:
+    """The flank each calibration row rests on, read from its own residual ``(n_cal,)``: ``+1``/``-1`` the side of the
+    load's sign the sharp law ``sharp`` (scored against ``fit``) gives it or the other, ``0`` where the row cannot
+    tell. Moving one row to the other flank changes its offset by twice the term's: the row's chi2 changes by
+    ``4 (t . r_a + |t|^2)`` (``t`` its whitened part of the term, ``r_a`` its residual with the term and the geometry's
+    share of it fitted, linearised); the row reads the side whose chi2 is lower by more than ``chi2_1`` at 1 % / the
+    number of rows. Every row is read, those the fit set aside as gross included: a row put on the wrong flank is off
+    by twice the backlash, which is what makes it look gross."""
+    sb = scoring_basis(prob, fit)
+    rc, sw, keep = sb.rc, sb.sw, sb.keep
+    n = len(prob.rows_cal)
+    phi = sharp.basis @ sharp.psi
+    F = prob.features(sharp.atom)[prob.rows_cal]
+    t = raw_columns(fit.model_cal, sharp.atom, F, fit.z, rc) @ phi
+    # the geometry's share of the term on the kept rows (E psi - Ep psi = A dx), carried to every row
+    A = (rc.J[:, fit.free] * sw[:, None])[keep]
+    dx = np.linalg.lstsq(A, sharp.E @ sharp.psi - sharp.fitted, rcond=None)[0]
+    ra = rc.r - t + rc.J[:, fit.free] @ dx
+    ok = rc.row < n  # measurements of the rows (a prior's pseudo-rows carry no flank)
+    C = np.bincount(rc.row[ok], t[ok] * ra[ok], minlength=n)[:n]
+    T = np.bincount(rc.row[ok], t[ok] ** 2, minlength=n)[:n]
+    delta = 4.0 * (C + T) / prob.evidence_scale
+    side = np.sign(F[:, 0])
+    bar = dists.chi2_isf(0.01 / n, 1)
+    return np.where(delta > bar, side, np.where(delta < -bar, -side, 0.0))
+
+
+def _flank_read(prob, fit, sharp, i: int, stated: list, pool_sizes: dict):
+    """The sharp flank's load placed from the flank every calibration row rests on (:func:`_flank_sides`): of the
+    loads in the full span of joint ``i``'s torque shapes (every shape the links' mass moments give the joint; beside
+    the stated masses' torque when ``stated`` holds it, their error spread as ``STATED_SPREAD`` of the shapes'), the
+    one that puts every row that tells its side on that side with the largest margin, each direction measured on its
+    prior scale (:func:`_max_margin`). The leading shapes hold the load only to a few per cent of its RMS, and a
+    direction placed by the rows' sides within them moves the sign's change past rows near zero load; the joint's
+    load lies in the full span, and the largest margin there is the side the rows around an unseen one suggest.
+    Returns the scored atom when it explains at least as much as ``sharp`` (within ``chi2_1`` at 1 %), else None."""
+    model, rows = prob.prep.nominal, prob.rows_cal
+    sides = _flank_sides(prob, fit, sharp)
+    told = sides != 0
+    if int(np.sum(sides > 0)) < 3 or int(np.sum(sides < 0)) < 3:
+        return None
+    shapes = torque_shapes(model, prob.ctx.q, i)
+    if not shapes:
+        return None
+    cols = shapes[0].cols
+    basis = list(stated) + [GravMix(i=i, cols=cols, w=tuple((np.asarray(f.w, float) / f.h).tolist()), h=1.0)
+                            for f in shapes]
+    V = feature_values(tuple(basis), prob.ctx, model)
+    scale = np.sqrt(np.mean(V[rows] ** 2, axis=0))
+    ok = scale > 0
+    basis = [f for f, k in zip(basis, ok) if k]
+    W = np.array([np.asarray(f.w, float) / sc for f, sc in zip(basis, scale[ok])])
+    V = V[:, ok] / scale[ok]
+    prior = np.array(([1.0] if stated else []) + [f.h / shapes[0].h for f in shapes])[ok]
+    if stated:
+        prior[1:] *= STATED_SPREAD
+    v0 = feature_values((sharp.atom.features[0].f,), prob.ctx, model)[rows, 0]
+    u0 = np.linalg.lstsq(V[rows], v0, rcond=None)[0]
+    w = _max_margin(V[rows][told] * prior, u0 / prior, sides[told])
+    if w is None:
+        return None
+    u = w * prior
+    v = V @ u
+    rms = float(np.sqrt(np.mean(v[rows] ** 2)))
+    f = LoadSign(f=GravMix(i=i, cols=cols, w=tuple((u @ W).tolist()), h=1.0), u=tuple(float(x) for x in u))
+    got = score_atoms(prob, fit, [law_atom(model, sharp.atom, f, rms)], pool_sizes, exact_top=1)
+    if not got or got[0].dchi2 < sharp.dchi2 - dists.chi2_isf(0.01, 1) * prob.evidence_scale:
+        return None
+    return got[0]
+
+
+def _max_margin(V: np.ndarray, u: np.ndarray, sgn: np.ndarray | None = None) -> np.ndarray | None:
+    """The direction ``u'`` (unit norm) that puts every row of ``V`` ``(n, m)`` on the side ``sgn`` (default the side
+    ``u`` puts it on, ``sign(V u)``) with the largest margin ``min_i s_i V_i u'`` (a hard-margin separation through
+    the origin, solved as ``min |w|^2`` subject to ``s_i V_i w >= 1``, SLSQP from ``u``); None when that fails or a
+    side is zero."""
     from scipy.optimize import minimize
 
-    sgn = np.sign(V @ u)
+    sgn = np.sign(V @ u) if sgn is None else np.asarray(sgn, float)
     if not np.all(sgn != 0):
         return None
     A = sgn[:, None] * V
-    w0 = u / max(float(np.min(A @ u)), 1e-12)
+    w0 = u / max(float(np.min(A @ u)), 1e-12) if np.min(A @ u) > 0 else u / max(float(np.max(np.abs(A @ u))), 1e-12)
     res = minimize(lambda w: float(w @ w), w0, jac=lambda w: 2 * w, method="SLSQP",
                    constraints=[{"type": "ineq", "fun": lambda w: A @ w - 1.0, "jac": lambda w: A}],
                    options={"maxiter": 200, "ftol": 1e-10})
@@ -384,6 +473,33 @@ def load_sign_feature(shapes: tuple, u: np.ndarray) -> LoadSign:
     return LoadSign(f=GravMix(i=f0.i, cols=f0.cols, w=tuple(w.tolist()), h=1.0), u=tuple(float(x) for x in u))
 
 
+def carried_shapes(model: RobotModel, ctx: RowContext, j: int) -> tuple[GravMix, ...]:
+    """Joint ``j``'s load with the chain's stated masses and something carried at the flank: the stated masses' torque
+    and the two leading torque shapes of a payload (:func:`payload_shapes`), as ``gravmix`` features over the columns
+    of :func:`torque_shapes` (each ``h`` its RMS over the rows); ``()`` when the joint has no stated load or a carried
+    load gives it fewer than two shapes."""
+    shapes = torque_shapes(model, ctx.q, j, 1)
+    if not shapes:
+        return ()
+    cols = shapes[0].cols
+    stated = stated_load_mix(model, j, cols)
+    carried = payload_shapes(model, ctx.q, j)
+    if stated is None or len(carried) < 2:
+        return ()
+    at = {tuple(c): k for k, c in enumerate(cols)}
+    out = [stated]
+    for f in carried[:2]:
+        w = np.zeros(len(cols))
+        for c, x in zip(f.cols, f.w):
+            w[at[tuple(c)]] = x
+        out.append(GravMix(i=j, cols=cols, w=tuple(w.tolist()), h=1.0))
+    V = feature_values(tuple(out), ctx, model)
+    rms = np.sqrt(np.mean(V ** 2, axis=0))
+    if not np.all(rms > 0):
+        return ()
+    return tuple(GravMix(i=j, cols=cols, w=f.w, h=float(r)) for f, r in zip(out, rms))
+
+
 def load_atoms(model: RobotModel, ctx: RowContext) -> list:
     """The load-signed backlash of every joint whose gravity load changes sign over the rows, and, on a chain without
     mass properties, the base tilting under the arm's unknown gravity moment (module docstring)."""
@@ -399,6 +515,11 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
                 # the stated load known: its compliance stiffening with it (without masses, from a kept linear
                 # compliance's fitted torque: the selection's rounds add them)
                 atoms += stiffening_atoms(model, ctx, j, Torque(j=j, h=1.0))
+            # the stated masses hold the arm, not what it carries (a tool, the instrument's nest, a cable): the sign of
+            # the stated load with a carried load's torque beside it, on the grid of directions (the pool ``load``)
+            carried = carried_shapes(model, ctx, j)
+            if len(carried) == 3:
+                feats += [load_sign_feature(carried, u) for u in _hemisphere(LOAD_DIRECTIONS)]
         else:
             # the masses are unknown: the sign of combinations of the joint's leading torque shapes (the load lies
             # close to their span), on a grid of directions refined when kept (refine_load_sign)
@@ -415,7 +536,7 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
             atoms.append(Atom("backlash", "joint", f"theta{j}", (f,), f"load_sign_j{j}" + ("" if u is None else
                               f" ({', '.join(f'{x:+.3f}' for x in u)})"),
                               f"joint {joint_words(model, j)} backlash (offset signed by its gravity load)",
-                              "catalogue" if masses else "load", (j,)))
+                              "catalogue" if u is None else "load", (j,)))
     if not masses:
         Y = base_moment_regressor(model, ctx.q)
         n = len(ctx.q)

@@ -24,8 +24,8 @@ from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Heat, LoadSign, Moment, Play, Pow, Sin, Torque
-from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, refine_load_sign, stiffening_atoms,
-                    tilt_angles)
+from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
+                    stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .late import (end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
@@ -36,7 +36,7 @@ from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
                      refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf, signed_rank_z
+from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
 
 __all__ = [
     "CandidateScore",
@@ -719,6 +719,15 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
     return fit, notes, alts
 
 
+def _common_chi2(a: Fit, b: Fit) -> float:
+    """The calibration chi2 of fit ``a`` less that of fit ``b`` (both on one problem's rows), every row counted in both
+    but those both set aside as gross."""
+    ra, rb = a.model_cal.residuals(a.z, jacobian=False), b.model_cal.residuals(b.z, jacobian=False)
+    n = a.model_cal.obs.n
+    w = (~(gross_rows(ra.r, ra.row, n) & gross_rows(rb.r, rb.row, n))).astype(float)
+    return float(np.sum(w[ra.row] * ra.r ** 2) - np.sum(w[rb.row] * rb.r ** 2))
+
+
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
@@ -728,15 +737,16 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`),
     each term against the others refitted without it. A term keeps the constants it has unless the new ones lower the
     chi2 of every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column
-    added), stay within the onset grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a
-    longer one is a drift that extrapolates as a polynomial) and leave the term of a plausible size
-    (:func:`implausible_size`). The models to use, chosen on the first block of a campaign and refitted on every row: an
-    air step after that block fixes the lag the block could not see; the heat's time constant and motors are read on
-    the whole campaign's moves; the flank a load pushes a gear to is read on every row."""
+    added; a load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`), stay
+    within the onset grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a
+    drift that extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The
+    models to use, chosen on the first block of a campaign and refitted on every row: an air step after that block
+    fixes the lag the block could not see; the heat's time constant and motors are read on the whole campaign's moves;
+    the flank a load pushes a gear to is read on every row."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
-        load = isinstance(atom.features[0], LoadSign) and atom.features[0].u is not None
+        load = reads_its_load(atom)
         heat = _heat(atom) and prob.ctx.t_s is not None
         if not (follows_the_air(atom) or load or heat):
             continue
@@ -764,7 +774,9 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         moved = 2 if load else 3 if is_onset(new.atom) else 1
         if heat and new.atom.channel.split(" lagged ")[0] != atom.channel.split(" lagged ")[0]:
             moved += 1 + max(new.basis.shape[1] - fit.chosen[k][1].shape[1], 0)  # other motors, more columns
-        gain = (fit.chi2 - trial.chi2) / prob.evidence_scale
+        # a load law's rows read alike in both: a row on the wrong flank is off by twice the backlash, which the
+        # fit that put it there sets aside as gross
+        gain = (_common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
         if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit
