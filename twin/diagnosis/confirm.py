@@ -19,7 +19,7 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
+__all__ = ["time_only", "of_time", "serial_inflation", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
 
@@ -29,6 +29,44 @@ def time_only(atom: Atom) -> bool:
     kinds = {f.kind for f in atom.features} - {"const"}
     return bool(kinds) and kinds <= {"pow", "step", "window", "exp", "sin", "cos"} and all(
         getattr(f, "ch", None) in ("t_s", "row") for f in atom.features if not isinstance(f, Const))
+
+
+TIME_KINDS = {"lag", "heat", "settle"}  # features of a channel smooth in time (the air's temperature, the motors' heat)
+
+
+def of_time(atom: Atom) -> bool:
+    """Whether an atom's prediction is smooth in time from row to row: a term of time alone (:func:`time_only`), or
+    of the air's temperature or the motors' heat (a lag, a heat, a station settling, a power or a step of
+    ``temp_c``). A load or a joint term switched on at a time (``gated``) reads the configuration: not of time."""
+    fs = [f for f in atom.features if not isinstance(f, Const)]
+    return bool(fs) and all(f.kind in TIME_KINDS or (f.kind in ("pow", "step", "window", "exp", "sin", "cos") and
+                                                     getattr(f, "ch", None) in ("t_s", "row", "temp_c")) for f in fs)
+
+
+def serial_inflation(e: np.ndarray, t: np.ndarray) -> float:
+    """The factor ``>= 1`` by which the serial correlation of the noise in the series ``e`` ``(n,)`` (rows in time
+    order, at times ``t`` ``(n,)``) inflates the variance of its sum over that of ``n`` independent rows. Its slow
+    part, a level and a linear trend in time fitted by least squares, is taken out first: over a block of rows that
+    is a term's misfit (a drift it follows in part), a structure, not the noise's dependence. On what is left, Newey
+    and West's long-run variance over the rows' variance, ``1 + 2 sum_{h <= L} (1 - h / (L + 1)) rho_h``
+    (``rho_h`` the correlation at lag ``h``), with Andrews' bandwidth for the Bartlett kernel from the lag-one
+    correlation ``rho`` (clipped to [0, 0.95]): ``L = ceil(1.1447 (alpha n)^(1/3))``, ``alpha = 4 rho^2 / ((1 -
+    rho)^2 (1 + rho)^2)``. 1 for white rows (up to the estimate's scatter) and for fewer than 8 rows."""
+    e = np.asarray(e, float)
+    n = e.size
+    if n < 8:
+        return 1.0
+    t = np.asarray(t, float)
+    X = np.column_stack([np.ones(n), (t - t.mean()) / max(float(np.ptp(t)), 1e-300)])
+    e = e - X @ np.linalg.lstsq(X, e, rcond=None)[0]
+    ss = float(e @ e)
+    if ss <= 0:
+        return 1.0
+    rho = float(np.clip(e[:-1] @ e[1:] / ss, 0.0, 0.95))
+    alpha = 4.0 * rho**2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
+    L = min(n - 1, int(np.ceil(1.1447 * (alpha * n) ** (1.0 / 3.0) - 1e-9)))
+    acc = sum((1.0 - h / (L + 1.0)) * float(e[:-h] @ e[h:]) / ss for h in range(1, L + 1))
+    return max(1.0, 1.0 + 2.0 * acc)
 
 
 @dataclass(frozen=True)
@@ -71,6 +109,17 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
     z = signed_rank_z(c)
     z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
+    if of_time(s.atom):
+        # a term of time predicts neighbouring rows alike, and noise that wanders over a few rows (an instrument's
+        # frame, the cell) moves their residuals together: the rows' products are then not independent. The score
+        # is deflated by the variance their serial correlation adds, measured on the rows' remainder along the
+        # prediction e_k = (r_k - u_k) . u_k (zero-mean when the term is right, whatever the wander)
+        e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+        t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
+        order = np.argsort(t[prob.rows_val], kind="stable")
+        present = np.bincount(rv.row[kv], minlength=fit.model_val.obs.n)[order] > 0
+        deflate = 1.0 / np.sqrt(serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        z, z_minus = z * deflate, z_minus * deflate
     err_term = float(np.sum((r - u) ** 2))
     better = err_term < float(r @ r)
     local = False
