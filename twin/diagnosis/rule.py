@@ -28,7 +28,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import (end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
+from .late import (end_change, end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
                    payload_event)
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
@@ -819,6 +819,13 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
+    # change's end there)
+    src, end, note = end_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
+    if note:
+        notes.append(note)
+    if end is not None:
+        found.append((end.atom, "end", end, end.dchi2))
     # a payload is one event at every joint below the flange: one timing, every loaded joint
     src, events, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
     notes += notes_ev
