@@ -27,7 +27,8 @@ named steps, each a function of this module (``docs/diagnosis.md`` has the reaso
 8. :func:`refit_on_every_row`: the chosen models refitted on every row of the campaign (the models to use).
 9. :func:`twin.diagnosis.rule.after_blocks`: what every row holds after the blocks (a step after the rows that fit,
    located on the rows up to a cut and confirmed on the rows after it; the air's temperature changing there; a
-   change and back of a joint's zero) joins the models to use (``docs/diagnosis.md``, step 7b).
+   change and back of a joint's zero; a change the campaign's last rows hold) joins the models to use
+   (``docs/diagnosis.md``, step 7b).
 """
 
 from __future__ import annotations
@@ -126,7 +127,8 @@ class DiagnosisResult:
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
     ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
     The terms found after the blocks on every row (:func:`twin.diagnosis.rule.after_blocks`: a change after the rows
-    that fit, the air's temperature changing there, a change and back of a joint's zero) are the last of ``atoms``
+    that fit, the air's temperature changing there, a change and back of a joint's zero, a change in the campaign's
+    last rows) are the last of ``atoms``
     (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
     ``"extended"``); ``calibrations_blocked["extended"]`` holds those found on the rows before the report block (the
     state the report rows read), the kept terms at their calibration rows' values."""

@@ -153,9 +153,9 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
 @dataclass(frozen=True)
 class EndChange:
     """A change whose new state the campaign's last rows hold (:func:`end_change`): its atom and reduced basis
-    ``(K, r)``, the rows after its start, its evidence ``dchi2`` on every row, the scatter of the
-    rows before it along its place it was measured against (:func:`_place_scatter`, 1 at the floor), its ``log10``
-    p-value after the Bonferroni ``factor``."""
+    ``(K, r)``, the rows after its start, its evidence ``dchi2`` on every row, the scatter of the rows before it along
+    its place it was measured against (:func:`_place_scatter`, 1 at the floor) and its ``log10`` p-value after the
+    Bonferroni ``factor``."""
 
     atom: object
     basis: np.ndarray

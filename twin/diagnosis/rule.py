@@ -755,9 +755,10 @@ def retime(prob: Problem, fit: Fit) -> Fit:
 @dataclass(frozen=True)
 class AfterBlocks:
     """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
-    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"glitch"``, ``"event"`` or ``"load"``; ``late``: the
-    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), notes, and whether a term
-    it was given took another end there (``changed``: the state later rows read changed)."""
+    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"end"``, ``"glitch"``, ``"event"`` or ``"load"``;
+    ``late``: the :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, the
+    :class:`~twin.diagnosis.late.EndChange` of a change in the campaign's last rows, else None), notes, and whether a
+    term it was given took another end there (``changed``: the state later rows read changed)."""
 
     fit: Fit
     found: tuple
@@ -773,9 +774,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
     ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
-    hung on and taken off, :func:`~twin.diagnosis.late.glitches`), and the arm's own weight at a joint a payload's
-    change shows compliant (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is
-    not kept where a kept change that ends explains every row as well."""
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); whatever the rows hold, a change whose new state
+    the campaign's last rows hold, too close to the end for a cut (:func:`~twin.diagnosis.late.end_change`: or a kept
+    step's end there); and the arm's own weight at a joint a payload's change shows compliant
+    (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
+    change that ends explains every row as well."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
