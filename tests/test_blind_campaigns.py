@@ -53,7 +53,6 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
     ('a', 'hA19'): "not traced; extra names ['compliance']; named ['compliance']",
     ('b', 'b04'): 'not traced; report after/oracle 1.59 > 1.5; later rows after/oracle 1.99 > 1.5',
     ('b', 'b12'): 'not structured; report after/oracle 3.08 > 1.5; later rows after/oracle 4.59 > 1.5',
-    ('b', 'b17'): 'report after/oracle 1.64 > 1.2; later rows after/oracle 1.52 > 1.5',
     ('b', 'b22'): "not traced; extra names ['tilt']; named ['tilt']",
     ('c', 'c02'): "named [] not ['cyclic']",
     ('c', 'c05'): 'not structured; report after/oracle 3.84 > 1.5; later rows after/oracle 4.47 > 1.5',

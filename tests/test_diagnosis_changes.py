@@ -661,3 +661,73 @@ def test_started_at_moves_a_steps_start_and_its_label():
     got = started_at(step, 12.5)
     assert all(f.at == 12.5 and f.until is None for f in got.features)
     assert got.label.endswith("from t_s 12.5 on") and got.pool == "change" and got.target == "theta3"
+
+
+# ---- a change in the campaign's last rows ---------------------------------------------------------------------
+
+END_ROWS = 8  # rows of the campaign after a change at its end (fewer than a cut needs to confirm it on later rows)
+
+
+def _end_case(seed, *, joint=None, **frame):
+    """A clean campaign whose joint-3 zero steps by 0.005 deg (``joint``: that joint, 0-based) or whose frame changes
+    (``frame``: ``tool=``/``base=`` pose6) from its ``END_ROWS``-th last row on, kept in the rows after it."""
+    ds, truth = _dataset(None, seed=seed)
+    m = ds.n - LATER
+    s = m - END_ROWS
+    if joint is not None:
+        def eff(q, model):
+            out = q.copy()
+            out[s:, joint] += 0.005 * DEG
+            return out
+
+        ds, truth = _dataset(eff, seed=seed)
+        delta = truth["delta"]
+    else:
+        ds, delta = _frame_change(ds, truth, np.arange(s, ds.n), **frame)
+    early = np.arange(ds.n) < m
+    return ds.subset(early), ds.subset(~early), delta[early], delta[~early], s
+
+
+@pytest.mark.parametrize("kw,target", [({"joint": 2}, "theta3"), ({"tool": TOOL_KNOCK}, "tool")],
+                         ids=["joint-zero", "plate-knocked"])
+def test_a_change_in_the_last_rows_is_kept_for_the_rows_after_the_campaign(kw, target):
+    """Joint 3's zero re-latched (or the plate knocked) 8 rows before the campaign's end, too few rows after it to
+    confirm it on later ones: one change there within 2 rows, judged on every row (an end change), and the model to
+    use predicts the rows after the campaign within 1.5x the oracle."""
+    campaign, later, delta_c, delta_l, s = _end_case(0, **kw)
+    res = diagnose(campaign)
+    ratio = _later_ratio(res, campaign, later, delta_c, delta_l)
+    assert _one_change(res, target, s) and "judged" in res.changes[0], res.changes
+    assert res.structured and res.model_in_use == "extended"
+    assert ratio <= 1.5, ratio
+
+
+def _end_trouble(seed, what):
+    """A clean campaign (no change) with its own trouble at its end: ``burst``, its last 8 rows at 4x the noise;
+    ``gross``, two of its last 3 rows a point 30x the noise off; ``wander``, the instrument's frame wandering as an
+    AR(1) of the rows (rho 0.85, 0.7x the noise) on every row."""
+    ds, _ = _dataset(None, seed=seed)
+    m = ds.n - LATER
+    rng = np.random.default_rng(700 + seed)
+    sph = ds.spheres.copy()
+    if what == "burst":
+        sph[m - END_ROWS:m] += 4 * H.SIGMA * rng.standard_normal(sph[m - END_ROWS:m].shape)
+    elif what == "gross":
+        for r in (m - 1, m - 3):
+            d = rng.normal(size=3)
+            sph[r, rng.integers(3)] += 30 * H.SIGMA * d / np.linalg.norm(d)
+    else:
+        x = np.zeros((ds.n, 3))
+        for i in range(1, ds.n):
+            x[i] = 0.85 * x[i - 1] + np.sqrt(1 - 0.85**2) * rng.normal(size=3) * 0.7 * H.SIGMA
+        sph += x[:, None, :]
+    return replace(ds, spheres=sph).subset(np.arange(ds.n) < m)
+
+
+@pytest.mark.parametrize("what,seed", [("burst", 0), ("gross", 0), ("wander", 9), ("wander", 11)])
+def test_noisy_rows_gross_rows_or_a_wander_at_the_end_are_not_a_change(what, seed):
+    """A burst of noisy rows, two gross rows or a wander of the instrument at the campaign's end is no change (the
+    rows after a step fitted to the scatter of the others, significant without any one of them, against the scatter
+    the rows before show along the place, AR(1) in time)."""
+    res = diagnose(_end_trouble(seed, what))
+    assert res.changes == (), res.changes

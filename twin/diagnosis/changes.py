@@ -352,12 +352,17 @@ def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
 
 
 def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01,
-                 short: int | None = None) -> list[Atom]:
+                 short: int | None = None, last: tuple[int, int] | None = None,
+                 sizes: dict[str, int] | None = None) -> list[Atom]:
     """The best step and the best window of every place against ``fit`` (the module docstring's scan over the
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`). ``short``: windows
     of at least this many rows (default ``WINDOW_MIN_ROWS``), and those shorter than two of the grid's strides tried
-    at every row (a glitch of a few rows)."""
+    at every row (a glitch of a few rows). ``last``: steps only, with ``last[0]`` to ``last[1]`` rows after them
+    (a change in the campaign's last rows, :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`'
+    positions. ``sizes``: the Bonferroni factors the scan's own rules apply (default :func:`change_pool_sizes`)."""
+    if last is not None and windows:
+        raise ValueError(f"last={last!r} scans steps only: windows must be False")
     min_rows = short or WINDOW_MIN_ROWS
     sb = scoring_basis(prob, fit)
     rows, r = sb.rows, sb.r
@@ -368,14 +373,14 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     t_cal = tv[prob.rows_cal]
     order = np.argsort(t_cal, kind="stable")
     ts = t_cal[order]
-    steps = _steps(n)
+    steps = _steps(n) if last is None else np.arange(max(n - last[1], 1), n - last[0] + 1)
     steps = steps[ts[steps] > ts[steps - 1]]  # a change between two rows measured at different times
     g = _grid(n)
     g = g[ts[g] > ts[g - 1]]
     # per-row residual sums of squares and residual counts, in time order (the uniformity check)
     rr = np.concatenate([[0.0], np.cumsum(np.bincount(rows, weights=r * r, minlength=n)[order])])
     mm = np.concatenate([[0.0], np.cumsum(np.bincount(rows, minlength=n)[order].astype(float))])
-    sizes = change_pool_sizes(n, places, short=short)
+    sizes = sizes or change_pool_sizes(n, places, short=short)
 
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []

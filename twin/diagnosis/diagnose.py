@@ -27,7 +27,8 @@ named steps, each a function of this module (``docs/diagnosis.md`` has the reaso
 8. :func:`refit_on_every_row`: the chosen models refitted on every row of the campaign (the models to use).
 9. :func:`twin.diagnosis.rule.after_blocks`: what every row holds after the blocks (a step after the rows that fit,
    located on the rows up to a cut and confirmed on the rows after it; the air's temperature changing there; a
-   change and back of a joint's zero) joins the models to use (``docs/diagnosis.md``, step 7b).
+   change and back of a joint's zero; a change the campaign's last rows hold) joins the models to use
+   (``docs/diagnosis.md``, step 7b).
 """
 
 from __future__ import annotations
@@ -48,12 +49,13 @@ from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import change_places, change_pool_sizes, describe_changes, is_change, row_times
+from .changes import MIN_ROWS, change_places, change_pool_sizes, describe_changes, is_change, row_times
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .extend import error_stats, reduced_basis
 from .features import LastMove, LoadSign
 from .loads import reads_its_load
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
+from .late import EndChange
 from .problem import Fit, Problem, refit_with, update_gross
 from .refine import retimeable
 from .structure import StructureTest, gross_rows, row_rms
@@ -126,7 +128,8 @@ class DiagnosisResult:
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
     ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
     The terms found after the blocks on every row (:func:`twin.diagnosis.rule.after_blocks`: a change after the rows
-    that fit, the air's temperature changing there, a change and back of a joint's zero) are the last of ``atoms``
+    that fit, the air's temperature changing there, a change and back of a joint's zero, a change in the campaign's
+    last rows) are the last of ``atoms``
     (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
     ``"extended"``); ``calibrations_blocked["extended"]`` holds those found on the rows before the report block (the
     state the report rows read), the kept terms at their calibration rows' values."""
@@ -674,10 +677,11 @@ def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_
     """The report model ``cur`` (on ``prob``'s rows; its first ``n_kept`` terms the kept ones, then those found after
     the blocks on the rows before the report block) with its changes where every row of the campaign places them
     (``every``, the model refitted on every row, its first ``n_kept`` terms the same): a kept change as ``every`` has
-    it (a step that ends there, a window), and each change ``every`` found after the blocks whose rows the rows before
-    the report block (``prob_pre``'s calibration rows) include, in place of ``cur``'s own changes found after the
-    blocks. Their sizes and the geometry are fitted on ``prob_pre``'s rows, the other terms held at ``cur``'s values:
-    a change is located by every row, its size by the rows before the report block only. Returns the fit (on
+    it (a step that ends there, a window), and each change ``every`` found after the blocks of whose rows the rows
+    before the report block (``prob_pre``'s calibration rows) include at least ``MIN_ROWS`` (a state a handful of
+    rows hold is not sized there), in place of ``cur``'s own changes found after the blocks. Their sizes and the
+    geometry are fitted on ``prob_pre``'s rows, the other terms held at ``cur``'s values: a change is located by
+    every row, its size by the rows before the report block only. Returns the fit (on
     ``prob``'s rows) and its terms after the kept ones, or None when ``cur`` already holds ``every``'s changes."""
     P = prob.prep.space.size
 
@@ -685,7 +689,8 @@ def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_
         return fit.z[fit.model_cal.offsets[k]:fit.model_cal.offsets[k + 1]]
 
     def shown(atom) -> bool:
-        return bool(np.any(np.abs(prob_pre.features(atom)[prob_pre.rows_cal]) > 0))
+        F = np.abs(prob_pre.features(atom)[prob_pre.rows_cal]) > 0
+        return int(np.sum(np.any(F.reshape(len(F), -1), axis=1))) >= MIN_ROWS
 
     terms = []  # (term, value, moving)
     for k in range(n_kept):
@@ -714,7 +719,9 @@ def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_
 FOUND = {"late": "after the rows that fit (located before a cut, confirmed after it)",
          "glitch": "on every row, a change and back (its own rows and the rows after it; nothing later depends on it)",
          "load": "on every row, the arm's own weight at a joint whose compliance a payload's change shows",
-         "event": "on every row, the same payload's change (one timing) at another joint's compliance"}
+         "event": "on every row, the same payload's change (one timing) at another joint's compliance",
+         "end": ("on every row, a change whose new state the campaign's last rows hold (too few rows after it to "
+                 "confirm it on later rows: judged against the scatter of the rows before it)")}
 
 
 def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None, atoms_json: list[dict],
@@ -756,8 +763,10 @@ def late_json(late, how: str, change: dict, setup: Setup) -> dict:
     key of ``FOUND``): ``change`` as :func:`describe_changes` gives it from its term refitted on every row, with where
     it was found and, for one confirmed after a cut (``late``), its confirmation."""
     d = dict(change)
-    if late is None:
+    if late is None or isinstance(late, EndChange):
         d["found"] = FOUND[how]
+        if late is not None:
+            d["judged"] = late.judged()
         return d
     ch, _ = row_times(setup.ctx)
     d.update({"found": FOUND["late"],

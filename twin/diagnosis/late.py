@@ -22,6 +22,10 @@ on, sequentially in time:
 A confirmed change joins the models to use (refitted on every row with it): rows after it and a new session read
 the state after it. Its figures are those of step 3: the RMS position error on the rows after the cut without and
 with it, both models fitted on the rows before the cut.
+
+A change too close to the campaign's end for steps 2-3 (fewer than ``n_locate + rows_to_confirm(z_min)`` rows after
+it) is an *end change* (:func:`end_change`): judged on every row as a change and back that has not ended, against
+the scatter the rows before it show along its place, whether or not the held-out block held structure.
 """
 
 from __future__ import annotations
@@ -43,8 +47,8 @@ from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, 
 from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
-__all__ = ["LateChange", "late_change", "late_templates", "late_term", "end_steps", "glitches", "gross_runs",
-           "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
+__all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_steps",
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -95,12 +99,18 @@ def _rms_mm(fit: Fit, prob: Problem) -> float:
     return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 
+def _rows_after(n: int, z_min: float) -> tuple[int, int]:
+    """The rows after a change found after the rows that fit (of ``n``) that locate it (the fewest rows after a step
+    the scan needs, plus one) and those that locate and confirm it (with :func:`rows_to_confirm`)."""
+    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * n))) + 1
+    return n_locate, n_locate + rows_to_confirm(z_min)
+
+
 def _cut(t_rows: np.ndarray, later: np.ndarray, z_min: float) -> tuple[float | None, int]:
     """Where a change found after the rows that fit is cut (``t_rows`` every calibration row's time, sorted; ``later``
     those after the change): the time of the row that leaves enough rows before it to locate the change, and the
     rows it takes to locate and confirm it (None when fewer follow the change)."""
-    n_locate = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(t_rows)))) + 1
-    need = n_locate + rows_to_confirm(z_min)
+    n_locate, need = _rows_after(len(t_rows), z_min)
     return (float(later[n_locate]) if len(later) >= need else None), need
 
 def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], *, alpha: float,
@@ -138,6 +148,114 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     s, note = _as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
     got, words = _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
     return got, words + note
+
+
+@dataclass(frozen=True)
+class EndChange:
+    """A change whose new state the campaign's last rows hold (:func:`end_change`): its atom and reduced basis
+    ``(K, r)``, the rows after its start, its evidence ``dchi2`` on every row, the scatter of the rows before it along
+    its place it was measured against (:func:`_place_scatter`, 1 at the floor) and its ``log10`` p-value after the
+    Bonferroni ``factor``."""
+
+    atom: object
+    basis: np.ndarray
+    n_after: int
+    dchi2: float
+    scatter: float
+    log10_p: float
+    factor: int
+
+    def judged(self) -> dict:
+        """How it was judged, for ``diagnosis.json`` ``changes``."""
+        return {"rows_after": self.n_after, "delta_chi2": self.dchi2, "scatter_before": self.scatter,
+                "log10_p": self.log10_p, "bonferroni_factor": self.factor}
+
+
+def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], *, alpha: float,
+               z_min: float) -> tuple[Fit, EndChange | None, str]:
+    """A change whose new state the campaign's last rows hold (an *end change*: a joint's zero re-latched, a plate
+    slipping, the instrument bumped, a payload hung on or taken off a few rows before the end), too close to the end
+    for :func:`late_change` to locate it on some rows and confirm it on others (fewer than its ``n_locate +
+    rows_to_confirm(z_min)`` rows after it). Judged as a change and back that has not ended (:func:`glitches` judges
+    those): the step scan of :func:`twin.diagnosis.changes.scan_changes` on every row against the models to use, at
+    the steps with ``MIN_ROWS`` to that many rows after them, by its rules (the rows after the step fitted by it to
+    the scatter of the others, significant without any one of them with at least half its evidence, the residual it
+    leaves white in time), gross rows among those last rows seen by it (a row 17x the noise off is gross without
+    the change that explains it); then its evidence measured against the scatter the rows before it show along its
+    place (:func:`_place_scatter` over each of the place's columns, the model with the change: a wander of the cell
+    holds over a few rows and moves the last ones together), significant after the window pool's Bonferroni factor
+    over every row and place (a window whose end is the campaign's). Strongest first; a step of a joint's zero read as
+    a payload's change where the payload's event explains more (:func:`_as_event`). At the place of a kept step, that
+    step ending there (a change and back: a payload taken off again, a glitch's return) is preferred where it explains
+    every row as well (its chi2 within ``chi2_1`` at ``alpha`` of both changes': one constant fewer). Returns the fit
+    (with the change, or with the kept step ended, or as given), the change (or None) and a note."""
+    ch, tv = row_times(setup.ctx)
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    n = len(t_rows)
+    _, need = _rows_after(n, z_min)
+    if n < 2 * need:
+        return use_all, None, ""
+    factor = change_pool_sizes(n, places, short=MIN_ROWS)["change_window"]
+    sizes = {"change": factor, "change_window": factor}
+    w0, keep0 = prob_all.w_cal, prob_all.keep_val
+    tail = tv[prob_all.rows_cal] >= t_rows[n - need + 1]
+    w_tail = np.maximum(w0, tail.astype(float))
+    prob_all.w_cal = w_tail
+    result = use_all, None, ""
+    try:
+        cands = scan_changes(prob_all, use_all, places, windows=False, alpha=alpha, last=(MIN_ROWS, need - 1),
+                             sizes=sizes)
+        for a in cands:
+            prob_all.w_cal = w_tail
+            got = score_atoms(prob_all, use_all, [a], sizes, exact_top=1)
+            if not got:
+                continue
+            with_it = refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)])
+            s2 = _place_scatter(setup, prob_all, with_it, a, every_column=True)
+            logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) + np.log(factor)
+            if logp >= np.log(alpha):
+                continue
+            at = float(a.features[0].at)
+            k = int(np.sum(t_rows > at))
+            words = (f"({k} rows after it, fewer than the {need} it takes to locate it on some and confirm it on "
+                     f"others; Delta chi2 {got[0].dchi2 / prob_all.evidence_scale:.1f} against the scatter {s2:.2f} "
+                     f"of the rows before it, p = 10^{logp / np.log(10.0):.1f} after the factor {factor})")
+            ended = _ended_at(prob_all, use_all, a, at)
+            if ended is not None and ended.chi2 - with_it.chi2 < prob_all.evidence_scale * chi2_isf(alpha, 1):
+                result = ended, None, (f"a change in the campaign's last rows {words} is the end of a kept change at "
+                                       f"its place: {[c.label for c, _ in ended.chosen if is_window(c)][-1]} (chi2 "
+                                       f"{ended.chi2:.1f} against {with_it.chi2:.1f} with both)")
+                break
+            prob_all.w_cal = w_tail
+            s, note = _as_event(prob_all, use_all, got[0], cands, places, sizes, t_rows, alpha=alpha)
+            k = int(np.sum(t_rows > float(s.atom.features[0].at)))
+            end = EndChange(s.atom, s.basis, k, float(s.dchi2), float(s2), float(logp / np.log(10.0)), int(factor))
+            result = use_all, end, f"a change in the campaign's last rows: {s.atom.label} {words}" + note
+            break
+    finally:
+        prob_all.w_cal, prob_all.keep_val = w0, keep0
+    fit, end, note = result
+    if end is not None or fit is not use_all:
+        # fitted with the last rows it holds (gross without it), whose weights the refit then sets anew
+        prob_all.w_cal = w_tail
+        chosen = list(fit.chosen) + ([(end.atom, end.basis)] if end is not None else [])
+        fit = refit_with(prob_all, fit, chosen)
+    return fit, end, note
+
+
+def _ended_at(prob: Problem, fit: Fit, atom, at: float) -> Fit | None:
+    """``fit`` with the kept step at ``atom``'s place (``place``, ``target``; starting before ``at``) that fits every
+    row best when it ends at ``at`` (a window), or None when no kept step is there."""
+    best = None
+    for k, (c, _) in enumerate(fit.chosen):
+        if not (is_step(c) and (c.place, c.target) == (atom.place, atom.target) and float(c.features[0].at) < at):
+            continue
+        chosen = list(fit.chosen)
+        chosen[k] = (as_window(c, at), chosen[k][1])
+        trial = refit_with(prob, fit, chosen)
+        if best is None or trial.chi2 < best.chi2:
+            best = trial
+    return best
 
 
 EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's event is located as a whole
@@ -399,30 +517,35 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
     return use_all, found, notes
 
 
-def _place_scatter(setup, prob: Problem, fit: Fit, window) -> float:
+def _place_scatter(setup, prob: Problem, fit: Fit, window, *, every_column: bool = False) -> float:
     """The variance, in the floor's units, of the mean residual along the ``window``'s place over a stretch of rows,
     from the rows outside it: each row's evidence for an offset of the place, ``z_i = g_i . r_i / sqrt(|g_i|^2 -
     |Q^T g_i|^2)``, their mean square ``s^2`` (at least 1) and their correlation from one row to the next in time
     ``rho`` (clipped to [0, 0.9]): ``s^2 (1 + rho) / (1 - rho)``, the variance of a long stretch's mean of an AR(1)
     process. A wander of the cell moves whole rows together, shows along a joint's direction more than the floor
-    says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor)."""
+    says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor).
+    ``g_i`` is the place's first column (a joint's offset, the direction a compliance's change turns it); with
+    ``every_column``, each of the place's columns (a frame's six directions, per station), the largest figure."""
     sb = scoring_basis(prob, fit)
     W, QB, Br = row_aggregates(prob, fit, sb, window)
     inside = prob.features(window)[prob.rows_cal, 0] != 0
-    den = W[:, 0, 0] - np.einsum("np,np->n", QB[:, :, 0], QB[:, :, 0])
-    ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, 0, 0])), 1e-300)) & (prob.w_cal > 0)
-    if np.sum(ok) < 10:
-        return 1.0
-    z = np.where(ok, Br[:, 0] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
-    s2 = max(1.0, float(np.mean(z[ok] ** 2)))
     _, tv = row_times(setup.ctx)
     order = np.argsort(tv[prob.rows_cal], kind="stable")
-    zo, oko = z[order], ok[order]
-    pair = oko[1:] & oko[:-1]
-    a, b = zo[:-1][pair], zo[1:][pair]
-    den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
-    rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
-    return s2 * (1.0 + rho) / (1.0 - rho)
+    out = 1.0
+    for j in range(W.shape[1] if every_column else 1):
+        den = W[:, j, j] - np.einsum("np,np->n", QB[:, :, j], QB[:, :, j])
+        ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, j, j])), 1e-300)) & (prob.w_cal > 0)
+        if np.sum(ok) < 10:
+            continue
+        z = np.where(ok, Br[:, j] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
+        s2 = max(1.0, float(np.mean(z[ok] ** 2)))
+        zo, oko = z[order], ok[order]
+        pair = oko[1:] & oko[:-1]
+        a, b = zo[:-1][pair], zo[1:][pair]
+        den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+        rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
+        out = max(out, s2 * (1.0 + rho) / (1.0 - rho))
+    return out
 
 
 def gross_runs(setup, prob: Problem) -> np.ndarray:

@@ -28,7 +28,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import (end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
+from .late import (end_change, end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
                    payload_event)
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
@@ -785,9 +785,10 @@ def retime(prob: Problem, fit: Fit) -> Fit:
 @dataclass(frozen=True)
 class AfterBlocks:
     """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
-    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"glitch"``, ``"event"`` or ``"load"``; ``late``: the
-    :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, else None), notes, and whether a term
-    it was given took another end there (``changed``: the state later rows read changed)."""
+    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"end"``, ``"glitch"``, ``"event"`` or ``"load"``;
+    ``late``: the :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, the
+    :class:`~twin.diagnosis.late.EndChange` of a change in the campaign's last rows, else None), notes, and whether a
+    term it was given took another end there (``changed``: the state later rows read changed)."""
 
     fit: Fit
     found: tuple
@@ -803,9 +804,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
     ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
-    hung on and taken off, :func:`~twin.diagnosis.late.glitches`), and the arm's own weight at a joint a payload's
-    change shows compliant (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is
-    not kept where a kept change that ends explains every row as well."""
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); whatever the rows hold, a change whose new state
+    the campaign's last rows hold, too close to the end for a cut (:func:`~twin.diagnosis.late.end_change`: or a kept
+    step's end there); and the arm's own weight at a joint a payload's change shows compliant
+    (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
+    change that ends explains every row as well."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
@@ -849,6 +852,13 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
+    # change's end there)
+    src, end, note = end_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
+    if note:
+        notes.append(note)
+    if end is not None:
+        found.append((end.atom, "end", end, end.dchi2))
     # a payload is one event at every joint below the flange: one timing, every loaded joint
     src, events, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
     notes += notes_ev
