@@ -2,7 +2,9 @@
 
 import numpy as np
 
-from twin.diagnosis.confirm import serial_inflation
+from twin.diagnosis.atoms import Atom
+from twin.diagnosis.confirm import moves_the_cell, of_time, serial_inflation
+from twin.diagnosis.features import Step
 
 T_S = np.arange(80.0) * 30.0  # 80 rows, one every 30 s
 
@@ -33,3 +35,15 @@ def test_a_level_and_a_drift_are_not_counted_as_dependence():
     rng = np.random.default_rng(3)
     e = 5.0 + 0.1 * T_S / 30.0 + rng.normal(size=80)
     assert serial_inflation(e, T_S) < 1.2
+
+
+def test_only_a_term_of_time_on_the_measurement_side_is_judged_against_the_wander():
+    """A step of a station's measurement frame is a term the cell's wander moves alike from row to row; a step of a
+    joint's zero or of the tool is not (the arm's pose turns it from row to row)."""
+    step = (Step(ch="t_s", at=100.0),)
+    base = Atom("change", "param", "base", step, "", "", "change")
+    joint = Atom("change", "joint", "theta4", step, "", "", "change")
+    tool = Atom("change", "param", "tool", step, "", "", "change")
+    assert of_time(base) and moves_the_cell(base)
+    assert of_time(joint) and not moves_the_cell(joint)
+    assert not moves_the_cell(tool)

@@ -19,7 +19,7 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "of_time", "serial_inflation", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
+__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
 
@@ -41,6 +41,14 @@ def of_time(atom: Atom) -> bool:
     fs = [f for f in atom.features if not isinstance(f, Const)]
     return bool(fs) and all(f.kind in TIME_KINDS or (f.kind in ("pow", "step", "window", "exp", "sin", "cos") and
                                                      getattr(f, "ch", None) in ("t_s", "row", "temp_c")) for f in fs)
+
+
+def moves_the_cell(atom: Atom) -> bool:
+    """Whether an atom displaces the measurement side as a whole: the measurement frame of each station (``base``,
+    ``base_along``), its scale or its field. A wander of the cell is such a displacement, so a term of time there
+    follows it from row to row; a term through the arm (a joint, a link, a load, the tool) meets it along directions
+    that change with each row's pose."""
+    return atom.place in ("scale", "field") or (atom.place == "param" and atom.target in ("base", "base_along"))
 
 
 def serial_inflation(e: np.ndarray, t: np.ndarray) -> float:
@@ -109,7 +117,7 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
     z = signed_rank_z(c)
     z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
-    if of_time(s.atom):
+    if of_time(s.atom) and moves_the_cell(s.atom):
         # a term of time predicts neighbouring rows alike, and noise that wanders over a few rows (an instrument's
         # frame, the cell) moves their residuals together: the rows' products are then not independent. The score
         # is deflated by the variance their serial correlation adds, measured on the rows' remainder along the
