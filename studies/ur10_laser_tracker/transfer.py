@@ -39,7 +39,7 @@ from twin.benchio import atomic_write_text, provenance  # noqa: E402
 from twin.dataset import read_dataset  # noqa: E402
 from twin.diagnosis import diagnose, write_diagnosis  # noqa: E402
 from twin.diagnosis.apply import block_errors, dataset_predictor, effect_atoms  # noqa: E402
-from twin.diagnosis.diagnose import fit_with_effects  # noqa: E402
+from twin.diagnosis import fit_with_effects  # noqa: E402
 from twin.estimator import Calibration  # noqa: E402
 from twin.estimator.register import register  # noqa: E402
 from twin.units import rad_to_deg  # noqa: E402

@@ -16,14 +16,13 @@ from .diagnose import (
     DiagnosisResult,
     NoiseFloor,
     StructureTest,
-    EffectFit,
     diagnose,
-    fit_with_effects,
     history_resets,
     noise_floor,
     row_context,
     split_held_out,
 )
+from .effect_fit import EffectFit, fit_with_effects
 from .report import DIAGNOSIS_SCHEMA_VERSION, diagnosis_dict, read_diagnosis, write_diagnosis
 
 __all__ = [
