@@ -76,7 +76,7 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
     ('e', 'e09'): "not traced; extra names ['cyclic']; named ['coupling', 'cyclic'] not ['coupling']",
     ('e', 'e10'): "extra names ['cyclic']; named ['cyclic']",
     ('e', 'e13'): 'report after/oracle 2.09 > 1.5; later rows after/oracle 1.92 > 1.5',
-    ('e', 'e14'): "not traced; named [] not ['thermal']; report after/oracle 1.42 > 1.2; later rows after/oracle 1.52 > 1.5",
+    ('e', 'e14'): "not traced; named [] not ['thermal']",
     ('e', 'e19'): "extra names ['tilt']; named ['tilt']",
 }
 
