@@ -19,7 +19,8 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
+__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "Confirmation", "confirm",
+           "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
 

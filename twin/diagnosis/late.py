@@ -197,7 +197,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
         return use_all, None, ""
     factor = change_pool_sizes(n, places, short=MIN_ROWS)["change_window"]
     sizes = {"change": factor, "change_window": factor}
-    w0, keep0 = prob_all.w_cal, prob_all.keep_val
+    w0 = prob_all.w_cal
     tail = tv[prob_all.rows_cal] >= t_rows[n - need + 1]
     w_tail = np.maximum(w0, tail.astype(float))
     prob_all.w_cal = w_tail
@@ -233,7 +233,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
             result = use_all, end, f"a change in the campaign's last rows: {s.atom.label} {words}" + note
             break
     finally:
-        prob_all.w_cal, prob_all.keep_val = w0, keep0
+        prob_all.w_cal = w0
     fit, end, note = result
     if end is not None or fit is not use_all:
         # fitted with the last rows it holds (gross without it), whose weights the refit then sets anew

@@ -22,7 +22,8 @@ from .structure import chi2_logsf
 from .values import feature_values
 
 __all__ = ["prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air",
-           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS",
+           "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
