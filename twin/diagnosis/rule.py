@@ -127,8 +127,8 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
-    order = order_candidates(scored)
-    first = order[:tries]
+    order, same = _distinct(prob, order_candidates(scored))
+    first = _rival_readings(order, order[:tries], np.log(alpha_select))
     # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
     # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
     # from being tried at all
@@ -139,6 +139,7 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             seen.add(c.atom.pool)
             more.append(c)
     for k, s in enumerate(first + more):
+        alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
@@ -157,7 +158,7 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                 out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
                                                  float(np.exp(s.logp_adj)), float("nan"),
                                                  "not significant on the calibration rows after the onsets tried"))
-                out.rejected.append(s.atom.key)
+                out.rejected += [s.atom.key] + alike
                 continue
         c = confirm(prob, fit, s, z_min)
         if c.local and time_only(s.atom) and not is_onset(s.atom):
@@ -187,9 +188,50 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         if ok:
             out.accepted = s
             break
-        out.rejected.append(s.atom.key)
+        out.rejected += [s.atom.key] + alike
         out.unphysical |= implausible is not None
     return out
+
+
+def _rival_readings(order: list[Scored], first: list[Scored], logp_max: float) -> list[Scored]:
+    """``first`` with, after each backlash in it, the strongest significant other reading (``logp_adj < logp_max``) of
+    that joint's backlash in ``order`` (its one slot: the sign of the last move or of the load, a play, the size of the
+    last move): a joint's backlash is tried in the readings the rows hold before a term elsewhere takes its rows (one
+    reading failing its confirmation says nothing of another)."""
+    out: list[Scored] = []
+    have = {id(s) for s in first}
+    for s in first:
+        out.append(s)
+        if s.atom.family != "backlash":
+            continue
+        kinds = {f.kind for f in s.atom.features}
+        rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max and _slot(r.atom) == _slot(s.atom)
+                      and {f.kind for f in r.atom.features} != kinds), None)
+        if rival is not None:
+            out.append(rival)
+            have.add(id(rival))
+    return out
+
+
+def _distinct(prob: Problem, order: list[Scored]) -> tuple[list[Scored], dict[str, list[str]]]:
+    """``order`` without the candidates that are an earlier one on the calibration rows (the same family at the same
+    place with equal feature values on every calibration row: grid values the rows cannot tell apart, such as the
+    directions of a load that give every row the same sign), and the keys each kept candidate stands for. A round
+    tries distinct terms; one judged stands for its copies (rejected with it)."""
+    kept: list[Scored] = []
+    same: dict[str, list[str]] = {}
+    by: dict[tuple, list[Scored]] = {}
+    for s in order:
+        a = s.atom
+        k = (a.family, a.place, a.target, float(f"{s.dchi2:.9g}"))
+        twin = next((t for t in by.get(k, []) if np.array_equal(prob.features_cal(t.atom), prob.features_cal(a))),
+                    None)
+        if twin is None:
+            by.setdefault(k, []).append(s)
+            kept.append(s)
+        else:
+            same.setdefault(twin.atom.key, []).append(a.key)
+    return kept, same
 
 
 def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int], *, max_effects: int = 16,
