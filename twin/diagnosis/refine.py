@@ -135,11 +135,21 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     come back as they are."""
     kinds = {f.kind for f in s.atom.features}
     if kinds == {"lastmove"} and s.atom.family == "backlash":
-        # a backlash growing with the size of the last move: each law (saturating smoothly, in proportion up to a
-        # size, or taken up at a rate in proportion to what is left) at its own best width; the one that explains most
+        # a backlash growing with the size of the last move (saturating smoothly, in proportion up to a size, or taken
+        # up at a rate in proportion to what is left)
+        # each law (saturating smoothly, in proportion up to a size) at its own best width, the one that explains
+        # more; the first-order take-up, a law beyond the pool's grid, only where it explains more than both by
+        # chi2_1 at 1 % (one more hypothesis: near the sign's limit the three differ by a few rows' noise)
         others = [_with_law(s.atom, law) for law in BACKLASH_MOVE_REFINED_LAWS if law != s.atom.features[0].law]
-        twins = score_atoms(prob, fit, others, pool_sizes, exact_top=len(others))
-        return max([_refine_constant(prob, fit, c, pool_sizes) for c in [s] + twins], key=lambda t: t.dchi2)
+        got = [_refine_constant(prob, fit, c, pool_sizes)
+               for c in [s] + score_atoms(prob, fit, others, pool_sizes, exact_top=len(others))]
+        grid = [t for t in got if t.atom.features[0].law in BACKLASH_MOVE_LAWS] or got
+        top = max(grid, key=lambda t: t.dchi2)
+        extra = max((t for t in got if t.atom.features[0].law not in BACKLASH_MOVE_LAWS), key=lambda t: t.dchi2,
+                    default=None)
+        if extra is not None and extra.dchi2 - top.dchi2 >= dists.chi2_isf(0.01, 1) * prob.evidence_scale:
+            return extra
+        return top
     return _refine_constant(prob, fit, s, pool_sizes)
 
 
