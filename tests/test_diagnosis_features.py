@@ -30,6 +30,7 @@ def _one_of_each() -> list[Feature]:
         Grav(i=2, k=3, c=1),
         LastMove(j=1, w=0.1),
         LastMove(j=3, w=0.5, law="clip"),
+        LastMove(j=2, w=0.3, law="exp"),
         gm,
         Torque(j=2, h=1.0),
         Moment(j=0, axis=1, h=1.0),
@@ -211,3 +212,14 @@ def test_a_lagged_temperature_reads_the_channel_linear_between_rows():
     for k in range(1, len(t)):
         y[k] = y[k - 1] + a * (0.5 * (u[k] + u[k - 1]) - y[k - 1])
     np.testing.assert_allclose(feature_values((f,), ctx, irb1200())[:, 0], np.interp(rows, t, y) - 20.0, atol=1e-4)
+
+
+def test_a_backlash_taken_up_at_a_rate_follows_one_minus_the_exponential_of_the_last_move():
+    """The ``exp`` law of a last move ``m`` reads ``sign(m) (1 - exp(-|m| / w))``: half a width's move takes up 39 %, a
+    move back of three widths 95 % on the other side, and a joint that has not moved yet reads 0."""
+    q = np.zeros((4, 6))
+    q[1, 1] = 0.15  # +0.15 rad on joint 2
+    q[2, 1] = 0.15  # no move into this row: the last move stays +0.15
+    q[3, 1] = 0.15 - 0.9  # -0.9 rad
+    v = feature_values((LastMove(j=2, w=0.3, law="exp"),), RowContext(q=q), irb1200())[:, 0]
+    assert v == pytest.approx([0.0, 1 - np.exp(-0.5), 1 - np.exp(-0.5), -(1 - np.exp(-3.0))])

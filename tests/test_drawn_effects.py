@@ -315,3 +315,12 @@ def test_a_load_signed_backlash_reads_each_rows_flank_on_every_row(tmp_path):
     r = _scored(tmp_path, "backlash_load", 217)
     assert r["named"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_backlash_taken_up_exponentially_with_the_move_is_read_with_that_law(tmp_path):
+    """A backlash of joint 1 taken up as ``1 - exp(-|move| / 14 deg)`` at ~13x the noise (seed 218, small): its law
+    refined over tanh, in proportion and the first-order take-up at each one's best width, within 1.2x the oracle on
+    the report and later rows (2.0x / 1.4x read as tanh, the nearest of the grid's laws)."""
+    r = _scored(tmp_path, "backlash_size", 218)
+    assert r["named"], r["labels"]
+    assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2

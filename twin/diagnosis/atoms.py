@@ -44,8 +44,9 @@ from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
 from .features import Const, Feature, Hinge, Play, Sign, feature_from_dict
 
-__all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS", "HINGE_POINTS",
-           "sign_backlash", "play_backlash", "hinge_atom", "joint_words", "tilt_axis", "tilt_coefficient"]
+__all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS",
+           "BACKLASH_MOVE_REFINED_LAWS", "HINGE_POINTS", "sign_backlash", "play_backlash", "hinge_atom", "joint_words",
+           "tilt_axis", "tilt_coefficient"]
 
 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
@@ -53,6 +54,9 @@ PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried f
 # a lag in proportion to moves of tens of degrees
 BACKLASH_MOVE_WIDTHS_DEG = (2.0, 6.0, 20.0, 60.0)
 BACKLASH_MOVE_LAWS = (None, "clip")  # tanh of the move over the width; in proportion up to the width
+# the laws a kept one is refined over (each at its best width): the grid's and the first-order take-up,
+# sign(m) (1 - exp(-|m| / w))
+BACKLASH_MOVE_REFINED_LAWS = (None, "clip", "exp")
 HINGE_POINTS = 9  # angles (deciles of a joint's range) past which a one-sided pull may start (then refined)
 PLACES = ("joint", "length", "param", "plate", "scale", "field")
 

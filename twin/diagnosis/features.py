@@ -222,7 +222,8 @@ class Sign(Feature):
 class LastMove(Feature):
     """``tanh(last move of joint j / w)`` (``w`` [rad, or m on a prismatic joint]): hysteresis following the size of
     the last move; ``law`` ``"clip"``: ``clip(last move / w, -1, 1)`` instead (in proportion to the move up to ``w``,
-    the full size beyond it)."""
+    the full size beyond it); ``"exp"``: ``sign(m) (1 - exp(-|m| / w))`` of the last move ``m`` (taken up at a rate in
+    proportion to what is left, Dahl's first-order law)."""
 
     kind: ClassVar[str] = "lastmove"
     j: int

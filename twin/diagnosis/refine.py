@@ -12,8 +12,8 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, PLAY_HALF_DEG, Atom, hinge_atom,
-                    joint_words, play_backlash, sign_backlash)
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS,
+                    PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash, sign_backlash)
 from .extend import error_stats, reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
@@ -135,19 +135,33 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
     come back as they are."""
     kinds = {f.kind for f in s.atom.features}
     if kinds == {"lastmove"} and s.atom.family == "backlash":
-        # a backlash growing with the size of the last move: each law (saturating smoothly, or in proportion up to a
-        # size) at its own best width; the one that explains more
-        twin = score_atoms(prob, fit, [_with_other_law(s.atom)], pool_sizes, exact_top=1)
-        return max([_refine_constant(prob, fit, c, pool_sizes) for c in [s] + twin], key=lambda t: t.dchi2)
+        # a backlash growing with the size of the last move (saturating smoothly, in proportion up to a size, or taken
+        # up at a rate in proportion to what is left)
+        # each law (saturating smoothly, in proportion up to a size) at its own best width, the one that explains
+        # more; the first-order take-up, a law beyond the pool's grid, only where it explains more than both by
+        # chi2_1 at 1 % (one more hypothesis: near the sign's limit the three differ by a few rows' noise)
+        others = [_with_law(s.atom, law) for law in BACKLASH_MOVE_REFINED_LAWS if law != s.atom.features[0].law]
+        got = [_refine_constant(prob, fit, c, pool_sizes)
+               for c in [s] + score_atoms(prob, fit, others, pool_sizes, exact_top=len(others))]
+        grid = [t for t in got if t.atom.features[0].law in BACKLASH_MOVE_LAWS] or got
+        top = max(grid, key=lambda t: t.dchi2)
+        extra = max((t for t in got if t.atom.features[0].law not in BACKLASH_MOVE_LAWS), key=lambda t: t.dchi2,
+                    default=None)
+        if extra is not None and extra.dchi2 - top.dchi2 >= dists.chi2_isf(0.01, 1) * prob.evidence_scale:
+            return extra
+        return top
     return _refine_constant(prob, fit, s, pool_sizes)
 
 
-def _with_other_law(atom: Atom) -> Atom:
-    """A backlash growing with the size of the last move (``lastmove`` features) with the other law: ``tanh`` <->
-    ``clip``; channel and label to match."""
-    f = atom.features[0]
-    old, new = ("tanh(", "clip(") if f.law is None else ("clip(", "tanh(")
-    return replace_atom(atom, features=tuple(replace_atom(g, law=None if g.law else "clip") for g in atom.features),
+# each law's name in a lastmove atom's channel (expsat(x): sign(x) (1 - exp(-|x|)))
+LAW_WORDS = {None: "tanh(", "clip": "clip(", "exp": "expsat("}
+
+
+def _with_law(atom: Atom, law: str | None) -> Atom:
+    """A backlash growing with the size of the last move (``lastmove`` features) with the law ``law`` (``None``:
+    ``tanh``, ``"clip"``, ``"exp"``: :class:`~twin.diagnosis.features.LastMove`); channel and label to match."""
+    old, new = LAW_WORDS[atom.features[0].law], LAW_WORDS[law]
+    return replace_atom(atom, features=tuple(replace_atom(g, law=law) for g in atom.features),
                         channel=atom.channel.replace(old, new), label=atom.label.replace(old, new))
 
 

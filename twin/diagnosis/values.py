@@ -376,8 +376,11 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
                 out[:, k] = np.tanh(x)
             elif f.law == "clip":
                 out[:, k] = np.clip(x, -1.0, 1.0)
+            elif f.law == "exp":
+                out[:, k] = np.sign(x) * -np.expm1(-np.abs(x))
             else:
-                raise ValueError(f"unknown law {f.law!r} of a lastmove feature (known: tanh when absent, 'clip')")
+                raise ValueError(f"unknown law {f.law!r} of a lastmove feature (known: tanh when absent, 'clip', "
+                                 "'exp')")
         elif isinstance(f, GravMix):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
