@@ -419,6 +419,25 @@ def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict,
     return alt, e_alt, e_now
 
 
+def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[str], sizes: dict,
+               alpha_select: float, z_min: float) -> tuple[Fit, float, float] | None:
+    """The model ``fit`` with its term ``a`` replaced by the load family of the joints ``targets``
+    (:func:`_load_candidates`), grown by the forward pass' rules, at most two terms (a support tilts about two
+    axes), its linear terms first (:func:`_grow_own`), and through the backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows'
+    position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters."""
+    P = prob.prep.space.size
+    keep = [(c, B) for c, B in fit.chosen if c is not a]
+    base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+    cur = _grow_own(prob, base, lambda f, have: _load_candidates(prob, f, pool, targets, have), sizes, alpha_select,
+                    z_min, 2, linear_first=True)
+    if len(cur.chosen) == len(keep):
+        return None
+    alt, _ = backward(prob, cur, alpha_select, sizes)
+    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    return alt, e_alt, e_now
+
+
 def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
                   alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
@@ -474,8 +493,9 @@ def _replaced(kept: Atom, replaced: Atom, e_alt: float, e_now: float) -> dict:
 
 def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
-    """Where a catalogue family is named by one term only, at one joint, and another named family has terms of that
-    joint in the pool, try that family's terms of the joint in its place, each held to the forward pass' rules
+    """Where a catalogue family is named by one term only, at one joint (or a support's tilt, at the joints it bends:
+    :func:`_places`), and another named family has terms of that joint in the pool, try that family's terms of the
+    joint in its place, each held to the forward pass' rules
     (significant, confirmed on the held-out rows, of a physical size): when they predict the confirmation rows as
     well (within 2 %), the model with fewer families is kept and the term it replaced is reported as the
     alternative the data cannot tell from it (a harmonic of a wrist joint follows part of the gravity torque on
@@ -491,15 +511,22 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
 
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
-        if a.pool != "catalogue" or a.place != "joint" or a not in [c for c, _ in fit.chosen]:
+        support = a.family == "tilt" and a.target != "tilt0"
+        if a.pool != "catalogue" or not (a.place == "joint" or support) or a not in [c for c, _ in fit.chosen]:
             continue
         if sum(c.family == a.family for c in named) != 1:
             continue
         others = {c.family for c in named} - {a.family}
         have = {c.key for c, _ in fit.chosen if c is not a}
+        # a joint's term: the other families' terms of that joint; a support's tilt (the link a joint turns tilting
+        # about two axes, one of them parallel to a neighbouring joint's): the compliance of the joints it bends
+        if support and "compliance" not in others:
+            continue
+        at = _places(prob, a) if support else {a.target}
         cands = [c for c in pool if c.pool == "catalogue" and c.family in others and c.place == "joint"
-                 and c.target == a.target and c.key not in have]
-        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted)
+                 and c.target in at and c.key not in have and (not support or c.family == "compliance")]
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted) if not support \
+            else _swap_load(prob, fit, a, pool, {t for t in at if t.startswith("theta")}, sizes, alpha_select, z_min)
         if swap is None:
             continue
         alt, e_alt, e_now = swap
