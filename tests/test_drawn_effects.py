@@ -342,17 +342,3 @@ def test_a_supports_tilt_beside_a_named_compliance_gives_way_to_the_joints_compl
     assert r["params"]["joints"] == [3, 4]
     assert r["effects"] == ["compliance"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2
-
-
-def test_a_stiffening_shoulder_read_as_the_bases_tilt_gives_way_to_its_compliance(tmp_path):
-    """A stiffening compliance of a UR10's joint 2 without masses (seed 304): the base's tilt entered first (its moment
-    about the shoulder's axis is the shoulder's torque) with a window of joint 2's compliance beside it (later rows
-    1.34x the oracle); the shoulder's load read in their place predicts the confirmation rows beyond the band of a tie:
-    named compliance alone, the rows after the campaign within 1.2x the oracle."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("compliance", 304)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
-    assert r["params"]["joints"] == [2] and r["params"]["shape"] == "stiffening"
-    assert r["effects"] == ["compliance"] and r["changes_found"] == [], r["labels"]
-    assert r["test"]["after_over_oracle"] <= 1.2

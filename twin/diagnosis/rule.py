@@ -769,28 +769,24 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
 
 def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                         z_min: float) -> tuple[Fit, list[str], list[dict]]:
-    """A joint's load read in place of several harmonics, or of a support's tilt. Where the arm's weight loads a
-    joint, no load term is kept there, and harmonics of its own angle are kept there with further terms of that
-    joint (other orders, unnamed functions), the joint's load family is tried in their place
-    (:func:`_load_candidates`: its torque shapes, the weight of the link it moves, the stiffening of its fitted
-    torque), each term held to the forward pass' rules, and the terms taken out added back only where they predict
-    the confirmation rows beyond it (:func:`_nested`). A joint whose axis lies level turns its own link's first mass
-    moment into exactly a first harmonic of its angle, and a stiffening of that torque into its odd harmonics: one
-    cause read as several. The load is kept when it replaces every harmonic there and predicts the confirmation rows
-    as well (within 2 %) and the terms it replaced do not predict them better row by row (:func:`_better_rows`). One
-    harmonic alone stays (the data cannot tell it from the link's weight; the harmonic is the reading with no
-    assumption on the load). A support's tilt kept where it bends the joint (the base's at the shoulder: its moment
-    about the shoulder's axis is the shoulder's torque), with no harmonic and no compliance there, is tried the same
-    way with the unnamed terms and changes of that joint, and gives way only to a load that predicts the
-    confirmation rows beyond the 2 % band of a tie (a stiffening shoulder read as the base's tilt with a window of
-    its compliance beside it). Returns the fit, notes and alternatives."""
+    """A joint's load read in place of several harmonics. Where the arm's weight loads a joint, no load term is kept
+    there, and harmonics of its own angle are kept there with further terms of that joint (other orders, unnamed
+    functions), the joint's load family is tried in their place (:func:`_load_candidates`: its torque shapes, the
+    weight of the link it moves, the stiffening of its fitted torque), each term held to the forward pass' rules, and
+    the terms taken out added back only where they predict the confirmation rows beyond it (:func:`_nested`). A
+    joint whose axis lies level turns its own link's first mass moment into exactly a first harmonic of its angle, and
+    a stiffening of that torque into its odd harmonics: one cause read as several. The load is kept when it replaces
+    every harmonic there and predicts the confirmation rows as well (within 2 %) and the terms it replaced do not
+    predict them better row by row (:func:`_better_rows`). One harmonic alone stays (the data cannot tell it from the
+    link's weight; the harmonic is the reading with no assumption on the load). Returns the fit, notes and
+    alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
     P = prob.prep.space.size
     model = prob.prep.nominal
     loaded = sorted({c.target for c in pool if c.family == "compliance" and c.place == "joint" and c.pool != "generic"})
     for t in loaded:
-        if any(_load_term(c) and c.family != "tilt" and t in _places(prob, c) for c, _ in fit.chosen):
+        if any(_load_term(c) and t in _places(prob, c) for c, _ in fit.chosen):
             continue
         if own_link_atom(model, prob.ctx.q, int(t[5:])) is None:
             continue
@@ -799,14 +795,8 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
                      and _single_joint_variable(c) == var]
         others = [c for c, _ in fit.chosen if c.place == "joint" and c.target == t and not is_change(c)
                   and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
-        tilts = [c for c, _ in fit.chosen if c.family == "tilt" and t in _places(prob, c)]
-        if tilts and not harmonics and not any(c.family == "compliance" and c.target == t for c, _ in fit.chosen):
-            others = tilts + [c for c, _ in fit.chosen if c.target == t and (c.pool == "generic" or is_change(c))]
-            strict = True
-        elif not harmonics or len(others) < 2:
+        if not harmonics or len(others) < 2:
             continue
-        else:
-            strict = False
         keep = [(c, B) for c, B in fit.chosen if c not in others]
         cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
         cur = _grow_own(prob, cur, lambda f, have, t=t: _load_candidates(prob, f, pool, {t}, have), sizes,
@@ -815,8 +805,8 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
         if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
             continue  # no load of the joint's own survived: no reading of the load
         alt, back = _nested(prob, alt, others, sizes, alpha_select, z_min)
-        if any(c.family in ("cyclic", "tilt") for c in back):
-            continue  # a harmonic (a tilt) predicts beyond the load: the terms stay as they were
+        if any(c.family == "cyclic" for c in back):
+            continue  # a harmonic predicts beyond the load: the harmonics stay as they were
         alt, _ = backward(prob, alt, alpha_select, sizes)
         if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
             continue
@@ -824,8 +814,6 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
         e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
         if e_alt > 1.02 * e_now or _better_rows(prob, alt, fit) > z_min:
             continue
-        if strict and not 1.02 * e_alt < e_now:
-            continue  # a tilt gives way only to a load that predicts beyond the band of a tie
         out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
         notes.append(f"{'; '.join(repr(c.label) for c in out)} read as the load of joint {t[5:]} "
