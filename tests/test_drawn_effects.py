@@ -324,3 +324,30 @@ def test_a_backlash_taken_up_exponentially_with_the_move_is_read_with_that_law(t
     r = _scored(tmp_path, "backlash_size", 218)
     assert r["named"], r["labels"]
     assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_stiffening_shoulder_read_as_several_harmonics_is_named_its_compliance(tmp_path):
+    """A stiffening compliance of an IRB 1200's joint 2 without masses (seed 216, 280 rows): the weight of the link it
+    moves is a first harmonic of its angle and the stiffening adds odd ones, kept first with a function of q2*q3; the
+    joint's load read in their place (its torque shapes and link weight, then the stiffening of their sum) predicts
+    the confirmation rows as well: named compliance alone, the rows after the campaign within 1.2x the oracle."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build("compliance", 216)
+    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    assert r["params"]["joints"] == [2] and r["params"]["shape"] == "stiffening"
+    assert r["effects"] == ["compliance"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_supports_tilt_beside_a_named_compliance_gives_way_to_the_joints_compliance(tmp_path):
+    """Compliance of a UR5's joints 3 and 4 with its URDF masses (seed 311): the tilt of joint 5's support about two
+    axes (one parallel to joint 4's) entered before joint 4's compliance by a hair; tried in its place, joint 4's
+    compliance predicts the confirmation rows as well: one family named, compliance."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build("compliance", 311)
+    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    assert r["params"]["joints"] == [3, 4]
+    assert r["effects"] == ["compliance"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2

@@ -296,9 +296,11 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         sel.notes += swapped
         fit, merged, alts2 = _fewer_families(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += merged
+        fit, loaded, alts4 = _load_for_harmonics(prob, fit, pool, sizes, alpha_select, z_min)
+        sel.notes += loaded
         fit, lawed, alts3 = _no_extra_family(prob, fit, pool, sizes, alpha_select, z_min)
         sel.notes += lawed
-        alts = alts + alts2 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
+        alts = alts + alts2 + alts4 + alts3 + load_alternatives(prob, fit, pool, sizes, alpha_select)
         sel.alternatives = [d for d in sel.alternatives if d["of"] in {a.label for a, _ in fit.chosen}] + alts
         update_gross(prob, fit)
         fit = prob.fit(fit.z[:P], fit.chosen, psi_init(fit, fit.chosen))
@@ -459,6 +461,25 @@ def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict,
     return alt, e_alt, e_now
 
 
+def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[str], sizes: dict,
+               alpha_select: float, z_min: float) -> tuple[Fit, float, float] | None:
+    """The model ``fit`` with its term ``a`` replaced by the load family of the joints ``targets``
+    (:func:`_load_candidates`), grown by the forward pass' rules, at most two terms (a support tilts about two
+    axes), its linear terms first (:func:`_grow_own`), and through the backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows'
+    position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters."""
+    P = prob.prep.space.size
+    keep = [(c, B) for c, B in fit.chosen if c is not a]
+    base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+    cur = _grow_own(prob, base, lambda f, have: _load_candidates(prob, f, pool, targets, have), sizes, alpha_select,
+                    z_min, 2, linear_first=True)
+    if len(cur.chosen) == len(keep):
+        return None
+    alt, _ = backward(prob, cur, alpha_select, sizes)
+    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    return alt, e_alt, e_now
+
+
 def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
                   alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
@@ -514,8 +535,9 @@ def _replaced(kept: Atom, replaced: Atom, e_alt: float, e_now: float) -> dict:
 
 def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                     z_min: float) -> tuple[Fit, list[str], list[dict]]:
-    """Where a catalogue family is named by one term only, at one joint, and another named family has terms of that
-    joint in the pool, try that family's terms of the joint in its place, each held to the forward pass' rules
+    """Where a catalogue family is named by one term only, at one joint (or a support's tilt, at the joints it bends:
+    :func:`_places`), and another named family has terms of that joint in the pool, try that family's terms of the
+    joint in its place, each held to the forward pass' rules
     (significant, confirmed on the held-out rows, of a physical size): when they predict the confirmation rows as
     well (within 2 %), the model with fewer families is kept and the term it replaced is reported as the
     alternative the data cannot tell from it (a harmonic of a wrist joint follows part of the gravity torque on
@@ -531,15 +553,22 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
 
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
-        if a.pool != "catalogue" or a.place != "joint" or a not in [c for c, _ in fit.chosen]:
+        support = a.family == "tilt" and a.target != "tilt0"
+        if a.pool != "catalogue" or not (a.place == "joint" or support) or a not in [c for c, _ in fit.chosen]:
             continue
         if sum(c.family == a.family for c in named) != 1:
             continue
         others = {c.family for c in named} - {a.family}
         have = {c.key for c, _ in fit.chosen if c is not a}
+        # a joint's term: the other families' terms of that joint; a support's tilt (the link a joint turns tilting
+        # about two axes, one of them parallel to a neighbouring joint's): the compliance of the joints it bends
+        if support and "compliance" not in others:
+            continue
+        at = _places(prob, a) if support else {a.target}
         cands = [c for c in pool if c.pool == "catalogue" and c.family in others and c.place == "joint"
-                 and c.target == a.target and c.key not in have]
-        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted)
+                 and c.target in at and c.key not in have and (not support or c.family == "compliance")]
+        swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted) if not support \
+            else _swap_load(prob, fit, a, pool, {t for t in at if t.startswith("theta")}, sizes, alpha_select, z_min)
         if swap is None:
             continue
         alt, e_alt, e_now = swap
@@ -672,6 +701,39 @@ def _nested(prob: Problem, fit: Fit, extra: list[Atom], sizes: dict, alpha_selec
     return fit, back
 
 
+def _grow_own(prob: Problem, cur: Fit, candidates: Callable[[Fit, set[str]], list[Atom]], sizes: dict,
+              alpha_select: float, z_min: float, rounds: int, *, linear_first: bool = False) -> Fit:
+    """``cur`` with a family's own terms (``candidates(fit, keys_kept)``) added one at a time by the forward pass'
+    rules (:func:`_first_admitted`: the strongest of the first three admitted, a law refined within its family), at
+    most ``rounds`` of them. ``linear_first``: a joint's linear load terms (its torque shapes, the weight of the link
+    it moves) enter before any law read on their fitted sum (a stiffening): the law bends the joint's whole torque,
+    not the part of it placed first."""
+    P = prob.prep.space.size
+    for _ in range(rounds):
+        have = {c.key for c, _ in cur.chosen}
+        cands = candidates(cur, have)
+        if not cands:
+            break
+
+        def own_shape(sc, cur=cur):
+            # the family's own shape: a law refined past the family's range (a compliance's stiffening into a
+            # backlash's narrow flank) is another family's term, judged with the terms taken out
+            refined = refine_load_sign(prob, cur, sc, sizes)
+            return refined if refined.atom.family == sc.atom.family else sc
+
+        linear = [c for c in cands if not any(isinstance(f, LoadSign) for f in c.features)] if linear_first else []
+        best = _first_admitted(prob, cur, linear, sizes, alpha_select, z_min, top=3) if linear else None
+        if best is None:
+            rest = [c for c in cands if c not in linear]
+            best = _first_admitted(prob, cur, rest, sizes, alpha_select, z_min, top=3, reshape=own_shape) \
+                if rest else None
+        if best is None:
+            break
+        chosen = list(cur.chosen) + [(best.atom, best.basis)]
+        cur = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
+    return cur
+
+
 def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
                      z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """No extra term where the named family explains the rows. For each kept named term (in the order they entered:
@@ -725,22 +787,8 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
             rounds = 0  # the family alone predicts as well: nothing in their place
         else:
             rounds = len(others) + 1
-        for _ in range(rounds):
-            have = {c.key for c, _ in cur.chosen}
-            cands = _own_candidates(prob, cur, pool, a, targets, have)
-            if not cands:
-                break
-            def own_shape(sc, cur=cur):
-                # the family's own shape: a law refined past the family's range (a compliance's stiffening into a
-                # backlash's narrow flank) is another family's term, judged with the terms taken out
-                refined = refine_load_sign(prob, cur, sc, sizes)
-                return refined if refined.atom.family == sc.atom.family else sc
-
-            best = _first_admitted(prob, cur, cands, sizes, alpha_select, z_min, top=3, reshape=own_shape)
-            if best is None:
-                break
-            chosen = list(cur.chosen) + [(best.atom, best.basis)]
-            cur = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
+        cur = _grow_own(prob, cur, lambda f, have, a=a, t=targets: _own_candidates(prob, f, pool, a, t, have),
+                        sizes, alpha_select, z_min, rounds, linear_first=a.family == "compliance")
         alt, _ = backward(prob, cur, alpha_select, sizes)
         if a not in [c for c, _ in alt.chosen] and not any(c.family == a.family for c, _ in alt.chosen):
             continue  # the family itself did not survive without the others: no reading of its own
@@ -757,6 +805,63 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
                      f"their place: {'; '.join(c.label for c in new) or 'none'}): not confirmed on the held-out rows "
                      f"beyond it ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
         alts += [_replaced(a, o, e_alt, e_now) for o in out]
+        fit = alt
+    return fit, notes, alts
+
+
+def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
+                        z_min: float) -> tuple[Fit, list[str], list[dict]]:
+    """A joint's load read in place of several harmonics. Where the arm's weight loads a joint, no load term is kept
+    there, and harmonics of its own angle are kept there with further terms of that joint (other orders, unnamed
+    functions), the joint's load family is tried in their place (:func:`_load_candidates`: its torque shapes, the
+    weight of the link it moves, the stiffening of its fitted torque), each term held to the forward pass' rules, and
+    the terms taken out added back only where they predict the confirmation rows beyond it (:func:`_nested`). A
+    joint whose axis lies level turns its own link's first mass moment into exactly a first harmonic of its angle, and
+    a stiffening of that torque into its odd harmonics: one cause read as several. The load is kept when it replaces
+    every harmonic there and predicts the confirmation rows as well (within 2 %) and the terms it replaced do not
+    predict them better row by row (:func:`_better_rows`). One harmonic alone stays (the data cannot tell it from the
+    link's weight; the harmonic is the reading with no assumption on the load). Returns the fit, notes and
+    alternatives."""
+    notes: list[str] = []
+    alts: list[dict] = []
+    P = prob.prep.space.size
+    model = prob.prep.nominal
+    loaded = sorted({c.target for c in pool if c.family == "compliance" and c.place == "joint" and c.pool != "generic"})
+    for t in loaded:
+        if any(_load_term(c) and t in _places(prob, c) for c, _ in fit.chosen):
+            continue
+        if own_link_atom(model, prob.ctx.q, int(t[5:])) is None:
+            continue
+        var = f"q{t[5:]}"
+        harmonics = [c for c, _ in fit.chosen if c.family == "cyclic" and c.target == t
+                     and _single_joint_variable(c) == var]
+        others = [c for c, _ in fit.chosen if c.place == "joint" and c.target == t and not is_change(c)
+                  and (c.pool == "generic" or c.family in ("cyclic", "gear_ratio"))]
+        if not harmonics or len(others) < 2:
+            continue
+        keep = [(c, B) for c, B in fit.chosen if c not in others]
+        cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+        cur = _grow_own(prob, cur, lambda f, have, t=t: _load_candidates(prob, f, pool, {t}, have), sizes,
+                        alpha_select, z_min, len(others) + 1, linear_first=True)
+        alt, _ = backward(prob, cur, alpha_select, sizes)
+        if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
+            continue  # no load of the joint's own survived: no reading of the load
+        alt, back = _nested(prob, alt, others, sizes, alpha_select, z_min)
+        if any(c.family == "cyclic" for c in back):
+            continue  # a harmonic predicts beyond the load: the harmonics stay as they were
+        alt, _ = backward(prob, alt, alpha_select, sizes)
+        if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
+            continue
+        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        if e_alt > 1.02 * e_now or _better_rows(prob, alt, fit) > z_min:
+            continue
+        out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
+        new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        notes.append(f"{'; '.join(repr(c.label) for c in out)} read as the load of joint {t[5:]} "
+                     f"({'; '.join(c.label for c in new)}): it predicts the held-out rows as well "
+                     f"({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+        alts += [_replaced(c, o, e_alt, e_now) for o in out for c in new[:1]]
         fit = alt
     return fit, notes, alts
 
