@@ -1,15 +1,19 @@
 """The order in which scored candidates are tried (:func:`order_candidates`: evidence first, a named term before an
 unnamed one that does not beat it clearly, small terms before a broad one that only collects them, the smallest
-nested shape first) and the alternatives the data cannot tell from a kept term (:func:`alternatives`).
+nested shape first), the distinct terms a round tries (:func:`distinct_terms`, :func:`rival_readings`, a joint's one
+backlash :func:`slot`) and the alternatives the data cannot tell from a kept term (:func:`alternatives`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .atoms import Atom
+from .problem import Problem
 from .scoring import Scored
 
-__all__ = ["CATALOGUE_MARGIN", "CATALOGUE_SHARE", "order_candidates", "alternatives"]
+__all__ = ["CATALOGUE_MARGIN", "CATALOGUE_SHARE", "order_candidates", "alternatives", "slot", "distinct_terms",
+           "rival_readings"]
 
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
@@ -151,3 +155,50 @@ def alternatives(best: Scored, scored: list[Scored], *, share: float = 0.9, log_
                         "delta_chi2": s.dchi2, "delta_chi2_chosen": best.dchi2, "share_reproduced": cover})
     out.sort(key=lambda d: -d["delta_chi2"])
     return out[:3]
+
+
+def slot(atom: Atom) -> str:
+    """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
+    occupies its own key."""
+    return f"backlash:{atom.target}" if atom.family == "backlash" else atom.key
+
+
+def distinct_terms(prob: Problem, order: list[Scored]) -> tuple[list[Scored], dict[str, list[str]]]:
+    """``order`` without the candidates that are an earlier one on the calibration rows (the same family at the same
+    place with equal feature values on every calibration row: grid values the rows cannot tell apart, such as the
+    directions of a load that give every row the same sign), and the keys each kept candidate stands for. A round
+    tries distinct terms; one judged stands for its copies (rejected with it)."""
+    kept: list[Scored] = []
+    same: dict[str, list[str]] = {}
+    by: dict[tuple, list[Scored]] = {}
+    for s in order:
+        a = s.atom
+        k = (a.family, a.place, a.target, float(f"{s.dchi2:.9g}"))
+        twin = next((t for t in by.get(k, []) if np.array_equal(prob.features_cal(t.atom), prob.features_cal(a))),
+                    None)
+        if twin is None:
+            by.setdefault(k, []).append(s)
+            kept.append(s)
+        else:
+            same.setdefault(twin.atom.key, []).append(a.key)
+    return kept, same
+
+
+def rival_readings(order: list[Scored], first: list[Scored], logp_max: float) -> list[Scored]:
+    """``first`` with, after each backlash in it, the strongest significant other reading (``logp_adj < logp_max``) of
+    that joint's backlash in ``order`` (its one slot: the sign of the last move or of the load, a play, the size of the
+    last move): a joint's backlash is tried in the readings the rows hold before a term elsewhere takes its rows (one
+    reading failing its confirmation says nothing of another)."""
+    out: list[Scored] = []
+    have = {id(s) for s in first}
+    for s in first:
+        out.append(s)
+        if s.atom.family != "backlash":
+            continue
+        kinds = {f.kind for f in s.atom.features}
+        rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max and slot(r.atom) == slot(s.atom)
+                      and {f.kind for f in r.atom.features} != kinds), None)
+        if rival is not None:
+            out.append(rival)
+            have.add(id(rival))
+    return out

@@ -30,7 +30,7 @@ from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .late import (end_change, end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
                    payload_event)
-from .ordering import alternatives, order_candidates
+from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
@@ -98,11 +98,6 @@ def _heat(atom: Atom) -> bool:
     return atom.family == "thermal" and any(isinstance(f, Heat) for f in atom.features)
 
 
-def _slot(atom: Atom) -> str:
-    """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
-    occupies its own key."""
-    return f"backlash:{atom.target}" if atom.family == "backlash" else atom.key
-
 
 @dataclass
 class Round:
@@ -127,8 +122,8 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
-    order, same = _distinct(prob, order_candidates(scored))
-    first = _rival_readings(order, order[:tries], np.log(alpha_select))
+    order, same = distinct_terms(prob, order_candidates(scored))
+    first = rival_readings(order, order[:tries], np.log(alpha_select))
     # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
     # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
     # from being tried at all
@@ -193,45 +188,6 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     return out
 
 
-def _rival_readings(order: list[Scored], first: list[Scored], logp_max: float) -> list[Scored]:
-    """``first`` with, after each backlash in it, the strongest significant other reading (``logp_adj < logp_max``) of
-    that joint's backlash in ``order`` (its one slot: the sign of the last move or of the load, a play, the size of the
-    last move): a joint's backlash is tried in the readings the rows hold before a term elsewhere takes its rows (one
-    reading failing its confirmation says nothing of another)."""
-    out: list[Scored] = []
-    have = {id(s) for s in first}
-    for s in first:
-        out.append(s)
-        if s.atom.family != "backlash":
-            continue
-        kinds = {f.kind for f in s.atom.features}
-        rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max and _slot(r.atom) == _slot(s.atom)
-                      and {f.kind for f in r.atom.features} != kinds), None)
-        if rival is not None:
-            out.append(rival)
-            have.add(id(rival))
-    return out
-
-
-def _distinct(prob: Problem, order: list[Scored]) -> tuple[list[Scored], dict[str, list[str]]]:
-    """``order`` without the candidates that are an earlier one on the calibration rows (the same family at the same
-    place with equal feature values on every calibration row: grid values the rows cannot tell apart, such as the
-    directions of a load that give every row the same sign), and the keys each kept candidate stands for. A round
-    tries distinct terms; one judged stands for its copies (rejected with it)."""
-    kept: list[Scored] = []
-    same: dict[str, list[str]] = {}
-    by: dict[tuple, list[Scored]] = {}
-    for s in order:
-        a = s.atom
-        k = (a.family, a.place, a.target, float(f"{s.dchi2:.9g}"))
-        twin = next((t for t in by.get(k, []) if np.array_equal(prob.features_cal(t.atom), prob.features_cal(a))),
-                    None)
-        if twin is None:
-            by.setdefault(k, []).append(s)
-            kept.append(s)
-        else:
-            same.setdefault(twin.atom.key, []).append(a.key)
-    return kept, same
 
 
 def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int], *, max_effects: int = 16,
@@ -251,10 +207,10 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         if "change" in sizes else []
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
-        remaining = [a for a in pool if a.key not in rejected and _slot(a) not in taken]
+        remaining = [a for a in pool if a.key not in rejected and slot(a) not in taken]
         if places:
             # the best row of every place for a change, against the current fit (changes.scan_changes)
-            remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and _slot(a) not in taken]
+            remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and slot(a) not in taken]
         r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
                             callback=callback)
         sel.scores += r.scores
@@ -264,11 +220,11 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                 continue  # named atoms of an unphysical size are out: the next round scores the rest
             break
         accepted = r.accepted
-        taken.add(_slot(accepted.atom))  # the grid value it was found at is taken with it
+        taken.add(slot(accepted.atom))  # the grid value it was found at is taken with it
         refined = refine_load_sign(prob, fit, accepted if retimeable(accepted.atom) else refine(prob, fit, accepted, sizes),
                                    sizes)
         accepted = widen(prob, fit, refined if _implausible(prob, refined) is None else accepted, alpha_select)
-        taken.add(_slot(accepted.atom))
+        taken.add(slot(accepted.atom))
         kept += 1
         sel.alternatives += alternatives(accepted, r.scored)
         chosen.append((accepted.atom, accepted.basis))
