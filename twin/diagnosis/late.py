@@ -655,7 +655,9 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     whose return the rows showed less clearly keeps the state the others show); then each other compliance place of
     ``places`` takes the same change (the same start and end, :func:`twin.diagnosis.changes.same_event`) when
     significant on every row after the factor of the places tried (``chi2`` of its rank at ``alpha``), strongest
-    first. Returns the fit, the changes added (atom, ``Delta chi2``) and notes."""
+    first. Last, a payload's steps whose state before them the rows read as the payload's (carried from the first row
+    and taken off) become that window (:func:`_carried_from_start`). Returns the fit, the changes added (atom,
+    ``Delta chi2``), notes and the windows that replaced kept steps (the step's key -> the window)."""
     notes: list[str] = []
     starts = sorted({float(a.features[0].at) for a, _ in use_all.chosen if is_load_change(a)})
     for at in starts:
@@ -680,8 +682,39 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     use_all, added = _while_significant(prob_all, use_all, cands, alpha=alpha)
     notes += [f"the same payload at another joint: {g.atom.label} (one event loads every joint below the flange; "
               f"p = {p:.2g} on every row after the factor {n} of the places tried)" for g, p, n in added]
-    return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
+    use_all, renamed, flipped = _carried_from_start(prob_all, use_all)
+    notes += flipped
+    return use_all, [(renamed.get(g.atom.key, g.atom), float(g.dchi2)) for g, _, _ in added], notes, renamed
 
+
+
+def _carried_from_start(prob_all: Problem, use_all: Fit) -> tuple[Fit, dict, list[str]]:
+    """A payload's change from a row on (kept steps of the joints' compliance with one start) is a payload hung on
+    there, or one carried from the campaign's first row and taken off there: the same columns on the other side of
+    the start (a window from the first row until it). Without the payload's state on every row (the arm's own weight
+    holds the joints there), the side that carries the payload's shapes is the one the rows say: the window replaces
+    the steps where it fits every row better (one constant each, compared on the same rows' weights). The rows after
+    the campaign and a new session then read the state after the change: the payload off. Returns the fit, the
+    windows that replaced steps (the step's key -> the window) and notes."""
+    renamed: dict = {}
+    _, tv = row_times(prob_all.ctx)
+    t_first = float(np.min(tv[prob_all.rows_cal]))
+    notes = []
+    P = prob_all.prep.space.size
+    starts = sorted({float(a.features[0].at) for a, _ in use_all.chosen if is_load_change(a) and is_step(a)})
+    for at in starts:
+        idx = [k for k, (a, _) in enumerate(use_all.chosen)
+               if is_load_change(a) and is_step(a) and float(a.features[0].at) == at]
+        chosen = [(as_window(started_at(c, t_first), at) if k in idx else c, B)
+                  for k, (c, B) in enumerate(use_all.chosen)]
+        trial = prob_all.fit(use_all.z[:P], chosen, psi_init(use_all, chosen))
+        if trial.chi2 < use_all.chi2:
+            notes.append(f"a payload carried from the first row and taken off at {at:.6g}, not hung on there: "
+                         f"{[c.label for k, (c, _) in enumerate(chosen) if k in idx][0]} (chi2 {trial.chi2:.1f} "
+                         f"against {use_all.chi2:.1f} as a step)")
+            renamed.update({use_all.chosen[k][0].key: chosen[k][0] for k in idx})
+            use_all = refit_with(prob_all, use_all, chosen)
+    return use_all, renamed, notes
 
 
 def _with_end(atom, until):

@@ -855,8 +855,9 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
     # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
     # loads is not left to read as a change in the last rows
-    src, events, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
+    src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
     notes += notes_ev
+    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
     found += [(a, "event", None, dchi2) for a, dchi2 in events]
     # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
     # change's end there)
@@ -866,8 +867,9 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     if end is not None:
         found.append((end.atom, "end", end, end.dchi2))
     # a payload is one event at every joint below the flange: one timing, every loaded joint
-    src, more, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
+    src, more, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
     notes += notes_ev
+    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
     found += [(a, "event", None, dchi2) for a, dchi2 in more]
     events += more
     if beyond or events:
