@@ -682,18 +682,19 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     use_all, added = _while_significant(prob_all, use_all, cands, alpha=alpha)
     notes += [f"the same payload at another joint: {g.atom.label} (one event loads every joint below the flange; "
               f"p = {p:.2g} on every row after the factor {n} of the places tried)" for g, p, n in added]
-    use_all, renamed, flipped = _carried_from_start(prob_all, use_all)
+    use_all, renamed, flipped = _carried_from_start(prob_all, use_all, alpha=alpha)
     notes += flipped
     return use_all, [(renamed.get(g.atom.key, g.atom), float(g.dchi2)) for g, _, _ in added], notes, renamed
 
 
 
-def _carried_from_start(prob_all: Problem, use_all: Fit) -> tuple[Fit, dict, list[str]]:
+def _carried_from_start(prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, dict, list[str]]:
     """A payload's change from a row on (kept steps of the joints' compliance with one start) is a payload hung on
     there, or one carried from the campaign's first row and taken off there: the same columns on the other side of
     the start (a window from the first row until it). Without the payload's state on every row (the arm's own weight
     holds the joints there), the side that carries the payload's shapes is the one the rows say: the window replaces
-    the steps where it fits every row better (one constant each, compared on the same rows' weights). The rows after
+    the steps where it fits every row better by more than ``chi2_1`` at ``alpha`` (as many constants, compared on the
+    same rows' weights; where the joint's other terms span the payload's shapes, both read alike and the step stays). The rows after
     the campaign and a new session then read the state after the change: the payload off. Returns the fit, the
     windows that replaced steps (the step's key -> the window) and notes."""
     renamed: dict = {}
@@ -708,7 +709,7 @@ def _carried_from_start(prob_all: Problem, use_all: Fit) -> tuple[Fit, dict, lis
         chosen = [(as_window(started_at(c, t_first), at) if k in idx else c, B)
                   for k, (c, B) in enumerate(use_all.chosen)]
         trial = prob_all.fit(use_all.z[:P], chosen, psi_init(use_all, chosen))
-        if trial.chi2 < use_all.chi2:
+        if trial.chi2 < use_all.chi2 - prob_all.evidence_scale * chi2_isf(alpha, 1):
             notes.append(f"a payload carried from the first row and taken off at {at:.6g}, not hung on there: "
                          f"{[c.label for k, (c, _) in enumerate(chosen) if k in idx][0]} (chi2 {trial.chi2:.1f} "
                          f"against {use_all.chi2:.1f} as a step)")
