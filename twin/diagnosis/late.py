@@ -694,9 +694,9 @@ def _carried_from_start(prob_all: Problem, use_all: Fit, *, alpha: float) -> tup
     the start (a window from the first row until it). Without the payload's state on every row (the arm's own weight
     holds the joints there), the side that carries the payload's shapes is the one the rows say: the window replaces
     the steps where it fits every row better by more than ``chi2_1`` at ``alpha`` (as many constants, compared on the
-    same rows' weights; where the joint's other terms span the payload's shapes, both read alike and the step stays). The rows after
-    the campaign and a new session then read the state after the change: the payload off. Returns the fit, the
-    windows that replaced steps (the step's key -> the window) and notes."""
+    same rows' weights; where the joint's other terms span the payload's shapes, both read alike and the step
+    stays). The rows after the campaign and a new session then read the state after the change: the payload off.
+    Returns the fit, the windows that replaced steps (the step's key -> the window) and notes."""
     renamed: dict = {}
     _, tv = row_times(prob_all.ctx)
     t_first = float(np.min(tv[prob_all.rows_cal]))
