@@ -481,16 +481,18 @@ def same_event(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
 def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
     """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
     at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
-    shapes on every row. A payload hangs at the flange and gravity loads every joint below it at once (the torque
-    shapes at each of them change together), on top of the arm's own weight, which the joints carry on every row
-    (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``). Else none."""
+    shapes and under the payload's shapes on every row. A payload hangs at the flange and gravity loads every joint
+    below it at once (the torque shapes at each of them change together), on top of the arm's own weight, which the
+    joints carry on every row (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``); a payload taken off was carried on
+    every row before (``L_i = 1`` there): its shapes on every row hold that loaded state, the change its removal.
+    Else none."""
     f0 = atom.features[0]
     if not isinstance(f0, Gated) or atom.place != "joint":
         return []
     loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
     same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
     return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
-                        "change", pl.joints) for pl in loads if not pl.payload]
+                        "change", pl.joints) for pl in loads]
 
 
 def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:

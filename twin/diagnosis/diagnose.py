@@ -49,7 +49,7 @@ from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import MIN_ROWS, change_places, change_pool_sizes, describe_changes, is_change, row_times
+from .changes import MIN_ROWS, change_places, change_pool_sizes, describe_changes, is_change, is_window, row_times
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .extend import error_stats
 from .loads import reads_its_load
@@ -688,13 +688,17 @@ def every_row_changes(prob: Problem, prob_pre: Problem, cur: Fit, every: Fit, n_
         F = np.abs(prob_pre.features(atom)[prob_pre.rows_cal]) > 0
         return int(np.sum(np.any(F.reshape(len(F), -1), axis=1))) >= MIN_ROWS
 
+    # a change that holds from the first row on (a payload carried from the start and taken off) makes the state the
+    # calibration rows fitted at its joint the changed one: the joint's other terms are sized again with it
+    t_first = float(np.min(row_times(prob_pre.ctx)[1][prob_pre.rows_cal]))
+    carried = {a.target for a, _ in every.chosen if is_window(a) and float(a.features[0].at) <= t_first}
     terms = []  # (term, value, moving)
     for k in range(n_kept):
         if is_change(cur.chosen[k][0]):
             terms.append((every.chosen[k], seg(every, k), True))
         else:
-            terms.append((cur.chosen[k], seg(cur, k), False))
-    terms += [(cur.chosen[k], seg(cur, k), False) for k in range(n_kept, len(cur.chosen))
+            terms.append((cur.chosen[k], seg(cur, k), cur.chosen[k][0].target in carried))
+    terms += [(cur.chosen[k], seg(cur, k), cur.chosen[k][0].target in carried) for k in range(n_kept, len(cur.chosen))
               if not is_change(cur.chosen[k][0])]
     terms += [(every.chosen[k], seg(every, k), True) for k in range(n_kept, len(every.chosen))
               if is_change(every.chosen[k][0]) and shown(every.chosen[k][0])]

@@ -263,28 +263,50 @@ EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's e
 
 def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
               t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
-    """The change ``s`` (a step of a joint's zero, scored against ``fit0`` on ``prob``'s rows), or the payload's
-    change the scan found at the same joint (``cands``) read as one event: a payload hangs at the flange and changes
-    the gravity torque of every joint below it at once (:func:`payload_event`), so the event is that joint's change
-    with the same change at every other joint's payload place (:func:`~twin.diagnosis.changes.same_event`) added
-    while significant after the factor of the places tried. The event replaces the zero's step where its
+    """The change ``s`` (a step of a joint's zero or of a frame, scored against ``fit0`` on ``prob``'s rows), or a
+    change of a joint's compliance the scan found (``cands``: at the same joint for a zero's step; for a frame's, at
+    any joint, starting within :data:`EVENT_ROWS` rows of it) read as one event: a payload hangs at the flange and
+    changes the gravity torque of every joint below it at once (:func:`payload_event`), so the event is that joint's
+    change with the same change at every other joint's payload place (:func:`~twin.diagnosis.changes.same_event`)
+    added while significant after the factor of the places tried. Each such change leads an event in turn; the one
+    that leaves the rows the lowest chi2 is the event, a payload's shapes leading where they do within ``chi2_1`` at
+    ``alpha`` of it (a point mass at the flange, the physical event, over a stiffness changed under the arm's own
+    weight when the rows cannot tell them apart). The event replaces the zero's step where its
     ``Delta chi2`` beyond the step's exceeds ``chi2`` of its extra columns at ``alpha`` (``k_event - k_step`` degrees
     of freedom, at least one); its start is then the row (``t_rows``: the rows' times, sorted), within
     :data:`EVENT_ROWS` of the two candidates' starts, at which the whole event fits the rows best (each joint's start
     alone is located less surely than all of them together). Returns the change to confirm and a note (empty when
     ``s`` stands)."""
     a = s.atom
-    if not (is_step(a) and a.place == "joint" and not is_load_change(a)):
+    if not (is_step(a) and not is_load_change(a)):
         return s, ""
-    alts = [c for c in cands if is_load_change(c) and is_step(c) and c.target == a.target]
+    w_entry = prob.w_cal
+    i_a = np.searchsorted(t_rows, float(a.features[0].at))
+    alts = [c for c in cands if is_load_change(c) and is_step(c)
+            and (c.target == a.target if a.place == "joint"
+                 else abs(np.searchsorted(t_rows, float(c.features[0].at)) - i_a) <= EVENT_ROWS)]
     if not alts:
         return s, ""
-    first = score_atoms(prob, fit0, alts[:1], sizes, exact_top=1)
-    if not first:
+    got, tried = None, []
+    for c in alts:
+        # each candidate lead (a payload's shapes, or the arm's own at a joint whose stiffness changed) as a whole
+        # event: the one that leaves every row the lowest chi2
+        first = score_atoms(prob, fit0, [c], sizes, exact_top=1)
+        if not first:
+            continue
+        fit = refit_with(prob, fit0, list(fit0.chosen) + [(first[0].atom, first[0].basis)])
+        fit, added = _while_significant(prob, fit, same_event(first[0].atom, places), alpha=alpha)
+        tried.append((first[0], fit, added))
+        if got is None or fit.chi2 < got[1].chi2:
+            got = (first[0], fit, added)
+    if got is None:
         return s, ""
-    lead = first[0]
-    fit = refit_with(prob, fit0, list(fit0.chosen) + [(lead.atom, lead.basis)])
-    fit, added = _while_significant(prob, fit, same_event(lead.atom, places), alpha=alpha)
+    lead, fit, added = got
+    # a payload is a point mass at the flange: its own shapes lead the event where they explain every row as well
+    # (a chi2 within chi2_1 at alpha of the best lead's)
+    pay = [g for g in tried if _payload_place(g[0].atom, places)]
+    if pay and min(pay, key=lambda g: g[1].chi2)[1].chi2 - fit.chi2 < prob.evidence_scale * chi2_isf(alpha, 1):
+        lead, fit, added = min(pay, key=lambda g: g[1].chi2)
     k_event = lead.basis.shape[1] + sum(g.basis.shape[1] for g, _, _ in added)
     gain = (fit0.chi2 - fit.chi2 - s.dchi2) / prob.evidence_scale
     extra = max(k_event - s.basis.shape[1], 1)
@@ -294,14 +316,27 @@ def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[Cha
     members = list(fit.chosen[len(fit0.chosen):])
     ats = sorted((float(a.features[0].at), float(lead.atom.features[0].at)))
     i0, i1 = np.searchsorted(t_rows, ats[0]), np.searchsorted(t_rows, ats[1])
-    best, best_at = fit, float(lead.atom.features[0].at)
+    # the starts compared on the same rows' weights (the gross rows of the event at the scan's start): a start that
+    # made rows gross would drop their misfit from its chi2
+    w_event = prob.w_cal.copy()
+    P = prob.prep.space.size
+    best_chi2, best_at = fit.chi2, float(lead.atom.features[0].at)
     for t in t_rows[max(i0 - EVENT_ROWS, 1):i1 + EVENT_ROWS + 1]:
-        trial = refit_with(prob, fit0, list(fit0.chosen) + [(started_at(c, t), B) for c, B in members])
-        if trial.chi2 < best.chi2:
-            best, best_at = trial, float(t)
+        chosen = list(fit.chosen[:len(fit0.chosen)]) + [(started_at(c, t), B) for c, B in members]
+        prob.w_cal = w_event
+        trial = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
+        if trial.chi2 < best_chi2:
+            best_chi2, best_at = trial.chi2, float(t)
+    prob.w_cal = w_entry
     lead = score_atoms(prob, fit0, [started_at(lead.atom, best_at)], sizes, exact_top=1)[0]
     return lead, (f"; read as a payload's change ({lead.atom.label} with the same change at every loaded joint "
                   f"beside it: Delta chi2 {gain:.1f} beyond {a.label} for {extra} more columns)")
+
+
+def _payload_place(atom, places: list[ChangePlace]) -> bool:
+    """Whether ``atom`` is a change at a joint's payload place of ``places`` (a point mass at the flange)."""
+    shapes = tuple(getattr(f, "f", None) for f in atom.features)
+    return any(pl.payload and pl.target == atom.target and tuple(pl.inner) == shapes for pl in places)
 
 
 def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str, z_min: float,
@@ -620,7 +655,9 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     whose return the rows showed less clearly keeps the state the others show); then each other compliance place of
     ``places`` takes the same change (the same start and end, :func:`twin.diagnosis.changes.same_event`) when
     significant on every row after the factor of the places tried (``chi2`` of its rank at ``alpha``), strongest
-    first. Returns the fit, the changes added (atom, ``Delta chi2``) and notes."""
+    first. Last, a payload's steps whose state before them the rows read as the payload's (carried from the first row
+    and taken off) become that window (:func:`_carried_from_start`). Returns the fit, the changes added (atom,
+    ``Delta chi2``), notes and the windows that replaced kept steps (the step's key -> the window)."""
     notes: list[str] = []
     starts = sorted({float(a.features[0].at) for a, _ in use_all.chosen if is_load_change(a)})
     for at in starts:
@@ -645,8 +682,40 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     use_all, added = _while_significant(prob_all, use_all, cands, alpha=alpha)
     notes += [f"the same payload at another joint: {g.atom.label} (one event loads every joint below the flange; "
               f"p = {p:.2g} on every row after the factor {n} of the places tried)" for g, p, n in added]
-    return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
+    use_all, renamed, flipped = _carried_from_start(prob_all, use_all, alpha=alpha)
+    notes += flipped
+    return use_all, [(renamed.get(g.atom.key, g.atom), float(g.dchi2)) for g, _, _ in added], notes, renamed
 
+
+
+def _carried_from_start(prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, dict, list[str]]:
+    """A payload's change from a row on (kept steps of the joints' compliance with one start) is a payload hung on
+    there, or one carried from the campaign's first row and taken off there: the same columns on the other side of
+    the start (a window from the first row until it). Without the payload's state on every row (the arm's own weight
+    holds the joints there), the side that carries the payload's shapes is the one the rows say: the window replaces
+    the steps where it fits every row better by more than ``chi2_1`` at ``alpha`` (as many constants, compared on the
+    same rows' weights; where the joint's other terms span the payload's shapes, both read alike and the step
+    stays). The rows after the campaign and a new session then read the state after the change: the payload off.
+    Returns the fit, the windows that replaced steps (the step's key -> the window) and notes."""
+    renamed: dict = {}
+    _, tv = row_times(prob_all.ctx)
+    t_first = float(np.min(tv[prob_all.rows_cal]))
+    notes = []
+    P = prob_all.prep.space.size
+    starts = sorted({float(a.features[0].at) for a, _ in use_all.chosen if is_load_change(a) and is_step(a)})
+    for at in starts:
+        idx = [k for k, (a, _) in enumerate(use_all.chosen)
+               if is_load_change(a) and is_step(a) and float(a.features[0].at) == at]
+        chosen = [(as_window(started_at(c, t_first), at) if k in idx else c, B)
+                  for k, (c, B) in enumerate(use_all.chosen)]
+        trial = prob_all.fit(use_all.z[:P], chosen, psi_init(use_all, chosen))
+        if trial.chi2 < use_all.chi2 - prob_all.evidence_scale * chi2_isf(alpha, 1):
+            notes.append(f"a payload carried from the first row and taken off at {at:.6g}, not hung on there: "
+                         f"{[c.label for k, (c, _) in enumerate(chosen) if k in idx][0]} (chi2 {trial.chi2:.1f} "
+                         f"against {use_all.chi2:.1f} as a step)")
+            renamed.update({use_all.chosen[k][0].key: chosen[k][0] for k in idx})
+            use_all = refit_with(prob_all, use_all, chosen)
+    return use_all, renamed, notes
 
 
 def _with_end(atom, until):

@@ -907,7 +907,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
     ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
-    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); whatever the rows hold, a change whose new state
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); a payload's change kept so far as one event at
+    every loaded joint (:func:`~twin.diagnosis.late.payload_event`); whatever the rows hold, a change whose new state
     the campaign's last rows hold, too close to the end for a cut (:func:`~twin.diagnosis.late.end_change`: or a kept
     step's end there); and the arm's own weight at a joint a payload's change shows compliant
     (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
@@ -955,6 +956,12 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
+    # loads is not left to read as a change in the last rows
+    src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
+    notes += notes_ev
+    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
+    found += [(a, "event", None, dchi2) for a, dchi2 in events]
     # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
     # change's end there)
     src, end, note = end_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
@@ -963,9 +970,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     if end is not None:
         found.append((end.atom, "end", end, end.dchi2))
     # a payload is one event at every joint below the flange: one timing, every loaded joint
-    src, events, notes_ev = payload_event(prob_x, src, places, alpha=alpha)
+    src, more, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
     notes += notes_ev
-    found += [(a, "event", None, dchi2) for a, dchi2 in events]
+    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
+    found += [(a, "event", None, dchi2) for a, dchi2 in more]
+    events += more
     if beyond or events:
         src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
         notes += notes_load
