@@ -45,7 +45,7 @@ from ..estimator.methods import build_calibration, identify_best
 from ..estimator.solvers import gauss_newton
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
-from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
+from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms, recorded_lag_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
@@ -279,6 +279,8 @@ def diagnose(
     # rows are predicted as the rows after the campaign are: by the same models on every row before them
     places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"], setup.ctx.q)
     late_gate = bool(pool) and prob.test(use).p_value < alpha
+    # without a selection, the recorded temperature's templates for a change of the air in the campaign's last rows
+    recorded = [] if pool else recorded_lag_atoms(setup.prep.nominal, setup.ctx, link_lengths(setup.prep.nominal))
 
     before_report = np.ones(setup.dataset.n, bool)
     if prob.obs_rep is not None:
@@ -293,7 +295,7 @@ def diagnose(
     def models(pre: bool):
         geo_x, ext_x, prob_x = refit(pre)
         ab = after_blocks(setup, prob_x, ext_x if ext_x is not None else geo_x, pool, places, late=late_gate,
-                          alpha=alpha_select, z_min=z_min)
+                          alpha=alpha_select, z_min=z_min, recorded=recorded)
         return geo_x, (ab.fit if ext_x is not None or ab.found else None), prob_x, ab
 
     def blocked_extended(prob_x: Problem, after: AfterBlocks, fit: Fit) -> None:

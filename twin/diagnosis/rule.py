@@ -23,13 +23,13 @@ from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
-from .features import BaseMoment, Cos, Heat, LoadSign, Moment, Play, Pow, Sin, Torque
+from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import (end_change, end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
-                   payload_event)
+from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
+                   own_weight, payload_event)
 from .ordering import alternatives, order_candidates
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
@@ -98,6 +98,15 @@ def _heat(atom: Atom) -> bool:
     return atom.family == "thermal" and any(isinstance(f, Heat) for f in atom.features)
 
 
+def _recorded_reading(atom: Atom, scored: list[Scored]) -> list[Atom]:
+    """The scored thermal atom of ``atom``'s links against the recorded temperature through a lag (the most significant
+    on the grid; none without a record): a link's temperature that follows the air's records what the motors' heat,
+    a constructed channel with a warm-up beside it, would only imitate by its smooth rise."""
+    lagged = [c for c in scored if c.atom.family == "thermal" and c.atom.target == atom.target
+              and len(c.atom.features) == 1 and isinstance(c.atom.features[0], Lag) and c.atom.features[0].ch == "temp_c"]
+    return [min(lagged, key=lambda c: c.logp_adj).atom] if lagged else []
+
+
 def _slot(atom: Atom) -> str:
     """What a kept atom occupies: a joint has one backlash (a sign or a play of some clearance); any other atom
     occupies its own key."""
@@ -151,8 +160,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             # effect's, not the grid's: judged at their best values (an onset's evidence then pays for the onsets,
             # ramps and lags tried: refine_onset)
             # the motors' heat: the joints whose travel heats the links chosen at the best time constant of each
-            s = prefer_heat(prob, fit, s, heat_alternatives(prob.ctx, s.atom), sizes) if _heat(s.atom) \
-                else refine(prob, fit, s, sizes)
+            # and a recorded temperature's lag is the heat's rival on the same links: each at its best time constant
+            s = prefer_heat(prob, fit, s, heat_alternatives(prob.ctx, s.atom) + _recorded_reading(s.atom, scored),
+                            sizes) if _heat(s.atom) else refine(prob, fit, s, sizes)
             if is_onset(s.atom) and s.logp_adj >= np.log(alpha_select):
                 out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
                                                  float(np.exp(s.logp_adj)), float("nan"),
@@ -797,16 +807,18 @@ class AfterBlocks:
 
 
 def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
-                 z_min: float) -> AfterBlocks:
+                 z_min: float, recorded: list[Atom] | None = None) -> AfterBlocks:
     """Step 9, on the rows of ``prob_x`` (every row of the campaign; or every row before the report block) from the
     chosen model refitted on them (``src``): a change after the rows that fit, located before a cut and confirmed after
     it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
     :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
     block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
     ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
-    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); whatever the rows hold, a change whose new state
-    the campaign's last rows hold, too close to the end for a cut (:func:`~twin.diagnosis.late.end_change`: or a kept
-    step's end there); and the arm's own weight at a joint a payload's change shows compliant
+    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); whatever the rows hold, the recorded temperature
+    leaving its range in the campaign's last rows (:func:`~twin.diagnosis.late.end_term`, on ``late_templates(pool)``
+    or, where no selection ran, the ``recorded`` temperature's templates; its lag then :func:`retime`d) and a change
+    whose new state the campaign's last rows hold, too close to the end for a cut
+    (:func:`~twin.diagnosis.late.end_change`: or a kept step's end there); and the arm's own weight at a joint a payload's change shows compliant
     (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
     change that ends explains every row as well."""
     found, notes = [], []
@@ -852,6 +864,14 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+    # the recorded temperature leaving its range in the last rows, too close to the end for a cut: its growth
+    templates = late_templates(pool) if pool else list(recorded or [])
+    if templates:
+        src, end, note = end_term(setup, prob_x, src, templates, alpha=alpha, z_min=z_min)
+        if end is not None:
+            src = retime(prob_x, src)
+            notes.append(note)
+            found.append((end.atom, "end", end, end.dchi2))
     # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
     # change's end there)
     src, end, note = end_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
