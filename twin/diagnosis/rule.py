@@ -806,6 +806,17 @@ class AfterBlocks:
     changed: bool = False  # a term the rows brought was given another end (its state on later rows changed)
 
 
+def _air_explains(prob: Problem, src: Fit, step, air, alpha: float) -> bool:
+    """Whether the change of the recorded temperature ``air`` (a thermal term, its lag :func:`retime`d) explains every
+    row of ``prob`` as well as the ``step`` found after the rows that fit: its chi2 beyond the step's by less than
+    ``chi2`` at ``alpha`` with a degree of freedom per column the step has more (at least one)."""
+    chosen = list(src.chosen)
+    with_step = refit_with(prob, src, chosen + [(step.atom, step.basis)])
+    with_air = retime(prob, refit_with(prob, src, chosen + [(air.atom, air.basis)]))
+    extra = max(1, step.basis.shape[1] - air.basis.shape[1])
+    return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, extra)
+
+
 def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
                  z_min: float, recorded: list[Atom] | None = None) -> AfterBlocks:
     """Step 9, on the rows of ``prob_x`` (every row of the campaign; or every row before the report block) from the
@@ -825,11 +836,18 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
         notes.append(note)
-        if got is None:
-            # the air's temperature changing after the rows that fit (a door opened late in the campaign)
-            got, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
+        if got is None or setup.ctx.temp_c is not None:
+            # the air's temperature changing after the rows that fit (a door opened late in the campaign); where the
+            # temperature is recorded, tried beside a step too: the record times a change of the air
+            air, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
             if note:
                 notes.append(note)
+            if got is None:
+                got = air
+            elif air is not None and _air_explains(prob_x, src, got, air, alpha):
+                notes.append(f"not kept: {got.atom.label}; the recorded temperature's change explains every row as "
+                             f"well with fewer columns ({air.atom.label})")
+                got = air
         if got is not None:
             with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
             if not is_change(got.atom):
@@ -851,8 +869,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
                     notes += ends
                     src, got = ended, None
             if got is not None:
+                # a change of the air is minor or not by what it explains on every row: the rows before the cut that
+                # located it may hold little of it (its start late among them, the links' lag)
+                entry = got.dchi2 if is_change(got.atom) else max(got.dchi2, src.chi2 - with_got.chi2)
                 src = with_got
-                found.append((got.atom, "late", got, got.dchi2))
+                found.append((got.atom, "late", got, entry))
     src0 = src
     beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
     if beyond:
