@@ -869,9 +869,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
                     notes += ends
                     src, got = ended, None
             if got is not None:
-                # a change of the air is minor or not by what it explains on every row: the rows before the cut that
-                # located it may hold little of it (its start late among them, the links' lag)
-                entry = got.dchi2 if is_change(got.atom) else max(got.dchi2, src.chi2 - with_got.chi2)
+                # a change of the recorded air is minor or not by what it explains on every row: the record times
+                # it, and the rows before the cut that located it may hold little of it (its start late among them,
+                # the links' lag); an onset placed without a record, by what the rows that placed it hold
+                recorded = any(isinstance(f, Lag) for f in got.atom.features)
+                entry = max(got.dchi2, src.chi2 - with_got.chi2) if recorded and not is_change(got.atom) else got.dchi2
                 src = with_got
                 found.append((got.atom, "late", got, entry))
     src0 = src
