@@ -220,3 +220,35 @@ def test_scores_on_two_threads_equal_those_on_one(problem):
     assert len(one) > 20
     assert [s.atom.key for s in two] == [s.atom.key for s in one]
     assert [(s.logp_adj, s.dchi2) for s in two] == [(s.logp_adj, s.dchi2) for s in one]
+
+
+def _ur10_table(scale: float = 1.0) -> dict:
+    """A UR10's joint table (URDF origins) with its flange offset as the chain's end, every length times ``scale``."""
+    xyz = [[0, 0, 0], [0, 0, 127.3], [-612.0, 0, 0], [-572.3, 0, 0], [0, 0, 163.941], [0, 0, 115.7]]
+    rpy = [[0, 0, 0], [90, 0, 0], [0, 0, 0], [0, 0, 0], [90, 0, 0], [-90, 0, 0]]
+    joints = [{"name": f"q{k + 1}", "type": "revolute", "xyz_mm": [scale * v for v in xyz[k]], "rpy_deg": rpy[k],
+               "axis": [0, 0, 1], "limits": [-360, 360]} for k in range(6)]
+    return {"name": "ur10", "joints": joints, "end": {"xyz_mm": [0, 0, 92.2 * scale], "rpy_deg": [0, 0, 30]}}
+
+
+def test_all_link_lengths_grow_the_chain_s_fixed_end_too():
+    """The thermal growth of all link lengths of a URDF chain moves its tool as the chain whose every origin and end
+    translation are grown by the same fraction (to second order): the flange's offset from the last joint grows too."""
+    from twin.estimator.chain import Chain
+    from twin.estimator.problem import ParamSpace
+    from twin.robots import robot_from_joint_table
+    from twin.transforms import pose6_to_transform
+    from twin.diagnosis.features import Const
+
+    tool = pose6_to_transform(np.array([0.03, -0.02, 0.05, 0.1, -0.2, 0.3]))
+    model = robot_from_joint_table(_ur10_table()).with_frames(tool2flange=tool)
+    delta = 1e-4
+    grown = robot_from_joint_table(_ur10_table(1.0 + delta)).with_frames(tool2flange=tool)
+    q = np.random.default_rng(5).uniform(-2.0, 2.0, (20, 6))
+    sp = ParamSpace(Chain.of(model), ("s",))
+    x = sp.from_model(model)
+    atom = Atom("thermal", "length", "all_lengths", (Const(),), "constant", "all link lengths", "catalogue")
+    x_grown = x + delta * param_weights(sp, x, atom)[:, 0]
+    got = sp.chain.evaluate(x_grown[: sp.n_rt], q, jacobian=False).p[0]
+    want = Chain.of(grown).evaluate(sp.from_model(grown)[: sp.n_rt], q, jacobian=False).p[0]
+    assert np.max(np.abs(got - want)) < 1e-7  # the end's 92 mm grown 1e-4 is 9.2e-6 m

@@ -287,6 +287,17 @@ def test_the_report_rows_read_a_thermal_term_refitted_on_the_rows_before_them(tm
     assert held["report_state"].startswith("thermal terms refitted")
 
 
+def test_a_step_of_the_recorded_air_after_the_rows_that_fit_is_thermal_not_a_frame_change(tmp_path):
+    """A drawn thermal instance (seed 316, small: the recorded air steps -5.4 K at the last row that fits, a UR10's
+    links following it): the step scan's change of the measurement frame after the rows that fit gives way to the
+    recorded temperature's change, which explains every row as well with fewer columns: named thermal, within 1.2x the
+    oracle on the rows after the campaign (6.5x as a frame change and a payload's before)."""
+    r = _scored(tmp_path, "thermal", 316)
+    assert r["params"]["temp_column"] and r["params"]["profile"] == "step"
+    assert r["named"] and r["changes_found"] == [], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
 def test_one_link_grown_by_one_motors_heat_is_read_with_that_motor(tmp_path):
     """A drawn motion-heat instance (seed 153, small: a UR5's upper arm growing with joint 2's heat alone): named
     thermal against joint 2's heat of that one link, within 1.2x the oracle on the rows after the campaign."""

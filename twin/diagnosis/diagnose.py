@@ -25,7 +25,7 @@ named steps, each a function of this module (``docs/diagnosis.md`` has the reaso
    are left out: no model can predict a history-dependent term there).
 7. :func:`describe_terms` and :func:`name_effects`: every kept term in words, the catalogue families among them.
 8. :func:`refit_on_every_row`: the chosen models refitted on every row of the campaign (the models to use).
-9. :func:`twin.diagnosis.rule.after_blocks`: what every row holds after the blocks (a step after the rows that fit,
+9. :func:`twin.diagnosis.after.after_blocks`: what every row holds after the blocks (a step after the rows that fit,
    located on the rows up to a cut and confirmed on the rows after it; the air's temperature changing there; a
    change and back of a joint's zero; a change the campaign's last rows hold) joins the models to use
    (``docs/diagnosis.md``, step 7b).
@@ -45,7 +45,7 @@ from ..estimator.methods import build_calibration, identify_best
 from ..estimator.solvers import gauss_newton
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
-from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms
+from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms, recorded_lag_atoms
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
@@ -58,7 +58,8 @@ from .late import EndChange
 from .problem import Fit, Problem, refit_with, update_gross
 from .refine import retimeable
 from .structure import StructureTest, gross_rows, row_rms
-from .rule import (AfterBlocks, CandidateScore, Selection, adopt, after_blocks, decide, implausible_size, retime,
+from .after import AfterBlocks, after_blocks
+from .rule import (CandidateScore, Selection, adopt, decide, implausible_size, retime,
                    select_terms, selection_round)
 from .describe import describe_terms, name_effects, place_unit, term_values
 
@@ -123,7 +124,7 @@ class DiagnosisResult:
     (:func:`refit_on_every_row`); ``calibrations_blocked`` (``geometric``, ``extended``) are the same models fitted on
     the calibration rows only: before/after and every block figure are theirs. ``changes``: the kept terms of family
     ``change`` (a step or a window at a row: :func:`twin.diagnosis.changes.describe_changes`), not among ``effects``.
-    The terms found after the blocks on every row (:func:`twin.diagnosis.rule.after_blocks`: a change after the rows
+    The terms found after the blocks on every row (:func:`twin.diagnosis.after.after_blocks`: a change after the rows
     that fit, the air's temperature changing there, a change and back of a joint's zero, a change in the campaign's
     last rows) are the last of ``atoms``
     (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
@@ -279,6 +280,8 @@ def diagnose(
     # rows are predicted as the rows after the campaign are: by the same models on every row before them
     places = change_places(setup.prep.nominal, [a for a in pool if a.family == "compliance"], setup.ctx.q)
     late_gate = bool(pool) and prob.test(use).p_value < alpha
+    # without a selection, the recorded temperature's templates for a change of the air in the campaign's last rows
+    recorded = [] if pool else recorded_lag_atoms(setup.prep.nominal, setup.ctx, link_lengths(setup.prep.nominal))
 
     before_report = np.ones(setup.dataset.n, bool)
     if prob.obs_rep is not None:
@@ -293,7 +296,7 @@ def diagnose(
     def models(pre: bool):
         geo_x, ext_x, prob_x = refit(pre)
         ab = after_blocks(setup, prob_x, ext_x if ext_x is not None else geo_x, pool, places, late=late_gate,
-                          alpha=alpha_select, z_min=z_min)
+                          alpha=alpha_select, z_min=z_min, recorded=recorded)
         return geo_x, (ab.fit if ext_x is not None or ab.found else None), prob_x, ab
 
     def blocked_extended(prob_x: Problem, after: AfterBlocks, fit: Fit) -> None:
@@ -729,7 +732,7 @@ def describe_models(setup: Setup, prob_x: Problem, geo_x: Fit, ext_x: Fit | None
                     fit: Fit | None = None) -> tuple[Calibration, tuple[dict, ...], list[dict]]:
     """The extended model refitted on ``prob_x``'s rows (``ext_x``; the geometric ``geo_x`` when None) as a calibration,
     its terms (``atoms_json``, the chosen terms described on the calibration rows, then those ``after``
-    (:class:`twin.diagnosis.rule.AfterBlocks`) found, described on ``prob_x``'s rows, with how each was found) and its
+    (:class:`twin.diagnosis.after.AfterBlocks`) found, described on ``prob_x``'s rows, with how each was found) and its
     changes (:func:`describe_changes`, those found after the blocks with their confirmation). A term minor on the
     calibration rows that these rows need (a lag fitted to the first block's wander of the temperature, whose step
     came later) is not minor: with ``update_minor``, ``atoms_json``'s flags are set so. ``fit``: the extended model

@@ -33,7 +33,8 @@ from .atoms import Atom, tilt_axis, tilt_coefficient
 from .field import field_values, plate_normals, station_mask
 
 
-__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "length_indices", "tilt_weights", "error_stats"]
+__all__ = ["AtomTerm", "ExtendedModel", "reduced_basis", "param_weights", "joint_index", "end_length", "length_indices",
+           "tilt_weights", "error_stats"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,6 +62,15 @@ def joint_index(space: ParamSpace, target: str) -> tuple[int, float]:
         return space.index(target), 1.0
     j = int(target[5:])
     return space.index(st.joint_params[j - 1]), float(st.joint_signs[j - 1])
+
+
+def end_length(structure) -> np.ndarray:
+    """``(3,)`` [m]: the translation of a ``"urdf"`` chain's constant end transform (last joint -> flange) in the
+    flange's frame, ``R_end^T e_end`` (zero without one): what the flange moves per unit of relative growth of it."""
+    if structure.convention != "urdf" or structure.end_origin is None:
+        return np.zeros(3)
+    E = np.reshape(np.asarray(structure.end_origin, float), (4, 4))
+    return E[:3, :3].T @ E[:3, 3]
 
 
 def length_indices(space: ParamSpace, target: str) -> np.ndarray:
@@ -110,6 +120,10 @@ def param_weights(space: ParamSpace, x: np.ndarray, atom: Atom) -> np.ndarray:
         w = np.zeros((P, 1))
         idx = length_indices(space, t)
         w[idx, 0] = x[idx]
+        if t == "all_lengths":
+            # the chain's fixed end (a "urdf" chain's flange offset from its last joint) grows with the links: the
+            # flange moves by delta R_end^T e_end in its own frame, where the tool's translation is read
+            w[space.family("tool")[:3], 0] = end_length(space.chain.structure)
         return w
     if atom.place == "param" and t.startswith("tilt"):
         return tilt_weights(space, x, t)

@@ -47,7 +47,7 @@ from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, 
 from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
-__all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_steps",
+__all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
            "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
 
 
@@ -443,6 +443,76 @@ def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha:
         return None, f"a change after the rows that fit ({s_all.atom.label}) could not be fitted before the cut: not kept"
     return _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min,
                       "a change of the air's temperature after the rows that fit")
+
+
+def end_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha: float,
+             z_min: float) -> tuple[Fit, EndChange | None, str]:
+    """The recorded temperature leaving, in the campaign's last rows, the range every row before them saw (by more than
+    that range's width), too close to the end for :func:`late_term` to locate its growth on some rows and confirm it on
+    others (the last ``need - 1`` rows of :func:`_rows_after`): growth against it through the links' lag (a template
+    of :func:`late_templates` on ``temp_c``, its lag over the onset grid then refined) on every row, those last rows
+    at full weight (a row the change puts 20x the noise off is gross without the term that explains it), significant
+    after the factor of places and time constants tried, and so without any one of the rows after the temperature
+    left its range. The record is a measured cause: its excursion times the change, the rows read its size. Places
+    that already have a thermal term are not tried. Returns the fit (with the term, or as given), the term as an
+    :class:`EndChange` (or None) and a note."""
+    ch, tv = row_times(setup.ctx)
+    have = {a.target for a, _ in use_all.chosen if a.family == "thermal"}
+    templates = [a for a in templates if a.target not in have and len(a.features) == 1
+                 and isinstance(a.features[0], Lag) and a.features[0].ch == "temp_c"]
+    if ch != "t_s" or not templates or setup.ctx.temp_c is None:
+        return use_all, None, ""
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    n = len(t_rows)
+    _, need = _rows_after(n, z_min)
+    if n < 2 * need:
+        return use_all, None, ""
+    t_before = float(t_rows[n - need])
+    start = _start(setup, templates[0], t_before)
+    if start is None:
+        return use_all, None, ""
+    t_cal = tv[prob_all.rows_cal]
+    after = t_cal >= start
+    w0 = prob_all.w_cal
+    w_tail = np.maximum(w0, (t_cal > t_before).astype(float))
+    prob_all.w_cal = w_tail
+    sizes = {a.pool: 1 for a in templates}
+    best, factor, kept = None, 1, False
+    try:
+        for a in templates:
+            s, tried = _fit_template(prob_all, use_all, a, t_before, sizes)
+            factor = len(templates) * tried
+            if s is None:
+                continue
+            logp = chi2_logsf(s.dchi2 / prob_all.evidence_scale, s.basis.shape[1]) + np.log(factor)
+            if logp < np.log(alpha) and (best is None or s.dchi2 > best[0].dchi2):
+                best = (s, logp)
+        if best is None:
+            return use_all, None, ""
+        s, logp = best
+        for i in np.flatnonzero(after):
+            # without any one of the rows after the excursion's start
+            prob_all.w_cal = w_tail.copy()
+            prob_all.w_cal[i] = 0.0
+            got = score_atoms(prob_all, use_all, [s.atom], sizes, exact_top=1)
+            if not got or chi2_logsf(got[0].dchi2 / prob_all.evidence_scale, s.basis.shape[1]) + np.log(factor) \
+                    >= np.log(alpha):
+                return use_all, None, (f"the recorded temperature leaves its range in the campaign's last rows "
+                                       f"({s.atom.label}): not significant without one of its {int(np.sum(after))} "
+                                       f"rows")
+        # fitted with the last rows it holds, whose weights the refit then sets anew
+        prob_all.w_cal = w_tail
+        fit = refit_with(prob_all, use_all, list(use_all.chosen) + [(s.atom, s.basis)])
+        kept = True
+    finally:
+        if not kept:
+            prob_all.w_cal = w0
+    k = int(np.sum(after))
+    end = EndChange(s.atom, s.basis, k, float(s.dchi2), 1.0, float(logp / np.log(10.0)), int(factor))
+    return fit, end, (f"the recorded temperature leaving its range in the campaign's last rows: {s.atom.label} ({k} "
+                      f"rows after {ch} {start:.6g}, fewer than the {need} it takes to locate it on some and confirm it "
+                      f"on others; Delta chi2 {s.dchi2 / prob_all.evidence_scale:.1f} on every row, p = "
+                      f"10^{logp / np.log(10.0):.1f} after the factor {factor}, without any one of those rows too)")
 
 
 def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, list[str]]:

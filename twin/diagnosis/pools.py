@@ -22,7 +22,8 @@ from .field import field_applicable, field_atom_specs, field_constants
 from .loads import load_atoms, torque_shapes
 from .values import channel, motion_heat
 
-__all__ = ["catalogue_atoms", "generic_atoms", "heat_alternatives", "heat_variants", "wrist_couplings"]
+__all__ = ["catalogue_atoms", "generic_atoms", "heat_alternatives", "heat_variants", "recorded_lag_atoms",
+           "wrist_couplings"]
 
 
 SCAN_ORDERS = (1.5, 150.0, 0.5)  # cyclic-error orders scanned (beyond the integers 1-3): first, last, step
@@ -231,17 +232,35 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
             # the motors' heat: each link against the joints' travel through a first-order lag
             variants += heat_variants(ctx, float(tau))
     for fs, chan in variants:
-        atoms.append(Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
-                          "catalogue"))
-        for L in length_names:
-            if abs(_nominal_length(model, L)) < MIN_THERMAL_LENGTH:
-                continue  # a link of nominal length ~0 (a2 of the IRB 1200) has no length to grow
-            atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
+        atoms += _thermal_atoms(model, fs, chan, length_names)
     for s in range(n_points):
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", (Const(),), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
     # the arm's own load without its masses: backlash signed by the load, the base tilting under the arm's moment
     return atoms + load_atoms(model, ctx)
+
+
+def _thermal_atoms(model: RobotModel, fs: tuple[Feature, ...], chan: str, length_names: list[str]) -> list[Atom]:
+    """Thermal growth against the features ``fs`` (channel ``chan``): of all link lengths together and of each link."""
+    atoms = [Atom("thermal", "length", "all_lengths", fs, chan, f"thermal growth of all link lengths vs {chan}",
+                  "catalogue")]
+    for L in length_names:
+        if abs(_nominal_length(model, L)) < MIN_THERMAL_LENGTH:
+            continue  # a link of nominal length ~0 (a2 of the IRB 1200) has no length to grow
+        atoms.append(Atom("thermal", "length", L, fs, chan, f"thermal growth of link {L} vs {chan}", "catalogue"))
+    return atoms
+
+
+def recorded_lag_atoms(model: RobotModel, ctx: RowContext, length_names: list[str]) -> list[Atom]:
+    """The catalogue's thermal growth of all links and of each link against the recorded temperature through a lag
+    (its grid's middle time constant; none without a temperature that varies or without row times): the templates
+    of a change of the air the campaign's last rows record (:func:`twin.diagnosis.late.end_term`) where no selection
+    ran."""
+    if ctx.temp_c is None or not np.ptp(ctx.temp_c) > 0 or not _time_channel(ctx):
+        return []
+    tau = float(TAU_FRACTIONS[len(TAU_FRACTIONS) // 2] * np.ptp(ctx.t_s))
+    f = Lag(ch="temp_c", tau=tau, c=float(np.median(ctx.temp_c)), h=1.0)
+    return _thermal_atoms(model, (f,), f"temp_c lagged {tau:.4g} s", length_names)
 
 
 def heat_variants(ctx: RowContext, tau: float) -> list[tuple[tuple[Feature, ...], str]]:

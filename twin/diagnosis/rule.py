@@ -23,13 +23,11 @@ from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
-from .features import BaseMoment, Cos, Heat, LoadSign, Moment, Play, Pow, Sin, Torque
+from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import (end_change, end_steps, glitches, gross_runs, late_change, late_templates, late_term, own_weight,
-                   payload_event)
 from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
@@ -49,8 +47,6 @@ __all__ = [
     "implausible_size",
     "backward",
     "retime",
-    "AfterBlocks",
-    "after_blocks",
 ]
 
 
@@ -97,6 +93,14 @@ def _heat(atom: Atom) -> bool:
     """Whether ``atom`` is a thermal term of the motors' heat (:class:`~twin.diagnosis.features.Heat` features)."""
     return atom.family == "thermal" and any(isinstance(f, Heat) for f in atom.features)
 
+
+def _recorded_reading(atom: Atom, scored: list[Scored]) -> list[Atom]:
+    """The scored thermal atom of ``atom``'s links against the recorded temperature through a lag (the most significant
+    on the grid; none without a record): a link's temperature that follows the air's records what the motors' heat,
+    a constructed channel with a warm-up beside it, would only imitate by its smooth rise."""
+    lagged = [c for c in scored if c.atom.family == "thermal" and c.atom.target == atom.target
+              and len(c.atom.features) == 1 and isinstance(c.atom.features[0], Lag) and c.atom.features[0].ch == "temp_c"]
+    return [min(lagged, key=lambda c: c.logp_adj).atom] if lagged else []
 
 
 @dataclass
@@ -147,8 +151,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             # effect's, not the grid's: judged at their best values (an onset's evidence then pays for the onsets,
             # ramps and lags tried: refine_onset)
             # the motors' heat: the joints whose travel heats the links chosen at the best time constant of each
-            s = prefer_heat(prob, fit, s, heat_alternatives(prob.ctx, s.atom), sizes) if _heat(s.atom) \
-                else refine(prob, fit, s, sizes)
+            # and a recorded temperature's lag is the heat's rival on the same links: each at its best time constant
+            s = prefer_heat(prob, fit, s, heat_alternatives(prob.ctx, s.atom) + _recorded_reading(s.atom, scored),
+                            sizes) if _heat(s.atom) else refine(prob, fit, s, sizes)
             if is_onset(s.atom) and s.logp_adj >= np.log(alpha_select):
                 out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2,
                                                  float(np.exp(s.logp_adj)), float("nan"),
@@ -883,101 +888,3 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit
-
-
-@dataclass(frozen=True)
-class AfterBlocks:
-    """What :func:`after_blocks` found on a problem's rows: the fit with it, and per term found (in the order added)
-    ``(atom, how, late, entry_chi2)`` (``how``: ``"late"``, ``"end"``, ``"glitch"``, ``"event"`` or ``"load"``;
-    ``late``: the :class:`~twin.diagnosis.late.LateChange` of a term confirmed after a cut, the
-    :class:`~twin.diagnosis.late.EndChange` of a change in the campaign's last rows, else None), notes, and whether a
-    term it was given took another end there (``changed``: the state later rows read changed)."""
-
-    fit: Fit
-    found: tuple
-    notes: tuple
-    changed: bool = False  # a term the rows brought was given another end (its state on later rows changed)
-
-
-def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
-                 z_min: float) -> AfterBlocks:
-    """Step 9, on the rows of ``prob_x`` (every row of the campaign; or every row before the report block) from the
-    chosen model refitted on them (``src``): a change after the rows that fit, located before a cut and confirmed after
-    it (:func:`~twin.diagnosis.late.late_change`; else the air's temperature,
-    :func:`~twin.diagnosis.late.late_term`, its lag then :func:`retime`d) when ``late`` (the model left the confirmation
-    block beyond the floor); then, when the rows hold more than the floor (or a run of gross rows), a kept change that
-    ends (:func:`~twin.diagnosis.late.end_steps`), a change and back of a joint's zero or of its compliance (a payload
-    hung on and taken off, :func:`~twin.diagnosis.late.glitches`); a payload's change kept so far as one event at
-    every loaded joint (:func:`~twin.diagnosis.late.payload_event`); whatever the rows hold, a change whose new state
-    the campaign's last rows hold, too close to the end for a cut (:func:`~twin.diagnosis.late.end_change`: or a kept
-    step's end there); and the arm's own weight at a joint a payload's change shows compliant
-    (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
-    change that ends explains every row as well."""
-    found, notes = [], []
-    if late and pool:
-        got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
-        notes.append(note)
-        if got is None:
-            # the air's temperature changing after the rows that fit (a door opened late in the campaign)
-            got, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
-            if note:
-                notes.append(note)
-        if got is not None:
-            with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
-            if not is_change(got.atom):
-                with_got = retime(prob_x, with_got)
-                # a kept change that ends (a payload taken off) is preferred over a change of the air after the rows
-                # that fit where it explains every row as well: the kept term with one more constant, its end
-                ended, ends = end_steps(setup, prob_x, src, alpha=alpha)
-                if ends and ended.chi2 - with_got.chi2 < prob_x.evidence_scale * chi2_isf(alpha, 1):
-                    notes.append(f"not kept: {got.atom.label}; a kept change that ends explains every row as well "
-                                 f"(chi2 {ended.chi2:.1f} against {with_got.chi2:.1f})")
-                    got = None
-            elif any(is_change(a) and (a.place, a.target) == (got.atom.place, got.atom.target) for a, _ in src.chosen):
-                # a step at the place of a kept change: the kept change ending there (a change and back, its size back
-                # to the state before it) is preferred where it explains every row as well, one constant fewer
-                ended, ends = end_steps(setup, prob_x, src, alpha=alpha)
-                if ends and ended.chi2 - with_got.chi2 < prob_x.evidence_scale * chi2_isf(alpha, 1):
-                    notes.append(f"not kept: {got.atom.label}; the kept change at its place ending explains every row "
-                                 f"as well (chi2 {ended.chi2:.1f} against {with_got.chi2:.1f})")
-                    notes += ends
-                    src, got = ended, None
-            if got is not None:
-                src = with_got
-                found.append((got.atom, "late", got, got.dchi2))
-    src0 = src
-    beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
-    if beyond:
-        # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
-        # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
-        src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
-        # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
-        zeros = [p for p in places if p.place == "joint"]
-        src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
-        notes += notes_end + notes_win
-        found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
-    # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
-    # loads is not left to read as a change in the last rows
-    src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
-    notes += notes_ev
-    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
-    found += [(a, "event", None, dchi2) for a, dchi2 in events]
-    # a change whose new state the last rows hold, too close to the end to be confirmed on later rows (or a kept
-    # change's end there)
-    src, end, note = end_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
-    if note:
-        notes.append(note)
-    if end is not None:
-        found.append((end.atom, "end", end, end.dchi2))
-    # a payload is one event at every joint below the flange: one timing, every loaded joint
-    src, more, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
-    notes += notes_ev
-    found = [(renamed.get(f[0].key, f[0]),) + tuple(f[1:]) for f in found]
-    found += [(a, "event", None, dchi2) for a, dchi2 in more]
-    events += more
-    if beyond or events:
-        src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
-        notes += notes_load
-        found += [(a, "load", None, dchi2) for a, dchi2 in loads]
-    changed = [a.label for a, _ in src.chosen[:len(src0.chosen)]] != [a.label for a, _ in src0.chosen]
-    return AfterBlocks(src, tuple(found), tuple(notes), changed)
