@@ -378,3 +378,17 @@ def test_a_payload_hung_on_late_that_the_scan_reads_as_a_frames_step_is_one_even
     assert {c["target"] for c in r["changes_found"]} == {"theta2", "theta3"}, r["changes_found"]
     assert all(abs(c["row"] - row) <= 2 for c in r["changes_found"]), (row, r["changes_found"])
     assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_frames_bump_in_the_last_rows_with_no_payload_event_is_kept_as_a_step(tmp_path):
+    """A station's instrument bumped 20 rows before the end of a 301-row campaign (seed 217, full size), where a
+    change of a joint's compliance starts near the step but reads no payload event: the frame's step stands (scored
+    again where it still has rows, as it was scored where it has none), named as a change, the later rows within the
+    goal."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build("frame_change", 217)
+    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    assert "error" not in r, r.get("error")
+    assert r["named"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.5

@@ -312,7 +312,9 @@ def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[Cha
     extra = max(k_event - s.basis.shape[1], 1)
     # scored again against fit0 (a Scored reads its columns from the last scoring of the problem)
     if gain <= chi2_isf(alpha, extra):
-        return score_atoms(prob, fit0, [a], sizes, exact_top=1)[0], ""
+        again = score_atoms(prob, fit0, [a], sizes, exact_top=1)
+        # no columns left on these rows against fit0 (the step's rows all set aside): the change stands as scored
+        return (again[0] if again else s), ""
     members = list(fit.chosen[len(fit0.chosen):])
     ats = sorted((float(a.features[0].at), float(lead.atom.features[0].at)))
     i0, i1 = np.searchsorted(t_rows, ats[0]), np.searchsorted(t_rows, ats[1])

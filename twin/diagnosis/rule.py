@@ -193,8 +193,6 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     return out
 
 
-
-
 def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int], *, max_effects: int = 16,
                  alpha_select: float = 0.01, z_min: float = 3.0,
                  callback: Callable[[CandidateScore], None] | None = None) -> Selection:
