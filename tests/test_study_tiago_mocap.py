@@ -80,9 +80,8 @@ def test_quoted_diagnosis_figures_match_the_diagnosis_results():
     for r in (m1, cat4, gen4):
         g, e = r["other_day"]["geometric"]["marker1"]["all"]["rmse"], r["other_day"]["extended"]["marker1"]["all"]["rmse"]
         assert f"{g:.2f} to {e:.2f}" in text
-    # the one term kept on marker 1 is the one the README names: arm_3's angle following arm_4's (joint 5's) last move
-    assert len(m1["terms"]) == 1 and m1["terms"][0]["label"].startswith("unnamed: joint 4 (arm_3_joint) angle varies")
-    assert "last move j5" in m1["terms"][0]["label"] and "arm_3's angle following arm_4's last move" in text
+    assert [t["label"] for t in m1["terms"]] == ["joint 7 (arm_6_joint) backlash (offset signed by the direction of its last move)"]
+    assert "keeps the wrist's **arm_6 backlash** (its offset signed by the direction of its last move)" in " ".join(text.split())
     confirmed = [r["term"] for r in d["account"] if r["confirmed_on_the_other_day"]]
     assert sorted(confirmed) == sorted(d["physical_model"]["terms"]) and len(confirmed) == 3
     fits = d["physical_model"]["fits"]
