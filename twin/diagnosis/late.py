@@ -313,7 +313,7 @@ def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[Cha
     # scored again against fit0 (a Scored reads its columns from the last scoring of the problem)
     if gain <= chi2_isf(alpha, extra):
         again = score_atoms(prob, fit0, [a], sizes, exact_top=1)
-        # no columns left on these rows against fit0 (the step's rows all set aside): the change stands as scored
+        # a step with no columns left against fit0 on these rows stands as it was scored
         return (again[0] if again else s), ""
     members = list(fit.chosen[len(fit0.chosen):])
     ats = sorted((float(a.features[0].at), float(lead.atom.features[0].at)))
@@ -323,14 +323,17 @@ def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[Cha
     w_event = prob.w_cal.copy()
     P = prob.prep.space.size
     best_chi2, best_at = fit.chi2, float(lead.atom.features[0].at)
-    for t in t_rows[max(i0 - EVENT_ROWS, 1):i1 + EVENT_ROWS + 1]:
-        chosen = list(fit.chosen[:len(fit0.chosen)]) + [(started_at(c, t), B) for c, B in members]
-        prob.w_cal = w_event
-        trial = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
-        if trial.chi2 < best_chi2:
-            best_chi2, best_at = trial.chi2, float(t)
-    prob.w_cal = w_entry
-    lead = score_atoms(prob, fit0, [started_at(lead.atom, best_at)], sizes, exact_top=1)[0]
+    try:
+        for t in t_rows[max(i0 - EVENT_ROWS, 1):i1 + EVENT_ROWS + 1]:
+            chosen = list(fit.chosen[:len(fit0.chosen)]) + [(started_at(c, t), B) for c, B in members]
+            prob.w_cal = w_event
+            trial = prob.fit(fit.z[:P], chosen, psi_init(fit, chosen))
+            if trial.chi2 < best_chi2:
+                best_chi2, best_at = trial.chi2, float(t)
+    finally:
+        prob.w_cal = w_entry
+    moved = score_atoms(prob, fit0, [started_at(lead.atom, best_at)], sizes, exact_top=1)
+    lead = moved[0] if moved else score_atoms(prob, fit0, [lead.atom], sizes, exact_top=1)[0]
     return lead, (f"; read as a payload's change ({lead.atom.label} with the same change at every loaded joint "
                   f"beside it: Delta chi2 {gain:.1f} beyond {a.label} for {extra} more columns)")
 
@@ -757,7 +760,6 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
     use_all, renamed, flipped = _carried_from_start(prob_all, use_all, alpha=alpha)
     notes += flipped
     return use_all, [(renamed.get(g.atom.key, g.atom), float(g.dchi2)) for g, _, _ in added], notes, renamed
-
 
 
 def _carried_from_start(prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, dict, list[str]]:
