@@ -19,7 +19,7 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "Confirmation", "confirm",
+__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "vector_inflation", "Confirmation", "confirm",
            "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
@@ -78,6 +78,28 @@ def serial_inflation(e: np.ndarray, t: np.ndarray) -> float:
     return max(1.0, 1.0 + 2.0 * acc)
 
 
+def vector_inflation(R: np.ndarray, U: np.ndarray) -> float:
+    """The factor ``>= 1`` by which the serial correlation of the rows' noise inflates the variance of ``sum_k R_k .
+    U_k`` over that of independent rows: ``R`` ``(n, d)`` the rows' remainder (residual less the term's prediction),
+    ``U`` ``(n, d)`` the term's prediction, rows in time order (0 where not measured). The noise's correlation at lag
+    ``h`` is read on every coordinate of the remainder, ``gamma_h = sum_k R_k . R_(k+h) / sum_k |R_k|^2`` (a term's
+    misfit is one direction among them, where a wander of the instrument or the cell moves every row), and the sum's
+    variance is ``sum_k |U_k|^2 + 2 sum_(h <= L) (1 - h / (L + 1)) gamma_h sum_k U_k . U_(k+h)`` (Newey and West's
+    Bartlett weights, Andrews' bandwidth ``L`` from ``gamma_1`` as in :func:`serial_inflation`). 1 for white rows (up
+    to the estimate's scatter), for a prediction that changes sign from row to row, and for fewer than 8 rows."""
+    R, U = np.asarray(R, float), np.asarray(U, float)
+    n = len(R)
+    ss, uu = float(np.sum(R * R)), float(np.sum(U * U))
+    if n < 8 or ss <= 0 or uu <= 0:
+        return 1.0
+    gamma = lambda h: float(np.sum(R[:-h] * R[h:])) / ss  # noqa: E731
+    rho = float(np.clip(gamma(1), 0.0, 0.95))
+    alpha = 4.0 * rho**2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
+    L = min(n - 1, int(np.ceil(1.1447 * (alpha * n) ** (1.0 / 3.0) - 1e-9)))
+    acc = sum((1.0 - h / (L + 1.0)) * gamma(h) * 2.0 * float(np.sum(U[:-h] * U[h:])) for h in range(1, L + 1))
+    return max(1.0, 1.0 + acc / uu)
+
+
 @dataclass(frozen=True)
 class Confirmation:
     """The held-out check of a scored atom on the confirmation rows: ``z``, ``z`` without the most favourable row,
@@ -90,6 +112,11 @@ class Confirmation:
     z_without_best_row: float
     better: bool
     local: bool = False
+
+    def holds(self, z_min: float) -> bool:
+        """Whether the held-out check passes at ``z_min``: ``z`` and ``z`` without the most favourable row above it,
+        the held-out error lower, and not a wander the nearest rows in time predict as well (``local``)."""
+        return self.z > z_min and self.z_without_best_row > z_min and self.better and not self.local
 
 
 def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
@@ -118,16 +145,25 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
     z = signed_rank_z(c)
     z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
-    if of_time(s.atom) and moves_the_cell(s.atom):
+    if of_time(s.atom):
         # a term of time predicts neighbouring rows alike, and noise that wanders over a few rows (an instrument's
         # frame, the cell) moves their residuals together: the rows' products are then not independent. The score
-        # is deflated by the variance their serial correlation adds, measured on the rows' remainder along the
-        # prediction e_k = (r_k - u_k) . u_k (zero-mean when the term is right, whatever the wander)
-        e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+        # is deflated by the variance their serial correlation adds: the noise's correlation read on every
+        # coordinate of the rows' remainder r_k - u_k (vector_inflation); for a term on the measurement side, which
+        # the wander moves alike from row to row, also along the prediction, e_k = (r_k - u_k) . u_k (zero-mean when
+        # the term is right, whatever the wander), the larger of the two
         t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
         order = np.argsort(t[prob.rows_val], kind="stable")
         present = np.bincount(rv.row[kv], minlength=fit.model_val.obs.n)[order] > 0
-        deflate = 1.0 / np.sqrt(serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        Rm = row_blocks(fit.model_val, rv.r - u_all)
+        Rm[~prob.keep_val] = np.nan
+        Um = row_blocks(fit.model_val, u_all)
+        Um[~np.isfinite(Rm)] = 0.0
+        inflation = vector_inflation(np.nan_to_num(Rm[order][present]), Um[order][present])
+        if moves_the_cell(s.atom):
+            e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+            inflation = max(inflation, serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        deflate = 1.0 / np.sqrt(inflation)
         z, z_minus = z * deflate, z_minus * deflate
     err_term = float(np.sum((r - u) ** 2))
     better = err_term < float(r @ r)
