@@ -81,23 +81,28 @@ def serial_inflation(e: np.ndarray, t: np.ndarray) -> float:
 def vector_inflation(R: np.ndarray, U: np.ndarray) -> float:
     """The factor ``>= 1`` by which the serial correlation of the rows' noise inflates the variance of ``sum_k R_k .
     U_k`` over that of independent rows: ``R`` ``(n, d)`` the rows' remainder (residual less the term's prediction),
-    ``U`` ``(n, d)`` the term's prediction, rows in time order (0 where not measured). The noise's correlation at lag
-    ``h`` is read on every coordinate of the remainder, ``gamma_h = sum_k R_k . R_(k+h) / sum_k |R_k|^2`` (a term's
-    misfit is one direction among them, where a wander of the instrument or the cell moves every row), and the sum's
-    variance is ``sum_k |U_k|^2 + 2 sum_(h <= L) (1 - h / (L + 1)) gamma_h sum_k U_k . U_(k+h)`` (Newey and West's
-    Bartlett weights, Andrews' bandwidth ``L`` from ``gamma_1`` as in :func:`serial_inflation`). 1 for white rows (up
-    to the estimate's scatter), for a prediction that changes sign from row to row, and for fewer than 8 rows."""
+    ``U`` ``(n, d)`` the term's prediction, rows in time order (0 where not measured). The noise is read as white
+    per coordinate plus a wander that decays geometrically from row to row (an instrument's frame or a cell that
+    drifts and returns): its correlation at lag ``h`` is ``a rho^h``, with ``rho = gamma_2 / gamma_1`` and ``a =
+    gamma_1 / rho`` from the correlations ``gamma_h = sum_k R_k . R_(k+h) / sum_k |R_k|^2`` read on every coordinate
+    of the remainder (a term's misfit is one direction among them, where a wander moves every row), ``rho`` clipped to
+    [0, 0.95]. The sum's variance is then ``sum_k |U_k|^2 + 2 sum_h a rho^h sum_k U_k . U_(k+h)``: its ratio to the
+    first term. 1 for white rows (up to the estimate's scatter), for a prediction that changes sign from row to row,
+    and for fewer than 8 rows."""
     R, U = np.asarray(R, float), np.asarray(U, float)
     n = len(R)
     ss, uu = float(np.sum(R * R)), float(np.sum(U * U))
     if n < 8 or ss <= 0 or uu <= 0:
         return 1.0
-    gamma = lambda h: float(np.sum(R[:-h] * R[h:])) / ss  # noqa: E731
-    rho = float(np.clip(gamma(1), 0.0, 0.95))
-    alpha = 4.0 * rho**2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
-    L = min(n - 1, int(np.ceil(1.1447 * (alpha * n) ** (1.0 / 3.0) - 1e-9)))
-    acc = sum((1.0 - h / (L + 1.0)) * gamma(h) * 2.0 * float(np.sum(U[:-h] * U[h:])) for h in range(1, L + 1))
-    return max(1.0, 1.0 + acc / uu)
+    g1, g2 = (float(np.sum(R[:-h] * R[h:])) / ss for h in (1, 2))
+    if g1 <= 0:
+        return 1.0
+    rho = float(np.clip(g2 / g1, 0.0, 0.95))
+    if rho <= 0:
+        return max(1.0, 1.0 + 2.0 * g1 * float(np.sum(U[:-1] * U[1:])) / uu)
+    a = g1 / rho
+    acc = sum(a * rho**h * float(np.sum(U[:-h] * U[h:])) for h in range(1, n))
+    return max(1.0, 1.0 + 2.0 * acc / uu)
 
 
 @dataclass(frozen=True)
