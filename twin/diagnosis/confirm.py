@@ -86,18 +86,20 @@ def vector_inflation(R: np.ndarray, U: np.ndarray) -> float:
     drifts and returns): its correlation at lag ``h`` is ``a rho^h``, with ``rho = gamma_2 / gamma_1`` and ``a =
     gamma_1 / rho`` from the correlations ``gamma_h = sum_k R_k . R_(k+h) / sum_k |R_k|^2`` read on every coordinate
     of the remainder (a term's misfit is one direction among them, where a wander moves every row), ``rho`` clipped to
-    [0, 0.95]. The sum's variance is then ``sum_k |U_k|^2 + 2 sum_h a rho^h sum_k U_k . U_(k+h)``: its ratio to the
-    first term. 1 for white rows (up to the estimate's scatter), for a prediction that changes sign from row to row,
-    and for fewer than 8 rows."""
+    [0, 0.95]; a correlation within twice its scatter over white coordinates (``1 / sqrt(m)``, ``m`` the coordinates
+    measured) is read as none: ``gamma_1`` so small, no dependence; ``gamma_2`` so small, the correlation at lag 1
+    alone. The sum's variance is then ``sum_k |U_k|^2 + 2 sum_h a rho^h sum_k U_k . U_(k+h)``: its ratio to the first
+    term. 1 for white rows, for a prediction that changes sign from row to row, and for fewer than 8 rows."""
     R, U = np.asarray(R, float), np.asarray(U, float)
     n = len(R)
     ss, uu = float(np.sum(R * R)), float(np.sum(U * U))
     if n < 8 or ss <= 0 or uu <= 0:
         return 1.0
     g1, g2 = (float(np.sum(R[:-h] * R[h:])) / ss for h in (1, 2))
-    if g1 <= 0:
+    se = 1.0 / np.sqrt(max(np.count_nonzero(R), 1))  # a correlation's scatter over that many white coordinates
+    if g1 <= 2.0 * se:
         return 1.0
-    rho = float(np.clip(g2 / g1, 0.0, 0.95))
+    rho = float(np.clip(g2 / g1, 0.0, 0.95)) if g2 > 2.0 * se else 0.0
     if rho <= 0:
         return max(1.0, 1.0 + 2.0 * g1 * float(np.sum(U[:-1] * U[1:])) / uu)
     a = g1 / rho
