@@ -1,12 +1,10 @@
 """The held-out confirmation's allowance for rows that are not independent in time (twin.diagnosis.confirm)."""
 
 import numpy as np
-import pytest
 
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.confirm import moves_the_cell, of_time, serial_inflation, vector_inflation
 from twin.diagnosis.features import Step
-from twin.diagnosis.rule import confirmation_level
 
 T_S = np.arange(80.0) * 30.0  # 80 rows, one every 30 s
 
@@ -82,11 +80,3 @@ def test_a_wander_does_not_inflate_a_prediction_that_turns_from_row_to_row():
     turns = SMOOTH * ((-1.0) ** np.arange(N_ROWS))[:, None]
     got = [vector_inflation(_wander(np.random.default_rng(s)), turns) for s in range(20)]
     assert max(got) == 1.0, got
-
-
-def test_each_further_candidate_of_a_round_is_confirmed_at_a_stricter_level():
-    """The first candidate a round checks is judged at z_min; the n-th at the one-sided level of z_min over n."""
-    assert confirmation_level(3.0, 1) == 3.0
-    assert confirmation_level(3.0, 2) == pytest.approx(3.205, abs=1e-3)
-    levels = [confirmation_level(3.0, n) for n in range(1, 8)]
-    assert all(b > a for a, b in zip(levels, levels[1:]))

@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..estimator.distributions import chi2_isf, chi2_sf
+from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom
 from .changes import change_places, is_change, scan_changes
@@ -47,7 +47,6 @@ __all__ = [
     "implausible_size",
     "backward",
     "retime",
-    "confirmation_level",
 ]
 
 
@@ -116,14 +115,6 @@ class Round:
     unphysical: bool
 
 
-def confirmation_level(z_min: float, n: int) -> float:
-    """The held-out threshold of the ``n``-th candidate a round checks: the one-sided normal level of ``z_min``
-    divided by ``n`` (Bonferroni over the candidates checked on the same block of rows), ``z_min`` for the first."""
-    if n <= 1:
-        return z_min
-    return float(np.sqrt(chi2_isf(chi2_sf(z_min**2, 1) / n, 1)))
-
-
 def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
                     alpha_select: float, z_min: float, tries: int = 3,
                     callback: Callable[[CandidateScore], None] | None = None) -> Round:
@@ -146,7 +137,6 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
             seen.add(c.atom.pool)
             more.append(c)
-    tried = 0
     for k, s in enumerate(first + more):
         alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
@@ -170,28 +160,24 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                                                  "not significant on the calibration rows after the onsets tried"))
                 out.rejected += [s.atom.key] + alike
                 continue
-        # the round's held-out checks are several tests of one block of rows: the n-th candidate it checks is judged
-        # at the level of the first over n (Bonferroni over the candidates checked so far)
-        tried += 1
-        z_round = confirmation_level(z_min, tried)
-        c = confirm(prob, fit, s, z_round)
+        c = confirm(prob, fit, s, z_min)
         if c.local and time_only(s.atom) and not is_onset(s.atom):
             # a term of time is judged against the nearest rows in time at its best constant (a step's time, a
             # period), not at the coarse grid value it was found at: a slip between two grid times is a step
             refined = refine(prob, fit, s, sizes)
             if refined is not s:
-                c_refined = confirm(prob, fit, refined, z_round)
+                c_refined = confirm(prob, fit, refined, z_min)
                 if not c_refined.local:
                     s, c = refined, c_refined
         implausible = _implausible(prob, s)
-        ok = c.holds(z_round) and implausible is None
+        ok = c.holds(z_min) and implausible is None
         # [configurations] a term of joint angles also holds between the sampled values (folds of them left out)
         cc = confirm_configurations(prob, fit, s, scored, sizes) if ok else None
         held_in_time, ok = ok, ok and (cc is None or cc.passed)
         sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
                             "kept" if ok else cc.decision if held_in_time else
-                            ("not confirmed on held-out rows" if not (c.z > z_round) else
-                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_round) else
+                            ("not confirmed on held-out rows" if not (c.z > z_min) else
+                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
                                                "held-out error not reduced" if not c.better else
                                                "the nearest rows in time predict the held-out rows as well (a wander, "
                                                "not a term of time)" if c.local else implausible),
