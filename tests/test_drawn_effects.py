@@ -256,19 +256,6 @@ def test_a_term_of_time_that_follows_a_wander_is_not_confirmed(tmp_path):
     assert not r["structured"] and r["labels"] == [] and r["changes_found"] == []
 
 
-def test_a_heat_term_that_follows_a_wander_is_not_confirmed(tmp_path):
-    """A clean campaign (seed 404, 303 rows) whose instrument frame wanders as an AR(1) (rho 0.63, 0.38x the noise): a
-    link's growth with a wrist motor's heat, smooth in time, fits the calibration rows and the held-out rows that
-    still carry the wander (signed-rank z 5.3 over rows taken as independent); scored against the held-out
-    remainder's serial correlation (white plus a wander decaying from row to row) it is not confirmed."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("clean", 404)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
-    assert r["drawn"]["correlated"]["rho"] > 0.5
-    assert not r["structured"] and r["labels"] == [] and r["changes_found"] == []
-
-
 def test_a_joints_step_after_the_rows_that_fit_is_confirmed_whatever_the_rows_order(tmp_path):
     """A step of joint 4's zero 44 rows before the end of a campaign (seed 115, 264 rows): a term through the arm is
     scored on rows taken as independent (the poses turn its prediction from row to row), so the rows after the cut

@@ -152,13 +152,15 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     c = contrib[np.bincount(rv.row[kv], minlength=fit.model_val.obs.n) > 0]
     z = signed_rank_z(c)
     z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
-    if of_time(s.atom):
-        # a term of time predicts neighbouring rows alike, and noise that wanders over a few rows (an instrument's
-        # frame, the cell) moves their residuals together: the rows' products are then not independent. The score
-        # is deflated by the variance their serial correlation adds: the noise's correlation read on every
-        # coordinate of the rows' remainder r_k - u_k (vector_inflation); for a term on the measurement side, which
-        # the wander moves alike from row to row, also along the prediction, e_k = (r_k - u_k) . u_k (zero-mean when
-        # the term is right, whatever the wander), the larger of the two
+    if of_time(s.atom) and moves_the_cell(s.atom):
+        # a term of time on the measurement side predicts neighbouring rows alike, and noise that wanders over a few
+        # rows (an instrument's frame, the cell) moves their residuals together as the term does: the rows' products
+        # are then not independent. The score is deflated by the variance their serial correlation adds, the larger
+        # of two readings of it: on every coordinate of the rows' remainder r_k - u_k (vector_inflation: white plus
+        # a wander decaying from row to row), and along the prediction, e_k = (r_k - u_k) . u_k (serial_inflation:
+        # zero-mean when the term is right, whatever the wander). A term through the arm is scored on rows taken as
+        # independent: its remainder's slow misfit (a partial thermal term, the geometry's misprediction) reads as a
+        # wander and deflating it cost true thermal terms (drawn thermal_115, the suite's thermal 5 and 316)
         t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
         order = np.argsort(t[prob.rows_val], kind="stable")
         present = np.bincount(rv.row[kv], minlength=fit.model_val.obs.n)[order] > 0
@@ -166,10 +168,9 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
         Rm[~prob.keep_val] = np.nan
         Um = row_blocks(fit.model_val, u_all)
         Um[~np.isfinite(Rm)] = 0.0
-        inflation = vector_inflation(np.nan_to_num(Rm[order][present]), Um[order][present])
-        if moves_the_cell(s.atom):
-            e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
-            inflation = max(inflation, serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+        inflation = max(vector_inflation(np.nan_to_num(Rm[order][present]), Um[order][present]),
+                        serial_inflation(e[order][present], t[prob.rows_val][order][present]))
         deflate = 1.0 / np.sqrt(inflation)
         z, z_minus = z * deflate, z_minus * deflate
     err_term = float(np.sum((r - u) ** 2))
