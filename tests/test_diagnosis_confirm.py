@@ -3,7 +3,7 @@
 import numpy as np
 
 from twin.diagnosis.atoms import Atom
-from twin.diagnosis.confirm import moves_the_cell, of_time, serial_inflation
+from twin.diagnosis.confirm import moves_the_cell, of_time, serial_inflation, vector_inflation
 from twin.diagnosis.features import Step
 
 T_S = np.arange(80.0) * 30.0  # 80 rows, one every 30 s
@@ -37,7 +37,7 @@ def test_a_level_and_a_drift_are_not_counted_as_dependence():
     assert serial_inflation(e, T_S) < 1.2
 
 
-def test_only_a_term_of_time_on_the_measurement_side_is_judged_against_the_wander():
+def test_only_a_term_of_time_on_the_measurement_side_moves_with_the_cell():
     """A step of a station's measurement frame is a term the cell's wander moves alike from row to row; a step of a
     joint's zero or of the tool is not (the arm's pose turns it from row to row)."""
     step = (Step(ch="t_s", at=100.0),)
@@ -47,3 +47,36 @@ def test_only_a_term_of_time_on_the_measurement_side_is_judged_against_the_wande
     assert of_time(base) and moves_the_cell(base)
     assert of_time(joint) and not moves_the_cell(joint)
     assert not moves_the_cell(tool)
+
+
+N_ROWS, N_COORDS = 80, 9  # rows of three points, x y z each
+SMOOTH = np.outer(np.linspace(0.5, 1.5, N_ROWS), np.ones(N_COORDS))  # a prediction that changes slowly in time
+
+
+def _wander(rng: np.random.Generator) -> np.ndarray:
+    """White rows plus a translation of all three points, an AR(1) of correlation 0.7 at half the white noise."""
+    return rng.normal(size=(N_ROWS, N_COORDS)) + 0.5 * np.sqrt(3.0) * np.tile(_ar3(rng), (1, 3))
+
+
+def _ar3(rng: np.random.Generator) -> np.ndarray:
+    return np.column_stack([_ar1(rng, 0.7, N_ROWS) for _ in range(3)])
+
+
+def test_white_rows_inflate_a_smooth_prediction_little():
+    """Over 20 series of white rows, a prediction smooth in time is inflated by at most 1.3 (1 in the median)."""
+    got = [vector_inflation(np.random.default_rng(s).normal(size=(N_ROWS, N_COORDS)), SMOOTH) for s in range(20)]
+    assert max(got) < 1.3 and np.median(got) == 1.0, got
+
+
+def test_a_wander_inflates_a_smooth_prediction():
+    """Rows with a wander of the three points together (AR(1), correlation 0.7, half the white noise) inflate a
+    prediction smooth in time beyond 1.5 in every one of 20 series and beyond 2 in the median."""
+    got = [vector_inflation(_wander(np.random.default_rng(s)), SMOOTH) for s in range(20)]
+    assert min(got) > 1.5 and np.median(got) > 2.0, got
+
+
+def test_a_wander_does_not_inflate_a_prediction_that_turns_from_row_to_row():
+    """The same wander under a prediction that changes sign from one row to the next inflates nothing."""
+    turns = SMOOTH * ((-1.0) ** np.arange(N_ROWS))[:, None]
+    got = [vector_inflation(_wander(np.random.default_rng(s)), turns) for s in range(20)]
+    assert max(got) == 1.0, got

@@ -19,7 +19,7 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "Confirmation", "confirm",
+__all__ = ["time_only", "of_time", "moves_the_cell", "serial_inflation", "vector_inflation", "Confirmation", "confirm",
            "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
            "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
@@ -78,6 +78,35 @@ def serial_inflation(e: np.ndarray, t: np.ndarray) -> float:
     return max(1.0, 1.0 + 2.0 * acc)
 
 
+def vector_inflation(R: np.ndarray, U: np.ndarray) -> float:
+    """The factor ``>= 1`` by which the serial correlation of the rows' noise inflates the variance of ``sum_k R_k .
+    U_k`` over that of independent rows: ``R`` ``(n, d)`` the rows' remainder (residual less the term's prediction),
+    ``U`` ``(n, d)`` the term's prediction, rows in time order (0 where not measured). The noise is read as white
+    per coordinate plus a wander that decays geometrically from row to row (an instrument's frame or a cell that
+    drifts and returns): its correlation at lag ``h`` is ``a rho^h``, with ``rho = gamma_2 / gamma_1`` and ``a =
+    gamma_1 / rho`` from the correlations ``gamma_h = sum_k R_k . R_(k+h) / sum_k |R_k|^2`` read on every coordinate
+    of the remainder (a term's misfit is one direction among them, where a wander moves every row), ``rho`` clipped to
+    [0, 0.95]; a correlation within twice its scatter over white coordinates (``1 / sqrt(m)``, ``m`` the coordinates
+    measured) is read as none: ``gamma_1`` so small, no dependence; ``gamma_2`` so small, the correlation at lag 1
+    alone. The sum's variance is then ``sum_k |U_k|^2 + 2 sum_h a rho^h sum_k U_k . U_(k+h)``: its ratio to the first
+    term. 1 for white rows, for a prediction that changes sign from row to row, and for fewer than 8 rows."""
+    R, U = np.asarray(R, float), np.asarray(U, float)
+    n = len(R)
+    ss, uu = float(np.sum(R * R)), float(np.sum(U * U))
+    if n < 8 or ss <= 0 or uu <= 0:
+        return 1.0
+    g1, g2 = (float(np.sum(R[:-h] * R[h:])) / ss for h in (1, 2))
+    se = 1.0 / np.sqrt(max(np.count_nonzero(R), 1))  # a correlation's scatter over that many white coordinates
+    if g1 <= 2.0 * se:
+        return 1.0
+    rho = float(np.clip(g2 / g1, 0.0, 0.95)) if g2 > 2.0 * se else 0.0
+    if rho <= 0:
+        return max(1.0, 1.0 + 2.0 * g1 * float(np.sum(U[:-1] * U[1:])) / uu)
+    a = g1 / rho
+    acc = sum(a * rho**h * float(np.sum(U[:-h] * U[h:])) for h in range(1, n))
+    return max(1.0, 1.0 + 2.0 * acc / uu)
+
+
 @dataclass(frozen=True)
 class Confirmation:
     """The held-out check of a scored atom on the confirmation rows: ``z``, ``z`` without the most favourable row,
@@ -90,6 +119,11 @@ class Confirmation:
     z_without_best_row: float
     better: bool
     local: bool = False
+
+    def holds(self, z_min: float) -> bool:
+        """Whether the held-out check passes at ``z_min``: ``z`` and ``z`` without the most favourable row above it,
+        the held-out error lower, and not a wander the nearest rows in time predict as well (``local``)."""
+        return self.z > z_min and self.z_without_best_row > z_min and self.better and not self.local
 
 
 def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
@@ -119,15 +153,25 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
     z = signed_rank_z(c)
     z_minus = signed_rank_z(np.delete(c, int(np.argmax(c)))) if c.size > 1 else 0.0
     if of_time(s.atom) and moves_the_cell(s.atom):
-        # a term of time predicts neighbouring rows alike, and noise that wanders over a few rows (an instrument's
-        # frame, the cell) moves their residuals together: the rows' products are then not independent. The score
-        # is deflated by the variance their serial correlation adds, measured on the rows' remainder along the
-        # prediction e_k = (r_k - u_k) . u_k (zero-mean when the term is right, whatever the wander)
-        e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+        # a term of time on the measurement side predicts neighbouring rows alike, and noise that wanders over a few
+        # rows (an instrument's frame, the cell) moves their residuals together as the term does: the rows' products
+        # are then not independent. The score is deflated by the variance their serial correlation adds, the larger
+        # of two readings of it: on every coordinate of the rows' remainder r_k - u_k (vector_inflation: white plus
+        # a wander decaying from row to row), and along the prediction, e_k = (r_k - u_k) . u_k (serial_inflation:
+        # zero-mean when the term is right, whatever the wander). A term through the arm is scored on rows taken as
+        # independent: its remainder's slow misfit (a partial thermal term, the geometry's misprediction) reads as a
+        # wander and deflating it cost true thermal terms (drawn thermal_115, the suite's thermal 5 and 316)
         t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
         order = np.argsort(t[prob.rows_val], kind="stable")
         present = np.bincount(rv.row[kv], minlength=fit.model_val.obs.n)[order] > 0
-        deflate = 1.0 / np.sqrt(serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        Rm = row_blocks(fit.model_val, rv.r - u_all)
+        Rm[~prob.keep_val] = np.nan
+        Um = row_blocks(fit.model_val, u_all)
+        Um[~np.isfinite(Rm)] = 0.0
+        e = np.bincount(rv.row[kv], weights=(r - u) * u, minlength=fit.model_val.obs.n)
+        inflation = max(vector_inflation(np.nan_to_num(Rm[order][present]), Um[order][present]),
+                        serial_inflation(e[order][present], t[prob.rows_val][order][present]))
+        deflate = 1.0 / np.sqrt(inflation)
         z, z_minus = z * deflate, z_minus * deflate
     err_term = float(np.sum((r - u) ** 2))
     better = err_term < float(r @ r)

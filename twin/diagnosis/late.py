@@ -349,7 +349,7 @@ def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str,
     """The change ``s`` (scored on ``prob``'s rows before the cut ``t_cut`` on channel ``ch``, against ``fit0``) judged
     on the rows after the cut: the :class:`LateChange` when confirmed there (else None) and a note on ``what`` it is."""
     c = confirm(prob, fit0, s, z_min)
-    ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+    ok = c.holds(z_min)
     P = prob.prep.space.size
     fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
     got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),

@@ -170,7 +170,7 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                 if not c_refined.local:
                     s, c = refined, c_refined
         implausible = _implausible(prob, s)
-        ok = c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local and implausible is None
+        ok = c.holds(z_min) and implausible is None
         # [configurations] a term of joint angles also holds between the sampled values (folds of them left out)
         cc = confirm_configurations(prob, fit, s, scored, sizes) if ok else None
         held_in_time, ok = ok, ok and (cc is None or cc.passed)
@@ -508,7 +508,7 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         if _implausible(prob, sc) is not None:
             return False
         c = confirm(prob, base, sc, z_min)
-        return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+        return c.holds(z_min)
 
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
@@ -607,7 +607,7 @@ def _admitted(prob: Problem, fit: Fit, sc: Scored, z_min: float) -> bool:
     if _implausible(prob, sc) is not None:
         return False
     c = confirm(prob, fit, sc, z_min)
-    return c.z > z_min and c.z_without_best_row > z_min and c.better and not c.local
+    return c.holds(z_min)
 
 
 def _row_errors(prob: Problem, fit: Fit) -> np.ndarray:
