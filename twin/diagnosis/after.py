@@ -102,10 +102,7 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         if got is not None:
             with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
             if not is_change(got.atom):
-                # the recorded air's change: the record times it, its lag (its one constant) was read on the rows
-                # before the cut, and every row holds more of its course
-                lagged = len(got.atom.features) == 1 and isinstance(got.atom.features[0], Lag)
-                with_got = retime(prob_x, with_got, free=(got.atom.key,) if lagged else ())
+                with_got = retime(prob_x, with_got)
                 # a kept change that ends (a payload taken off) is preferred over a change of the air after the rows
                 # that fit where it explains every row as well: the kept term with one more constant, its end
                 ended, ends = end_steps(setup, prob_x, src, alpha=alpha)

@@ -834,7 +834,7 @@ def _common_chi2(a: Fit, b: Fit) -> float:
     return float(np.sum(w[ra.row] * ra.r ** 2) - np.sum(w[rb.row] * rb.r ** 2))
 
 
-def retime(prob: Problem, fit: Fit, free: tuple[str, ...] = ()) -> Fit:
+def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
     the thermal terms (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
@@ -848,9 +848,7 @@ def retime(prob: Problem, fit: Fit, free: tuple[str, ...] = ()) -> Fit:
     drift that extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The
     models to use, chosen on the first block of a campaign and refitted on every row: an air step after that block
     fixes the lag the block could not see; the heat's time constant and motors are read on the whole campaign's moves;
-    the flank a load pushes a gear to is read on every row. The terms of ``free`` (keys) take their best constants on
-    these rows without that margin: their constants were read on a part of them that holds less of the term (a change
-    of the recorded air after the rows that fit, its lag read on the rows before a cut)."""
+    the flank a load pushes a gear to is read on every row."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
@@ -885,7 +883,6 @@ def retime(prob: Problem, fit: Fit, free: tuple[str, ...] = ()) -> Fit:
         # a load law's rows read alike in both: a row on the wrong flank is off by twice the backlash, which the
         # fit that put it there sets aside as gross
         gain = (_common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
-        if (gain > (0.0 if atom.key in free else chi2_isf(0.01, moved))
-                and implausible_size(prob, new.atom, new.basis @ psi) is None):
+        if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit
