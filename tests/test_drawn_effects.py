@@ -392,3 +392,16 @@ def test_a_frames_bump_in_the_last_rows_with_no_payload_event_is_kept_as_a_step(
     assert "error" not in r, r.get("error")
     assert r["named"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.5
+
+
+def test_a_short_glitch_of_a_joints_zero_is_read_at_the_zero_not_its_compliance(tmp_path):
+    """Joint 2's zero off on 5 rows of an IRB 1200's 286 (seed 410 of zero_glitch, full size): the zero's window, judged
+    on the rows the compliance's window placed, fits them with one column where the compliance took three; named as
+    that one window, no compliance (a payload's window at joints 2 and 3 before)."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build("zero_glitch", 410)
+    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    assert r["effects"] == [] and r["named"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.5
+

@@ -15,6 +15,7 @@ from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
                    own_weight, payload_event)
 from .problem import Fit, Problem, refit_with
+from .refine import is_onset
 from .rule import retime
 
 __all__ = ["AfterBlocks", "after_blocks"]
@@ -43,6 +44,26 @@ def _air_explains(prob: Problem, src: Fit, step, air, alpha: float) -> bool:
     with_air = retime(prob, refit_with(prob, src, chosen + [(air.atom, air.basis)]))
     extra = max(1, step.basis.shape[1] - air.basis.shape[1])
     return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, extra)
+
+
+def _late_beside_glitches(prob: Problem, src: Fit, found: list, alpha: float) -> tuple[Fit, list, list[str]]:
+    """``src`` without each term of ``found`` kept after the rows that fit (``"late"``: a step, a change of the air)
+    where every row is explained as well without it beside the glitches kept since (its chi2 within ``chi2`` at
+    ``alpha`` with a degree of freedom per column and per constant: a step's time; the air's onset, ramp and lag, or
+    the recorded air's lag); the entries of ``found`` left and notes."""
+    notes = []
+    for entry in [f for f in found if f[1] == "late"]:
+        chosen = [c for c in src.chosen if c[0].key != entry[0].key]
+        if len(chosen) == len(src.chosen):
+            continue
+        without = refit_with(prob, src, chosen)
+        cols = next(b.shape[1] for a, b in src.chosen if a.key == entry[0].key)
+        constants = 3 if is_onset(entry[0]) else 1
+        if without.chi2 - src.chi2 < prob.evidence_scale * chi2_isf(alpha, cols + constants):
+            notes.append(f"not kept: {entry[0].label}; the glitches kept beside it explain every row as well "
+                         f"(chi2 {without.chi2:.1f} against {src.chi2:.1f})")
+            src, found = without, [f for f in found if f is not entry]
+    return src, found, notes
 
 
 def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: list, *, late: bool, alpha: float,
@@ -117,6 +138,12 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
+        if wins:
+            # a term found after the rows that fit, before the glitches were: judged again beside them (a glitch's
+            # return read as a step at another place or as the air's change), dropped where every row is explained
+            # as well without it (its columns and its constants)
+            src, found, notes_back = _late_beside_glitches(prob_x, src, found, alpha)
+            notes += notes_back
     # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
     # loads is not left to read as a change in the last rows
     src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)

@@ -340,6 +340,23 @@ WHITE_Z = 3.0  # the residual a change leaves must not be correlated from row to
 TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
 
 
+def _window_at(agg: tuple, s: int, e: int, rr: np.ndarray, mm: np.ndarray, n: int, scale: float,
+               lp_max: float) -> float | None:
+    """``log p`` of the window ``[s, e)`` (rows in time order) at the place whose per-row aggregates and prefix sums
+    ``agg`` holds, where the scan's rules keep it (:func:`_uniform`, :func:`_stands_out`,
+    :func:`_holds_without_any_row`; ``rr``, ``mm``: the prefix sums of the residual's squares and counts), else None."""
+    Ci, Ai, bi, Cc, Ac, bc = agg
+    gain, rank = _gains(Cc[[e]] - Cc[[s]], Ac[[e]] - Ac[[s]], bc[[e]] - bc[[s]], scale)
+    ok = (rank > 0) & _uniform(rr[[e]] - rr[[s]], mm[[e]] - mm[[s]], gain, rank, rr[n], mm[n], scale)
+    if not ok[0]:
+        return None
+    lp = float(chi2_logsf(gain, rank.astype(float))[0])
+    if lp < 0 and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain[0], rank[0], rr[n], mm[n], scale, lp_max) \
+            and _holds_without_any_row(Ci, Ai, bi, s, e, scale, lp_max):
+        return lp
+    return None
+
+
 def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """``log chi2_sf(gain, rank)`` ``(k,)`` of the positions ``ok``, computed for the ``TOP`` largest gains of each
     rank only (the others, and those not ``ok``, read 0: never among the best)."""
@@ -382,6 +399,8 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     mm = np.concatenate([[0.0], np.cumsum(np.bincount(rows, minlength=n)[order].astype(float))])
     sizes = sizes or change_pool_sizes(n, places, short=short)
 
+    aggregates, best_windows = {}, {}
+
     def place_scan(pl: ChangePlace) -> list[tuple[float, Atom]]:
         out = []
         tmpl = Atom("change", pl.place, pl.target, (Const(),), "", "", "change")
@@ -399,6 +418,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         Cc = np.concatenate([np.zeros((1, p, p)), np.cumsum(Ci, axis=0)])
         Ac = np.concatenate([np.zeros((1, QB.shape[1], p)), np.cumsum(Ai, axis=0)])
         bc = np.concatenate([np.zeros((1, p)), np.cumsum(bi, axis=0)])
+        aggregates[pl] = (Ci, Ai, bi, Cc, Ac, bc)
         if len(steps):
             gain, rank = _gains(Cc[n] - Cc[steps], Ac[n] - Ac[steps], bc[n] - bc[steps], prob.evidence_scale)
             ok = (rank > 0) & _uniform(rr[n] - rr[steps], mm[n] - mm[steps], gain, rank, rr[n], mm[n],
@@ -459,11 +479,30 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
                                                    prob.evidence_scale, lp_max) \
                         and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
                     best = (float(lp[k]), int(A2[k]), int(B2[k]))
-        _, s, e = best
-        out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
+        best_windows[pl] = best
         return out
 
     out = [c for got in thread_map(place_scan, places, prob.threads) for c in got]
+    if windows:
+        # a joint's zero and its compliance share the rows a window of either holds: each is judged on the rows the
+        # other placed (the grid's pairs around a short window may not fit one of them uniformly, and a broader
+        # place's columns then take the rows alone)
+        for pl in places:
+            if pl not in aggregates:
+                continue
+            best = best_windows.get(pl)
+            for q, other in best_windows.items():
+                if q is pl or (q.place, q.target) != (pl.place, pl.target) or other is None:
+                    continue
+                got = _window_at(aggregates[pl], other[1], other[2], rr, mm, n, prob.evidence_scale,
+                                 np.log(alpha) - np.log(sizes["change_window"]))
+                if got is not None and (best is None or got < best[0]):
+                    best = (got, other[1], other[2])
+            best_windows[pl] = best
+        for pl, best in best_windows.items():
+            if best is not None:
+                _, s, e = best
+                out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
     return [a for _, a in sorted(out, key=lambda t: t[0])
             if _white_after(prob, fit, a, sizes, order, _payload_companions(a, places))]
 

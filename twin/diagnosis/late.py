@@ -39,7 +39,7 @@ from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
                       is_window, row_times, same_event, scan_changes, started_at)
-from .features import Gated, Lag, Window
+from .features import Gated, Heat, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
@@ -413,9 +413,13 @@ def late_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha:
     against the model in use (significant after the factor of places and constants tried), starting after the rows
     that fit (an onset, or the recorded temperature leaving the range those rows saw); located and fitted on the rows
     before a cut (the fewest rows after its start the step scan needs), confirmed on the rows after it. Places that
-    already have a thermal term are not tried. Returns the confirmed term (or ``None``) and a note."""
+    already have a thermal term of the air are not tried (one whose growth follows the motors' heat alone is: the
+    links' temperature sums both sources). Returns the confirmed term (or ``None``) and a note."""
     ch, tv = row_times(setup.ctx)
-    have = {a.target for a, _ in use_all.chosen if a.family == "thermal"}
+    # the links' temperature sums its sources: a place whose growth follows the motors' heat alone may still follow
+    # the air
+    have = {a.target for a, _ in use_all.chosen if a.family == "thermal"
+            and not any(isinstance(f, Heat) for f in a.features)}
     templates = [a for a in templates if a.target not in have]
     if ch != "t_s" or not templates:
         return None, ""
