@@ -66,7 +66,6 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
     ('d', 'd04'): "not traced; extra names ['tilt']; named ['tilt']; report after/oracle 2.03 > 1.5; later rows after/oracle 2.39 > 1.5",
     ('d', 'd06'): "extra names ['compliance', 'cyclic'] (a plate sagging with the direction of gravity read as a payload hung on at the campaign's start, a harmonic beside it)",
     ('d', 'd09'): "not structured; named [] not ['cyclic']",
-    ('d', 'd10'): "extra names ['backlash'] (a joint settling into every row read as joint 1's backlash taken up with the move, expsat at its widest scale, 180 deg)",
     ('d', 'd14'): "not traced; extra names ['thermal']; named ['thermal'] not ['compliance']",
     ('d', 'd18'): "not structured; named [] not ['compliance']",
     ('d', 'd25'): "not traced; extra names ['compliance']; named ['backlash', 'compliance'] not ['backlash']",
