@@ -70,7 +70,7 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
     ('d', 'd18'): "not structured; named [] not ['compliance']",
     ('d', 'd25'): "not traced; extra names ['compliance']; named ['backlash', 'compliance'] not ['backlash']",
     ('d', 'd26'): 'later rows after/oracle 1.58 > 1.5',
-    ('d', 'd27'): "extra names ['backlash']; named ['plate_geometry', 'backlash'] not ['plate_geometry'] (the ringing arm's lag in proportion to the last step read as a backlash growing with the last move on joint 3)",
+    ('d', 'd27'): "extra names ['backlash']; named ['plate_geometry', 'backlash'] not ['plate_geometry'] (the ringing arm's lag in proportion to the last step read as a backlash growing with the last move on joint 5, tanh at 58 deg)",
     ('d', 'd28'): 'report after/oracle 1.40 > 1.2',
     ('d', 'd30'): 'not traced',
     ('e', 'e09'): "not traced; extra names ['cyclic']; named ['coupling', 'cyclic'] not ['coupling']",
