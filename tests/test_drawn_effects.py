@@ -337,6 +337,17 @@ def test_a_backlash_taken_up_exponentially_with_the_move_is_read_with_that_law(t
     assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2
 
 
+def test_a_backlash_in_proportion_to_moves_into_every_row_is_named_backlash(tmp_path):
+    """A backlash of joint 1 in proportion to its last move up to 49 deg (seed 1, small), the joint moving into every
+    row (its step into the row and its last move are the same numbers): no other joint follows its step, so the joint's
+    step is read as its backlash, in proportion over the campaign's moves, within 1.2x the oracle on the report and
+    later rows."""
+    r = _scored(tmp_path, "backlash_size", 1)
+    assert r["params"]["shape"] == "proportional"
+    assert r["named"] and not any("step into the row" in lab for lab in r["labels"]), r["labels"]
+    assert r["report"]["after_over_oracle"] <= 1.2 and r["test"]["after_over_oracle"] <= 1.2
+
+
 def test_a_stiffening_shoulder_read_as_several_harmonics_is_named_its_compliance(tmp_path):
     """A stiffening compliance of an IRB 1200's joint 2 without masses (seed 216, 280 rows): the weight of the link it
     moves is a first harmonic of its angle and the stiffening adds odd ones, kept first with a function of q2*q3; the

@@ -68,7 +68,17 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     the sign the size is also judged nested: scored on the model refitted with the joint's sign backlash, it must add
     that evidence beyond it (two readings of one strong backlash differ by a linearised score's small error of it,
     which a difference of their scores takes for evidence), and the model with it must predict the confirmation rows
-    better than the model with the sign."""
+    better than the model with the sign.
+
+    Where the joint moves into every row, the step and a size law in proportion to the move are the same numbers; which
+    one the rows hold is told by the other joints: an arm still settling from its moves lags on every joint it moved
+    (the step into the row of another joint adds evidence beyond this joint's, at 1 % / the other joints), a backlash
+    is one joint's. On an arm that settles, the size must also add that evidence nested, scored on the model refitted
+    with the joint's step (a linear lag whose gain follows the pose leaks into a curved law's score at high
+    signal-to-noise), and with the steps of the other joints that settle (their lag, not yet in the model, leaks into
+    it too); where the joint alone follows its move, the size is kept wherever the step does not explain
+    significantly more (by the bar above) and the joint's step leaves the round: the catalogue's reading of those
+    numbers, a backlash that grows with the move up to a size and predicts the longer moves after the campaign."""
     sizes = [s for s in scored if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove"]
     if not sizes:
         return scored
@@ -86,26 +96,81 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     # the joint's sign backlash, scored here where the round's pool no longer holds it (rejected in an earlier round:
     # its size law is the same backlash and no better reading of it)
     signs = [sign_backlash(int(t[5:])) for t in targets if t not in sign]
+    step_of: dict[str, Scored] = {}
     for s in score_atoms(prob, fit, steps + signs, pool_sizes, exact_top=len(steps) + len(signs)):
-        rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
+        if s.atom.features[0].kind == "stepin":
+            step_of[s.atom.target] = s
+        else:
+            rival[s.atom.target] = max(rival.get(s.atom.target, -np.inf), s.dchi2)
     bar = dists.chi2_isf(0.01 / (len(BACKLASH_MOVE_WIDTHS_DEG) * len(BACKLASH_MOVE_LAWS)), 1) * prob.evidence_scale
     keep: dict[str, Scored] = {}
+    alone: set[str] = set()  # joints whose step leaves the round: their size law reads it
     for t in targets:
         top = max((s for s in sizes if s.atom.target == t), key=lambda s: s.dchi2)
         if top.logp_adj >= np.log(0.01):
             continue  # not significant: it competes as scored (it will not be tried)
         # at its best law and width, not the grid's (the linear step is the wide limit of both laws)
         top = refine(prob, fit, top, pool_sizes)
-        if top.dchi2 - rival.get(t, -np.inf) >= bar and _beyond_sign(prob, fit, top, sign.get(t), pool_sizes) >= bar:
+        if top.dchi2 - rival.get(t, -np.inf) < bar or _beyond_sign(prob, fit, top, sign.get(t), pool_sizes) < bar:
+            continue
+        step = step_of.get(t)
+        if step is None:
             keep[t] = top
+        elif (settling := _settling(prob, fit, step, top, pool_sizes)) is not None:
+            if top.dchi2 - step.dchi2 >= bar and _beyond(prob, fit, top, [step] + settling, pool_sizes) >= bar:
+                keep[t] = top
+        elif step.dchi2 - top.dchi2 < bar:
+            keep[t] = top
+            alone.add(t)
     out = []
     for s in scored:
         if s.atom.family == "backlash" and s.atom.features[0].kind == "lastmove":
             if s.atom.target in keep:
                 out.append(keep.pop(s.atom.target))  # the refined one, in the place of the joint's grid atoms
             continue
+        if s.atom.target in alone and len(s.atom.features) == 1 and isinstance(s.atom.features[0], StepIn) \
+                and f"theta{s.atom.features[0].j}" == s.atom.target:
+            continue
         out.append(s)
     return out
+
+
+def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: dict[str, int]) -> list[Scored] | None:
+    """The other joints of an arm that settles from its moves beyond the joint of ``step`` (its step into the row) and
+    ``size`` (its backlash growing with the last move), or None where that joint alone follows its moves: another
+    joint's step into the row on that joint's angle already in ``fit``, and each one that adds evidence beyond
+    ``chi2_1`` at 1 % / the other joints to ``fit`` refitted with the better of the two readings (returned)."""
+    j = int(step.atom.target[5:])
+    n = prob.ctx.q.shape[1]
+    others = [Atom("unnamed", "joint", f"theta{k}", (StepIn(j=k),), f"step into the row j{k}",
+                   f"unnamed: joint {k} angle varies with step into the row j{k}", "generic", (k,))
+              for k in range(1, n + 1) if k != j]
+    held = {a.key for a, _ in fit.chosen}
+    before = any(a.key in held for a in others)
+    others = [a for a in others if a.key not in held]
+    if not others:
+        return [] if before else None
+    best = max((step, size), key=lambda s: s.dchi2)
+    gross = (prob.w_cal, prob.keep_val)
+    try:
+        with_best = refit_with(prob, fit, list(fit.chosen) + [(best.atom, best.basis)])
+        got = score_atoms(prob, with_best, others, pool_sizes, exact_top=len(others))
+    finally:
+        prob.w_cal, prob.keep_val = gross
+    bar = dists.chi2_isf(0.01 / len(others), 1) * prob.evidence_scale
+    more = [g for g in got if g.dchi2 >= bar]
+    return more if more or before else None
+
+
+def _beyond(prob: Problem, fit: Fit, size: Scored, others: list[Scored], pool_sizes: dict[str, int]) -> float:
+    """The evidence ``size`` adds to ``fit`` refitted with ``others``."""
+    gross = (prob.w_cal, prob.keep_val)
+    try:
+        with_others = refit_with(prob, fit, list(fit.chosen) + [(o.atom, o.basis) for o in others])
+        got = score_atoms(prob, with_others, [size.atom], pool_sizes, exact_top=1)
+    finally:
+        prob.w_cal, prob.keep_val = gross
+    return got[0].dchi2 if got else 0.0
 
 
 def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, pool_sizes: dict[str, int]) -> float:
@@ -148,9 +213,26 @@ def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Sc
         extra = max((t for t in got if t.atom.features[0].law not in BACKLASH_MOVE_LAWS), key=lambda t: t.dchi2,
                     default=None)
         if extra is not None and extra.dchi2 - top.dchi2 >= dists.chi2_isf(0.01, 1) * prob.evidence_scale:
-            return extra
-        return top
+            top = extra
+        return _seen_saturation(prob, fit, top, pool_sizes)
     return _refine_constant(prob, fit, s, pool_sizes)
+
+
+def _seen_saturation(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A backlash growing with the size of the last move ``s`` at its best law and width, or the backlash in proportion
+    to every move the calibration rows saw (``clip`` at the largest of them) where ``s`` does not explain more by
+    ``chi2_1`` at 1 %: a saturation the rows do not show is not placed (where the moves stay short of it, the widths
+    that bend the law within the moves seen and those beyond them explain alike, and a bend placed within them
+    mispredicts every longer move after the campaign)."""
+    j = s.atom.features[0].j
+    step = prob.features(Atom("unnamed", "joint", s.atom.target, (StepIn(j=j),), "", "", "generic", (j,)))
+    seen = float(np.max(np.abs(step[:, 0]), initial=0.0))
+    if seen <= 0.0:
+        return s
+    got = score_atoms(prob, fit, [_with_constant(_with_law(s.atom, "clip"), "w", seen)], pool_sizes, exact_top=1)
+    if got and s.dchi2 - got[0].dchi2 < dists.chi2_isf(0.01, 1) * prob.evidence_scale:
+        return got[0]
+    return s
 
 
 # each law's name in a lastmove atom's channel (expsat(x): sign(x) (1 - exp(-|x|)))
