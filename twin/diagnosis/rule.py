@@ -28,6 +28,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
+from .late import is_load_change
 from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
@@ -513,11 +514,15 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
         support = a.family == "tilt" and a.target != "tilt0"
+        # the base's tilt beside a payload's change: the payload's change reads the shoulder's and the elbow's
+        # compliance carrying a load, and the arm's own weight goes through the same compliance on every row
+        payload = a.family == "tilt" and a.target == "tilt0" and any(is_load_change(c) for c, _ in fit.chosen)
+        support = support or payload
         if a.pool != "catalogue" or not (a.place == "joint" or support) or a not in [c for c, _ in fit.chosen]:
             continue
         if sum(c.family == a.family for c in named) != 1:
             continue
-        others = {c.family for c in named} - {a.family}
+        others = {c.family for c in named} - {a.family} | ({"compliance"} if payload else set())
         have = {c.key for c, _ in fit.chosen if c is not a}
         # a joint's term: the other families' terms of that joint; a support's tilt (the link a joint turns tilting
         # about two axes, one of them parallel to a neighbouring joint's): the compliance of the joints it bends
