@@ -39,7 +39,8 @@ from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
                       is_window, row_times, same_event, scan_changes, started_at)
-from .features import Gated, Lag, Window
+from .atoms import is_load_change
+from .features import Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
 from .extend import error_stats
@@ -48,7 +49,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -705,8 +706,7 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
     the catalogue's term joins on every row when significant there, after the factor of the joints tried (``chi2``
     of its rank at ``alpha``), strongest first. Returns the fit with them, the terms (atom, ``Delta chi2``) and
     notes."""
-    loaded = {a.target for a, _ in use_all.chosen
-              if is_change(a) and a.place == "joint" and a.features and isinstance(a.features[0], Gated)}
+    loaded = {a.target for a, _ in use_all.chosen if is_load_change(a)}
     have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
     cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
              and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
@@ -714,11 +714,6 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
     notes = [f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight on "
              f"every row; p = {p:.2g} after the factor {n} of the joints tried)" for g, p, n in added]
     return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
-
-
-def is_load_change(atom) -> bool:
-    """Whether ``atom`` is a change of a joint's compliance (its gravity-torque shapes gated in time: a payload)."""
-    return is_change(atom) and atom.place == "joint" and bool(atom.features) and isinstance(atom.features[0], Gated)
 
 
 def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,

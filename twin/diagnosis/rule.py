@@ -21,14 +21,13 @@ import numpy as np
 
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import Atom
+from .atoms import Atom, is_load_change
 from .changes import change_places, is_change, scan_changes
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .late import is_load_change
 from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
