@@ -22,7 +22,7 @@ import numpy as np
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom, is_load_change
-from .changes import change_places, is_change, scan_changes
+from .changes import change_places, is_change, same_event, scan_changes
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
@@ -116,18 +116,21 @@ class Round:
 
 
 def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
-                    alpha_select: float, z_min: float, tries: int = 3,
+                    alpha_select: float, z_min: float, tries: int = 3, lead: frozenset = frozenset(),
                     callback: Callable[[CandidateScore], None] | None = None) -> Round:
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from."""
+    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from.
+    The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
     order, same = distinct_terms(prob, order_candidates(scored))
-    first = rival_readings(order, order[:tries], np.log(alpha_select))
+    led = [s for s in order if s.atom.key in lead and s.logp_adj < np.log(alpha_select)]
+    order = led + [s for s in order if s not in led]
+    first = rival_readings(order, order[:len(led) + tries], np.log(alpha_select))
     # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
     # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
     # from being tried at all
@@ -211,11 +214,18 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
         remaining = [a for a in pool if a.key not in rejected and slot(a) not in taken]
+        lead: dict[str, Atom] = {}
         if places:
             # the best row of every place for a change, against the current fit (changes.scan_changes)
             remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and slot(a) not in taken]
+            # a payload's change kept: the same change (its start and end) at every other joint's compliance is tried
+            # first (one event loads every joint below the flange at once: its timing is the kept change's)
+            lead = {c.key: c for a, _ in chosen if is_load_change(a) for c in same_event(a, places)
+                    if c.key not in rejected and slot(c) not in taken}
+            have = {a.key for a in remaining}
+            remaining += [c for k, c in lead.items() if k not in have]
         r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
-                            callback=callback)
+                            lead=frozenset(lead), callback=callback)
         sel.scores += r.scores
         rejected.update(r.rejected)
         if r.accepted is None:
