@@ -49,7 +49,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event"]
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -146,7 +146,7 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     scored = score_atoms(prob, fit0, cands[:1], sizes, exact_top=1)
     if not scored:
         return None, f"a change after the rows that fit ({cands[0].label}) could not be scored: not kept"
-    s, note = _as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
+    s, note = as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
     got, words = _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
     return got, words + note
 
@@ -186,7 +186,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
     place (:func:`_place_scatter` over each of the place's columns, the model with the change: a wander of the cell
     holds over a few rows and moves the last ones together), significant after the window pool's Bonferroni factor
     over every row and place (a window whose end is the campaign's). Strongest first; a step of a joint's zero read as
-    a payload's change where the payload's event explains more (:func:`_as_event`). At the place of a kept step, that
+    a payload's change where the payload's event explains more (:func:`as_event`). At the place of a kept step, that
     step ending there (a change and back: a payload taken off again, a glitch's return) is preferred where it explains
     every row as well (its chi2 within ``chi2_1`` at ``alpha`` of both changes': one constant fewer). Returns the fit
     (with the change, or with the kept step ended, or as given), the change (or None) and a note."""
@@ -228,7 +228,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
                                        f"{ended.chi2:.1f} against {with_it.chi2:.1f} with both)")
                 break
             prob_all.w_cal = w_tail
-            s, note = _as_event(prob_all, use_all, got[0], cands, places, sizes, t_rows, alpha=alpha)
+            s, note = as_event(prob_all, use_all, got[0], cands, places, sizes, t_rows, alpha=alpha)
             k = int(np.sum(t_rows > float(s.atom.features[0].at)))
             end = EndChange(s.atom, s.basis, k, float(s.dchi2), float(s2), float(logp / np.log(10.0)), int(factor))
             result = use_all, end, f"a change in the campaign's last rows: {s.atom.label} {words}" + note
@@ -262,7 +262,7 @@ def _ended_at(prob: Problem, fit: Fit, atom, at: float) -> Fit | None:
 EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's event is located as a whole
 
 
-def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
+def as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
               t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
     """The change ``s`` (a step of a joint's zero or of a frame, scored against ``fit0`` on ``prob``'s rows), or a
     change of a joint's compliance the scan found (``cands``: at the same joint for a zero's step; for a frame's, at

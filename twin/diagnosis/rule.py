@@ -22,12 +22,13 @@ import numpy as np
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom, is_load_change
-from .changes import change_places, is_change, same_event, scan_changes
+from .changes import change_places, is_change, is_step, row_times, same_event, scan_changes
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
+from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
@@ -233,6 +234,15 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                 continue  # named atoms of an unphysical size are out: the next round scores the rest
             break
         accepted = r.accepted
+        if places and accepted.atom.place == "joint" and is_step(accepted.atom) and not is_load_change(accepted.atom):
+            # a step of a joint's zero where a payload's change at that joint (with the same change at every loaded
+            # joint) explains more than its extra columns: one event, a payload hung on or taken off (late.as_event)
+            event, note = as_event(prob, fit, accepted, [a for a in remaining if is_change(a)], places, sizes,
+                                   np.sort(row_times(prob.ctx)[1][prob.rows_cal]), alpha=alpha_select)
+            if note and _admitted(prob, fit, event, z_min):
+                sel.notes.append(f"{accepted.atom.label}{note}")
+                taken.add(slot(accepted.atom))
+                accepted = event
         taken.add(slot(accepted.atom))  # the grid value it was found at is taken with it
         refined = refine_load_sign(prob, fit, accepted if retimeable(accepted.atom) else refine(prob, fit, accepted, sizes),
                                    sizes)
