@@ -13,7 +13,7 @@ from .problem import Problem
 from .scoring import Scored
 
 __all__ = ["CATALOGUE_MARGIN", "CATALOGUE_SHARE", "order_candidates", "alternatives", "slot", "distinct_terms",
-           "rival_readings"]
+           "rival_readings", "payload_rivals"]
 
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
@@ -188,27 +188,34 @@ def rival_readings(order: list[Scored], first: list[Scored], logp_max: float) ->
     """``first`` with, after each backlash in it, the strongest significant other reading (``logp_adj < logp_max``) of
     that joint's backlash in ``order`` (its one slot: the sign of the last move or of the load, a play, the size of the
     last move): a joint's backlash is tried in the readings the rows hold before a term elsewhere takes its rows (one
-    reading failing its confirmation says nothing of another). After a change of a joint's compliance (a payload), the
-    strongest significant change of the compliance of a joint none of ``first`` changes: a payload at the flange loads
-    every joint below it at once, and the joint whose change the rows that fit hold most (a stiff shoulder under a long
-    lever) need not be the one the later rows confirm (a soft wrist)."""
+    reading failing its confirmation says nothing of another)."""
     out: list[Scored] = []
     have = {id(s) for s in first}
-    loaded = {s.atom.target for s in first if is_load_change(s.atom)}
     for s in first:
         out.append(s)
-        rival = None
-        if s.atom.family == "backlash":
-            kinds = {f.kind for f in s.atom.features}
-            rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max
-                          and slot(r.atom) == slot(s.atom) and {f.kind for f in r.atom.features} != kinds), None)
-        elif is_load_change(s.atom):
-            rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max and is_load_change(r.atom)
-                          and r.atom.target not in loaded), None)
-            if rival is not None:
-                loaded.add(rival.atom.target)
+        if s.atom.family != "backlash":
+            continue
+        kinds = {f.kind for f in s.atom.features}
+        rival = next((r for r in order if id(r) not in have and r.logp_adj < logp_max and slot(r.atom) == slot(s.atom)
+                      and {f.kind for f in r.atom.features} != kinds), None)
         if rival is not None:
             out.append(rival)
             have.add(id(rival))
     return out
 
+
+def payload_rivals(order: list[Scored], tried: list[Scored], logp_max: float) -> list[Scored]:
+    """Where a round tried changes of a joint's compliance (a payload) and none held: the strongest significant change
+    (``logp_adj < logp_max``) in ``order`` of the compliance of each joint none of ``tried`` changes, in the order's
+    order. A payload at the flange loads every joint below it at once, and the joint whose change the rows that fit
+    hold most (a stiff shoulder under a long lever) need not be the one the later rows confirm (a soft wrist)."""
+    loaded = {s.atom.target for s in tried if is_load_change(s.atom)}
+    if not loaded:
+        return []
+    out: list[Scored] = []
+    have = {id(s) for s in tried}
+    for r in order:
+        if id(r) not in have and r.logp_adj < logp_max and is_load_change(r.atom) and r.atom.target not in loaded:
+            out.append(r)
+            loaded.add(r.atom.target)
+    return out

@@ -29,7 +29,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .late import as_event
-from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
+from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
@@ -123,7 +123,8 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
     confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from.
-    The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first."""
+    The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first;
+    where every try failed, a payload's change at the joints the tries did not change (:func:`payload_rivals`)."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
@@ -141,7 +142,11 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
             seen.add(c.atom.pool)
             more.append(c)
-    for k, s in enumerate(first + more):
+    queue = first + more
+    for k, s in enumerate(queue):
+        if k == len(queue) - 1:
+            # every try failed so far: the payload's change at the joints none of them changes (ordering.payload_rivals)
+            queue += payload_rivals(order, queue, np.log(alpha_select))
         alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
