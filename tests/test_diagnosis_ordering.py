@@ -6,8 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from twin.diagnosis.atoms import Atom
-from twin.diagnosis.features import LoadSign, Sign, Torque
-from twin.diagnosis.ordering import distinct_terms, rival_readings
+from twin.diagnosis.features import Gated, LoadSign, Sign, Step, Torque
+from twin.diagnosis.ordering import distinct_terms, payload_rivals, rival_readings
 from twin.diagnosis.scoring import Scored
 
 
@@ -42,3 +42,25 @@ def test_a_backlash_tried_in_one_reading_is_followed_by_its_joints_other_reading
     order = [load, other, motion]
     assert rival_readings(order, [load, other], np.log(0.01)) == [load, motion, other]
     assert rival_readings(order, [load, other], -30.0) == [load, other]
+
+
+def _load_change(j, at):
+    f = Gated(f=Torque(j=j, h=1.0), ch="t_s", at=at)
+    return Atom("change", "joint", f"theta{j}", (f,), f"change(t_s >= {at})",
+                f"change of the joint {j} compliance (a payload) from t_s {at} on", "change", (j,))
+
+
+def test_a_payloads_change_tried_at_one_joint_brings_the_strongest_at_each_other_joint():
+    """After a round's tries of a change of joint 3's compliance (beside a frame's step) failed, the strongest
+    significant change of each other joint's compliance is tried (joint 5's, not joint 3's other reading); none that is
+    not significant, none where no payload's change was tried."""
+    j3 = _scored(_load_change(3, 100.0), 900.0, -30.0)
+    j3_other = _scored(_load_change(3, 150.0), 890.0, -29.0)
+    frame = _scored(Atom("change", "param", "base", (Step(ch="t_s", at=100.0),), "change(t_s >= 100)",
+                         "change of the base frame from t_s 100 on", "change", ()), 950.0, -28.0)
+    j5 = _scored(_load_change(5, 150.0), 800.0, -25.0)
+    j5_other = _scored(_load_change(5, 120.0), 700.0, -24.0)
+    order = [j3, frame, j3_other, j5, j5_other]
+    assert payload_rivals(order, [j3, frame], np.log(0.01)) == [j5]
+    assert payload_rivals(order, [j3, frame], -27.0) == []
+    assert payload_rivals(order, [frame], np.log(0.01)) == []

@@ -375,6 +375,20 @@ def test_a_supports_tilt_beside_a_named_compliance_gives_way_to_the_joints_compl
     assert r["test"]["after_over_oracle"] <= 1.2
 
 
+def test_the_bases_tilt_beside_a_payloads_change_gives_way_to_the_joints_compliance(tmp_path):
+    """A 6.7 kg payload hung on a UR10 without masses and taken off again (seed 106: joint 2, rows 50-113 of 188): the
+    base's tilt under the arm's moment entered before joint 2's compliance by a hair (the rows cannot tell them apart
+    about the shoulder's axis); beside the payload's change of joint 2's compliance it is tried as that compliance,
+    which predicts the confirmation rows as well: one family named, compliance, the later rows within 1.2x."""
+    from studies.drawn.scoring import score_instance
+
+    inst = C.build("payload", 106)
+    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    assert r["params"]["joints"] == [2] and r["params"]["timing"] == "window"
+    assert r["effects"] == ["compliance"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
 def test_a_payload_hung_on_late_that_the_scan_reads_as_a_frames_step_is_one_event(tmp_path):
     """A 6.8 kg payload hung on a UR10 with a URDF's masses 43 rows before the campaign's end (seed 312, full size),
     which the scan on the rows before the cut reads first as a step of the measurement frame: read as one payload's

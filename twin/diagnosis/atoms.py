@@ -42,9 +42,9 @@ from dataclasses import dataclass, field
 
 from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
-from .features import Const, Feature, Hinge, Play, Sign, feature_from_dict
+from .features import Const, Feature, Gated, Hinge, Play, Sign, feature_from_dict
 
-__all__ = ["Atom", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS",
+__all__ = ["Atom", "is_load_change", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS",
            "BACKLASH_MOVE_REFINED_LAWS", "HINGE_POINTS", "sign_backlash", "play_backlash", "hinge_atom", "joint_words",
            "tilt_axis", "tilt_coefficient"]
 
@@ -172,3 +172,10 @@ def tilt_coefficient(f: Feature, k: int) -> int:
     one), else its own ``k``."""
     shape = getattr(f, "shape", None)
     return int(shape) if shape is not None else k
+
+
+def is_load_change(atom: Atom) -> bool:
+    """Whether ``atom`` is a change of a joint's compliance (its gravity-torque shapes gated in time: a payload hung
+    on or taken off)."""
+    return atom.family == "change" and atom.place == "joint" and bool(atom.features) \
+        and isinstance(atom.features[0], Gated)

@@ -39,6 +39,7 @@ from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
                       is_window, row_times, same_event, scan_changes, started_at)
+from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with
 from .confirm import confirm
@@ -48,7 +49,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "is_load_change"]
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -145,7 +146,7 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
     scored = score_atoms(prob, fit0, cands[:1], sizes, exact_top=1)
     if not scored:
         return None, f"a change after the rows that fit ({cands[0].label}) could not be scored: not kept"
-    s, note = _as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
+    s, note = as_event(prob, fit0, scored[0], cands, places, sizes, t_rows, alpha=alpha)
     got, words = _confirmed(prob, fit0, use_all, s, t_cut, ch, z_min, "a change after the rows that fit")
     return got, words + note
 
@@ -185,7 +186,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
     place (:func:`_place_scatter` over each of the place's columns, the model with the change: a wander of the cell
     holds over a few rows and moves the last ones together), significant after the window pool's Bonferroni factor
     over every row and place (a window whose end is the campaign's). Strongest first; a step of a joint's zero read as
-    a payload's change where the payload's event explains more (:func:`_as_event`). At the place of a kept step, that
+    a payload's change where the payload's event explains more (:func:`as_event`). At the place of a kept step, that
     step ending there (a change and back: a payload taken off again, a glitch's return) is preferred where it explains
     every row as well (its chi2 within ``chi2_1`` at ``alpha`` of both changes': one constant fewer). Returns the fit
     (with the change, or with the kept step ended, or as given), the change (or None) and a note."""
@@ -227,7 +228,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
                                        f"{ended.chi2:.1f} against {with_it.chi2:.1f} with both)")
                 break
             prob_all.w_cal = w_tail
-            s, note = _as_event(prob_all, use_all, got[0], cands, places, sizes, t_rows, alpha=alpha)
+            s, note = as_event(prob_all, use_all, got[0], cands, places, sizes, t_rows, alpha=alpha)
             k = int(np.sum(t_rows > float(s.atom.features[0].at)))
             end = EndChange(s.atom, s.basis, k, float(s.dchi2), float(s2), float(logp / np.log(10.0)), int(factor))
             result = use_all, end, f"a change in the campaign's last rows: {s.atom.label} {words}" + note
@@ -261,7 +262,7 @@ def _ended_at(prob: Problem, fit: Fit, atom, at: float) -> Fit | None:
 EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's event is located as a whole
 
 
-def _as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
+def as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
               t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
     """The change ``s`` (a step of a joint's zero or of a frame, scored against ``fit0`` on ``prob``'s rows), or a
     change of a joint's compliance the scan found (``cands``: at the same joint for a zero's step; for a frame's, at
@@ -709,8 +710,7 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
     the catalogue's term joins on every row when significant there, after the factor of the joints tried (``chi2``
     of its rank at ``alpha``), strongest first. Returns the fit with them, the terms (atom, ``Delta chi2``) and
     notes."""
-    loaded = {a.target for a, _ in use_all.chosen
-              if is_change(a) and a.place == "joint" and a.features and isinstance(a.features[0], Gated)}
+    loaded = {a.target for a, _ in use_all.chosen if is_load_change(a)}
     have = {a.target for a, _ in use_all.chosen if a.family == "compliance"}
     cands = [a for a in pool if a.family == "compliance" and a.target in loaded - have
              and a.channel == f"gravity torque of {a.target.replace('theta', 'joint ')}"]
@@ -718,11 +718,6 @@ def own_weight(prob_all: Problem, use_all: Fit, pool: list, *, alpha: float) -> 
     notes = [f"on every row, beside a payload's change of the same joint: {g.atom.label} (the arm's own weight on "
              f"every row; p = {p:.2g} after the factor {n} of the joints tried)" for g, p, n in added]
     return use_all, [(g.atom, float(g.dchi2)) for g, _, _ in added], notes
-
-
-def is_load_change(atom) -> bool:
-    """Whether ``atom`` is a change of a joint's compliance (its gravity-torque shapes gated in time: a payload)."""
-    return is_change(atom) and atom.place == "joint" and bool(atom.features) and isinstance(atom.features[0], Gated)
 
 
 def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,

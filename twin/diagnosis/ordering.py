@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .atoms import Atom
+from .atoms import Atom, is_load_change
 from .problem import Problem
 from .scoring import Scored
 
 __all__ = ["CATALOGUE_MARGIN", "CATALOGUE_SHARE", "order_candidates", "alternatives", "slot", "distinct_terms",
-           "rival_readings"]
+           "rival_readings", "payload_rivals"]
 
 
 CATALOGUE_MARGIN = 10.0  # [natural log of p] an unnamed term is preferred to a named one only beyond this
@@ -201,4 +201,21 @@ def rival_readings(order: list[Scored], first: list[Scored], logp_max: float) ->
         if rival is not None:
             out.append(rival)
             have.add(id(rival))
+    return out
+
+
+def payload_rivals(order: list[Scored], tried: list[Scored], logp_max: float) -> list[Scored]:
+    """Where a round tried changes of a joint's compliance (a payload) and none held: the strongest significant change
+    (``logp_adj < logp_max``) in ``order`` of the compliance of each joint none of ``tried`` changes, in the order's
+    order. A payload at the flange loads every joint below it at once, and the joint whose change the rows that fit
+    hold most (a stiff shoulder under a long lever) need not be the one the later rows confirm (a soft wrist)."""
+    loaded = {s.atom.target for s in tried if is_load_change(s.atom)}
+    if not loaded:
+        return []
+    out: list[Scored] = []
+    have = {id(s) for s in tried}
+    for r in order:
+        if id(r) not in have and r.logp_adj < logp_max and is_load_change(r.atom) and r.atom.target not in loaded:
+            out.append(r)
+            loaded.add(r.atom.target)
     return out

@@ -21,14 +21,15 @@ import numpy as np
 
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import Atom
-from .changes import change_places, is_change, scan_changes
+from .atoms import Atom, is_load_change
+from .changes import change_places, is_change, is_step, row_times, same_event, scan_changes
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
-from .ordering import alternatives, distinct_terms, order_candidates, rival_readings, slot
+from .late import as_event
+from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
@@ -116,18 +117,22 @@ class Round:
 
 
 def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
-                    alpha_select: float, z_min: float, tries: int = 3,
+                    alpha_select: float, z_min: float, tries: int = 3, lead: frozenset = frozenset(),
                     callback: Callable[[CandidateScore], None] | None = None) -> Round:
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from."""
+    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from.
+    The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first;
+    where every try failed, a payload's change at the joints the tries did not change (:func:`payload_rivals`)."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
     out = Round(None, [], scored, [], False)
     if not scored:
         return out
     order, same = distinct_terms(prob, order_candidates(scored))
-    first = rival_readings(order, order[:tries], np.log(alpha_select))
+    led = [s for s in order if s.atom.key in lead and s.logp_adj < np.log(alpha_select)]
+    order = led + [s for s in order if s not in led]
+    first = rival_readings(order, order[:len(led) + tries], np.log(alpha_select))
     # then the strongest of each pool none of the first came from: a family of broad terms (the cell's oscillations
     # in time, which follow any stretch of the campaign on the rows that fit) must not keep a named term or a change
     # from being tried at all
@@ -137,7 +142,11 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         if c.atom.pool not in seen and c.logp_adj < np.log(alpha_select):
             seen.add(c.atom.pool)
             more.append(c)
-    for k, s in enumerate(first + more):
+    queue = first + more
+    for k, s in enumerate(queue):
+        if k == len(queue) - 1:
+            # every try failed so far: the payload's change at the joints none of them changes (ordering.payload_rivals)
+            queue += payload_rivals(order, queue, np.log(alpha_select))
         alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
         if logp_adj >= np.log(alpha_select):
@@ -211,11 +220,18 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
         remaining = [a for a in pool if a.key not in rejected and slot(a) not in taken]
+        lead: dict[str, Atom] = {}
         if places:
             # the best row of every place for a change, against the current fit (changes.scan_changes)
             remaining += [a for a in scan_changes(prob, fit, places) if a.key not in rejected and slot(a) not in taken]
+            # a payload's change kept: the same change (its start and end) at every other joint's compliance is tried
+            # first (one event loads every joint below the flange at once: its timing is the kept change's)
+            lead = {c.key: c for a, _ in chosen if is_load_change(a) for c in same_event(a, places)
+                    if c.key not in rejected and slot(c) not in taken}
+            have = {a.key for a in remaining}
+            remaining += [c for k, c in lead.items() if k not in have]
         r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
-                            callback=callback)
+                            lead=frozenset(lead), callback=callback)
         sel.scores += r.scores
         rejected.update(r.rejected)
         if r.accepted is None:
@@ -223,6 +239,15 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                 continue  # named atoms of an unphysical size are out: the next round scores the rest
             break
         accepted = r.accepted
+        if places and accepted.atom.place == "joint" and is_step(accepted.atom) and not is_load_change(accepted.atom):
+            # a step of a joint's zero where a payload's change at that joint (with the same change at every loaded
+            # joint) explains more than its extra columns: one event, a payload hung on or taken off (late.as_event)
+            event, note = as_event(prob, fit, accepted, [a for a in remaining if is_change(a)], places, sizes,
+                                   np.sort(row_times(prob.ctx)[1][prob.rows_cal]), alpha=alpha_select)
+            if note and _admitted(prob, fit, event, z_min):
+                sel.notes.append(f"{accepted.atom.label}{note}")
+                taken.add(slot(accepted.atom))
+                accepted = event
         taken.add(slot(accepted.atom))  # the grid value it was found at is taken with it
         refined = refine_load_sign(prob, fit, accepted if retimeable(accepted.atom) else refine(prob, fit, accepted, sizes),
                                    sizes)
@@ -513,11 +538,15 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
         support = a.family == "tilt" and a.target != "tilt0"
+        # the base's tilt beside a payload's change: the payload's change reads the shoulder's and the elbow's
+        # compliance carrying a load, and the arm's own weight goes through the same compliance on every row
+        payload = a.family == "tilt" and a.target == "tilt0" and any(is_load_change(c) for c, _ in fit.chosen)
+        support = support or payload
         if a.pool != "catalogue" or not (a.place == "joint" or support) or a not in [c for c, _ in fit.chosen]:
             continue
         if sum(c.family == a.family for c in named) != 1:
             continue
-        others = {c.family for c in named} - {a.family}
+        others = {c.family for c in named} - {a.family} | ({"compliance"} if payload else set())
         have = {c.key for c, _ in fit.chosen if c is not a}
         # a joint's term: the other families' terms of that joint; a support's tilt (the link a joint turns tilting
         # about two axes, one of them parallel to a neighbouring joint's): the compliance of the joints it bends
