@@ -103,7 +103,9 @@ def vector_inflation(R: np.ndarray, U: np.ndarray) -> float:
     if rho <= 0:
         return max(1.0, 1.0 + 2.0 * g1 * float(np.sum(U[:-1] * U[1:])) / uu)
     a = g1 / rho
-    acc = sum(a * rho**h * float(np.sum(U[:-h] * U[h:])) for h in range(1, n))
+    # the lags whose weight a rho^h is above 1e-12 of a (beyond them the sum changes by less than that share)
+    h_max = min(n - 1, int(np.ceil(np.log(1e-12) / np.log(rho))))
+    acc = sum(a * rho**h * float(np.sum(U[:-h] * U[h:])) for h in range(1, h_max + 1))
     return max(1.0, 1.0 + 2.0 * acc / uu)
 
 
@@ -160,7 +162,7 @@ def confirm(prob: Problem, fit: Fit, s: Scored, z_min: float) -> Confirmation:
         # a wander decaying from row to row), and along the prediction, e_k = (r_k - u_k) . u_k (serial_inflation:
         # zero-mean when the term is right, whatever the wander). A term through the arm is scored on rows taken as
         # independent: its remainder's slow misfit (a partial thermal term, the geometry's misprediction) reads as a
-        # wander and deflating it cost true thermal terms (drawn thermal_115, the suite's thermal 5 and 316)
+        # wander there, and deflating it would reject true thermal terms
         t = prob.ctx.t_s if prob.ctx.t_s is not None else np.arange(len(prob.ctx.q), dtype=float)
         order = np.argsort(t[prob.rows_val], kind="stable")
         present = np.bincount(rv.row[kv], minlength=fit.model_val.obs.n)[order] > 0
