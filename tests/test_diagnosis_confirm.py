@@ -3,8 +3,8 @@
 import numpy as np
 
 from twin.diagnosis.atoms import Atom
-from twin.diagnosis.confirm import moves_the_cell, of_time, serial_inflation, vector_inflation
-from twin.diagnosis.features import Step
+from twin.diagnosis.confirm import moves_the_cell, of_time, reads_the_wander, serial_inflation, vector_inflation
+from twin.diagnosis.features import Sin, Step
 
 T_S = np.arange(80.0) * 30.0  # 80 rows, one every 30 s
 
@@ -47,6 +47,17 @@ def test_only_a_term_of_time_on_the_measurement_side_moves_with_the_cell():
     assert of_time(base) and moves_the_cell(base)
     assert of_time(joint) and not moves_the_cell(joint)
     assert not moves_the_cell(tool)
+
+
+def test_a_change_of_the_measurement_frame_is_read_along_its_prediction_alone():
+    """An oscillation of a station's frame in time reads the wander on every coordinate; a step of that frame (a bumped
+    instrument, constant over its rows) does not, nor does a term through the arm."""
+    oscillation = Atom("unnamed", "param", "base", (Sin(ch="t_s", k=2.0 * np.pi / 1400.0),), "", "", "generic")
+    step = Atom("change", "param", "base", (Step(ch="t_s", at=100.0),), "", "", "change")
+    joint = Atom("unnamed", "joint", "theta2", (Sin(ch="t_s", k=2.0 * np.pi / 1400.0),), "", "", "generic")
+    assert reads_the_wander(oscillation)
+    assert not reads_the_wander(step)
+    assert not reads_the_wander(joint)
 
 
 N_ROWS, N_COORDS = 80, 9  # rows of three points, x y z each
