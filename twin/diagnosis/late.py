@@ -263,7 +263,7 @@ EVENT_ROWS = 3  # rows either side of the candidates' starts where a payload's e
 
 
 def as_event(prob: Problem, fit0: Fit, s: Scored, cands: list, places: list[ChangePlace], sizes: dict,
-              t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
+             t_rows: np.ndarray, *, alpha: float) -> tuple[Scored, str]:
     """The change ``s`` (a step of a joint's zero or of a frame, scored against ``fit0`` on ``prob``'s rows), or a
     change of a joint's compliance the scan found (``cands``: at the same joint for a zero's step; for a frame's, at
     any joint, starting within :data:`EVENT_ROWS` rows of it) read as one event: a payload hangs at the flange and
