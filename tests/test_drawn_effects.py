@@ -229,9 +229,18 @@ def test_a_drawn_instance_meets_its_familys_targets(tmp_path, family, seed):
 
 
 def _scored(tmp_path, family: str, seed: int) -> dict:
+    """The drawn instance ``family`` ``seed`` at the suite's small size, scored as the study scores it."""
+    return _scored_instance(tmp_path, C.build(family, seed, **SMALL))
+
+
+def _scored_full(tmp_path, family: str, seed: int) -> dict:
+    """The drawn instance ``family`` ``seed`` at the study's full size, scored as the study scores it."""
+    return _scored_instance(tmp_path, C.build(family, seed))
+
+
+def _scored_instance(tmp_path, inst) -> dict:
     from studies.drawn.scoring import score_instance
 
-    inst = C.build(family, seed, **SMALL)
     return score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
 
 
@@ -248,10 +257,7 @@ def test_a_term_of_time_that_follows_a_wander_is_not_confirmed(tmp_path):
     an oscillation of the measurement frame in time fits the calibration rows and the first held-out rows still
     carry the wander's excursion (signed-rank z 4.8 over rows taken as independent); scored against the rows' serial
     correlation it is not confirmed, and the campaign is not called structured."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("clean", 212)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "clean", 212)
     assert r["drawn"]["correlated"]["rho"] > 0.5
     assert not r["structured"] and r["labels"] == [] and r["changes_found"] == []
 
@@ -260,10 +266,7 @@ def test_a_joints_step_after_the_rows_that_fit_is_confirmed_whatever_the_rows_or
     """A step of joint 4's zero 44 rows before the end of a campaign (seed 115, 264 rows): a term through the arm is
     scored on rows taken as independent (the poses turn its prediction from row to row), so the rows after the cut
     confirm it (z 4.8 -> 2.7 when it was deflated as a wander, the later rows then 3.3x the oracle)."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("zero_step", 115)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "zero_step", 115)
     assert r["named"], r["changes_found"]
     assert r["test"]["after_over_oracle"] <= 1.5
 
@@ -353,10 +356,7 @@ def test_a_stiffening_shoulder_read_as_several_harmonics_is_named_its_compliance
     moves is a first harmonic of its angle and the stiffening adds odd ones, kept first with a function of q2*q3; the
     joint's load read in their place (its torque shapes and link weight, then the stiffening of their sum) predicts
     the confirmation rows as well: named compliance alone, the rows after the campaign within 1.2x the oracle."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("compliance", 216)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "compliance", 216)
     assert r["params"]["joints"] == [2] and r["params"]["shape"] == "stiffening"
     assert r["effects"] == ["compliance"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2
@@ -366,10 +366,7 @@ def test_a_supports_tilt_beside_a_named_compliance_gives_way_to_the_joints_compl
     """Compliance of a UR5's joints 3 and 4 with its URDF masses (seed 311): the tilt of joint 5's support about two
     axes (one parallel to joint 4's) entered before joint 4's compliance by a hair; tried in its place, joint 4's
     compliance predicts the confirmation rows as well: one family named, compliance."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("compliance", 311)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "compliance", 311)
     assert r["params"]["joints"] == [3, 4]
     assert r["effects"] == ["compliance"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2
@@ -380,10 +377,7 @@ def test_the_bases_tilt_beside_a_payloads_change_gives_way_to_the_joints_complia
     base's tilt under the arm's moment entered before joint 2's compliance by a hair (the rows cannot tell them apart
     about the shoulder's axis); beside the payload's change of joint 2's compliance it is tried as that compliance,
     which predicts the confirmation rows as well: one family named, compliance, the later rows within 1.2x."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("payload", 106)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "payload", 106)
     assert r["params"]["joints"] == [2] and r["params"]["timing"] == "window"
     assert r["effects"] == ["compliance"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.2
@@ -394,10 +388,7 @@ def test_a_payload_hung_on_late_that_the_scan_reads_as_a_frames_step_is_one_even
     which the scan on the rows before the cut reads first as a step of the measurement frame: read as one payload's
     change of joints 2 and 3 at the row it was hung on, the report and later rows within 1.2x the oracle (12.5x later
     when the frame's step stood unconfirmed and the rows were read as unloaded)."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("payload", 312)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "payload", 312)
     assert r["named"], r["labels"]
     row = r["params"]["row"]
     assert {c["target"] for c in r["changes_found"]} == {"theta2", "theta3"}, r["changes_found"]
@@ -410,10 +401,7 @@ def test_a_frames_bump_in_the_last_rows_with_no_payload_event_is_kept_as_a_step(
     change of a joint's compliance starts near the step but reads no payload event: the frame's step stands (scored
     again where it still has rows, as it was scored where it has none), named as a change, the later rows within the
     goal."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("frame_change", 217)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "frame_change", 217)
     assert "error" not in r, r.get("error")
     assert r["named"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.5
@@ -423,10 +411,7 @@ def test_a_short_glitch_of_a_joints_zero_is_read_at_the_zero_not_its_compliance(
     """Joint 2's zero off on 5 rows of an IRB 1200's 286 (seed 410 of zero_glitch, full size): the zero's window, judged
     on the rows the compliance's window placed, fits them with one column where the compliance took three; named as
     that one window, no compliance (a payload's window at joints 2 and 3 before)."""
-    from studies.drawn.scoring import score_instance
-
-    inst = C.build("zero_glitch", 410)
-    r = score_instance(C.write(inst, tmp_path / inst.name), tmp_path / "work", in_process=True)
+    r = _scored_full(tmp_path, "zero_glitch", 410)
     assert r["effects"] == [] and r["named"], r["labels"]
     assert r["test"]["after_over_oracle"] <= 1.5
 
