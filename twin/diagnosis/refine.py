@@ -21,9 +21,9 @@ from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air",
-           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS",
-           "ONSET_RAMPS"]
+__all__ = ["grows_with_moves", "prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable",
+           "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen",
+           "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
@@ -486,6 +486,12 @@ def _as_onset(atom: Atom, t0: float, span: float) -> Atom:
     """The thermal ``atom`` linear in ``t_s`` (:func:`_time_linear`) as the air's ramp from ``t0`` over ``span`` [s]
     through a short lag (the start of :func:`refine_onset`)."""
     return onset_atom(replace_atom(atom, features=(Exp(ch="t_s", t0=t0, tau=span),)), t0, 1e-3 * span, span)
+
+
+def grows_with_moves(atom: Atom) -> bool:
+    """Whether ``atom`` is a backlash growing with the size of the last move (``lastmove``): its law and width are
+    constants of the term, read again on every row a model is refitted on (:func:`twin.diagnosis.rule.retime`)."""
+    return atom.family == "backlash" and atom.features[0].kind == "lastmove"
 
 
 def retimeable(atom: Atom) -> bool:
