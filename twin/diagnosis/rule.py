@@ -32,7 +32,7 @@ from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
-from .refine import (ONSET_TAUS, follows_the_air, grows_with_moves, is_onset, polish_in_fit, prefer_heat, prefer_play,
+from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
                      prefer_sign, refine, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
@@ -870,8 +870,9 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`; the motors' heat, its
     time constant and the motors whose travel heats the links: :func:`twin.diagnosis.refine.prefer_heat`) and the
     direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`) and
-    the law and width of a backlash growing with the last move (:func:`twin.diagnosis.refine.refine`: its saturation
-    placed within the moves ``prob``'s rows saw), each term against the others refitted without it. A term keeps the
+    the law and width of a backlash growing with the last move that the rows that chose it read in proportion, no bend
+    shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each term
+    against the others refitted without it. A term keeps the
     constants it has unless the new ones lower the chi2 of every row significantly (beyond ``chi2`` at 1 % with a
     degree of freedom per constant moved and per column added; a load law's counted on every row but those both fits
     set aside as gross: :func:`_common_chi2`), stay within the onset grid's range (a time constant at most
@@ -879,14 +880,14 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     term of a plausible size (:func:`implausible_size`). The models to use, chosen on the first block of a campaign
     and refitted on every row: an air step after that block fixes the lag the block could not see; the heat's time
     constant and motors are read on the whole campaign's moves; the flank a load pushes a gear to is read on every
-    row; a backlash growing with the last move is read up to the longest move of every row (the first block's longest
-    move may fall short of the campaign's)."""
+    row; a backlash growing with the last move that the first block read in proportion is read on every row (the
+    held-out rows' longer moves may show the bend)."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
         load = reads_its_load(atom)
         heat = _heat(atom) and prob.ctx.t_s is not None
-        size = grows_with_moves(atom)
+        size = bend_unseen(prob, atom)
         if not (follows_the_air(atom) or load or heat or size):
             continue
         others = [c for i, c in enumerate(fit.chosen) if i != k]
