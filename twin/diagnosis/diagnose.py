@@ -56,7 +56,7 @@ from .loads import reads_its_load
 from .floor import AssumedNoise, DiagnosisError, NoiseFloor, history_resets, noise_floor, row_context
 from .late import EndChange
 from .problem import Fit, Problem, refit_with, update_gross
-from .refine import retimeable
+from .refine import bend_unseen, retimeable
 from .structure import StructureTest, gross_rows, row_rms
 from .after import AfterBlocks, after_blocks
 from .rule import (CandidateScore, Selection, adopt, decide, implausible_size, retime,
@@ -309,16 +309,20 @@ def diagnose(
     calibrations_blocked = {"geometric": geo_blocked, "extended": ext_blocked}
     fit_rep, prob_pre, use_rep = None, None, use
     thermal = ext is not None and any(retimeable(a) for a, _ in ext.chosen)
-    if prob.obs_rep is not None and ext is not None and (thermal or any(reads_its_load(a) for a, _ in ext.chosen)):
-        # a thermal term (the air's temperature, the motors' heat: a state that moves with time) or a law of a joint's
-        # load whose direction the rows read (the flank each row rests on): the report rows read the model refitted on
+    moves = ext is not None and any(bend_unseen(prob, a) for a, _ in ext.chosen)
+    if prob.obs_rep is not None and ext is not None and (thermal or moves
+                                                         or any(reads_its_load(a) for a, _ in ext.chosen)):
+        # a thermal term (the air's temperature, the motors' heat: a state that moves with time), a law of a joint's
+        # load whose direction the rows read (the flank each row rests on) or a backlash growing with the last move
+        # read in proportion (no bend shown by the rows that chose it): the report rows read the model refitted on
         # every row before them, those constants refined there, as the rows after the campaign read it refitted on
         # every row
         _, ext_pre, prob_pre = refit(True)
         use_rep = on_rows(prob, ext_pre)
         note = report_before_after(prob, base, use_rep)
-        what = "thermal terms" if thermal else "load laws"
-        how = "the time constants of the air" if thermal else "the direction of each joint's load"
+        what, how = (("thermal terms", "the time constants of the air") if thermal else
+                     ("laws of the last move", "their law and width") if moves else
+                     ("load laws", "the direction of each joint's load"))
         note["note"] += (f"; the report rows read the model with its {what} refitted on every row before the "
                          f"report block ({how} refined there)")
         rep = note

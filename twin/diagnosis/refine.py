@@ -21,9 +21,9 @@ from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable", "follows_the_air",
-           "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS",
-           "ONSET_RAMPS"]
+__all__ = ["bend_unseen", "prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable",
+           "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen",
+           "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
@@ -486,6 +486,19 @@ def _as_onset(atom: Atom, t0: float, span: float) -> Atom:
     """The thermal ``atom`` linear in ``t_s`` (:func:`_time_linear`) as the air's ramp from ``t0`` over ``span`` [s]
     through a short lag (the start of :func:`refine_onset`)."""
     return onset_atom(replace_atom(atom, features=(Exp(ch="t_s", t0=t0, tau=span),)), t0, 1e-3 * span, span)
+
+
+def bend_unseen(prob: Problem, atom: Atom) -> bool:
+    """Whether ``atom`` is a backlash growing with the size of the last move read in proportion up to the campaign's
+    longest move of its joint (:func:`_seen_saturation`: the rows that chose it showed no bend): its law is then
+    undetermined by those rows and read again on every row a model is refitted on
+    (:func:`twin.diagnosis.rule.retime`); a law whose bend those rows showed keeps the law and width they chose."""
+    f = atom.features[0]
+    if atom.family != "backlash" or f.kind != "lastmove" or f.law != "clip":
+        return False
+    step = prob.features(Atom("unnamed", "joint", atom.target, (StepIn(j=f.j),), "", "", "generic", (f.j,)))
+    seen = float(np.max(np.abs(step[:, 0]), initial=0.0))
+    return seen > 0.0 and f.w >= seen * (1.0 - 1e-9)
 
 
 def retimeable(atom: Atom) -> bool:

@@ -32,8 +32,8 @@ from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
-from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play, prefer_sign, refine,
-                     refine_time, retimeable, widen)
+from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
+                     prefer_sign, refine, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
 
@@ -869,21 +869,26 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     the thermal terms (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
     :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`; the motors' heat, its
     time constant and the motors whose travel heats the links: :func:`twin.diagnosis.refine.prefer_heat`) and the
-    direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`),
-    each term against the others refitted without it. A term keeps the constants it has unless the new ones lower the
-    chi2 of every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column
-    added; a load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`), stay
-    within the onset grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a
-    drift that extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The
-    models to use, chosen on the first block of a campaign and refitted on every row: an air step after that block
-    fixes the lag the block could not see; the heat's time constant and motors are read on the whole campaign's moves;
-    the flank a load pushes a gear to is read on every row."""
+    direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`) and
+    the law and width of a backlash growing with the last move that the rows that chose it read in proportion, no bend
+    shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each term
+    against the others refitted without it. A term keeps the
+    constants it has unless the new ones lower the chi2 of every row significantly (beyond ``chi2`` at 1 % with a
+    degree of freedom per constant moved and per column added; a load law's counted on every row but those both fits
+    set aside as gross: :func:`_common_chi2`), stay within the onset grid's range (a time constant at most
+    ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates as a polynomial) and leave the
+    term of a plausible size (:func:`implausible_size`). The models to use, chosen on the first block of a campaign
+    and refitted on every row: an air step after that block fixes the lag the block could not see; the heat's time
+    constant and motors are read on the whole campaign's moves; the flank a load pushes a gear to is read on every
+    row; a backlash growing with the last move that the first block read in proportion is read on every row (the
+    held-out rows' longer moves may show the bend)."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
         load = reads_its_load(atom)
         heat = _heat(atom) and prob.ctx.t_s is not None
-        if not (follows_the_air(atom) or load or heat):
+        size = bend_unseen(prob, atom)
+        if not (follows_the_air(atom) or load or heat or size):
             continue
         others = [c for i, c in enumerate(fit.chosen) if i != k]
         without = refit_with(prob, fit, others)
@@ -895,12 +900,14 @@ def retime(prob: Problem, fit: Fit) -> Fit:
             new = refine_load_sign(prob, without, got[0], sizes)
         elif heat:
             new = prefer_heat(prob, without, got[0], heat_alternatives(prob.ctx, atom), sizes)
+        elif size:
+            new = refine(prob, without, got[0], sizes)
         else:
             new = refine_time(prob, without, got[0], sizes)
         if new.atom is atom:
             continue
         taus = [f.tau for f in new.atom.features if getattr(f, "tau", None) is not None]
-        if not load and (not taus or max(taus) > max(ONSET_TAUS) * span):
+        if not (load or size) and (not taus or max(taus) > max(ONSET_TAUS) * span):
             continue
         chosen = list(fit.chosen)
         chosen[k] = (new.atom, new.basis)
