@@ -301,6 +301,28 @@ def test_a_step_of_the_recorded_air_after_the_rows_that_fit_is_thermal_not_a_fra
     assert r["test"]["after_over_oracle"] <= 1.2
 
 
+def test_the_lag_of_a_late_step_of_the_recorded_air_is_read_on_every_row(tmp_path):
+    """A drawn thermal instance (seed 407, full size: the recorded air steps +4.9 K at 0.84 of a UR10's campaign, the
+    links lagging it by 447 s): the lag, first read on the rows before the cut that located the step, is read again
+    on every row (their maximum of the likelihood, as the coefficients): the rows after the campaign within 1.2x the
+    oracle (1.39x with the lag of the rows before the cut, 1150 s, kept)."""
+    r = _scored_full(tmp_path, "thermal", 407)
+    assert r["params"]["temp_column"] and r["params"]["profile"] == "step"
+    assert r["named"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
+def test_a_late_step_of_the_air_without_a_record_is_thermal_not_a_frame_change(tmp_path):
+    """A drawn thermal instance (seed 302, full size: the air steps +7.5 K at 0.76 of an IRB 1200's campaign, no
+    temperature written, link d1 growing through a short lag): the change of the measurement frame the step scan finds
+    after the rows that fit gives way to the air's change, which explains every row as well with fewer parameters (one
+    column and three constants against six and one): named thermal, no change."""
+    r = _scored_full(tmp_path, "thermal", 302)
+    assert not r["params"]["temp_column"] and r["params"]["profile"] == "step"
+    assert r["named"] and r["changes_found"] == [], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.2
+
+
 def test_one_link_grown_by_one_motors_heat_is_read_with_that_motor(tmp_path):
     """A drawn motion-heat instance (seed 153, small: a UR5's upper arm growing with joint 2's heat alone): named
     thermal against joint 2's heat of that one link, within 1.2x the oracle on the rows after the campaign."""
