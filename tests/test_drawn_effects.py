@@ -429,6 +429,16 @@ def test_a_frames_bump_in_the_last_rows_with_no_payload_event_is_kept_as_a_step(
     assert r["test"]["after_over_oracle"] <= 1.5
 
 
+def test_a_glitchs_window_is_refined_until_its_ends_stop_moving(tmp_path):
+    """Joint 2's zero off on 13 rows near the end of a UR5's 263 (seed 509 of zero_glitch, full size): the best window
+    is a short one inside the glitch, refined around it until neither end moves, so the zero's window takes every
+    glitched row (two rows short, its residual was not white and the compliance's windows at every joint took it):
+    named as that one window at the zero, the later rows within the goal."""
+    r = _scored_full(tmp_path, "zero_glitch", 509)
+    assert r["effects"] == [] and r["named"], r["labels"]
+    assert r["test"]["after_over_oracle"] <= 1.5
+
+
 def test_a_short_glitch_of_a_joints_zero_is_read_at_the_zero_not_its_compliance(tmp_path):
     """Joint 2's zero off on 5 rows of an IRB 1200's 286 (seed 410 of zero_glitch, full size): the zero's window, judged
     on the rows the compliance's window placed, fits them with one column where the compliance took three; named as
