@@ -301,17 +301,6 @@ def test_a_step_of_the_recorded_air_after_the_rows_that_fit_is_thermal_not_a_fra
     assert r["test"]["after_over_oracle"] <= 1.2
 
 
-def test_the_lag_of_a_late_step_of_the_recorded_air_is_read_on_every_row(tmp_path):
-    """A drawn thermal instance (seed 407, full size: the recorded air steps +4.9 K at 0.84 of a UR10's campaign, the
-    links lagging it by 447 s): the lag, first read on the rows before the cut that located the step, is read again
-    on every row (their maximum of the likelihood, as the coefficients): the rows after the campaign within 1.2x the
-    oracle (1.39x with the lag of the rows before the cut, 1150 s, kept)."""
-    r = _scored_full(tmp_path, "thermal", 407)
-    assert r["params"]["temp_column"] and r["params"]["profile"] == "step"
-    assert r["named"], r["labels"]
-    assert r["test"]["after_over_oracle"] <= 1.2
-
-
 def test_a_late_step_of_the_air_without_a_record_is_thermal_not_a_frame_change(tmp_path):
     """A drawn thermal instance (seed 302, full size: the air steps +7.5 K at 0.76 of an IRB 1200's campaign, no
     temperature written, link d1 growing through a short lag): the change of the measurement frame the step scan finds

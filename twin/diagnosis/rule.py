@@ -863,11 +863,6 @@ def _common_chi2(a: Fit, b: Fit) -> float:
     return float(np.sum(w[ra.row] * ra.r ** 2) - np.sum(w[rb.row] * rb.r ** 2))
 
 
-def _recorded_lag(atom: Atom) -> bool:
-    """Whether ``atom`` is thermal growth against the recorded temperature through a lag (its one constant)."""
-    return atom.family == "thermal" and bool(atom.features) and all(isinstance(f, Lag) for f in atom.features)
-
-
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
@@ -875,15 +870,11 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`; the motors' heat, its
     time constant and the motors whose travel heats the links: :func:`twin.diagnosis.refine.prefer_heat`) and the
     direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`),
-    each term against the others refitted without it. A lag of the recorded temperature takes the value that lowers
-    the chi2 of every row (its maximum of the likelihood there, as the term's coefficients take theirs: a lag read on
-    the rows before a late step of the air, which saw a fraction of its response, extrapolates that fraction to the
-    rows after the campaign); the other terms keep theirs unless the new ones lower it significantly (beyond ``chi2``
-    at 1 % with a degree of freedom per constant moved and per column added: the unrecorded air's onset, ramp and lag
-    trade against each other, the motors that heat and the flank a load pushes to are readings chosen among others; a
-    load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`). New constants stay within the onset grid's range (a time constant
-    at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates as a polynomial) and
-    leave the term of a plausible size (:func:`implausible_size`). The
+    each term against the others refitted without it. A term keeps the constants it has unless the new ones lower the
+    chi2 of every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column
+    added; a load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`), stay
+    within the onset grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a
+    drift that extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The
     models to use, chosen on the first block of a campaign and refitted on every row: an air step after that block
     fixes the lag the block could not see; the heat's time constant and motors are read on the whole campaign's moves;
     the flank a load pushes a gear to is read on every row."""
@@ -921,10 +912,6 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         # a load law's rows read alike in both: a row on the wrong flank is off by twice the backlash, which the
         # fit that put it there sets aside as gross
         gain = (_common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
-        # the recorded air's lag is the one constant of a measured cause, re-read on every row as its coefficients
-        # are; the unrecorded air's onset, ramp and lag trade against each other (a shorter ramp, a longer lag), and
-        # the motors that heat and a load's direction are readings chosen among others: changed only on evidence
-        need = 0.0 if _recorded_lag(new.atom) else chi2_isf(0.01, moved)
-        if gain > need and implausible_size(prob, new.atom, new.basis @ psi) is None:
+        if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit
