@@ -36,14 +36,20 @@ class AfterBlocks:
 
 
 def _air_explains(prob: Problem, src: Fit, step, air, alpha: float) -> bool:
-    """Whether the change of the recorded temperature ``air`` (a thermal term, its lag :func:`retime`d) explains every
-    row of ``prob`` as well as the ``step`` found after the rows that fit: its chi2 beyond the step's by less than
-    ``chi2`` at ``alpha`` with a degree of freedom per column the step has more (at least one)."""
+    """Whether the change of the air ``air`` (a thermal term, its constants :func:`retime`d) explains every row of
+    ``prob`` as well as the ``step`` found after the rows that fit, with fewer parameters: its chi2 beyond the step's by
+    less than ``chi2`` at ``alpha`` with a degree of freedom per parameter the step has more (columns and constants: the
+    step's time; the recorded temperature's lag, or without a record the air's onset, ramp and lag; at least one for
+    the recorded temperature, whose record times the change). Without a record, an air that takes as many parameters
+    as the step or more does not explain it."""
+    recorded = any(isinstance(f, Lag) for f in air.atom.features)
+    extra = step.basis.shape[1] + 1 - air.basis.shape[1] - (1 if recorded else 3)
+    if extra < 1 and not recorded:
+        return False
     chosen = list(src.chosen)
     with_step = refit_with(prob, src, chosen + [(step.atom, step.basis)])
     with_air = retime(prob, refit_with(prob, src, chosen + [(air.atom, air.basis)]))
-    extra = max(1, step.basis.shape[1] - air.basis.shape[1])
-    return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, extra)
+    return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, max(1, extra))
 
 
 def _late_beside_glitches(prob: Problem, src: Fit, found: list, alpha: float) -> tuple[Fit, list, list[str]]:
@@ -87,18 +93,17 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
         notes.append(note)
-        if got is None or setup.ctx.temp_c is not None:
-            # the air's temperature changing after the rows that fit (a door opened late in the campaign); where the
-            # temperature is recorded, tried beside a step too: the record times a change of the air
-            air, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
-            if note:
-                notes.append(note)
-            if got is None:
-                got = air
-            elif air is not None and _air_explains(prob_x, src, got, air, alpha):
-                notes.append(f"not kept: {got.atom.label}; the recorded temperature's change explains every row as "
-                             f"well with fewer columns ({air.atom.label})")
-                got = air
+        # the air's temperature changing after the rows that fit (a door opened late in the campaign), tried beside a
+        # step too: the links growing after a step of the air are a step of the rows' geometry as well
+        air, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
+        if note:
+            notes.append(note)
+        if got is None:
+            got = air
+        elif air is not None and _air_explains(prob_x, src, got, air, alpha):
+            notes.append(f"not kept: {got.atom.label}; the air's change explains every row as well with fewer "
+                         f"parameters ({air.atom.label})")
+            got = air
         if got is not None:
             with_got = refit_with(prob_x, src, list(src.chosen) + [(got.atom, got.basis)])
             if not is_change(got.atom):

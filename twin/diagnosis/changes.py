@@ -338,6 +338,7 @@ def _holds_without_any_row(Ci, Ai, bi, lo: int, hi: int, scale: float, logp_max:
 LOO_SHARE = 0.5  # a change keeps at least this share of its evidence without any one of its rows
 WHITE_Z = 3.0  # the residual a change leaves must not be correlated from row to row beyond this normal score
 TOP = 5  # positions of a place tried, best first, for one that holds without any one of its rows
+REFINE_ROUNDS = 4  # a window's ends refined around the pair they moved to at most this many times
 
 
 def _window_at(agg: tuple, s: int, e: int, rr: np.ndarray, mm: np.ndarray, n: int, scale: float,
@@ -460,25 +461,28 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         if best is None:
             return out
         stride = max(1, int(np.ceil(len(_steps(n)) / WINDOW_GRID)))
-        if stride > 1:
-            # the grid's best pair refined to the rows around it
-            lo_, hi_ = int(_steps(n)[0]), int(_steps(n)[-1])
+        lo_, hi_ = int(_steps(n)[0]), int(_steps(n)[-1])
+        for _ in range(REFINE_ROUNDS if stride > 1 else 0):
+            # the best pair refined to the rows around it, again around the pair it moved to while it moves (a short
+            # window's ends, tried at every row, may lie a stride or more inside a longer window's)
             sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
             sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
             pair = (B2 - A2 >= min_rows) & (ts[A2] > ts[A2 - 1]) & (ts[B2] > ts[B2 - 1])
             A2, B2 = A2[pair], B2[pair]
-            if len(A2):
-                gain, rank = _window_gains(Cc, Ac, bc, sa, sb2, pair, prob.evidence_scale)
-                ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
-                                           prob.evidence_scale)
-                lp = _logp(gain, rank, ok)
-                k = int(np.argmin(lp))
-                s, e = int(A2[k]), int(B2[k])
-                if lp[k] < best[0] and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain[k], rank[k], rr[n], mm[n],
-                                                   prob.evidence_scale, lp_max) \
-                        and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max):
-                    best = (float(lp[k]), int(A2[k]), int(B2[k]))
+            if not len(A2):
+                break
+            gain, rank = _window_gains(Cc, Ac, bc, sa, sb2, pair, prob.evidence_scale)
+            ok = (rank > 0) & _uniform(rr[B2] - rr[A2], mm[B2] - mm[A2], gain, rank, rr[n], mm[n],
+                                       prob.evidence_scale)
+            lp = _logp(gain, rank, ok)
+            k = int(np.argmin(lp))
+            s, e = int(A2[k]), int(B2[k])
+            if not (lp[k] < best[0] and _stands_out(rr[e] - rr[s], mm[e] - mm[s], gain[k], rank[k], rr[n], mm[n],
+                                                    prob.evidence_scale, lp_max)
+                    and _holds_without_any_row(Ci, Ai, bi, s, e, prob.evidence_scale, lp_max)):
+                break
+            best = (float(lp[k]), s, e)
         best_windows[pl] = best
         return out
 
