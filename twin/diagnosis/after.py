@@ -13,7 +13,7 @@ from .atoms import Atom
 from .changes import is_change
 from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
-                   own_weight, payload_event)
+                   own_weight, payload_at, payload_event)
 from .problem import Fit, Problem, refit_with
 from .refine import is_onset
 from .rule import retime
@@ -44,6 +44,28 @@ def _air_explains(prob: Problem, src: Fit, step, air, alpha: float) -> bool:
     with_air = retime(prob, refit_with(prob, src, chosen + [(air.atom, air.basis)]))
     extra = max(1, step.basis.shape[1] - air.basis.shape[1])
     return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, extra)
+
+
+def _payload_instead(prob: Problem, src: Fit, air, places: list, alpha: float) -> tuple[Fit, list, str] | None:
+    """A payload's event in place of a change of the air after the rows that fit that no temperature record times
+    (``air``: its onset confirmed on later rows): both read a change of the arm at that time, the event
+    (:func:`~twin.diagnosis.late.payload_at`) kept where it explains every row better (a chi2 lower than the air's,
+    its lag :func:`retime`d, by ``chi2`` at ``alpha`` of the columns it has beyond the air's columns and its three
+    constants, onset, ramp and lag: none where it has no more). Returns the fit with the event, its terms
+    and a note, None where the air stays."""
+    got = payload_at(prob, src, air.atom, places, alpha=alpha)
+    if got is None:
+        return None
+    fit, terms = got
+    with_air = retime(prob, refit_with(prob, src, list(src.chosen) + [(air.atom, air.basis)]))
+    # columns the event has beyond the air's columns and constants must earn their place
+    k_event = sum(B.shape[1] for a, B in fit.chosen[len(src.chosen):])
+    extra = k_event - air.basis.shape[1] - 3
+    margin = prob.evidence_scale * chi2_isf(alpha, extra) if extra > 0 else 0.0
+    if not fit.chi2 < with_air.chi2 - margin:
+        return None
+    return fit, terms, (f"not kept: {air.atom.label}; a payload's event at that time explains every row better "
+                        f"({'; '.join(a.label for a, _ in terms)}: chi2 {fit.chi2:.1f} against {with_air.chi2:.1f})")
 
 
 def _late_beside_glitches(prob: Problem, src: Fit, found: list, alpha: float) -> tuple[Fit, list, list[str]]:
@@ -93,6 +115,13 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             air, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
             if note:
                 notes.append(note)
+            if got is None and air is not None and setup.ctx.temp_c is None and is_onset(air.atom):
+                event = _payload_instead(prob_x, src, air, places, alpha)
+                if event is not None:
+                    src, terms, note = event
+                    notes.append(note)
+                    found += [(a, "event", None, dchi2) for a, dchi2 in terms]
+                    air = None
             if got is None:
                 got = air
             elif air is not None and _air_explains(prob_x, src, got, air, alpha):
