@@ -115,13 +115,6 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             air, note = late_term(setup, prob_x, src, late_templates(pool), alpha=alpha, z_min=z_min)
             if note:
                 notes.append(note)
-            if got is None and air is not None and setup.ctx.temp_c is None and is_onset(air.atom):
-                event = _payload_instead(prob_x, src, air, places, alpha)
-                if event is not None:
-                    src, terms, note = event
-                    notes.append(note)
-                    found += [(a, "event", None, dchi2) for a, dchi2 in terms]
-                    air = None
             if got is None:
                 got = air
             elif air is not None and _air_explains(prob_x, src, got, air, alpha):
@@ -173,6 +166,16 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             # as well without it (its columns and its constants)
             src, found, notes_back = _late_beside_glitches(prob_x, src, found, alpha)
             notes += notes_back
+    if setup.ctx.temp_c is None:
+        # an unrecorded change of the air kept after the rows that fit (beside the glitches): a payload's event at
+        # that time in its place where it explains every row better
+        for entry in [f for f in found if f[1] == "late" and is_onset(f[0])]:
+            keep = [c for c in src.chosen if c[0].key != entry[0].key]
+            event = _payload_instead(prob_x, refit_with(prob_x, src, keep), entry[2], places, alpha)
+            if event is not None:
+                src, terms, note = event
+                notes.append(note)
+                found = [f for f in found if f is not entry] + [(a, "event", None, dchi2) for a, dchi2 in terms]
     # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
     # loads is not left to read as a change in the last rows
     src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)
