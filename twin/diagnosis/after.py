@@ -104,7 +104,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     (:func:`~twin.diagnosis.late.end_change`: or a kept step's end there); and the arm's own weight at a joint a
     payload's change shows compliant
     (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
-    change that ends explains every row as well."""
+    change that ends explains every row as well, nor, where no temperature is recorded, where a payload's event at
+    its time explains every row better (:func:`_payload_instead`, once the glitches were judged beside it)."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
