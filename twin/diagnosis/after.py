@@ -13,7 +13,7 @@ from .atoms import Atom
 from .changes import is_change
 from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
-                   own_weight, payload_event)
+                   own_weight, payload_at, payload_event)
 from .problem import Fit, Problem, refit_with
 from .refine import is_onset
 from .rule import retime
@@ -52,6 +52,28 @@ def _air_explains(prob: Problem, src: Fit, step, air, alpha: float) -> bool:
     return with_air.chi2 - with_step.chi2 < prob.evidence_scale * chi2_isf(alpha, max(1, extra))
 
 
+def _payload_instead(prob: Problem, src: Fit, air, places: list, alpha: float) -> tuple[Fit, list, str] | None:
+    """A payload's event in place of a change of the air after the rows that fit that no temperature record times
+    (``air``: its onset confirmed on later rows): both read a change of the arm at that time, the event
+    (:func:`~twin.diagnosis.late.payload_at`) kept where it explains every row better (a chi2 lower than the air's,
+    its lag :func:`retime`d, by ``chi2`` at ``alpha`` of the columns it has beyond the air's columns and its three
+    constants, onset, ramp and lag: none where it has no more). Returns the fit with the event, its terms
+    and a note, None where the air stays."""
+    got = payload_at(prob, src, air.atom, places, alpha=alpha)
+    if got is None:
+        return None
+    fit, terms = got
+    with_air = retime(prob, refit_with(prob, src, list(src.chosen) + [(air.atom, air.basis)]))
+    # columns the event has beyond the air's columns and constants must earn their place
+    k_event = sum(B.shape[1] for a, B in fit.chosen[len(src.chosen):])
+    extra = k_event - air.basis.shape[1] - 3
+    margin = prob.evidence_scale * chi2_isf(alpha, extra) if extra > 0 else 0.0
+    if not fit.chi2 < with_air.chi2 - margin:
+        return None
+    return fit, terms, (f"not kept: {air.atom.label}; a payload's event at that time explains every row better "
+                        f"({'; '.join(a.label for a, _ in terms)}: chi2 {fit.chi2:.1f} against {with_air.chi2:.1f})")
+
+
 def _late_beside_glitches(prob: Problem, src: Fit, found: list, alpha: float) -> tuple[Fit, list, list[str]]:
     """``src`` without each term of ``found`` kept after the rows that fit (``"late"``: a step, a change of the air)
     where every row is explained as well without it beside the glitches kept since (its chi2 within ``chi2`` at
@@ -88,7 +110,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     (:func:`~twin.diagnosis.late.end_change`: or a kept step's end there); and the arm's own weight at a joint a
     payload's change shows compliant
     (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
-    change that ends explains every row as well."""
+    change that ends explains every row as well, nor, where no temperature is recorded, where a payload's event at
+    its time explains every row better (:func:`_payload_instead`, once the glitches were judged beside it)."""
     found, notes = [], []
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
@@ -149,6 +172,16 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
             # as well without it (its columns and its constants)
             src, found, notes_back = _late_beside_glitches(prob_x, src, found, alpha)
             notes += notes_back
+    if setup.ctx.temp_c is None:
+        # an unrecorded change of the air kept after the rows that fit (beside the glitches): a payload's event at
+        # that time in its place where it explains every row better
+        for entry in [f for f in found if f[1] == "late" and is_onset(f[0])]:
+            keep = [c for c in src.chosen if c[0].key != entry[0].key]
+            event = _payload_instead(prob_x, refit_with(prob_x, src, keep), entry[2], places, alpha)
+            if event is not None:
+                src, terms, note = event
+                notes.append(note)
+                found = [f for f in found if f is not entry] + [(a, "event", None, dchi2) for a, dchi2 in terms]
     # a payload's change found so far is one event at every loaded joint before the last rows are scanned: a joint it
     # loads is not left to read as a change in the last rows
     src, events, notes_ev, renamed = payload_event(prob_x, src, places, alpha=alpha)

@@ -46,7 +46,7 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at"]
+           "same_event", "started_at", "change_at"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -208,6 +208,11 @@ def _atom(pl: ChangePlace, ch: str, at: float, until: float | None) -> Atom:
         feats = tuple(Gated(f=f, **gate) for f in pl.inner)
     return Atom("change", pl.place, pl.target, feats, chan, f"change of the {pl.words} {when}",
                 "change" if until is None else "change_window", pl.joints)
+
+
+def change_at(pl: ChangePlace, ch: str, at: float) -> Atom:
+    """The change at place ``pl`` from ``at`` on (a step) on the time channel ``ch``."""
+    return _atom(pl, ch, at, None)
 
 
 EIG_MIN = 1e-4  # directions of a unit-scaled projected Gram matrix below this eigenvalue are dropped (1 % of a column)

@@ -37,7 +37,8 @@ import numpy as np
 from ..estimator.core import prepare
 from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
-from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_pool_sizes, is_change, is_step,
+from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_at, change_pool_sizes, is_change,
+                      is_step,
                       is_window, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
@@ -49,7 +50,7 @@ from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event"]
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event", "payload_at"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -796,3 +797,34 @@ def _with_end(atom, until):
     if atom.features[0].until == until:
         return atom
     return as_step(atom) if until is None else as_window(atom, until)
+
+
+def payload_at(prob_all: Problem, use_all: Fit, onset, places: list[ChangePlace], *,
+               alpha: float) -> tuple[Fit, list] | None:
+    """A payload's event read where the rows after the rows that fit show a change of the air that no temperature
+    record times (``onset``: a thermal term of an onset, :func:`~twin.diagnosis.refine.is_onset`, with its step or
+    ramp and the links' lag): the change of a joint's compliance (under the arm's own weight or a payload's,
+    :func:`is_load_change`) from a row between ``EVENT_ROWS`` rows before the air's change and ``EVENT_ROWS`` rows
+    after its ramp and lag, the strongest on every row, with the same change at every other loaded joint while
+    significant there (:func:`payload_event`'s rule). Both read a change of the arm in the campaign's last part; the
+    caller keeps the one that explains every row better. Returns the fit with the event and its terms (atom,
+    ``Delta chi2``), None when no such change takes a column."""
+    ch, tv = row_times(prob_all.ctx)
+    if ch != "t_s":
+        return None
+    f0 = onset.features[0]
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    lo = max(int(np.searchsorted(t_rows, float(f0.t0))) - EVENT_ROWS, 1)
+    hi = int(np.searchsorted(t_rows, float(f0.t0) + float(f0.ramp or 0.0) + float(f0.tau))) + EVENT_ROWS
+    loads = [pl for pl in places if pl.place == "joint" and pl.inner is not None]
+    cands = [change_at(pl, ch, float(t)) for t in t_rows[lo:hi + 1] for pl in loads]
+    if not cands:
+        return None
+    sizes = {a.pool: 1 for a in cands}
+    got = score_atoms(prob_all, use_all, cands, sizes, exact_top=len(cands))
+    if not got:
+        return None
+    lead = max(got, key=lambda g: g.dchi2)
+    fit = refit_with(prob_all, use_all, list(use_all.chosen) + [(lead.atom, lead.basis)])
+    fit, added = _while_significant(prob_all, fit, same_event(lead.atom, places), alpha=alpha)
+    return fit, [(lead.atom, float(lead.dchi2))] + [(g.atom, float(g.dchi2)) for g, _, _ in added]

@@ -446,17 +446,18 @@ def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict,
 
 
 def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[str], sizes: dict,
-               alpha_select: float, z_min: float) -> tuple[Fit, float, float] | None:
+               alpha_select: float, z_min: float, *, bare: bool = False) -> tuple[Fit, float, float] | None:
     """The model ``fit`` with its term ``a`` replaced by the load family of the joints ``targets``
     (:func:`_load_candidates`), grown by the forward pass' rules, at most two terms (a support tilts about two
     axes), its linear terms first (:func:`_grow_own`), and through the backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows'
-    position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters."""
+    position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters, unless ``bare``
+    (then the alternative is ``fit`` without ``a``: the family's terms it holds read the load alone)."""
     P = prob.prep.space.size
     keep = [(c, B) for c, B in fit.chosen if c is not a]
     base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
     cur = _grow_own(prob, base, lambda f, have: _load_candidates(prob, f, pool, targets, have), sizes, alpha_select,
                     z_min, 2, linear_first=True)
-    if len(cur.chosen) == len(keep):
+    if len(cur.chosen) == len(keep) and not bare:
         return None
     alt, _ = backward(prob, cur, alpha_select, sizes)
     e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
@@ -538,9 +539,10 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
     for a, _ in list(fit.chosen):
         named = [c for c, _ in fit.chosen if c.pool == "catalogue"]
         support = a.family == "tilt" and a.target != "tilt0"
-        # the base's tilt beside a payload's change: the payload's change reads the shoulder's and the elbow's
-        # compliance carrying a load, and the arm's own weight goes through the same compliance on every row
-        payload = a.family == "tilt" and a.target == "tilt0" and any(is_load_change(c) for c, _ in fit.chosen)
+        # a support's tilt beside a payload's change: the payload's change reads the compliance of joints the tilt
+        # bends carrying a load, and the arm's own weight goes through the same compliance on every row (a support
+        # that tilted under the arm's moment would tilt under the payload's too, which no kept change reads)
+        payload = a.family == "tilt" and any(is_load_change(c) for c, _ in fit.chosen)
         support = support or payload
         if a.pool != "catalogue" or not (a.place == "joint" or support) or a not in [c for c, _ in fit.chosen]:
             continue
@@ -556,16 +558,22 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
         cands = [c for c in pool if c.pool == "catalogue" and c.family in others and c.place == "joint"
                  and c.target in at and c.key not in have and (not support or c.family == "compliance")]
         swap = _swap_term(prob, fit, a, cands, sizes, alpha_select, admitted) if not support \
-            else _swap_load(prob, fit, a, pool, {t for t in at if t.startswith("theta")}, sizes, alpha_select, z_min)
+            else _swap_load(prob, fit, a, pool, {t for t in at if t.startswith("theta")}, sizes, alpha_select, z_min,
+                            bare=payload)
         if swap is None:
             continue
         alt, e_alt, e_now = swap
         if {c.family for c, _ in alt.chosen if c.pool == "catalogue"} & {a.family}:
             continue
         new = [c for c, _ in alt.chosen if c.key not in {k.key for k, _ in fit.chosen}]
+        if payload and not new:
+            # the compliance the model holds reads the load alone
+            new = [c for c, _ in alt.chosen if c.family == "compliance"]
         if not new:
             continue  # nothing of the other family survived the backward pass: the term stays
-        if e_alt <= 1.02 * e_now:
+        # beside a payload's change the tilt is the reading physics does not support: it stays only where it
+        # predicts the confirmation rows better row by row (signed-rank z beyond z_min)
+        if e_alt <= 1.02 * e_now or (payload and _better_rows(prob, alt, fit) <= z_min):
             notes.append(f"'{a.label}' replaced by {'; '.join(c.label for c in new)} (a family already named): "
                          f"they predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
             alts += [_replaced(c, a, e_alt, e_now) for c in new]
