@@ -10,6 +10,7 @@ from twin.diagnosis.candidates import RowContext
 from twin.diagnosis.features import Cos, Sin
 from twin.diagnosis.loads import own_link_atom
 from twin.diagnosis.rule import _better_rows, _places, _spanning
+from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
 
 
@@ -73,7 +74,8 @@ def test_a_harmonic_is_read_as_the_family_term_whose_columns_span_it_over_the_ro
     are not spanned and stay."""
     model = irb1200()
     q = np.random.default_rng(3).uniform(-1.2, 1.2, (60, model.n_joints))
-    prob = SimpleNamespace(ctx=RowContext(q=q), prep=SimpleNamespace(nominal=model))
+    ctx = RowContext(q=q)
+    prob = SimpleNamespace(ctx=ctx, features=lambda a: feature_values(a.features, ctx, model))
     own2, own3 = own_link_atom(model, q, 2), own_link_atom(model, q, 3)
     first, second, elbow = _harmonic(2, 1), _harmonic(2, 2), _harmonic(3, 1)
     assert _spanning(prob, [first], [own3, own2]) == [(first, own2)]

@@ -36,7 +36,6 @@ from .refine import (ONSET_TAUS, follows_the_air, is_onset, polish_in_fit, prefe
                      refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
-from .values import feature_values
 
 __all__ = [
     "CandidateScore",
@@ -831,17 +830,16 @@ def _spanning(prob: Problem, others: list[Atom], cands: list[Atom]) -> list[tupl
     than it, whose span holds every column of ``o`` over the rows (with a constant, the joint's zero) within
     ``SPAN_TOL`` of its norm: the same effect on every row, one reading of it. Each candidate once."""
     out: list[tuple[Atom, Atom]] = []
-    cache: dict = {}
     n = len(prob.ctx.q)
     for o in others:
         if o.place != "joint":
             continue
-        Fo = feature_values(o.features, prob.ctx, prob.prep.nominal, cache)
+        Fo = prob.features(o)
         Fo = Fo - Fo.mean(axis=0)
         for c in cands:
             if c in [u for _, u in out] or c.place != "joint" or c.target != o.target or c.K > o.K:
                 continue
-            Fc = np.column_stack([np.ones(n), feature_values(c.features, prob.ctx, prob.prep.nominal, cache)])
+            Fc = np.column_stack([np.ones(n), prob.features(c)])
             res = Fo - Fc @ np.linalg.lstsq(Fc, Fo, rcond=None)[0]
             if np.all(np.linalg.norm(res, axis=0) <= SPAN_TOL * np.linalg.norm(Fo, axis=0)):
                 out.append((o, c))
