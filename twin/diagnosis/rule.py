@@ -803,8 +803,8 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
         # the same effect on every row, the rows cannot tell the two readings apart
         if a not in [c for c, _ in fit.chosen]:
             continue
-        others = [c for c, _ in fit.chosen if c is not a and c.family in ("cyclic", "gear_ratio") and not is_change(c)
-                  and (_places(prob, c) & places)]
+        others = [c for c, _ in fit.chosen if c.family != a.family and c.family in ("cyclic", "gear_ratio")
+                  and not is_change(c) and (_places(prob, c) & places)]
         have = {c.key for c, _ in fit.chosen}
         same = _spanning(prob, others, _own_candidates(prob, fit, pool, a, {t for t in places if t.startswith("theta")},
                                                        have))
