@@ -6,7 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 
 from twin.diagnosis.atoms import Atom
-from twin.diagnosis.rule import _better_rows, _places
+from twin.diagnosis.candidates import RowContext
+from twin.diagnosis.features import Cos, Sin
+from twin.diagnosis.loads import own_link_atom
+from twin.diagnosis.rule import _better_rows, _places, _spanning
+from twin.diagnosis.values import feature_values
+from twin.robots import irb1200
 
 
 def _prob(n_joints=6, keep_val=None):
@@ -56,3 +61,23 @@ def test_rows_predicted_better_on_half_and_worse_on_the_other_half_do_not_keep_t
     e = 1.0 + rng.uniform(0.0, 1.0, 40)
     f = np.where(np.arange(40) % 2 == 0, 0.8, 1.2) * e
     assert abs(_better_rows(_prob(keep_val=np.ones(40, bool)), _fit(e), _fit(f))) < 3.0
+
+
+def _harmonic(j: int, k: int) -> Atom:
+    return Atom("cyclic", "joint", f"theta{j}", (Sin(ch=f"q{j}", k=float(k)), Cos(ch=f"q{j}", k=float(k))),
+                f"cyclic_j{j}_k{k}", f"joint {j}, harmonic {k}", "catalogue", (j,))
+
+
+def test_a_harmonic_is_read_as_the_family_term_whose_columns_span_it_over_the_rows():
+    """The shoulder's own link weight (its axis level) spans its angle's 1st harmonic over any rows, so the harmonic
+    is read as it; a 2nd harmonic there, and the elbow's 1st beside the elbow's link weight (which turns with q2 + q3),
+    are not spanned and stay."""
+    model = irb1200()
+    q = np.random.default_rng(3).uniform(-1.2, 1.2, (60, model.n_joints))
+    ctx = RowContext(q=q)
+    prob = SimpleNamespace(ctx=ctx, features=lambda a: feature_values(a.features, ctx, model))
+    own2, own3 = own_link_atom(model, q, 2), own_link_atom(model, q, 3)
+    first, second, elbow = _harmonic(2, 1), _harmonic(2, 2), _harmonic(3, 1)
+    assert _spanning(prob, [first], [own3, own2]) == [(first, own2)]
+    assert _spanning(prob, [second], [own2]) == []
+    assert _spanning(prob, [elbow], [own3]) == []

@@ -252,7 +252,9 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     ``tanh(load / w)``, not the load's sign, and the sign alone misplaces every row near the flank's change. The
     smooth flank (its width from ``FLANK_WIDTHS`` of the load's RMS, then refined on its log with the direction)
     replaces the sign when it explains significantly more: beyond ``chi2_1`` at 1 % / the number of widths tried,
-    with at least 3 calibration rows inside the flank (``|tanh| < 0.5``). Returns the scored atom."""
+    with at least 3 calibration rows inside the flank (``|tanh| < 0.5``). A compliance stiffening with its load is
+    refined so under each of its laws (``STIFFENING_LAWS``: smooth, or two stiffnesses changing at the width), the one
+    that explains most kept. Returns the scored atom."""
     from scipy.optimize import minimize
 
     f0 = s.atom.features[0]
@@ -289,16 +291,16 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     best = [s]
     rec = {}
 
-    def feature(u, frac):
+    def feature(u, frac, law=f0.law):
         u = np.asarray(u, float)
         v = V @ u
         rms = float(np.sqrt(np.mean(v[rows] ** 2)))
         mix = GravMix(i=i, cols=cols, w=tuple((u @ W).tolist()), h=1.0)
         return LoadSign(f=mix, u=tuple(float(x) for x in u), width=None if frac is None else float(frac * rms),
-                        law=None if frac is None else f0.law), rms
+                        law=None if frac is None else law), rms
 
-    def score(u, frac):
-        f, rms = feature(u, frac)
+    def score(u, frac, law=f0.law):
+        f, rms = feature(u, frac, law)
         if not rms > 0:
             return 0.0
         got = score_atoms(prob, fit, [law_atom(model, s.atom, f, rms)], pool_sizes, exact_top=1)
@@ -320,10 +322,13 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     # the direction and a flank's width together on the smooth flank (the sign is a step function of the direction:
     # a search on it flips single rows, and a boundary placed by a few rows' noise mispredicts the rows near it);
     # from the best width of the grid at the start, steps of SIMPLEX_STEP of the load along each direction
-    top = max(FLANK_WIDTHS, key=lambda fr: score(u0, fr))
-    x0 = np.concatenate([u0, [0.0]])
-    minimize(lambda x: -score(x[:-1], top * np.exp(x[-1])), x0, method="Nelder-Mead",
-             options=dict(opts, maxfev=60 * (m + 1), initial_simplex=simplex(x0, [SIMPLEX_STEP] * m + [0.5])))
+    # a stiffening compliance: each of its laws (smooth, or two stiffnesses changing at the width) so refined, the
+    # better kept; the grid's widths place a change of stiffness only to within a factor of two
+    for law in (STIFFENING_LAWS if s.atom.family == "compliance" else (f0.law,)):
+        top = max(FLANK_WIDTHS, key=lambda fr: score(u0, fr, law))
+        x0 = np.concatenate([u0, [0.0]])
+        minimize(lambda x: -score(x[:-1], top * np.exp(x[-1]), law), x0, method="Nelder-Mead",
+                 options=dict(opts, maxfev=60 * (m + 1), initial_simplex=simplex(x0, [SIMPLEX_STEP] * m + [0.5])))
     # the sign at the start and at the smooth flank's direction
     score(u0, None)
     if "smooth" in rec:

@@ -60,6 +60,7 @@ JOINT_MAX_CHAIN = 1.0 * RAD_PER_DEG
 # [rad] largest variation over the rows of a deflection under a known load (compliance or a support's tilt under the
 # chain's own weight, from its mass properties): 17 mm at 1 m, visible by eye
 LOAD_MAX = 1.0 * RAD_PER_DEG
+SPAN_TOL = 1e-6  # [relative] a term's columns within this of another's span: the rows cannot tell the two apart
 THERMAL_MAX = 1e-3  # [relative] largest thermal growth over a campaign: 43 K of aluminium (23 ppm/K)
 
 
@@ -743,8 +744,10 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
     against the model without them); all of them stay where together they predict the confirmation rows better row
     by row (:func:`_better_rows` beyond ``z_min``). The family alone is tried first: when it predicts the
     confirmation rows within 2 % of the model with the extra terms, nothing is added in their place. The terms not
-    added back are reported as the alternatives the data cannot tell from the family's reading. Returns the fit,
-    notes and alternatives."""
+    added back are reported as the alternatives the data cannot tell from the family's reading. Last, a harmonic or a
+    ratio still kept beside the family whose every column a term of the family's own spans over the rows
+    (:func:`_spanning`) is replaced by that term: the same prediction on every row, the family's reading. Returns the
+    fit, notes and alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
     P = prob.prep.space.size
@@ -802,7 +805,54 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
                      f"beyond it ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
         alts += [_replaced(a, o, e_alt, e_now) for o in out]
         fit = alt
+    for a, places in anchors:
+        # a term of another family kept beside the family whose every column a term of the family's own spans over
+        # the rows (a level joint's own link weight is exactly a 1st harmonic of its angle) is read as the family's:
+        # the same effect on every row, the rows cannot tell the two readings apart
+        if a not in [c for c, _ in fit.chosen]:
+            continue
+        others = [c for c, _ in fit.chosen if c.family != a.family and c.family in ("cyclic", "gear_ratio")
+                  and not is_change(c) and (_places(prob, c) & places)]
+        have = {c.key for c, _ in fit.chosen}
+        same = _spanning(prob, others, _own_candidates(prob, fit, pool, a, {t for t in places if t.startswith("theta")},
+                                                       have))
+        if not same:
+            continue
+        keep = [(c, B) for c, B in fit.chosen if c not in [o for o, _ in same]]
+        cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
+        chosen = list(cur.chosen) + [(sc.atom, sc.basis) for sc in score_atoms(prob, cur, [c for _, c in same], sizes,
+                                                                               exact_top=len(same))]
+        alt = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
+        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        notes.append(f"{'; '.join(repr(o.label) for o, _ in same)} read as {'; '.join(c.label for _, c in same)} beside "
+                     f"'{a.label}': the same columns over the rows ({e_alt:.5f} vs {e_now:.5f} mm RMS on the held-out "
+                     f"rows)")
+        alts += [_replaced(c, o, e_alt, e_now) for o, c in same]
+        fit = alt
     return fit, notes, alts
+
+
+def _spanning(prob: Problem, others: list[Atom], cands: list[Atom]) -> list[tuple[Atom, Atom]]:
+    """Pairs ``(o, c)``: a joint's term ``o`` of ``others`` and the first term ``c`` of ``cands`` at that joint, no wider
+    than it, whose span holds every column of ``o`` over the rows (with a constant, the joint's zero) within
+    ``SPAN_TOL`` of its norm: the same effect on every row, one reading of it. Each candidate once."""
+    out: list[tuple[Atom, Atom]] = []
+    n = len(prob.ctx.q)
+    for o in others:
+        if o.place != "joint":
+            continue
+        Fo = prob.features(o)
+        Fo = Fo - Fo.mean(axis=0)
+        for c in cands:
+            if c in [u for _, u in out] or c.place != "joint" or c.target != o.target or c.K > o.K:
+                continue
+            Fc = np.column_stack([np.ones(n), prob.features(c)])
+            res = Fo - Fc @ np.linalg.lstsq(Fc, Fo, rcond=None)[0]
+            if np.all(np.linalg.norm(res, axis=0) <= SPAN_TOL * np.linalg.norm(Fo, axis=0)):
+                out.append((o, c))
+                break
+    return out
 
 
 def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alpha_select: float,
