@@ -38,8 +38,7 @@ from ..estimator.core import prepare
 from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_at, change_pool_sizes, is_change,
-                      is_step,
-                      is_window, row_times, same_event, scan_changes, started_at)
+                      is_step, is_window, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
 from .problem import Fit, Problem, psi_init, refit_with

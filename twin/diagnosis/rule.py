@@ -930,16 +930,15 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`) and
     the law and width of a backlash growing with the last move that the rows that chose it read in proportion, no bend
     shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each term
-    against the others refitted without it. A term keeps the
-    constants it has unless the new ones lower the chi2 of every row significantly (beyond ``chi2`` at 1 % with a
-    degree of freedom per constant moved and per column added; a load law's counted on every row but those both fits
-    set aside as gross: :func:`_common_chi2`), stay within the onset grid's range (a time constant at most
-    ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates as a polynomial) and leave the
-    term of a plausible size (:func:`implausible_size`). The models to use, chosen on the first block of a campaign
-    and refitted on every row: an air step after that block fixes the lag the block could not see; the heat's time
-    constant and motors are read on the whole campaign's moves; the flank a load pushes a gear to is read on every
-    row; a backlash growing with the last move that the first block read in proportion is read on every row (the
-    held-out rows' longer moves may show the bend)."""
+    against the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of
+    every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column added; a
+    load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`), stay within the onset
+    grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that
+    extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use,
+    chosen on the first block of a campaign and refitted on every row: an air step after that block fixes the lag the
+    block could not see; the heat's time constant and motors are read on the whole campaign's moves; the flank a load
+    pushes a gear to is read on every row; a backlash growing with the last move that the first block read in proportion
+    is read on every row (the held-out rows' longer moves may show the bend)."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
