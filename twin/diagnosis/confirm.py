@@ -19,9 +19,9 @@ from .problem import Fit, Problem
 from .scoring import Scored, raw_columns, scoring_basis
 from .structure import signed_rank_z
 
-__all__ = ["time_only", "of_time", "moves_the_cell", "reads_the_wander", "serial_inflation", "vector_inflation", "Confirmation", "confirm",
-           "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights", "row_blocks",
-           "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
+__all__ = ["time_only", "of_time", "moves_the_cell", "reads_the_wander", "serial_inflation", "vector_inflation",
+           "Confirmation", "confirm", "confirm_configurations", "NEIGHBOURS", "JOINT_WEIGHTS", "joint_weights",
+           "row_blocks", "neighbour_predictions", "time_blocks", "earlier_rows_prediction", "smooth_confirm"]
 
 
 def time_only(atom: Atom) -> bool:

@@ -41,9 +41,8 @@ from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, chang
                       is_step, is_window, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
-from .problem import Fit, Problem, psi_init, refit_with
+from .problem import Fit, Problem, held_out_rms, psi_init, refit_with
 from .confirm import confirm
-from .extend import error_stats
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
 from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
@@ -94,10 +93,6 @@ def _prob_before(setup, prob_all: Problem, t_cut: float) -> Problem:
     prob.evidence_scale = prob_all.evidence_scale
     prob.cross_session = prob_all.cross_session
     return prob
-
-
-def _rms_mm(fit: Fit, prob: Problem) -> float:
-    return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 
 def _rows_after(n: int, z_min: float) -> tuple[int, int]:
@@ -354,7 +349,7 @@ def _confirmed(prob: Problem, fit0: Fit, use_all: Fit, s, t_cut: float, ch: str,
     P = prob.prep.space.size
     fit1 = prob.fit(fit0.z[:P], list(use_all.chosen) + [(s.atom, s.basis)], psi_init(fit0, use_all.chosen) + [s.psi])
     got = LateChange(s.atom, s.basis, t_cut, float(c.z), float(c.z_without_best_row), int(prob.obs_cal.n),
-                     int(prob.obs_val.n), _rms_mm(fit0, prob), _rms_mm(fit1, prob), float(s.dchi2))
+                     int(prob.obs_val.n), held_out_rms(prob, fit0), held_out_rms(prob, fit1), float(s.dchi2))
     words = (f"{s.atom.label}: located and fitted on the {got.n_before} rows before {ch} {t_cut:.6g}, on the "
              f"{got.n_after} rows after it RMS {got.rms_without_mm:.4f} -> {got.rms_with_mm:.4f} mm (z {c.z:.1f}, "
              f"{c.z_without_best_row:.1f} without the best row)")

@@ -39,9 +39,8 @@ from ..estimator import distributions as dists
 from ..kinematics import RobotModel
 from .atoms import Atom, joint_words, tilt_axis, tilt_coefficient
 from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
-from .extend import error_stats
 from .features import BaseMoment, GravMix, LoadSign, Torque
-from .problem import psi_init
+from .problem import held_out_rms, psi_init
 from .scoring import raw_columns, score_atoms, scoring_basis
 from .values import feature_values
 
@@ -625,9 +624,9 @@ def load_alternatives(prob, fit, pool: list, sizes: dict, alpha_select: float) -
             continue
         best = max(scored, key=lambda s: s.dchi2)
         alt = prob.fit(base.z[:P], keep + [(best.atom, best.basis)], psi_init(base, keep + [(best.atom, best.basis)]))
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        e_alt = held_out_rms(prob, alt)
         if e_now is None:
-            e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+            e_now = held_out_rms(prob, fit)
         if e_alt <= ALT_RMS * e_now:
             out.append({"of": a.label, "alternative": best.atom.label, "family": best.atom.family,
                         "channel": best.atom.channel, "target": best.atom.target, "delta_chi2": best.dchi2,

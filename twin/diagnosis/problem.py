@@ -14,14 +14,14 @@ from ..estimator.core import Prepared
 from ..estimator.solvers import gauss_newton
 from .atoms import Atom
 from .candidates import RowContext
-from .extend import AtomTerm, ExtendedModel
+from .extend import AtomTerm, ExtendedModel, error_stats
 from .floor import NoiseFloor
 from .grams import block_stats, single_step
 from .structure import StructureTest, fit_block_test, gross_rows, structure_test
 from .values import feature_channel, feature_values
 
 __all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "Problem", "ColumnStore", "covariance", "update_gross", "refit_with",
-           "psi_init"]
+           "psi_init", "held_out_rms"]
 
 
 @dataclass
@@ -272,6 +272,11 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def held_out_rms(prob: Problem, fit: Fit) -> float:
+    """The position RMS [mm] of ``fit``'s prediction on ``prob``'s confirmation rows (the held-out rows it kept)."""
+    return float(error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"])
 
 
 def refit_with(prob: Problem, src: Fit, chosen: list) -> Fit:

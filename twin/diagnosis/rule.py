@@ -30,7 +30,7 @@ from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
-from .problem import Fit, Problem, covariance, psi_init, refit_with, update_gross
+from .problem import Fit, Problem, covariance, held_out_rms, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
                      prefer_sign, refine, refine_time, retimeable, widen)
@@ -441,8 +441,8 @@ def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict,
         return None
     alt = prob.fit(base.z[:P], keep + new, psi_init(base, keep + new))
     alt, _ = backward(prob, alt, alpha_select, sizes)
-    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    e_alt = held_out_rms(prob, alt)
+    e_now = held_out_rms(prob, fit)
     return alt, e_alt, e_now
 
 
@@ -461,8 +461,8 @@ def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[
     if len(cur.chosen) == len(keep) and not bare:
         return None
     alt, _ = backward(prob, cur, alpha_select, sizes)
-    e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-    e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
+    e_alt = held_out_rms(prob, alt)
+    e_now = held_out_rms(prob, fit)
     return alt, e_alt, e_now
 
 
@@ -781,8 +781,8 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
         # the family's constants (a load law's direction among the torque shapes) read again without the others,
         # which took part of the load when the law was placed
         cur = retime(prob, prob.fit(fit.z[:P], keep, psi_init(fit, keep)))
-        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        if error_stats(cur.model_val, cur.z, prob.keep_val)["position_mm"]["rms"] <= 1.02 * e_now:
+        e_now = held_out_rms(prob, fit)
+        if held_out_rms(prob, cur) <= 1.02 * e_now:
             rounds = 0  # the family alone predicts as well: nothing in their place
         else:
             rounds = len(others) + 1
@@ -795,7 +795,7 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
         if len(back) == len(others):
             continue  # every term taken out predicts beyond the family: all stay as they were
         alt, _ = backward(prob, alt, alpha_select, sizes)
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        e_alt = held_out_rms(prob, alt)
         if _better_rows(prob, alt, fit) > z_min:
             continue  # together the terms taken out predict the confirmation rows beyond the family: they stay
         out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
@@ -823,19 +823,19 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
         chosen = list(cur.chosen) + [(sc.atom, sc.basis) for sc in score_atoms(prob, cur, [c for _, c in same], sizes,
                                                                                exact_top=len(same))]
         alt = prob.fit(cur.z[:P], chosen, psi_init(cur, chosen))
-        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
-        notes.append(f"{'; '.join(repr(o.label) for o, _ in same)} read as {'; '.join(c.label for _, c in same)} beside "
-                     f"'{a.label}': the same columns over the rows ({e_alt:.5f} vs {e_now:.5f} mm RMS on the held-out "
-                     f"rows)")
+        e_now = held_out_rms(prob, fit)
+        e_alt = held_out_rms(prob, alt)
+        notes.append(f"{'; '.join(repr(o.label) for o, _ in same)} read as {'; '.join(c.label for _, c in same)} "
+                     f"beside '{a.label}': the same columns over the rows ({e_alt:.5f} vs {e_now:.5f} mm RMS on the "
+                     f"held-out rows)")
         alts += [_replaced(c, o, e_alt, e_now) for o, c in same]
         fit = alt
     return fit, notes, alts
 
 
 def _spanning(prob: Problem, others: list[Atom], cands: list[Atom]) -> list[tuple[Atom, Atom]]:
-    """Pairs ``(o, c)``: a joint's term ``o`` of ``others`` and the first term ``c`` of ``cands`` at that joint, no wider
-    than it, whose span holds every column of ``o`` over the rows (with a constant, the joint's zero) within
+    """Pairs ``(o, c)``: a joint's term ``o`` of ``others`` and the first term ``c`` of ``cands`` at that joint, no
+    wider than it, whose span holds every column of ``o`` over the rows (with a constant, the joint's zero) within
     ``SPAN_TOL`` of its norm: the same effect on every row, one reading of it. Each candidate once."""
     out: list[tuple[Atom, Atom]] = []
     n = len(prob.ctx.q)
@@ -898,8 +898,8 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
         alt, _ = backward(prob, alt, alpha_select, sizes)
         if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
             continue
-        e_now = error_stats(fit.model_val, fit.z, prob.keep_val)["position_mm"]["rms"]
-        e_alt = error_stats(alt.model_val, alt.z, prob.keep_val)["position_mm"]["rms"]
+        e_now = held_out_rms(prob, fit)
+        e_alt = held_out_rms(prob, alt)
         if e_alt > 1.02 * e_now or _better_rows(prob, alt, fit) > z_min:
             continue
         out = [o for o in others if o.key not in {c.key for c, _ in alt.chosen}]
