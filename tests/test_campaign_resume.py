@@ -10,8 +10,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _shared import built_once  # noqa: E402
+from _shared import built_once
 
 pytestmark = pytest.mark.slow
 
