@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from _shared import value_once
 from twin.evaluation.regression import check_prediction, detectable_factor
 from twin.runner.campaign import run_campaign, run_repeats
 from twin.runner.config import load_campaign_config
@@ -66,9 +67,13 @@ def _worse(results: dict, method: str, unit: str, factor: float) -> dict:
 
 @pytest.fixture(scope="module")
 def ci_run(tmp_path_factory):
-    """The rendered CI campaign (half resolution, two stations, four methods) at a seed outside its bands."""
-    cfg = load_campaign_config(CONFIG).with_seed(CI_SEED)
-    return run_campaign(cfg, tmp_path_factory.mktemp("ci") / "run", recording=False, figures=False).results
+    """The rendered CI campaign (half resolution, two stations, four methods) at a seed outside its bands (run once
+    per test session, whichever worker asks first)."""
+    def make():
+        cfg = load_campaign_config(CONFIG).with_seed(CI_SEED)
+        return run_campaign(cfg, tmp_path_factory.mktemp("ci") / "run", recording=False, figures=False).results
+
+    return value_once(tmp_path_factory, "campaign_regression_ci_run", make)
 
 
 @pytest.mark.slow
@@ -94,10 +99,14 @@ def test_a_broken_ci_method_fails_the_bands(ci_run):
 
 @pytest.fixture(scope="module")
 def paper_runs(tmp_path_factory):
-    """The paper-mode CI campaign (true centres + N(0, 0.01^2) mm, five methods) at six new seeds, per seed."""
-    cfg = load_campaign_config(PAPER_CONFIG)
-    with open_executor("serial") as ex:
-        return run_repeats(cfg, tmp_path_factory.mktemp("paper_ci"), list(PAPER_SEEDS), ex)["per_seed"]
+    """The paper-mode CI campaign (true centres + N(0, 0.01^2) mm, five methods) at six new seeds, per seed (run once
+    per test session)."""
+    def make():
+        cfg = load_campaign_config(PAPER_CONFIG)
+        with open_executor("serial") as ex:
+            return run_repeats(cfg, tmp_path_factory.mktemp("paper_ci"), list(PAPER_SEEDS), ex)["per_seed"]
+
+    return value_once(tmp_path_factory, "campaign_regression_paper_runs", make)
 
 
 @pytest.mark.slow

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from _shared import built_once
+
 pytestmark = pytest.mark.slow
 
 TINY = """
@@ -69,13 +71,28 @@ def _renders(out: Path) -> int:
     return sum(1 for line in log.read_text().splitlines() if line.startswith("render ")) if log.exists() else 0
 
 
-def test_killed_campaign_resumes_with_the_same_dataset(tmp_path):
+def _env() -> dict:
+    return {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """An uninterrupted run of the tiny campaign, once per test session (the tests read it or copy it, never write
+    it)."""
+    def build(out: Path) -> None:
+        cfg = tmp_path_factory.mktemp("tiny") / "tiny.toml"
+        cfg.write_text(TINY)
+        subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=_env(), capture_output=True, timeout=600)
+
+    return built_once(tmp_path_factory, "tiny_resume_campaign", build)
+
+
+def test_killed_campaign_resumes_with_the_same_dataset(finished, tmp_path):
     """SIGKILL mid-way, run again: only unfinished poses are rendered, and poses.csv equals an uninterrupted run's."""
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    ref, res = tmp_path / "ref", tmp_path / "res"
-    subprocess.run(_twin(str(cfg), "--out", str(ref)), check=True, env=env, capture_output=True, timeout=600)
+    env = _env()
+    ref, res = finished, tmp_path / "res"
     n = _renders(ref)
     assert n == 10
     # the same rig calibration (from a previous session): the test is about the poses, not OpenCV's calibration
@@ -100,17 +117,16 @@ def test_killed_campaign_resumes_with_the_same_dataset(tmp_path):
     assert (res / "dataset" / "poses.csv").read_bytes() == (ref / "dataset" / "poses.csv").read_bytes()
 
 
-def test_resumed_campaign_keeps_the_true_board_views(tmp_path):
+def test_resumed_campaign_keeps_the_true_board_views(finished, tmp_path):
     """A finished campaign run again (nothing left to render) writes truth.json with the board poses its stereo
     calibration came from, as the first run wrote them."""
     import json
 
     cfg = tmp_path / "tiny.toml"
     cfg.write_text(TINY)
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     out = tmp_path / "run"
-    subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=env, capture_output=True, timeout=600)
+    shutil.copytree(finished, out)
     first = json.loads((out / "truth.json").read_text())["board_views"]
     assert len(first) == 8
-    subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=env, capture_output=True, timeout=600)
+    subprocess.run(_twin(str(cfg), "--out", str(out)), check=True, env=_env(), capture_output=True, timeout=600)
     assert json.loads((out / "truth.json").read_text())["board_views"] == first

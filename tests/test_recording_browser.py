@@ -1,6 +1,8 @@
 """The campaign and the diagnosis recordings in a real browser: Rerun's web viewer in headless Chromium, checked by
 pixels."""
 
+import functools
+import http.server
 import os
 import shutil
 import signal
@@ -8,8 +10,10 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 import pytest
@@ -83,14 +87,33 @@ def browser(tmp_path_factory):
         driver.quit()
 
 
+class _FileHandler(http.server.SimpleHTTPRequestHandler):
+    """Serves a folder's files to the web viewer's page (another origin: another port) and logs nothing."""
+
+    def end_headers(self):
+        self.send_header("Access-Control-Allow-Origin", "*")
+        super().end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
 def _view_until(driver, rrd: Path, shot_path: Path, check, timeout_s: float = 90.0) -> tuple[bool, bool, dict]:
-    """Serve ``rrd`` with `rerun --serve-web`, open it in ``driver`` and take screenshots until ``check(shot)``
-    returns (True, True, info) or the time is up; the last check's result."""
+    """Serve ``rrd`` by its URL with `rerun URL --serve-web`, open it in ``driver`` and take screenshots until
+    ``check(shot)`` returns (True, True, info) or the time is up; the last check's result.
+
+    The file goes to the viewer by an HTTP URL (a file server of this process) rather than as a path: given a path,
+    `rerun --serve-web` keeps one thread polling the file at a full core for as long as it serves (about 10 s of CPU
+    per recording viewed here); given the URL, it serves the web viewer alone and the page reads the file."""
     from PIL import Image
 
+    handler = functools.partial(_FileHandler, directory=str(rrd.parent))
+    files = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=files.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{files.server_address[1]}/{quote(rrd.name)}"
     web_port, grpc_port = _free_port(), _free_port()
     server = subprocess.Popen(
-        [_rerun_binary(), str(rrd), "--serve-web", "--bind", "127.0.0.1",
+        [_rerun_binary(), url, "--serve-web", "--bind", "127.0.0.1",
          "--web-viewer-port", str(web_port), "--port", str(grpc_port)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )
@@ -103,7 +126,7 @@ def _view_until(driver, rrd: Path, shot_path: Path, check, timeout_s: float = 90
             except OSError:
                 assert server.poll() is None, "rerun --serve-web exited early"
                 time.sleep(0.3)
-        driver.get(f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy")
+        driver.get(f"http://127.0.0.1:{web_port}/?url={quote(url, safe='')}")
         result: tuple[bool, bool, dict] = (False, False, {})
         start = time.time()
         while time.time() < start + timeout_s and not (result[0] and result[1]):
@@ -113,17 +136,20 @@ def _view_until(driver, rrd: Path, shot_path: Path, check, timeout_s: float = 90
             print(f"{time.time() - start:.1f}s", result)
         return result
     finally:
-        # The --serve-web process keeps a core busy after the browser leaves: stop it by its PID.
+        # The --serve-web process would outlive the test: stop it by its PID.
         os.kill(server.pid, signal.SIGTERM)
         try:
             server.wait(timeout=10)
         except subprocess.TimeoutExpired:
             os.kill(server.pid, signal.SIGKILL)
             server.wait(timeout=10)
+        files.shutdown()
+        files.server_close()
 
 
 def test_recording_renders_in_headless_chromium(browser, tmp_path):
-    """Served with `rerun --serve-web`, the web viewer in headless Chromium shows the 3D view and an image."""
+    """Opened in the web viewer that `rerun --serve-web` serves, the recording in headless Chromium shows the 3D view
+    and an image."""
     rrd = make_synthetic_recording(tmp_path / "synthetic.rrd")
     shot_path = tmp_path / "viewer.png"
     ok_img, ok_3d, info = _view_until(browser, rrd, shot_path, _rendered)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from _shared import value_once
 from twin.runner.campaign import run_repeats
 from twin.runner.config import load_campaign_config
 from twin.runner.executor import open_executor
@@ -71,12 +72,16 @@ def test_prediction_bands_see_a_20_percent_worsening_where_the_spread_allows():
 
 @pytest.fixture(scope="module")
 def new_runs(tmp_path_factory):
-    """The matched campaign at the six new seeds on two processes (per-seed results) and the seconds it took."""
-    cfg = load_campaign_config(CONFIG)
-    t0 = time.perf_counter()
-    with open_executor("process", 2, None) as ex:
-        rep = run_repeats(cfg, tmp_path_factory.mktemp("matched"), list(NEW_SEEDS), ex)
-    return rep["per_seed"], time.perf_counter() - t0
+    """The matched campaign at the six new seeds on two processes (per-seed results) and the seconds it took (run once
+    per test session)."""
+    def make():
+        cfg = load_campaign_config(CONFIG)
+        t0 = time.perf_counter()
+        with open_executor("process", 2, None) as ex:
+            rep = run_repeats(cfg, tmp_path_factory.mktemp("matched"), list(NEW_SEEDS), ex)
+        return rep["per_seed"], time.perf_counter() - t0
+
+    return value_once(tmp_path_factory, "regression_matched_new_runs", make)
 
 
 @pytest.mark.slow
