@@ -157,7 +157,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
                 recorded = any(isinstance(f, Lag) for f in got.atom.features)
                 entry = max(got.dchi2, src.chi2 - with_got.chi2) if recorded and not is_change(got.atom) else got.dchi2
                 src = with_got
-                found.append((got.atom, "late", got, entry))
+                # the term as the fit holds it (its constants retimed there): what later judges it finds it by
+                found.append((with_got.chosen[-1][0], "late", got, entry))
     src0 = src
     beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
     if beyond:
