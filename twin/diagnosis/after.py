@@ -14,7 +14,7 @@ from .changes import is_change
 from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
                    own_weight, payload_at, payload_event)
-from .problem import Fit, Problem, refit_with
+from .problem import Fit, Problem, common_chi2, refit_with, update_gross
 from .refine import is_onset
 from .rule import retime
 
@@ -217,10 +217,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
         notes += notes_load
         found += [(a, "load", None, dchi2) for a, dchi2 in loads]
-    if src.chi2 - given.chi2 > prob_x.evidence_scale * chi2_isf(alpha, len(src.chosen)):
+    if -common_chi2(given, src) > prob_x.evidence_scale * chi2_isf(alpha, len(src.chosen)):
         # what step 9 adds or reshapes nests the model it was given (a term more, a change's end, one timing within
         # its chi2): a model fitting every row worse than that by more than chi2 at alpha of its terms is a refit
         # that failed, never the model a user takes
+        update_gross(prob_x, given)
         return AfterBlocks(given, (), tuple(notes) + (
             f"not kept after the blocks: {'; '.join(a.label for a, *_ in found) or 'a reshaped change'} (every row's "
             f"chi2 {src.chi2:.1f} against {given.chi2:.1f} for the model without them: a refit that failed)",))

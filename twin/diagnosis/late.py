@@ -41,7 +41,7 @@ from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, chang
                       is_step, is_window, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
-from .problem import Fit, Problem, held_out_rms, psi_init, refit_with
+from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, update_gross
 from .confirm import confirm
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
 from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
@@ -682,9 +682,10 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
 def _while_significant(prob: Problem, fit: Fit, cands: list, *, alpha: float) -> tuple[Fit, list]:
     """The strongest of ``cands`` joins ``fit`` while significant on ``prob``'s calibration rows after the factor of the
     candidates left (``chi2`` of its columns at ``alpha`` over their number); each one tried leaves the candidates.
-    The significance must hold as refitted: a term whose refit does not lower the rows' chi2 by that ``chi2`` (the
-    linearised score not realised: columns that cancel each other, a refit that diverged) does not join. Returns the
-    fit and, per term added, ``(scored, p adjusted, candidates counted)``."""
+    A term more nests the model: a refit that does not lower the rows' chi2 (counted on the rows both fits keep,
+    :func:`~twin.diagnosis.problem.common_chi2`) failed (columns that cancel each other on a few rows, a refit that
+    diverged), and the term does not join. Returns the fit and, per term added, ``(scored, p adjusted, candidates
+    counted)``."""
     added = []
     while cands:
         got = score_atoms(prob, fit, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
@@ -694,10 +695,11 @@ def _while_significant(prob: Problem, fit: Fit, cands: list, *, alpha: float) ->
         k = int(np.argmin(logp))
         g = got[k]
         trial = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
-        drop = (fit.chi2 - trial.chi2) / prob.evidence_scale
-        if drop > 0 and chi2_logsf(drop, g.basis.shape[1]) + np.log(len(cands)) < np.log(alpha):
+        if common_chi2(fit, trial) > 0:
             fit = trial
             added.append((g, float(np.exp(logp[k])), len(cands)))
+        else:
+            update_gross(prob, fit)
         cands = [a for a in cands if a.key != g.atom.key]
     return fit, added
 
@@ -747,7 +749,8 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
                 best, moved = trial, sum(use_all.chosen[k][0].features[0].until != e for k in idx)
         # one timing is a constraint (an end per change moved): kept where every row's chi2 rises by less than chi2 at
         # alpha of the ends it moves; the rows reject it beyond (the changes are not one event)
-        if not best.chi2 - use_all.chi2 < prob_all.evidence_scale * chi2_isf(alpha, max(1, moved)):
+        if not -common_chi2(use_all, best) < prob_all.evidence_scale * chi2_isf(alpha, max(1, moved)):
+            update_gross(prob_all, use_all)
             notes.append(f"not one timing: the changes of the joints' compliance from {at:.6g} keep their own ends "
                          f"(one end: chi2 {best.chi2:.1f} against {use_all.chi2:.1f})")
             continue
