@@ -35,7 +35,7 @@ from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
                      prefer_sign, refine, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
+from .structure import StructureTest, chi2_logsf, signed_rank_z
 
 __all__ = [
     "CandidateScore",
