@@ -14,7 +14,7 @@ from .changes import is_change
 from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
                    own_weight, payload_at, payload_event)
-from .problem import Fit, Problem, refit_with
+from .problem import Fit, Problem, common_chi2, refit_with, update_gross
 from .refine import is_onset
 from .rule import retime
 
@@ -111,8 +111,11 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
     payload's change shows compliant
     (:func:`~twin.diagnosis.late.own_weight`). A change of the air after the rows that fit is not kept where a kept
     change that ends explains every row as well, nor, where no temperature is recorded, where a payload's event at
-    its time explains every row better (:func:`_payload_instead`, once the glitches were judged beside it)."""
+    its time explains every row better (:func:`_payload_instead`, once the glitches were judged beside it). A result
+    that fits every row worse than ``src`` by more than ``chi2`` at ``alpha`` of its terms is a failed refit: ``src``
+    is returned, nothing found."""
     found, notes = [], []
+    given = src
     if late and pool:
         got, note = late_change(setup, prob_x, src, places, alpha=alpha, z_min=z_min)
         notes.append(note)
@@ -154,7 +157,8 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
                 recorded = any(isinstance(f, Lag) for f in got.atom.features)
                 entry = max(got.dchi2, src.chi2 - with_got.chi2) if recorded and not is_change(got.atom) else got.dchi2
                 src = with_got
-                found.append((got.atom, "late", got, entry))
+                # the term as the fit holds it (its constants retimed there): what later judges it finds it by
+                found.append((with_got.chosen[-1][0], "late", got, entry))
     src0 = src
     beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
     if beyond:
@@ -213,5 +217,13 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         src, loads, notes_load = own_weight(prob_x, src, pool, alpha=alpha)
         notes += notes_load
         found += [(a, "load", None, dchi2) for a, dchi2 in loads]
+    if -common_chi2(given, src) > prob_x.evidence_scale * chi2_isf(alpha, len(src.chosen)):
+        # what step 9 adds or reshapes nests the model it was given (a term more, a change's end, one timing within
+        # its chi2): a model fitting every row worse than that by more than chi2 at alpha of its terms is a refit
+        # that failed, never the model a user takes
+        update_gross(prob_x, given)
+        return AfterBlocks(given, (), tuple(notes) + (
+            f"not kept after the blocks: {'; '.join(a.label for a, *_ in found) or 'a reshaped change'} (every row's "
+            f"chi2 {src.chi2:.1f} against {given.chi2:.1f} for the model without them: a refit that failed)",))
     changed = [a.label for a, _ in src.chosen[:len(src0.chosen)]] != [a.label for a, _ in src0.chosen]
     return AfterBlocks(src, tuple(found), tuple(notes), changed)

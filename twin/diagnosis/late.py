@@ -41,7 +41,7 @@ from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, chang
                       is_step, is_window, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
-from .problem import Fit, Problem, held_out_rms, psi_init, refit_with
+from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, update_gross
 from .confirm import confirm
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
 from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
@@ -681,8 +681,11 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
 
 def _while_significant(prob: Problem, fit: Fit, cands: list, *, alpha: float) -> tuple[Fit, list]:
     """The strongest of ``cands`` joins ``fit`` while significant on ``prob``'s calibration rows after the factor of the
-    candidates left (``chi2`` of its columns at ``alpha`` over their number); each one added leaves the candidates.
-    Returns the fit and, per term added, ``(scored, p adjusted, candidates counted)``."""
+    candidates left (``chi2`` of its columns at ``alpha`` over their number); each one tried leaves the candidates.
+    A term more nests the model: a refit that does not lower the rows' chi2 (counted on the rows both fits keep,
+    :func:`~twin.diagnosis.problem.common_chi2`) failed (columns that cancel each other on a few rows, a refit that
+    diverged), and the term does not join. Returns the fit and, per term added, ``(scored, p adjusted, candidates
+    counted)``."""
     added = []
     while cands:
         got = score_atoms(prob, fit, cands, {a.pool: 1 for a in cands}, exact_top=len(cands))
@@ -691,8 +694,12 @@ def _while_significant(prob: Problem, fit: Fit, cands: list, *, alpha: float) ->
             break
         k = int(np.argmin(logp))
         g = got[k]
-        fit = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
-        added.append((g, float(np.exp(logp[k])), len(cands)))
+        trial = refit_with(prob, fit, list(fit.chosen) + [(g.atom, g.basis)])
+        if common_chi2(fit, trial) > 0:
+            fit = trial
+            added.append((g, float(np.exp(logp[k])), len(cands)))
+        else:
+            update_gross(prob, fit)
         cands = [a for a in cands if a.key != g.atom.key]
     return fit, added
 
@@ -734,12 +741,19 @@ def payload_event(prob_all: Problem, use_all: Fit, places: list[ChangePlace], *,
         ends = list(dict.fromkeys(a.features[0].until for k, (a, _) in enumerate(use_all.chosen) if k in idx))
         if len(ends) < 2:
             continue
-        best = None
+        best, moved = None, 0
         for e in ends:
             chosen = [(_with_end(c, e) if k in idx else c, B) for k, (c, B) in enumerate(use_all.chosen)]
             trial = refit_with(prob_all, use_all, chosen)
             if best is None or trial.chi2 < best.chi2:
-                best = trial
+                best, moved = trial, sum(use_all.chosen[k][0].features[0].until != e for k in idx)
+        # one timing is a constraint (an end per change moved): kept where every row's chi2 rises by less than chi2 at
+        # alpha of the ends it moves; the rows reject it beyond (the changes are not one event)
+        if not -common_chi2(use_all, best) < prob_all.evidence_scale * chi2_isf(alpha, max(1, moved)):
+            update_gross(prob_all, use_all)
+            notes.append(f"not one timing: the changes of the joints' compliance from {at:.6g} keep their own ends "
+                         f"(one end: chi2 {best.chi2:.1f} against {use_all.chi2:.1f})")
+            continue
         use_all = best
         notes.append(f"one payload, one timing: the changes of the joints' compliance from {at:.6g} take one end "
                      f"({[a.label for k, (a, _) in enumerate(use_all.chosen) if k in idx][0]}; {len(ends)} ends "

@@ -21,7 +21,7 @@ from .structure import StructureTest, fit_block_test, gross_rows, structure_test
 from .values import feature_channel, feature_values
 
 __all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "Problem", "ColumnStore", "covariance", "update_gross", "refit_with",
-           "psi_init", "held_out_rms"]
+           "psi_init", "held_out_rms", "common_chi2"]
 
 
 @dataclass
@@ -272,6 +272,15 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def common_chi2(a: Fit, b: Fit) -> float:
+    """The calibration chi2 of fit ``a`` less that of fit ``b`` (both on one problem's rows), every row counted in both
+    but those both set aside as gross (two fits' own chi2 weigh the rows each sets aside)."""
+    ra, rb = a.model_cal.residuals(a.z, jacobian=False), b.model_cal.residuals(b.z, jacobian=False)
+    n = a.model_cal.obs.n
+    w = (~(gross_rows(ra.r, ra.row, n) & gross_rows(rb.r, rb.row, n))).astype(float)
+    return float(np.sum(w[ra.row] * ra.r ** 2) - np.sum(w[rb.row] * rb.r ** 2))
 
 
 def held_out_rms(prob: Problem, fit: Fit) -> float:

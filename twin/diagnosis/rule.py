@@ -30,12 +30,12 @@ from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
-from .problem import Fit, Problem, covariance, held_out_rms, psi_init, refit_with, update_gross
+from .problem import Fit, Problem, common_chi2, covariance, held_out_rms, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
                      prefer_sign, refine, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf, gross_rows, signed_rank_z
+from .structure import StructureTest, chi2_logsf, signed_rank_z
 
 __all__ = [
     "CandidateScore",
@@ -912,15 +912,6 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
     return fit, notes, alts
 
 
-def _common_chi2(a: Fit, b: Fit) -> float:
-    """The calibration chi2 of fit ``a`` less that of fit ``b`` (both on one problem's rows), every row counted in both
-    but those both set aside as gross."""
-    ra, rb = a.model_cal.residuals(a.z, jacobian=False), b.model_cal.residuals(b.z, jacobian=False)
-    n = a.model_cal.obs.n
-    w = (~(gross_rows(ra.r, ra.row, n) & gross_rows(rb.r, rb.row, n))).astype(float)
-    return float(np.sum(w[ra.row] * ra.r ** 2) - np.sum(w[rb.row] * rb.r ** 2))
-
-
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
     model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
@@ -932,7 +923,7 @@ def retime(prob: Problem, fit: Fit) -> Fit:
     shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each term
     against the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of
     every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column added; a
-    load law's counted on every row but those both fits set aside as gross: :func:`_common_chi2`), stay within the onset
+    load law's counted on every row but those both fits set aside as gross: :func:`common_chi2`), stay within the onset
     grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that
     extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use,
     chosen on the first block of a campaign and refitted on every row: an air step after that block fixes the lag the
@@ -975,7 +966,7 @@ def retime(prob: Problem, fit: Fit) -> Fit:
             moved += 1 + max(new.basis.shape[1] - fit.chosen[k][1].shape[1], 0)  # other motors, more columns
         # a load law's rows read alike in both: a row on the wrong flank is off by twice the backlash, which the
         # fit that put it there sets aside as gross
-        gain = (_common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
+        gain = (common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
         if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit
