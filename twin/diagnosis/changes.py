@@ -613,13 +613,14 @@ def window_logp(prob, fit, s, sizes: dict) -> float:
     the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the
     long-run variance of an AR(1) where the noise wanders over a few rows): a window fitted to a stretch of a wander
     gains the wander's excursion there, which the rows outside show as often. A frame's window is read on each of its
-    columns (a wander moves the cell along any of them); a compliance's window on the model with it (the rows inside
-    pull a fit along the load's shapes, and the rows outside carry that pull)."""
-    zero = isinstance(s.atom.features[0], Window)
+    columns (a wander moves the cell along any of them). The scatter is read on the model with the window: without
+    it the rows inside pull the fit (the joint's offset, the load's shapes) and the rows outside carry that pull, a
+    structure of their own (read so, a 40-row window of joint 2's zero was not kept on one seed of two of
+    ``tests/test_diagnosis_changes.py``)."""
     frame = s.atom.place == "param" and s.atom.target in ("tool", "base")
     chosen = list(fit.chosen) + [(s.atom, s.basis)]
     # fitted under the problem's gross rows as they are (the scored atom's columns are of those rows)
-    with_it = fit if zero else prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
+    with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
     s2 = place_scatter(prob, with_it, s.atom, every_column=frame)
     return chi2_logsf(s.dchi2 / prob.evidence_scale / s2, s.basis.shape[1]) + np.log(sizes[s.atom.pool])
 
