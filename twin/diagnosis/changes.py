@@ -41,12 +41,13 @@ from .candidates import RowContext, gravity_torque_regressor
 from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
 from .loads import payload_shapes
+from .problem import psi_init
 from .scoring import row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at", "change_at"]
+           "same_event", "started_at", "change_at", "place_scatter", "window_logp"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -574,6 +575,54 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companio
         return True
     rho = float(np.sum(a * b)) / den
     return rho * np.sqrt(pair.sum()) <= WHITE_Z
+
+
+def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> float:
+    """The variance, in the floor's units, of the mean residual along the ``window``'s place over a stretch of rows,
+    from the rows outside it: each row's evidence for an offset of the place, ``z_i = g_i . r_i / sqrt(|g_i|^2 -
+    |Q^T g_i|^2)``, their mean square ``s^2`` (at least 1) and their correlation from one row to the next in time
+    ``rho`` (clipped to [0, 0.9]): ``s^2 (1 + rho) / (1 - rho)``, the variance of a long stretch's mean of an AR(1)
+    process. A wander of the cell moves whole rows together, shows along a joint's direction more than the floor
+    says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor).
+    ``g_i`` is the place's first column (a joint's offset, the direction a compliance's change turns it); with
+    ``every_column``, each of the place's columns (a frame's six directions, per station), the largest figure."""
+    sb = scoring_basis(prob, fit)
+    W, QB, Br = row_aggregates(prob, fit, sb, window)
+    inside = prob.features(window)[prob.rows_cal, 0] != 0
+    _, tv = row_times(prob.ctx)
+    order = np.argsort(tv[prob.rows_cal], kind="stable")
+    out = 1.0
+    for j in range(W.shape[1] if every_column else 1):
+        den = W[:, j, j] - np.einsum("np,np->n", QB[:, :, j], QB[:, :, j])
+        ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, j, j])), 1e-300)) & (prob.w_cal > 0)
+        if np.sum(ok) < 10:
+            continue
+        z = np.where(ok, Br[:, j] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
+        s2 = max(1.0, float(np.mean(z[ok] ** 2)))
+        zo, oko = z[order], ok[order]
+        pair = oko[1:] & oko[:-1]
+        a, b = zo[:-1][pair], zo[1:][pair]
+        den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+        rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
+        out = max(out, s2 * (1.0 + rho) / (1.0 - rho))
+    return out
+
+
+def window_logp(prob, fit, s, sizes: dict) -> float:
+    """The pool-adjusted log p-value of a scored window ``s`` (a change and back) with its evidence measured against
+    the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the
+    long-run variance of an AR(1) where the noise wanders over a few rows): a window fitted to a stretch of a wander
+    gains the wander's excursion there, which the rows outside show as often. A frame's window is read on each of its
+    columns (a wander moves the cell along any of them). The scatter is read on the model with the window: without
+    it the rows inside pull the fit (the joint's offset, the load's shapes) and the rows outside carry that pull, a
+    structure of their own (read so, a 40-row window of joint 2's zero was not kept on one seed of two of
+    ``tests/test_diagnosis_changes.py``)."""
+    frame = s.atom.place == "param" and s.atom.target in ("tool", "base")
+    chosen = list(fit.chosen) + [(s.atom, s.basis)]
+    # fitted under the problem's gross rows as they are (the scored atom's columns are of those rows)
+    with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
+    s2 = place_scatter(prob, with_it, s.atom, every_column=frame)
+    return chi2_logsf(s.dchi2 / prob.evidence_scale / s2, s.basis.shape[1]) + np.log(sizes[s.atom.pool])
 
 
 def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:

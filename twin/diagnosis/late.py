@@ -38,13 +38,13 @@ from ..estimator.core import prepare
 from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_at, change_pool_sizes, is_change,
-                      is_step, is_window, row_times, same_event, scan_changes, started_at)
+                      is_step, is_window, place_scatter, row_times, same_event, scan_changes, started_at)
 from .atoms import is_load_change
 from .features import Gated, Heat, Lag, Window
 from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, update_gross
 from .confirm import confirm
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
-from .scoring import Scored, row_aggregates, score_atoms, scoring_basis
+from .scoring import Scored, score_atoms
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
@@ -150,7 +150,7 @@ def late_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace
 class EndChange:
     """A change whose new state the campaign's last rows hold (:func:`end_change`): its atom and reduced basis
     ``(K, r)``, the rows after its start, its evidence ``dchi2`` on every row, the scatter of the rows before it along
-    its place it was measured against (:func:`_place_scatter`, 1 at the floor) and its ``log10`` p-value after the
+    its place it was measured against (:func:`place_scatter`, 1 at the floor) and its ``log10`` p-value after the
     Bonferroni ``factor``."""
 
     atom: object
@@ -178,7 +178,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
     the scatter of the others, significant without any one of them with at least half its evidence, the residual it
     leaves white in time), gross rows among those last rows seen by it (a row 17x the noise off is gross without
     the change that explains it); then its evidence measured against the scatter the rows before it show along its
-    place (:func:`_place_scatter` over each of the place's columns, the model with the change: a wander of the cell
+    place (:func:`place_scatter` over each of the place's columns, the model with the change: a wander of the cell
     holds over a few rows and moves the last ones together), significant after the window pool's Bonferroni factor
     over every row and place (a window whose end is the campaign's). Strongest first; a step of a joint's zero read as
     a payload's change where the payload's event explains more (:func:`as_event`). At the place of a kept step, that
@@ -207,7 +207,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
             if not got:
                 continue
             with_it = refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)])
-            s2 = _place_scatter(setup, prob_all, with_it, a, every_column=True)
+            s2 = place_scatter(prob_all, with_it, a, every_column=True)
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) + np.log(factor)
             if logp >= np.log(alpha):
                 continue
@@ -571,7 +571,7 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
     :func:`twin.diagnosis.changes.scan_changes` (its rules: the rows in the window fitted by it to the scatter of the
     others, significant without any one of its rows, the residual it leaves white in time), significant after the
     window pool's Bonferroni factor over every row and ``every_place`` a change may take, its evidence measured
-    against the scatter the rows outside it show along its place (:func:`_place_scatter`), and better than the best
+    against the scatter the rows outside it show along its place (:func:`place_scatter`), and better than the best
     step of any place (a window over most of the rows is the complement of a step). A glitch that is over predicts nothing of the later rows by
     itself: no later block can confirm it, and none is asked to; it takes the rows it holds out of the fit of
     everything else (a zero off on 40 rows pulls the joint's offset of a fit on every row by a fraction of it, and
@@ -608,7 +608,7 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
                 continue
             # the scatter the rows outside show: a payload's window measured against the model with it (the rows
             # inside pull a fit on every row along the load's shapes, and the rows outside then carry that pull)
-            s2 = _place_scatter(setup, prob_all, use_all if zero else
+            s2 = place_scatter(prob_all, use_all if zero else
                                 refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)]), a)
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
@@ -625,37 +625,6 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
         notes.append(f"a change and back on every row: {pick.atom.label} (p = {np.exp(pick.logp_adj):.2g} after the "
                      f"window pool's factor {sizes['change_window']})")
     return use_all, found, notes
-
-
-def _place_scatter(setup, prob: Problem, fit: Fit, window, *, every_column: bool = False) -> float:
-    """The variance, in the floor's units, of the mean residual along the ``window``'s place over a stretch of rows,
-    from the rows outside it: each row's evidence for an offset of the place, ``z_i = g_i . r_i / sqrt(|g_i|^2 -
-    |Q^T g_i|^2)``, their mean square ``s^2`` (at least 1) and their correlation from one row to the next in time
-    ``rho`` (clipped to [0, 0.9]): ``s^2 (1 + rho) / (1 - rho)``, the variance of a long stretch's mean of an AR(1)
-    process. A wander of the cell moves whole rows together, shows along a joint's direction more than the floor
-    says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor).
-    ``g_i`` is the place's first column (a joint's offset, the direction a compliance's change turns it); with
-    ``every_column``, each of the place's columns (a frame's six directions, per station), the largest figure."""
-    sb = scoring_basis(prob, fit)
-    W, QB, Br = row_aggregates(prob, fit, sb, window)
-    inside = prob.features(window)[prob.rows_cal, 0] != 0
-    _, tv = row_times(setup.ctx)
-    order = np.argsort(tv[prob.rows_cal], kind="stable")
-    out = 1.0
-    for j in range(W.shape[1] if every_column else 1):
-        den = W[:, j, j] - np.einsum("np,np->n", QB[:, :, j], QB[:, :, j])
-        ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, j, j])), 1e-300)) & (prob.w_cal > 0)
-        if np.sum(ok) < 10:
-            continue
-        z = np.where(ok, Br[:, j] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
-        s2 = max(1.0, float(np.mean(z[ok] ** 2)))
-        zo, oko = z[order], ok[order]
-        pair = oko[1:] & oko[:-1]
-        a, b = zo[:-1][pair], zo[1:][pair]
-        den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
-        rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
-        out = max(out, s2 * (1.0 + rho) / (1.0 - rho))
-    return out
 
 
 def gross_runs(setup, prob: Problem) -> np.ndarray:

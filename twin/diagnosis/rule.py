@@ -22,7 +22,7 @@ import numpy as np
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom, is_load_change
-from .changes import change_places, is_change, is_step, row_times, same_event, scan_changes
+from .changes import change_places, is_change, is_step, is_window, row_times, same_event, scan_changes, window_logp
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
@@ -150,6 +150,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             queue += payload_rivals(order, queue, np.log(alpha_select))
         alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
+        if is_window(s.atom) and logp_adj < np.log(alpha_select):
+            # a change and back measured against the scatter the rows outside it show along its place (a wander)
+            logp_adj = min(0.0, max(logp_adj, window_logp(prob, fit, s, sizes)))
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
