@@ -214,6 +214,22 @@ def test_a_lagged_temperature_reads_the_channel_linear_between_rows():
     np.testing.assert_allclose(feature_values((f,), ctx, irb1200())[:, 0], np.interp(rows, t, y) - 20.0, atol=1e-4)
 
 
+def test_a_lagged_temperature_with_a_gap_fraction_steps_the_channel_there():
+    """A Lag feature with ``gap`` 0.7 equals the exact lag of a channel that holds each row's value until 0.7 of the
+    interval to the next row and steps to it there: a -7 K step of the air inside a 900 s pause, 630 s after the row
+    before it, read at the rows after the pause as the step's own response (not the linear interpolation's)."""
+    rows = np.array([0.0, 20.0, 40.0, 940.0, 960.0, 1000.0])
+    temp = np.array([22.0, 22.0, 22.0, 15.0, 15.0, 15.0])
+    ctx = RowContext(q=np.zeros((len(rows), 6)), t_s=rows, temp_c=temp)
+    tau = 300.0
+    got = feature_values((Lag(ch="temp_c", tau=tau, c=20.0, h=1.0, gap=0.7),), ctx, irb1200())[:, 0]
+    step_at = 40.0 + 0.7 * 900.0
+    want = 22.0 - 7.0 * np.where(rows > step_at, -np.expm1(-np.clip(rows - step_at, 0.0, None) / tau), 0.0) - 20.0
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    linear = feature_values((Lag(ch="temp_c", tau=tau, c=20.0, h=1.0),), ctx, irb1200())[:, 0]
+    assert abs(linear[3] - want[3]) > 0.5  # read as linear over the pause, 0.63 K off at the first row after it
+
+
 def test_a_backlash_taken_up_at_a_rate_follows_one_minus_the_exponential_of_the_last_move():
     """The ``exp`` law of a last move ``m`` reads ``sign(m) (1 - exp(-|m| / w))``: half a width's move takes up 39 %, a
     move back of three widths 95 % on the other side, and a joint that has not moved yet reads 0."""

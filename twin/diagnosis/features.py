@@ -407,13 +407,17 @@ class Exp(Feature):
 @dataclass(**_FROZEN)
 class Lag(Feature):
     """``(y - c) / h`` of the channel ``ch`` (``temp_c``) seen through a first-order lag of time constant ``tau``
-    [s] (``h`` 1 when absent); ``record``: the campaign's record it continues."""
+    [s] (``h`` 1 when absent); ``record``: the campaign's record it continues. ``gap``: where in each interval between
+    recorded rows the channel changes from one row's value to the next, as a fraction of the interval (a step there;
+    absent: linear between the rows): a change of the air in a pause or a station change is not timed by a record
+    taken at the rows."""
 
     kind: ClassVar[str] = "lag"
     ch: str
     tau: float
     c: float
     h: float | None = None
+    gap: float | None = None
     record: LagRecord | None = None
     record_pose_id: tuple[int, ...] | None = None
     t_span: tuple[float, float] | None = None

@@ -21,7 +21,8 @@ from .scoring import Scored, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
-__all__ = ["bend_unseen", "prefer_play", "prefer_sign", "refine", "refine_onset", "refine_time", "retimeable",
+__all__ = ["bend_unseen", "prefer_play", "prefer_sign", "recorded_lag", "refine", "refine_gap", "refine_onset",
+           "refine_time", "retimeable",
            "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen",
            "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
@@ -29,6 +30,8 @@ ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 %
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
 ONSET_RAMPS = (0.0, 0.25, 0.5, 1.0)  # the air's ramp durations tried (0: a step), as fractions of that span
 ONSET_TRIALS = ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)  # the onset grid's size (its Bonferroni factor)
+# where in an interval between recorded rows the recorded air's change is tried (fractions of the interval; then refined)
+GAP_FRACTIONS = tuple(np.linspace(0.0, 1.0, 9))
 ONSET_SIDE = 0.05  # rows after an onset, at least this share of them and 3 (a change's: twin.diagnosis.changes.MIN_SIDE)
 
 
@@ -526,6 +529,64 @@ def refine_time(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) 
         trial = [_with_constant(a, "tau", fc * span) for fc in ONSET_TAUS] if span > 0 else []
         s = max([s] + score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: x.dchi2)
     return refine(prob, fit, s, pool_sizes)
+
+
+def recorded_lag(atom: Atom) -> bool:
+    """Whether ``atom`` is thermal growth against the recorded temperature through a lag (one
+    :class:`~twin.diagnosis.features.Lag` feature)."""
+    return atom.family == "thermal" and len(atom.features) == 1 and isinstance(atom.features[0], Lag)
+
+
+def _with_gap(atom: Atom, gap: float | None) -> Atom:
+    """The recorded lag ``atom`` (:func:`recorded_lag`) with the record's changes at the fraction ``gap`` of each
+    interval between rows (None: linear between rows); channel and label to match."""
+    head = atom.channel.split(", changing at ")[0]
+    ch = head if gap is None else f"{head}, changing at {gap:.3g} of each interval between rows"
+    return replace_atom(atom, features=(replace_atom(atom.features[0], gap=None if gap is None else float(gap)),),
+                        channel=ch, label=atom.label.replace(atom.channel, ch))
+
+
+def refine_gap(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
+    """A recorded lag ``s`` (:func:`recorded_lag`; others come back as they are) with the time of the record's changes
+    within the intervals between its rows read on ``prob``'s calibration rows: a temperature recorded at the rows does
+    not say when in a pause or a station change between two rows the air changed (a door opened in a pause), and read
+    as linear between them it starts the change up to half the pause off, which the lag absorbs (a lag read several
+    times too long or short, extrapolated to every row after the campaign). The fraction of the interval where the
+    channel steps (:func:`twin.diagnosis.values.feature_values`: ``gap``) over ``GAP_FRACTIONS``, the three best each at
+    its own best lag (:func:`refine`), then both at once (a simplex search on the fraction and the lag's log): the
+    reading that explains most, ``s`` itself (linear between rows) included; the caller judges the constant it adds."""
+    from scipy.optimize import minimize
+
+    if not recorded_lag(s.atom):
+        return s
+    trial = [_with_gap(s.atom, g) for g in GAP_FRACTIONS]
+    scored = sorted(score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial)), key=lambda x: -x.dchi2)
+    best = s
+    for c in scored[:3]:
+        got = _refine_constant(prob, fit, c, pool_sizes)
+        if got.dchi2 > best.dchi2:
+            best = got
+    if best.atom.features[0].gap is None:
+        return best
+    # the fraction and the lag trade against each other (a change later in a pause, a shorter lag): both at once, a
+    # simplex search on (fraction, log lag) from the best reading
+    f0 = best.atom.features[0]
+    x0 = np.array([f0.gap, np.log(f0.tau)])
+    out = [best]
+
+    def cost(x: np.ndarray) -> float:
+        a = _with_constant(_with_gap(best.atom, float(np.clip(x[0], 0.0, 1.0))), "tau", float(np.exp(x[1])))
+        got = score_atoms(prob, fit, [a], pool_sizes, exact_top=1)
+        if not got:
+            return 0.0
+        if got[0].dchi2 > out[0].dchi2:
+            out[0] = got[0]
+        return -got[0].dchi2
+
+    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 60,
+                                                       "initial_simplex": x0 + np.array([[0, 0], [0.06, 0], [0, 0.1]])})
+    best = out[0]
+    return best
 
 
 def prefer_heat(prob: Problem, fit: Fit, s: Scored, alternatives: list[Atom], pool_sizes: dict[str, int]) -> Scored:

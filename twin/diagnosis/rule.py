@@ -33,7 +33,7 @@ from .ordering import alternatives, distinct_terms, order_candidates, payload_ri
 from .problem import Fit, Problem, common_chi2, covariance, held_out_rms, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
-                     prefer_sign, refine, refine_time, retimeable, widen)
+                     prefer_sign, recorded_lag, refine, refine_gap, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
 from .structure import StructureTest, chi2_logsf, signed_rank_z
 
@@ -52,6 +52,7 @@ __all__ = [
 
 
 
+LAG_SIGMA = 1.0  # chi2 rise of one standard error of one constant (the recorded lag's, rule.retime)
 JOINT_MAX = 0.5 * RAD_PER_DEG  # [rad] largest joint error a named mechanism (backlash, cyclic, compliance, ...) makes
 # on the 6R industrial arms (cycloidal and harmonic drives)
 # [rad] the same for any other chain (a URDF's: service and mobile manipulators whose wrist and belt stages show up
@@ -955,6 +956,12 @@ def retime(prob: Problem, fit: Fit) -> Fit:
             new = refine(prob, without, got[0], sizes)
         else:
             new = refine_time(prob, without, got[0], sizes)
+            if recorded_lag(atom) and atom.features[0].gap is None:
+                # the record's changes placed within the intervals between rows where that explains more than linear
+                # between them by chi2_1 at 1 % (a constant more)
+                gapped = refine_gap(prob, without, new, sizes)
+                if gapped.dchi2 - new.dchi2 > prob.evidence_scale * chi2_isf(0.01, 1):
+                    new = gapped
         if new.atom is atom:
             continue
         taus = [f.tau for f in new.atom.features if getattr(f, "tau", None) is not None]
@@ -970,6 +977,10 @@ def retime(prob: Problem, fit: Fit) -> Fit:
         # a load law's rows read alike in both: a row on the wrong flank is off by twice the backlash, which the
         # fit that put it there sets aside as gross
         gain = (common_chi2(fit, trial) if load else fit.chi2 - trial.chi2) / prob.evidence_scale
-        if gain > chi2_isf(0.01, moved) and implausible_size(prob, new.atom, new.basis @ psi) is None:
+        # the recorded air's lag, one constant of a measured cause, is estimated as its coefficients are: it moves to
+        # every row's maximum of the likelihood where its reading lies beyond one standard error of it (the rows pin
+        # it elsewhere); within it the rows hold both alike and the reading confirmed on the rows after it stays
+        need = LAG_SIGMA if recorded_lag(new.atom) else chi2_isf(0.01, moved)
+        if gain > need and implausible_size(prob, new.atom, new.basis @ psi) is None:
             fit = trial
     return fit

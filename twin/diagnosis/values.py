@@ -194,7 +194,7 @@ def _recorded_lag(f: Lag, ctx: RowContext) -> np.ndarray:
     order, new, at = _merge_record(rec.t_s, t_new)
     t_all = np.concatenate([np.asarray(rec.t_s, float), t_new[new]])[order]
     x_all = np.concatenate([np.asarray(rec.x, float), x_new[new]])[order]
-    return _lagged(x_all, t_all, f.tau)[at]
+    return _lagged(x_all, t_all, f.tau, f.gap)[at]
 
 
 def _recorded_heat(f: Heat, ctx: RowContext) -> np.ndarray:
@@ -268,21 +268,28 @@ def lag_response(u: np.ndarray, tau: float, ramp: float | None = None) -> np.nda
     return np.where(u <= T, during, after)
 
 
-def _lagged(x: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+def _lagged(x: np.ndarray, t: np.ndarray, tau: float, gap: float | None = None) -> np.ndarray:
     """``x`` ``(n,)`` through a first-order lag of time constant ``tau`` [s] over the row times ``t`` ``(n,)`` [s], the
     channel linear between rows (a temperature recorded at the rows changes continuously between them; exact for a
     piecewise-linear channel): with ``h = t_k - t_{k-1}``, ``a = exp(-h / tau)`` and the slope ``s = (x_k - x_{k-1}) /
-    h``, ``y_k = x_k - s tau + (y_{k-1} - x_{k-1} + s tau) a``; ``y_0 = x_0``."""
+    h``, ``y_k = x_k - s tau + (y_{k-1} - x_{k-1} + s tau) a``; ``y_0 = x_0``. ``gap`` in [0, 1]: the channel instead
+    holds ``x_{k-1}`` until ``t_{k-1} + gap h`` and steps to ``x_k`` there (a change between rows whose time the record
+    does not give): ``y_k = x_k + (x_{k-1} - x_k) e^{-(1 - gap) h / tau} + (y_{k-1} - x_{k-1}) a``."""
     x = np.asarray(x, float)
     y = np.empty_like(x)
     if len(x) == 0:
         return y
     h = np.clip(np.diff(t), 0.0, None)
     a = np.exp(-h / tau)
-    # s tau (1 - a) / h -> the step x_k - x_{k-1} times (1 - a) tau / h, which is 1 at h = 0 (a repeat: no time passes)
-    g = np.where(h > 0, -np.expm1(-h / tau) * tau / np.where(h > 0, h, 1.0), 1.0)
     dx = np.diff(x)
     y[0] = x[0]
+    if gap is not None:
+        b = np.exp(-(1.0 - float(gap)) * h / tau)
+        for k in range(1, len(x)):
+            y[k] = x[k] - dx[k - 1] * b[k - 1] + (y[k - 1] - x[k - 1]) * a[k - 1]
+        return y
+    # s tau (1 - a) / h -> the step x_k - x_{k-1} times (1 - a) tau / h, which is 1 at h = 0 (a repeat: no time passes)
+    g = np.where(h > 0, -np.expm1(-h / tau) * tau / np.where(h > 0, h, 1.0), 1.0)
     for k in range(1, len(x)):
         # y_k = a y_{k-1} + (1 - a) x_{k-1} + (1 - g) (x_k - x_{k-1})
         y[k] = a[k - 1] * y[k - 1] + (1.0 - a[k - 1]) * x[k - 1] + (1.0 - g[k - 1]) * dx[k - 1]
@@ -491,7 +498,8 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if f.record is not None and ctx.t_s is None:
                 lag = channel(ctx, f.ch)  # a new session whose time is not recorded: the channel settled
             else:
-                lag = _recorded_lag(f, ctx) if f.record is not None else _lagged(channel(ctx, f.ch), channel(ctx, "t_s"), f.tau)
+                lag = _recorded_lag(f, ctx) if f.record is not None else _lagged(channel(ctx, f.ch), channel(ctx, "t_s"), f.tau,
+                                                                                         f.gap)
             out[:, k] = (lag - f.c) / (1.0 if f.h is None else f.h)
         elif isinstance(f, Station):
             if ctx.station is None:
