@@ -22,15 +22,14 @@ from .structure import chi2_logsf
 from .values import feature_values
 
 __all__ = ["bend_unseen", "prefer_play", "prefer_sign", "recorded_lag", "refine", "refine_gap", "refine_onset",
-           "refine_time", "retimeable",
-           "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit", "prefer_heat", "widen",
-           "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+           "refine_time", "retimeable", "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit",
+           "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
 ONSET_RAMPS = (0.0, 0.25, 0.5, 1.0)  # the air's ramp durations tried (0: a step), as fractions of that span
 ONSET_TRIALS = ONSET_POINTS * len(ONSET_TAUS) * len(ONSET_RAMPS)  # the onset grid's size (its Bonferroni factor)
-# where in an interval between recorded rows the recorded air's change is tried (fractions of the interval; then refined)
+# where in an interval between recorded rows the recorded air's change is tried (fractions of it; then refined)
 GAP_FRACTIONS = tuple(np.linspace(0.0, 1.0, 9))
 ONSET_SIDE = 0.05  # rows after an onset, at least this share of them and 3 (a change's: twin.diagnosis.changes.MIN_SIDE)
 
@@ -585,8 +584,7 @@ def refine_gap(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -
 
     minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 60,
                                                        "initial_simplex": x0 + np.array([[0, 0], [0.06, 0], [0, 0.1]])})
-    best = out[0]
-    return best
+    return out[0]
 
 
 def prefer_heat(prob: Problem, fit: Fit, s: Scored, alternatives: list[Atom], pool_sizes: dict[str, int]) -> Scored:

@@ -498,8 +498,8 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             if f.record is not None and ctx.t_s is None:
                 lag = channel(ctx, f.ch)  # a new session whose time is not recorded: the channel settled
             else:
-                lag = _recorded_lag(f, ctx) if f.record is not None else _lagged(channel(ctx, f.ch), channel(ctx, "t_s"), f.tau,
-                                                                                         f.gap)
+                lag = _recorded_lag(f, ctx) if f.record is not None else \
+                    _lagged(channel(ctx, f.ch), channel(ctx, "t_s"), f.tau, f.gap)
             out[:, k] = (lag - f.c) / (1.0 if f.h is None else f.h)
         elif isinstance(f, Station):
             if ctx.station is None:
