@@ -554,8 +554,6 @@ def refine_gap(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -
     channel steps (:func:`twin.diagnosis.values.feature_values`: ``gap``) over ``GAP_FRACTIONS``, the three best each at
     its own best lag (:func:`refine`), then both at once (a simplex search on the fraction and the lag's log): the
     reading that explains most, ``s`` itself (linear between rows) included; the caller judges the constant it adds."""
-    from scipy.optimize import minimize
-
     if not recorded_lag(s.atom):
         return s
     trial = [_with_gap(s.atom, g) for g in GAP_FRACTIONS]
@@ -571,20 +569,32 @@ def refine_gap(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -
     # simplex search on (fraction, log lag) from the best reading
     f0 = best.atom.features[0]
     x0 = np.array([f0.gap, np.log(f0.tau)])
-    out = [best]
+    at = best.atom
+    return _simplex_best(prob, fit, lambda x: _with_constant(_with_gap(at, float(np.clip(x[0], 0.0, 1.0))), "tau",
+                                                             float(np.exp(x[1]))), x0, best, pool_sizes,
+                         maxfev=60, simplex=x0 + np.array([[0, 0], [0.06, 0], [0, 0.1]]))
+
+
+def _simplex_best(prob: Problem, fit: Fit, make, x0: np.ndarray, start: Scored, pool_sizes: dict[str, int], *,
+                  maxfev: int, simplex: np.ndarray) -> Scored:
+    """The atom ``make(x)`` of largest ``dchi2`` on ``prob``'s calibration rows that a Nelder-Mead search over its
+    constants ``x`` (from ``x0``, the initial ``simplex``, at most ``maxfev`` scorings) met, or ``start`` where none
+    explained more."""
+    from scipy.optimize import minimize
+
+    best = [start]
 
     def cost(x: np.ndarray) -> float:
-        a = _with_constant(_with_gap(best.atom, float(np.clip(x[0], 0.0, 1.0))), "tau", float(np.exp(x[1])))
-        got = score_atoms(prob, fit, [a], pool_sizes, exact_top=1)
+        got = score_atoms(prob, fit, [make(x)], pool_sizes, exact_top=1)
         if not got:
             return 0.0
-        if got[0].dchi2 > out[0].dchi2:
-            out[0] = got[0]
+        if got[0].dchi2 > best[0].dchi2:
+            best[0] = got[0]
         return -got[0].dchi2
 
-    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 60,
-                                                       "initial_simplex": x0 + np.array([[0, 0], [0.06, 0], [0, 0.1]])})
-    return out[0]
+    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": maxfev,
+                                                       "initial_simplex": simplex})
+    return best[0]
 
 
 def prefer_heat(prob: Problem, fit: Fit, s: Scored, alternatives: list[Atom], pool_sizes: dict[str, int]) -> Scored:
@@ -653,8 +663,6 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
     the rows last after the onset (they see a fifth of its response at least: a slower one is a drift they see
     start, which later rows would extrapolate). ``after`` [s]: the onset no earlier
     than this (a change after the rows that fit: ``s`` itself is then no candidate)."""
-    from scipy.optimize import minimize
-
     t = np.sort(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])
     span = float(t[-1] - t[0])
     side = max(3, int(np.ceil(ONSET_SIDE * len(t))))
@@ -676,22 +684,12 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
                           np.linspace(0.0, 1.0, ONSET_POINTS))
     trial = [make(m - 0.5 * fr * span, fc * span, fr * span) for m in middles for fc in ONSET_TAUS for fr in ONSET_RAMPS]
     scored = score_atoms(prob, fit, trial, pool_sizes, exact_top=len(trial))
-    best = [max(([s] if after is None else []) + scored, key=lambda x: x.dchi2, default=s)]
-    f0 = best[0].atom.features[0]
+    first = max(([s] if after is None else []) + scored, key=lambda x: x.dchi2, default=s)
+    f0 = first.atom.features[0]
     x0 = np.array([(f0.t0 - t[0]) / span, np.log(f0.tau / span), np.log(max(f0.ramp or 0.0, 1e-3 * span) / span)])
-
-    def cost(x: np.ndarray) -> float:
-        got = score_atoms(prob, fit, [make(t[0] + x[0] * span, float(np.exp(x[1]) * span), float(np.exp(x[2]) * span))],
-                          pool_sizes, exact_top=1)
-        if not got:
-            return 0.0
-        if got[0].dchi2 > best[0].dchi2:
-            best[0] = got[0]
-        return -got[0].dchi2
-
-    minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxfev": 150,
-                                                       "initial_simplex": x0 + np.vstack([np.zeros(3), 0.05 * np.eye(3)])})
-    got = best[0]
+    got = _simplex_best(prob, fit, lambda x: make(t[0] + x[0] * span, float(np.exp(x[1]) * span),
+                                                  float(np.exp(x[2]) * span)),
+                        x0, first, pool_sizes, maxfev=150, simplex=x0 + np.vstack([np.zeros(3), 0.05 * np.eye(3)]))
     if got is s:
         return s
     # the constants were chosen among ONSET_TRIALS on these rows (as a change's row among the rows): its evidence pays
