@@ -918,22 +918,25 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
 
 def retime(prob: Problem, fit: Fit) -> Fit:
     """``fit`` with the constants its terms were given on the rows that chose them refined again on ``prob``'s rows, the
-    model refitted after each: they are values of a term, like its coefficients. The constants: the time constants of
-    the thermal terms (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
+    model refitted after each: they are values of a term, like its coefficients. The constants: the time constants
+    of the thermal terms (a lag of the recorded temperature; without a record the air's onset, ramp and lag:
     :func:`twin.diagnosis.refine.follows_the_air`, :func:`twin.diagnosis.refine.refine_time`; the motors' heat, its
     time constant and the motors whose travel heats the links: :func:`twin.diagnosis.refine.prefer_heat`) and the
-    direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`) and
-    the law and width of a backlash growing with the last move that the rows that chose it read in proportion, no bend
-    shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each term
-    against the others refitted without it. A term keeps the constants it has unless the new ones lower the chi2 of
-    every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per column added; a
-    load law's counted on every row but those both fits set aside as gross: :func:`common_chi2`), stay within the onset
-    grid's range (a time constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that
-    extrapolates as a polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use,
-    chosen on the first block of a campaign and refitted on every row: an air step after that block fixes the lag the
-    block could not see; the heat's time constant and motors are read on the whole campaign's moves; the flank a load
-    pushes a gear to is read on every row; a backlash growing with the last move that the first block read in proportion
-    is read on every row (the held-out rows' longer moves may show the bend)."""
+    direction of a load-signed backlash's load in its torque shapes (:func:`twin.diagnosis.loads.refine_load_sign`)
+    and the law and width of a backlash growing with the last move that the rows that chose it read in proportion,
+    no bend shown (:func:`twin.diagnosis.refine.bend_unseen`, refined by :func:`twin.diagnosis.refine.refine`), each
+    term against the others refitted without it. A term keeps the constants it has unless the new ones lower the
+    chi2 of every row significantly (beyond ``chi2`` at 1 % with a degree of freedom per constant moved and per
+    column added; a load law's counted on every row but those both fits set aside as gross:
+    :func:`twin.diagnosis.problem.common_chi2`; a lag of the recorded temperature beyond ``LAG_SIGMA``, one standard
+    error of one constant, its record's changes placed within the intervals between rows where that explains more by
+    ``chi2_1`` at 1 %: :func:`twin.diagnosis.refine.refine_gap`), stay within the onset grid's range (a time
+    constant at most ``max(ONSET_TAUS)`` times the rows' span: a longer one is a drift that extrapolates as a
+    polynomial) and leave the term of a plausible size (:func:`implausible_size`). The models to use, chosen on the
+    first block of a campaign and refitted on every row: an air step after that block fixes the lag the block could
+    not see; the heat's time constant and motors are read on the whole campaign's moves; the flank a load pushes a
+    gear to is read on every row; a backlash growing with the last move that the first block read in proportion is
+    read on every row (the held-out rows' longer moves may show the bend)."""
     span = float(np.ptp(np.asarray(prob.ctx.t_s, float)[prob.rows_cal])) if prob.ctx.t_s is not None else 0.0
     for k in range(len(fit.chosen)):
         atom, _ = fit.chosen[k]
