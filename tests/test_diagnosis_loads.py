@@ -9,9 +9,9 @@ import numpy as np
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext, gravity_torques
 from twin.diagnosis.features import BaseMoment, GravMix, LoadSign, Moment, Torque
-from twin.diagnosis.loads import (COM_PRIOR_M, STIFFENING_WIDTH, _max_margin, carried_shapes, fitted_load, law_atom,
-                                  link_prior, link_tilt_atom, load_atoms, own_link_atom, stated_load_mix,
-                                  stiffening_atoms, tilt_angles, torque_shapes)
+from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, carried_shapes, fitted_load, law_atom, link_tilt_atom,
+                                  load_atoms, own_link_atom, stated_load_mix, stiffening_atoms, tilt_angles,
+                                  torque_shapes)
 from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
 from twin.urdf import read_urdf_chain
@@ -167,26 +167,3 @@ def test_a_carried_load_beside_the_stated_masses_is_a_load_of_its_own_pool():
     mine = [a for a in load_atoms(model, ctx) if a.family == "backlash" and a.target == f"theta{j}"]
     assert {a.pool for a in mine} == {"catalogue", "load"}
     assert [a.features[0].u for a in mine if a.pool == "catalogue"] == [None]
-
-
-def test_the_link_prior_follows_each_links_length_and_the_last_carries_the_tool():
-    """The links' prior scales a link's mass and centre-of-mass spread with its length (the IRB 1200's upper arm, 0.35 m,
-    against its wrist's 0.08 m), and leaves the last link, which carries the tool, the generic prior at full mass."""
-    model = irb1200()
-    mass, com_m = link_prior(model, _rows(model, 5))
-    assert com_m[1] > 3 * com_m[4] and mass[1] > 3 * mass[4]
-    assert abs(com_m[1] - 0.175) < 0.01  # half the upper arm's 0.35 m
-    assert mass[-1] == 1.0 and com_m[-1] == COM_PRIOR_M and np.max(mass) == 1.0
-
-
-def test_torque_shapes_under_the_link_prior_span_the_same_loads():
-    """Joint 4's full set of torque shapes spans the same loads under the links' prior as under the generic one (the
-    prior orders and scales them only): every generic shape is a combination of the link prior's to 1e-9."""
-    model = irb1200()
-    q = _rows(model, 60)
-    ctx = RowContext(q=q)
-    A = feature_values(torque_shapes(model, q, 4), ctx, model)
-    B = feature_values(torque_shapes(model, q, 4, scales=link_prior(model, q)), ctx, model)
-    assert A.shape == B.shape
-    res = A - B @ np.linalg.lstsq(B, A, rcond=None)[0]
-    assert np.max(np.abs(res)) < 1e-9 * np.max(np.abs(A))

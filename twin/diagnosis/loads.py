@@ -36,10 +36,9 @@ from dataclasses import replace as replace_atom
 import numpy as np
 
 from ..estimator import distributions as dists
-from ..kinematics import RobotModel, link_frames
+from ..kinematics import RobotModel
 from .atoms import Atom, joint_words, tilt_axis, tilt_coefficient
-from .candidates import (RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses,
-                         joint_frames)
+from .candidates import RowContext, base_moment_regressor, gravity_torque_regressor, gravity_torques, has_masses
 from .features import BaseMoment, GravMix, LoadSign, Torque
 from .problem import held_out_rms, psi_init
 from .scoring import raw_columns, score_atoms, scoring_basis
@@ -49,63 +48,33 @@ __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque
            "carried_shapes", "load_atoms", "load_sign_feature", "refine_load_sign", "reads_its_load",
            "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID",
            "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom",
-           "link_tilt_atom", "stated_load_mix", "link_prior", "LINK_FLOOR_M"]
+           "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
 LOAD_SHAPES = 3  # a joint's leading torque shapes whose combinations' signs the load-signed backlash tries
 
 
-LINK_FLOOR_M = 0.01  # [m] the shortest length a link's prior takes (a link whose joint axes meet still has a body)
-
-
 def _prior(N: int) -> np.ndarray:
     return np.tile(np.array([1.0, COM_PRIOR_M, COM_PRIOR_M, COM_PRIOR_M]), N)
 
 
-def link_prior(model: RobotModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A prior of the links' mass moments that follows each link's size: ``(mass (N,), com_m (N,))``, the scale of
-    link ``k``'s mass (relative, the largest 1) and the spread of its centre of mass [m]. A link joins its joint's
-    axis to the next one's and its body lies between them: its length ``L_k`` is the larger distance from its frame's
-    origin to the neighbouring frames' origins (the frames :func:`~twin.diagnosis.candidates.gravity_torque_regressor`
-    reads ``h_k`` in; the median over the rows ``q``, a prismatic joint moves them), at least ``LINK_FLOOR_M``; its
-    mass in proportion to ``L_k`` (a beam of the arm's section), its centre of mass within ``L_k / 2`` of the frame;
-    the last link, which carries the tool, a payload or the instrument's target, the generic prior's (``COM_PRIOR_M``)
-    at the heaviest link's mass. The generic prior (every mass alike, every centre ``COM_PRIOR_M`` off) gives a wrist's short links the weight of
-    the upper arm: the load it spans reaches far from the arm's own and the sign's change it places from the rows'
-    flanks misses rows near zero load."""
-    q = np.atleast_2d(np.asarray(q, float))
-    F = joint_frames(model, q) if model.convention == "urdf" else link_frames(model, q)[:, 1:]
-    o = np.concatenate([np.zeros((len(q), 1, 3)), F[:, :, :3, 3]], axis=1)  # the base's origin, then frames 1..N
-    seg = np.median(np.linalg.norm(np.diff(o, axis=1), axis=2), axis=0)  # (N,) from frame k-1's origin to frame k's
-    length = np.maximum(np.maximum(seg, np.append(seg[1:], 0.0)), LINK_FLOOR_M)
-    mass, com = length / np.max(length), length / 2.0
-    # the last link carries the tool, a payload or the instrument's target: their mass and centre follow no length of
-    # the chain (the flange's is short), so it keeps the generic prior at the heaviest link's scale
-    mass[-1], com[-1] = 1.0, COM_PRIOR_M
-    return mass, com
-
-
 def torque_shapes(model: RobotModel, q: np.ndarray, i: int, rank: int | None = None,
-                  Y: np.ndarray | None = None, links: tuple[int, ...] | None = None,
-                  scales: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[GravMix, ...]:
+                  Y: np.ndarray | None = None, links: tuple[int, ...] | None = None) -> tuple[GravMix, ...]:
     """Joint ``i``'s (1-based) leading principal gravity-torque shapes under the generic prior, as ``gravmix`` features
     (the compliance atoms' shapes, leading first): the right singular vectors of the prior-weighted columns
     ``Y[:, i, k, c] prior_c`` (``k >= i``; prior 1 for a mass, ``COM_PRIOR_M`` for a mass moment) whose singular values
     pass ``1e-6`` of the largest, each scaled to unit RMS over the rows; the first ``rank`` of them (all when None), or
     ``()`` when the joint carries no varying torque. ``Y``: :func:`~twin.diagnosis.candidates.gravity_torque_regressor`
     on ``q`` when already computed. ``links``: the links whose mass moments load the joint (1-based; default every
-    link from ``i`` on). ``scales``: per link its mass's scale and its centre of mass's spread [m] instead of the
-    generic prior (:func:`link_prior`; link ``k`` weighs ``mass_k`` and ``mass_k com_m_k``); the shapes span the same
-    loads, ordered and scaled by that prior."""
+    link from ``i`` on)."""
     Y = gravity_torque_regressor(model, q) if Y is None else Y
     N = model.n_joints
     cols, prior = [], []
     for k in (range(i, N + 1) if links is None else links):
-        mass, com = (1.0, COM_PRIOR_M) if scales is None else (float(scales[0][k - 1]), float(scales[1][k - 1]))
         for c in range(4):
             cols.append([k, c])
-            prior.append(mass if c == 0 else mass * com)
+            prior.append(1.0 if c == 0 else COM_PRIOR_M)
     M = np.stack([Y[:, i - 1, k - 1, c] for k, c in cols], axis=1) * np.array(prior)
     if not np.any(np.abs(M) > 1e-9):
         return ()
@@ -427,7 +396,7 @@ def _flank_read(prob, fit, sharp, i: int, stated: list, pool_sizes: dict):
     loads in the full span of joint ``i``'s torque shapes (every shape the links' mass moments give the joint; beside
     the stated masses' torque when ``stated`` holds it, their error spread as ``STATED_SPREAD`` of the shapes'), the
     one that puts every row that tells its side on that side with the largest margin, each direction measured on its
-    prior scale (:func:`_max_margin`), the shapes' prior following each link's size (:func:`link_prior`). The leading shapes hold the load only to a few per cent of its RMS, and a
+    prior scale (:func:`_max_margin`). The leading shapes hold the load only to a few per cent of its RMS, and a
     direction placed by the rows' sides within them moves the sign's change past rows near zero load; the joint's
     load lies in the full span, and the largest margin there is the side the rows around an unseen one suggest.
     Returns the scored atom when it explains at least as much as ``sharp`` (within ``chi2_1`` at 1 %), else None."""
@@ -436,7 +405,7 @@ def _flank_read(prob, fit, sharp, i: int, stated: list, pool_sizes: dict):
     told = sides != 0
     if int(np.sum(sides > 0)) < 3 or int(np.sum(sides < 0)) < 3:
         return None
-    shapes = torque_shapes(model, prob.ctx.q, i, scales=link_prior(model, prob.ctx.q))
+    shapes = torque_shapes(model, prob.ctx.q, i)
     if not shapes:
         return None
     cols = shapes[0].cols
