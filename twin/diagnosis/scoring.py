@@ -113,6 +113,15 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
 
     def group_stats(item: tuple) -> list[tuple[int, tuple]]:
         (place, target), ids = item
+        # a place's atoms scored before against this basis (a round that rejected its candidates): the same sums
+        key = ("screen", place, target, id(store), tuple(prob.feature_key(atoms[i]) for i in ids))
+        got = sb.memo.get(key)
+        if got is None:
+            at = {i: j for j, i in enumerate(ids)}
+            got = sb.memo[key] = [(K, (at[st[0]], *st[1:])) for K, st in _group_stats(place, target, ids)]
+        return [(K, (ids[st[0]], *st[1:])) for K, st in got]
+
+    def _group_stats(place: str, target: str, ids: list[int]) -> list[tuple[int, tuple]]:
         got_all: list[tuple[int, tuple]] = []  # (width K, (atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,)))
         w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
         steps, stored, rest = [], [], []
@@ -186,7 +195,9 @@ class ScoringBasis:
     """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
     square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
     ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it; ``cache``: what the
-    scoring derives from them once per place (:func:`_kept_base`, :func:`row_aggregates`)."""
+    scoring derives from them once per place (:func:`_kept_base`, :func:`row_aggregates`); ``memo``: a place's
+    atoms' sums and scores against this basis, by the atoms' features (kept while the basis lives: a round that
+    rejected its candidates scores the rest of the same atoms against the same fit)."""
 
     rc: object
     sw: np.ndarray
@@ -194,6 +205,7 @@ class ScoringBasis:
     Q: np.ndarray
     r: np.ndarray
     cache: dict = field(default_factory=dict, repr=False, compare=False)
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def rows(self) -> np.ndarray:
@@ -362,6 +374,16 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
         groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
 
     def group_scores(members: list[Atom]) -> list[tuple]:
+        # a place's atoms scored before against this basis (a round that rejected its candidates): the same numbers
+        key = ("products", rel_tol, max_rank, tuple(prob.feature_key(a) for a in members), members[0].place,
+               members[0].target, members[0].place == "plate" and members[0].varying_plate)
+        got = sb.memo.get(key)
+        if got is None:
+            at = {id(a): j for j, a in enumerate(members)}
+            got = sb.memo[key] = [(at[id(t[0])], *t[1:]) for t in _group_scores(members)]
+        return [(members[t[0]], *t[1:]) for t in got]
+
+    def _group_scores(members: list[Atom]) -> list[tuple]:
         pending = []
         W, QB, Br = row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
         items: dict[int, list] = {}  # K -> [(atom, E^T E, Q^T E, E^T r, any feature nonzero)]
