@@ -609,6 +609,7 @@ def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> flo
     return out
 
 
+@memo_on_fit
 def window_logp(prob, fit, s, sizes: dict) -> float:
     """The pool-adjusted log p-value of a scored window ``s`` (a change and back) with its evidence measured against
     the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the
