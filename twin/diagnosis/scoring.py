@@ -114,7 +114,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     def group_stats(item: tuple) -> list[tuple[int, tuple]]:
         (place, target), ids = item
         # a place's atoms scored before against this basis (a round that rejected its candidates): the same sums
-        key = ("screen", place, target, id(store), tuple(prob.feature_key(atoms[i]) for i in ids))
+        key = ("screen", prob.threads, place, target, id(store), tuple(prob.feature_key(atoms[i]) for i in ids))
         got = sb.memo.get(key)
         if got is None:
             at = {i: j for j, i in enumerate(ids)}
@@ -196,8 +196,8 @@ class ScoringBasis:
     square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
     ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it; ``cache``: what the
     scoring derives from them once per place (:func:`_kept_base`, :func:`row_aggregates`); ``memo``: a place's
-    atoms' sums and scores against this basis, by the atoms' features (kept while the basis lives: a round that
-    rejected its candidates scores the rest of the same atoms against the same fit)."""
+    atoms' sums and scores against this basis, by the atoms' features and the number of threads (kept while the
+    basis lives: a round that rejected its candidates scores the rest of the same atoms against the same fit)."""
 
     rc: object
     sw: np.ndarray
@@ -375,8 +375,8 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
 
     def group_scores(members: list[Atom]) -> list[tuple]:
         # a place's atoms scored before against this basis (a round that rejected its candidates): the same numbers
-        key = ("products", rel_tol, max_rank, tuple(prob.feature_key(a) for a in members), members[0].place,
-               members[0].target, members[0].place == "plate" and members[0].varying_plate)
+        key = ("products", prob.threads, rel_tol, max_rank, tuple(prob.feature_key(a) for a in members),
+               members[0].place, members[0].target, members[0].place == "plate" and members[0].varying_plate)
         got = sb.memo.get(key)
         if got is None:
             at = {id(a): j for j, a in enumerate(members)}
