@@ -222,6 +222,62 @@ def test_scores_on_two_threads_equal_those_on_one(problem):
     assert [(s.logp_adj, s.dchi2) for s in two] == [(s.logp_adj, s.dchi2) for s in one]
 
 
+def test_scores_of_other_atoms_against_the_same_basis_equal_those_of_a_fresh_basis(problem):
+    """Scoring the pool less one atom of a place, then less another atom of that place (as many atoms there), on the
+    same basis (its places' sums and scores kept in ``ScoringBasis.memo``) gives the same atoms and numbers, bit for
+    bit, as on a fresh basis of the same fit: screened places and exactly scored ones."""
+    from dataclasses import replace
+
+    prob, fit, _, pool, sizes = problem
+    pairs = []
+    for screened in (True, False):
+        by: dict = {}
+        for a in pool:
+            if (a.pool != "catalogue" and scoring._screenable(a)) == screened and scoring._product(a):
+                by.setdefault((a.place, a.target), []).append(a)
+        pairs.append(next(v[:2] for v in by.values() if len(v) >= 2))
+    first = [a for a in pool if all(a is not p[0] for p in pairs)]
+    second = [a for a in pool if all(a is not p[1] for p in pairs)]
+    scoring.score_atoms(prob, fit, first, sizes)
+    again = scoring.score_atoms(prob, fit, second, sizes)
+    assert len(scoring.scoring_basis(prob, fit).memo) > 0
+    fresh = scoring.score_atoms(prob, replace(fit, cache={}), second, sizes)
+    assert len(fresh) > 20
+    assert [s.atom.key for s in again] == [s.atom.key for s in fresh]
+    assert [(s.logp_adj, s.dchi2, s.basis.tobytes(), s.psi.tobytes()) for s in again] == \
+        [(s.logp_adj, s.dchi2, s.basis.tobytes(), s.psi.tobytes()) for s in fresh]
+    assert [s.Ep.tobytes() for s in again[:5]] == [s.Ep.tobytes() for s in fresh[:5]]
+    screened = [a for a in second if a.pool != "catalogue" and scoring._screenable(a)]
+    lp = []
+    for f in (fit, replace(fit, cache={})):
+        sb = scoring.scoring_basis(prob, f)
+        lp.append(scoring._screen(prob, f, screened, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes))
+    assert np.isfinite(lp[1]).sum() > 20 and lp[0].tobytes() == lp[1].tobytes()
+
+
+def test_a_call_kept_on_the_fit_is_made_again_under_other_row_weights(problem):
+    """``memo_on_fit`` computes a call once for equal arguments (a scored atom with the same numbers, another object)
+    and returns the new call's argument where the result was the argument; other row weights compute it again."""
+    prob, fit, _, pool, sizes = problem
+    calls = []
+
+    @scoring.memo_on_fit
+    def echo(prob, fit, s, sizes):
+        calls.append(s)
+        return s
+
+    one = scoring.score_atoms(prob, fit, pool[:5], sizes, exact_top=5)[0]
+    two = scoring.Scored(one.atom, one.basis.copy(), one.psi.copy(), one.dchi2, one.logp_adj, one.r)
+    assert echo(prob, fit, one, sizes) is one
+    assert echo(prob, fit, two, sizes) is two and len(calls) == 1
+    w = prob.w_cal
+    prob.w_cal = w.copy()
+    try:
+        assert echo(prob, fit, two, sizes) is two and len(calls) == 2
+    finally:
+        prob.w_cal = w
+
+
 def _ur10_table(scale: float = 1.0) -> dict:
     """A UR10's joint table (URDF origins) with its flange offset as the chain's end, every length times ``scale``."""
     xyz = [[0, 0, 0], [0, 0, 127.3], [-612.0, 0, 0], [-572.3, 0, 0], [0, 0, 163.941], [0, 0, 115.7]]

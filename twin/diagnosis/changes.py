@@ -42,7 +42,7 @@ from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
 from .loads import payload_shapes
 from .problem import psi_init
-from .scoring import row_aggregates, score_atoms, scoring_basis
+from .scoring import memo_on_fit, row_aggregates, score_atoms, scoring_basis
 from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
@@ -375,6 +375,7 @@ def _logp(gain: np.ndarray, rank: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return lp
 
 
+@memo_on_fit
 def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, alpha: float = 0.01,
                  short: int | None = None, last: tuple[int, int] | None = None,
                  sizes: dict[str, int] | None = None) -> list[Atom]:
@@ -608,6 +609,7 @@ def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> flo
     return out
 
 
+@memo_on_fit
 def window_logp(prob, fit, s, sizes: dict) -> float:
     """The pool-adjusted log p-value of a scored window ``s`` (a change and back) with its evidence measured against
     the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the

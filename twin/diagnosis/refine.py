@@ -17,7 +17,7 @@ from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOV
 from .extend import error_stats, reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
-from .scoring import Scored, raw_columns, score_atoms, scoring_basis
+from .scoring import Scored, memo_on_fit, raw_columns, score_atoms, scoring_basis
 from .structure import chi2_logsf
 from .values import feature_values
 
@@ -137,6 +137,7 @@ def prefer_sign(prob: Problem, fit: Fit, scored: list[Scored], pool_sizes: dict[
     return out
 
 
+@memo_on_fit
 def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: dict[str, int]) -> list[Scored] | None:
     """The other joints of an arm that settles from its moves beyond the joint of ``step`` (its step into the row) and
     ``size`` (its backlash growing with the last move), or None where that joint alone follows its moves: another
@@ -164,6 +165,7 @@ def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: d
     return more if more or before else None
 
 
+@memo_on_fit
 def _beyond(prob: Problem, fit: Fit, size: Scored, others: list[Scored], pool_sizes: dict[str, int]) -> float:
     """The evidence ``size`` adds to ``fit`` refitted with ``others``."""
     gross = (prob.w_cal, prob.keep_val)
@@ -175,6 +177,7 @@ def _beyond(prob: Problem, fit: Fit, size: Scored, others: list[Scored], pool_si
     return got[0].dchi2 if got else 0.0
 
 
+@memo_on_fit
 def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, pool_sizes: dict[str, int]) -> float:
     """The evidence ``size`` (a backlash growing with the last move) adds to ``fit`` refitted with the joint's sign
     backlash ``sign``; 0 when the model with ``size`` in place of ``sign`` does not predict the confirmation rows
@@ -192,6 +195,7 @@ def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, poo
     return got[0].dchi2 if got and held[0] < held[1] else 0.0
 
 
+@memo_on_fit
 def refine(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """An atom with a continuous constant found on a coarse grid, moved to the value that explains most: a change
     point to the row time between its grid neighbours (the step's time is a parameter of the effect, not of the
@@ -517,6 +521,7 @@ def follows_the_air(atom: Atom) -> bool:
     return retimeable(atom) and not any(isinstance(f, Heat) for f in atom.features)
 
 
+@memo_on_fit
 def refine_time(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A kept thermal term's time constants (:func:`retimeable`) at the maximum of the evidence on ``prob``'s
     calibration rows, searched over their whole range: a lag or the motion heat's time constant over the onset grid

@@ -8,6 +8,7 @@ measurement frame, :class:`~twin.diagnosis.floor.NoiseFloor`).
 
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import dataclass, field
 
@@ -21,8 +22,8 @@ from .grams import block_stats, leading_eigh, product_grams, product_grams_wide,
 from .problem import Fit, Problem
 from .structure import chi2_logsf
 
-__all__ = ["raw_columns", "Scored", "ScoringBasis", "scoring_basis", "row_aggregates", "score_atoms", "GATE_SUFFIX_MIN",
-           "PRODUCT_BATCH_MAX"]
+__all__ = ["raw_columns", "Scored", "ScoringBasis", "scoring_basis", "row_aggregates", "score_atoms", "memo_on_fit",
+           "GATE_SUFFIX_MIN", "PRODUCT_BATCH_MAX"]
 
 
 def raw_columns(model: ExtendedModel, atom: Atom, F: np.ndarray, z: np.ndarray, res) -> np.ndarray:
@@ -112,6 +113,15 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
 
     def group_stats(item: tuple) -> list[tuple[int, tuple]]:
         (place, target), ids = item
+        # a place's atoms scored before against this basis (a round that rejected its candidates): the same sums
+        key = ("screen", prob.threads, place, target, id(store), tuple(prob.feature_key(atoms[i]) for i in ids))
+        got = sb.memo.get(key)
+        if got is None:
+            at = {i: j for j, i in enumerate(ids)}
+            got = sb.memo[key] = [(K, (at[st[0]], *st[1:])) for K, st in _group_stats(place, target, ids)]
+        return [(K, (ids[st[0]], *st[1:])) for K, st in got]
+
+    def _group_stats(place: str, target: str, ids: list[int]) -> list[tuple[int, tuple]]:
         got_all: list[tuple[int, tuple]] = []  # (width K, (atom index, nrm2 (K,), EtE (K, K), QtE (p, K), Etr (K,)))
         w, Qb, br = _screen_aggregates(prob, fit, sb, atoms[ids[0]])  # (n,), (n, p), (n,)
         steps, stored, rest = [], [], []
@@ -185,7 +195,9 @@ class ScoringBasis:
     """What scoring atoms against a fit needs once: the calibration residuals with their Jacobian ``rc``, the
     square-root row weights per residual ``sw``, the residuals kept (weight > 0) ``keep``, an orthonormal basis
     ``Q`` of the free model columns (kept residuals) and the residual ``r`` projected off it; ``cache``: what the
-    scoring derives from them once per place (:func:`_kept_base`, :func:`row_aggregates`)."""
+    scoring derives from them once per place (:func:`_kept_base`, :func:`row_aggregates`); ``memo``: a place's
+    atoms' sums and scores against this basis, by the atoms' features and the number of threads (kept while the
+    basis lives: a round that rejected its candidates scores the rest of the same atoms against the same fit)."""
 
     rc: object
     sw: np.ndarray
@@ -193,6 +205,7 @@ class ScoringBasis:
     Q: np.ndarray
     r: np.ndarray
     cache: dict = field(default_factory=dict, repr=False, compare=False)
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def rows(self) -> np.ndarray:
@@ -361,6 +374,16 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
         groups.setdefault((a.place, a.target, a.place == "plate" and a.varying_plate), []).append(a)
 
     def group_scores(members: list[Atom]) -> list[tuple]:
+        # a place's atoms scored before against this basis (a round that rejected its candidates): the same numbers
+        key = ("products", prob.threads, rel_tol, max_rank, tuple(prob.feature_key(a) for a in members),
+               members[0].place, members[0].target, members[0].place == "plate" and members[0].varying_plate)
+        got = sb.memo.get(key)
+        if got is None:
+            at = {id(a): j for j, a in enumerate(members)}
+            got = sb.memo[key] = [(at[id(t[0])], *t[1:]) for t in _group_scores(members)]
+        return [(members[t[0]], *t[1:]) for t in got]
+
+    def _group_scores(members: list[Atom]) -> list[tuple]:
         pending = []
         W, QB, Br = row_aggregates(prob, fit, sb, members[0])  # (n, c, c), (n, p, c), (n, c)
         items: dict[int, list] = {}  # K -> [(atom, E^T E, Q^T E, E^T r, any feature nonzero)]
@@ -502,3 +525,54 @@ def _column_maker(prob: Problem, fit: Fit, atom: Atom, sb: ScoringBasis):
             E = (Fr[:, :, None] * base[:, None, :]).reshape(len(base), -1)
         return E * sb.sw_kept[:, None]
     return make
+
+
+def _memo_key(prob: Problem, x, pins: list):
+    """The key of one argument of a call :func:`memo_on_fit` keeps: a scored atom by its atom's content and its numbers'
+    bytes, an atom by its content, arrays by their bytes, containers by their items, anything else by its identity
+    (the object is kept in ``pins`` so its id is not reused while the key lives)."""
+    if isinstance(x, Scored):
+        pins.append(x.r)
+        return ("scored", _memo_key(prob, x.atom, pins), x.basis.shape, x.basis.tobytes(), x.psi.tobytes(), x.dchi2,
+                x.logp_adj, id(x.r))
+    if isinstance(x, Atom):
+        return ("atom", x.family, x.place, x.target, x.channel, x.label, x.pool, x.joints, prob.feature_key(x),
+                repr(sorted(x.meta.items())))
+    if isinstance(x, np.ndarray):
+        return ("array", x.shape, x.dtype.str, x.tobytes())
+    if isinstance(x, dict):
+        return ("dict", tuple((k, _memo_key(prob, v, pins)) for k, v in sorted(x.items())))
+    if isinstance(x, (list, tuple)):
+        return (type(x).__name__, tuple(_memo_key(prob, v, pins) for v in x))
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return x
+    pins.append(x)
+    return ("id", id(x))
+
+
+def memo_on_fit(fn):
+    """``fn(prob, fit, *args, **kwargs)`` computed once per fit for equal arguments under the problem's current row
+    weights, kept in ``fit.cache``: a selection round that rejected its candidates leaves the fit as it was, and the
+    next round asks again for the same refinements and scans against it. Equal arguments: the same atoms (by content),
+    scored atoms with the same numbers to the bit, the same other objects. The call must depend on nothing else of
+    the problem than its rows, features and weights (``w_cal``, ``keep_val``, ``evidence_scale``, ``cross_session``),
+    and must leave the problem as it found it. A result that is one of the arguments is returned as the argument of
+    the new call (callers test ``refined is not s``); any other result is the same object on every hit. The number of
+    threads is part of the key (a test compares a call on one thread with the same call on two)."""
+
+    @functools.wraps(fn)
+    def call(prob: Problem, fit: Fit, *args, **kwargs):
+        pins: list = [prob.w_cal, prob.keep_val]
+        key = (fn.__qualname__, id(prob), id(prob.w_cal), id(prob.keep_val), prob.evidence_scale, prob.cross_session,
+               prob.threads,
+               _memo_key(prob, args, pins), _memo_key(prob, kwargs, pins))
+        store = fit.cache.setdefault("memo", {})
+        hit = store.get(key)
+        if hit is not None:
+            got, which, _ = hit
+            return args[which] if which is not None else got
+        got = fn(prob, fit, *args, **kwargs)
+        which = next((i for i, a in enumerate(args) if got is a), None)
+        store[key] = (None if which is not None else got, which, pins)
+        return got
+    return call
