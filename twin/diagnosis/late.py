@@ -613,7 +613,7 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
             if logp < np.log(alpha):
-                pick = got[0]
+                pick = got[0] if zero else _load_or_zero(prob_all, use_all, got[0], places, sizes, alpha)
                 break
         if pick is None:
             prob_all.w_cal = w_gross
@@ -625,6 +625,25 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
         notes.append(f"a change and back on every row: {pick.atom.label} (p = {np.exp(pick.logp_adj):.2g} after the "
                      f"window pool's factor {sizes['change_window']})")
     return use_all, found, notes
+
+
+def _load_or_zero(prob: Problem, fit: Fit, load: Scored, places: list[ChangePlace], sizes: dict,
+                  alpha: float) -> Scored:
+    """The window of a joint's compliance ``load`` (its gravity-torque shapes, ``r`` columns) or, in its place, the
+    window of that joint's zero on the same rows: a load's shapes predict each row by its torque, a zero the same
+    shift on every row of the window, and over rows whose torques barely differ the load's shapes fit a zero's shift,
+    not identified. The zero's window is kept unless the load's explains more than ``chi2`` of its ``r - 1`` extra
+    columns at ``alpha`` beyond it (both scored against ``fit`` on ``prob``'s calibration rows)."""
+    zero_pl = [p for p in places if p.place == "joint" and p.target == load.atom.target and p.inner is None]
+    extra = load.basis.shape[1] - 1
+    if not zero_pl or extra < 1:
+        return load
+    f0 = load.atom.features[0]
+    got = score_atoms(prob, fit, [as_window(change_at(zero_pl[0], f0.ch, float(f0.at)), float(f0.until))], sizes,
+                      exact_top=1)
+    if not got or load.dchi2 - got[0].dchi2 > prob.evidence_scale * chi2_isf(alpha, extra):
+        return load
+    return got[0]
 
 
 def gross_runs(setup, prob: Problem) -> np.ndarray:
