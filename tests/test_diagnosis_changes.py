@@ -191,6 +191,22 @@ def test_a_joint_offset_that_steps_and_back_is_a_window():
     H.tally(_run_change(_joint_window, "theta2", kind="window"), named=(9, SEEDS), ratio=("median<=", 1.2))
 
 
+def test_a_glitch_of_four_rows_is_a_window_of_the_joints_zero():
+    """Joint 3's zero off by 0.05 deg on 4 rows of the rows that fit (fewer than a grid window's five): one window
+    change of theta3 with both ends within 2 rows, no load term among the effects."""
+    s = _change_row(3)
+
+    def eff(q, model):
+        out = q.copy()
+        out[s:s + 4, 2] += 0.05 * DEG
+        return out
+
+    ds, _ = _dataset(eff, seed=3)
+    res = diagnose(ds)
+    assert _one_change(res, "theta3", s, "window", s + 4), res.changes
+    assert res.effects == (), res.effects
+
+
 # ---- a change after the rows that fit ----------------------------------------------------------------------------
 
 LATER = 20  # rows measured after the campaign (the campaign is the rest)

@@ -13,7 +13,7 @@ from .atoms import Atom
 from .changes import is_change
 from .features import Lag
 from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
-                   own_weight, payload_at, payload_event)
+                   own_weight, payload_at, payload_event, step_as_return)
 from .problem import Fit, Problem, common_chi2, refit_with, update_gross
 from .refine import is_onset
 from .rule import retime
@@ -159,6 +159,12 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
                 src = with_got
                 # the term as the fit holds it (its constants retimed there): what later judges it finds it by
                 found.append((with_got.chosen[-1][0], "late", got, entry))
+                if is_change(got.atom):
+                    # a zero's step after the rows that fit that is a glitch's return: the window ending there
+                    src, win, note = step_as_return(setup, prob_x, src, found[-1][0], alpha=alpha)
+                    if note:
+                        notes.append(note)
+                        found[-1] = (win, "glitch", None, entry)
     src0 = src
     beyond = bool((pool and prob_x.test_fit_block(src).p_value < alpha) or gross_runs(setup, prob_x).any())
     if beyond:

@@ -51,7 +51,7 @@ __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_pla
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
-WINDOW_MIN_ROWS = 5  # rows inside a window (a glitch scan on every row takes MIN_ROWS: twin.diagnosis.late.glitches)
+WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 60  # most boundary positions the window scan takes (every k-th row beyond, then refined)
 CHANGE_POOLS = ("change", "change_window")

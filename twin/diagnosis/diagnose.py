@@ -573,7 +573,8 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     # paid for where it is preferred to the sign (twin.diagnosis.refine.prefer_sign): not more hypotheses of the pool
     counted = [a for a in pool if not (a.family == "backlash" and a.features[0].kind == "lastmove")]
     sizes = {k: max(1, sum(a.pool == k for a in counted)) for k in ("catalogue", "scan", "generic", "load")}
-    sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat, setup.ctx.q)))
+    sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat, setup.ctx.q),
+                                   short=MIN_ROWS))
     return pool, sizes
 
 

@@ -48,7 +48,8 @@ from .scoring import Scored, score_atoms
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event", "payload_at"]
+           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event", "payload_at",
+           "step_as_return"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -613,7 +614,7 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
             if logp < np.log(alpha):
-                pick = got[0]
+                pick = got[0] if zero else _load_or_zero(prob_all, use_all, got[0], places, sizes, alpha)
                 break
         if pick is None:
             prob_all.w_cal = w_gross
@@ -625,6 +626,61 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
         notes.append(f"a change and back on every row: {pick.atom.label} (p = {np.exp(pick.logp_adj):.2g} after the "
                      f"window pool's factor {sizes['change_window']})")
     return use_all, found, notes
+
+
+def step_as_return(setup, prob_all: Problem, use_all: Fit, step, *, alpha: float) -> tuple[Fit, object, str]:
+    """A kept step of a joint's zero (``step``, found after the rows that fit) read as the return of a change and back:
+    the window of that zero ending at the step's start, from any row with ``MIN_ROWS`` rows before it and inside it,
+    in place of the step where its ``Delta chi2`` (against ``use_all`` without the step, on ``prob_all``'s rows)
+    exceeds the step's by more than ``chi2_1`` at ``alpha`` over the starts tried (one constant more: its start,
+    chosen among them). A glitch whose start the
+    rows that fit hold too few rows of to place and whose return comes after them is one window, not a step: the
+    step leaves the rows before the glitch in the glitch's state. Returns the fit, the kept term and a note (empty:
+    the step stands)."""
+    if not (is_step(step) and step.place == "joint" and not isinstance(step.features[0], Gated)):
+        return use_all, step, ""
+    _, tv = row_times(setup.ctx)
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    at = float(step.features[0].at)
+    i_at = int(np.searchsorted(t_rows, at))
+    starts = [0.5 * (t_rows[i - 1] + t_rows[i]) for i in range(MIN_ROWS, i_at - MIN_ROWS + 1)
+              if t_rows[i] > t_rows[i - 1]]
+    if not starts:
+        return use_all, step, ""
+    without = refit_with(prob_all, use_all, [c for c in use_all.chosen if c[0].key != step.key])
+    sizes = {"change": 1, "change_window": len(starts)}
+    wins = [as_window(started_at(step, t), at) for t in starts]
+    got = score_atoms(prob_all, without, [step] + wins, sizes, exact_top=len(wins) + 1)
+    by = {g.atom.key: g for g in got}
+    if step.key not in by:
+        return use_all, step, ""
+    best = max((g for g in got if g.atom.key != step.key), key=lambda g: g.dchi2, default=None)
+    if best is None or best.dchi2 - by[step.key].dchi2 <= prob_all.evidence_scale * chi2_isf(alpha / len(starts), 1):
+        return use_all, step, ""
+    trial = refit_with(prob_all, without, list(without.chosen) + [(best.atom, best.basis)])
+    if common_chi2(use_all, trial) <= 0:
+        return use_all, step, ""
+    return trial, best.atom, (f"the step read as a change and back: {best.atom.label} (Delta chi2 {best.dchi2:.1f} "
+                              f"against the step's {by[step.key].dchi2:.1f} on every row)")
+
+
+def _load_or_zero(prob: Problem, fit: Fit, load: Scored, places: list[ChangePlace], sizes: dict,
+                  alpha: float) -> Scored:
+    """The window of a joint's compliance ``load`` (its gravity-torque shapes, ``r`` columns) or, in its place, the
+    window of that joint's zero on the same rows: a load's shapes predict each row by its torque, a zero the same
+    shift on every row of the window, and over rows whose torques barely differ the load's shapes fit a zero's shift,
+    not identified. The zero's window is kept unless the load's explains more than ``chi2`` of its ``r - 1`` extra
+    columns at ``alpha`` beyond it (both scored against ``fit`` on ``prob``'s calibration rows)."""
+    zero_pl = [p for p in places if p.place == "joint" and p.target == load.atom.target and p.inner is None]
+    extra = load.basis.shape[1] - 1
+    if not zero_pl or extra < 1:
+        return load
+    f0 = load.atom.features[0]
+    got = score_atoms(prob, fit, [as_window(change_at(zero_pl[0], f0.ch, float(f0.at)), float(f0.until))], sizes,
+                      exact_top=1)
+    if not got or load.dchi2 - got[0].dchi2 > prob.evidence_scale * chi2_isf(alpha, extra):
+        return load
+    return got[0]
 
 
 def gross_runs(setup, prob: Problem) -> np.ndarray:
