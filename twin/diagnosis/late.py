@@ -573,8 +573,8 @@ def begun_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tupl
     ``max(MIN_ROWS, MIN_SIDE n)`` rows before it and ``MIN_ROWS`` rows before the step; the window from it until the
     step replaces the step (its sign the fit's) where that lowers the chi2 of every row beyond ``chi2_1`` at ``alpha``
     over the starts tried (a window from the first row is the step itself where the geometry or a term of every row
-    holds the state before it). The mirror of :func:`end_steps`. Returns the fit and a note per step turned into a
-    window."""
+    holds the state before it). Not where another kept change is at its place: that change sets the state of the rows
+    before the step. The mirror of :func:`end_steps`. Returns the fit and a note per step turned into a window."""
     ch, tv = row_times(setup.ctx)
     t_rows = np.sort(tv[prob_all.rows_cal])
     n = len(t_rows)
@@ -582,8 +582,9 @@ def begun_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tupl
     notes = []
     for k in range(len(use_all.chosen)):
         a, _ = use_all.chosen[k]
-        if not is_step(a):
-            continue
+        if not is_step(a) or any(is_change(c) and (c.place, c.target) == (a.place, a.target)
+                                 for i, (c, _) in enumerate(use_all.chosen) if i != k):
+            continue  # another change at its place sets the state of the rows before it
         at = float(a.features[0].at)
         last = int(np.searchsorted(t_rows, at))
         starts = [0.5 * (t_rows[i - 1] + t_rows[i]) for i in range(side, last - MIN_ROWS + 1)
