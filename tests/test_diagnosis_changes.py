@@ -750,3 +750,39 @@ def test_noisy_rows_gross_rows_or_a_wander_at_the_end_are_not_a_change(what, see
     the rows before show along the place, AR(1) in time)."""
     res = diagnose(_end_trouble(seed, what))
     assert res.changes == (), res.changes
+
+
+def test_a_step_that_ends_a_payload_hung_on_within_the_rows_is_read_as_its_window():
+    """A 5 kg payload hung on at row s and taken off at row e of the rows that fit, held by a model of joint 2's
+    compliance on every row and a step of its payload shapes at e: late.begun_steps reads the step as the window from
+    s (within 2 rows) until e, the rows before s in the state after e."""
+    from twin.diagnosis.changes import change_at, change_places, is_window
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+    from twin.diagnosis.late import begun_steps
+    from twin.diagnosis.problem import refit_with
+    from twin.diagnosis.scoring import score_atoms
+
+    s, e = 30, 80
+    c = np.array([0, 6e-6, 0, 0, 0, 0])  # [rad / N m]
+
+    def eff(q, model):
+        on = ((np.arange(len(q)) >= s) & (np.arange(len(q)) < e)).astype(float)
+        return q + c * (H._gravity_torque(model, q) + on[:, None] * _payload_torque(model, q))
+
+    ds, _ = _dataset(eff, seed=2)
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    base = fit_geometry(prob, setup.x0)
+    pool, _ = atom_pool(setup)
+    arm = next(a for a in pool if a.pool == "catalogue" and a.family == "compliance" and a.target == "theta2")
+    place = next(p for p in change_places(prob.prep.nominal, [arm], setup.ctx.q) if p.payload and p.target == "theta2")
+    t = ds.t_s
+    step = change_at(place, "t_s", 0.5 * (t[e - 1] + t[e]))
+    sizes = {arm.pool: 1, step.pool: 1}
+    chosen = [(g.atom, g.basis) for g in score_atoms(prob, base, [arm, step], sizes, exact_top=2)]
+    fit = refit_with(prob, base, chosen)
+    got, notes = begun_steps(setup, prob, fit, alpha=0.01)
+    win = [a for a, _ in got.chosen if is_window(a)]
+    assert len(win) == 1 and notes, [a.label for a, _ in got.chosen]
+    f0 = win[0].features[0]
+    assert abs(int(np.searchsorted(t, f0.at)) - s) <= 2 and f0.until == step.features[0].at, win[0].label

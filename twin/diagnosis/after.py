@@ -12,8 +12,8 @@ from ..estimator.distributions import chi2_isf
 from .atoms import Atom
 from .changes import is_change
 from .features import Lag
-from .late import (end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates, late_term,
-                   own_weight, payload_at, payload_event, step_as_return)
+from .late import (begun_steps, end_change, end_steps, end_term, glitches, gross_runs, late_change, late_templates,
+                   late_term, own_weight, payload_at, payload_event, step_as_return)
 from .problem import Fit, Problem, common_chi2, refit_with, update_gross
 from .refine import is_onset
 from .rule import retime
@@ -171,6 +171,9 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         # what every row holds beyond the floor: a kept change that ends, a change and back at a joint's zero (an
         # unconfirmed window of a frame or a load follows a wander of the cell: late.glitches)
         src, notes_end = end_steps(setup, prob_x, src, alpha=alpha)
+        # a kept step that ends a change begun among the rows before it (a payload hung on and taken off later)
+        src, notes_begun = begun_steps(setup, prob_x, src, alpha=alpha)
+        notes_end += notes_begun
         # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
         zeros = [p for p in places if p.place == "joint"]
         src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)

@@ -661,9 +661,14 @@ def with_found(prob: Problem, prob_pre: Problem, use: Fit, after: Fit) -> Fit:
     # a kept change takes its end from there; the other kept terms stay as chosen (constants and values)
     chosen = [after.chosen[k] if is_change(use.chosen[k][0]) else use.chosen[k] for k in range(n)] + \
         list(after.chosen[n:])
+    # a kept change those rows time anew was sized under the timing they reject: it is sized again there, with the
+    # kept terms at its place (the state outside it), as a change found there is
+    retimed = {use.chosen[k][0].target for k in range(n) if chosen[k][0].key != use.chosen[k][0].key}
     mc = prob_pre.model(chosen, "cal")
     z0 = np.concatenate([after.z[:P]] + old + new)
-    moving = np.concatenate([prob_pre.free_geo, np.arange(mc.offsets[n], mc.size)]).astype(int)
+    moving = np.concatenate([prob_pre.free_geo] + [np.arange(mc.offsets[k], mc.offsets[k + 1]) for k in range(n)
+                                                   if chosen[k][0].target in retimed]
+                            + [np.arange(mc.offsets[n], mc.size)]).astype(int)
     gn = gauss_newton(lambda z: mc.residuals(z), z0, moving, row_weights=prob_pre.w_cal, max_iter=30, xtol=1e-11,
                       ftol=1e-10, stage="report")
     free = np.concatenate([prob.free_geo, np.arange(P, mc.size)]).astype(int)

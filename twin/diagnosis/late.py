@@ -48,8 +48,8 @@ from .scoring import Scored, score_atoms
 from .structure import chi2_logsf
 
 __all__ = ["LateChange", "EndChange", "late_change", "end_change", "late_templates", "late_term", "end_term", "end_steps",
-           "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event", "payload_at",
-           "step_as_return"]
+           "begun_steps", "glitches", "gross_runs", "rows_to_confirm", "own_weight", "payload_event", "as_event",
+           "payload_at", "step_as_return"]
 
 
 def rows_to_confirm(z_min: float) -> int:
@@ -562,6 +562,53 @@ def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[
         use_all = refit_with(prob_all, use_all, chosen)
         notes.append(f"a change ends on every row: {best.atom.label} (the rows after its end back in the state before it: "
                      f"chi2 {gain:.1f} lower than with the end the first block gave it, {len(ends)} ends tried)")
+    return use_all, notes
+
+
+def begun_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, list[str]]:
+    """Each kept step of the models to use (a change from a row on) is, on every row, the end of a change the rows
+    before it held from an earlier row on: a step back to the state of the rows before that start (a payload hung on
+    within the rows and taken off later reads, to a model of one state before the step, as a step where it came off;
+    the rows before it came on hold the state after). The start is placed between two rows with at least
+    ``max(MIN_ROWS, MIN_SIDE n)`` rows before it and ``MIN_ROWS`` rows before the step; the window from it until the
+    step replaces the step (its sign the fit's) where that lowers the chi2 of every row beyond ``chi2_1`` at ``alpha``
+    over the starts tried (a window from the first row is the step itself where the geometry or a term of every row
+    holds the state before it). Not where another kept change is at its place: that change sets the state of the rows
+    before the step. The mirror of :func:`end_steps`. Returns the fit and a note per step turned into a window."""
+    ch, tv = row_times(setup.ctx)
+    t_rows = np.sort(tv[prob_all.rows_cal])
+    n = len(t_rows)
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * n)))
+    notes = []
+    for k in range(len(use_all.chosen)):
+        a, _ = use_all.chosen[k]
+        if not is_step(a) or any(is_change(c) and (c.place, c.target) == (a.place, a.target)
+                                 for i, (c, _) in enumerate(use_all.chosen) if i != k):
+            continue  # another change at its place sets the state of the rows before it
+        at = float(a.features[0].at)
+        last = int(np.searchsorted(t_rows, at))
+        starts = [0.5 * (t_rows[i - 1] + t_rows[i]) for i in range(side, last - MIN_ROWS + 1)
+                  if t_rows[i] > t_rows[i - 1]]
+        if not starts:
+            continue
+        others = [c for i, c in enumerate(use_all.chosen) if i != k]
+        without = refit_with(prob_all, use_all, others)
+        sizes = {a.pool: 1, "change_window": 1}
+        got = score_atoms(prob_all, without, [a] + [as_window(started_at(a, t0), at) for t0 in starts], sizes,
+                          exact_top=len(starts) + 1)
+        step = next((g for g in got if g.atom is a), None)
+        wins = [g for g in got if g.atom is not a]
+        if step is None or not wins:
+            continue
+        best = max(wins, key=lambda g: g.dchi2)
+        gain = (best.dchi2 - step.dchi2) / prob_all.evidence_scale
+        if gain <= dists.chi2_isf(alpha / len(starts), 1):
+            continue
+        chosen = list(use_all.chosen)
+        chosen[k] = (best.atom, best.basis)
+        use_all = refit_with(prob_all, use_all, chosen)
+        notes.append(f"a step ends a change the rows before it held: {best.atom.label} (the rows before its start in "
+                     f"the state after the step: chi2 {gain:.1f} lower than the step alone, {len(starts)} starts tried)")
     return use_all, notes
 
 
