@@ -34,7 +34,7 @@ RERUN_MODULE = "twin/evaluation/recording.py"
 DIAGNOSIS_ORDER = (
     "features", "candidates", "field", "atoms", "values",  # the vocabulary: feature kinds, rows, atoms, their values
     "extend", "floor", "blocks",  # the extended model, the noise floor and sessions, the held-out blocks
-    "structure", "configurations", "grams", "problem", "scoring", "ordering", "confirm", "refine",  # the selection's steps
+    "structure", "configurations", "grams", "problem", "scoring", "ordering", "confirm", "harmonics", "refine",  # the selection's steps
     "loads", "pools", "changes",  # the load terms, the two pools, the change scan
     "describe", "late", "rule", "after", "diagnose", "effect_fit",  # the procedure; a given model fitted without it
     "apply", "report",  # using an extended calibration; diagnosis.json and the plots

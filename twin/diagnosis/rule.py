@@ -14,7 +14,7 @@ around it is :mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -29,6 +29,7 @@ from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_ato
                     stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
+from .harmonics import with_second_order
 from .late import as_event
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, common_chi2, covariance, held_out_rms, psi_init, refit_with, update_gross
@@ -184,6 +185,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                 c_refined = confirm(prob, fit, refined, z_min)
                 if not c_refined.local:
                     s, c = refined, c_refined
+        if c.z > z_min and c.z_without_best_row > z_min and not (c.better or c.local) and with_second_order(
+                prob, fit, s, remaining, sizes, alpha=alpha_select):
+            c = replace(c, better=True)  # a harmonic whose joint holds a second order: judged with it
         implausible = _implausible(prob, s)
         ok = c.holds(z_min) and implausible is None
         # [configurations] a term of joint angles also holds between the sampled values (folds of them left out)
