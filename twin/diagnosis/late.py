@@ -680,10 +680,9 @@ def step_as_return(setup, prob_all: Problem, use_all: Fit, step, *, alpha: float
     the window of that zero ending at the step's start, from any row with ``MIN_ROWS`` rows before it and inside it,
     in place of the step where its ``Delta chi2`` (against ``use_all`` without the step, on ``prob_all``'s rows)
     exceeds the step's by more than ``chi2_1`` at ``alpha`` over the starts tried (one constant more: its start,
-    chosen among them). A glitch whose start the
-    rows that fit hold too few rows of to place and whose return comes after them is one window, not a step: the
-    step leaves the rows before the glitch in the glitch's state. Returns the fit, the kept term and a note (empty:
-    the step stands)."""
+    chosen among them). A glitch whose start the rows that fit hold too few rows of to place and whose return comes
+    after them is one window, not a step: the step leaves the rows before the glitch in the glitch's state. Returns
+    the fit, the kept term and a note (empty: the step stands)."""
     if not (is_step(step) and step.place == "joint" and not isinstance(step.features[0], Gated)):
         return use_all, step, ""
     _, tv = row_times(setup.ctx)
