@@ -39,7 +39,7 @@ from ..estimator import distributions as dists
 from ..estimator.distributions import chi2_isf
 from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, change_at, change_pool_sizes, is_change,
                       is_step, is_window, place_scatter, row_times, same_event, scan_changes, started_at)
-from .atoms import is_load_change
+from .atoms import Atom, is_load_change
 from .features import Gated, Heat, Lag, Window
 from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, update_gross
 from .confirm import confirm
@@ -521,6 +521,28 @@ def end_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha: 
                       f"10^{logp / np.log(10.0):.1f} after the factor {factor}, without any one of those rows too)")
 
 
+def _swap_for_best(prob_all: Problem, use_all: Fit, k: int, readings: list[Atom], sizes: dict, *,
+                   alpha: float) -> tuple[Fit, Scored, float] | None:
+    """The kept term ``k`` of ``use_all`` and its other ``readings`` (the same change with another start or end),
+    scored against the fit without it on ``prob_all``'s rows: the reading that explains most replaces it where its
+    ``Delta chi2`` exceeds the term's by more than ``chi2_1`` at ``alpha`` over the readings tried. Returns the fit
+    with it, the reading and that gain (in units of the evidence scale), or None (the term stands)."""
+    a = use_all.chosen[k][0]
+    without = refit_with(prob_all, use_all, [c for i, c in enumerate(use_all.chosen) if i != k])
+    got = score_atoms(prob_all, without, [a] + readings, sizes, exact_top=len(readings) + 1)
+    kept = next((g for g in got if g.atom is a), None)
+    wins = [g for g in got if g.atom is not a]
+    if kept is None or not wins:
+        return None
+    best = max(wins, key=lambda g: g.dchi2)
+    gain = (best.dchi2 - kept.dchi2) / prob_all.evidence_scale
+    if gain <= dists.chi2_isf(alpha / len(readings), 1):
+        return None
+    chosen = list(use_all.chosen)
+    chosen[k] = (best.atom, best.basis)
+    return refit_with(prob_all, use_all, chosen), best, gain
+
+
 def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[Fit, list[str]]:
     """Each kept change of the models to use ends, on every row, where the rows after it return to the state before
     it: a step is a window that has not ended, and a window's end is a constant of the term like its start (the block
@@ -545,21 +567,11 @@ def end_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tuple[
                 if t_rows[i] > t_rows[i - 1]]
         if not ends:
             continue
-        others = [c for i, c in enumerate(use_all.chosen) if i != k]
-        without = refit_with(prob_all, use_all, others)
-        sizes = {"change": 1, "change_window": 1}
-        got = score_atoms(prob_all, without, [a] + [as_window(a, e) for e in ends], sizes, exact_top=len(ends) + 1)
-        step = next((g for g in got if g.atom is a), None)
-        wins = [g for g in got if g.atom is not a]
-        if step is None or not wins:
+        swapped = _swap_for_best(prob_all, use_all, k, [as_window(a, e) for e in ends],
+                                 {"change": 1, "change_window": 1}, alpha=alpha)
+        if swapped is None:
             continue
-        best = max(wins, key=lambda g: g.dchi2)
-        gain = (best.dchi2 - step.dchi2) / prob_all.evidence_scale
-        if gain <= dists.chi2_isf(alpha / len(ends), 1):
-            continue
-        chosen = list(use_all.chosen)
-        chosen[k] = (best.atom, best.basis)
-        use_all = refit_with(prob_all, use_all, chosen)
+        use_all, best, gain = swapped
         notes.append(f"a change ends on every row: {best.atom.label} (the rows after its end back in the state before it: "
                      f"chi2 {gain:.1f} lower than with the end the first block gave it, {len(ends)} ends tried)")
     return use_all, notes
@@ -591,22 +603,11 @@ def begun_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tupl
                   if t_rows[i] > t_rows[i - 1]]
         if not starts:
             continue
-        others = [c for i, c in enumerate(use_all.chosen) if i != k]
-        without = refit_with(prob_all, use_all, others)
-        sizes = {a.pool: 1, "change_window": 1}
-        got = score_atoms(prob_all, without, [a] + [as_window(started_at(a, t0), at) for t0 in starts], sizes,
-                          exact_top=len(starts) + 1)
-        step = next((g for g in got if g.atom is a), None)
-        wins = [g for g in got if g.atom is not a]
-        if step is None or not wins:
+        swapped = _swap_for_best(prob_all, use_all, k, [as_window(started_at(a, t0), at) for t0 in starts],
+                                 {a.pool: 1, "change_window": 1}, alpha=alpha)
+        if swapped is None:
             continue
-        best = max(wins, key=lambda g: g.dchi2)
-        gain = (best.dchi2 - step.dchi2) / prob_all.evidence_scale
-        if gain <= dists.chi2_isf(alpha / len(starts), 1):
-            continue
-        chosen = list(use_all.chosen)
-        chosen[k] = (best.atom, best.basis)
-        use_all = refit_with(prob_all, use_all, chosen)
+        use_all, best, gain = swapped
         notes.append(f"a step ends a change the rows before it held: {best.atom.label} (the rows before its start in "
                      f"the state after the step: chi2 {gain:.1f} lower than the step alone, {len(starts)} starts tried)")
     return use_all, notes
