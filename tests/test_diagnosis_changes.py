@@ -786,3 +786,15 @@ def test_a_step_that_ends_a_payload_hung_on_within_the_rows_is_read_as_its_windo
     assert len(win) == 1 and notes, [a.label for a, _ in got.chosen]
     f0 = win[0].features[0]
     assert abs(int(np.searchsorted(t, f0.at)) - s) <= 2 and f0.until == step.features[0].at, win[0].label
+
+
+def test_the_selection_scans_short_windows_only_where_the_grid_is_fine():
+    """The selection's short windows (from MIN_ROWS rows at every row) are scanned on a campaign of a few hundred
+    calibration rows and left to the glitch scan on one of thousands (their count grows with the square of the rows)."""
+    from twin.diagnosis.changes import MIN_ROWS, WINDOW_MIN_ROWS, _short_pairs, selection_short
+
+    assert selection_short(200) == MIN_ROWS
+    assert selection_short(12000) is None
+    small = _short_pairs(200, MIN_ROWS)
+    assert int(np.max(small[1] - small[0])) <= 2 * WINDOW_MIN_ROWS - 1
+    assert len(_short_pairs(12000, MIN_ROWS)[0]) > 1000 * len(small[0])

@@ -47,7 +47,7 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at", "change_at", "place_scatter", "window_logp"]
+           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "selection_short"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -183,6 +183,17 @@ def _short_pairs(n: int, min_rows: int) -> tuple[np.ndarray, np.ndarray]:
     b = a + w
     ok = b <= s[-1]
     return a[ok], b[ok]
+
+
+def selection_short(n_cal: int) -> int | None:
+    """The shortest window the selection scans at every row (``short`` of :func:`scan_changes` and
+    :func:`change_pool_sizes`): ``MIN_ROWS`` where the short windows between the grid's boundaries are at most
+    ``2 WINDOW_MIN_ROWS - 1`` rows wide (a glitch of a few rows), else None (the grid alone: on a campaign of thousands
+    of rows the short windows at every row are thousands of times the grid's pairs per place and per round; the
+    glitch scan after the blocks tries them once, :func:`twin.diagnosis.late.glitches`)."""
+    s = _steps(n_cal)
+    stride = max(1, int(np.ceil(len(s) / WINDOW_GRID)))
+    return MIN_ROWS if 2 * stride - 1 <= 2 * WINDOW_MIN_ROWS - 1 else None
 
 
 def change_pool_sizes(n_cal: int, places: list[ChangePlace], *, short: int | None = None) -> dict[str, int]:

@@ -49,7 +49,8 @@ from .pools import SCAN_ORDERS, catalogue_atoms, generic_atoms, recorded_lag_ato
 from .values import approach_unknown, history_signs
 from .blocks import REPORT_FRACTION, REPORT_MIN_VISITS, confirm_and_report, held_out_sets, sessions
 from .candidates import EFFECT_VOCABULARY, RowContext
-from .changes import MIN_ROWS, change_places, change_pool_sizes, describe_changes, is_change, is_window, row_times
+from .changes import (MIN_ROWS, change_places, change_pool_sizes, describe_changes, is_change, is_window, row_times,
+                      selection_short)
 from .configurations import JointSampling, joint_sampling, offered, sampling_report
 from .extend import error_stats
 from .loads import reads_its_load
@@ -574,7 +575,7 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     counted = [a for a in pool if not (a.family == "backlash" and a.features[0].kind == "lastmove")]
     sizes = {k: max(1, sum(a.pool == k for a in counted)) for k in ("catalogue", "scan", "generic", "load")}
     sizes.update(change_pool_sizes(setup.problem.obs_cal.n, change_places(prep.nominal, cat, setup.ctx.q),
-                                   short=MIN_ROWS))
+                                   short=selection_short(setup.problem.obs_cal.n)))
     return pool, sizes
 
 

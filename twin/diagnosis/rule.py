@@ -22,8 +22,8 @@ import numpy as np
 from ..estimator.distributions import chi2_isf
 from ..units import M_PER_MM, RAD_PER_DEG
 from .atoms import Atom, is_load_change
-from .changes import (MIN_ROWS, change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
-                      window_logp)
+from .changes import (change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
+                      selection_short, window_logp)
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
                     stiffening_atoms, tilt_angles)
@@ -233,8 +233,9 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
         lead: dict[str, Atom] = {}
         if places:
             # the best row of every place for a change, against the current fit (changes.scan_changes; windows from
-            # MIN_ROWS rows: a glitch of a few rows read by a window of more takes a load's shapes to fit the extra row)
-            remaining += [a for a in scan_changes(prob, fit, places, short=MIN_ROWS)
+            # MIN_ROWS rows where the grid is fine, changes.selection_short: a glitch of a few rows read by a window
+            # of more takes a load's shapes to fit the extra row)
+            remaining += [a for a in scan_changes(prob, fit, places, short=selection_short(prob.obs_cal.n))
                           if a.key not in rejected and slot(a) not in taken]
             # a payload's change kept: the same change (its start and end) at every other joint's compliance is tried
             # first (one event loads every joint below the flange at once: its timing is the kept change's)
