@@ -22,6 +22,9 @@ export OMP_NUM_THREADS ?= 1
 # one BLAS kernel on every x86-64 machine: OpenBLAS picks its kernels by CPU (an AVX-512 machine's differ from an
 # AVX2 one's in the last bits), and the golden regression test asks for bit-identical 6R results
 export OPENBLAS_CORETYPE ?= Haswell
+# numpy's own kernels (sin, cos, exp... dispatched by CPU) pinned to the AVX2 level for the same reason: an AVX-512
+# machine's differ from an AVX2 one's in the last bits; disabling a feature a machine lacks changes nothing
+export NPY_DISABLE_CPU_FEATURES ?= X86_V4 AVX512_ICL AVX512_SPR
 # test workers: one per core (pytest-xdist)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
