@@ -3,7 +3,7 @@
 Effects are injected undeclared (nothing about them reaches the dataset but the commanded joints, the row
 order and, for thermal growth, the recorded temperature). Sizes are >= 3x the noise after a perfect
 geometric-only calibration (``effect_size``). A selection outcome is tested over 10 seeds with a stated pass
-rate (the costly ones on two of their seeds in the suite and on all 10 in the rate benchmark:
+rate (the costly ones on one of their seeds in the suite and on all 10 in the rate benchmark:
 :func:`_diagnosis_helpers.rate_seeds`); before/after are the diagnosis' report rows, the oracle the estimator's
 geometry re-identified with the true effect known exactly (:func:`_diagnosis_helpers.oracle_rms`)."""
 

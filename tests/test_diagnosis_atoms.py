@@ -5,7 +5,7 @@ and ``temp_c`` whatever the effect, so no channel hints at the answer. Before/af
 rows (held out, used for nothing else); the oracle is the estimator's geometry re-identified on the same
 calibration rows with the true effect known exactly (:func:`_diagnosis_helpers.oracle_rms`: estimator code only).
 A selection outcome must hold on at least 9 of 10 seeds and the median after/oracle stay within the bound (the
-costly tests run two seeds in the suite and all 10 in the rate benchmark: :func:`_diagnosis_helpers.rate_seeds`).
+costly tests run one seed in the suite and all 10 in the rate benchmark: :func:`_diagnosis_helpers.rate_seeds`).
 """
 
 import numpy as np

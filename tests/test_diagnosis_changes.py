@@ -6,7 +6,7 @@ are the diagnosis' report rows (held out, a block of time after the rows that fi
 geometry re-identified on the same calibration rows with the true effect known exactly
 (:func:`_diagnosis_helpers.oracle_rms`). A family is *named* on a seed when the diagnosis names it (and, for a
 change, locates it within 2 rows) and its after/oracle is at most 1.2; at least 9 of 10 seeds must be (the costly
-tests run two of their seeds in the suite and all 10 in the rate benchmark: :func:`_diagnosis_helpers.rate_seeds`).
+tests run one of their seeds in the suite and all 10 in the rate benchmark: :func:`_diagnosis_helpers.rate_seeds`).
 """
 
 import functools
