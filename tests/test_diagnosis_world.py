@@ -3,7 +3,8 @@
 level instead of rendering. Every dataset records t_s and temp_c whatever the effect.
 
 Each outcome is tested over 10 cases (two visible plans x five noise seeds) with a stated pass rate (the suite
-runs one of them, the plans alternating over the effects, and the rate benchmark all 10: :func:`_diagnosis_helpers.rate_seeds`).
+runs one of them, the plans alternating over the effects, and the rate benchmark all 10:
+:func:`_diagnosis_helpers.rate_seeds`).
 The reference is the *oracle*: the true effect known exactly (the world's centres with minus without it,
 ``effect_delta``) and the geometry re-identified on the same calibration rows by the estimator
 (:func:`_diagnosis_helpers.oracle_rms`); before/after are the diagnosis' report rows."""
