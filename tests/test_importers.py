@@ -276,15 +276,38 @@ def _set_cell(text, line, col, value):
                                                  r"decimal mark is ','"),
     (lambda t: _set_cell(t, 3, 1, "abc"), r"row 2 \(line 3\), column 'j1': not a number: 'abc'"),
     (lambda t: t.replace("mrz", "mrz_deg"), r"no column 'mrz' \(the map's measurement.rotation\); the header \(line 1\)"),
+    (lambda t: _set_cell(t, 3, 1, "0;5"), r"row 2 \(line 3\): 16 cells where the header has 15 columns \(beyond the "
+                                          r"header: '0,0125'\): or a cell holding the separator ';' without quotes"),
+    (lambda t: t.replace("std_x", "std_x;j2", 1).replace("0,0125\r\n", "0,0125;0\r\n"),
+     r"the header \(line 1\) holds the map's column\(s\) \['j2'\] more than once"),
+    (lambda t: t.replace(";", ","), r"the header \(line 1\) has 'Timestamp,j1,.*' \(the header is one cell holding "
+                                    r"',': the file is ','-separated, this reader expects ';'\)"),
 ])
 def test_what_cannot_be_read_is_named(tmp_path, edit, match):
-    """A '.' in a ','-decimal file, a word in a joint column, a column the map names missing: DatasetError naming
-    file, row, line, column and value."""
+    """A '.' in a ','-decimal file, a word in a joint column, a column the map names missing, a row wider than the
+    header (it would be read shifted), a mapped column twice in the header, another separator than the map's:
+    DatasetError naming file, row, line, column and value."""
     _pose_csv(tmp_path / "a.csv")
     p = tmp_path / "a.csv"
     p.write_text(edit(p.read_text()))
     with pytest.raises(DatasetError, match=match):
         import_columns(_pose_map(tmp_path / "m.toml", "a.csv"), tmp_path / "ds")
+
+
+def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_path):
+    """A FIGAROH-style CSV whose row has a cell beyond the header, or whose header names a joint twice: DatasetError
+    naming the file and the row or the column (not a traceback, not a shifted or overwritten read)."""
+    from twin.importers.mocap import read_mocap_csv
+
+    r = robot_from_spec("irb1200")
+    head = "q1,q2,q3,q4,q5,q6,x1,y1,z1"
+    (tmp_path / "a.csv").write_text(f"{head}\n0,1,2,3,4,5,0.1,0.2,0.3\n0,1,2,3,4,5,0.1,0.2,0,3\n")
+    with pytest.raises(DatasetError, match=r"a.csv: row 2: 10 cells where the header has 9 columns \(beyond the "
+                                           r"header: '3'\): a ',' decimal mark"):
+        read_mocap_csv(tmp_path / "a.csv", r)
+    (tmp_path / "b.csv").write_text(f"{head},q2\n0,1,2,3,4,5,0.1,0.2,0.3,9\n")
+    with pytest.raises(DatasetError, match=r"b.csv: columns \['q2'\] appear more than once in the header"):
+        read_mocap_csv(tmp_path / "b.csv", r)
 
 
 @pytest.mark.parametrize("edit,match", [

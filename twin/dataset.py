@@ -23,7 +23,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import open_text, parse_finite, read_toml
+from .files import check_row_width, duplicate_names, open_text, parse_finite, read_toml, separator_hint
 from .kinematics import RobotModel
 from .robots import ROBOTS, get_robot
 from .transforms import pose6_to_transform, transform_to_pose6
@@ -221,6 +221,7 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         return get_robot(spec)
     if not isinstance(spec, dict):
         raise DatasetError(f"{where}: field 'robot' must be a robot name or a table, got {type(spec).__name__}")
+    _check_robot_fields(spec, where)
     if "urdf" in spec:
         from .urdf import read_urdf_chain
 
@@ -294,6 +295,33 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         raise DatasetError(f"{where}: table 'robot': {exc}") from None
 
 
+_ROBOT_FIELDS = {  # the fields of each form of an inline robot table (docs/formats.md)
+    "urdf file": {"urdf", "root_link", "end_link", "name"},
+    "joint table": {"name", "convention", "joints", "end"},
+    "dh/mdh table": {"name", "convention", "beta_joints", "theta_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg",
+                     "q_min_deg", "q_max_deg"},
+}
+_JOINT_FIELDS = {"name", "type", "xyz_mm", "rpy_deg", "axis", "limits", "mass_kg", "com_mm", "inertia_kg_m2"}
+
+
+def _check_robot_fields(spec: dict, where: str) -> None:
+    """Refuse a field the robot table's form does not read (a misspelt or unsupported one would be ignored)."""
+    form = "urdf file" if "urdf" in spec else "joint table" if spec.get("convention") == "urdf" else "dh/mdh table"
+    tables = [("robot", spec, _ROBOT_FIELDS[form])]
+    if form == "joint table":
+        joints = spec.get("joints") if isinstance(spec.get("joints"), list) else []
+        tables += [(f"robot.joints[{k}]", j, _JOINT_FIELDS) for k, j in enumerate(joints) if isinstance(j, dict)]
+        if isinstance(spec.get("end"), dict):
+            tables.append(("robot.end", spec["end"], {"xyz_mm", "rpy_deg"}))
+    for name, table, known in tables:
+        unknown = sorted(set(table) - known)
+        if unknown:
+            hint = (": a DH/MDH table has revolute joints only; a prismatic joint needs a joint table (convention = "
+                    "\"urdf\") or a URDF" if form == "dh/mdh table" and any("prism" in u for u in unknown) else "")
+            raise DatasetError(f"{where}: table {name!r} ({form}): unknown field(s) {unknown}; its fields are "
+                               f"{sorted(known)}{hint}")
+
+
 # ------------------------------------------------------------------------------------------------
 # Reading
 # ------------------------------------------------------------------------------------------------
@@ -325,11 +353,17 @@ def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None
     return position, orientation
 
 
+_TOML_KEYS = {"schema_version", "robot", "provenance", "plate", "markers", "noise", "stations", "tool"}
+
+
 def _read_toml(path: Path) -> dict:
     meta = read_toml(path, DatasetError, missing="missing (a dataset folder holds poses.csv and dataset.toml)")
     version = meta.get("schema_version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
         raise DatasetError(f"{path}: schema_version {version!r} is not supported (this library reads {SCHEMA_VERSION})")
+    unknown = sorted(set(meta) - _TOML_KEYS)
+    if unknown:  # a misspelt table ([station.0], [nosie]) would be ignored
+        raise DatasetError(f"{path}: unknown key(s) or table(s) {unknown}; dataset.toml holds {sorted(_TOML_KEYS)}")
     return meta
 
 
@@ -521,7 +555,11 @@ def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate
     missing = [c for c in ("pose_id",) + jcols if c not in col]
     if missing:
         raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
-                           f"{', '.join(jcols)})")
+                           f"{', '.join(jcols)}){separator_hint(header)}")
+    beyond_joints = _joint_columns_beyond(header, jcols)
+    if beyond_joints:
+        raise DatasetError(f"{file}: columns {beyond_joints} name joints robot {robot.name!r} does not have (its "
+                           f"{len(jcols)} joints: {', '.join(jcols)}): joints of another robot?")
     K = plate.n_points
     mcols = marker_columns(K)
     beyond = [h for h in header if h.startswith("p") and h[1:].split("_")[0].isdigit() and h not in mcols]
@@ -546,6 +584,14 @@ def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate
                     extra=tuple(h for h in header if h not in known))
 
 
+def _joint_columns_beyond(header: Sequence[str], jcols: Sequence[str]) -> list[str]:
+    """The columns ``q<k>`` of ``header`` beyond a robot whose joint columns ``jcols`` are ``q1..qN`` (a file of
+    another robot's joints); empty for a robot whose joints have names."""
+    if tuple(jcols) != tuple(f"q{j}" for j in range(1, len(jcols) + 1)):
+        return []
+    return [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in jcols]
+
+
 def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int) -> _Rows:
     """Every data row: a unique integer ``pose_id``, the commanded joints (all given), whole marker points and/or a
     whole pose (a row without any says why in ``status``); lengths in [m] by ``to_m``, joints in [rad] / [m]."""
@@ -558,6 +604,7 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
     for k, r in enumerate(rows):
         rown = k + 1
         pid_txt = cols.cell(r, "pose_id")
+        check_row_width(list(cols.index), r, f"{file}: row {rown} (pose_id {pid_txt})", DatasetError)
         try:
             pid = int(pid_txt)
         except ValueError:
@@ -943,12 +990,18 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     if not path.exists():
         raise DatasetError(f"{path}: missing")
     with open_text(path, DatasetError) as f:
-        reader = csv.DictReader(f)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = list(reader)
+        lines = [r for r in csv.reader(f)]
+    header = [h.strip() for h in lines[0]] if lines else []
     missing = [c for c in required if c not in header]
     if missing:
-        raise DatasetError(f"{path}: missing required columns {missing}")
+        raise DatasetError(f"{path}: missing required columns {missing}{separator_hint(header)}")
+    dup = duplicate_names(header)
+    if dup:
+        raise DatasetError(f"{path}: duplicate columns {dup}")
+    rows = []
+    for k, r in enumerate(r for r in lines[1:] if r):
+        check_row_width(header, r, f"{path}: row {k + 1}", DatasetError)
+        rows.append({h: (r[i] if i < len(r) else None) for i, h in enumerate(header)})
     if not rows:
         raise DatasetError(f"{path}: no data rows")
     return header, rows
@@ -964,6 +1017,10 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
     jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
+    beyond = _joint_columns_beyond(header, jcols)
+    if beyond:
+        raise DatasetError(f"{path}: columns {beyond} name joints the robot does not have (its {len(jcols)} joints: "
+                           f"{', '.join(jcols)}): joints of another robot?")
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
     q = np.zeros((n, len(jcols)))

@@ -59,6 +59,13 @@ def run(args: argparse.Namespace) -> int:
               f"{len(plate.flagged)} row(s) left out (pose_id {list(plate.flagged)[:10]})", file=sys.stdout)
     ds = plate.dataset
     cal = Calibration.load(args.calibration) if args.calibration else None
+    if cal is not None:
+        from ..estimator.register import check_same_robot
+
+        try:
+            check_same_robot(cal, ds)
+        except ValueError as exc:
+            raise ValueError(f"--calibration {args.calibration}: {exc}") from None
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)

@@ -46,7 +46,7 @@ import numpy as np
 
 from ..dataset import (OPTIONAL_COLUMNS, POSE_COLUMNS, Dataset, DatasetError, Plate, joint_columns, marker_columns,
                        read_noise_table, robot_from_spec, write_dataset)
-from ..files import parse_finite, read_text, read_toml
+from ..files import check_row_width, duplicate_names, parse_finite, read_text, read_toml, separator_hint
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec, pose6_to_transform
 from ..units import M_PER_MM, RAD_PER_DEG
@@ -556,9 +556,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     path, fm = spec.path, spec.map
     if not path.is_file():
         raise DatasetError(f"{path}: no such CSV")
-    text = read_text(path, DatasetError)
-    lines = list(csv.reader(io.StringIO(text[1:] if text.startswith("\ufeff") else text, newline=""),
-                            delimiter=fm.separator))
+    lines = list(csv.reader(io.StringIO(read_text(path, DatasetError), newline=""), delimiter=fm.separator))
     if len(lines) < fm.header_row:
         raise DatasetError(f"{path}: {len(lines)} lines, no header row at line {fm.header_row}")
     header = [h.strip() for h in lines[fm.header_row - 1]]
@@ -584,7 +582,10 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     if missing:
         c, k = missing[0]
         raise DatasetError(f"{path}: no column {c!r} (the map's {k}); the header (line {fm.header_row}) has "
-                           f"{', '.join(repr(h) for h in header)}")
+                           f"{', '.join(repr(h) for h in header)}{separator_hint(header, fm.separator)}")
+    dup = [h for h in duplicate_names(header) if h in {c for c, _ in need}]
+    if dup:
+        raise DatasetError(f"{path}: the header (line {fm.header_row}) holds the map's column(s) {dup} more than once")
     n, N, K = len(data), len(fm.joint_columns), fm.n_points
     q = np.zeros((n, N))
     P = np.zeros((n, K, 3))
@@ -605,6 +606,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
         return sum(s * num(k, line, r, c) for s, c in terms)
 
     for k, (line, r) in enumerate(data):
+        check_row_width(header, r, f"{path}: row {k + 1} (line {line})", DatasetError, separator=fm.separator)
         for jj, c in enumerate(fm.joint_columns):
             q[k, jj] = num(k, line, r, c) * fm.joint_scale[jj]
         if fm.kind == "points":

@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,7 @@ from typing import Sequence
 import numpy as np
 
 from ..dataset import Dataset, DatasetError, Plate, write_dataset
-from ..files import open_text, parse_finite
+from ..files import check_row_width, duplicate_names, open_text, parse_finite, separator_hint
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 from ..units import M_PER_MM, MM_PER_M
@@ -85,11 +86,17 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     with open_text(path, DatasetError) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]
+        rows = []
+        for k, r in enumerate(reader):
+            check_row_width(header, header + r.pop(None, []), f"{path}: row {k + 1}", DatasetError)
+            rows.append({(c or "").strip(): (v or "").strip() for c, v in r.items()})
+    dup = [h for h in duplicate_names(header) if h in robot.joint_names or re.fullmatch(r"[xyz]\d+", h)]
+    if dup:
+        raise DatasetError(f"{path}: columns {dup} appear more than once in the header")
     missing = [c for c in robot.joint_names if c not in header]
     if missing:
         raise DatasetError(f"{path}: missing joint columns {missing} (robot {robot.name!r} has joints "
-                           f"{', '.join(robot.joint_names)})")
+                           f"{', '.join(robot.joint_names)}){separator_hint(header)}")
     K = 0
     while all(f"{c}{K + 1}" in header for c in "xyz"):
         K += 1
