@@ -310,6 +310,23 @@ def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_
         read_mocap_csv(tmp_path / "b.csv", r)
 
 
+def test_import_warns_when_the_nominal_robot_misses_the_rows_by_more_than_a_robot_can(tmp_path, capsys):
+    """The tracker's joints in radians read as degrees: twin import writes the dataset and warns that the nominal
+    robot misses the rows by 5 % or more of their motion, naming the map's keys to check; read in radians, no
+    warning."""
+    _pose_csv(tmp_path / "a.csv")
+    m = _pose_map(tmp_path / "m.toml", "a.csv")
+    out = {}
+    for unit in ("rad", "deg"):
+        m.write_text(re.sub(r'unit = "(rad|deg)"', f'unit = "{unit}"', m.read_text(), count=1))
+        assert main(["import", "--map", str(m), "--out", str(tmp_path / unit)]) == 0
+        out[unit] = capsys.readouterr().out
+    assert "WARNING" not in out["rad"]
+    assert re.search(r"WARNING: station \S+: the nominal robot misses its rows by [0-9.]+ mm RMS, \d+% of the [0-9.]+ mm "
+                     r"they move: no robot's own errors are that large; check the map's joint columns \(their order\) "
+                     r"and units \(joints.unit\)", out["deg"]), out["deg"]
+
+
 @pytest.mark.parametrize("edit,match", [
     (lambda t: t.replace('euler = "XYZ"', 'euler = "XYx"'), "measurement.euler: must be an Euler sequence"),
     (lambda t: t.replace('unit = "rad"', 'unit = "grad"'), r"joints.unit: joint 1 \(q1, revolute\) must be in"),
