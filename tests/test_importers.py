@@ -310,6 +310,22 @@ def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_
         read_mocap_csv(tmp_path / "b.csv", r)
 
 
+def test_a_mocap_body_of_two_points_is_refused_naming_the_column_map(tmp_path):
+    """The mocap import registers the body's frame, which two points do not give: DatasetError naming the file and
+    the column map that fits one or two points."""
+    from twin.importers.mocap import import_mocap
+
+    src = ROOT / "data" / "tiago_mocap"
+    joints = ["torso_lift_joint"] + [f"arm_{i}_joint" for i in range(1, 8)]
+    rows = [[0.1 * k] * 8 + [0.0, 0.0, 0.1 * k, 0.05, 0.0, 0.1 * k] for k in range(4)]
+    (tmp_path / "two.csv").write_text("\n".join([",".join(joints + ["x1", "y1", "z1", "x2", "y2", "z2"])]
+                                                + [",".join(str(v) for v in r) for r in rows]) + "\n")
+    with pytest.raises(DatasetError, match=r"two.csv: 2 marker point\(s\) \(x1..z2\): this import places the body on "
+                                           r"the flange by a hand-eye registration of its frame, which needs 3 points"):
+        import_mocap([(tmp_path / "two.csv", "calibration")], src / "tiago_48_schunk.urdf", "base_link",
+                     "wrist_ft_tool_link", tmp_path / "ds")
+
+
 def test_import_warns_when_the_nominal_robot_misses_the_rows_by_more_than_a_robot_can(tmp_path, capsys):
     """The tracker's joints in radians read as degrees: twin import writes the dataset and warns that the nominal
     robot misses the rows by 5 % or more of their motion, naming the map's keys to check; read in radians, no

@@ -138,7 +138,7 @@ def check_rigid(P: np.ndarray, where: str, *, rigid_tol_mm: float = 1.0, marker_
     med = np.median(d, axis=0)
     if np.median(med) > 5.0:
         raise DatasetError(f"{where}: the markers are {np.median(med):.4g} m apart: the columns look like millimetres "
-                           f"but the unit given is {marker_unit!r} (FIGAROH writes metres; pass marker_unit='mm')")
+                           f"but the unit given is {marker_unit!r} (FIGAROH writes metres; pass marker_unit='mm', twin import --marker-unit mm)")
     if np.median(med) < 1e-3:
         raise DatasetError(f"{where}: the markers are {np.median(med) * MM_PER_M:.4g} mm apart: the columns look like "
                            f"metres but the unit given is {marker_unit!r}")
@@ -278,6 +278,10 @@ def import_mocap(
         if d.size and np.abs(np.median(d, axis=0) - d_ref).max() > rigid_tol_mm * M_PER_MM:
             raise DatasetError(f"{r.path}: its marker distances differ from {parts[0][0].path}'s by "
                                f"{np.abs(np.median(d, axis=0) - d_ref).max() * MM_PER_M:.3f} mm: another rigid body?")
+    if K < 3:
+        raise DatasetError(f"{parts[0][0].path}: {K} marker point(s) (x1..z{K}): this import places the body on the "
+                           "flange by a hand-eye registration of its frame, which needs 3 points or more; a column map "
+                           "(twin import --map, docs/formats.md) fits 1 or 2 points on the flange")
     body, poses = marker_geometry(P_all)
     q_all = np.concatenate([r.q for r, _ in parts])
     sets = np.concatenate([[s] * r.q.shape[0] for r, s in parts])
