@@ -85,6 +85,10 @@ def _run_map(args) -> int:
             print(f"  WARNING: station {sid}: {warning}")
     for n in rep.notes:
         print(f"  note: {n}")
+    spec = ds.robot_spec
+    if isinstance(spec, dict) and spec.get("convention") in ("dh", "mdh") and not {"q_min_deg", "q_max_deg"} <= set(spec):
+        print("  note: the robot table gives no q_min_deg / q_max_deg: every joint's limits are taken as -180..180 deg "
+              "(twin predict and twin compensate refuse joints beyond them; give the robot's limits in the map)")
     return 0
 
 
