@@ -203,9 +203,8 @@ def test_diagnose_refuses_a_calibration_of_another_robot(tmp_path, capsys):
     assert not (tmp_path / "d").exists()
 
 
-def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the_nominal_robot(tmp_path, capsys):
-    """Five rows of a 6-joint arm (four calibrate, one validates) leave a model worse than the nominal robot on the
-    validation row: twin calibrate says so (and says nothing of it on 20 rows of the same campaign)."""
+def _few_rows(tmp_path, n: int) -> Path:
+    """The first ``n`` of 20 rows of a 6-joint DH arm's campaign (a laser tracker's three points), imported."""
     import sys
 
     import numpy as np
@@ -217,15 +216,33 @@ def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the
     robot = N.make_robot(rng, "dh", 6)
     s = N.measure(N.perturbed(robot, rng), N.sample_joints(robot, rng, 20), N.random_frame(rng), rng, noise_mm=0.005,
                   markers=np.array([[0, 0, 0.1], [0.06, 0, 0.1], [0, 0.07, 0.12]]))
+    sub = N.Session(q=s.q[:n], base2meas=s.base2meas, points=s.points[:n], markers=s.markers)
+    m = N.write_campaign(tmp_path / f"lab{n}", robot, [("a.csv", sub, {})], N.DIALECTS[0], noise_mm=0.005)
+    assert main(["import", "--map", str(m), "--out", str(tmp_path / f"ds{n}")]) == 0
+    return tmp_path / f"ds{n}"
+
+
+def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the_nominal_robot(tmp_path, capsys):
+    """Five rows of a 6-joint arm (four calibrate, one validates) leave a model worse than the nominal robot on the
+    validation row: twin calibrate says so (and says nothing of it on 20 rows of the same campaign)."""
     out = {}
     for n in (5, 20):
-        sub = N.Session(q=s.q[:n], base2meas=s.base2meas, points=s.points[:n], markers=s.markers)
-        m = N.write_campaign(tmp_path / f"lab{n}", robot, [("a.csv", sub, {})], N.DIALECTS[0], noise_mm=0.005)
-        assert main(["import", "--map", str(m), "--out", str(tmp_path / f"ds{n}")]) == 0
-        assert main(["calibrate", str(tmp_path / f"ds{n}"), "--out", str(tmp_path / f"cal{n}")]) == 0
+        assert main(["calibrate", str(_few_rows(tmp_path, n)), "--out", str(tmp_path / f"cal{n}")]) == 0
         out[n] = capsys.readouterr().out
     assert "WARNING: the calibrated model misses the validation rows by more than the nominal robot does" in out[5]
     assert "WARNING: the calibrated model misses" not in out[20]
+
+
+def test_diagnose_warns_when_the_rows_that_fit_cannot_identify_the_geometry(tmp_path, capsys):
+    """Five rows of a 6-joint arm: the geometric model of the rows that fit fixes parameters these configurations
+    cannot identify, and twin diagnose says its figures rest on it (and says nothing of it on 20 rows)."""
+    out = {}
+    for n in (5, 20):
+        assert main(["diagnose", str(_few_rows(tmp_path, n)), "--out", str(tmp_path / f"d{n}"), "--no-plots",
+                     "--no-recording", "--threads", "1"]) == 0
+        out[n] = capsys.readouterr().out
+    assert "WARNING: rank deficiency from these configurations: " in out[5]
+    assert "every figure below rests on that model" in out[5] and "WARNING" not in out[20]
 
 
 def test_a_misspelt_table_of_dataset_toml_is_named(tmp_path):
