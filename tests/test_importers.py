@@ -141,6 +141,32 @@ def test_points_as_differences_of_columns_with_the_last_quarter_held_out(tmp_pat
     assert "row order" in rep.files[0]["time"] and "no t_s column" in ds.provenance
 
 
+def test_a_point_not_seen_is_written_empty_with_its_status_and_the_tool_point_still_found(tmp_path):
+    """A row whose point cells are all empty and one whose cells read NaN (a tracker that lost the reflector): both
+    rows kept with the point empty and status p0:empty, the others as before; the tool point (fitted on the rows that
+    saw it, base2meas given) exact; one NaN beside numbers is still a named error."""
+    _points_csv(tmp_path / "grid.csv", point=(0.002, -0.001, 0.031))
+    lines = (tmp_path / "grid.csv").read_text().split("\n")
+    for k, fill in ((4, ""), (9, "NaN")):
+        cells = lines[k].split(",")
+        cells[1:7] = [fill] * 6
+        lines[k] = ",".join(cells)
+    (tmp_path / "grid.csv").write_text("\n".join(lines))
+    (tmp_path / "m.toml").write_text(POINTS_MAP)
+    rep = import_columns(tmp_path / "m.toml", tmp_path / "ds")
+    ds = read_dataset(tmp_path / "ds")
+    assert ds.n == 80 and np.flatnonzero(~ds.sphere_seen[:, 0]).tolist() == [3, 8]
+    assert ds.status[3] == ds.status[8] == "p0:empty" and set(ds.status[[0, 1, 2, 4]]) == {""}
+    assert np.allclose(ds.plate.spheres_flange, [[0.002, -0.001, 0.031]], atol=1e-9)
+    assert any("2 point(s) of 2 row(s) empty in the CSV (not seen)" in n for n in rep.notes)
+    cells = lines[20].split(",")
+    cells[1] = "NaN"
+    lines[20] = ",".join(cells)
+    (tmp_path / "grid.csv").write_text("\n".join(lines))
+    with pytest.raises(DatasetError, match=r"row 20 \(line 21\), column 'x_t': not a finite number: 'NaN'"):
+        import_columns(tmp_path / "m.toml", tmp_path / "ds2")
+
+
 def test_points_on_the_flange_are_fitted_when_not_given(tmp_path):
     """With base2meas given (identity) the tool point is recovered exactly from noise-free points (31 mm on z)."""
     _points_csv(tmp_path / "grid.csv", point=(0.002, -0.001, 0.031))
