@@ -23,9 +23,10 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import check_row_width, duplicate_names, open_text, parse_finite, read_toml, separator_hint
+from .files import (check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite, read_toml,
+                    separator_hint)
 from .kinematics import RobotModel
-from .robots import ROBOTS, get_robot
+from .robots import ROBOTS, check_robot_fields, get_robot
 from .transforms import pose6_to_transform, transform_to_pose6
 from .units import M_PER_MM, RAD_PER_DEG, deg_to_rad
 
@@ -221,7 +222,10 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         return get_robot(spec)
     if not isinstance(spec, dict):
         raise DatasetError(f"{where}: field 'robot' must be a robot name or a table, got {type(spec).__name__}")
-    _check_robot_fields(spec, where)
+    try:
+        check_robot_fields(spec)
+    except ValueError as exc:
+        raise DatasetError(f"{where}: {exc}") from None
     if "urdf" in spec:
         from .urdf import read_urdf_chain
 
@@ -293,33 +297,6 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         raise
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"{where}: table 'robot': {exc}") from None
-
-
-_ROBOT_FIELDS = {  # the fields of each form of an inline robot table (docs/formats.md)
-    "urdf file": {"urdf", "root_link", "end_link", "name"},
-    "joint table": {"name", "convention", "joints", "end"},
-    "dh/mdh table": {"name", "convention", "beta_joints", "theta_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg",
-                     "q_min_deg", "q_max_deg"},
-}
-_JOINT_FIELDS = {"name", "type", "xyz_mm", "rpy_deg", "axis", "limits", "mass_kg", "com_mm", "inertia_kg_m2"}
-
-
-def _check_robot_fields(spec: dict, where: str) -> None:
-    """Refuse a field the robot table's form does not read (a misspelt or unsupported one would be ignored)."""
-    form = "urdf file" if "urdf" in spec else "joint table" if spec.get("convention") == "urdf" else "dh/mdh table"
-    tables = [("robot", spec, _ROBOT_FIELDS[form])]
-    if form == "joint table":
-        joints = spec.get("joints") if isinstance(spec.get("joints"), list) else []
-        tables += [(f"robot.joints[{k}]", j, _JOINT_FIELDS) for k, j in enumerate(joints) if isinstance(j, dict)]
-        if isinstance(spec.get("end"), dict):
-            tables.append(("robot.end", spec["end"], {"xyz_mm", "rpy_deg"}))
-    for name, table, known in tables:
-        unknown = sorted(set(table) - known)
-        if unknown:
-            hint = (": a DH/MDH table has revolute joints only; a prismatic joint needs a joint table (convention = "
-                    "\"urdf\") or a URDF" if form == "dh/mdh table" and any("prism" in u for u in unknown) else "")
-            raise DatasetError(f"{where}: table {name!r} ({form}): unknown field(s) {unknown}; its fields are "
-                               f"{sorted(known)}{hint}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -556,7 +533,7 @@ def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate
     if missing:
         raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
                            f"{', '.join(jcols)}){separator_hint(header)}")
-    beyond_joints = _joint_columns_beyond(header, jcols)
+    beyond_joints = columns_beyond_joints(header, jcols)
     if beyond_joints:
         raise DatasetError(f"{file}: columns {beyond_joints} name joints robot {robot.name!r} does not have (its "
                            f"{len(jcols)} joints: {', '.join(jcols)}): joints of another robot?")
@@ -582,14 +559,6 @@ def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate
                     has_markers=has_sph_cols, has_pose=has_pose_cols,
                     optional=tuple(c for c in OPTIONAL_COLUMNS if c in col),
                     extra=tuple(h for h in header if h not in known))
-
-
-def _joint_columns_beyond(header: Sequence[str], jcols: Sequence[str]) -> list[str]:
-    """The columns ``q<k>`` of ``header`` beyond a robot whose joint columns ``jcols`` are ``q1..qN`` (a file of
-    another robot's joints); empty for a robot whose joints have names."""
-    if tuple(jcols) != tuple(f"q{j}" for j in range(1, len(jcols) + 1)):
-        return []
-    return [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in jcols]
 
 
 def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int) -> _Rows:
@@ -1017,7 +986,7 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
     jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
-    beyond = _joint_columns_beyond(header, jcols)
+    beyond = columns_beyond_joints(header, jcols)
     if beyond:
         raise DatasetError(f"{path}: columns {beyond} name joints the robot does not have (its {len(jcols)} joints: "
                            f"{', '.join(jcols)}): joints of another robot?")

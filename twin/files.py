@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite", "check_row_width", "separator_hint",
-           "duplicate_names"]
+           "duplicate_names", "columns_beyond_joints"]
 
 
 def read_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> str:
@@ -106,3 +106,11 @@ def separator_hint(header: list[str], separator: str = ",") -> str:
 def duplicate_names(header: list[str]) -> list[str]:
     """The non-empty column names the ``header`` holds more than once (sorted)."""
     return sorted({h for h in header if h and header.count(h) > 1})
+
+
+def columns_beyond_joints(header, joint_cols) -> list[str]:
+    """The columns ``q<k>`` of ``header`` beyond a robot whose joint columns ``joint_cols`` are ``q1..qN`` (a file
+    of another robot's joints); empty for a robot whose joints have names."""
+    if tuple(joint_cols) != tuple(f"q{j}" for j in range(1, len(joint_cols) + 1)):
+        return []
+    return [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in joint_cols]
