@@ -90,9 +90,6 @@ def test_a_thread_count_below_one_is_named_before_any_work(tmp_path, capsys):
 
 # ---- a newcomer's hand-written files ---------------------------------------------------------------------------
 
-ROOT = Path(__file__).resolve().parent.parent
-
-
 def _golden_copy(tmp_path, edit=None, robot=None) -> Path:
     """The golden dataset copied, its poses.csv lines passed through ``edit`` (a function of the list of lines)
     and its robot name replaced by ``robot``."""
@@ -194,8 +191,10 @@ def test_a_folder_given_for_a_calibration_is_named_with_what_to_give(tmp_path, c
 def test_diagnose_refuses_a_calibration_of_another_robot(tmp_path, capsys):
     """twin diagnose --calibration of the IRB 1200 on a dataset of another robot: refused naming both robots, nothing
     written."""
-    cal = ROOT / "results" / "separation-quick" / "calibrations" / "default.calibration.json"
+    assert main(["calibrate", str(GOLDEN), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
+    cal = tmp_path / "cal" / "calibration.json"
     ds = _golden_copy(tmp_path, robot="brtirus0707a")
+    capsys.readouterr()
     line = _error(capsys, ["diagnose", str(ds), "--calibration", str(cal), "--out", str(tmp_path / "d"), "--no-plots",
                            "--no-recording", "--threads", "1"])
     assert line.startswith(f"twin diagnose: error: --calibration {cal}: dataset {ds}: robot 'brtirus0707a' (dh, ")
