@@ -303,7 +303,7 @@ def _set_cell(text, line, col, value):
     (lambda t: _set_cell(t, 3, 1, "abc"), r"row 2 \(line 3\), column 'j1': not a number: 'abc'"),
     (lambda t: t.replace("mrz", "mrz_deg"), r"no column 'mrz' \(the map's measurement.rotation\); the header \(line 1\)"),
     (lambda t: _set_cell(t, 3, 1, "0;5"), r"row 2 \(line 3\): 16 cells where the header has 15 columns \(beyond the "
-                                          r"header: '0,0125'\): or a cell holding the separator ';' without quotes"),
+                                          r"header: '0,0125'\): a cell holding the separator ';' without quotes"),
     (lambda t: t.replace("std_x", "std_x;j2", 1).replace("0,0125\r\n", "0,0125;0\r\n"),
      r"the header \(line 1\) holds the map's column\(s\) \['j2'\] more than once"),
     (lambda t: t.replace(";", ","), r"the header \(line 1\) has 'Timestamp,j1,.*' \(the header is one cell holding "

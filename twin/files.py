@@ -83,13 +83,13 @@ def check_row_width(header: list[str], row: list[str], where: str, error: type[V
     """Refuse a CSV row with more cells than the ``header`` has columns unless the cells beyond are empty (a
     spreadsheet's trailing separators): such a row would be read shifted. ``error`` names ``where`` (the file and
     row), both counts and the cells beyond."""
-    beyond = [c for c in row[len(header):]]
+    beyond = row[len(header):]
     if any(c.strip() for c in beyond):
-        comma = (" a ',' decimal mark in a ','-separated file (write '.' decimals, or another separator),"
-                 if separator == "," else "")
+        causes = (["a ',' decimal mark in a ','-separated file (write '.' decimals, or another separator)"]
+                  if separator == "," else []) + [f"a cell holding the separator {separator!r} without quotes"]
         raise error(f"{where}: {len(row)} cells where the header has {len(header)} columns (beyond the header: "
-                    f"{', '.join(repr(c) for c in beyond[:4])}{' ...' if len(beyond) > 4 else ''}):{comma} or a cell "
-                    f"holding the separator {separator!r} without quotes")
+                    f"{', '.join(repr(c) for c in beyond[:4])}{' ...' if len(beyond) > 4 else ''}): "
+                    f"{', or '.join(causes)}")
 
 
 def separator_hint(header: list[str], separator: str = ",") -> str:
