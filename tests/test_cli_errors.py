@@ -86,3 +86,172 @@ def test_a_thread_count_below_one_is_named_before_any_work(tmp_path, capsys):
     line = _error(capsys, ["diagnose", str(GOLDEN), "--out", str(tmp_path / "out"), "--threads", "0"])
     assert line == "twin diagnose: error: --threads must be a positive integer, got 0"
     assert not (tmp_path / "out").exists()
+
+
+# ---- a newcomer's hand-written files ---------------------------------------------------------------------------
+
+def _golden_copy(tmp_path, edit=None, robot=None) -> Path:
+    """The golden dataset copied, its poses.csv lines passed through ``edit`` (a function of the list of lines)
+    and its robot name replaced by ``robot``."""
+    ds = tmp_path / "ds"
+    shutil.copytree(GOLDEN, ds)
+    if edit is not None:
+        lines = (ds / "poses.csv").read_text().splitlines()
+        (ds / "poses.csv").write_text("\n".join(edit(lines)) + "\n")
+    if robot is not None:
+        t = ds / "dataset.toml"
+        t.write_text(t.read_text().replace('robot = "irb1200"', f'robot = "{robot}"'))
+    return ds
+
+
+def test_a_poses_csv_with_a_byte_order_mark_or_trailing_separators_reads_as_without():
+    """A spreadsheet's byte order mark before the header and empty cells beyond the header's columns: the same
+    dataset."""
+    import numpy as np
+
+    from twin.dataset import read_dataset
+
+    ref = read_dataset(GOLDEN)
+    for name, edit in (("bom", lambda L: ["\ufeff" + L[0]] + L[1:]), ("trailing", lambda L: [L[0]] + [x + ",," for x in L[1:]])):
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as d:
+            ds = read_dataset(_golden_copy(Path(d), edit))
+            assert np.array_equal(ds.q, ref.q) and np.array_equal(ds.spheres, ref.spheres, equal_nan=True), name
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda L: [L[0]] + [x.replace(".", ",", 1) for x in L[1:]],
+     r"poses.csv: row 2 \(pose_id 1\): 21 cells where the header has 20 columns \(beyond the header: "
+     r"'p0:unlabelled;p1:unlabelled;p2:unlabelled'\): a ',' decimal mark in a ','-separated file"),
+    (lambda L: [x.replace(",", ";") for x in L],
+     r"missing required columns .* \(the header is one cell holding ';': the file is ';'-separated, this reader "
+     r"expects ','\)"),
+    (lambda L: [L[0] + ",q7"] + [x + ",0" for x in L[1:]],
+     r"poses.csv: columns \['q7'\] name joints robot 'irb1200' does not have \(its 6 joints: q1, q2, q3, q4, q5, "
+     r"q6\): joints of another robot\?"),
+])
+def test_a_poses_csv_read_shifted_or_of_another_robot_is_refused_naming_the_cause(tmp_path, edit, match):
+    """Decimal commas in a ','-separated poses.csv (every cell after the first would shift), a ';'-separated one, a
+    joint column the robot does not have: DatasetError naming the file, the row and the likely cause."""
+    from twin.dataset import DatasetError, read_dataset
+
+    with pytest.raises(DatasetError, match=match):
+        read_dataset(_golden_copy(tmp_path, edit))
+
+
+def test_a_joints_csv_of_another_robot_or_with_a_column_twice_is_refused_and_spaces_or_a_bom_are_read(tmp_path):
+    """JOINTS.csv: a q7 column for a 6-joint robot and a joint named twice are refused naming the columns; spaces
+    after the separators and a byte order mark are read as the plain file is."""
+    import numpy as np
+
+    from twin.dataset import DatasetError, read_joints_csv
+    from twin.robots import get_robot
+
+    r = get_robot("irb1200")
+    head, row = "pose_id,q1,q2,q3,q4,q5,q6", "0,1,2,3,4,5,6"
+    cases = {"q7": (f"{head},q7\n{row},7\n", r"columns \['q7'\] name joints the robot does not have"),
+             "twice": (f"{head},q2\n{row},9\n", r"duplicate columns \['q2'\]")}
+    for name, (text, match) in cases.items():
+        (tmp_path / f"{name}.csv").write_text(text)
+        with pytest.raises(DatasetError, match=match):
+            read_joints_csv(tmp_path / f"{name}.csv", r)
+    (tmp_path / "spaces.csv").write_text("\ufeff" + head.replace(",", ", ") + "\n" + row.replace(",", ", ") + "\n")
+    assert np.allclose(read_joints_csv(tmp_path / "spaces.csv", r).q, np.radians([[1, 2, 3, 4, 5, 6]]))
+
+
+def test_an_unknown_field_of_an_inline_robot_is_named_with_the_prismatic_hint():
+    """A DH table with a field it does not read (here an attempt at a prismatic joint) and a joint table's joint with
+    a misspelt field: DatasetError naming the table, the field and the fields it reads."""
+    from twin.dataset import DatasetError, robot_from_spec
+
+    dh = {"convention": "dh", "theta_deg": [0, 0], "d_mm": [100, 0], "a_mm": [0, 200], "alpha_deg": [90, 0],
+          "prismatic_joints": [2]}
+    with pytest.raises(DatasetError, match=r"table 'robot' \(dh/mdh table\): unknown field\(s\) \['prismatic_joints'\]"
+                                           r".*a DH/MDH table has revolute joints only"):
+        robot_from_spec(dh)
+    chain = {"convention": "urdf", "joints": [{"name": "j", "type": "revolute", "xyz_mm": [0, 0, 1], "rpy_deg": [0, 0, 0],
+                                              "limits": [-90, 90], "mass": 2.0}]}
+    with pytest.raises(DatasetError, match=r"table 'robot.joints\[0\]' \(joint table\): unknown field\(s\) \['mass'\]"):
+        robot_from_spec(chain)
+
+
+def test_a_folder_given_for_a_calibration_is_named_with_what_to_give(tmp_path, capsys):
+    """twin predict with the dataset folder (before any calibration) or with twin calibrate's output folder: the
+    error says it is a folder and which file to give."""
+    (tmp_path / "cal").mkdir()
+    (tmp_path / "cal" / "calibration.json").write_text("{}")
+    line = _error(capsys, ["predict", str(GOLDEN), str(tmp_path / "j.csv"), "--out", str(tmp_path / "p.csv")])
+    assert line == (f"twin predict: error: {GOLDEN}: a folder, not a calibration.json: twin calibrate DATASET --out DIR "
+                    "(or twin diagnose) writes DIR/calibration.json")
+    line = _error(capsys, ["export", str(tmp_path / "cal"), "--out", str(tmp_path / "e")])
+    assert line.endswith("a folder, not a calibration.json (it holds calibration.json: give that file)")
+
+
+def test_diagnose_refuses_a_calibration_of_another_robot(tmp_path, capsys):
+    """twin diagnose --calibration of the IRB 1200 on a dataset of another robot: refused naming both robots, nothing
+    written."""
+    assert main(["calibrate", str(GOLDEN), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
+    cal = tmp_path / "cal" / "calibration.json"
+    ds = _golden_copy(tmp_path, robot="brtirus0707a")
+    capsys.readouterr()
+    line = _error(capsys, ["diagnose", str(ds), "--calibration", str(cal), "--out", str(tmp_path / "d"), "--no-plots",
+                           "--no-recording", "--threads", "1"])
+    assert line.startswith(f"twin diagnose: error: --calibration {cal}: dataset {ds}: robot 'brtirus0707a' (dh, ")
+    assert line.endswith("is not the calibration's robot 'irb1200' (mdh, joints q1, q2, q3, q4, q5, q6)")
+    assert not (tmp_path / "d").exists()
+
+
+def _few_rows(tmp_path, n: int) -> Path:
+    """The first ``n`` of 20 rows of a 6-joint DH arm's campaign (a laser tracker's three points), imported."""
+    import sys
+
+    import numpy as np
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import _newcomer as N
+
+    rng = np.random.default_rng(1)
+    robot = N.make_robot(rng, "dh", 6)
+    s = N.measure(N.perturbed(robot, rng), N.sample_joints(robot, rng, 20), N.random_frame(rng), rng, noise_mm=0.005,
+                  markers=np.array([[0, 0, 0.1], [0.06, 0, 0.1], [0, 0.07, 0.12]]))
+    sub = N.Session(q=s.q[:n], base2meas=s.base2meas, points=s.points[:n], markers=s.markers)
+    m = N.write_campaign(tmp_path / f"lab{n}", robot, [("a.csv", sub, {})], N.DIALECTS[0], noise_mm=0.005)
+    assert main(["import", "--map", str(m), "--out", str(tmp_path / f"ds{n}")]) == 0
+    return tmp_path / f"ds{n}"
+
+
+def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the_nominal_robot(tmp_path, capsys):
+    """Five rows of a 6-joint arm (four calibrate, one validates) leave a model worse than the nominal robot on the
+    validation row: twin calibrate says so (and says nothing of it on 20 rows of the same campaign)."""
+    out = {}
+    for n in (5, 20):
+        assert main(["calibrate", str(_few_rows(tmp_path, n)), "--out", str(tmp_path / f"cal{n}")]) == 0
+        out[n] = capsys.readouterr().out
+    assert "WARNING: the calibrated model misses the validation rows by more than the nominal robot does" in out[5]
+    assert "WARNING: the calibrated model misses" not in out[20]
+
+
+def test_diagnose_warns_when_the_rows_that_fit_cannot_identify_the_geometry(tmp_path, capsys):
+    """Five rows of a 6-joint arm: the geometric model of the rows that fit fixes parameters these configurations
+    cannot identify, and twin diagnose says its figures rest on it (and says nothing of it on 20 rows)."""
+    out = {}
+    for n in (5, 20):
+        assert main(["diagnose", str(_few_rows(tmp_path, n)), "--out", str(tmp_path / f"d{n}"), "--no-plots",
+                     "--no-recording", "--threads", "1"]) == 0
+        out[n] = capsys.readouterr().out
+    assert "WARNING: rank deficiency from these configurations: " in out[5]
+    assert "every figure below rests on that model" in out[5] and "WARNING" not in out[20]
+
+
+def test_a_misspelt_table_of_dataset_toml_is_named(tmp_path):
+    """A dataset.toml whose stations table is misspelt ([station.front]: its base2meas would be ignored): DatasetError
+    naming the key and the keys dataset.toml holds."""
+    from twin.dataset import DatasetError, read_dataset
+
+    ds = _golden_copy(tmp_path)
+    t = ds / "dataset.toml"
+    t.write_text(t.read_text().replace("[stations.front]", "[station.front]"))
+    with pytest.raises(DatasetError, match=r"dataset.toml: unknown key\(s\) or table\(s\) \['station'\]; dataset.toml "
+                                           r"holds \['markers', 'noise', 'plate', 'provenance', 'robot', "):
+        read_dataset(ds)

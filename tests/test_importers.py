@@ -141,6 +141,32 @@ def test_points_as_differences_of_columns_with_the_last_quarter_held_out(tmp_pat
     assert "row order" in rep.files[0]["time"] and "no t_s column" in ds.provenance
 
 
+def test_a_point_not_seen_is_written_empty_with_its_status_and_the_tool_point_still_found(tmp_path):
+    """A row whose point cells are all empty and one whose cells read NaN (a tracker that lost the reflector): both
+    rows kept with the point empty and status p0:empty, the others as before; the tool point (fitted on the rows that
+    saw it, base2meas given) exact; one NaN beside numbers is still a named error."""
+    _points_csv(tmp_path / "grid.csv", point=(0.002, -0.001, 0.031))
+    lines = (tmp_path / "grid.csv").read_text().split("\n")
+    for k, fill in ((4, ""), (9, "NaN")):
+        cells = lines[k].split(",")
+        cells[1:7] = [fill] * 6
+        lines[k] = ",".join(cells)
+    (tmp_path / "grid.csv").write_text("\n".join(lines))
+    (tmp_path / "m.toml").write_text(POINTS_MAP)
+    rep = import_columns(tmp_path / "m.toml", tmp_path / "ds")
+    ds = read_dataset(tmp_path / "ds")
+    assert ds.n == 80 and np.flatnonzero(~ds.sphere_seen[:, 0]).tolist() == [3, 8]
+    assert ds.status[3] == ds.status[8] == "p0:empty" and set(ds.status[[0, 1, 2, 4]]) == {""}
+    assert np.allclose(ds.plate.spheres_flange, [[0.002, -0.001, 0.031]], atol=1e-9)
+    assert any("2 point(s) of 2 row(s) empty in the CSV (not seen)" in n for n in rep.notes)
+    cells = lines[20].split(",")
+    cells[1] = "NaN"
+    lines[20] = ",".join(cells)
+    (tmp_path / "grid.csv").write_text("\n".join(lines))
+    with pytest.raises(DatasetError, match=r"row 20 \(line 21\), column 'x_t': not a finite number: 'NaN'"):
+        import_columns(tmp_path / "m.toml", tmp_path / "ds2")
+
+
 def test_points_on_the_flange_are_fitted_when_not_given(tmp_path):
     """With base2meas given (identity) the tool point is recovered exactly from noise-free points (31 mm on z)."""
     _points_csv(tmp_path / "grid.csv", point=(0.002, -0.001, 0.031))
@@ -276,15 +302,71 @@ def _set_cell(text, line, col, value):
                                                  r"decimal mark is ','"),
     (lambda t: _set_cell(t, 3, 1, "abc"), r"row 2 \(line 3\), column 'j1': not a number: 'abc'"),
     (lambda t: t.replace("mrz", "mrz_deg"), r"no column 'mrz' \(the map's measurement.rotation\); the header \(line 1\)"),
+    (lambda t: _set_cell(t, 3, 1, "0;5"), r"row 2 \(line 3\): 16 cells where the header has 15 columns \(beyond the "
+                                          r"header: '0,0125'\): a cell holding the separator ';' without quotes"),
+    (lambda t: t.replace("std_x", "std_x;j2", 1).replace("0,0125\r\n", "0,0125;0\r\n"),
+     r"the header \(line 1\) holds the map's column\(s\) \['j2'\] more than once"),
+    (lambda t: t.replace(";", ","), r"the header \(line 1\) has 'Timestamp,j1,.*' \(the header is one cell holding "
+                                    r"',': the file is ','-separated, this reader expects ';'\)"),
 ])
 def test_what_cannot_be_read_is_named(tmp_path, edit, match):
-    """A '.' in a ','-decimal file, a word in a joint column, a column the map names missing: DatasetError naming
-    file, row, line, column and value."""
+    """A '.' in a ','-decimal file, a word in a joint column, a column the map names missing, a row wider than the
+    header (it would be read shifted), a mapped column twice in the header, another separator than the map's:
+    DatasetError naming file, row, line, column and value."""
     _pose_csv(tmp_path / "a.csv")
     p = tmp_path / "a.csv"
     p.write_text(edit(p.read_text()))
     with pytest.raises(DatasetError, match=match):
         import_columns(_pose_map(tmp_path / "m.toml", "a.csv"), tmp_path / "ds")
+
+
+def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_path):
+    """A FIGAROH-style CSV whose row has a cell beyond the header, or whose header names a joint twice: DatasetError
+    naming the file and the row or the column (not a traceback, not a shifted or overwritten read)."""
+    from twin.importers.mocap import read_mocap_csv
+
+    r = robot_from_spec("irb1200")
+    head = "q1,q2,q3,q4,q5,q6,x1,y1,z1"
+    (tmp_path / "a.csv").write_text(f"{head}\n0,1,2,3,4,5,0.1,0.2,0.3\n0,1,2,3,4,5,0.1,0.2,0,3\n")
+    with pytest.raises(DatasetError, match=r"a.csv: row 2: 10 cells where the header has 9 columns \(beyond the "
+                                           r"header: '3'\): a ',' decimal mark"):
+        read_mocap_csv(tmp_path / "a.csv", r)
+    (tmp_path / "b.csv").write_text(f"{head},q2\n0,1,2,3,4,5,0.1,0.2,0.3,9\n")
+    with pytest.raises(DatasetError, match=r"b.csv: columns \['q2'\] appear more than once in the header"):
+        read_mocap_csv(tmp_path / "b.csv", r)
+
+
+def test_a_mocap_body_of_two_points_is_refused_naming_the_column_map(tmp_path):
+    """The mocap import registers the body's frame, which two points do not give: DatasetError naming the file and
+    the column map that fits one or two points."""
+    from twin.importers.mocap import import_mocap
+
+    src = ROOT / "data" / "tiago_mocap"
+    joints = ["torso_lift_joint"] + [f"arm_{i}_joint" for i in range(1, 8)]
+    rows = [[0.1 * k] * 8 + [0.0, 0.0, 0.1 * k, 0.05, 0.0, 0.1 * k] for k in range(4)]
+    (tmp_path / "two.csv").write_text("\n".join([",".join(joints + ["x1", "y1", "z1", "x2", "y2", "z2"])]
+                                                + [",".join(str(v) for v in r) for r in rows]) + "\n")
+    with pytest.raises(DatasetError, match=r"two.csv: 2 marker point\(s\) \(x1..z2\): this import places the body on "
+                                           r"the flange by a hand-eye registration of its frame, which needs 3 points"):
+        import_mocap([(tmp_path / "two.csv", "calibration")], src / "tiago_48_schunk.urdf", "base_link",
+                     "wrist_ft_tool_link", tmp_path / "ds")
+
+
+def test_import_warns_when_the_nominal_robot_misses_the_rows_by_more_than_a_robot_can(tmp_path, capsys):
+    """The tracker's joints in radians read as degrees: twin import writes the dataset and warns that the nominal
+    robot misses the rows by 5 % or more of their motion, naming the map's keys to check; read in radians, no
+    warning."""
+    _pose_csv(tmp_path / "a.csv")
+    m = _pose_map(tmp_path / "m.toml", "a.csv")
+    out = {}
+    for unit in ("rad", "deg"):
+        m.write_text(re.sub(r'unit = "(rad|deg)"', f'unit = "{unit}"', m.read_text(), count=1))
+        assert main(["import", "--map", str(m), "--out", str(tmp_path / unit)]) == 0
+        out[unit] = capsys.readouterr().out
+    assert "WARNING" not in out["rad"]
+    assert re.search(r"WARNING: station \S+: the nominal robot misses its rows by [0-9.]+ mm RMS, \d+% of the [0-9.]+ mm "
+                     r"they move: no robot's own errors are that large; check the map's joint columns \(their order\) "
+                     r"and units \(joints.unit\)", out["deg"]), out["deg"]
 
 
 @pytest.mark.parametrize("edit,match", [

@@ -23,9 +23,10 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import open_text, parse_finite, read_toml
+from .files import (check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite, read_toml,
+                    separator_hint)
 from .kinematics import RobotModel
-from .robots import ROBOTS, get_robot
+from .robots import ROBOTS, check_robot_fields, get_robot
 from .transforms import pose6_to_transform, transform_to_pose6
 from .units import M_PER_MM, RAD_PER_DEG, deg_to_rad
 
@@ -221,6 +222,10 @@ def robot_from_spec(spec: Any, where: str = "dataset.toml", base_dir: str | os.P
         return get_robot(spec)
     if not isinstance(spec, dict):
         raise DatasetError(f"{where}: field 'robot' must be a robot name or a table, got {type(spec).__name__}")
+    try:
+        check_robot_fields(spec)
+    except ValueError as exc:
+        raise DatasetError(f"{where}: {exc}") from None
     if "urdf" in spec:
         from .urdf import read_urdf_chain
 
@@ -325,11 +330,17 @@ def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None
     return position, orientation
 
 
+_TOML_KEYS = {"schema_version", "robot", "provenance", "plate", "markers", "noise", "stations", "tool"}
+
+
 def _read_toml(path: Path) -> dict:
     meta = read_toml(path, DatasetError, missing="missing (a dataset folder holds poses.csv and dataset.toml)")
     version = meta.get("schema_version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
         raise DatasetError(f"{path}: schema_version {version!r} is not supported (this library reads {SCHEMA_VERSION})")
+    unknown = sorted(set(meta) - _TOML_KEYS)
+    if unknown:  # a misspelt table ([station.0], [nosie]) would be ignored
+        raise DatasetError(f"{path}: unknown key(s) or table(s) {unknown}; dataset.toml holds {sorted(_TOML_KEYS)}")
     return meta
 
 
@@ -521,7 +532,11 @@ def _check_columns(file: str, header: list[str], robot: RobotModel, plate: Plate
     missing = [c for c in ("pose_id",) + jcols if c not in col]
     if missing:
         raise DatasetError(f"{file}: missing required columns {missing} (the joints of robot {robot.name!r}: "
-                           f"{', '.join(jcols)})")
+                           f"{', '.join(jcols)}){separator_hint(header)}")
+    beyond_joints = columns_beyond_joints(header, jcols)
+    if beyond_joints:
+        raise DatasetError(f"{file}: columns {beyond_joints} name joints robot {robot.name!r} does not have (its "
+                           f"{len(jcols)} joints: {', '.join(jcols)}): joints of another robot?")
     K = plate.n_points
     mcols = marker_columns(K)
     beyond = [h for h in header if h.startswith("p") and h[1:].split("_")[0].isdigit() and h not in mcols]
@@ -558,6 +573,7 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
     for k, r in enumerate(rows):
         rown = k + 1
         pid_txt = cols.cell(r, "pose_id")
+        check_row_width(list(cols.index), r, f"{file}: row {rown} (pose_id {pid_txt})", DatasetError)
         try:
             pid = int(pid_txt)
         except ValueError:
@@ -943,12 +959,18 @@ def read_csv_rows(path: str | os.PathLike, required: Sequence[str]) -> tuple[lis
     if not path.exists():
         raise DatasetError(f"{path}: missing")
     with open_text(path, DatasetError) as f:
-        reader = csv.DictReader(f)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = list(reader)
+        lines = [r for r in csv.reader(f)]
+    header = [h.strip() for h in lines[0]] if lines else []
     missing = [c for c in required if c not in header]
     if missing:
-        raise DatasetError(f"{path}: missing required columns {missing}")
+        raise DatasetError(f"{path}: missing required columns {missing}{separator_hint(header)}")
+    dup = duplicate_names(header)
+    if dup:
+        raise DatasetError(f"{path}: duplicate columns {dup}")
+    rows = []
+    for k, r in enumerate(r for r in lines[1:] if r):
+        check_row_width(header, r, f"{path}: row {k + 1}", DatasetError)
+        rows.append({h: (r[i] if i < len(r) else None) for i, h in enumerate(header)})
     if not rows:
         raise DatasetError(f"{path}: no data rows")
     return header, rows
@@ -964,6 +986,10 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
     jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
     header, rows = read_csv_rows(path, ("pose_id",) + tuple(jcols))
+    beyond = columns_beyond_joints(header, jcols)
+    if beyond:
+        raise DatasetError(f"{path}: columns {beyond} name joints the robot does not have (its {len(jcols)} joints: "
+                           f"{', '.join(jcols)}): joints of another robot?")
     n = len(rows)
     pid = np.zeros(n, dtype=np.int64)
     q = np.zeros((n, len(jcols)))

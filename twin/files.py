@@ -16,17 +16,20 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite"]
+__all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite", "check_row_width", "separator_hint",
+           "duplicate_names", "columns_beyond_joints"]
 
 
 def read_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> str:
-    """The UTF-8 text of the file ``path`` (a path, or a :mod:`importlib.resources` traversable); a file that is not
-    UTF-8 text raises ``error`` naming it. ``OSError`` as :func:`open` raises it (its ``filename`` set)."""
+    """The UTF-8 text of the file ``path`` (a path, or a :mod:`importlib.resources` traversable), without the byte
+    order mark a spreadsheet may write first; a file that is not UTF-8 text raises ``error`` naming it. ``OSError``
+    as :func:`open` raises it (its ``filename`` set)."""
     data = path.read_bytes() if hasattr(path, "read_bytes") else Path(path).read_bytes()
     try:
-        return data.decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise error(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    return text[1:] if text.startswith("\ufeff") else text
 
 
 def open_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> io.StringIO:
@@ -73,3 +76,41 @@ def parse_finite(text: str, where: str, error: type[ValueError] = ValueError, *,
     if not math.isfinite(v):
         raise error(f"{where}: not a finite number: {text!r}")
     return v
+
+
+def check_row_width(header: list[str], row: list[str], where: str, error: type[ValueError] = ValueError, *,
+                    separator: str = ",") -> None:
+    """Refuse a CSV row with more cells than the ``header`` has columns unless the cells beyond are empty (a
+    spreadsheet's trailing separators): such a row would be read shifted. ``error`` names ``where`` (the file and
+    row), both counts and the cells beyond."""
+    beyond = row[len(header):]
+    if any(c.strip() for c in beyond):
+        causes = (["a ',' decimal mark in a ','-separated file (write '.' decimals, or another separator)"]
+                  if separator == "," else []) + [f"a cell holding the separator {separator!r} without quotes"]
+        raise error(f"{where}: {len(row)} cells where the header has {len(header)} columns (beyond the header: "
+                    f"{', '.join(repr(c) for c in beyond[:4])}{' ...' if len(beyond) > 4 else ''}): "
+                    f"{', or '.join(causes)}")
+
+
+def separator_hint(header: list[str], separator: str = ",") -> str:
+    """Words to add to a missing-column error when the ``header`` read with ``separator`` is one cell holding another
+    usual separator (``;``, tab, ``,``, ``|``): the file is separated by that one. Empty otherwise."""
+    if len(header) != 1:
+        return ""
+    for sep, name in ((";", "';'"), ("\t", "tab"), (",", "','"), ("|", "'|'")):
+        if sep != separator and sep in header[0]:
+            return f" (the header is one cell holding {name}: the file is {name}-separated, this reader expects {separator!r})"
+    return ""
+
+
+def duplicate_names(header: list[str]) -> list[str]:
+    """The non-empty column names the ``header`` holds more than once (sorted)."""
+    return sorted({h for h in header if h and header.count(h) > 1})
+
+
+def columns_beyond_joints(header, joint_cols) -> list[str]:
+    """The columns ``q<k>`` of ``header`` beyond a robot whose joint columns ``joint_cols`` are ``q1..qN`` (a file
+    of another robot's joints); empty for a robot whose joints have names."""
+    if tuple(joint_cols) != tuple(f"q{j}" for j in range(1, len(joint_cols) + 1)):
+        return []
+    return [h for h in header if h.startswith("q") and h[1:].isdigit() and h not in joint_cols]

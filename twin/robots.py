@@ -19,7 +19,7 @@ import numpy as np
 from .kinematics import RobotModel
 from .units import M_PER_MM, RAD_PER_DEG
 
-__all__ = ["irb1200", "brtirus0707a", "get_robot", "ROBOTS", "robot_from_joint_table", "joint_table"]
+__all__ = ["irb1200", "brtirus0707a", "get_robot", "ROBOTS", "robot_from_joint_table", "joint_table", "check_robot_fields"]
 
 
 def irb1200() -> RobotModel:
@@ -112,6 +112,35 @@ def _transform_from_table(t: dict, what: str) -> np.ndarray:
     xyz = _floats(t.get("xyz_mm", [0, 0, 0]), 3, f"{what}.xyz_mm") * M_PER_MM
     rpy = _floats(t.get("rpy_deg", [0, 0, 0]), 3, f"{what}.rpy_deg") * RAD_PER_DEG
     return make_transform(matrix_from_euler_zyx(rpy), xyz)
+
+
+_ROBOT_FIELDS = {  # the fields of each form of an inline robot table (docs/formats.md)
+    "urdf file": {"urdf", "root_link", "end_link", "name"},
+    "joint table": {"name", "convention", "joints", "end"},
+    "dh/mdh table": {"name", "convention", "beta_joints", "theta_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg",
+                     "q_min_deg", "q_max_deg"},
+}
+_JOINT_FIELDS = {"name", "type", "xyz_mm", "rpy_deg", "axis", "limits", "mass_kg", "com_mm", "inertia_kg_m2"}
+
+
+def check_robot_fields(spec: dict) -> None:
+    """``ValueError`` naming the table, the field and the fields its form reads when an inline robot table
+    (``docs/formats.md``: a URDF file, a joint table, a DH/MDH table) holds a field its form does not read (a
+    misspelt or unsupported one would otherwise be ignored)."""
+    form = "urdf file" if "urdf" in spec else "joint table" if spec.get("convention") == "urdf" else "dh/mdh table"
+    tables = [("robot", spec, _ROBOT_FIELDS[form])]
+    if form == "joint table":
+        joints = spec.get("joints") if isinstance(spec.get("joints"), list) else []
+        tables += [(f"robot.joints[{k}]", j, _JOINT_FIELDS) for k, j in enumerate(joints) if isinstance(j, dict)]
+        if isinstance(spec.get("end"), dict):
+            tables.append(("robot.end", spec["end"], {"xyz_mm", "rpy_deg"}))
+    for name, table, known in tables:
+        unknown = sorted(set(table) - known)
+        if unknown:
+            hint = (": a DH/MDH table has revolute joints only; a prismatic joint needs a joint table (convention = "
+                    "\"urdf\") or a URDF" if form == "dh/mdh table" and any("prism" in u for u in unknown) else "")
+            raise ValueError(f"table {name!r} ({form}): unknown field(s) {unknown}; its fields are "
+                             f"{sorted(known)}{hint}")
 
 
 def robot_from_joint_table(spec: dict, where: str = "robot") -> RobotModel:

@@ -126,6 +126,13 @@ def report(cal, path: Path) -> str:
     if res.get("validation", {}).get("n_rows"):
         lines.append(f"validation before: {fmt(res['before_calibration']['validation'])}")
         lines.append(f"validation after:  {fmt(res['validation'])}")
+        # worse than the nominal robot and than twice the rms the noise and the parameters' uncertainty explain
+        b, a = (d.get("position_mm") or {} for d in (res["before_calibration"]["validation"], res["validation"]))
+        expected = ((res.get("predicted_validation") or {}).get("expected_residual_rms") or {}).get("position_mm", 0.0)
+        if a.get("rms") is not None and b.get("rms") is not None and a["rms"] > max(b["rms"], 2.0 * expected):
+            lines.append(f"  WARNING: the calibrated model misses the validation rows by more than the nominal robot does "
+                         f"(rms {a['rms']:.4g} mm after, {b['rms']:.4g} mm before): too few or too alike calibration rows "
+                         "for the parameters identified; measure more varied poses before using it")
         if "orientation_deg" in res["validation"]:
             lines.append(f"  orientation before: {fmt(res['before_calibration']['validation'], 'orientation_deg', 'deg')}")
             lines.append(f"  orientation after:  {fmt(res['validation'], 'orientation_deg', 'deg')}")

@@ -59,6 +59,13 @@ def run(args: argparse.Namespace) -> int:
               f"{len(plate.flagged)} row(s) left out (pose_id {list(plate.flagged)[:10]})", file=sys.stdout)
     ds = plate.dataset
     cal = Calibration.load(args.calibration) if args.calibration else None
+    if cal is not None:
+        from ..estimator.register import check_same_robot
+
+        try:
+            check_same_robot(cal, ds)
+        except ValueError as exc:
+            raise ValueError(f"--calibration {args.calibration}: {exc}") from None
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
@@ -94,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
               f"{d['delta_chi2_chosen']:.0f}; the data cannot tell them apart)", file=out)
     for n in res.notes:
         print(f"note: {n}", file=out)
+    geo = res.calibrations_blocked.get("geometric", res.calibration_geometric)
+    dep = (geo.identifiability or {}).get("data_dependent_dropped")
+    if dep:
+        print(f"WARNING: rank deficiency from these configurations: {', '.join(dep)} fixed at nominal in the geometric "
+              "model of the rows that fit: too few or too alike rows, and every figure below rests on that model; "
+              "measure more varied configurations", file=out)
     h = res.held_out
     rows = (f"{h.get('n_report_rows')} report rows, a block of time after every row that chose or fitted the model"
             if h.get("before_after_on") == "report" else "the confirmation rows (too few held-out rows for a report block)")

@@ -80,9 +80,38 @@ def _run_map(args) -> int:
         o = "" if st["orientation_rms_deg"] is None else f", {st['orientation_rms_deg']:.3g} deg"
         print(f"  station {sid}: {st['rows']} rows; the nominal robot fits to {st['position_rms_mm']:.3g} mm{o} RMS "
               f"(base2meas {st['base2meas']})")
+        warning = _nominal_miss_warning(ds, sid, st["position_rms_mm"])
+        if warning:
+            print(f"  WARNING: station {sid}: {warning}")
     for n in rep.notes:
         print(f"  note: {n}")
+    spec = ds.robot_spec
+    if isinstance(spec, dict) and spec.get("convention") in ("dh", "mdh") and not {"q_min_deg", "q_max_deg"} <= set(spec):
+        print("  note: the robot table gives no q_min_deg / q_max_deg: every joint's limits are taken as -180..180 deg "
+              "(twin predict and twin compensate refuse joints beyond them; give the robot's limits in the map)")
     return 0
+
+
+def _nominal_miss_warning(ds, sid: str, rms_mm: float) -> str:
+    """Words when the nominal robot misses the station's rows by :data:`~twin.estimator.plausibility.MAX_MISS_FRACTION`
+    or more of how far its measured positions move (their RMS distance from their centroid), the bound past which
+    ``twin calibrate`` refuses a fitted model; empty otherwise."""
+    import numpy as np
+
+    from ..estimator.plausibility import MAX_MISS_FRACTION
+    from ..units import MM_PER_M
+
+    rows = ds.station_ids.astype(str) == str(sid)
+    pts = ds.pose[rows, :3, 3][ds.pose_seen[rows]] if ds.has_poses else ds.spheres[rows][ds.sphere_seen[rows]]
+    if pts.shape[0] < 3:
+        return ""
+    spread_mm = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1)))) * MM_PER_M
+    if not rms_mm >= MAX_MISS_FRACTION * spread_mm:
+        return ""
+    return (f"the nominal robot misses its rows by {rms_mm:.3g} mm RMS, {rms_mm / spread_mm:.0%} of the {spread_mm:.4g} mm "
+            "they move: no robot's own errors are that large; check the map's joint columns (their order) and units "
+            "(joints.unit), the measurement's unit, rotation_unit and euler, and the robot (twin calibrate refuses "
+            "such data)")
 
 
 def _calibration_tool(path: str, kind: str):

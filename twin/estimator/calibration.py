@@ -275,6 +275,10 @@ class Calibration:
     def load(cls, path: str | os.PathLike) -> "Calibration":
         """Read ``calibration.json``; ``ValueError`` naming the file and the field when it is not valid."""
         path = Path(path)
+        if path.is_dir():
+            inside = " (it holds calibration.json: give that file)" if (path / "calibration.json").is_file() else (
+                ": twin calibrate DATASET --out DIR (or twin diagnose) writes DIR/calibration.json")
+            raise ValueError(f"{path}: a folder, not a calibration.json{inside}")
         return cls.from_json_dict(read_json(path), where=str(path))
 
     @classmethod

@@ -25,8 +25,8 @@ from .identifiability import analyse_jacobian
 from .problem import Observations, ParamSpace, Residuals, absolute_residuals, observations_from_dataset
 from .solvers import GNResult, TraceEntry, covariance, gauss_newton
 
-__all__ = ["Registration", "register", "select_rows", "prediction_errors", "session_residuals", "SESSION_COLUMN",
-           "MARKER_SHAPE_TOL_M", "PredictFn"]
+__all__ = ["Registration", "register", "select_rows", "check_same_robot", "prediction_errors", "session_residuals",
+           "SESSION_COLUMN", "MARKER_SHAPE_TOL_M", "PredictFn"]
 
 SESSION_COLUMN = "session"  # the poses.csv column naming a row's recording session (docs/formats.md)
 MARKER_SHAPE_TOL_M = 1.0 * M_PER_MM  # [m] (+ 1 % of the set's size): a session's marker set is the calibration's when its
@@ -112,7 +112,7 @@ def register(
     history where the ``session`` column changes or in a file of its own).
     """
     _check_arguments(calibration, dataset, tool, predict, max_iter)
-    _check_robot(calibration, dataset)
+    check_same_robot(calibration, dataset)
     idx = _row_indices(dataset, rows)
     obs_all, obs, registered = _registration_rows(calibration, dataset, idx, tool)
     setup = _parameter_space(calibration, obs_all, obs, registered, tool)
@@ -427,7 +427,7 @@ def _rows_observed(calibration: Calibration, dataset: Dataset, rows, predict: Pr
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
     if calibration.effects and predict is None:
         raise ValueError("calibration has effects: pass predict= (see register)")
-    _check_robot(calibration, dataset)
+    check_same_robot(calibration, dataset)
     idx = _row_indices(dataset, rows)
     if known_stations:
         unknown = sorted({s for s in dataset.station_ids[idx].astype(str) if s not in calibration.stations})
@@ -443,8 +443,9 @@ def _listed(v: np.ndarray, k: int = 12) -> str:
     return ", ".join(repr(s) for s in u[:k]) + (f", ... ({len(u)} in all)" if len(u) > k else "")
 
 
-def _check_robot(cal: Calibration, ds: Dataset) -> None:
-    """The dataset's robot must be the calibration's nominal robot (same chain, same nominal structure)."""
+def check_same_robot(cal: Calibration, ds: Dataset) -> None:
+    """The dataset's robot must be the calibration's nominal robot (same chain, same nominal structure): a
+    ``ValueError`` naming the dataset, both robots and the first parameter that differs otherwise."""
     a, b = cal.nominal, ds.robot
     if a.convention != b.convention or tuple(a.joint_names) != tuple(b.joint_names):
         raise ValueError(

@@ -46,7 +46,7 @@ import numpy as np
 
 from ..dataset import (OPTIONAL_COLUMNS, POSE_COLUMNS, Dataset, DatasetError, Plate, joint_columns, marker_columns,
                        read_noise_table, robot_from_spec, write_dataset)
-from ..files import parse_finite, read_text, read_toml
+from ..files import check_row_width, duplicate_names, parse_finite, read_text, read_toml, separator_hint
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec, pose6_to_transform
 from ..units import M_PER_MM, RAD_PER_DEG
@@ -556,9 +556,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     path, fm = spec.path, spec.map
     if not path.is_file():
         raise DatasetError(f"{path}: no such CSV")
-    text = read_text(path, DatasetError)
-    lines = list(csv.reader(io.StringIO(text[1:] if text.startswith("\ufeff") else text, newline=""),
-                            delimiter=fm.separator))
+    lines = list(csv.reader(io.StringIO(read_text(path, DatasetError), newline=""), delimiter=fm.separator))
     if len(lines) < fm.header_row:
         raise DatasetError(f"{path}: {len(lines)} lines, no header row at line {fm.header_row}")
     header = [h.strip() for h in lines[fm.header_row - 1]]
@@ -584,7 +582,10 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     if missing:
         c, k = missing[0]
         raise DatasetError(f"{path}: no column {c!r} (the map's {k}); the header (line {fm.header_row}) has "
-                           f"{', '.join(repr(h) for h in header)}")
+                           f"{', '.join(repr(h) for h in header)}{separator_hint(header, fm.separator)}")
+    dup = [h for h in duplicate_names(header) if h in {c for c, _ in need}]
+    if dup:
+        raise DatasetError(f"{path}: the header (line {fm.header_row}) holds the map's column(s) {dup} more than once")
     n, N, K = len(data), len(fm.joint_columns), fm.n_points
     q = np.zeros((n, N))
     P = np.zeros((n, K, 3))
@@ -605,11 +606,13 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
         return sum(s * num(k, line, r, c) for s, c in terms)
 
     for k, (line, r) in enumerate(data):
+        check_row_width(header, r, f"{path}: row {k + 1} (line {line})", DatasetError, separator=fm.separator)
         for jj, c in enumerate(fm.joint_columns):
             q[k, jj] = num(k, line, r, c) * fm.joint_scale[jj]
         if fm.kind == "points":
-            for i, p in enumerate(fm.points):
-                P[k, i] = [terms_value(k, line, r, p[a]) for a in range(3)]
+            for i, p in enumerate(fm.points):  # a point whose cells are all empty (or NaN) was not seen: NaN
+                seen = any(cell(r, c).strip().lower() not in ("", "nan") for a in range(3) for _, c in p[a])
+                P[k, i] = [terms_value(k, line, r, p[a]) for a in range(3)] if seen else np.nan
         else:
             P[k, 0] = [terms_value(k, line, r, fm.position[a]) for a in range(3)]
             eul[k] = [num(k, line, r, c) for c in fm.rotation]
@@ -859,7 +862,11 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
                 given_b2m[str(sid)] = s.map.base2meas
                 b2m_src[str(sid)] = s.map.base2meas_source
     first = str(st_ids[np.flatnonzero(cal)[0]])
-    sel = np.flatnonzero(cal & (st_ids == first))
+    seen = np.isfinite(P).all(axis=-1)  # (n, K): the points seen; the frames are fitted on rows that saw every point
+    sel = np.flatnonzero(cal & (st_ids == first) & seen.all(axis=1))
+    if not seen.all():
+        notes.append(f"{int((~seen).sum())} point(s) of {int((~seen.all(axis=1)).sum())} row(s) empty in the CSV (not seen): "
+                     "written empty, status p<k>:empty; the frames fitted on the rows that saw every point")
     he_tool = None
     from_map = pose and tool_frame is None and cmap.tool2flange is not None
     given_tool = (tool_frame, tool_src) if tool_frame is not None else \
@@ -912,13 +919,14 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         elif pose:
             B = _register(F[rows], tool, P[rows], None if one_orientation else r_rot)[0]
         else:
-            Rb, tb = kabsch(_on_flange(F[rows], pts_flange).reshape(-1, 3), P[rows].reshape(-1, 3))
+            m = seen[rows].reshape(-1)
+            Rb, tb = kabsch(_on_flange(F[rows], pts_flange).reshape(-1, 3)[m], P[rows].reshape(-1, 3)[m])
             B = make_transform(Rb, tb)
         if pose:
             ep, er = _fit_rms(F[rows], tool, B, P[rows], r_rot)
         else:
             pm = _on_flange(F[rows], pts_flange) @ B[:3, :3].T + B[:3, 3]
-            ep, er = float(np.sqrt(np.mean(np.sum((pm - P[rows]) ** 2, axis=-1)))), None
+            ep, er = float(np.sqrt(np.mean(np.sum((pm - P[rows]) ** 2, axis=-1)[seen[rows]]))), None
         bases[sid] = B
         stations[sid] = {"rows": int(rows.size), "position_rms_mm": ep / M_PER_MM,
                          "orientation_rms_deg": None if er is None else er / RAD_PER_DEG,
@@ -1021,7 +1029,9 @@ def import_columns(cmap: ColumnMap | str | os.PathLike, out: str | os.PathLike, 
         pose_id=pose_id,
         q=q,
         spheres=np.full((n_tot, K, 3), np.nan) if pose else P,
-        sphere_seen=np.zeros((n_tot, K), bool) if pose else np.ones((n_tot, K), bool),
+        sphere_seen=np.zeros((n_tot, K), bool) if pose else seen,
+        status=None if pose or seen.all() else np.array([";".join(f"p{i}:empty" for i in np.flatnonzero(~v))
+                                                          for v in seen], dtype=object),
         pose=pose_T,
         pose_seen=np.full(n_tot, pose),
         set=sets.astype(object) if set_given else None,

@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,7 @@ from typing import Sequence
 import numpy as np
 
 from ..dataset import Dataset, DatasetError, Plate, write_dataset
-from ..files import open_text, parse_finite
+from ..files import check_row_width, duplicate_names, open_text, parse_finite, separator_hint
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 from ..units import M_PER_MM, MM_PER_M
@@ -85,11 +86,17 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     with open_text(path, DatasetError) as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
-        rows = [{(k or "").strip(): (v or "").strip() for k, v in r.items()} for r in reader]
+        rows = []
+        for k, r in enumerate(reader):
+            check_row_width(header, header + r.pop(None, []), f"{path}: row {k + 1}", DatasetError)
+            rows.append({(c or "").strip(): (v or "").strip() for c, v in r.items()})
+    dup = [h for h in duplicate_names(header) if h in robot.joint_names or re.fullmatch(r"[xyz]\d+", h)]
+    if dup:
+        raise DatasetError(f"{path}: columns {dup} appear more than once in the header")
     missing = [c for c in robot.joint_names if c not in header]
     if missing:
         raise DatasetError(f"{path}: missing joint columns {missing} (robot {robot.name!r} has joints "
-                           f"{', '.join(robot.joint_names)})")
+                           f"{', '.join(robot.joint_names)}){separator_hint(header)}")
     K = 0
     while all(f"{c}{K + 1}" in header for c in "xyz"):
         K += 1
@@ -131,7 +138,7 @@ def check_rigid(P: np.ndarray, where: str, *, rigid_tol_mm: float = 1.0, marker_
     med = np.median(d, axis=0)
     if np.median(med) > 5.0:
         raise DatasetError(f"{where}: the markers are {np.median(med):.4g} m apart: the columns look like millimetres "
-                           f"but the unit given is {marker_unit!r} (FIGAROH writes metres; pass marker_unit='mm')")
+                           f"but the unit given is {marker_unit!r} (FIGAROH writes metres; pass marker_unit='mm', twin import --marker-unit mm)")
     if np.median(med) < 1e-3:
         raise DatasetError(f"{where}: the markers are {np.median(med) * MM_PER_M:.4g} mm apart: the columns look like "
                            f"metres but the unit given is {marker_unit!r}")
@@ -271,6 +278,10 @@ def import_mocap(
         if d.size and np.abs(np.median(d, axis=0) - d_ref).max() > rigid_tol_mm * M_PER_MM:
             raise DatasetError(f"{r.path}: its marker distances differ from {parts[0][0].path}'s by "
                                f"{np.abs(np.median(d, axis=0) - d_ref).max() * MM_PER_M:.3f} mm: another rigid body?")
+    if K < 3:
+        raise DatasetError(f"{parts[0][0].path}: {K} marker point(s) (x1..z{K}): this import places the body on the "
+                           "flange by a hand-eye registration of its frame, which needs 3 points or more; a column map "
+                           "(twin import --map, docs/formats.md) fits 1 or 2 points on the flange")
     body, poses = marker_geometry(P_all)
     q_all = np.concatenate([r.q for r, _ in parts])
     sets = np.concatenate([[s] * r.q.shape[0] for r, s in parts])
