@@ -16,7 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "sessions, else the same share at the end (without a 'set' column or validation rows: the last "
                    "30 %%; --holdout: its fraction at the end)")
     p.add_argument("--out", required=True, help="output folder: diagnosis.json, calibration.json, calibration_geometric.json, plots, diagnosis.rrd")
-    p.add_argument("--calibration", help="a geometric calibration.json to start from")
+    p.add_argument("--calibration", help="a calibration.json of this robot: checked against the dataset's robot and named in the notes; "
+                        "the geometry is identified anew from the nominal model (its values are not used)")
     p.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the structure test (default 0.01)")
     p.add_argument("--holdout", type=float, default=None,
                    help="hold out this fraction at the end of the campaign, whatever the 'set' column says (default: "

@@ -221,7 +221,8 @@ def diagnose(
     ``set`` column's validation rows, or ``twin.diagnosis.blocks.HOLDOUT_DEFAULT``, 30 %, without a ``set`` column or
     validation rows; :func:`twin.diagnosis.blocks.held_out_sets`: the held-out rows are always a block of time after
     the rows that fit, and the notes say which).
-    ``calibration``: a geometric calibration to start from (refitted on this dataset's calibration rows).
+    ``calibration``: a geometric calibration of this robot; checked to be of the dataset's robot and named in the notes,
+    its values are not used (the geometry is identified anew from the nominal model on the rows that fit).
     ``max_effects``: most atoms kept. ``alpha_select``: family-wise false-selection rate per round (each pool
     Bonferroni-adjusted). ``z_min``: held-out confirmation threshold (terms and the neighbour smoothers).
     ``generic``: also search the unnamed dictionary. ``q_start``: where the robot stood before the first row,
@@ -482,7 +483,8 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
         if note:
             notes.append(note)
     if calibration is not None:
-        notes.append(f"started from the given calibration ({calibration.method}); refitted on this dataset")
+        notes.append(f"the given calibration ({calibration.method}) was checked to be of this robot; the geometry is "
+                     "identified anew from the nominal model on this dataset's rows that fit (its values are not used)")
     geo = build_calibration(prep, ident, "best", {"diagnosis": True, "noise_floor_mm": floor.sigma / M_PER_MM, **geo_opts})
     free_geo = np.flatnonzero(np.array(ident.status) == "identified")
     prob = Problem(prep, floor, ctx, free_geo, val=held.confirmation, rep=held.report, threads=threads)
