@@ -5,7 +5,8 @@ format: the estimator, the diagnosis and the evaluation see only datasets.
   (``twin import CSV --urdf ...``);
 * :mod:`twin.importers.columns`: any laser-tracker or motion-capture CSV through a column map (``twin import --map
   MAP.toml``): dialect, joints and units, points or a 6-DOF pose with its Euler convention, time, temperature,
-  session, station, set, nominal frames.
+  session, station, set, nominal frames (the map's reader and one CSV read through it:
+  :mod:`twin.importers.column_map`).
 
 A foundation-level package: it imports the dataset, kinematics, robots, URDF and transforms modules, never the
 world, the estimator or the diagnosis (``tests/test_architecture.py``).
