@@ -24,7 +24,7 @@ FORBIDDEN = {
     "runner": (IMPORTERS, "twin.commands", "studies", "experiments", "mujoco", "rerun"),
     "commands": ("studies", "experiments", "mujoco", "rerun"),
 }
-FOUNDATION = {"transforms", "chain", "kinematics", "robots", "camera", "dataset_types", "dataset", "benchio", "presets",
+FOUNDATION = {"transforms", "robot_model", "kinematics", "robots", "camera", "dataset_types", "dataset", "benchio", "presets",
               "cli", "__init__", "urdf", "resources", "runtime", "units", "files"}
 # The pure solver is fine anywhere (like scipy.optimize); models, data and rendering are world-only.
 ALLOWED = {"mujoco.minimize"}

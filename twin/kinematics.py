@@ -35,7 +35,7 @@ transform is perturbed additively on its (translation, rotation vector) pair.
 
 This module holds the forward kinematics, the Jacobians and the inverse kinematics; the chain's types
 (:class:`ChainOp`, :class:`JointSpec`, :class:`ChainStructure`, :class:`ParameterLayout`, :class:`RobotModel`) are
-:mod:`twin.chain`'s, re-exported here.
+:mod:`twin.robot_model`'s, re-exported here.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from .chain import (N_JOINTS, URDF_FAMILIES, ChainOp, ChainStructure, Convention, JointSpec, ParameterLayout,
+from .robot_model import (N_JOINTS, URDF_FAMILIES, ChainOp, ChainStructure, Convention, JointSpec, ParameterLayout,
                     RobotModel)
 from .transforms import invert_transform, left_jacobian_so3, matrix_to_rotvec, skew
 
