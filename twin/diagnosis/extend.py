@@ -172,8 +172,13 @@ def _times_weights(J: np.ndarray, w: np.ndarray) -> np.ndarray:
 # the latest residual evaluations ExtendedModel.residuals keeps: a fit's residuals are asked for again at once (its
 # scoring basis, its tests, its gross rows); (id(model), z) -> (weak reference to the model, Residuals)
 RESIDUALS_KEPT = 4
+RESIDUALS_KEPT_BYTES = 1 << 26  # and at most this many bytes of them (but the latest), on a campaign of many rows
 _KEPT: OrderedDict = OrderedDict()
 _KEPT_LOCK = threading.Lock()
+
+
+def _nbytes(res: Residuals) -> int:
+    return sum(a.nbytes for a in (res.r, res.J, res.row, res.block) if a is not None)
 
 
 class ExtendedModel:
@@ -313,7 +318,8 @@ class ExtendedModel:
         with _KEPT_LOCK:
             _KEPT[key] = (weakref.ref(self), res)
             _KEPT.move_to_end(key)
-            while len(_KEPT) > RESIDUALS_KEPT:
+            while len(_KEPT) > 1 and (len(_KEPT) > RESIDUALS_KEPT or sum(_nbytes(v[1]) for v in _KEPT.values())
+                                      > RESIDUALS_KEPT_BYTES):
                 _KEPT.popitem(last=False)
         return res
 
