@@ -559,8 +559,10 @@ def atom_pool(setup: Setup, *, generic: bool = True) -> tuple[list[Atom], dict[s
     the size of each pool (its Bonferroni factor)."""
     prep, ctx, ds = setup.prep, setup.ctx, setup.dataset
     length_names = link_lengths(prep.nominal)
+    values: dict = {}
     cat = catalogue_atoms(prep.nominal, ctx, length_names, n_points=ds.spheres.shape[1],
-                          whole_orders=not setup.problem.cross_session)
+                          whole_orders=not setup.problem.cross_session, values=values)
+    setup.problem.seed_features(values, ctx, prep.nominal)
     pool = list(cat)
     if generic:
         # change points in time are the change scan's (every row), not a grid of the dictionary's

@@ -21,6 +21,9 @@ of the prediction, e.g. ``J[:, theta_j] F[row, k]`` or ``J[:, L] L F[row, k]``.
 
 from __future__ import annotations
 
+import threading
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -166,6 +169,18 @@ def _times_weights(J: np.ndarray, w: np.ndarray) -> np.ndarray:
     return J[:, : w.shape[0]] @ w
 
 
+# the latest residual evaluations ExtendedModel.residuals keeps: a fit's residuals are asked for again at once (its
+# scoring basis, its tests, its gross rows); (id(model), z) -> (weak reference to the model, Residuals)
+RESIDUALS_KEPT = 4
+RESIDUALS_KEPT_BYTES = 1 << 26  # and at most this many bytes of them (but the latest), on a campaign of many rows
+_KEPT: OrderedDict = OrderedDict()
+_KEPT_LOCK = threading.Lock()
+
+
+def _nbytes(res: Residuals) -> int:
+    return sum(a.nbytes for a in (res.r, res.J, res.row, res.block) if a is not None)
+
+
 class ExtendedModel:
     """Residuals of the geometric model plus atom terms on one set of observations."""
 
@@ -285,7 +300,31 @@ class ExtendedModel:
         return v[mask] / obs.sigma_position
 
     def residuals(self, z: np.ndarray, jacobian: bool = True) -> Residuals:
-        """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``."""
+        """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``. The latest
+        ``RESIDUALS_KEPT`` evaluations are kept (read-only arrays) and given again for the same model and the same
+        ``z`` to the bit (the residuals without the Jacobian are those of an evaluation with it)."""
+        za = np.asarray(z)
+        key = (id(self), za.dtype.str, za.shape, za.tobytes())
+        with _KEPT_LOCK:
+            got = _KEPT.get(key)
+            if got is not None and got[0]() is self and (got[1].J is not None or not jacobian):
+                _KEPT.move_to_end(key)
+                res = got[1]
+                return res if jacobian or res.J is None else Residuals(r=res.r, J=None, row=res.row, block=res.block)
+        res = self._evaluate(z, jacobian)
+        for a in (res.r, res.J, res.row, res.block):
+            if a is not None:
+                a.flags.writeable = False
+        with _KEPT_LOCK:
+            _KEPT[key] = (weakref.ref(self), res)
+            _KEPT.move_to_end(key)
+            while len(_KEPT) > 1 and (len(_KEPT) > RESIDUALS_KEPT or sum(_nbytes(v[1]) for v in _KEPT.values())
+                                      > RESIDUALS_KEPT_BYTES):
+                _KEPT.popitem(last=False)
+        return res
+
+    def _evaluate(self, z: np.ndarray, jacobian: bool) -> Residuals:
+        """:meth:`residuals` computed."""
         x, phis = self.split(z)
         obs = self.effective_obs(phis)
         first_order = [t.atom.first_order for t in self.terms]

@@ -504,9 +504,11 @@ def carried_shapes(model: RobotModel, ctx: RowContext, j: int) -> tuple[GravMix,
     return tuple(GravMix(i=j, cols=cols, w=f.w, h=float(r)) for f, r in zip(out, rms))
 
 
-def load_atoms(model: RobotModel, ctx: RowContext) -> list:
+def load_atoms(model: RobotModel, ctx: RowContext, *, values: dict | None = None) -> list:
     """The load-signed backlash of every joint whose gravity load changes sign over the rows, and, on a chain without
-    mass properties, the base tilting under the arm's unknown gravity moment (module docstring)."""
+    mass properties, the base tilting under the arm's unknown gravity moment (module docstring). ``values``: when
+    given, the feature values ``(n, 1)`` on every row of ``ctx`` of each load-signed atom, by atom, are put in it (the
+    pool computes them to keep an atom; the scoring need not again, :meth:`twin.diagnosis.problem.Problem.seed_features`)."""
     atoms = []
     N = model.n_joints
     masses = has_masses(model)
@@ -533,7 +535,8 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
             U = _hemisphere(LOAD_DIRECTIONS) if len(shapes) == 3 else np.eye(len(shapes))
             feats = [load_sign_feature(shapes, u[:len(shapes)]) for u in U]
         for f in feats:
-            s = feature_values((f,), ctx, model, cache)[:, 0]
+            F = feature_values((f,), ctx, model, cache)
+            s = F[:, 0]
             if min(np.sum(s > 0), np.sum(s < 0)) < 3:
                 continue  # the load keeps one sign: the offset is a constant the geometry holds
             u = f.u
@@ -541,6 +544,8 @@ def load_atoms(model: RobotModel, ctx: RowContext) -> list:
                               f" ({', '.join(f'{x:+.3f}' for x in u)})"),
                               f"joint {joint_words(model, j)} backlash (offset signed by its gravity load)",
                               "catalogue" if u is None else "load", (j,)))
+            if values is not None:
+                values[atoms[-1]] = F
     if not masses:
         Y = base_moment_regressor(model, ctx.q)
         n = len(ctx.q)

@@ -87,14 +87,15 @@ def _time_features(ctx: RowContext, ch: str) -> list[Feature]:
 
 def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str], *,
                     harmonic_orders: tuple[int, ...] = (1, 2, 3), n_points: int = 3,
-                    whole_orders: bool = True) -> list[Atom]:
+                    whole_orders: bool = True, values: dict | None = None) -> list[Atom]:
     """The named pool (see the module docstring), built on the nominal ``model`` and the rows of ``ctx``
     (``n_points``: the points of the marker set, one ``plate_geometry`` atom each). Any serial chain: its joints
     by index (``theta<j>``, ``q<j>``, 1-based) and in words by name (:func:`joint_words`); harmonics, cyclic
     scans and the wrist couplings for revolute joints only; with the chain's mass properties (a URDF's
     inertials), compliance under the gravity load they give and the tilt of each joint's support (and of the
     base) under the gravity moment it carries. ``whole_orders``: the cyclic scan takes whole cycles per joint turn
-    only (a physical period); half orders only where terms are confirmed on another session."""
+    only (a physical period); half orders only where terms are confirmed on another session. ``values``: as
+    :func:`twin.diagnosis.loads.load_atoms`'."""
     atoms: list[Atom] = []
     N = model.n_joints
     jw = lambda j: joint_words(model, j)  # noqa: E731
@@ -237,7 +238,7 @@ def catalogue_atoms(model: RobotModel, ctx: RowContext, length_names: list[str],
         atoms.append(Atom("plate_geometry", "plate", f"sphere{s}", (Const(),), "constant",
                           f"sphere {s} off its nominal plate position", "catalogue"))
     # the arm's own load without its masses: backlash signed by the load, the base tilting under the arm's moment
-    return atoms + load_atoms(model, ctx)
+    return atoms + load_atoms(model, ctx, values=values)
 
 
 def _thermal_atoms(model: RobotModel, fs: tuple[Feature, ...], chan: str, length_names: list[str]) -> list[Atom]:

@@ -44,6 +44,10 @@ FIT_FTOL = 1e-10
 THREADS_MIN_ROWS = 2000  # calibration rows from which independent places are scored on threads
 
 
+# every problem's keys of the atoms' feature values (Problem.feature_key), by atom
+_FEATURE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 class Problem:
     """Everything the selection rounds share: observations, rows, features, weights.
 
@@ -77,7 +81,7 @@ class Problem:
         self.newest_basis: weakref.ref | None = None  # the scoring basis that keeps its per-place quantities
         self._orders: dict = {}
         self._store: ColumnStore | None = None
-        self._keys: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+        self._keys: weakref.WeakKeyDictionary = _FEATURE_KEYS
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
@@ -89,7 +93,8 @@ class Problem:
         self.cross_session = False
 
     def feature_key(self, atom: Atom) -> str:
-        """The key of an atom's feature values in the problem's caches (the repr of its features, kept per atom)."""
+        """The key of an atom's feature values in the problem's caches (the repr of its features, kept per atom for
+        every problem: an atom's features do not change)."""
         key = self._keys.get(atom)
         if key is None:
             key = self._keys[atom] = repr(atom.features)
@@ -115,6 +120,15 @@ class Problem:
                 F_all = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
             F = self._Fc[key] = F_all[self.rows_cal]
         return F
+
+    def seed_features(self, values: dict, ctx: RowContext, model) -> None:
+        """Take the feature values ``(n_dataset_rows, K)`` of atoms computed elsewhere (``values``, by atom) as their
+        calibration-row values (:meth:`features_cal`), when they were computed on this problem's rows and nominal
+        robot (``ctx``, ``model``); else nothing."""
+        if ctx is not self.ctx or model is not self.prep.nominal:
+            return
+        for atom, F in values.items():
+            self._Fc.setdefault(self.feature_key(atom), F[self.rows_cal])
 
     def inner_features_cal(self, inner: tuple) -> np.ndarray:
         """Values ``(n_cal, K)`` of the features inside gated features (:func:`twin.diagnosis.scoring._gate`) on the calibration rows

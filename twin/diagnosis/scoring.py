@@ -171,7 +171,13 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
         k = ok.sum(axis=1)
         fine = k > 0
         logp[gi[fine]] = chi2_logsf(d[fine] / prob.evidence_scale, k[fine])
-    return logp + np.array([np.log(pool_sizes[a.pool]) for a in atoms])
+    logs = _log_sizes(pool_sizes, atoms)
+    return logp + np.array([logs[a.pool] for a in atoms])
+
+
+def _log_sizes(pool_sizes: dict[str, int], atoms: list[Atom]) -> dict:
+    """``np.log`` of the size of each pool of ``atoms`` (the Bonferroni factor of their p-values), once per pool."""
+    return {k: np.log(pool_sizes[k]) for k in {a.pool for a in atoms}}
 
 
 def _step_stats(prob: Problem, steps: list[Atom], w: np.ndarray, Qb: np.ndarray, br: np.ndarray) -> list:
@@ -435,7 +441,8 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
     if not pending:
         return []
     logp = chi2_logsf(np.array([p[3] for p in pending]) / prob.evidence_scale, np.array([p[4] for p in pending]))
-    return [Scored(a, B, psi, d, float(lp) + np.log(pool_sizes[a.pool]), r, Q=Q,
+    logs = _log_sizes(pool_sizes, [p[0] for p in pending])
+    return [Scored(a, B, psi, d, float(lp) + logs[a.pool], r, Q=Q,
                    columns=_column_maker(prob, fit, a, sb), ep_norm2=ep2)
             for (a, B, psi, d, _, ep2), lp in zip(pending, np.atleast_1d(logp))]
 

@@ -92,6 +92,8 @@ def chi2_logsf(x, k):
     from scipy.special import gammaln
 
     x, k = np.asarray(x, float), np.asarray(k, float)
+    if x.size == 1 and k.size == 1:
+        return _chi2_logsf_one(x, k)
     v = np.asarray(dists.chi2_logsf(x, k), float)
     bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
     if np.any(bad):
@@ -99,6 +101,31 @@ def chi2_logsf(x, k):
         v = v.copy()
         v[bad] = -xb / 2 + (kb / 2 - 1) * np.log(xb / 2) - gammaln(kb / 2)
     return float(v) if v.ndim == 0 else v
+
+
+def _chi2_logsf_one(x: np.ndarray, k: np.ndarray):
+    """:func:`chi2_logsf` of one ``x`` and one ``k`` (arrays of one entry, any shapes that broadcast): the same
+    functions of the same numbers as :func:`twin.estimator.distributions.chi2_logsf` and the tail term, without
+    the masks of a whole array."""
+    from scipy import special as sc
+
+    xv, kv = x.reshape(-1)[0], k.reshape(-1)[0]  # float64 scalars
+    if not kv > 0 or np.isnan(xv):
+        v = np.float64(np.nan)
+    elif xv <= 0:
+        v = np.float64(0.0)
+    elif xv < np.inf:
+        with np.errstate(divide="ignore"):
+            if xv > 2 * sc.gammaincinv(kv / 2, 0.5):
+                v = np.log(sc.chdtrc(kv, xv))
+            else:
+                v = np.log1p(-sc.chdtr(kv, xv))
+    else:
+        v = np.float64(-np.inf)
+    if not np.isfinite(v) and np.isfinite(xv) and xv > 0:
+        v = -xv / 2 + (kv / 2 - 1) * np.log(xv / 2) - sc.gammaln(kv / 2)
+    shape = np.broadcast_shapes(x.shape, k.shape)
+    return float(v) if not shape else np.full(shape, v, dtype=float)
 
 
 def signed_rank_z(c: np.ndarray) -> float:

@@ -352,6 +352,23 @@ def approach_unknown(ctx: RowContext) -> np.ndarray:
     return np.any((s == 0) & moves[None, :], axis=1)
 
 
+def _grav_mix(f: GravMix, cache: dict):
+    """``sum_j w_j Y[:, i, k_j, c_j]`` ``(n,)`` of a :class:`GravMix` over the gravity-torque regressor ``cache["grav"]``,
+    summed in the order of its columns from 0 (as ``sum``), from the columns stacked once per joint and column set."""
+    if not f.cols:
+        return 0
+    key = ("gravmix columns", f.i, f.cols)
+    Y = cache.get(key)
+    if Y is None:
+        Yg = cache["grav"]
+        Y = cache[key] = np.stack([Yg[:, f.i - 1, kk - 1, c] for kk, c in f.cols])  # (len(cols), n)
+    terms = np.asarray(f.w, dtype=float)[:, None] * Y
+    acc = terms[0] + 0.0
+    for t in terms[1:]:
+        acc += t
+    return acc
+
+
 def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | None = None) -> np.ndarray:
     """Values ``(n, K)`` of ``features`` (:mod:`twin.diagnosis.features`) on the rows of ``ctx`` (``model``: the
     nominal robot, for gravity)."""
@@ -391,8 +408,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
         elif isinstance(f, GravMix):
             if "grav" not in cache:
                 cache["grav"] = gravity_torque_regressor(model, ctx.q)
-            Yg = cache["grav"]
-            out[:, k] = sum(w * Yg[:, f.i - 1, kk - 1, c] for w, (kk, c) in zip(f.w, f.cols)) / f.h
+            out[:, k] = _grav_mix(f, cache) / f.h
         elif isinstance(f, Torque):
             # the gravity load of joint j from the chain's mass properties [N m, or N along a prismatic axis]
             if "torque" not in cache:
@@ -512,7 +528,7 @@ def feature_values(features, ctx: RowContext, model: RobotModel, cache: dict | N
             out[:, k] = -np.expm1(-np.clip(_time(ctx, f) - f.t0, 0.0, None) / f.tau)
         else:
             raise ValueError(f"unknown feature kind {getattr(f, 'kind', None)!r} in {f!r}")
-    if not np.all(np.isfinite(out)):
+    if not np.isfinite(out).all():
         bad = np.unique(np.nonzero(~np.isfinite(out))[0])[:10]
         raise ValueError(f"effect features are not finite in rows {bad.tolist()} (check t_s / temp_c)")
     return out
