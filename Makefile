@@ -9,10 +9,12 @@ PY := $(VENV)/bin/python
 # hash from .ci/uv-requirements.txt into .tools/. `make lock` is the only target that changes uv.lock.
 TOOLS := .tools
 UV := $(TOOLS)/bin/uv
-# --compile-bytecode: the installed packages' .pyc written once, as pip does, so that no process compiles scipy,
-# matplotlib, rerun... again at each start (~3 s of CPU per process when bytecode is not written, as with
-# PYTHONDONTWRITEBYTECODE: a campaign starts a worker per core and imports the estimator and plotting late)
-SYNC_FLAGS := --frozen --all-extras --compile-bytecode
+# Bytecode: every target below writes the .pyc of what it imports, once (PYTHONDONTWRITEBYTECODE cleared for them:
+# where an environment sets it, each process would compile scipy, matplotlib, rerun and the project's own modules
+# again at its start, ~3 s of CPU for a campaign's worker); only what is imported is compiled, not the 12685 files
+# of every installed package (~21 s of the install on two cores)
+export PYTHONDONTWRITEBYTECODE :=
+SYNC_FLAGS := --frozen --all-extras
 STAMP := $(VENV)/.synced-$(shell (cat pyproject.toml uv.lock; echo '$(SYNC_FLAGS)') | sha1sum | cut -c1-12)
 export UV_PYTHON_DOWNLOADS := never
 export MUJOCO_GL ?= egl
@@ -28,7 +30,7 @@ export NPY_DISABLE_CPU_FEATURES ?= X86_V4 AVX512_ICL AVX512_SPR
 # test workers: one per core (pytest-xdist)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: run run-quick test test-fast bench install bytecode lock sysdeps sysdeps-browser clean
+.PHONY: run run-quick test test-fast bench install lock sysdeps sysdeps-browser clean
 
 $(UV): .ci/uv-requirements.txt
 	$(PYTHON) -m venv $(TOOLS)
@@ -41,13 +43,6 @@ $(STAMP): pyproject.toml uv.lock | $(UV)
 	touch $(STAMP)
 
 install: sysdeps $(STAMP)
-
-# The project's own modules compiled as the installed packages are (--compile-bytecode above): where the environment
-# sets PYTHONDONTWRITEBYTECODE, Python still reads .pyc files but never writes them, and every process (a test's
-# `twin` command, a campaign's worker) would compile the modules it imports again (~0.7 s of CPU for the diagnosis'
-# ones). Only files changed since the last run are compiled; a syntax error stops here, naming the file.
-bytecode:
-	@$(PY) -m compileall -q -j 0 twin studies experiments tests
 
 # Refresh the lock deliberately (newest releases allowed by pyproject.toml), then rerun the suite and the
 # benchmarks before committing uv.lock with what they measured.
@@ -69,20 +64,20 @@ sysdeps-browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; \
 	fi
 
-run: install bytecode
+run: install
 	$(VENV)/bin/twin campaign experiments/separation.toml --out results/separation
 
-run-quick: install bytecode
+run-quick: install
 	$(VENV)/bin/twin campaign experiments/separation.toml --out results/separation-quick --quick
 
 # the whole suite, the peer-adapter tests included (they skip, with the reason, only where a peer is missing)
-test: install sysdeps-browser bytecode
+test: install sysdeps-browser
 	$(PY) -m pytest -q -n $(JOBS) --dist worksteal
 
-test-fast: install bytecode
+test-fast: install
 	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not browser"
 
-bench: install bytecode
+bench: install
 	$(PY) experiments/benchmark.py
 
 clean:
