@@ -81,7 +81,6 @@ class Problem:
         self.newest_basis: weakref.ref | None = None  # the scoring basis that keeps its per-place quantities
         self._orders: dict = {}
         self._store: ColumnStore | None = None
-        self._keys: weakref.WeakKeyDictionary = _FEATURE_KEYS
         self._cache: dict = {}
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
@@ -95,9 +94,9 @@ class Problem:
     def feature_key(self, atom: Atom) -> str:
         """The key of an atom's feature values in the problem's caches (the repr of its features, kept per atom for
         every problem: an atom's features do not change)."""
-        key = self._keys.get(atom)
+        key = _FEATURE_KEYS.get(atom)
         if key is None:
-            key = self._keys[atom] = repr(atom.features)
+            key = _FEATURE_KEYS[atom] = repr(atom.features)
         return key
 
     def features(self, atom: Atom) -> np.ndarray:

@@ -88,44 +88,28 @@ def gross_rows(r: np.ndarray, row: np.ndarray, n: int, *, max_fraction: float = 
 
 def chi2_logsf(x, k):
     """``log P(chi2(k) > x)`` (scalars or arrays), finite where scipy's underflows to ``-inf`` (large ``x``: the
-    leading term of the upper incomplete gamma function, ``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``)."""
-    from scipy.special import gammaln
-
+    leading term of the upper incomplete gamma function, :func:`_upper_tail_term`)."""
     x, k = np.asarray(x, float), np.asarray(k, float)
-    if x.size == 1 and k.size == 1:
-        return _chi2_logsf_one(x, k)
-    v = np.asarray(dists.chi2_logsf(x, k), float)
+    v = dists.chi2_logsf(x, k)
+    if np.size(v) == 1:  # one entry (most calls): without the masks of an array
+        xv, kv, vv = x.reshape(-1)[0], k.reshape(-1)[0], np.reshape(v, -1)[0]
+        if not np.isfinite(vv) and np.isfinite(xv) and xv > 0:
+            vv = _upper_tail_term(xv, kv)
+        return float(vv) if np.ndim(v) == 0 else np.full(np.shape(v), vv, dtype=float)
+    v = np.asarray(v, float)
     bad = ~np.isfinite(v) & np.isfinite(x) & (x > 0)
     if np.any(bad):
         xb, kb = np.broadcast_to(x, v.shape)[bad], np.broadcast_to(k, v.shape)[bad]
         v = v.copy()
-        v[bad] = -xb / 2 + (kb / 2 - 1) * np.log(xb / 2) - gammaln(kb / 2)
-    return float(v) if v.ndim == 0 else v
+        v[bad] = _upper_tail_term(xb, kb)
+    return v
 
 
-def _chi2_logsf_one(x: np.ndarray, k: np.ndarray):
-    """:func:`chi2_logsf` of one ``x`` and one ``k`` (arrays of one entry, any shapes that broadcast): the same
-    functions of the same numbers as :func:`twin.estimator.distributions.chi2_logsf` and the tail term, without
-    the masks of a whole array."""
-    from scipy import special as sc
+def _upper_tail_term(x, k):
+    """``-x/2 + (k/2 - 1) log(x/2) - lgamma(k/2)``: the log of the leading term of the chi-square tail."""
+    from scipy.special import gammaln
 
-    xv, kv = x.reshape(-1)[0], k.reshape(-1)[0]  # float64 scalars
-    if not kv > 0 or np.isnan(xv):
-        v = np.float64(np.nan)
-    elif xv <= 0:
-        v = np.float64(0.0)
-    elif xv < np.inf:
-        with np.errstate(divide="ignore"):
-            if xv > 2 * sc.gammaincinv(kv / 2, 0.5):
-                v = np.log(sc.chdtrc(kv, xv))
-            else:
-                v = np.log1p(-sc.chdtr(kv, xv))
-    else:
-        v = np.float64(-np.inf)
-    if not np.isfinite(v) and np.isfinite(xv) and xv > 0:
-        v = -xv / 2 + (kv / 2 - 1) * np.log(xv / 2) - sc.gammaln(kv / 2)
-    shape = np.broadcast_shapes(x.shape, k.shape)
-    return float(v) if not shape else np.full(shape, v, dtype=float)
+    return -x / 2 + (k / 2 - 1) * np.log(x / 2) - gammaln(k / 2)
 
 
 def signed_rank_z(c: np.ndarray) -> float:

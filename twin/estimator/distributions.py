@@ -39,6 +39,8 @@ def chi2_logsf(x, k):
     """``log P(chi2(k) > x)``: ``log(sf)`` beyond the median, ``log1p(-cdf)`` below it (as ``scipy.stats``); 0 for
     ``x <= 0``, ``-inf`` where the tail underflows, NaN for ``k <= 0``."""
     x, k, ok = _support(x, k)
+    if x.size == 1:  # one entry (the diagnosis asks thousands): the branches below without the masks of an array
+        return _out(np.full(x.shape, _chi2_logsf_entry(x.reshape(-1)[0], k.reshape(-1)[0])))
     out = np.full(x.shape, -np.inf)
     out[~ok | np.isnan(x)] = np.nan
     out[ok & (x <= 0)] = 0.0
@@ -51,6 +53,20 @@ def chi2_logsf(x, k):
         v[~upper] = np.log1p(-sc.chdtr(kg[~upper], xg[~upper]))
     out[good] = v
     return _out(out)
+
+
+def _chi2_logsf_entry(x: np.float64, k: np.float64) -> np.float64:
+    """:func:`chi2_logsf` of one ``x`` and one ``k``: the same scipy functions of the same numbers."""
+    if not k > 0 or np.isnan(x):
+        return np.float64(np.nan)
+    if x <= 0:
+        return np.float64(0.0)
+    if x == np.inf:
+        return np.float64(-np.inf)
+    with np.errstate(divide="ignore"):
+        if x > 2 * sc.gammaincinv(k / 2, 0.5):
+            return np.log(sc.chdtrc(k, x))
+        return np.log1p(-sc.chdtr(k, x))
 
 
 def chi2_isf(q, k):
