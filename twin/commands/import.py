@@ -96,16 +96,14 @@ def _nominal_miss_warning(ds, sid: str, rms_mm: float) -> str:
     """Words when the nominal robot misses the station's rows by :data:`~twin.estimator.plausibility.MAX_MISS_FRACTION`
     or more of how far its measured positions move (their RMS distance from their centroid), the bound past which
     ``twin calibrate`` refuses a fitted model; empty otherwise."""
-    import numpy as np
-
-    from ..estimator.plausibility import MAX_MISS_FRACTION
+    from ..estimator.plausibility import MAX_MISS_FRACTION, position_spread
     from ..units import MM_PER_M
 
     rows = ds.station_ids.astype(str) == str(sid)
     pts = ds.pose[rows, :3, 3][ds.pose_seen[rows]] if ds.has_poses else ds.spheres[rows][ds.sphere_seen[rows]]
     if pts.shape[0] < 3:
         return ""
-    spread_mm = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1)))) * MM_PER_M
+    spread_mm = position_spread(pts) * MM_PER_M
     if not rms_mm >= MAX_MISS_FRACTION * spread_mm:
         return ""
     return (f"the nominal robot misses its rows by {rms_mm:.3g} mm RMS, {rms_mm / spread_mm:.0%} of the {spread_mm:.4g} mm "

@@ -37,7 +37,7 @@ from ..units import MM_PER_M, RAD_PER_DEG, DEG_PER_RAD
 
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
            "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise", "tool_reach", "check_targets",
-           "forced_reasons", "check_length_unit", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
+           "forced_reasons", "check_length_unit", "position_spread", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _MAX_RELABEL_POINTS = 6  # K! permutations are tried per row
@@ -280,16 +280,13 @@ def check_length_unit(ds: Dataset, *, low: float = 0.05, high: float = 20.0) -> 
         meas = ds.pose[rows, None, :3, 3]
         seen = np.ones((rows.size, 1), bool)
 
-    def spread(P):
-        return float(np.sqrt(np.mean(np.sum((P - P.mean(axis=0)) ** 2, axis=-1))))
-
     st = ds.station_ids[rows]
     sm, sp = [], []
     for s_ in np.unique(st):
         sel = (st == s_)[:, None] & seen
         if sel.sum() >= 3:
-            sm.append(spread(meas[sel]))
-            sp.append(spread(pred[sel]))
+            sm.append(position_spread(meas[sel]))
+            sp.append(position_spread(pred[sel]))
     if not sp or min(sp) <= 0:
         return None
     ratio = float(np.median(np.array(sm) / np.array(sp)))
@@ -399,13 +396,18 @@ def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
     for s_ in np.unique(st):
         pts = meas[st == s_][m[st == s_]]
         if pts.shape[0] >= 3:
-            spreads.append(float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1)))))
+            spreads.append(position_spread(pts))
     if not spreads:
         return None
     spread = float(np.median(spreads))
     rms = float(np.sqrt(np.mean(keep**2)))
     return {"miss_rms_m": rms, "spread_m": spread, "fraction": rms / spread if spread > 0 else float("inf"),
             "rows": int(sel.size), "trim": float(trim)}
+
+
+def position_spread(points: np.ndarray) -> float:
+    """How far measured positions ``(m, 3)`` [m] move: their RMS distance from their centroid [m]."""
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=-1))))
 
 
 def check_fit_miss(miss: dict | None, *, limit: float = MAX_MISS_FRACTION) -> None:
