@@ -25,3 +25,23 @@ def test_residuals_asked_again_are_a_fresh_evaluations_numbers_read_only():
     z2[0] = np.nextafter(z2[0], np.inf)
     moved = model.residuals(z2)
     assert moved is not first and moved.r.tobytes() == model._evaluate(z2, True).r.tobytes()
+
+
+def test_residuals_of_a_model_gone_are_not_kept():
+    """Once its model is gone, a kept evaluation is dropped at the next evaluation (no arrays held for nothing)."""
+    import gc
+
+    from twin.diagnosis import extend
+
+    ds, _ = H.make_dataset(seed=1, n=60)
+    setup = prepare_diagnosis(ds)
+    z = np.array(setup.x0, dtype=float)
+    gone = setup.problem.model([], "cal")
+    gone.residuals(z)
+    ref = [v[0] for v in extend._KEPT.values()]
+    del gone
+    gc.collect()
+    alive = setup.problem.model([], "val")
+    alive.residuals(z)
+    assert all(r() is not None for r in (v[0] for v in extend._KEPT.values()))
+    assert any(r() is None for r in ref)

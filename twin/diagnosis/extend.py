@@ -316,6 +316,8 @@ class ExtendedModel:
             if a is not None:
                 a.flags.writeable = False
         with _KEPT_LOCK:
+            for k in [k for k, v in _KEPT.items() if v[0]() is None]:  # a model gone: nothing can ask for it again
+                del _KEPT[k]
             _KEPT[key] = (weakref.ref(self), res)
             _KEPT.move_to_end(key)
             while len(_KEPT) > 1 and (len(_KEPT) > RESIDUALS_KEPT or sum(_nbytes(v[1]) for v in _KEPT.values())
