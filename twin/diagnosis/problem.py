@@ -44,10 +44,6 @@ FIT_FTOL = 1e-10
 THREADS_MIN_ROWS = 2000  # calibration rows from which independent places are scored on threads
 
 
-# every problem's keys of the atoms' feature values (Problem.feature_key), by atom
-_FEATURE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 class Problem:
     """Everything the selection rounds share: observations, rows, features, weights.
 
@@ -92,16 +88,13 @@ class Problem:
         self.cross_session = False
 
     def feature_key(self, atom: Atom) -> str:
-        """The key of an atom's feature values in the problem's caches (the repr of its features, kept per atom for
-        every problem: an atom's features do not change)."""
-        key = _FEATURE_KEYS.get(atom)
-        if key is None:
-            key = _FEATURE_KEYS[atom] = repr(atom.features)
-        return key
+        """The key of an atom's feature values in the problem's caches (the repr of its features, kept on the atom for
+        every problem: :attr:`Atom.feature_key`)."""
+        return atom.feature_key
 
     def features(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
-        key = self.feature_key(atom)
+        key = atom.feature_key
         F = self._F.get(key)
         if F is None:
             F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
@@ -111,7 +104,7 @@ class Problem:
     def features_cal(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached; the values on every row are
         kept only when :meth:`features` asks for them: most atoms are only ever scored on the calibration rows)."""
-        key = self.feature_key(atom)
+        key = atom.feature_key
         F = self._Fc.get(key)
         if F is None:
             F_all = self._F.get(key)
@@ -127,7 +120,7 @@ class Problem:
         if ctx is not self.ctx or model is not self.prep.nominal:
             return
         for atom, F in values.items():
-            self._Fc.setdefault(self.feature_key(atom), F[self.rows_cal])
+            self._Fc.setdefault(atom.feature_key, F[self.rows_cal])
 
     def inner_features_cal(self, inner: tuple) -> np.ndarray:
         """Values ``(n_cal, K)`` of the features inside gated features (:func:`twin.diagnosis.scoring._gate`) on the calibration rows
@@ -161,7 +154,7 @@ class Problem:
         distinct rows as rows (steps, indicators, sessions); else None (cached)."""
         from scipy import sparse
 
-        key = self.feature_key(atom)
+        key = atom.feature_key
         if key not in self._Fu:
             F = self.features_cal(atom)
             Fu, inv = np.unique(F, axis=0, return_inverse=True)
@@ -223,7 +216,7 @@ class ColumnStore:
         for a in atoms:
             if single_step(a):
                 continue
-            key = prob.feature_key(a)
+            key = a.feature_key
             users.setdefault(key, set()).add((a.place, a.target))
             rep.setdefault(key, a)
         # per width, one block of the sets several places use (a place multiplies the whole block: the few sets a
