@@ -5,7 +5,9 @@ other atoms, gross rows down-weighted, start values, the covariance of whitened 
 
 from __future__ import annotations
 
+import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,8 +22,8 @@ from .grams import block_stats, single_step
 from .structure import StructureTest, fit_block_test, gross_rows, structure_test
 from .values import feature_channel, feature_values
 
-__all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "Problem", "ColumnStore", "covariance", "update_gross", "refit_with",
-           "psi_init", "held_out_rms", "common_chi2"]
+__all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "MODELS_KEPT", "Problem", "ColumnStore", "covariance", "update_gross",
+           "refit_with", "psi_init", "held_out_rms", "common_chi2"]
 
 
 @dataclass
@@ -42,6 +44,7 @@ class Fit:
 # term's evidence is a Delta chi2 of order 1 and more on a chi2 of the rows' count)
 FIT_FTOL = 1e-10
 THREADS_MIN_ROWS = 2000  # calibration rows from which independent places are scored on threads
+MODELS_KEPT = 16  # extended models a problem keeps for the same atoms and bases (Problem.model)
 
 
 class Problem:
@@ -78,6 +81,8 @@ class Problem:
         self._orders: dict = {}
         self._store: ColumnStore | None = None
         self._cache: dict = {}
+        self._models: OrderedDict = OrderedDict()  # the latest models, by block and (atom, basis) (Problem.model)
+        self._models_lock = threading.Lock()
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
         # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
@@ -164,13 +169,27 @@ class Problem:
         return self._Fu[key]
 
     def model(self, chosen: list, block: str) -> ExtendedModel:
-        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
+        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``). The latest
+        ``MODELS_KEPT`` are kept and given again for the same atoms and bases (their evaluations are kept by model: a
+        refit starts where the previous fit of the same atoms ended)."""
         obs, rows = {"cal": (self.obs_cal, self.rows_cal), "val": (self.obs_val, self.rows_val),
                      "rep": (self.obs_rep, self.rows_rep)}[block]
         if obs is None:
             raise ValueError(f"block {block!r}: this problem has no such rows")
+        key = (block, tuple((id(a), B.dtype.str, B.shape, B.tobytes()) for a, B in chosen))
+        with self._models_lock:
+            got = self._models.get(key)
+            if got is not None:
+                self._models.move_to_end(key)
+                return got
         terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
-        return ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+        got = ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+        with self._models_lock:
+            got = self._models.setdefault(key, got)
+            self._models.move_to_end(key)
+            while len(self._models) > MODELS_KEPT:
+                self._models.popitem(last=False)
+        return got
 
     def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> Fit:
         """Gauss-Newton over the free geometry and the atoms' reduced coordinates on the calibration rows
