@@ -4,6 +4,7 @@ import numpy as np
 
 import _diagnosis_helpers as H
 from twin.diagnosis.diagnose import prepare_diagnosis
+from twin.diagnosis.extend import ExtendedModel
 
 
 def test_residuals_asked_again_are_a_fresh_evaluations_numbers_read_only():
@@ -36,7 +37,8 @@ def test_residuals_of_a_model_gone_are_not_kept():
     ds, _ = H.make_dataset(seed=1, n=60)
     setup = prepare_diagnosis(ds)
     z = np.array(setup.x0, dtype=float)
-    gone = setup.problem.model([], "cal")
+    prob = setup.problem
+    gone = ExtendedModel(prob.prep.space, prob.obs_cal, [], prob.floor.axis_sigma)  # not one the problem keeps
     gone.residuals(z)
     ref = [v[0] for v in extend._KEPT.values()]
     del gone

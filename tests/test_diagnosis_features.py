@@ -1,6 +1,7 @@
 """Tests of twin.diagnosis.features: the typed features of the atoms and the dicts diagnosis.json and
 calibration.json store them as."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -73,6 +74,17 @@ def test_every_kind_reads_back_from_its_dict():
         assert feature_from_dict(d) == f, f
         assert feature_from_dict(json.loads(json.dumps(d))) == f, f
         assert hash(feature_from_dict(d)) == hash(f)
+
+
+def test_the_kept_repr_is_the_dataclass_repr():
+    """Every kind's repr (the key of its values, kept once made) is the text a dataclass' own repr gives for the same
+    fields and values, records and nested features included, and is the same text when asked again."""
+    for f in _one_of_each() + [HeatRecord(t_s=(0.0,), q=((0.1,) * 6,), reset=(True,)), LagRecord(t_s=(0.0,), x=(1.5,))]:
+        names = [fl.name for fl in dataclasses.fields(f)]
+        twin_cls = dataclasses.make_dataclass(type(f).__qualname__, names)  # the dataclass' generated repr
+        expected = repr(twin_cls(*(getattr(f, n) for n in names)))
+        assert repr(f) == expected
+        assert repr(f) is repr(f)
 
 
 def test_dicts_keep_the_keys_in_their_order():

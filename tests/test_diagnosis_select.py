@@ -4,7 +4,8 @@ Each shortcut of the scoring at scale is checked against the plain formula it re
 geometric fit: per-row sums laid out by row against a sparse sum over the residuals, a step's products from suffix
 sums against the products of its feature column, a family acting from different moments against its atoms'
 features, a wide product atom on its distinct rows or in batches against one batch, the column store against
-stacked features, and a model column picked from the Jacobian against the product with it.
+stacked features, a model column picked from the Jacobian against the product with it, and a kept model against one
+built anew.
 """
 
 import numpy as np
@@ -13,10 +14,10 @@ from scipy import sparse
 
 import _diagnosis_helpers as H
 from twin.diagnosis import grams, scoring
-from twin.diagnosis.problem import ColumnStore
+from twin.diagnosis.problem import MODELS_KEPT, ColumnStore
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
-from twin.diagnosis.extend import _times_weights, param_weights
+from twin.diagnosis.extend import AtomTerm, ExtendedModel, _times_weights, param_weights
 from twin.diagnosis.features import Gated, Step
 
 
@@ -308,3 +309,22 @@ def test_all_link_lengths_grow_the_chain_s_fixed_end_too():
     got = sp.chain.evaluate(x_grown[: sp.n_rt], q, jacobian=False).p[0]
     want = Chain.of(grown).evaluate(sp.from_model(grown)[: sp.n_rt], q, jacobian=False).p[0]
     assert np.max(np.abs(got - want)) < 1e-7  # the end's 92 mm grown 1e-4 is 9.2e-6 m
+
+
+def test_a_kept_model_is_the_model_of_the_same_atoms_and_bases(problem):
+    """``Problem.model`` gives its kept model for equal atoms, bases and block (another for another basis or block,
+    and none once ``MODELS_KEPT`` others came after it), with the residuals of a model built anew to the bit."""
+    prob, fit, sb, pool, sizes = problem
+    a = next(x for x in pool if x.place == "joint")
+    B = np.eye(a.K)[:, :1]
+    m = prob.model([(a, B)], "cal")
+    assert prob.model([(a, B.copy())], "cal") is m
+    assert prob.model([(a, 2 * B)], "cal") is not m and prob.model([(a, B)], "val") is not m
+    built = ExtendedModel(prob.prep.space, prob.obs_cal, [AtomTerm(a, prob.features(a)[prob.rows_cal], B)],
+                          prob.floor.axis_sigma)
+    z = np.concatenate([fit.z[: prob.prep.space.size], [1e-4]])
+    got, want = m.residuals(z), built.residuals(z)
+    assert np.array_equal(got.r, want.r) and np.array_equal(got.J, want.J)
+    for k in range(MODELS_KEPT):
+        prob.model([(a, (k + 3.0) * B)], "cal")
+    assert prob.model([(a, B)], "cal") is not m

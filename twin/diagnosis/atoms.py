@@ -38,6 +38,7 @@ evaluates the same regressor on new rows. Nothing here reads truth.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 from ..kinematics import RobotModel
@@ -106,6 +107,12 @@ class Atom:
     @property
     def key(self) -> str:
         return f"{self.family}:{self.place}:{self.target}:{self.channel}"
+
+    @functools.cached_property
+    def feature_key(self) -> str:
+        """The repr of its features, the key of their values in a problem's caches (computed once: an atom's features
+        do not change)."""
+        return repr(self.features)
 
     def spec(self) -> dict:
         """JSON-ready description (values are added by the caller)."""

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..estimator.memo import KeptResults, array_key
 from ..kinematics import N_JOINTS, RobotModel, link_frames
 
 __all__ = [
@@ -210,6 +211,11 @@ def carried_moments(model: RobotModel, q: np.ndarray, joint: int, g: np.ndarray 
     return np.einsum("nji,nj->ni", R, M)
 
 
+# the latest regressors, given again for the same model and rows (the pools, the load terms, the change places and the
+# feature values each ask for it on the same rows): 4 of them, at most 16 MB
+_REGRESSORS = KeptResults(4, 1 << 24)
+
+
 def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = GRAVITY) -> np.ndarray:
     """Gravity torques as a linear map of the links' mass moments: ``(n, N, N, 4)``.
 
@@ -218,8 +224,15 @@ def gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray = G
     ``tau = z_i . ((p_ck - o_i) x m_k g)`` and ``m_k p_ck = m_k o_k + R_k h_k`` give
     ``Y[:, i, k] = (z_i . ((o_k - o_i) x g), R_k^T (g x z_i))``; for a prismatic joint ``i`` (a ``"urdf"`` chain)
     the force along its axis, ``Y[:, i, k] = (z_i . g, 0, 0, 0)``. Link frames: a DH/MDH chain's frames 1..N; a
-    ``"urdf"`` chain's joint frames (:func:`joint_frames`).
+    ``"urdf"`` chain's joint frames (:func:`joint_frames`). The latest few are kept and given again for the same
+    model and the same ``q`` and ``g`` to the bit (read-only).
     """
+    key = (id(model), array_key(q), array_key(g))
+    return _REGRESSORS.get_or_compute(key, lambda: _gravity_torque_regressor(model, q, g), (model,))
+
+
+def _gravity_torque_regressor(model: RobotModel, q: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """:func:`gravity_torque_regressor` computed."""
     if model.convention == "urdf":
         F = joint_frames(model, q)
         o_axis, z_axis = _chain_axes(model, F)

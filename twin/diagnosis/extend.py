@@ -171,7 +171,7 @@ def _times_weights(J: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 # the latest residual evaluations ExtendedModel.residuals keeps: a fit's residuals are asked for again at once (its
 # scoring basis, its tests, its gross rows); (id(model), z) -> (weak reference to the model, Residuals)
-RESIDUALS_KEPT = 4
+RESIDUALS_KEPT = 16
 RESIDUALS_KEPT_BYTES = 1 << 26  # and at most this many bytes of them (but the latest), on a campaign of many rows
 _KEPT: OrderedDict = OrderedDict()
 _KEPT_LOCK = threading.Lock()

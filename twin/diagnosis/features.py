@@ -54,7 +54,21 @@ __all__ = [
     "feature_from_dict",
 ]
 
-_FROZEN = dict(frozen=True, kw_only=True)
+# frozen, keyword-only; the repr is :class:`_Repr`'s (the dataclass' text, kept once made)
+_FROZEN = dict(frozen=True, kw_only=True, repr=False)
+
+
+class _Repr:
+    """The repr of a frozen dataclass, the text the dataclass' own repr gives (``Kind(field=value, ...)``, every field
+    in order), made once per object and kept: it is the key of a feature set's values (``repr`` of an atom's
+    features), asked for every new atom, and a record or a weight vector makes it long."""
+
+    def __repr__(self) -> str:
+        got = self.__dict__.get("_repr")
+        if got is None:
+            inner = ", ".join(f"{fl.name}={getattr(self, fl.name)!r}" for fl in fields(self))
+            got = self.__dict__["_repr"] = f"{type(self).__qualname__}({inner})"
+        return got
 
 
 def _plain(v: Any) -> Any:
@@ -74,7 +88,7 @@ def _freeze(v: Any) -> Any:
 
 
 @dataclass(**_FROZEN)
-class LagRecord:
+class LagRecord(_Repr):
     """A lagged channel's record of its campaign: the row times ``t_s`` [s] and the channel values ``x``, in the
     campaign's measurement order."""
 
@@ -90,7 +104,7 @@ class LagRecord:
 
 
 @dataclass(**_FROZEN)
-class HeatRecord:
+class HeatRecord(_Repr):
     """The motion heat's record of its campaign: row times ``t_s`` [s], commanded joints ``q`` ``(n, N)`` [rad] and
     the rows where its history restarted (``reset``), in the campaign's measurement order."""
 
@@ -107,7 +121,7 @@ class HeatRecord:
 
 
 @dataclass(**_FROZEN)
-class Feature:
+class Feature(_Repr):
     """A feature of the rows (one subclass per ``kind``); :meth:`to_dict` / :func:`feature_from_dict` give and read
     its stored dict. Fields declared ``... | None = None`` are optional: absent from the dict while ``None``."""
 

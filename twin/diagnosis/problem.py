@@ -5,7 +5,9 @@ other atoms, gross rows down-weighted, start values, the covariance of whitened 
 
 from __future__ import annotations
 
+import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,8 +22,8 @@ from .grams import block_stats, single_step
 from .structure import StructureTest, fit_block_test, gross_rows, structure_test
 from .values import feature_channel, feature_values
 
-__all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "Problem", "ColumnStore", "covariance", "update_gross", "refit_with",
-           "psi_init", "held_out_rms", "common_chi2"]
+__all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "MODELS_KEPT", "Problem", "ColumnStore", "covariance", "update_gross",
+           "refit_with", "psi_init", "held_out_rms", "common_chi2"]
 
 
 @dataclass
@@ -42,10 +44,7 @@ class Fit:
 # term's evidence is a Delta chi2 of order 1 and more on a chi2 of the rows' count)
 FIT_FTOL = 1e-10
 THREADS_MIN_ROWS = 2000  # calibration rows from which independent places are scored on threads
-
-
-# every problem's keys of the atoms' feature values (Problem.feature_key), by atom
-_FEATURE_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+MODELS_KEPT = 16  # extended models a problem keeps for the same atoms and bases (Problem.model)
 
 
 class Problem:
@@ -82,6 +81,8 @@ class Problem:
         self._orders: dict = {}
         self._store: ColumnStore | None = None
         self._cache: dict = {}
+        self._models: OrderedDict = OrderedDict()  # the latest models, by block and (atom, basis) (Problem.model)
+        self._models_lock = threading.Lock()
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
         # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
@@ -92,16 +93,13 @@ class Problem:
         self.cross_session = False
 
     def feature_key(self, atom: Atom) -> str:
-        """The key of an atom's feature values in the problem's caches (the repr of its features, kept per atom for
-        every problem: an atom's features do not change)."""
-        key = _FEATURE_KEYS.get(atom)
-        if key is None:
-            key = _FEATURE_KEYS[atom] = repr(atom.features)
-        return key
+        """The key of an atom's feature values in the problem's caches (the repr of its features, kept on the atom for
+        every problem: :attr:`Atom.feature_key`)."""
+        return atom.feature_key
 
     def features(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
-        key = self.feature_key(atom)
+        key = atom.feature_key
         F = self._F.get(key)
         if F is None:
             F = feature_values(atom.features, self.ctx, self.prep.nominal, self._cache)
@@ -111,7 +109,7 @@ class Problem:
     def features_cal(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_cal, K)`` of an atom on the calibration rows (cached; the values on every row are
         kept only when :meth:`features` asks for them: most atoms are only ever scored on the calibration rows)."""
-        key = self.feature_key(atom)
+        key = atom.feature_key
         F = self._Fc.get(key)
         if F is None:
             F_all = self._F.get(key)
@@ -127,7 +125,7 @@ class Problem:
         if ctx is not self.ctx or model is not self.prep.nominal:
             return
         for atom, F in values.items():
-            self._Fc.setdefault(self.feature_key(atom), F[self.rows_cal])
+            self._Fc.setdefault(atom.feature_key, F[self.rows_cal])
 
     def inner_features_cal(self, inner: tuple) -> np.ndarray:
         """Values ``(n_cal, K)`` of the features inside gated features (:func:`twin.diagnosis.scoring._gate`) on the calibration rows
@@ -161,7 +159,7 @@ class Problem:
         distinct rows as rows (steps, indicators, sessions); else None (cached)."""
         from scipy import sparse
 
-        key = self.feature_key(atom)
+        key = atom.feature_key
         if key not in self._Fu:
             F = self.features_cal(atom)
             Fu, inv = np.unique(F, axis=0, return_inverse=True)
@@ -171,13 +169,27 @@ class Problem:
         return self._Fu[key]
 
     def model(self, chosen: list, block: str) -> ExtendedModel:
-        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``)."""
+        """The extended model with ``chosen`` atoms on the rows of ``block`` (``cal``, ``val``, ``rep``). The latest
+        ``MODELS_KEPT`` are kept and given again for the same atoms and bases (their evaluations are kept by model: a
+        refit starts where the previous fit of the same atoms ended)."""
         obs, rows = {"cal": (self.obs_cal, self.rows_cal), "val": (self.obs_val, self.rows_val),
                      "rep": (self.obs_rep, self.rows_rep)}[block]
         if obs is None:
             raise ValueError(f"block {block!r}: this problem has no such rows")
+        key = (block, tuple((id(a), B.dtype.str, B.shape, B.tobytes()) for a, B in chosen))
+        with self._models_lock:
+            got = self._models.get(key)
+            if got is not None:
+                self._models.move_to_end(key)
+                return got
         terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
-        return ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+        got = ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+        with self._models_lock:
+            got = self._models.setdefault(key, got)
+            self._models.move_to_end(key)
+            while len(self._models) > MODELS_KEPT:
+                self._models.popitem(last=False)
+        return got
 
     def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> Fit:
         """Gauss-Newton over the free geometry and the atoms' reduced coordinates on the calibration rows
@@ -223,7 +235,7 @@ class ColumnStore:
         for a in atoms:
             if single_step(a):
                 continue
-            key = prob.feature_key(a)
+            key = a.feature_key
             users.setdefault(key, set()).add((a.place, a.target))
             rep.setdefault(key, a)
         # per width, one block of the sets several places use (a place multiplies the whole block: the few sets a

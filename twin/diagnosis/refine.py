@@ -23,7 +23,7 @@ from .values import feature_values
 
 __all__ = ["bend_unseen", "prefer_play", "prefer_sign", "recorded_lag", "refine", "refine_gap", "refine_onset",
            "refine_time", "retimeable", "follows_the_air", "is_onset", "onset_atom", "onset_lag", "polish_in_fit",
-           "prefer_heat", "widen", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
+           "prefer_heat", "widen", "clip_value", "ONSET_POINTS", "ONSET_TAUS", "ONSET_RAMPS"]
 
 ONSET_POINTS = 20  # onsets (or a ramp's middles) tried, on the quantiles 0-95 % of the calibration rows' times
 ONSET_TAUS = tuple(2.0 ** np.arange(-6, 3))  # time constants tried, as fractions of the calibration rows' span
@@ -642,6 +642,16 @@ def is_onset(atom: Atom) -> bool:
         isinstance(f, Exp) and f.ch == "t_s" for f in atom.features)
 
 
+def clip_value(v: float, lo: float, hi: float) -> float:
+    """``np.clip(v, lo, hi)`` of one number without the array machinery, the same number to the bit: ``lo`` where it
+    is above ``v`` (or NaN), then ``hi`` where it is below (or NaN), a NaN ``v`` kept; signed zeros as numpy's."""
+    if lo != lo or (v == v and lo > v):
+        v = lo
+    if v == v and (hi != hi or hi < v):
+        v = hi
+    return v
+
+
 def onset_atom(atom: Atom, t0: float, tau: float, ramp: float) -> Atom:
     """The thermal ``atom`` (:func:`is_onset`) with its air change at ``t0`` [s], a ramp over ``ramp`` [s] (0: a step)
     and the links' lag ``tau`` [s]; channel and label to match."""
@@ -678,11 +688,11 @@ def refine_onset(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int],
     tau_lo, tau_hi = min(ONSET_TAUS) * span, max(ONSET_TAUS) * span
 
     def make(t0: float, tau: float, ramp: float) -> Atom:
-        ramp = float(np.clip(ramp, 0.0, tau_hi))
-        t0 = float(np.clip(t0, lo, hi))
+        ramp = float(clip_value(ramp, 0.0, tau_hi))
+        t0 = float(clip_value(t0, lo, hi))
         # the rows after the onset see at least a fifth of its response (a lag four times longer than they last is
         # a drift they see start, which any later row would extrapolate)
-        tau = float(np.clip(tau, tau_lo, max(tau_lo, min(tau_hi, 4.0 * (t[-1] - t0)))))
+        tau = float(clip_value(tau, tau_lo, max(tau_lo, min(tau_hi, 4.0 * (t[-1] - t0)))))
         return onset_atom(s.atom, t0, tau, ramp if ramp > 1e-3 * span else 0.0)
 
     middles = np.quantile(t[(t >= lo) & (t <= hi)] if np.any((t >= lo) & (t <= hi)) else [hi],

@@ -114,7 +114,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
     def group_stats(item: tuple) -> list[tuple[int, tuple]]:
         (place, target), ids = item
         # a place's atoms scored before against this basis (a round that rejected its candidates): the same sums
-        key = ("screen", prob.threads, place, target, id(store), tuple(prob.feature_key(atoms[i]) for i in ids))
+        key = ("screen", prob.threads, place, target, id(store), tuple(atoms[i].feature_key for i in ids))
         got = sb.memo.get(key)
         if got is None:
             at = {i: j for j, i in enumerate(ids)}
@@ -128,7 +128,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
         for i in ids:
             if single_step(atoms[i]):
                 steps.append(i)
-            elif store is not None and store.has(prob.feature_key(atoms[i])):
+            elif store is not None and store.has(atoms[i].feature_key):
                 stored.append(i)
             else:
                 rest.append(i)
@@ -136,7 +136,7 @@ def _screen(prob: Problem, fit: Fit, atoms: list[Atom], rc, keep, sw, Q, r, pool
             for i, got in zip(steps, _step_stats(prob, [atoms[i] for i in steps], w, Qb, br)):
                 got_all.append((1, (i, *got)))
         if stored:
-            got = store.stats((place, target), [prob.feature_key(atoms[i]) for i in stored], w, Qb, br)
+            got = store.stats((place, target), [atoms[i].feature_key for i in stored], w, Qb, br)
             for i, st in zip(stored, got):
                 got_all.append((len(atoms[i].features), (i, *st)))
         by_width: dict[int, list[int]] = {}
@@ -381,7 +381,7 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
 
     def group_scores(members: list[Atom]) -> list[tuple]:
         # a place's atoms scored before against this basis (a round that rejected its candidates): the same numbers
-        key = ("products", prob.threads, rel_tol, max_rank, tuple(prob.feature_key(a) for a in members),
+        key = ("products", prob.threads, rel_tol, max_rank, tuple(a.feature_key for a in members),
                members[0].place, members[0].target, members[0].place == "plate" and members[0].varying_plate)
         got = sb.memo.get(key)
         if got is None:
@@ -426,15 +426,16 @@ def _score_products(prob: Problem, fit: Fit, atoms: list[Atom], sb: ScoringBasis
             e = (Etr - Qtr @ QtE) * D
             lam, V = leading_eigh(G, max_rank)  # descending
             sv = np.sqrt(np.maximum(lam, 0.0))
-            rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank)
+            rks = np.minimum(np.sum(sv > rel_tol * np.maximum(sv[:, :1], 1.0), axis=1), max_rank).tolist()
+            has_any = np.any(has, axis=1).tolist()
             for i, a in enumerate(grp):
-                rk = int(rks[i])
-                if rk == 0 or not nonzero[i] or not np.any(has[i]):
+                rk = rks[i]
+                if rk == 0 or not nonzero[i] or not has_any[i]:
                     continue
                 Vr = V[i][:, :rk]
+                lr = lam[i, :rk]
                 proj = Vr.T @ e[i]
-                pending.append((a, D[i][:, None] * Vr, proj / lam[i, :rk], float(np.sum(proj**2 / lam[i, :rk])), rk,
-                                float(np.sum(lam[i, :rk]))))
+                pending.append((a, D[i][:, None] * Vr, proj / lr, float(np.sum(proj**2 / lr)), rk, float(np.sum(lr))))
         return pending
 
     pending = [t for got in thread_map(group_scores, list(groups.values()), prob.threads) for t in got]
@@ -543,7 +544,7 @@ def _memo_key(prob: Problem, x, pins: list):
         return ("scored", _memo_key(prob, x.atom, pins), x.basis.shape, x.basis.tobytes(), x.psi.tobytes(), x.dchi2,
                 x.logp_adj, id(x.r))
     if isinstance(x, Atom):
-        return ("atom", x.family, x.place, x.target, x.channel, x.label, x.pool, x.joints, prob.feature_key(x),
+        return ("atom", x.family, x.place, x.target, x.channel, x.label, x.pool, x.joints, x.feature_key,
                 repr(sorted(x.meta.items())))
     if isinstance(x, np.ndarray):
         return ("array", x.shape, x.dtype.str, x.tobytes())

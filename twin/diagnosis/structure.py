@@ -90,8 +90,13 @@ def chi2_logsf(x, k):
     """``log P(chi2(k) > x)`` (scalars or arrays), finite where scipy's underflows to ``-inf`` (large ``x``: the
     leading term of the upper incomplete gamma function, :func:`_upper_tail_term`)."""
     x, k = np.asarray(x, float), np.asarray(k, float)
+    if x.ndim == 0 and k.ndim == 0:  # two scalars (most calls): the branch below's number, without reshaping
+        vv, xv = dists.chi2_logsf(x, k), x[()]
+        if not np.isfinite(vv) and np.isfinite(xv) and xv > 0:
+            vv = _upper_tail_term(xv, k[()])
+        return float(vv)
     v = dists.chi2_logsf(x, k)
-    if np.size(v) == 1:  # one entry (most calls): without the masks of an array
+    if np.size(v) == 1:  # one entry: without the masks of an array
         xv, kv, vv = x.reshape(-1)[0], k.reshape(-1)[0], np.reshape(v, -1)[0]
         if not np.isfinite(vv) and np.isfinite(xv) and xv > 0:
             vv = _upper_tail_term(xv, kv)

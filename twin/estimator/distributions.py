@@ -38,6 +38,11 @@ def chi2_sf(x, k):
 def chi2_logsf(x, k):
     """``log P(chi2(k) > x)``: ``log(sf)`` beyond the median, ``log1p(-cdf)`` below it (as ``scipy.stats``); 0 for
     ``x <= 0``, ``-inf`` where the tail underflows, NaN for ``k <= 0``."""
+    if type(x) is np.ndarray and type(k) is np.ndarray and x.ndim == 0 and k.ndim == 0 \
+            and x.dtype == np.float64 and k.dtype == np.float64:
+        # two 0-d arrays (what the diagnosis passes, thousands of times): the entry's number as the scalar the
+        # broadcast below gives, without broadcasting
+        return np.float64(_chi2_logsf_entry(x[()], k[()]))
     x, k, ok = _support(x, k)
     if x.size == 1:  # one entry (the diagnosis asks thousands): the branches below without the masks of an array
         return _out(np.full(x.shape, _chi2_logsf_entry(x.reshape(-1)[0], k.reshape(-1)[0])))

@@ -40,6 +40,7 @@ from ..transforms import (
     transform_to_pose6,
 )
 from .chain import Chain
+from .memo import KeptResults, array_key
 
 __all__ = [
     "ParamSpace",
@@ -383,10 +384,28 @@ def station_eval(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.nd
     return R, p, J
 
 
+# the latest predictions, given again for the same space and inputs (a refit starts where the last fit ended; models
+# that differ in their effect terms alone evaluate the geometry at the same point): 8 of them, at most 32 MB
+_PREDICTIONS = KeptResults(8, 1 << 25)
+
+
 def predict_points(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, points_tool: np.ndarray,
                    jacobian: bool = False):
     """Points fixed in the tool frame ``(k, 3)`` [m] seen in the rows' measurement frames: ``(n, k, 3)``,
-    and with ``jacobian`` their Jacobian ``(P, k, 3, n)``."""
+    and with ``jacobian`` their Jacobian ``(P, k, 3, n)``. The latest few are kept and given again for the same space
+    and the same inputs to the bit (read-only arrays; without the Jacobian, the points of an evaluation with it)."""
+    base = (id(space), array_key(x), array_key(q), array_key(station), array_key(points_tool))
+    got = _PREDICTIONS.get(base + (True,))
+    if got is None and not jacobian:
+        got = _PREDICTIONS.get(base + (False,))
+    if got is not None:
+        return got if jacobian else (got[0], None)
+    return _PREDICTIONS.put(base + (jacobian,), _predict_points(space, x, q, station, points_tool, jacobian), (space,))
+
+
+def _predict_points(space: ParamSpace, x: np.ndarray, q: np.ndarray, station: np.ndarray, points_tool: np.ndarray,
+                    jacobian: bool):
+    """:func:`predict_points` computed."""
     R, p, J = station_eval(space, x, q, station, jacobian)
     v = np.einsum("nij,kj->nki", R, points_tool)  # (n, k, 3): R s_k
     pts = p[:, None, :] + v
