@@ -364,3 +364,27 @@ def test_plan_on_the_eight_joint_arm_picks_visible_configurations(tiago):
     assert res.q.shape == (25, 8) and tiago.within_limits(res.q).all()
     assert visibility(tiago, res.q, b2m, cam, plate, opts)[0].all()
     assert res.floor_plan <= np.median(res.floor_random)
+
+
+def _mimic_urdf(path: Path) -> Path:
+    """A two-joint arm whose second joint mimics the first (q2 = 0.5 q1 + 0.1), with a finger off the chain that
+    mimics joint 2."""
+    link = "".join(f'<link name="{n}"/>' for n in ("base", "l1", "l2", "flange", "finger"))
+    j = ('<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="0 0 0.3" rpy="0 0 0"/>'
+         '<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/>{m}</joint>')
+    joints = [j.format(n="j1", t="revolute", p="base", c="l1", m=""),
+              j.format(n="j2", t="revolute", p="l1", c="l2", m='<mimic joint="j1" multiplier="0.5" offset="0.1"/>'),
+              j.format(n="j3", t="revolute", p="l2", c="flange", m=""),
+              j.format(n="finger_joint", t="prismatic", p="l1", c="finger", m='<mimic joint="j2"/>')]
+    path.write_text(f'<?xml version="1.0"?><robot name="mimic_arm">{link}{"".join(joints)}</robot>')
+    return path
+
+
+def test_a_mimic_joint_on_the_chain_is_refused_and_one_off_it_is_not(tmp_path):
+    """URDF <mimic>: a joint on the chain driven by another (q = m q_ref + o) is refused naming both joints and the
+    law; a mimic joint off the chain (a finger) leaves the chain's independent joints as they are."""
+    urdf = _mimic_urdf(tmp_path / "arm.urdf")
+    with pytest.raises(UrdfError, match=r"joint 'j2' on the chain mimics joint 'j1' \(q = 0.5 \* q_j1 \+ 0.1\)"):
+        read_urdf_chain(urdf, "base", "flange")
+    assert read_urdf_chain(urdf, "l2", "flange").joint_names == ("j3",)
+    assert read_urdf_chain(urdf, "base", "l1").joint_names == ("j1",)

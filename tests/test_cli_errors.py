@@ -232,16 +232,43 @@ def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the
     assert "WARNING: the calibrated model misses" not in out[20]
 
 
-def test_diagnose_warns_when_the_rows_that_fit_cannot_identify_the_geometry(tmp_path, capsys):
-    """Five rows of a 6-joint arm: the geometric model of the rows that fit fixes parameters these configurations
-    cannot identify, and twin diagnose says its figures rest on it (and says nothing of it on 20 rows)."""
-    out = {}
-    for n in (5, 20):
-        assert main(["diagnose", str(_few_rows(tmp_path, n)), "--out", str(tmp_path / f"d{n}"), "--no-plots",
-                     "--no-recording", "--threads", "1"]) == 0
-        out[n] = capsys.readouterr().out
-    assert "WARNING: rank deficiency from these configurations: " in out[5]
-    assert "every figure below rests on that model" in out[5] and "WARNING" not in out[20]
+def test_diagnose_refuses_too_few_rows_unless_forced_and_then_marks_it(tmp_path, capsys):
+    """Five rows of a 6-joint arm: twin diagnose refuses, naming the rows, what they cannot identify and the minimum;
+    with --force it writes a diagnosis whose notes say it is not meaningful (20 rows: no refusal, no warning)."""
+    import json
+
+    ds5 = _few_rows(tmp_path, 5)
+    argv = ["--no-plots", "--no-recording", "--threads", "1"]
+    assert main(["diagnose", str(ds5), "--out", str(tmp_path / "d5"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert "too few rows for a diagnosis: 5 rows, 4 of them fit" in err and "at least 7 rows that fit" in err
+    assert not (tmp_path / "d5").exists()
+    assert main(["diagnose", str(ds5), "--out", str(tmp_path / "d5"), "--force", *argv]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: rank deficiency from these configurations: " in out
+    notes = json.loads((tmp_path / "d5" / "diagnosis.json").read_text())["notes"]
+    assert any(n.startswith("NOT MEANINGFUL (written with --force): too few rows") for n in notes)
+    assert main(["diagnose", str(_few_rows(tmp_path, 20)), "--out", str(tmp_path / "d20"), *argv]) == 0
+    assert "WARNING" not in capsys.readouterr().out
+
+
+def test_import_refuses_an_out_folder_that_holds_a_dataset_unless_forced(tmp_path, capsys):
+    """twin import --out a folder holding a dataset: refused naming the folder; --force replaces dataset.toml and
+    poses.csv and leaves the user's other files; an input that the dataset would overwrite is refused even forced."""
+    ds = _few_rows(tmp_path, 5)
+    m = tmp_path / "lab5" / "map.toml"
+    (ds / "my_notes.csv").write_text("measured by hand\n")
+    before = (ds / "poses.csv").read_bytes()
+    (ds / "poses.csv").write_text("edited\n")
+    assert main(["import", "--map", str(m), "--out", str(ds)]) == 2
+    assert f"--out {ds}: the folder already holds a dataset (dataset.toml, poses.csv)" in capsys.readouterr().err
+    assert (ds / "poses.csv").read_text() == "edited\n"
+    assert main(["import", "--map", str(m), "--out", str(ds), "--force"]) == 0
+    assert (ds / "poses.csv").read_bytes() == before and (ds / "my_notes.csv").read_text() == "measured by hand\n"
+    shutil.copyfile(tmp_path / "lab5" / "a.csv", tmp_path / "lab5" / "poses.csv")
+    assert main(["import", "--map", str(m), str(tmp_path / "lab5" / "poses.csv"), "--out", str(tmp_path / "lab5"),
+                 "--force"]) == 2
+    assert "would replace the input" in capsys.readouterr().err
 
 
 def test_a_misspelt_table_of_dataset_toml_is_named(tmp_path):

@@ -204,3 +204,36 @@ def test_predict_leaves_no_partial_file_when_the_output_cannot_be_written(cal, t
     assert _run("predict", cal[0], j, "--out", tmp_path / "out") == 2
     assert "error:" in capsys.readouterr().err
     assert list((tmp_path / "out").iterdir()) == [] and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
+
+
+def test_predict_with_a_temperature_term_names_the_rows_without_a_temperature(cal, tmp_path, capsys):
+    """An extended calibration whose term reads temp_c and a JOINTS.csv whose temp_c is empty in two rows: predict
+    refuses naming the column and those rows' pose_id (no NaN prediction); without the term it predicts them."""
+    from dataclasses import replace
+
+    from twin.diagnosis.atoms import Atom
+    from twin.diagnosis.features import Pow
+
+    c = Calibration.load(cal[0])
+    term = Atom("thermal", "length", "all_lengths", (Pow(ch="temp_c", p=1, c=20.0, h=1.0),), "temp_c",
+                "links growing with temperature", "catalogue")
+    replace(c, effects=({**term.spec(), "values": [1e-5]},)).save(tmp_path / "thermal.json")
+    q = random_configurations(get_robot("irb1200"), 5, np.random.default_rng(3))
+    temp = np.array([20.0, np.nan, 21.0, np.nan, 22.0])
+    write_joints_csv(tmp_path / "j.csv", Joints(pose_id=np.arange(10, 15), q=q, temp_c=temp))
+    assert np.isnan(read_joints_csv(tmp_path / "j.csv").temp_c).tolist() == np.isnan(temp).tolist()
+    assert _run("predict", tmp_path / "thermal.json", tmp_path / "j.csv", "--out", tmp_path / "p.csv") == 2
+    assert "column 'temp_c' is empty in 2 of 5 rows (pose_id [11, 13])" in capsys.readouterr().err
+    assert _run("predict", cal[0], tmp_path / "j.csv", "--out", tmp_path / "p.csv") == 0
+    assert "nan" not in (tmp_path / "p.csv").read_text().lower()
+
+
+def test_a_short_joints_file_near_zero_is_warned_as_radians_and_degrees_are_not(cal, tmp_path, capsys):
+    """Five rows whose joints all lie within pi degrees of zero (radians in the degree columns): predict warns and
+    says why it does not refuse; five rows of the same joints in degrees: no warning."""
+    q = random_configurations(get_robot("irb1200"), 5, np.random.default_rng(3))
+    assert _run("predict", cal[0], _joints(tmp_path / "rad.csv", q * np.pi / 180), "--out", tmp_path / "p.csv") == 0
+    err = capsys.readouterr().err
+    assert "rad.csv: every joint of its 5 row(s) lies within" in err and "radians written in the degree columns?" in err
+    assert _run("predict", cal[0], _joints(tmp_path / "deg.csv", q), "--out", tmp_path / "p.csv") == 0
+    assert "radians" not in capsys.readouterr().err

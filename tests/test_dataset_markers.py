@@ -251,3 +251,26 @@ def test_cli_predict_compensate_export_on_the_eight_joint_arm(tmp_path, capsys):
     assert main(["export", str(calp), "--out", str(tmp_path / "exp")]) == 0
     assert read_urdf_chain(tmp_path / "exp" / "robot.urdf", "base", "tool").n_joints == 8
     mujoco.MjModel.from_xml_path(str(tmp_path / "exp" / "robot.xml"))
+
+
+def test_a_mocap_row_with_an_occluded_marker_is_kept_with_that_point_not_seen(tmp_path):
+    """A FIGAROH mocap CSV with point 2 empty in one row and point 4 NaN in another: every row is kept, those points
+    are written as not seen and the row's other points as measured (the generic path's rule)."""
+    with open(TRAIN, newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames, list(reader)[:16]
+    for c in "xyz":
+        rows[3][f"{c}2"] = ""
+        rows[10][f"{c}4"] = "nan"
+    occluded = tmp_path / "occluded.csv"
+    with open(occluded, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+    import_mocap([(occluded, "calibration")], URDF, "base_link", END, tmp_path / "ds")
+    ds = read_dataset(tmp_path / "ds")
+    assert ds.n == len(rows)
+    unseen = {(int(k), int(i)) for k, i in zip(*np.nonzero(~ds.sphere_seen))}
+    assert unseen == {(3, 1), (10, 3)}
+    want = np.array([[float(rows[3][f"{c}{i}"]) for c in "xyz"] for i in (1, 3, 4)])
+    assert np.abs(ds.spheres[3, [0, 2, 3]] - want).max() < 1e-9

@@ -509,3 +509,26 @@ def test_the_direction_of_the_ur10_probe_file_against_series_b(tmp_path, directi
     (tmp_path / "m.toml").write_text(text)
     st = import_columns(tmp_path / "m.toml", tmp_path / "ds").stations["B"]
     assert pos_mm[0] < st["position_rms_mm"] < pos_mm[1] and rot_deg[0] < st["orientation_rms_deg"] < rot_deg[1]
+
+
+def test_a_temperature_column_with_gaps_keeps_its_rows_and_the_diagnosis_names_them(tmp_path):
+    """Empty cells in the temperature column: every row is imported, those rows' temp_c written empty and read as
+    missing, the import's notes name the file lines, and the diagnosis (which reads every row's temperature)
+    refuses naming the column and the rows' pose_id."""
+    from twin.diagnosis import diagnose
+    from twin.diagnosis.floor import DiagnosisError
+
+    _pose_csv(tmp_path / "a.csv")
+    lines = (tmp_path / "a.csv").read_bytes().decode().split("\r\n")
+    for k in (4, 9):  # data rows 4 and 9 (0-based) are file lines k + 2
+        cells = lines[k + 1].split(";")
+        cells[7] = ""
+        lines[k + 1] = ";".join(cells)
+    (tmp_path / "a.csv").write_text("\r\n".join(lines))
+    rep = import_columns(_pose_map(tmp_path / "m.toml", "a.csv"), tmp_path / "ds")
+    assert any("column 'temp' is empty in 2 of its 60 rows (file lines 6, 11)" in n for n in rep.notes)
+    ds = read_dataset(tmp_path / "ds")
+    assert ds.n == 60 and np.flatnonzero(np.isnan(ds.temp_c)).tolist() == [4, 9]
+    assert ds.temp_c[3] == pytest.approx(22.53)
+    with pytest.raises(DiagnosisError, match=r"column 'temp_c' is empty in 2 of 60 rows \(pose_id \[4, 9\]\)"):
+        diagnose(ds)

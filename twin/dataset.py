@@ -58,7 +58,22 @@ __all__ = [
     "LENGTH_UNITS",
     "NOISE_KEYS",
     "read_noise_table",
+    "temperature_gaps",
 ]
+
+
+def temperature_gaps(temp_c: np.ndarray | None, pose_id: np.ndarray) -> str:
+    """Words naming the rows without a temperature (NaN in ``temp_c`` ``(n,)`` [degC]: an empty ``temp_c`` cell)
+    by their ``pose_id``, empty when every row has one or there is no temperature at all. What reads the
+    temperature of every row refuses with them."""
+    if temp_c is None:
+        return ""
+    gap = np.flatnonzero(np.isnan(np.asarray(temp_c, dtype=float)))
+    if not gap.size:
+        return ""
+    ids = [int(x) for x in np.asarray(pose_id)[gap[:20]]]
+    return (f"column 'temp_c' is empty in {gap.size} of {np.size(temp_c)} rows (pose_id {ids}"
+            f"{' ...' if gap.size > 20 else ''})")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -394,7 +409,8 @@ def _check_measured_rows(cols: _Columns, data: _Rows, max_rows_without_spheres: 
 
 def _optional_arrays(file: str, data: _Rows) -> dict[str, np.ndarray | None]:
     """The optional columns as the dataset's arrays (None where absent), checked in the order ``set``, ``pair``,
-    ``temp_c``, ``t_s``: a ``set`` of calibration/validation, an integer ``pair``, finite temperatures and times."""
+    ``temp_c``, ``t_s``: a ``set`` of calibration/validation, an integer ``pair``, finite temperatures (an empty
+    ``temp_c`` cell: none recorded for the row, NaN) and times."""
     opt, pose_id, n = data.optional, data.pose_id, data.pose_id.size
 
     def floats(c: str) -> np.ndarray | None:
@@ -402,6 +418,8 @@ def _optional_arrays(file: str, data: _Rows) -> dict[str, np.ndarray | None]:
             return None
         out = np.full(n, np.nan)
         for k, t in enumerate(opt[c]):
+            if t == "" and c == "temp_c":  # no temperature recorded for this row: NaN (see check_temperature)
+                continue
             if t == "":
                 raise DatasetError(f"{file}: row {k + 1} (pose_id {pose_id[k]}), column {c!r}: empty")
             out[k] = _parse_float(t, file, k + 1, str(pose_id[k]), c)
@@ -630,6 +648,8 @@ class DatasetWriter:
             v = getattr(row, c)
             if v is None:
                 cells.append("")
+            elif c == "temp_c" and np.isnan(v):  # no temperature recorded for the row
+                cells.append("")
             elif c in ("temp_c", "t_s"):
                 cells.append(f"{float(v):.6f}")
             else:
@@ -743,7 +763,8 @@ __all__.append("read_csv_rows")
 
 def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) -> Joints:
     """Read ``JOINTS.csv`` (``pose_id``, the joints of ``robot`` (default ``q1..q6``) in degrees (millimetres for
-    a prismatic joint), optional ``temp_c, t_s, station, set, session``)."""
+    a prismatic joint), optional ``temp_c, t_s, station, set, session``; an empty ``temp_c`` cell: NaN, no temperature
+    recorded for the row)."""
     path = Path(path)
     jcols = JOINT_COLUMNS if robot is None else joint_columns(robot)
     jscale = [RAD_PER_DEG] * 6 if robot is None else [M_PER_MM if p else RAD_PER_DEG for p in robot.is_prismatic]
@@ -771,7 +792,8 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     def fl(c):
         if c not in chans:
             return None
-        return np.array([_parse_float(t, str(path), k + 1, str(pid[k]), c) for k, t in enumerate(chans[c])])
+        return np.array([np.nan if c == "temp_c" and t == "" else _parse_float(t, str(path), k + 1, str(pid[k]), c)
+                         for k, t in enumerate(chans[c])])
 
     return Joints(
         pose_id=pid,
@@ -804,7 +826,7 @@ def write_joints_csv(path: str | os.PathLike, joints: Joints, robot: RobotModel 
         row = [str(int(joints.pose_id[k]))] + [f"{float(x) / sc:.10f}" for x, sc in zip(joints.q[k], jscale)]
         for c in cols[1 + len(jcols):]:
             v = getattr(joints, c)[k]
-            row.append(f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
+            row.append("" if c == "temp_c" and np.isnan(v) else f"{float(v):.6f}" if c in ("temp_c", "t_s") else str(v))
         row += [f"{float(v[k]):.6g}" for v in extra.values()]
         w.writerow(row)
     tmp = path.with_name(f".{path.name}.tmp")  # written whole, then moved: no partial output file

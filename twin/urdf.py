@@ -84,8 +84,9 @@ def read_urdf_chain(path: str | os.PathLike, root_link: str, end_link: str, *, n
     :class:`~twin.kinematics.RobotModel` (see the module docstring). Base and tool are the identity.
 
     Raises :class:`UrdfError` naming the file and the link when a link is missing, when ``root_link`` is not an
-    ancestor of ``end_link``, when a joint on the chain is neither fixed nor revolute/continuous/prismatic, or
-    when the chain has no moving joint.
+    ancestor of ``end_link``, when a joint on the chain is neither fixed nor revolute/continuous/prismatic, when a
+    moving joint on the chain is a ``<mimic>`` of another (the chain's joints are independent), or when the chain has
+    no moving joint. A mimic joint off the chain (a gripper's finger) is held at zero with the side branches.
     """
     path = Path(path)
     u = _load(path)
@@ -112,6 +113,16 @@ def read_urdf_chain(path: str | os.PathLike, root_link: str, end_link: str, *, n
         if j.type not in _MOVING + ("fixed",):
             raise UrdfError(f"{path}: joint {j.name!r} on the chain is of type {j.type!r}; a serial chain takes fixed, "
                             "revolute, continuous and prismatic joints")
+    for j in chain:
+        mimic = getattr(j, "mimic", None)
+        if j.type in _MOVING and mimic is not None:
+            m = 1.0 if mimic.multiplier is None else float(mimic.multiplier)
+            o = 0.0 if mimic.offset is None else float(mimic.offset)
+            raise UrdfError(f"{path}: joint {j.name!r} on the chain mimics joint {mimic.joint!r} (q = {m:g} * "
+                            f"q_{mimic.joint} + {o:g}): a chain here has independent joints, each commanded and "
+                            "calibrated on its own, and a joint driven by another cannot be one of them; choose "
+                            "root_link/end_link so that no mimic joint is on the chain, or write it as an independent "
+                            "joint whose position is recorded")
     moving = [j for j in chain if j.type in _MOVING]
     if not moving:
         raise UrdfError(f"{path}: the chain from {root_link!r} to {end_link!r} has no moving joint")

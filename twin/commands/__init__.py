@@ -18,9 +18,13 @@ def warn_forced(path, reasons: list[str]) -> None:
 def check_joints_file(path, q, pose_id, robot, force: bool, what: str) -> None:
     """Joints ``q`` ``(n, N)`` [rad, m] read from the JOINTS.csv ``path`` against ``robot``'s limits and a radians
     reading (:func:`twin.estimator.plausibility.check_joint_values`): a ``ValueError`` naming the file and the
-    cause, or with ``force`` a warning on stderr (``what``: what the command does anyway, e.g. "predicted")."""
-    from ..estimator.plausibility import ImplausibleData, check_joint_values
+    cause, or with ``force`` a warning on stderr (``what``: what the command does anyway, e.g. "predicted"); a file
+    too short for the radians refusal whose joints all lie within pi degrees of zero: a warning on stderr."""
+    from ..estimator.plausibility import ImplausibleData, check_joint_values, radians_warning
 
+    few = radians_warning(q, robot.is_prismatic)
+    if few:
+        print(f"warning: {path}: {few}", file=sys.stderr)
     try:
         six_r = robot.n_joints == 6 and tuple(robot.joint_names) == tuple(f"q{j}" for j in range(1, 7))
         names = None if six_r else robot.joint_names

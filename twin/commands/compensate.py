@@ -139,6 +139,11 @@ def _compensate_with_effects(cal, T, q_ref, pid, context_path, weight_rotation: 
     if lacking:
         raise ValueError(f"the calibration's effects depend on {', '.join(lacking)}: give --context with "
                          f"{' and '.join(lacking)} per pose_id")
+    from ..dataset import temperature_gaps
+
+    gaps = temperature_gaps(temp, np.asarray(pid)) if "temp_c" in need else ""
+    if gaps:
+        raise ValueError(f"{context_path}: the calibration's effects depend on 'temp_c': {gaps}")
     ctx = RowContext(q=np.zeros((len(pid), cal.nominal.n_joints)), q_start=np.zeros(cal.nominal.n_joints),
                      temp_c=temp, t_s=t_s)
     print(f"applied effects: {'; '.join(e.get('label', e.get('family', '?')) for e in cal.effects)} "

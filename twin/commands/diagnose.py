@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from dataclasses import replace
 
 from ..units import MM_PER_M
 
@@ -32,9 +34,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=None,
                    help="threads the scoring may use (default: every core this process may run on); the result is the "
                         "same with any number")
+    p.add_argument("--force", action="store_true",
+                   help="write a diagnosis of too few rows (refused without it: rows that fit leave parameters of the "
+                        "geometric model unidentified and give fewer than twice as many coordinates as its parameters); "
+                        "its diagnosis.json then says in its notes that it is not meaningful")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-recording", action="store_true",
                    help="skip the Rerun recording DIR/diagnosis.rrd (open it with: rerun DIR/diagnosis.rrd)")
+
+
+# the rows that fit must give this many times as many coordinates as the geometric model has parameters
+MIN_EQUATIONS_PER_PARAMETER = 2
+
+
+def too_few_rows(geo, n_rows: int) -> str:
+    """Words when the diagnosis rests on too few rows, empty otherwise: the rows that fit the geometric model ``geo``
+    (a :class:`~twin.estimator.Calibration`) leave parameters unidentified by their configurations (a rank
+    deficiency a varied campaign would not have) and give fewer than :data:`MIN_EQUATIONS_PER_PARAMETER` times as
+    many coordinates as the parameters a varied campaign identifies. Both: a rank deficiency on many rows (a joint
+    never moved) is a matter of configurations, not of the count, and stays a warning."""
+    ida = geo.identifiability or {}
+    dep = ida.get("data_dependent_dropped") or []
+    n_fit = len((geo.rows or {}).get("calibration_used", []))
+    if not dep or n_fit == 0:
+        return ""
+    n_par = int(ida["n_parameters"]) - len(ida.get("structural_dropped") or [])
+    n_eq = int(ida["n_equations"])
+    need = MIN_EQUATIONS_PER_PARAMETER * n_par
+    if n_eq >= need:
+        return ""
+    per_row = n_eq / n_fit
+    min_fit = math.ceil(need / per_row)
+    return (f"too few rows for a diagnosis: {n_rows} rows, {n_fit} of them fit the geometric model; their {n_eq} "
+            f"coordinates cannot identify {', '.join(dep)} of its {n_par} parameters, and a diagnosis needs at least "
+            f"{MIN_EQUATIONS_PER_PARAMETER} coordinates per parameter on the rows that fit: at least {min_fit} rows that "
+            f"fit (about {math.ceil(min_fit * n_rows / n_fit)} rows in all with this split) of varied configurations")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +104,11 @@ def run(args: argparse.Namespace) -> int:
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
+    few = too_few_rows(res.calibrations_blocked.get("geometric", res.calibration_geometric), ds.n)
+    if few and not args.force:
+        raise ValueError(f"{args.dataset}: {few}; nothing written (--force writes it, marked as not meaningful)")
+    if few:
+        res = replace(res, notes=tuple(res.notes) + (f"NOT MEANINGFUL (written with --force): {few}",))
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
     if not args.no_recording:
         # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording

@@ -31,7 +31,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--urdf", default=None, help="mocap: the robot's URDF")
     p.add_argument("--root", default=None, help="mocap: root link of the chain (the robot base)")
     p.add_argument("--end", default=None, help="mocap: end link of the chain (the flange the markers are fixed to)")
-    p.add_argument("--out", required=True, help="dataset folder to write")
+    p.add_argument("--out", required=True,
+                   help="dataset folder to write; refused when it already holds a dataset (dataset.toml or poses.csv) "
+                        "unless --force")
+    p.add_argument("--force", action="store_true",
+                   help="write into an --out folder that already holds a dataset: its dataset.toml and poses.csv (and "
+                        "the robot file copied beside them) are replaced; no other file in it is touched")
     p.add_argument("--marker-unit", choices=["m", "mm"], default=None, help="mocap: unit of the x1..zK columns (default m)")
     p.add_argument("--points", default=None, help="mocap: marker numbers to keep, e.g. 1 or 1,2,3 (default all)")
     p.add_argument("--rigid-tol-mm", type=float, default=None,
@@ -52,6 +57,8 @@ def _run_map(args) -> int:
         raise ValueError(f"--map: the robot, units and frames come from the map; --{', --'.join(given)} belong to the "
                          "mocap import (without --map)")
     cmap = read_column_map(args.map)
+    if not args.csv:
+        check_out_folder(args.out, args.force, [str(f.path) for f in cmap.files])
     tool = None
     if args.calibration is not None:
         tool = _calibration_tool(args.calibration, cmap.base.kind)
@@ -130,7 +137,37 @@ def _calibration_tool(path: str, kind: str):
     return pts, f"from the calibration {path} (--calibration; its {len(pts)} marker point(s))"
 
 
+_DATASET_FILES = ("dataset.toml", "poses.csv")
+
+
+def check_out_folder(out: str, force: bool, inputs: list[str]) -> None:
+    """``ValueError`` naming ``out`` when it already holds a dataset (``dataset.toml`` or ``poses.csv``) and
+    ``force`` is not given, or when writing the dataset there would replace one of the ``inputs`` (a measured file
+    the import reads), forced or not."""
+    from pathlib import Path
+
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--out {out}: a file, not a folder")
+    written = {(folder / f).resolve() for f in _DATASET_FILES}
+    hit = [i for i in inputs if Path(i).resolve() in written]
+    if hit:
+        raise ValueError(f"--out {out}: the dataset's {', '.join(sorted({Path(h).name for h in hit}))} would replace "
+                         f"the input {', '.join(hit)}; write the dataset to another folder")
+    present = [f for f in _DATASET_FILES if (folder / f).exists()]
+    if present and not force:
+        raise ValueError(f"--out {out}: the folder already holds a dataset ({', '.join(present)}); choose a new folder, "
+                         "or give --force to replace its dataset.toml and poses.csv (no other file in it is touched)")
+
+
 def run(args) -> int:
+    if args.map is not None:
+        from ..importers.columns import parse_file_argument
+
+        inputs = [parse_file_argument(c)[0] for c in args.csv + args.validation]
+    else:
+        inputs = args.csv + args.validation
+    check_out_folder(args.out, args.force, inputs)
     if args.calibration is not None and args.map is None:
         raise ValueError("--calibration goes with --map (a column map's session placed with the robot's calibration)")
     if args.map is not None:

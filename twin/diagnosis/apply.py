@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..dataset import temperature_gaps
 from ..estimator.calibration import Calibration, Prediction
 from ..estimator.compensation import CompensationResult, compensation
 from ..estimator.problem import ParamSpace, predict_points
@@ -75,6 +76,10 @@ def _check_ctx(cal: Calibration, ctx: RowContext) -> None:
     for c in sorted(required_channels(cal)):
         if getattr(ctx, c) is None:
             raise ValueError(f"the calibration's effects depend on '{c}': the rows need a '{c}' column")
+    gaps = temperature_gaps(ctx.temp_c, ctx.pose_id if ctx.pose_id is not None else np.arange(len(ctx.q)))
+    if "temp_c" in required_channels(cal) and gaps:
+        raise ValueError(f"the calibration's effects depend on 'temp_c': {gaps}; give those rows their temperature, "
+                         "or leave them out")
 
 
 def effective_joints(cal: Calibration, ctx: RowContext) -> np.ndarray:

@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..dataset import Dataset, Plate
+from ..dataset import Dataset, Plate, temperature_gaps
 from ..estimator.calibration import Calibration
 from ..estimator.core import Prepared, prepare, residual_stats
 from ..estimator.methods import build_calibration, identify_best
@@ -450,6 +450,10 @@ def prepare_diagnosis(dataset: Dataset, *, calibration: Calibration | None = Non
     """Step 1: the floor, the rows (split, held-out blocks), the geometric identification and the problem."""
     if not isinstance(dataset, Dataset):
         raise ValueError(f"dataset must be a twin.dataset.Dataset, got {type(dataset).__name__}")
+    gaps = temperature_gaps(dataset.temp_c, dataset.pose_id)
+    if gaps:
+        raise DiagnosisError(f"{gaps}: the diagnosis reads every row's temperature (its thermal terms); give those rows "
+                             "their temperature, leave them out, or import without the temperature column")
     virtual = not dataset.has_spheres
     notes: list[str] = []
     if virtual:

@@ -36,7 +36,8 @@ from ..dataset import Dataset
 from ..units import MM_PER_M, RAD_PER_DEG, DEG_PER_RAD
 
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
-           "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise", "tool_reach", "check_targets",
+           "radians_warning", "RADIANS_MIN_ROWS", "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise",
+           "tool_reach", "check_targets",
            "forced_reasons", "check_length_unit", "position_spread", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
@@ -147,14 +148,39 @@ def check_joints(ds: Dataset) -> list[str]:
                               prismatic=r.is_prismatic)
 
 
+# from this many rows on, joints all within pi degrees of zero that move are refused as radians; below, only warned
+RADIANS_MIN_ROWS = 10
+
+
+def radians_warning(q: np.ndarray, prismatic=None, *, where: str = "JOINTS.csv") -> str:
+    """Words when the joints ``q`` ``(n, N)`` [rad] (read from degree columns) of fewer than
+    :data:`RADIANS_MIN_ROWS` rows may be radians, empty otherwise: every revolute joint of every row within pi
+    degrees of zero and not all at zero. Not a refusal: a joints file carries no measurement to tell them apart, and
+    a few postures within a few degrees of the zero posture (a check near home) are as genuine in degrees as a few
+    postures in radians are."""
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2:
+        raise ValueError(f"q must have shape (n, N), got {q.shape}")
+    pris = np.zeros(q.shape[1], bool) if prismatic is None else np.asarray(prismatic, dtype=bool)
+    rev = q[:, ~pris]
+    n = q.shape[0]
+    if not (0 < n < RADIANS_MIN_ROWS) or not rev.size or not np.all(np.abs(rev) <= np.pi * RAD_PER_DEG * 1.02):
+        return ""
+    if not np.any(rev != 0):
+        return ""
+    return (f"every joint of its {n} row(s) lies within {np.abs(rev).max() / RAD_PER_DEG:.3g} deg of zero: radians "
+            f"written in the degree columns? ({where} expects degrees; a file of {RADIANS_MIN_ROWS} rows or more like "
+            "this is refused, fewer rows near the zero posture can be genuine degrees)")
+
+
 def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, *,
                        where: str = "poses.csv", joint_names=None, prismatic=None) -> list[str]:
     """Joints ``q`` ``(n, N)`` [rad; m for prismatic joints] (read from degree / millimetre columns) against the
     limits ``q_min``/``q_max``. ``joint_names`` (default ``q1..qN``), ``prismatic`` ``(N,)`` mask (default none).
 
     Returns the rows outside the limits in words (empty when none). Raises :class:`ImplausibleData` when the
-    joints cannot be degrees: every revolute joint within 3.2 deg of zero over 10 rows or more that move
-    (radians written in the degree columns of ``where``)."""
+    joints cannot be degrees: every revolute joint within 3.2 deg of zero over :data:`RADIANS_MIN_ROWS` rows or
+    more that move (radians written in the degree columns of ``where``; fewer rows: :func:`radians_warning`)."""
     q = np.asarray(q, dtype=float)
     if q.ndim != 2 or q.shape[1] != np.size(q_min):
         raise ValueError(f"q must have shape (n, {np.size(q_min)}), got {q.shape}")
@@ -166,7 +192,7 @@ def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_
         raise ValueError(f"pose_id must have shape ({q.shape[0]},), got {pose_id.shape}")
     n = q.shape[0]
     rev = q[:, ~pris]
-    if n >= 10 and rev.size and np.all(np.abs(rev) <= np.pi * RAD_PER_DEG * 1.02) and np.ptp(rev, axis=0).max() > 0:
+    if n >= RADIANS_MIN_ROWS and rev.size and np.all(np.abs(rev) <= np.pi * RAD_PER_DEG * 1.02) and np.ptp(rev, axis=0).max() > 0:
         cols = "q1..q6" if joint_names is None else ", ".join(n_ for n_, p in zip(names, pris) if not p)
         raise ImplausibleData(f"every joint of the {n} rows lies within {np.abs(rev).max() / RAD_PER_DEG:.3g} deg of zero: "
                               f"joints look like radians ({where} expects {cols} in degrees)")

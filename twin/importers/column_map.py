@@ -593,8 +593,9 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
         if t is not None:
             t[k] = _time_value(cell(r, fm.time_column), fm.time_format, fm.decimal,
                                f"{path}: row {k + 1} (line {line}), column {fm.time_column!r}")
-        if temp is not None:
-            temp[k] = num(k, line, r, fm.temperature)
+        if temp is not None:  # an empty (or NaN) cell: no temperature recorded for the row (written as missing)
+            temp[k] = (np.nan if cell(r, fm.temperature).strip().lower() in ("", "nan")
+                       else num(k, line, r, fm.temperature))
         if pid is not None:
             v = num(k, line, r, fm.pose_id)
             if v != int(v):
@@ -630,6 +631,11 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
             notes.append(f"{path.name}: the time goes back at {back.size} row(s) (file lines "
                          f"{', '.join(str(int(line_no[b + 1])) for b in back[:10])}{' ...' if back.size > 10 else ''}); "
                          "rows sorted by time")
+    if temp is not None and np.isnan(temp).any():
+        gap = np.flatnonzero(np.isnan(temp))
+        notes.append(f"{path.name}: column {fm.temperature!r} is empty in {gap.size} of its {n} rows (file lines "
+                     f"{', '.join(str(int(line_no[g])) for g in gap[:10])}{' ...' if gap.size > 10 else ''}): their "
+                     "temp_c is written as missing")
     sel = lambda a: None if a is None else a[order]  # noqa: E731
     q, P, rot, t, temp, pid, line_no = (sel(a) for a in (q, P, rot, t, temp, pid, line_no))
     data = [data[i] for i in order]

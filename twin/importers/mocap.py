@@ -9,7 +9,9 @@ The import (:func:`import_mocap`):
 
 1. reads the robot's chain from the URDF (:func:`twin.urdf.read_urdf_chain`, root link to end link);
 2. reads every CSV, checks the joint columns, the length unit and that the K points are one rigid body (their
-   pairwise distances constant over the rows, to ``rigid_tol_mm``);
+   pairwise distances constant over the rows, to ``rigid_tol_mm``); a point whose three cells are empty (or NaN)
+   in a row was not seen there (an occluded marker): the row is kept, that point written as not seen, and steps
+   2-4 use the rows that saw every point;
 3. builds the marker set's geometry: the mean shape over the rows (Procrustes), in a body frame with its origin
    at point 1, x towards point 2, z normal to the plane of points 1, 2 and the last point;
 4. places it on the flange with a closed-form hand-eye registration on the rows of the first file (the
@@ -51,8 +53,8 @@ _ONE_AXIS = 0.02
 
 @dataclass(frozen=True)
 class MocapRows:
-    """Rows of a mocap CSV in SI: ``q`` ``(n, N)`` [rad, m], ``points`` ``(n, K, 3)`` [m], the other columns as
-    text (``extra``), the file and its sha256."""
+    """Rows of a mocap CSV in SI: ``q`` ``(n, N)`` [rad, m], ``points`` ``(n, K, 3)`` [m] (NaN: a point not seen
+    in that row), the other columns as text (``extra``), the file and its sha256."""
 
     path: Path
     q: np.ndarray
@@ -75,7 +77,8 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
 
     ``marker_unit``: the unit of the ``x1..zK`` columns (``"m"`` as FIGAROH writes them, or ``"mm"``).
     :class:`~twin.dataset.DatasetError` naming the file, the row and the column: missing file, missing joint
-    columns, no marker columns, empty or non-numeric cells."""
+    columns, no marker columns, empty or non-numeric joint cells, a point with some of its cells empty. A point whose
+    three cells are all empty (or NaN) was not seen in that row (an occluded marker): NaN in ``points``."""
     from ..dataset import LENGTH_UNITS
 
     path = Path(path)
@@ -114,8 +117,10 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     for k, r in enumerate(rows):
         for j, c in enumerate(robot.joint_names):
             q[k, j] = num(r, k, c)
-        for i in range(K):
-            P[k, i] = [num(r, k, f"{c}{i + 1}") for c in "xyz"]
+        for i in range(K):  # a point whose three cells are all empty (or NaN) was not seen (occluded): NaN
+            cells = [f"{c}{i + 1}" for c in "xyz"]
+            seen = any(r.get(c, "").lower() not in ("", "nan") for c in cells)
+            P[k, i] = [num(r, k, c) for c in cells] if seen else np.nan
     P *= LENGTH_UNITS[marker_unit]
     known = set(robot.joint_names) | {f"{c}{i + 1}" for i in range(K) for c in "xyz"}
     extra = {h: [r.get(h, "") for r in rows] for h in header if h not in known}
@@ -267,14 +272,21 @@ def import_mocap(
     robot = read_urdf_chain(urdf, root_link, end_link)
     parts = [(read_mocap_csv(p, robot, marker_unit=marker_unit), s) for p, s in files]
     K = parts[0][0].points.shape[1]
-    for r, _ in parts:
+    # the body's shape and its placement come from the rows that saw every point; the other rows are kept with
+    # their seen points (nothing measured is lost)
+    full = [np.isfinite(r.points).all(axis=(1, 2)) for r, _ in parts]
+    for (r, _), f in zip(parts, full):
         if r.points.shape[1] != K:
             raise DatasetError(f"{r.path}: {r.points.shape[1]} marker points where {parts[0][0].path} has {K}")
-        check_rigid(r.points, str(r.path), rigid_tol_mm=rigid_tol_mm, marker_unit=marker_unit)
+        if not f.any():
+            raise DatasetError(f"{r.path}: no row sees all {K} marker points: the body's shape needs rows that see "
+                               "every point")
+        check_rigid(r.points[f], str(r.path), rigid_tol_mm=rigid_tol_mm, marker_unit=marker_unit)
     P_all = np.concatenate([r.points for r, _ in parts])
-    d_ref = _pair_distances(P_all[:1])[1][0]
-    for r, _ in parts:
-        d = _pair_distances(r.points)[1]
+    complete = np.concatenate(full)
+    d_ref = _pair_distances(P_all[complete][:1])[1][0]
+    for (r, _), f in zip(parts, full):
+        d = _pair_distances(r.points[f])[1]
         if d.size and np.abs(np.median(d, axis=0) - d_ref).max() > rigid_tol_mm * M_PER_MM:
             raise DatasetError(f"{r.path}: its marker distances differ from {parts[0][0].path}'s by "
                                f"{np.abs(np.median(d, axis=0) - d_ref).max() * MM_PER_M:.3f} mm: another rigid body?")
@@ -282,11 +294,11 @@ def import_mocap(
         raise DatasetError(f"{parts[0][0].path}: {K} marker point(s) (x1..z{K}): this import places the body on the "
                            "flange by a hand-eye registration of its frame, which needs 3 points or more; a column map "
                            "(twin import --map, docs/formats.md) fits 1 or 2 points on the flange")
-    body, poses = marker_geometry(P_all)
+    body, poses = marker_geometry(P_all[complete])
     q_all = np.concatenate([r.q for r, _ in parts])
     sets = np.concatenate([[s] * r.q.shape[0] for r, s in parts])
     cal = sets == "calibration"
-    base2meas, tool2flange = hand_eye(flange2base(robot, q_all[cal]), poses[cal])
+    base2meas, tool2flange = hand_eye(flange2base(robot, q_all[cal & complete]), poses[cal[complete]])
     keep = list(range(K)) if points is None else [int(p) - 1 for p in points]
     bad = [p + 1 for p in keep if not 0 <= p < K]
     if bad or not keep:
@@ -324,7 +336,7 @@ def import_mocap(
         spheres[k] = P_all[k][keep]
     ds = Dataset(
         robot=robot, robot_spec=spec, plate=Plate(0.0, pts_flange), pose_id=np.arange(n, dtype=np.int64), q=q_all,
-        spheres=spheres, sphere_seen=np.ones((n, K_keep), bool), pose=np.full((n, 4, 4), np.nan),
+        spheres=spheres, sphere_seen=np.isfinite(spheres).all(axis=-1), pose=np.full((n, 4, 4), np.nan),
         pose_seen=np.zeros(n, bool), set=sets.astype(object), t_s=t_s, extra=extra,
         noise_position=None if noise_position_mm is None else noise_position_mm * M_PER_MM,
         stations_base2meas={"0": base2meas}, provenance="; ".join(lines), path=out,
