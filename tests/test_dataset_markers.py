@@ -274,3 +274,18 @@ def test_a_mocap_row_with_an_occluded_marker_is_kept_with_that_point_not_seen(tm
     assert unseen == {(3, 1), (10, 3)}
     want = np.array([[float(rows[3][f"{c}{i}"]) for c in "xyz"] for i in (1, 3, 4)])
     assert np.abs(ds.spheres[3, [0, 2, 3]] - want).max() < 1e-9
+
+
+def test_import_refuses_to_replace_another_file_named_like_the_robot_file(tmp_path, capsys):
+    """twin import --out a folder (no dataset in it) holding a different file of the URDF's name: refused naming it,
+    the file unchanged; --force replaces it with the robot file."""
+    out = tmp_path / "ds"
+    out.mkdir()
+    mine = out / URDF.name
+    mine.write_text("<robot name='mine'/>\n")
+    argv = ["import", str(TRAIN), "--urdf", str(URDF), "--root", "base_link", "--end", END, "--out", str(out)]
+    assert main(argv) == 2
+    assert f"it holds a {URDF.name} other than the robot file" in capsys.readouterr().err
+    assert mine.read_text() == "<robot name='mine'/>\n" and not (out / "poses.csv").exists()
+    assert main(argv + ["--force"]) == 0
+    assert mine.read_bytes() == URDF.read_bytes()

@@ -59,6 +59,7 @@ def _run_map(args) -> int:
     cmap = read_column_map(args.map)
     if not args.csv:
         check_out_folder(args.out, args.force, [str(f.path) for f in cmap.files])
+    check_robot_copy(args.out, args.force, cmap.urdf)
     tool = None
     if args.calibration is not None:
         tool = _calibration_tool(args.calibration, cmap.base.kind)
@@ -160,6 +161,22 @@ def check_out_folder(out: str, force: bool, inputs: list[str]) -> None:
                          "or give --force to replace its dataset.toml and poses.csv (no other file in it is touched)")
 
 
+def check_robot_copy(out: str, force: bool, robot_file) -> None:
+    """``ValueError`` naming the file when ``out`` already holds a file of ``robot_file``'s name with other bytes (the
+    import copies the robot file beside the dataset), unless ``force``."""
+    from pathlib import Path
+
+    if robot_file is None:
+        return
+    src = Path(robot_file)
+    dst = Path(out) / src.name
+    if force or not dst.is_file() or not src.is_file() or dst.resolve() == src.resolve():
+        return
+    if dst.read_bytes() != src.read_bytes():
+        raise ValueError(f"--out {out}: it holds a {src.name} other than the robot file {robot_file} the import copies "
+                         "there; choose a new folder, or give --force to replace it")
+
+
 def run(args) -> int:
     if args.map is not None:
         from ..importers.columns import parse_file_argument
@@ -185,6 +202,7 @@ def run(args) -> int:
         except ValueError:
             raise ValueError(f"--points must be comma-separated marker numbers, got {args.points!r}") from None
     files = [(c, "calibration") for c in args.csv] + [(v, "validation") for v in args.validation]
+    check_robot_copy(args.out, args.force, args.urdf)
     ds = import_mocap(files, args.urdf, args.root, args.end, args.out,
                       marker_unit=args.marker_unit or "m", points=points,
                       rigid_tol_mm=1.0 if args.rigid_tol_mm is None else args.rigid_tol_mm,
