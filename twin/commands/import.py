@@ -57,9 +57,9 @@ def _run_map(args) -> int:
         raise ValueError(f"--map: the robot, units and frames come from the map; --{', --'.join(given)} belong to the "
                          "mocap import (without --map)")
     cmap = read_column_map(args.map)
-    if not args.csv:
-        check_out_folder(args.out, args.force, [str(f.path) for f in cmap.files])
-    check_robot_copy(args.out, args.force, cmap.urdf)
+    inputs = [parse_file_argument(c)[0] for c in args.csv + args.validation]
+    check_out_folder(args.out, args.force, inputs + ([] if args.csv else [str(f.path) for f in cmap.files]),
+                     robot_file=cmap.urdf)
     tool = None
     if args.calibration is not None:
         tool = _calibration_tool(args.calibration, cmap.base.kind)
@@ -141,10 +141,11 @@ def _calibration_tool(path: str, kind: str):
 _DATASET_FILES = ("dataset.toml", "poses.csv")
 
 
-def check_out_folder(out: str, force: bool, inputs: list[str]) -> None:
-    """``ValueError`` naming ``out`` when it already holds a dataset (``dataset.toml`` or ``poses.csv``) and
-    ``force`` is not given, or when writing the dataset there would replace one of the ``inputs`` (a measured file
-    the import reads), forced or not."""
+def check_out_folder(out: str, force: bool, inputs: list[str], robot_file=None) -> None:
+    """``ValueError`` naming ``out`` when it already holds a dataset (``dataset.toml`` or ``poses.csv``) or a file of
+    ``robot_file``'s name with other bytes (the import copies the robot file beside the dataset) and ``force`` is not
+    given, or when writing the dataset there would replace one of the ``inputs`` (a measured file the import reads),
+    forced or not."""
     from pathlib import Path
 
     folder = Path(out)
@@ -159,36 +160,21 @@ def check_out_folder(out: str, force: bool, inputs: list[str]) -> None:
     if present and not force:
         raise ValueError(f"--out {out}: the folder already holds a dataset ({', '.join(present)}); choose a new folder, "
                          "or give --force to replace its dataset.toml and poses.csv (no other file in it is touched)")
-
-
-def check_robot_copy(out: str, force: bool, robot_file) -> None:
-    """``ValueError`` naming the file when ``out`` already holds a file of ``robot_file``'s name with other bytes (the
-    import copies the robot file beside the dataset), unless ``force``."""
-    from pathlib import Path
-
-    if robot_file is None:
+    if robot_file is None or force:
         return
     src = Path(robot_file)
-    dst = Path(out) / src.name
-    if force or not dst.is_file() or not src.is_file() or dst.resolve() == src.resolve():
-        return
-    if dst.read_bytes() != src.read_bytes():
+    dst = folder / src.name
+    if dst.is_file() and src.is_file() and dst.resolve() != src.resolve() and dst.read_bytes() != src.read_bytes():
         raise ValueError(f"--out {out}: it holds a {src.name} other than the robot file {robot_file} the import copies "
                          "there; choose a new folder, or give --force to replace it")
 
 
 def run(args) -> int:
-    if args.map is not None:
-        from ..importers.columns import parse_file_argument
-
-        inputs = [parse_file_argument(c)[0] for c in args.csv + args.validation]
-    else:
-        inputs = args.csv + args.validation
-    check_out_folder(args.out, args.force, inputs)
     if args.calibration is not None and args.map is None:
         raise ValueError("--calibration goes with --map (a column map's session placed with the robot's calibration)")
     if args.map is not None:
         return _run_map(args)
+    check_out_folder(args.out, args.force, args.csv + args.validation, robot_file=args.urdf)
     from ..importers.mocap import import_mocap
 
     missing = [f"--{k}" for k in ("urdf", "root", "end") if getattr(args, k) is None]
@@ -202,7 +188,6 @@ def run(args) -> int:
         except ValueError:
             raise ValueError(f"--points must be comma-separated marker numbers, got {args.points!r}") from None
     files = [(c, "calibration") for c in args.csv] + [(v, "validation") for v in args.validation]
-    check_robot_copy(args.out, args.force, args.urdf)
     ds = import_mocap(files, args.urdf, args.root, args.end, args.out,
                       marker_unit=args.marker_unit or "m", points=points,
                       rigid_tol_mm=1.0 if args.rigid_tol_mm is None else args.rigid_tol_mm,
