@@ -40,10 +40,10 @@ def test_residuals_of_a_model_gone_are_not_kept():
     prob = setup.problem
     gone = ExtendedModel(prob.prep.space, prob.obs_cal, [], prob.floor.axis_sigma)  # not one the problem keeps
     gone.residuals(z)
-    ref = [v[0] for v in extend._KEPT.values()]
+    ref = extend._KEPT.owners()
     del gone
     gc.collect()
     alive = setup.problem.model([], "val")
     alive.residuals(z)
-    assert all(r() is not None for r in (v[0] for v in extend._KEPT.values()))
+    assert all(r() is not None for r in extend._KEPT.owners())
     assert any(r() is None for r in ref)

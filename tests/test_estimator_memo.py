@@ -62,3 +62,21 @@ def test_kept_predictions_are_those_computed_for_the_same_inputs():
     x_next[0] = np.nextafter(x[0], np.inf)
     moved, _ = predict_points(space, x_next, q, st, pts_tool)
     assert moved is not pts and not np.array_equal(moved, pts)
+
+
+def test_an_owners_result_is_given_to_it_alone_and_dropped_once_it_is_gone():
+    """A result kept for an owner is given to that owner only (not to another object under the same key) and is
+    dropped at the next keep once the owner is gone."""
+    import gc
+
+    class Owner:
+        pass
+
+    kept = KeptResults(4, 1 << 20)
+    a, b = Owner(), Owner()
+    kept.put(("k",), np.zeros(2), owner=a)
+    assert kept.get(("k",), owner=a) is not None and kept.get(("k",), owner=b) is None
+    del a
+    gc.collect()
+    kept.put(("other",), np.ones(2), owner=b)
+    assert len(kept) == 1 and all(r() is b for r in kept.owners())

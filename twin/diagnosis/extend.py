@@ -21,14 +21,12 @@ of the prediction, e.g. ``J[:, theta_j] F[row, k]`` or ``J[:, L] L F[row, k]``.
 
 from __future__ import annotations
 
-import threading
-import weakref
-from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from ..estimator.memo import KeptResults, array_key
 from ..estimator.problem import Observations, ParamSpace, Residuals, absolute_residuals, predict_points
 from ..transforms import kabsch, left_jacobian_so3, matrix_to_rotvec, rotvec_to_matrix
 from ..units import M_PER_MM, RAD_PER_DEG
@@ -170,15 +168,10 @@ def _times_weights(J: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 # the latest residual evaluations ExtendedModel.residuals keeps: a fit's residuals are asked for again at once (its
-# scoring basis, its tests, its gross rows); (id(model), z) -> (weak reference to the model, Residuals)
+# scoring basis, its tests, its gross rows); by (id(model), z), each held for its model (weakly)
 RESIDUALS_KEPT = 16
 RESIDUALS_KEPT_BYTES = 1 << 26  # and at most this many bytes of them (but the latest), on a campaign of many rows
-_KEPT: OrderedDict = OrderedDict()
-_KEPT_LOCK = threading.Lock()
-
-
-def _nbytes(res: Residuals) -> int:
-    return sum(a.nbytes for a in (res.r, res.J, res.row, res.block) if a is not None)
+_KEPT = KeptResults(RESIDUALS_KEPT, RESIDUALS_KEPT_BYTES)
 
 
 class ExtendedModel:
@@ -303,27 +296,15 @@ class ExtendedModel:
         """Whitened residuals and the Jacobian ``(m, size)`` of the prediction over ``z``. The latest
         ``RESIDUALS_KEPT`` evaluations are kept (read-only arrays) and given again for the same model and the same
         ``z`` to the bit (the residuals without the Jacobian are those of an evaluation with it)."""
-        za = np.asarray(z)
-        key = (id(self), za.dtype.str, za.shape, za.tobytes())
-        with _KEPT_LOCK:
-            got = _KEPT.get(key)
-            if got is not None and got[0]() is self and (got[1].J is not None or not jacobian):
-                _KEPT.move_to_end(key)
-                res = got[1]
-                return res if jacobian or res.J is None else Residuals(r=res.r, J=None, row=res.row, block=res.block)
+        key = (id(self), array_key(z))
+        res = _KEPT.get(key, owner=self)
+        if res is not None and (res.J is not None or not jacobian):
+            return res if jacobian or res.J is None else Residuals(r=res.r, J=None, row=res.row, block=res.block)
         res = self._evaluate(z, jacobian)
-        for a in (res.r, res.J, res.row, res.block):
-            if a is not None:
-                a.flags.writeable = False
-        with _KEPT_LOCK:
-            for k in [k for k, v in _KEPT.items() if v[0]() is None]:  # a model gone: nothing can ask for it again
-                del _KEPT[k]
-            _KEPT[key] = (weakref.ref(self), res)
-            _KEPT.move_to_end(key)
-            while len(_KEPT) > 1 and (len(_KEPT) > RESIDUALS_KEPT or sum(_nbytes(v[1]) for v in _KEPT.values())
-                                      > RESIDUALS_KEPT_BYTES):
-                _KEPT.popitem(last=False)
-        return res
+        arrays = [a for a in (res.r, res.J, res.row, res.block) if a is not None]
+        for a in arrays:
+            a.flags.writeable = False
+        return _KEPT.put(key, res, owner=self, nbytes=sum(a.nbytes for a in arrays))
 
     def _evaluate(self, z: np.ndarray, jacobian: bool) -> Residuals:
         """:meth:`residuals` computed."""

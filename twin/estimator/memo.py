@@ -4,7 +4,8 @@ A diagnosis asks many times for the same chain evaluation or the same regressor:
 fit ended, models that differ only in their effect terms evaluate the geometry at the same point, and every feature
 family builds the gravity-torque regressor of the same rows. :class:`KeptResults` keeps the latest few results of one
 function, by the bytes of its array inputs (their dtype and shape with them) and the identity of its other inputs
-(kept referenced by the entry, so that an identity is not reused while its key lives). The results it gives are the
+(kept referenced by the entry, so that an identity is not reused while its key lives), or of an ``owner`` held weakly
+(an entry whose owner is gone is dropped, and is never given to another object). The results it gives are the
 arrays the function computed (read-only: a caller that wrote into one would change what the next caller gets), so
 they are the same numbers to the bit. Bounded: at most ``entries`` results and ``max_bytes`` bytes of them (but the
 latest).
@@ -13,6 +14,7 @@ latest).
 from __future__ import annotations
 
 import threading
+import weakref
 from collections import OrderedDict
 from typing import Any, Callable
 
@@ -66,26 +68,36 @@ class KeptResults:
         with self._lock:
             self._kept.clear()
 
-    def get(self, key: tuple) -> Any | None:
-        """The kept result of ``key``, or None."""
+    def get(self, key: tuple, owner: Any = None) -> Any | None:
+        """The kept result of ``key`` (kept for ``owner``, when one was given to :meth:`put`), or None."""
         with self._lock:
             got = self._kept.get(key)
-            if got is None:
+            if got is None or (got[3] is not None and got[3]() is not owner):
                 return None
             self._kept.move_to_end(key)
             return got[0]
 
-    def put(self, key: tuple, value: Any, pins: tuple = ()) -> Any:
-        """Keep ``value`` (its arrays made read-only) for ``key``; returns it."""
+    def put(self, key: tuple, value: Any, pins: tuple = (), *, owner: Any = None, nbytes: int | None = None) -> Any:
+        """Keep ``value`` (its arrays made read-only) for ``key``; returns it. ``owner``: held weakly, the entry given
+        only to it and dropped once it is gone; ``nbytes``: the value's size when it is not arrays, tuples or lists of
+        them (the caller then makes its arrays read-only)."""
         _read_only(value)
-        size = _nbytes(value)
+        size = _nbytes(value) if nbytes is None else nbytes
+        ref = None if owner is None else weakref.ref(owner)
         with self._lock:
-            self._kept[key] = (value, pins, size)
+            for k in [k for k, v in self._kept.items() if v[3] is not None and v[3]() is None]:
+                del self._kept[k]  # its owner is gone: nothing can ask for it again
+            self._kept[key] = (value, pins, size, ref)
             self._kept.move_to_end(key)
             while len(self._kept) > 1 and (len(self._kept) > self.entries
                                            or sum(v[2] for v in self._kept.values()) > self.max_bytes):
                 self._kept.popitem(last=False)
         return value
+
+    def owners(self) -> list:
+        """The weak references to the kept entries' owners (None for an entry without one), oldest first."""
+        with self._lock:
+            return [v[3] for v in self._kept.values()]
 
     def get_or_compute(self, key: tuple, compute: Callable[[], Any], pins: tuple = ()) -> Any:
         """The kept result of ``key``, else ``compute()`` kept."""
