@@ -5,14 +5,13 @@ other atoms, gross rows down-weighted, start values, the covariance of whitened 
 
 from __future__ import annotations
 
-import threading
 import weakref
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..estimator.core import Prepared
+from ..estimator.memo import KeptResults, array_key
 from ..estimator.solvers import gauss_newton
 from .atoms import Atom
 from .candidates import RowContext
@@ -81,8 +80,7 @@ class Problem:
         self._orders: dict = {}
         self._store: ColumnStore | None = None
         self._cache: dict = {}
-        self._models: OrderedDict = OrderedDict()  # the latest models, by block and (atom, basis) (Problem.model)
-        self._models_lock = threading.Lock()
+        self._models = KeptResults(MODELS_KEPT, 0)  # the latest models, by block and (atom, basis) (Problem.model)
         self.w_cal = np.ones(self.obs_cal.n)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
         # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
@@ -176,20 +174,16 @@ class Problem:
                      "rep": (self.obs_rep, self.rows_rep)}[block]
         if obs is None:
             raise ValueError(f"block {block!r}: this problem has no such rows")
-        key = (block, tuple((id(a), B.dtype.str, B.shape, B.tobytes()) for a, B in chosen))
-        with self._models_lock:
-            got = self._models.get(key)
-            if got is not None:
-                self._models.move_to_end(key)
-                return got
-        terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
-        got = ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
-        with self._models_lock:
-            got = self._models.setdefault(key, got)
-            self._models.move_to_end(key)
-            while len(self._models) > MODELS_KEPT:
-                self._models.popitem(last=False)
-        return got
+        key = (block, tuple((id(a), array_key(B)) for a, B in chosen))
+
+        def build() -> ExtendedModel:
+            terms = [AtomTerm(a, self.features(a)[rows], B) for a, B in chosen]
+            return ExtendedModel(self.prep.space, obs, terms, self.floor.axis_sigma)
+
+        # the model holds its atoms (their identities in the key stay theirs while it is kept); its size is not
+        # counted (it references the problem's arrays)
+        got = self._models.get(key)
+        return got if got is not None else self._models.put(key, build(), nbytes=0)
 
     def fit(self, x0: np.ndarray, chosen: list, z_eff: list | None = None) -> Fit:
         """Gauss-Newton over the free geometry and the atoms' reduced coordinates on the calibration rows
