@@ -202,8 +202,9 @@ def test_diagnose_refuses_a_calibration_of_another_robot(tmp_path, capsys):
     assert not (tmp_path / "d").exists()
 
 
-def _few_rows(tmp_path, n: int) -> Path:
-    """The first ``n`` of 20 rows of a 6-joint DH arm's campaign (a laser tracker's three points), imported."""
+def _few_rows(tmp_path, n: int, joints: int = 6) -> Path:
+    """The first ``n`` of 20 rows of a DH arm's campaign (``joints`` joints, a laser tracker's three points),
+    imported."""
     import sys
 
     import numpy as np
@@ -212,13 +213,14 @@ def _few_rows(tmp_path, n: int) -> Path:
     import _newcomer as N
 
     rng = np.random.default_rng(1)
-    robot = N.make_robot(rng, "dh", 6)
+    robot = N.make_robot(rng, "dh", joints)
     s = N.measure(N.perturbed(robot, rng), N.sample_joints(robot, rng, 20), N.random_frame(rng), rng, noise_mm=0.005,
                   markers=np.array([[0, 0, 0.1], [0.06, 0, 0.1], [0, 0.07, 0.12]]))
     sub = N.Session(q=s.q[:n], base2meas=s.base2meas, points=s.points[:n], markers=s.markers)
-    m = N.write_campaign(tmp_path / f"lab{n}", robot, [("a.csv", sub, {})], N.DIALECTS[0], noise_mm=0.005)
-    assert main(["import", "--map", str(m), "--out", str(tmp_path / f"ds{n}")]) == 0
-    return tmp_path / f"ds{n}"
+    tag = f"{n}" if joints == 6 else f"{n}_{joints}"
+    m = N.write_campaign(tmp_path / f"lab{tag}", robot, [("a.csv", sub, {})], N.DIALECTS[0], noise_mm=0.005)
+    assert main(["import", "--map", str(m), "--out", str(tmp_path / f"ds{tag}")]) == 0
+    return tmp_path / f"ds{tag}"
 
 
 def test_calibrate_warns_when_the_model_misses_the_validation_rows_more_than_the_nominal_robot(tmp_path, capsys):
@@ -252,6 +254,17 @@ def test_diagnose_refuses_too_few_rows_unless_forced_and_then_marks_it(tmp_path,
     assert "WARNING" not in capsys.readouterr().out
 
 
+def test_diagnose_refuses_too_few_rows_of_full_rank(tmp_path, capsys):
+    """Six rows of a 5-joint arm (no rank deficiency, fewer than two coordinates per parameter on the rows that fit):
+    twin diagnose refuses, naming the coordinates, the parameters and the minimum; nothing written."""
+    ds = _few_rows(tmp_path, 6, joints=5)
+    argv = ["--no-plots", "--no-recording", "--threads", "1"]
+    assert main(["diagnose", str(ds), "--out", str(tmp_path / "d"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert "too few rows for a diagnosis: 6 rows, " in err and "degrees of freedom to spare" in err
+    assert "rows that fit (about " in err and not (tmp_path / "d").exists()
+
+
 def test_import_refuses_an_out_folder_that_holds_a_dataset_unless_forced(tmp_path, capsys):
     """twin import --out a folder holding a dataset: refused naming the folder; --force replaces dataset.toml and
     poses.csv and leaves the user's other files; an input that the dataset would overwrite is refused even forced."""
@@ -282,3 +295,49 @@ def test_a_misspelt_table_of_dataset_toml_is_named(tmp_path):
     with pytest.raises(DatasetError, match=r"dataset.toml: unknown key\(s\) or table\(s\) \['station'\]; dataset.toml "
                                            r"holds \['markers', 'noise', 'plate', 'provenance', 'robot', "):
         read_dataset(ds)
+
+
+def _with_temperature(tmp_path, gaps) -> Path:
+    """A clean 40-row IRB-1200 dataset with a temp_c column (20..22 degC) empty in the rows ``gaps``."""
+    import sys
+    from dataclasses import replace
+
+    import numpy as np
+
+    from twin.dataset import read_dataset, write_dataset
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _estimator_helpers import write_clean_dataset
+
+    ds = read_dataset(write_clean_dataset(tmp_path / "clean", 40, seed=3))
+    t = 20.0 + np.linspace(0.0, 2.0, ds.n)
+    t[list(gaps)] = np.nan
+    write_dataset(tmp_path / "ds", replace(ds, temp_c=t))
+    return tmp_path / "ds"
+
+
+def test_diagnose_leaves_out_the_rows_without_a_temperature_and_names_them(tmp_path, capsys):
+    """temp_c empty in 2 of 40 rows: twin diagnose diagnoses the 38 others and names the two (pose_id) in the notes
+    of diagnosis.json and on stdout."""
+    import json
+
+    ds = _with_temperature(tmp_path, (5, 17))
+    argv = ["--no-plots", "--no-recording", "--threads", "1"]
+    assert main(["diagnose", str(ds), "--out", str(tmp_path / "d"), *argv]) == 0
+    note = "column 'temp_c' is empty in 2 of 40 rows (pose_id [5, 17]): those rows are left out of the diagnosis"
+    assert note in capsys.readouterr().out
+    notes = json.loads((tmp_path / "d" / "diagnosis.json").read_text())["notes"]
+    assert any(n.startswith(note) and "38 rows diagnosed" in n for n in notes)
+
+
+def test_a_temperature_column_empty_in_every_row_is_dropped_for_the_diagnosis(tmp_path):
+    """temp_c empty in every row: the dataset the diagnosis reads has no temperature, and the note says so; a
+    dataset without gaps is returned as it is, without a note."""
+    from twin.commands.diagnose import without_temperature_gaps
+    from twin.dataset import read_dataset
+
+    ds = read_dataset(_with_temperature(tmp_path, range(40)))
+    out, note = without_temperature_gaps(ds)
+    assert out.temp_c is None and out.n == 40 and "empty in 40 of 40 rows" in note and "without a temperature" in note
+    clean = read_dataset(tmp_path / "clean")
+    assert without_temperature_gaps(clean) == (clean, "")

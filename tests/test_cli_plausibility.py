@@ -237,3 +237,26 @@ def test_a_short_joints_file_near_zero_is_warned_as_radians_and_degrees_are_not(
     assert "rad.csv: every joint of its 5 row(s) lies within" in err and "radians written in the degree columns?" in err
     assert _run("predict", cal[0], _joints(tmp_path / "deg.csv", q), "--out", tmp_path / "p.csv") == 0
     assert "radians" not in capsys.readouterr().err
+
+
+def test_a_joints_file_in_radians_beyond_pi_is_warned_naming_the_joint_and_degrees_are_not(cal, tmp_path, capsys):
+    """Twelve rows in radians whose q6 goes beyond pi rad (past the pi-degree refusal): predict warns naming the
+    file, the joint and the limits' span; the same rows in degrees: no warning."""
+    rob = get_robot("irb1200")
+    q = np.random.default_rng(5).uniform(rob.q_min, rob.q_max, (12, 6))
+    assert np.abs(q).max() > np.pi
+    assert _run("predict", cal[0], _joints(tmp_path / "rad.csv", q * np.pi / 180), "--out", tmp_path / "p.csv") == 0
+    err = capsys.readouterr().err
+    assert "rad.csv: every joint of its 12 row(s) lies within" in err and "q6 reads" in err
+    assert "span up to 720 deg: radians written in the degree columns?" in err
+    assert _run("predict", cal[0], _joints(tmp_path / "deg.csv", q), "--out", tmp_path / "p.csv") == 0
+    assert "radians" not in capsys.readouterr().err
+
+
+def test_a_joints_file_with_repeated_pose_ids_is_refused_naming_them(cal, tmp_path, capsys):
+    """JOINTS.csv whose pose_id 3 appears in rows 3 and 4: predict refuses naming the id and the rows, no file."""
+    q = random_configurations(get_robot("irb1200"), 5, np.random.default_rng(3))
+    j = _joints(tmp_path / "j.csv", q, np.array([1, 2, 3, 3, 5]))
+    assert _run("predict", cal[0], j, "--out", tmp_path / "p.csv") == 2
+    assert "j.csv: column 'pose_id' has duplicate ids [3] (pose_id 3 in rows [3, 4])" in capsys.readouterr().err
+    assert not (tmp_path / "p.csv").exists()

@@ -41,14 +41,21 @@ def _write_csv(path, header, rows, sep=",", dec="."):
     return path
 
 
-def _pose_csv(path, n=60, seed=1, euler="XYZ", sep=";", dec=",", times=None, temp=True):
-    """A tracker CSV of the UR5 with a probe: joints [rad], probe position [mm] and Euler angles [deg] in the
-    tracker frame; returns the true tool2meas (n, 4, 4) and q."""
+def _pose_csv(path, n=60, seed=1, euler="XYZ", sep=";", dec=",", times=None, temp=True, quaternion=None):
+    """A tracker CSV of the UR5 with a probe: joints [rad], probe position [mm] and Euler angles [deg] (or with
+    ``quaternion`` ("xyzw"/"wxyz") a unit quaternion's components in that order, columns qa..qd) in the tracker
+    frame; returns the true tool2meas (n, 4, 4) and q."""
     r = robot_from_spec(UR5)
     q = _q(n, seed)
     T = BASE @ flange2base(r, q) @ TOOL
-    ang = Rotation.from_matrix(T[:, :3, :3]).as_euler(euler, degrees=True)
-    header = ["Timestamp", *[f"j{i}" for i in range(1, 7)], "temp", "mx", "my", "mz", "mrx", "mry", "mrz", "std_x"]
+    rcols = ["mrx", "mry", "mrz"]
+    if quaternion is None:
+        ang = Rotation.from_matrix(T[:, :3, :3]).as_euler(euler, degrees=True)
+    else:
+        ang = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+        ang = ang if quaternion == "xyzw" else ang[:, [3, 0, 1, 2]]
+        rcols = ["qa", "qb", "qc", "qd"]
+    header = ["Timestamp", *[f"j{i}" for i in range(1, 7)], "temp", "mx", "my", "mz", *rcols, "std_x"]
     rows = []
     for k in range(n):
         ts = times[k] if times is not None else f"2020071416{k // 60:02d}{k % 60:02d}"
@@ -224,6 +231,49 @@ def test_a_pose_with_decimal_commas_and_its_euler_convention(tmp_path, euler):
     assert ds.temp_c[3] == pytest.approx(22.53) and ds.extra["std_x"][0] == "0.0125"
 
 
+def _quaternion_map(path, csv_name, order):
+    """The pose map of :func:`_pose_map` reading the rotation as a quaternion qa..qd in the order ``order``."""
+    m = _pose_map(path, csv_name)
+    t = m.read_text().replace('rotation = ["mrx", "mry", "mrz"]',
+                              f'rotation = ["qa", "qb", "qc", "qd"]\nquaternion = "{order}"')
+    m.write_text(t.replace('rotation_unit = "deg"\n', "").replace('euler = "XYZ"\n', ""))
+    return m
+
+
+@pytest.mark.parametrize("order", ["xyzw", "wxyz"])
+def test_a_pose_with_a_quaternion_in_either_order(tmp_path, order):
+    """A tracker file whose rotation is a unit quaternion (x, y, z, w or w, x, y, z), the map naming the order: the
+    dataset's poses are the true ones (1e-9 rad)."""
+    T, _ = _pose_csv(tmp_path / "a.csv", quaternion=order)
+    rep = import_columns(_quaternion_map(tmp_path / "m.toml", "a.csv", order), tmp_path / "ds")
+    ds = read_dataset(rep.dataset.path)
+    R_err = Rotation.from_matrix(ds.pose[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2)).magnitude()
+    assert R_err.max() < 1e-9
+
+
+def test_a_quaternion_that_is_not_a_unit_one_is_named(tmp_path):
+    """A quaternion cell edited (norm no longer 1: a column that is not the quaternion's): DatasetError naming the
+    row, the line, the columns and the norm."""
+    _pose_csv(tmp_path / "a.csv", quaternion="xyzw")
+    p = tmp_path / "a.csv"
+    p.write_text(_set_cell(p.read_text().replace("\r\n", "\n"), 4, 11, "0,9"))
+    with pytest.raises(DatasetError, match=r"a.csv: row 3 \(line 4\), columns qa, qb, qc, qd: not a unit quaternion"):
+        import_columns(_quaternion_map(tmp_path / "m.toml", "a.csv", "xyzw"), tmp_path / "ds")
+
+
+def test_a_quaternion_read_in_the_wrong_order_is_refused_by_calibrate(tmp_path, capsys):
+    """An x, y, z, w quaternion whose map says w, x, y, z (unit norm either way): twin calibrate refuses, naming the
+    orientations missed by tens of degrees and the rotation columns; read in its order, it calibrates."""
+    _pose_csv(tmp_path / "a.csv", quaternion="xyzw")
+    for order in ("wxyz", "xyzw"):
+        import_columns(_quaternion_map(tmp_path / f"{order}.toml", "a.csv", order), tmp_path / order)
+    assert main(["calibrate", str(tmp_path / "wxyz"), "--out", str(tmp_path / "c1"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"misses the orientations of its calibration rows by \d\d+(\.\d+)? deg RMS", err), err
+    assert "three of a quaternion's four components" in err and not (tmp_path / "c1").exists()
+    assert main(["calibrate", str(tmp_path / "xyzw"), "--out", str(tmp_path / "c2"), "--quiet"]) == 0
+
+
 def test_reading_intrinsic_angles_as_extrinsic_gives_other_poses(tmp_path):
     """The convention is not decoration: intrinsic XYZ angles read as extrinsic xyz miss the poses by degrees."""
     T, _ = _pose_csv(tmp_path / "a.csv", euler="XYZ")
@@ -334,6 +384,28 @@ def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_
     (tmp_path / "b.csv").write_text(f"{head},q2\n0,1,2,3,4,5,0.1,0.2,0.3,9\n")
     with pytest.raises(DatasetError, match=r"b.csv: columns \['q2'\] appear more than once in the header"):
         read_mocap_csv(tmp_path / "b.csv", r)
+
+
+def test_a_semicolon_mocap_file_with_decimal_commas_is_named_as_semicolon_separated(tmp_path):
+    """A FIGAROH-style CSV written with ';' separators and ',' decimals: DatasetError naming the file as
+    ';'-separated (not a ',' decimal mark in a ','-separated file, which its rows also look like)."""
+    from twin.importers.mocap import read_mocap_csv
+
+    (tmp_path / "a.csv").write_text("q1;q2;q3;q4;q5;q6;x1;y1;z1\n0;1;2;3;4;5;0,1;0,2;0,3\n")
+    with pytest.raises(DatasetError, match=r"a.csv: row 1: 4 cells where the header has 1 column \(the header is one "
+                                           r"cell holding ';': the file is ';'-separated, this reader expects ','\)$"):
+        read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
+
+
+def test_mocap_marker_columns_with_units_in_their_names_are_named(tmp_path):
+    """A FIGAROH-style CSV whose marker columns carry their unit ('x1 [m]'): DatasetError naming the columns it
+    found instead and that the unit goes to --marker-unit."""
+    from twin.importers.mocap import read_mocap_csv
+
+    (tmp_path / "a.csv").write_text("q1,q2,q3,q4,q5,q6,x1 [m],y1 [m],z1 [m]\n0,1,2,3,4,5,0.1,0.2,0.3\n")
+    with pytest.raises(DatasetError, match=r"a.csv: no marker columns x1, y1, z1 .*--marker-unit gives it\); the "
+                                           r"header's other columns: 'x1 \[m\]', 'y1 \[m\]', 'z1 \[m\]'$"):
+        read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
 
 
 def test_a_mocap_body_of_two_points_is_refused_naming_the_column_map(tmp_path):

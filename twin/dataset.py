@@ -787,7 +787,12 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
         for c in chans:
             chans[c].append((r[c] or "").strip())
     if len(set(pid.tolist())) != n:
-        raise DatasetError(f"{path}: column 'pose_id' has duplicate ids")
+        ids, counts = np.unique(pid, return_counts=True)
+        dup = ids[counts > 1]
+        rows_ = (np.flatnonzero(pid == dup[0]) + 1).tolist()
+        raise DatasetError(f"{path}: column 'pose_id' has duplicate ids {dup[:10].tolist()}"
+                           f"{' ...' if dup.size > 10 else ''} (pose_id {int(dup[0])} in rows {rows_[:10]}); each row "
+                           "needs its own id")
 
     def fl(c):
         if c not in chans:

@@ -82,9 +82,13 @@ def check_row_width(header: list[str], row: list[str], where: str, error: type[V
                     separator: str = ",") -> None:
     """Refuse a CSV row with more cells than the ``header`` has columns unless the cells beyond are empty (a
     spreadsheet's trailing separators): such a row would be read shifted. ``error`` names ``where`` (the file and
-    row), both counts and the cells beyond."""
+    row), both counts and the cells beyond, or, when the header is one cell holding another separator
+    (:func:`separator_hint`), that separator."""
     beyond = row[len(header):]
     if any(c.strip() for c in beyond):
+        hint = separator_hint(header, separator)
+        if hint:  # the header is one cell holding another separator: that separator, not the decimal mark, is why
+            raise error(f"{where}: {len(row)} cells where the header has {len(header)} column{hint}")
         causes = (["a ',' decimal mark in a ','-separated file (write '.' decimals, or another separator)"]
                   if separator == "," else []) + [f"a cell holding the separator {separator!r} without quotes"]
         raise error(f"{where}: {len(row)} cells where the header has {len(header)} columns (beyond the header: "

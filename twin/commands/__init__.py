@@ -19,10 +19,12 @@ def check_joints_file(path, q, pose_id, robot, force: bool, what: str) -> None:
     """Joints ``q`` ``(n, N)`` [rad, m] read from the JOINTS.csv ``path`` against ``robot``'s limits and a radians
     reading (:func:`twin.estimator.plausibility.check_joint_values`): a ``ValueError`` naming the file and the
     cause, or with ``force`` a warning on stderr (``what``: what the command does anyway, e.g. "predicted"); a file
-    too short for the radians refusal whose joints all lie within pi degrees of zero: a warning on stderr."""
+    too short for the radians refusal whose joints all lie within pi degrees of zero, or any whose joints all lie
+    within 2 pi degrees of zero while the limits span far more: a warning on stderr."""
     from ..estimator.plausibility import ImplausibleData, check_joint_values, radians_warning
 
-    few = radians_warning(q, robot.is_prismatic)
+    few = radians_warning(q, robot.is_prismatic, q_min=robot.q_min, q_max=robot.q_max,
+                          joint_names=robot.joint_names)
     if few:
         print(f"warning: {path}: {few}", file=sys.stderr)
     try:

@@ -35,8 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="threads the scoring may use (default: every core this process may run on); the result is the "
                         "same with any number")
     p.add_argument("--force", action="store_true",
-                   help="write a diagnosis of too few rows (refused without it: rows that fit leave parameters of the "
-                        "geometric model unidentified and give fewer than twice as many coordinates as its parameters); "
+                   help="write a diagnosis of too few rows (refused without it: rows that fit give fewer than twice as "
+                        "many coordinates as the geometric model's parameters); "
                         "its diagnosis.json then says in its notes that it is not meaningful")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-recording", action="store_true",
@@ -49,14 +49,15 @@ MIN_EQUATIONS_PER_PARAMETER = 2
 
 def too_few_rows(geo, n_rows: int) -> str:
     """Words when the diagnosis rests on too few rows, empty otherwise: the rows that fit the geometric model ``geo``
-    (a :class:`~twin.estimator.Calibration`) leave parameters unidentified by their configurations (a rank
-    deficiency a varied campaign would not have) and give fewer than :data:`MIN_EQUATIONS_PER_PARAMETER` times as
-    many coordinates as the parameters a varied campaign identifies. Both: a rank deficiency on many rows (a joint
-    never moved) is a matter of configurations, not of the count, and stays a warning."""
+    (a :class:`~twin.estimator.Calibration`) give fewer than :data:`MIN_EQUATIONS_PER_PARAMETER` times as many
+    coordinates as the parameters a varied campaign identifies (whether or not their configurations leave some of
+    them unidentified: a fit of 36 coordinates for 30 parameters leaves 6 degrees of freedom for the noise floor and
+    every term). A rank deficiency on many rows (a joint never moved) is a matter of configurations, not of the
+    count, and stays a warning."""
     ida = geo.identifiability or {}
     dep = ida.get("data_dependent_dropped") or []
     n_fit = len((geo.rows or {}).get("calibration_used", []))
-    if not dep or n_fit == 0:
+    if n_fit == 0 or "n_parameters" not in ida or "n_equations" not in ida:
         return ""
     n_par = int(ida["n_parameters"]) - len(ida.get("structural_dropped") or [])
     n_eq = int(ida["n_equations"])
@@ -65,10 +66,32 @@ def too_few_rows(geo, n_rows: int) -> str:
         return ""
     per_row = n_eq / n_fit
     min_fit = math.ceil(need / per_row)
+    what = (f"cannot identify {', '.join(dep)} of its {n_par} parameters" if dep else
+            f"fit its {n_par} parameters with {n_eq - n_par} degrees of freedom to spare")
     return (f"too few rows for a diagnosis: {n_rows} rows, {n_fit} of them fit the geometric model; their {n_eq} "
-            f"coordinates cannot identify {', '.join(dep)} of its {n_par} parameters, and a diagnosis needs at least "
+            f"coordinates {what}, and a diagnosis needs at least "
             f"{MIN_EQUATIONS_PER_PARAMETER} coordinates per parameter on the rows that fit: at least {min_fit} rows that "
             f"fit (about {math.ceil(min_fit * n_rows / n_fit)} rows in all with this split) of varied configurations")
+
+
+def without_temperature_gaps(ds):
+    """The dataset ``ds`` without its rows whose ``temp_c`` is empty (the diagnosis reads every row's temperature)
+    and the note naming them (empty, and ``ds`` itself, when no row lacks one). A ``temp_c`` column empty in every
+    row is dropped instead (the diagnosis then has no temperature). The commanded motion to a left-out row is not
+    in the history of the rows after it: their approach directions are read from the row before it."""
+    import numpy as np
+
+    from ..dataset import temperature_gaps
+
+    gaps = temperature_gaps(ds.temp_c, ds.pose_id)
+    if not gaps:
+        return ds, ""
+    missing = np.isnan(np.asarray(ds.temp_c, dtype=float))
+    if missing.all():
+        return replace(ds, temp_c=None), (f"{gaps}: diagnosed without a temperature (no thermal terms)")
+    return ds.subset(~missing), (f"{gaps}: those rows are left out of the diagnosis (it reads every row's "
+                                 f"temperature); {int((~missing).sum())} rows diagnosed; the rows after a left-out "
+                                 "row read their approach direction from the row before it")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: plate check: {len(plate.relabelled)} row(s) relabelled (pose_id {list(plate.relabelled)[:10]}), "
               f"{len(plate.flagged)} row(s) left out (pose_id {list(plate.flagged)[:10]})", file=sys.stdout)
     ds = plate.dataset
+    ds, left_out = without_temperature_gaps(ds)
     cal = Calibration.load(args.calibration) if args.calibration else None
     if cal is not None:
         from ..estimator.register import check_same_robot
@@ -109,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.dataset}: {few}; nothing written (--force writes it, marked as not meaningful)")
     if few:
         res = replace(res, notes=tuple(res.notes) + (f"NOT MEANINGFUL (written with --force): {few}",))
+    if left_out:
+        res = replace(res, notes=tuple(res.notes) + (left_out,))
     paths = write_diagnosis(res, args.out, plots=not args.no_plots)
     if not args.no_recording:
         # the CLI is where the diagnosis and the evaluation layer (the one Rerun writer) meet; the recording

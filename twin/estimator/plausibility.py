@@ -38,7 +38,8 @@ from ..units import MM_PER_M, RAD_PER_DEG, DEG_PER_RAD
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
            "radians_warning", "RADIANS_MIN_ROWS", "fit_beyond_noise", "fit_miss", "check_fit_miss", "plate_noise",
            "tool_reach", "check_targets",
-           "forced_reasons", "check_length_unit", "position_spread", "BEYOND_NOISE", "MAX_MISS_FRACTION"]
+           "forced_reasons", "check_length_unit", "position_spread", "BEYOND_NOISE", "MAX_MISS_FRACTION",
+           "MAX_ORIENTATION_MISS_RAD"]
 
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 _MAX_RELABEL_POINTS = 6  # K! permutations are tried per row
@@ -152,25 +153,57 @@ def check_joints(ds: Dataset) -> list[str]:
 RADIANS_MIN_ROWS = 10
 
 
-def radians_warning(q: np.ndarray, prismatic=None, *, where: str = "JOINTS.csv") -> str:
-    """Words when the joints ``q`` ``(n, N)`` [rad] (read from degree columns) of fewer than
-    :data:`RADIANS_MIN_ROWS` rows may be radians, empty otherwise: every revolute joint of every row within pi
-    degrees of zero and not all at zero. Not a refusal: a joints file carries no measurement to tell them apart, and
-    a few postures within a few degrees of the zero posture (a check near home) are as genuine in degrees as a few
-    postures in radians are."""
+# a joint in radians read as degrees lies within 2 pi "degrees" of zero (1.02: rounding of the written values)
+RADIANS_FULL_TURN = 2.0 * np.pi * RAD_PER_DEG * 1.02  # [rad]
+# the limits of a robot whose joints may be radians span at least this many times that band (a joint of any
+# industrial arm spans far more than 12.8 deg: such a file uses under a tenth of the range the robot has)
+RADIANS_LIMIT_RATIO = 10.0
+
+
+def radians_warning(q: np.ndarray, prismatic=None, *, where: str = "JOINTS.csv", q_min=None, q_max=None,
+                    joint_names=None) -> str:
+    """Words when the joints ``q`` ``(n, N)`` [rad] (read from degree columns) may be radians, empty otherwise.
+
+    Two rules, neither a refusal (a joints file carries no measurement to tell them apart: a few postures near
+    the zero posture, a check near home, are as genuine in degrees as postures in radians are):
+
+    * fewer than :data:`RADIANS_MIN_ROWS` rows whose revolute joints all lie within pi degrees of zero, not all at
+      zero (from that many rows on, :func:`check_joint_values` refuses them);
+    * any number of rows whose revolute joints all lie within 2 pi degrees of zero, one beyond pi degrees (a joint
+      in radians beyond pi rad, which the first rule and the refusal miss), when the limits ``q_min`` / ``q_max``
+      ``(N,)`` [rad] are given and span :data:`RADIANS_LIMIT_RATIO` times that band or more: the words name the
+      largest joint (by ``joint_names``, default ``q1..qN``) and the limits' span."""
     q = np.asarray(q, dtype=float)
     if q.ndim != 2:
         raise ValueError(f"q must have shape (n, N), got {q.shape}")
     pris = np.zeros(q.shape[1], bool) if prismatic is None else np.asarray(prismatic, dtype=bool)
     rev = q[:, ~pris]
     n = q.shape[0]
-    if not (0 < n < RADIANS_MIN_ROWS) or not rev.size or not np.all(np.abs(rev) <= np.pi * RAD_PER_DEG * 1.02):
+    if not n or not rev.size or not np.any(rev != 0) or not np.all(np.abs(rev) <= RADIANS_FULL_TURN):
         return ""
-    if not np.any(rev != 0):
+    big = float(np.abs(rev).max())
+    if big <= np.pi * RAD_PER_DEG * 1.02:
+        if n >= RADIANS_MIN_ROWS:
+            return ""
+        return (f"every joint of its {n} row(s) lies within {big / RAD_PER_DEG:.3g} deg of zero: radians "
+                f"written in the degree columns? ({where} expects degrees; a file of {RADIANS_MIN_ROWS} rows or more "
+                "like this is refused, fewer rows near the zero posture can be genuine degrees)")
+    if q_min is None or q_max is None:
         return ""
-    return (f"every joint of its {n} row(s) lies within {np.abs(rev).max() / RAD_PER_DEG:.3g} deg of zero: radians "
-            f"written in the degree columns? ({where} expects degrees; a file of {RADIANS_MIN_ROWS} rows or more like "
-            "this is refused, fewer rows near the zero posture can be genuine degrees)")
+    span = (np.asarray(q_max, dtype=float) - np.asarray(q_min, dtype=float))
+    if span.shape != (q.shape[1],):
+        raise ValueError(f"q_min and q_max must have shape ({q.shape[1]},), got {np.shape(q_min)} and "
+                         f"{np.shape(q_max)}")
+    span = span[~pris]
+    if span.max() < RADIANS_LIMIT_RATIO * 2.0 * RADIANS_FULL_TURN:
+        return ""
+    r, c = np.unravel_index(int(np.argmax(np.abs(rev))), rev.shape)
+    k = int(np.flatnonzero(~pris)[c])
+    name = joint_names[k] if joint_names is not None else f"q{k + 1}"
+    return (f"every joint of its {n} row(s) lies within {big / RAD_PER_DEG:.3g} deg of zero ({name} reads "
+            f"{rev[r, c] / RAD_PER_DEG:.4g} deg in data row {r + 1}: within 2 pi, as a joint in radians is) while the "
+            f"robot's joints span up to {span.max() / RAD_PER_DEG:.4g} deg: radians written in the degree columns? "
+            f"({where} expects degrees; postures within a few degrees of the zero posture read the same)")
 
 
 def check_joint_values(q: np.ndarray, pose_id: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, *,
@@ -353,6 +386,10 @@ def plate_noise(ds: Dataset, *, virtual_m: float = 1e-6) -> float | None:
 BEYOND_NOISE = 3.0
 #: A fit that misses the measured positions by this fraction of how far they move cannot be the robot's.
 MAX_MISS_FRACTION = 0.05
+#: A fit that misses the measured orientations (6-DOF poses) by this much RMS [rad] (5 deg) reads them wrong: no
+#: robot's own errors turn its tool that far (angles in another unit, Euler sequence or order, a quaternion's
+#: components in another order, three of its four read as angles).
+MAX_ORIENTATION_MISS_RAD = 5.0 * RAD_PER_DEG
 
 
 def fit_beyond_noise(residual_scale: float | None, fit_rms_per_coordinate_m: float | None,
@@ -396,7 +433,9 @@ def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
     its measured points (or pose position) from the prediction. ``miss_rms_m``: the RMS over the rows with the
     worst ``trim`` fraction left out (a few gross rows do not count; a third of the rows measured in another frame
     does). ``spread_m``: the RMS distance of the measured positions from their centroid, per station, the median
-    over stations. Returns ``{miss_rms_m, spread_m, fraction, rows}``, or None with fewer than 3 rows."""
+    over stations. Returns ``{miss_rms_m, spread_m, fraction, rows}`` (a pose's also ``orientation_miss_rms_rad``: the
+    RMS [rad] of the angles between measured and predicted orientations, the worst ``trim`` left out), or None with
+    fewer than 3 rows."""
     if not 0 <= trim < 1:
         raise ValueError(f"trim must be in [0, 1), got {trim!r}")
     rows = cal.rows or {}
@@ -408,10 +447,13 @@ def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
     if sel.size < 3:
         return None
     pred = cal.predict(ds.q[sel], None if ds.station is None else ds.station_ids[sel])
+    turn = None
     if use_pose:
         meas = ds.pose[sel, None, :3, 3]
         P = pred.pose[:, None, :3, 3]
         m = np.ones((sel.size, 1), bool)
+        rel = np.einsum("nji,njk->nik", ds.pose[sel, :3, :3], pred.pose[:, :3, :3])
+        turn = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
     else:
         meas, P, m = ds.spheres[sel], pred.spheres, ds.sphere_seen[sel]
     d = np.where(m, np.linalg.norm(np.where(m[..., None], meas - P, 0.0), axis=-1), 0.0)
@@ -427,8 +469,12 @@ def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
         return None
     spread = float(np.median(spreads))
     rms = float(np.sqrt(np.mean(keep**2)))
-    return {"miss_rms_m": rms, "spread_m": spread, "fraction": rms / spread if spread > 0 else float("inf"),
-            "rows": int(sel.size), "trim": float(trim)}
+    out = {"miss_rms_m": rms, "spread_m": spread, "fraction": rms / spread if spread > 0 else float("inf"),
+           "rows": int(sel.size), "trim": float(trim)}
+    if turn is not None:
+        kept = np.sort(turn)[: keep.size]
+        out["orientation_miss_rms_rad"] = float(np.sqrt(np.mean(kept**2)))
+    return out
 
 
 def position_spread(points: np.ndarray) -> float:
@@ -438,11 +484,19 @@ def position_spread(points: np.ndarray) -> float:
 
 def check_fit_miss(miss: dict | None, *, limit: float = MAX_MISS_FRACTION) -> None:
     """:class:`ImplausibleData` when the calibrated model misses its own calibration rows (:func:`fit_miss`) by
-    ``limit`` or more of how far they move: no robot's non-geometric errors are that large beside its motion; the
+    ``limit`` or more of how far they move, or misses their orientations (a pose) by
+    :data:`MAX_ORIENTATION_MISS_RAD` or more: no robot's non-geometric errors are that large beside its motion; the
     data are mislabelled (joint columns swapped or in another order, rows of several stations without their
-    ``station`` column, another robot)."""
+    ``station`` column, another robot, rotation columns read wrong)."""
     if miss is None:
         return
+    turn = miss.get("orientation_miss_rms_rad")
+    if turn is not None and turn >= MAX_ORIENTATION_MISS_RAD:
+        raise ImplausibleData(
+            f"the model cannot fit these data: the calibrated robot misses the orientations of its calibration rows by "
+            f"{turn * DEG_PER_RAD:.4g} deg RMS (the worst {miss['trim']:.0%} left out; no robot's own errors turn its "
+            f"tool {MAX_ORIENTATION_MISS_RAD * DEG_PER_RAD:.0f} deg): the rotation columns read wrong (their unit, "
+            "Euler sequence or order, three of a quaternion's four components read as angles)?")
     if miss["fraction"] >= limit:
         raise ImplausibleData(
             f"the model cannot fit these data: the calibrated robot misses its calibration rows by "

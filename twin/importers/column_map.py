@@ -51,8 +51,10 @@ Terms = tuple[tuple[float, str], ...]  # a coordinate: sum of sign * column
 @dataclass(frozen=True)
 class FileMap:
     """How to read one CSV (the map with its file's overrides applied). Columns by header name; ``points``: K
-    triples of :data:`Terms` (x, y, z); ``position``/``rotation``: the pose columns; ``time_column`` None for the
-    row order; ``set_rule`` ``("fixed", label)``, ``("column", name)`` or ``("last_fraction", F)`` (``set_given``: whether
+    triples of :data:`Terms` (x, y, z); ``position``/``rotation``: the pose columns (``rotation``: three Euler
+    angles of the sequence ``euler``, or with ``quaternion`` (``"xyzw"`` or ``"wxyz"``) a unit quaternion's four
+    components in that order); ``time_column`` None for the row order; ``set_rule`` ``("fixed", label)``,
+    ``("column", name)`` or ``("last_fraction", F)`` (``set_given``: whether
     the map, the file's entry or the command line gave it; otherwise every row is calibration); ``session``
     and ``station`` ``("fixed", label)``, ``("column", name)`` or None (session: the file's name; station: one
     station ``"0"``)."""
@@ -66,9 +68,10 @@ class FileMap:
     length_scale: float
     points: tuple[tuple[Terms, Terms, Terms], ...] = ()
     position: tuple[Terms, Terms, Terms] | None = None
-    rotation: tuple[str, str, str] | None = None
+    rotation: tuple[str, ...] | None = None
     rotation_scale: float = 1.0
     euler: str = ""
+    quaternion: str = ""
     time_column: str | None = None
     time_format: str = ""
     order: str = "file"
@@ -128,6 +131,47 @@ class ColumnMap:
 
 def _err(where: str, msg: str) -> DatasetError:
     return DatasetError(f"{where}: {msg}")
+
+
+QUATERNION_ORDERS = ("xyzw", "wxyz")  # the component orders a map's measurement.quaternion names
+
+
+def _quaternion_columns(m: dict, rot: Any, where: str) -> dict:
+    """The :class:`FileMap` fields of a pose's rotation given as a unit quaternion: ``rotation`` the four columns,
+    ``quaternion`` their order (no default: scipy writes ``xyzw``, many trackers ``wxyz``); ``euler`` and
+    ``rotation_unit`` do not apply (an error naming them)."""
+    order = m["quaternion"]
+    if order not in QUATERNION_ORDERS:
+        raise _err(f"{where}: measurement.quaternion", f"must be \"xyzw\" or \"wxyz\" (the order of the rotation "
+                                                         f"columns' components), got {order!r}")
+    if not isinstance(rot, list) or len(rot) != 4 or not all(isinstance(x, str) for x in rot):
+        raise _err(f"{where}: measurement.rotation", f"must be the quaternion's four columns in the order {order}, "
+                                                     f"got {rot!r}")
+    extra = sorted(k for k in ("euler", "rotation_unit") if k in m)
+    if extra:
+        raise _err(f"{where}: [measurement]", f"{', '.join(extra)} do(es) not apply to a quaternion (quaternion = "
+                                              f"{order!r})")
+    return {"rotation": tuple(rot), "quaternion": order}
+
+
+QUATERNION_NORM_TOL = 1e-3  # a quaternion whose norm is further from 1 is not a unit quaternion (a wrong column)
+
+
+def _quaternion_rotations(values: np.ndarray, fm: "FileMap", path, lines) -> np.ndarray:
+    """Rotations ``(n, 3, 3)`` of the quaternions ``values`` ``(n, 4)`` (components in the order ``fm.quaternion``);
+    a row whose quaternion's norm is not 1 within :data:`QUATERNION_NORM_TOL` is an error naming the row, the line,
+    the columns and the norm."""
+    from scipy.spatial.transform import Rotation
+
+    xyzw = values if fm.quaternion == "xyzw" else values[:, [1, 2, 3, 0]]
+    norm = np.linalg.norm(xyzw, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
+    if bad.size:
+        k = int(bad[0])
+        raise DatasetError(f"{path}: row {k + 1} (line {lines[k]}), columns {', '.join(fm.rotation)}: not a unit "
+                           f"quaternion (norm {norm[k]:.6g}; {bad.size} such row(s)): a column other than the "
+                           f"quaternion's, or its components in another order than {fm.quaternion!r}?")
+    return Rotation.from_quat(xyzw).as_matrix()
 
 
 def _check_keys(d: dict, allowed: set[str], where: str) -> None:
@@ -302,23 +346,28 @@ def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: s
             parsed.append(tuple(_parse_terms(p[a], f"{where}: measurement.points[{i}].{a}") for a in "xyz"))
         kw["points"] = tuple(parsed)
     elif kind == "pose":
-        _check_keys(m, {"kind", "unit", "position", "rotation", "rotation_unit", "euler"}, f"{where}: [measurement]")
+        _check_keys(m, {"kind", "unit", "position", "rotation", "rotation_unit", "euler", "quaternion"},
+                    f"{where}: [measurement]")
         pos, rot = m.get("position"), m.get("rotation")
         if not isinstance(pos, list) or len(pos) != 3:
             raise _err(f"{where}: measurement.position", f"must be the three position columns, got {pos!r}")
-        if not isinstance(rot, list) or len(rot) != 3 or not all(isinstance(x, str) for x in rot):
-            raise _err(f"{where}: measurement.rotation", f"must be the three Euler-angle columns, got {rot!r}")
-        ru = m.get("rotation_unit", "deg")
-        if ru not in _ANGLE:
-            raise _err(f"{where}: measurement.rotation_unit", f"must be \"deg\" or \"rad\", got {ru!r}")
-        eu = m.get("euler")
-        if not (isinstance(eu, str) and len(eu) == 3 and (set(eu) <= set("xyz") or set(eu) <= set("XYZ"))
-                and eu[0] != eu[1] and eu[1] != eu[2]):
-            raise _err(f"{where}: measurement.euler", "must be an Euler sequence of scipy's Rotation.from_euler: three "
-                                                      "axes, upper case intrinsic (\"XYZ\"), lower case extrinsic "
-                                                      f"(\"xyz\"), no axis twice in a row; got {eu!r}")
-        kw.update(position=tuple(_parse_terms(x, f"{where}: measurement.position[{i}]") for i, x in enumerate(pos)),
-                  rotation=tuple(rot), rotation_scale=_ANGLE[ru], euler=eu)
+        position = tuple(_parse_terms(x, f"{where}: measurement.position[{i}]") for i, x in enumerate(pos))
+        if "quaternion" in m:
+            kw.update(position=position, **_quaternion_columns(m, rot, where))
+        else:
+            if not isinstance(rot, list) or len(rot) != 3 or not all(isinstance(x, str) for x in rot):
+                raise _err(f"{where}: measurement.rotation", "must be the three Euler-angle columns (or a "
+                           f"quaternion's four with quaternion = \"xyzw\" or \"wxyz\"), got {rot!r}")
+            ru = m.get("rotation_unit", "deg")
+            if ru not in _ANGLE:
+                raise _err(f"{where}: measurement.rotation_unit", f"must be \"deg\" or \"rad\", got {ru!r}")
+            eu = m.get("euler")
+            if not (isinstance(eu, str) and len(eu) == 3 and (set(eu) <= set("xyz") or set(eu) <= set("XYZ"))
+                    and eu[0] != eu[1] and eu[1] != eu[2]):
+                raise _err(f"{where}: measurement.euler", "must be an Euler sequence of scipy's Rotation.from_euler: "
+                                                          "three axes, upper case intrinsic (\"XYZ\"), lower case "
+                                                          f"extrinsic (\"xyz\"), no axis twice in a row; got {eu!r}")
+            kw.update(position=position, rotation=tuple(rot), rotation_scale=_ANGLE[ru], euler=eu)
     else:
         raise _err(f"{where}: measurement.kind", f"must be \"points\" or \"pose\", got {kind!r}")
     # time and order
@@ -563,7 +612,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     n, N, K = len(data), len(fm.joint_columns), fm.n_points
     q = np.zeros((n, N))
     P = np.zeros((n, K, 3))
-    eul = np.zeros((n, 3))
+    eul = np.zeros((n, len(fm.rotation) if fm.rotation else 3))
     t = np.zeros(n) if fm.time_column is not None else None
     temp = np.zeros(n) if fm.temperature is not None else None
     pid = np.zeros(n, dtype=np.int64) if fm.pose_id is not None else None
@@ -610,7 +659,10 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
     if fm.kind == "pose":
         from scipy.spatial.transform import Rotation
 
-        rot = Rotation.from_euler(fm.euler, eul * fm.rotation_scale).as_matrix()
+        if fm.quaternion:
+            rot = _quaternion_rotations(eul, fm, path, [ln for ln, _ in data])
+        else:
+            rot = Rotation.from_euler(fm.euler, eul * fm.rotation_scale).as_matrix()
     line_no = np.array([ln for ln, _ in data])
     notes = []
     order = np.arange(n)

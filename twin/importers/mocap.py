@@ -104,7 +104,10 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
     while all(f"{c}{K + 1}" in header for c in "xyz"):
         K += 1
     if K == 0:
-        raise DatasetError(f"{path}: no marker columns x1, y1, z1 (one rigid body's points x1..zK in the mocap frame)")
+        others = [h for h in header if h not in robot.joint_names]
+        raise DatasetError(f"{path}: no marker columns x1, y1, z1 (one rigid body's points x1..zK in the mocap frame, "
+                           f"named exactly so, no unit in the name: --marker-unit gives it); the header's other "
+                           f"columns: {', '.join(repr(h) for h in others[:9])}{' ...' if len(others) > 9 else ''}")
     if not rows:
         raise DatasetError(f"{path}: no data rows")
     n = len(rows)
