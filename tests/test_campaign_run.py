@@ -14,7 +14,7 @@ from _campaign_helpers import reference_full_pose, small_config  # noqa: E402
 from twin.dataset import read_dataset
 from twin.runner.campaign import run_campaign, run_repeats
 from twin.evaluation.statistics import aggregate
-from twin.runner.executor import SerialExecutor, open_executor, run_tasks
+from twin.runner.executor import SerialExecutor, open_executor, run_tasks, worker_identity
 
 IMPL = {"full_pose": reference_full_pose}
 COUNTING = "_campaign_helpers:CountingBackend"
@@ -95,6 +95,24 @@ def test_run_tasks_returns_in_order_and_propagates_errors():
     assert out == [2, 4, 8] and seen == [1, 2, 3]
     with pytest.raises(ZeroDivisionError):
         run_tasks(SerialExecutor(), divmod, [1, 0], args=(1,))
+
+
+def test_worker_identity_outside_dask_does_not_import_distributed(monkeypatch):
+    """Where distributed is not imported, worker_identity names no Dask worker without importing it."""
+    asked = []
+
+    class Recorder:
+        @staticmethod
+        def find_spec(name, path=None, target=None):
+            if name.split(".")[0] == "distributed":
+                asked.append(name)
+            return None
+
+    monkeypatch.delitem(sys.modules, "distributed", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [Recorder()] + sys.meta_path)
+    ident = worker_identity()
+    assert ident["dask_worker"] is None and ident["pid"] == os.getpid()
+    assert asked == [] and "distributed" not in sys.modules
 
 
 def test_aggregate_gives_mean_and_spread():

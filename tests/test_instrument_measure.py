@@ -180,6 +180,21 @@ def test_paper_frame_matches_flange_orientation_for_the_twin_plate():
     assert np.allclose(e, 0.0)
 
 
+def test_paper_frame_is_bit_identical_to_eq_38_40_written_with_np_cross():
+    """paper_frame_from_spheres returns, to the last bit, eq. 38-40 and the circumcentre computed with np.cross."""
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        p = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-3, 1)
+        X, Z = p[0] - p[1], np.cross(p[0] - p[1], p[2] - p[1])
+        Y = np.cross(Z, X)
+        a, b = p[0] - p[2], p[1] - p[2]
+        axb = np.cross(a, b)
+        centre = p[2] + np.cross(np.dot(a, a) * b - np.dot(b, b) * a, axb) / (2.0 * np.dot(axb, axb))
+        R = np.stack([X / np.linalg.norm(X), Y / np.linalg.norm(Y), Z / np.linalg.norm(Z)], axis=1)
+        F = paper_frame_from_spheres(p)
+        assert np.array_equal(F[:3, :3], R) and np.array_equal(F[:3, 3], centre)
+
+
 def test_measure_config_validates():
     """Non-positive tolerances are refused with the field's name."""
     with pytest.raises(ValueError, match="epipolar_tol_px"):

@@ -131,3 +131,22 @@ def test_estimator_reaches_its_floor_with_the_rig_placed_with_error(tmp_path):
         after[name] = (m["angle_deg"]["after"]["mean"], m["position_mm"]["after"]["mean"])
     # the measurement noise sets the floor: both runs see the same noise draws on (nearly) the same poses
     assert after["placed"][0] <= 1.3 * after["exact"][0] and after["placed"][1] <= 1.3 * after["exact"][1], after
+
+
+def test_camera_pipeline_makes_its_remap_tables_at_first_use_and_exactly_distortion_maps(monkeypatch):
+    """A camera pipeline builds without making its remap tables; its first use makes distortion_maps' tables on its
+    grid, bit for bit, once (None for the ideal camera)."""
+    import twin.world.render as render
+    from twin.camera import CameraIntrinsics
+    from twin.world.rig import distortion_maps, render_focal_px
+
+    made = []
+    monkeypatch.setattr(render, "distortion_maps", lambda *a: made.append(a) or distortion_maps(*a))
+    intr = CameraIntrinsics(330.0, 331.0, 162.0, 118.5, 320, 240, (-0.08, 0.02, 1e-4, -2e-4, 0.0))
+    pipe = render.CameraPipeline.build("left", intr, supersample=2)
+    assert made == [] and not pipe.ideal
+    ref = distortion_maps(render.sampling_intrinsics(intr, 2), 2 * render_focal_px(intr))
+    assert all(np.array_equal(m, r) and m.dtype == r.dtype for m, r in zip(pipe.maps, ref))
+    assert pipe.maps is pipe.maps and len(made) == 1
+    ideal = render.CameraPipeline.build("right", CameraIntrinsics.ideal(320, 240, 40.0))
+    assert ideal.ideal and ideal.maps is None

@@ -62,6 +62,12 @@ def plate_pose_from_spheres(centres, plate: Plate) -> PlateFit:
     return PlateFit(T, res, float(np.sqrt(np.mean(res**2))))
 
 
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a x b`` of two 3-vectors: the products and differences ``np.cross`` forms, without its batching
+    machinery (about ten times faster on one pair)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def paper_frame_from_spheres(centres) -> np.ndarray:
     """The separation paper's sphere frame (eq. 38-40) as a transform ``(4, 4)`` into the measurement frame.
 
@@ -71,15 +77,15 @@ def paper_frame_from_spheres(centres) -> np.ndarray:
     """
     p = _centres(centres)
     X = p[0] - p[1]
-    Z = np.cross(p[0] - p[1], p[2] - p[1])
+    Z = _cross3(p[0] - p[1], p[2] - p[1])
     if np.linalg.norm(Z) < 1e-12:
         raise ValueError("centres: the three sphere centres are collinear; the paper frame is undefined")
-    Y = np.cross(Z, X)
+    Y = _cross3(Z, X)
     R = np.stack([X / np.linalg.norm(X), Y / np.linalg.norm(Y), Z / np.linalg.norm(Z)], axis=1)
     # circumcentre of the triangle p0 p1 p2
     a, b = p[0] - p[2], p[1] - p[2]
-    axb = np.cross(a, b)
-    centre = p[2] + np.cross(np.dot(a, a) * b - np.dot(b, b) * a, axb) / (2.0 * np.dot(axb, axb))
+    axb = _cross3(a, b)
+    centre = p[2] + _cross3(np.dot(a, a) * b - np.dot(b, b) * a, axb) / (2.0 * np.dot(axb, axb))
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = centre

@@ -49,7 +49,7 @@ import numpy as np
 
 from ..camera import CameraIntrinsics, distort_normalized, undistort_normalized
 from ..units import rad_to_deg
-from .rig import check_distortion_monotonic, distortion_maps, render_focal_px
+from .rig import check_distortion_monotonic, distortion_maps, render_focal_px, renders_ideally
 
 __all__ = ["CameraPipeline", "scene_option", "sampling_intrinsics"]
 # Bilinear on the sampling grid. Measured (6 poses, both cameras, the instrument's sphere centres against the
@@ -152,17 +152,28 @@ def _merge_boxes(boxes: list[tuple[int, int, int, int]]) -> list[list[int]]:
 @dataclass
 class CameraPipeline:
     """One camera's image formation: its true intrinsics, ideal render focal length, samples per pixel along
-    each axis, and the frame's remap tables (``None``: no resampling needed). The tables map the output image's
-    pixels into the frame's sampling grid, or, with ``frame_subsample`` ``k`` > 1, the pixels of a ``k`` times
-    coarser image into the coarse render (the frame is then resized to the image)."""
+    each axis, and the frame's remap tables (:attr:`maps`; ``None``: no resampling needed). The tables map the
+    output image's pixels into the frame's sampling grid, or, with ``frame_subsample`` ``k`` > 1, the pixels of a
+    ``k`` times coarser image into the coarse render (the frame is then resized to the image)."""
 
     name: str
     intr: CameraIntrinsics
     f_render: float
-    maps: tuple[np.ndarray, np.ndarray] | None
+    # the grid the tables map into: its intrinsics and the ideal render's focal length on it [px]
+    grid: tuple[CameraIntrinsics, float]
     supersample: int = 1
     frame_subsample: int = 1
     ideal: bool = False  # the true camera is the ideal pinhole (no distortion, centred, focal f_r)
+
+    @property
+    def maps(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's remap tables (:func:`twin.world.rig.distortion_maps` on :attr:`grid`), made at the first
+        frame drawn: a world that only computes truth never draws one (the tables of a full-size camera cost
+        ~0.35 s of CPU). ``ValueError`` there when the distortion cannot be inverted over the image."""
+        cache = self.__dict__
+        if "_maps" not in cache:
+            cache["_maps"] = None if self.ideal else distortion_maps(*self.grid)
+        return cache["_maps"]
 
     @classmethod
     def build(cls, name: str, intr: CameraIntrinsics, supersample: int = 1,
@@ -181,14 +192,12 @@ class CameraPipeline:
         f_r = render_focal_px(intr)
         if k > 1:
             # the coarse image's pixels into the coarse ideal render (focal f_r / k): the same field of view
-            grid_intr = _coarse_intrinsics(intr, k)
-            maps = distortion_maps(grid_intr, f_r / k)
+            grid = (_coarse_intrinsics(intr, k), f_r / k)
         else:
             # the ideal render on the sampling grid has focal length s * f_r: the same field of view
-            grid_intr = sampling_intrinsics(intr, s)
-            maps = distortion_maps(grid_intr, s * f_r)
-        ideal = maps is None  # scale-free: no distortion, centred, focal f_r at every grid scale
-        return cls(name, intr, f_r, maps, s, k, ideal)
+            grid = (sampling_intrinsics(intr, s), s * f_r)
+        ideal = renders_ideally(*grid)  # scale-free: no distortion, centred, focal f_r at every grid scale
+        return cls(name, intr, f_r, grid, s, k, ideal)
 
     def _window_lattice(self, s: int) -> np.ndarray:
         """Where the ideal ``s``-grid shows the rays of a lattice of the true ``s``-grid: nodes every

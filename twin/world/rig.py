@@ -21,6 +21,7 @@ __all__ = [
     "true_intrinsics",
     "render_focal_px",
     "distortion_maps",
+    "renders_ideally",
 ]
 
 
@@ -98,19 +99,26 @@ def render_focal_px(intr: CameraIntrinsics, margin_px: float = 1.0) -> float:
     return float(min(f, (ccx - margin_px) / ax, (ccy - margin_px) / ay))
 
 
+def renders_ideally(intr: CameraIntrinsics, f_render: float) -> bool:
+    """True when the true camera ``intr`` is the ideal render of focal length ``f_render`` [px] (no distortion,
+    centred, that focal length): then :func:`distortion_maps` is ``None``."""
+    ccx, ccy = intr.width / 2 - 0.5, intr.height / 2 - 0.5
+    return bool(
+        not np.any(intr.dist_array)
+        and abs(intr.cx - ccx) < 1e-12
+        and abs(intr.cy - ccy) < 1e-12
+        and abs(intr.fx - f_render) < 1e-9
+        and abs(intr.fy - f_render) < 1e-9
+    )
+
+
 def distortion_maps(intr: CameraIntrinsics, f_render: float) -> tuple[np.ndarray, np.ndarray] | None:
     """``cv2.remap`` maps ``(H, W)`` float32: for each true (distorted) pixel, where it lies in the ideal render.
 
     ``None`` when the true camera equals the ideal one (no resampling needed).
     """
     ccx, ccy = intr.width / 2 - 0.5, intr.height / 2 - 0.5
-    if (
-        not np.any(intr.dist_array)
-        and abs(intr.cx - ccx) < 1e-12
-        and abs(intr.cy - ccy) < 1e-12
-        and abs(intr.fx - f_render) < 1e-9
-        and abs(intr.fy - f_render) < 1e-9
-    ):
+    if renders_ideally(intr, f_render):
         return None
     # The inverse distortion is smooth: solve it on a 16-px grid (padded past the border) and evaluate a
     # bicubic spline at every pixel; the spline error is checked below on a sample of pixels.
