@@ -11,6 +11,10 @@ a board of known geometry, never read from the world. Steps:
 3. The pair: ``cv2.stereoCalibrateExtended`` on the corners both images of a view share, starting from
    the single-camera intrinsics and refining everything jointly; again outlying views are rejected.
 
+OpenCV runs these on one thread (its thread count restored after): its threads sum the normal equations in any
+order, so two runs on the same corners would differ in the last bits (~1e-12 relative) and a campaign would not
+reproduce its own files.
+
 The result is small (two intrinsics, a transform, per-view figures) and saved as JSON
 (``docs/formats.md``, "Stereo calibration") so that campaigns reuse it.
 """
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -284,10 +289,22 @@ def _dist_flags(dist_model: str) -> int:
 _CRIT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 
 
+@contextmanager
+def _one_opencv_thread():
+    """OpenCV on one thread inside the block (the same bits on every run), its thread count restored after."""
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 def _calibrate_one(obj, img, size, flags):
-    rms, K, dist, rvecs, tvecs, _, _, per_view = cv2.calibrateCameraExtended(
-        obj, img, size, None, None, flags=flags, criteria=_CRIT
-    )
+    with _one_opencv_thread():
+        rms, K, dist, rvecs, tvecs, _, _, per_view = cv2.calibrateCameraExtended(
+            obj, img, size, None, None, flags=flags, criteria=_CRIT
+        )
     return float(rms), K, dist.reshape(-1), np.asarray(per_view).reshape(-1)
 
 
@@ -430,10 +447,11 @@ def calibrate_stereo_views(
         obj = [common[k][0].astype(np.float32) for k in use]
         pl = [common[k][1].astype(np.float32).reshape(-1, 1, 2) for k in use]
         pr = [common[k][2].astype(np.float32).reshape(-1, 1, 2) for k in use]
-        out = cv2.stereoCalibrateExtended(
-            obj, pl, pr, K_l.copy(), d_l.copy(), K_r.copy(), d_r.copy(), size, None, None,
-            flags=sflags, criteria=_CRIT,
-        )
+        with _one_opencv_thread():
+            out = cv2.stereoCalibrateExtended(
+                obj, pl, pr, K_l.copy(), d_l.copy(), K_r.copy(), d_r.copy(), size, None, None,
+                flags=sflags, criteria=_CRIT,
+            )
         rms, K1, D1, K2, D2, R, T = out[0], out[1], out[2], out[3], out[4], out[5], out[6]
         per_view = np.asarray(out[11]).reshape(len(use), 2)
         lim = max(outlier_factor * float(np.median(per_view)), max_view_rms_px)
