@@ -30,7 +30,7 @@ export NPY_DISABLE_CPU_FEATURES ?= X86_V4 AVX512_ICL AVX512_SPR
 # test workers: one per core (pytest-xdist)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 
-.PHONY: run run-quick test test-fast bench install lock sysdeps sysdeps-browser clean
+.PHONY: run run-quick test test-fast bench results install lock sysdeps sysdeps-browser clean
 
 $(UV): .ci/uv-requirements.txt
 	$(PYTHON) -m venv $(TOOLS)
@@ -79,6 +79,30 @@ test-fast: install
 
 bench: install
 	$(PY) experiments/benchmark.py
+
+# Every figure made by `twin diagnose`, run again after a change to what the diagnosis computes (studies/README.md,
+# "When the diagnosis changes"): about 140 minutes on two cores; then the README rows that quote them
+# (tests/test_readme_figures.py names the passages that moved).
+DRAWN_SETS := 100-119:results_fresh 200-219:results_held 300-319:results_300 400-419:results_400 \
+	500-519:results_500 600-619:results_600 700-719:results_700 800-819:results_800
+results: install
+	$(PY) experiments/bench_drawn_effects.py --draws 20 --workers 2
+	for s in $(DRAWN_SETS); do \
+	  $(PY) -m studies.drawn.run --seeds $${s%%:*} --workers 2 --out studies/drawn/$${s##*:} || exit 1; \
+	done
+	$(PY) studies/blind/run.py --workers 2 --only a b c d e f
+	$(PY) studies/close_loop/close_loop.py studies/close_loop/close_loop.toml --out studies/close_loop/results/close_loop
+	$(PY) studies/close_loop/close_loop.py studies/close_loop/close_loop_clean.toml --out studies/close_loop/results/close_loop_clean
+	$(PY) studies/close_loop/sensitivity.py
+	$(PY) studies/tiago_mocap/run.py
+	$(PY) studies/ur5_laser_tracker/run.py
+	$(PY) studies/ur10_laser_tracker/run.py
+	$(PY) studies/ur10_laser_tracker/transfer.py
+	$(PY) experiments/bench_diagnosis_rates.py --jobs 2
+	$(PY) experiments/bench_diagnosis.py
+	$(PY) experiments/bench_diagnosis_scale.py
+	$(PY) experiments/bench_configurations.py
+	$(PY) experiments/bench_suite.py --runs 1
 
 clean:
 	rm -rf $(VENV) $(TOOLS) .pytest_cache
