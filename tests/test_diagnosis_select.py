@@ -157,7 +157,7 @@ def test_column_store_screens_as_stacked_features_do(problem):
     prob, fit, sb, pool, sizes = problem
     atoms = [a for a in pool if a.pool != "catalogue" and scoring._screenable(a)]
     store = prob.column_store(atoms)
-    assert store is not None and any(store.has(prob.feature_key(a)) for a in atoms)
+    assert store is not None and any(store.has(a.feature_key) for a in atoms)
     got = scoring._screen(prob, fit, atoms, sb.rc, sb.keep, sb.sw, sb.Q, sb.r, sizes)
     prob._store, kept = None, prob._store
     try:

@@ -214,3 +214,32 @@ def test_the_reach_is_climbed_to_the_limits_of_the_joints():
         "end": {"xyz_mm": [200, 0, 0], "rpy_deg": [0, 0, 0]}})
     assert tool_reach(r)[1] == pytest.approx(1.7, rel=1e-3)
     assert tool_reach(r, refine=0)[1] < 0.99 * 1.7
+
+
+def test_radians_in_degree_columns_are_warned_on_drawn_robots_and_their_degrees_are_not():
+    """On drawn robots (4 to 8 joints, a prismatic one on some, limits from +-90 to +-360 deg, 1 to 30 rows), postures
+    written in radians with a joint beyond pi rad at a drawn joint are warned naming the largest joint; the same postures
+    in degrees are not warned."""
+    from twin.estimator.plausibility import radians_warning
+
+    rng = np.random.default_rng(11)
+    for _ in range(60):
+        N = int(rng.integers(4, 9))
+        pris = np.zeros(N, bool)
+        if rng.random() < 0.3:
+            pris[rng.integers(N)] = True
+        half = np.radians(rng.uniform(90.0, 360.0, N))
+        q_min, q_max = np.where(pris, -0.5, -half), np.where(pris, 0.5, half)
+        n = int(rng.integers(1, 31))
+        q = rng.uniform(q_min, q_max, (n, N))  # [rad, m]: the robot's postures
+        j = int(rng.choice(np.flatnonzero(~pris & (half > np.pi + 0.1))) if np.any(~pris & (half > np.pi + 0.1))
+                else -1)
+        if j < 0:
+            continue
+        q[rng.integers(n), j] = rng.uniform(np.pi + 0.05, half[j]) * rng.choice([-1.0, 1.0])
+        names = [f"j{k}" for k in range(N)]
+        read = np.where(pris, q, np.radians(q))  # radians written where degrees belong, read as degrees
+        words = radians_warning(read, pris, q_min=q_min, q_max=q_max, joint_names=names)
+        big = int(np.argmax(np.where(pris, 0.0, np.abs(q)).max(axis=0)))  # the warning names the largest joint
+        assert "radians written in the degree columns?" in words and f"({names[big]} reads" in words, words
+        assert radians_warning(q, pris, q_min=q_min, q_max=q_max, joint_names=names) == ""

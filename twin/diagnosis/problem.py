@@ -90,11 +90,6 @@ class Problem:
         # the confirmation rows are sessions the calibration rows do not contain (set by the diagnosis)
         self.cross_session = False
 
-    def feature_key(self, atom: Atom) -> str:
-        """The key of an atom's feature values in the problem's caches (the repr of its features, kept on the atom for
-        every problem: :attr:`Atom.feature_key`)."""
-        return atom.feature_key
-
     def features(self, atom: Atom) -> np.ndarray:
         """Feature values ``(n_dataset_rows, K)`` of an atom on every row of the dataset (cached)."""
         key = atom.feature_key

@@ -33,6 +33,7 @@ from itertools import permutations
 import numpy as np
 
 from ..dataset import Dataset
+from ..transforms import rotation_angle_between
 from ..units import MM_PER_M, RAD_PER_DEG, DEG_PER_RAD
 
 __all__ = ["PlateCheck", "ImplausibleData", "check_plate_rows", "check_joints", "check_joint_values",
@@ -452,8 +453,7 @@ def fit_miss(cal, ds: Dataset, *, trim: float = 0.05) -> dict | None:
         meas = ds.pose[sel, None, :3, 3]
         P = pred.pose[:, None, :3, 3]
         m = np.ones((sel.size, 1), bool)
-        rel = np.einsum("nji,njk->nik", ds.pose[sel, :3, :3], pred.pose[:, :3, :3])
-        turn = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+        turn = rotation_angle_between(ds.pose[sel, :3, :3], pred.pose[:, :3, :3])
     else:
         meas, P, m = ds.spheres[sel], pred.spheres, ds.sphere_seen[sel]
     d = np.where(m, np.linalg.norm(np.where(m[..., None], meas - P, 0.0), axis=-1), 0.0)

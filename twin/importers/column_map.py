@@ -23,7 +23,7 @@ import numpy as np
 from ..dataset import DatasetError, read_noise_table, robot_from_spec
 from ..files import check_row_width, duplicate_names, parse_finite, read_text, read_toml, separator_hint
 from ..kinematics import RobotModel
-from ..transforms import invert_transform, make_transform, pose6_to_transform
+from ..transforms import invert_transform, make_transform, pose6_to_transform, quat_wxyz_to_matrix
 from ..units import M_PER_MM, RAD_PER_DEG
 from .mocap import file_sha256
 
@@ -161,17 +161,15 @@ def _quaternion_rotations(values: np.ndarray, fm: "FileMap", path, lines) -> np.
     """Rotations ``(n, 3, 3)`` of the quaternions ``values`` ``(n, 4)`` (components in the order ``fm.quaternion``);
     a row whose quaternion's norm is not 1 within :data:`QUATERNION_NORM_TOL` is an error naming the row, the line,
     the columns and the norm."""
-    from scipy.spatial.transform import Rotation
-
-    xyzw = values if fm.quaternion == "xyzw" else values[:, [1, 2, 3, 0]]
-    norm = np.linalg.norm(xyzw, axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
+    wxyz = values if fm.quaternion == "wxyz" else values[:, [3, 0, 1, 2]]
+    norm = np.linalg.norm(wxyz, axis=1)
+    bad = np.flatnonzero(~(np.abs(norm - 1.0) <= QUATERNION_NORM_TOL))
     if bad.size:
         k = int(bad[0])
         raise DatasetError(f"{path}: row {k + 1} (line {lines[k]}), columns {', '.join(fm.rotation)}: not a unit "
                            f"quaternion (norm {norm[k]:.6g}; {bad.size} such row(s)): a column other than the "
                            f"quaternion's, or its components in another order than {fm.quaternion!r}?")
-    return Rotation.from_quat(xyzw).as_matrix()
+    return quat_wxyz_to_matrix(wxyz)
 
 
 def _check_keys(d: dict, allowed: set[str], where: str) -> None:
