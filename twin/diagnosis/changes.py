@@ -565,9 +565,9 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companio
     rows fitted with it for this test (:func:`_payload_companions`: a payload changes every joint's load at once,
     and one joint's change alone leaves the others' steps in the rows). A residual still correlated is tested once
     more with every identifiable direction of the model's columns refitted beside the change (:func:`_geometry_span`,
-    when the geometric parameter selection left some out): a selection chosen on rows the change dominated leaves a
-    misfit that follows the configurations along the campaign's path, which the left-out parameters take and a
-    wander does not."""
+    when the geometric parameter selection left some out), when those directions alone leave it correlated: a
+    selection chosen on rows the change dominated leaves a misfit that follows the configurations along the
+    campaign's path, which the left-out parameters take and a wander does not."""
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False
@@ -591,9 +591,15 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companio
     if U.shape[1] <= sb.Q.shape[1]:
         return False
     # the correlation left may be the geometry the selection left out (a parameter set chosen on rows the change
-    # dominated): the change still leaves the rows white when every identifiable geometric direction refits with it
-    cols = np.hstack([U, got[0].E] + [m.Ep for m in more])
+    # dominated): the change still leaves the rows white when every identifiable geometric direction refits with it,
+    # and that geometry alone leaves them correlated (else the change takes nothing the geometry would not)
     r = (sb.rc.r * sb.sw)[sb.keep]
+    e = np.zeros(len(sb.keep))
+    e[sb.keep] = r - U @ (U.T @ r)
+    z = _lag1_z(fit, e, order, pair)
+    if z is None or z <= WHITE_Z:
+        return False
+    cols = np.hstack([U, got[0].E] + [m.Ep for m in more])
     e = np.zeros(len(sb.keep))
     e[sb.keep] = r - cols @ np.linalg.lstsq(cols, r, rcond=None)[0]
     z = _lag1_z(fit, e, order, pair)
