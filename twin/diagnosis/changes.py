@@ -563,12 +563,17 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companio
     leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
     a stretch of it, whose evidence against the (white) floor then says nothing. ``companions``: changes of the same
     rows fitted with it for this test (:func:`_payload_companions`: a payload changes every joint's load at once,
-    and one joint's change alone leaves the others' steps in the rows)."""
+    and one joint's change alone leaves the others' steps in the rows). A residual still correlated is tested once
+    more with every identifiable direction of the model's columns refitted beside the change (:func:`_geometry_span`,
+    when the geometric parameter selection left some out), when those directions alone leave it correlated: a
+    selection chosen on rows the change dominated leaves a misfit that follows the configurations along the
+    campaign's path, which the left-out parameters take and a wander does not."""
     got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
     if not got:
         return False
     sb = scoring_basis(prob, fit)
     e = np.zeros(len(sb.keep))
+    more = []
     if companions:
         more = score_atoms(prob, fit, list(companions), sizes, exact_top=len(companions))
         Ep = np.hstack([got[0].Ep] + [m.Ep for m in more])
@@ -577,16 +582,59 @@ def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companio
     else:
         fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
         e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
-    R = row_blocks(fit.model_cal, e)[order]
-    R[~np.isfinite(R)] = 0.0
     q = np.round(prob.ctx.q[prob.rows_cal][order], 9)
     pair = ~np.all(q[1:] == q[:-1], axis=1) & (prob.w_cal[order][1:] > 0) & (prob.w_cal[order][:-1] > 0)
+    z = _lag1_z(fit, e, order, pair)
+    if z is None or z <= WHITE_Z:
+        return True
+    U = _geometry_span(sb, fit)
+    if U.shape[1] <= sb.Q.shape[1]:
+        return False
+    # the correlation left may be the geometry the selection left out (a parameter set chosen on rows the change
+    # dominated): the change still leaves the rows white when every identifiable geometric direction refits with it,
+    # and that geometry alone leaves them correlated (else the change takes nothing the geometry would not)
+    r = (sb.rc.r * sb.sw)[sb.keep]
+    e = np.zeros(len(sb.keep))
+    e[sb.keep] = r - U @ (U.T @ r)
+    z = _lag1_z(fit, e, order, pair)
+    if z is None or z <= WHITE_Z:
+        return False
+    cols = np.hstack([U, got[0].E] + [m.Ep for m in more])
+    e = np.zeros(len(sb.keep))
+    e[sb.keep] = r - cols @ np.linalg.lstsq(cols, r, rcond=None)[0]
+    z = _lag1_z(fit, e, order, pair)
+    return z is None or z <= WHITE_Z
+
+
+def _lag1_z(fit, e: np.ndarray, order: np.ndarray, pair: np.ndarray) -> float | None:
+    """The normal score ``rho sqrt(pairs)`` of the lag-1 correlation of consecutive rows' residual vectors (the
+    per-row blocks of ``e`` in time ``order``, the pairs ``pair`` of consecutive rows), None with fewer than 10 pairs
+    or no residual."""
+    R = row_blocks(fit.model_cal, e)[order]
+    R[~np.isfinite(R)] = 0.0
     a, b = R[:-1][pair], R[1:][pair]
     den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
     if den <= 0 or pair.sum() < 10:
-        return True
-    rho = float(np.sum(a * b)) / den
-    return rho * np.sqrt(pair.sum()) <= WHITE_Z
+        return None
+    return float(np.sum(a * b)) / den * float(np.sqrt(pair.sum()))
+
+
+# a geometric direction counts as identifiable when its singular value, of the unit-norm columns, is above this
+# fraction of the largest (the estimator's identifiability tolerance)
+GEOMETRY_RCOND = 1e-6
+
+
+def _geometry_span(sb, fit) -> np.ndarray:
+    """An orthonormal basis ``(m_kept, k)`` of every identifiable direction of the model's columns on the kept rows
+    (the free ones and those the parameter selection left out), cached on the fit."""
+    got = fit.cache.get("geometry_span")
+    if got is None or got[0] is not sb:
+        A = (sb.rc.J * sb.sw[:, None])[sb.keep]
+        norms = np.linalg.norm(A, axis=0)
+        A = A[:, norms > 0] / norms[norms > 0]
+        U, S, _ = np.linalg.svd(A, full_matrices=False)
+        got = fit.cache["geometry_span"] = (sb, U[:, S > S[0] * GEOMETRY_RCOND] if S.size else U[:, :0])
+    return got[1]
 
 
 def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> float:
