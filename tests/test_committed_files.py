@@ -15,6 +15,10 @@ MACHINE_PATH = re.compile(r"(?<![\w.*~-])/(tmp|work|root|home|Users|mnt|opt|srv|
 ALLOWED = {
     (".ci/run", "#!/usr/bin/env bash"),  # the interpreter line
     ("Makefile", "/usr/lib/*/dri/swrast_dri.so"),  # the system's Mesa driver, checked by make sysdeps
+    # the distribution's own interpreter, preferred by make install and compared with another by the environment study
+    ("Makefile", "for p in /usr/bin/python3 python3;"),
+    ("studies/environment/README.md", "--pythons /usr/bin/python3"),
+    ("studies/environment/interpreters.py", "--pythons /usr/bin/python3"),
     # the robot description's own header, as PAL's xacro wrote it (the vendor's file, kept unchanged)
     ("data/tiago_mocap/tiago_48_schunk.urdf", "/opt/pal/ferrum/share/tiago_description/robots/tiago.urdf.xacro"),
 }
