@@ -199,9 +199,6 @@ SEEDS = (100, 101)
 KNOWN_MISSES: dict[tuple[str, int], str] = {
     ('payload', 100): "named ['compliance', 'tilt'] not ['compliance'] (joints 2+3, 1.8 kg window rows 80-124/132)",
     ('payload', 101): 'report after/oracle 2.08 > 1.2; later rows after/oracle 5.18 > 1.2 (joints 2+3, 4.0 kg window rows 91-117/125)',
-    ('compliance', 101): "named ['compliance', 'thermal', 'gear_ratio'] not ['compliance']; later rows after/oracle "
-                         "1.36 > 1.2 (joints 2, two_stiffness: the stiffening read as two stiffnesses at 1.09 of "
-                         "the load's RMS, with the motors' heat, joint 1's ratio and a minor air term beside it)",
     ('backlash_load', 101): 'later rows after/oracle 2.05 > 1.2 (joint 2, sharp: later rows near zero load outside the campaign\'s configurations put on the wrong flank)',
 }
 
