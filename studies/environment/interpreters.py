@@ -2,10 +2,10 @@
 the same bits, under each candidate interpreter.
 
 For each interpreter a throwaway virtual environment is built with uv from the lock's own pins (``uv export``) and
-this checkout installed editable; then, in alternating rounds so that machine load hits all alike, each runs the
-same test modules (pytest, one process) and the same drawn instances (``studies.drawn.run``, one worker), and the
-CPU seconds (user + system) of each run are recorded. The drawn instances' results, without their timings, must be
-equal across interpreters. Written: ``studies/environment/results/interpreters.json``.
+this checkout installed editable; each runs the same test modules (pytest, one process) in alternating rounds, so
+that machine load hits all alike, then the same drawn instances once (``studies.drawn.run``, one worker); the CPU
+seconds (user + system) of each run are recorded, and the drawn instances' results, without their timings, compared
+across interpreters (``drawn_results_identical``). Written: ``studies/environment/results/interpreters.json``.
 
     .venv/bin/python studies/environment/interpreters.py --pythons /usr/bin/python3 OTHER_PYTHON [--rounds 2]
 """
