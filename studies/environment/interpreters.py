@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -33,17 +34,16 @@ ROOT = HERE.parents[1]
 UV = ROOT / ".tools" / "bin" / "uv"
 TESTS = ["tests/test_diagnosis_changes.py", "tests/test_diagnosis_atoms.py"]
 DRAWN = ["--families", "payload,thermal,backlash_load,compliance,zero_glitch,clean", "--seeds", "1100-1101"]
-TIMING_KEYS = ("cpu_s", "wall_s", "seconds", "elapsed", "provenance", "command", "date")
+# the keys of a drawn run's results that hold its timings, machine and command, left out of the comparison
+TIMING_KEYS = frozenset({"cpu_s", "cpu_s_job", "cpu_s_jobs", "wall_s", "seconds", "provenance", "command"})
 
 _DESCRIBE = ("import json, sys, sysconfig; print(json.dumps({'version': sys.version.split()[0], "
              "'implementation': sys.implementation.name, 'prefix_is_system': sysconfig.get_config_var('prefix') == '/usr'}))")
 
 
 def _env_for(python: str, scratch: Path, k: int) -> Path:
-    """A virtual environment on ``python`` with the lock's pins and this checkout (editable); returns its python."""
-    req = subprocess.run([str(UV), "export", "--frozen", "--all-extras", "--no-hashes", "--no-emit-project"],
-                         cwd=ROOT, check=True, capture_output=True, text=True).stdout
-    (scratch / "req.txt").write_text(req)
+    """A virtual environment on ``python`` with the lock's pins (``scratch/req.txt``) and this checkout (editable);
+    returns its python."""
     venv = scratch / f"env{k}"
     subprocess.run([str(UV), "venv", "-q", "--python", python, str(venv)], check=True)
     env = {**os.environ, "VIRTUAL_ENV": str(venv)}
@@ -62,7 +62,7 @@ def _cpu_of(cmd: list[str], env: dict) -> float:
 
 def _without_timings(x):
     if isinstance(x, dict):
-        return {k: _without_timings(v) for k, v in x.items() if not any(t in k for t in TIMING_KEYS)}
+        return {k: _without_timings(v) for k, v in x.items() if k not in TIMING_KEYS}
     if isinstance(x, list):
         return [_without_timings(v) for v in x]
     return x
@@ -81,7 +81,13 @@ def main() -> int:
     env = {**os.environ, "MUJOCO_GL": "egl", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
            "PYTHONPATH": str(ROOT)}
     out: dict = {"tests": TESTS, "drawn": " ".join(DRAWN) + " --workers 1", "rounds": args.rounds, "interpreters": []}
+    for p in args.pythons:
+        if shutil.which(p) is None:
+            raise SystemExit(f"--pythons: {p!r} is not an interpreter found on this machine")
     with tempfile.TemporaryDirectory() as tmp:
+        req = subprocess.run([str(UV), "export", "--frozen", "--all-extras", "--no-hashes", "--no-emit-project"],
+                             cwd=ROOT, check=True, capture_output=True, text=True).stdout
+        (Path(tmp) / "req.txt").write_text(req)
         pys = [_env_for(p, Path(tmp), k) for k, p in enumerate(args.pythons)]
         runs: list[dict] = []
         for py in pys:
