@@ -176,7 +176,7 @@ def after_blocks(setup, prob_x: Problem, src: Fit, pool: list[Atom], places: lis
         notes_end += notes_begun
         # a joint's zero, and a joint's compliance under gravity: a payload hung on and taken off again
         zeros = [p for p in places if p.place == "joint"]
-        src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha)
+        src, wins, notes_win = glitches(setup, prob_x, src, zeros, places, alpha=alpha, z_min=z_min)
         notes += notes_end + notes_win
         found += [(a, "glitch", None, dchi2) for a, dchi2 in wins]
         if wins:

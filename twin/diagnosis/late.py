@@ -614,7 +614,7 @@ def begun_steps(setup, prob_all: Problem, use_all: Fit, *, alpha: float) -> tupl
 
 
 def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], every_place: list[ChangePlace], *,
-             alpha: float, most: int = 3) -> tuple[Fit, list, list[str]]:
+             alpha: float, most: int = 3, z_min: float | None = None) -> tuple[Fit, list, list[str]]:
     """A change and back at one of ``places`` (a glitch: a joint's zero off for a few rows, an encoder's count lost
     and found again) anywhere in the campaign, on every row against the models to use: the window scan of
     :func:`twin.diagnosis.changes.scan_changes` (its rules: the rows in the window fitted by it to the scatter of the
@@ -661,6 +661,16 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
                                 refit_with(prob_all, use_all, list(use_all.chosen) + [(got[0].atom, got[0].basis)]), a)
             logp = chi2_logsf(got[0].dchi2 / prob_all.evidence_scale / s2, got[0].basis.shape[1]) \
                 + np.log(sizes[a.pool])
+            if logp < np.log(alpha) and z_min is not None:
+                # a return held by too few of the campaign's last rows to locate and confirm it: kept only where it
+                # explains every row better than the same change not ending (one constant more), against the scatter
+                _, tv = row_times(setup.ctx)
+                t_rows = np.sort(tv[prob_all.rows_cal])
+                k_after = int(np.sum(t_rows >= float(a.features[0].until)))
+                if k_after < _rows_after(len(t_rows), z_min)[1]:
+                    st = score_atoms(prob_all, use_all, [as_step(a)], sizes, exact_top=1)
+                    if st and (got[0].dchi2 - st[0].dchi2) / prob_all.evidence_scale / s2 <= chi2_isf(alpha, 1):
+                        continue
             if logp < np.log(alpha):
                 pick = got[0] if zero else _load_or_zero(prob_all, use_all, got[0], places, sizes, alpha)
                 break
