@@ -90,7 +90,8 @@ bench: install
 # "When the diagnosis changes"): about 140 minutes on two cores; then the README rows that quote them
 # (tests/test_readme_figures.py names the passages that moved).
 DRAWN_SETS := 100-119:results_fresh 200-219:results_held 300-319:results_300 400-419:results_400 \
-	500-519:results_500 600-619:results_600 700-719:results_700 800-819:results_800
+	500-519:results_500 600-619:results_600 700-719:results_700 800-819:results_800 \
+	900-919:results_900 1000-1019:results_1000 1100-1119:results_1100
 results: install
 	$(PY) experiments/bench_drawn_effects.py --draws 20 --workers 2
 	for s in $(DRAWN_SETS); do \

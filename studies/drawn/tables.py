@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # (results folder, seeds) of every set the tables show, in their column order
 SETS = (("results", "0-19"), ("results_fresh", "100-119"), ("results_held", "200-219"), ("results_300", "300-319"),
         ("results_400", "400-419"), ("results_500", "500-519"), ("results_600", "600-619"),
-        ("results_700", "700-719"), ("results_800", "800-819"), ("results_900_before", "900-919"),
-        ("results_1000_before", "1000-1019"), ("results_1100_before", "1100-1119"))
+        ("results_700", "700-719"), ("results_800", "800-819"), ("results_900", "900-919"),
+        ("results_1000", "1000-1019"), ("results_1100", "1100-1119"))
 _ROW = re.compile(r"\| ([a-z_]+)( \(no alarm\))? \| ")
 
 
