@@ -87,7 +87,7 @@ bench: install
 	$(PY) experiments/benchmark.py
 
 # Every figure made by `twin diagnose`, run again after a change to what the diagnosis computes (studies/README.md,
-# "When the diagnosis changes"): about 140 minutes on two cores; then the README rows that quote them
+# "When the diagnosis changes"): about three hours on two cores; then the README rows that quote them
 # (tests/test_readme_figures.py names the passages that moved).
 DRAWN_SETS := 100-119:results_fresh 200-219:results_held 300-319:results_300 400-419:results_400 \
 	500-519:results_500 600-619:results_600 700-719:results_700 800-819:results_800 \

@@ -631,9 +631,9 @@ def glitches(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace], 
     model with it (the rows inside pull a fit on every row along the load's shapes, and the rows outside carry that
     pull), and only a kept change of that compliance excludes it. A window whose return leaves fewer of the campaign's
     last rows than it takes to locate and confirm a change there (``z_min``: :func:`_rows_after`) is kept only where
-    it explains the rows better than the same change not ending, (Delta chi2_window - Delta chi2_step) / s2 >
-    chi2_1^-1(1 - alpha), against the same scatter s2: a load hung on late and kept on is not read as returning in the
-    last rows."""
+    it explains the rows better than the same change not ending, (Delta chi2_window - Delta chi2_step) / (e s2) >
+    chi2_1^-1(1 - alpha), against the same scatter s2 (e: the problem's evidence scale): a load hung on late and kept
+    on is not read as returning in the last rows."""
     sizes = change_pool_sizes(prob_all.obs_cal.n, every_place, short=MIN_ROWS)
     found, notes = [], []
     for _ in range(most):
