@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 import _newcomer as N
 from twin.cli import main
+from twin.dataset import read_dataset
 from twin.units import M_PER_MM, MM_PER_M, RAD_PER_DEG
 
 AXES = {
@@ -401,3 +402,58 @@ def summary(o: Outcome) -> str:
     codes = " ".join(f"{k}={s.code}({s.cpu_s:.2f}s)" for k, s in o.steps.items())
     figs = " ".join(f"{k}={v:.4g}" for k, v in o.figures.items())
     return f"{o.case.name}: {codes} | {figs}"
+
+# ------------------------------------------------------------------------------------------------
+# Rows of two robots mixed in one campaign (tests/test_estimator_mixture.py, studies/mixture)
+# ------------------------------------------------------------------------------------------------
+
+MIXED_MARKERS = np.array([[0.05, 0.0, 0.02], [-0.03, 0.04, 0.02], [-0.02, -0.05, 0.03]])  # [m] on the flange
+MIXED_NOISE_MM = 0.005
+
+
+def mixed_campaign(folder, seed: int, *, second: str) -> tuple[object, np.ndarray]:
+    """A campaign of one nominal robot drawn at random (kind, joints) whose rows come from two robots as built
+    (``second="robot"``), from one robot seen from two instrument places (``"frame"``: a tripod knocked by ~1 mm and
+    ~0.1 deg) or from one robot with backlash on a drawn joint (``"backlash"``: the flank each row approaches from),
+    the two kinds of rows interleaved at random in a drawn share; imported with `twin import`. Returns the dataset
+    and whether each row (in pose_id order) is of the second kind."""
+    if second not in ("robot", "frame", "backlash"):
+        raise ValueError(f"second must be 'robot', 'frame' or 'backlash', got {second!r}")
+    rng = np.random.default_rng(seed)
+    kind = rng.choice(["dh", "mdh", "urdf"])
+    nom = N.make_robot(rng, kind, int(rng.integers(5, 8)))
+    n = int(rng.integers(160, 240))
+    share = rng.uniform(0.25, 0.75)
+    is_b = rng.random(n) < share
+    q = N.sample_joints(nom, rng, n)
+    frame = N.random_frame(rng)
+    if second == "backlash":
+        j = int(rng.integers(0, nom.n))
+        true = N.perturbed(nom, rng, backlash={j: float(rng.uniform(0.02, 0.06)) * np.pi / 180})
+        s = N.measure(true, q, frame, rng, markers=MIXED_MARKERS, noise_mm=MIXED_NOISE_MM)
+    else:
+        a = N.perturbed(nom, rng)
+        b = N.perturbed(nom, rng) if second == "robot" else a
+        frame_b = frame
+        if second == "frame":
+            knock = N.transform(Rotation.from_rotvec(rng.normal(0, 0.1 * np.pi / 180, 3)).as_matrix(),
+                                rng.normal(0, 0.6e-3, 3))
+            frame_b = knock @ frame
+        sa = N.measure(a, q, frame, rng, markers=MIXED_MARKERS, noise_mm=MIXED_NOISE_MM)
+        sb = N.measure(b, q, frame_b, rng, markers=MIXED_MARKERS, noise_mm=MIXED_NOISE_MM)
+        s = N.Session(q=q, base2meas=frame, points=np.where(is_b[:, None, None], sb.points, sa.points),
+                      markers=MIXED_MARKERS)
+    mp = N.write_campaign(Path(folder) / "campaign", nom, [("meas.csv", s, {})], N.Dialect(), noise_mm=MIXED_NOISE_MM)
+    step = twin(["import", "--map", mp, "--out", Path(folder) / "ds"])
+    if step.code != 0:
+        raise RuntimeError(f"twin import of the mixed campaign {seed} failed: {step.err}")
+    return read_dataset(Path(folder) / "ds"), is_b
+
+
+def split_agreement(groups, pose_id, is_b) -> float:
+    """The share of a split's rows put with the rows of their own kind (either labelling of the two groups)."""
+    b = dict(zip((int(p) for p in pose_id), is_b))
+    g0 = np.array([b[p] for p in groups[0]], bool)
+    g1 = np.array([b[p] for p in groups[1]], bool)
+    right = max((~g0).sum() + g1.sum(), g0.sum() + (~g1).sum())
+    return float(right / max(g0.size + g1.size, 1))

@@ -157,6 +157,7 @@ def run(args) -> int:
 
     from ..estimator.plausibility import (ImplausibleData, check_fit_miss, check_joints, check_length_unit,
                                           check_plate_rows, fit_beyond_noise, fit_miss, plate_noise)
+    from ..estimator.mixture import SPLIT_MIN_REJECTED, SPLIT_MIN_SCALE, split_rows
 
     ds = read_dataset(args.dataset)
     forced: list[str] = []
@@ -206,11 +207,23 @@ def run(args) -> int:
     if miss is not None:
         beyond = {**beyond, "miss_rms_mm": miss["miss_rms_m"] * MM_PER_M, "motion_spread_mm": miss["spread_m"] * MM_PER_M,
                   "miss_fraction_of_motion": miss["fraction"]}
+    n_rejected = len((cal.rows or {}).get("calibration_rejected", []))
+    n_rows = n_rejected + len((cal.rows or {}).get("calibration_used", []))
+    far = beyond.get("detected") and max(beyond.get("residual_scale") or 0.0,
+                                         beyond.get("plate_ratio") or 0.0) >= SPLIT_MIN_SCALE
+    if far or n_rejected >= SPLIT_MIN_REJECTED * max(n_rows, 1):
+        # far beyond the noise, or many rows rejected: rows of two robots (or stations) mixed fit two models each
+        # to the noise (a robust fit rejects a minority robot's rows)
+        noise_m = None if cal.noise.get("position_source") == "given" or cal.measurement != "spheres" else plate_noise(ds)
+        split = split_rows(cal, ds, noise_m=noise_m)
+        beyond = {**beyond, "two_groups": split.summary()}
     details = dict(cal.details)
     details["plausibility"] = {"plate": None if plate is None else plate.summary(), "joints": notes,
                                "forced": forced}
     details["beyond_geometry"] = beyond
     extra = [beyond["text"]] if beyond.get("detected") else []
+    if beyond.get("two_groups", {}).get("found"):
+        extra.append(beyond["two_groups"]["text"])
     cal = replace(cal, details=details, notes=tuple(cal.notes) + tuple(notes) + tuple(extra)
                   + tuple(f"FORCED: {f}" for f in forced))
     out = Path(args.out)

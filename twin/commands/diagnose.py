@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from ..estimator import Calibration
 
     from ..estimator.plausibility import ImplausibleData, check_joints, check_plate_rows
+    from ..estimator.mixture import SPLIT_MIN_SCALE, split_rows
     from ..runtime import available_cores
 
     threads = available_cores() if args.threads is None else args.threads
@@ -128,6 +129,12 @@ def run(args: argparse.Namespace) -> int:
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
+    un = res.unexplained
+    if un is not None and not res.structured and un["whitened_rms"] >= SPLIT_MIN_SCALE:
+        # scatter far beyond the floor that nothing predicts: rows of two robots mixed fit two models to the floor
+        split = split_rows(res.calibration_geometric, ds, noise_m=res.noise.sigma)
+        res = replace(res, unexplained={**un, "two_groups": split.summary()},
+                      notes=tuple(res.notes) + ((split.text,) if split.found else ()))
     few = too_few_rows(res.calibrations_blocked.get("geometric", res.calibration_geometric), ds.n)
     if few and not args.force:
         raise ValueError(f"{args.dataset}: {few}; nothing written (--force writes it, marked as not meaningful)")

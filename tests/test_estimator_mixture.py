@@ -1,0 +1,110 @@
+"""Rows of two robots mixed in one campaign (``twin.estimator.mixture``): the split is found on robots, mixes and
+shares drawn at random, told from one robot's backlash and from a second measurement frame, and said by `twin
+calibrate` and `twin diagnose`."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import _newcomer as N
+import _newcomer_chain as C
+from twin.dataset import read_dataset
+from twin.estimator import calibrate
+from twin.estimator.mixture import split_rows, two_models
+
+NOISE_MM = C.MIXED_NOISE_MM
+
+
+def _split(folder, seed: int, second: str):
+    """A drawn mixed campaign (``_newcomer_chain.mixed_campaign``), calibrated and split: ``(dataset, labels, split)``."""
+    ds, is_b = C.mixed_campaign(folder, seed, second=second)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return ds, is_b, split_rows(calibrate(ds), ds)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_linear_models_are_separated_whatever_their_share(seed):
+    """Two regressions drawn at random (rows, parameters, share, size): the assignment found puts at least 98 % of
+    the rows with their own model and its cost is the noise's."""
+    rng = np.random.default_rng(100 + seed)
+    n, k, p = int(rng.integers(60, 200)), 3, int(rng.integers(4, 12))
+    J = rng.normal(size=(n * k, p))
+    row = np.repeat(np.arange(n), k)
+    second = rng.random(n) < rng.uniform(0.2, 0.8)
+    a, b = rng.normal(0, rng.uniform(5, 50), p), rng.normal(0, rng.uniform(5, 50), p)
+    r = np.where(second[row], J @ b, J @ a) + rng.normal(size=n * k)
+    tm = two_models(r, J, row, n, seed=seed)
+    agree = max(np.mean(tm.second == second), np.mean(tm.second != second))
+    assert agree >= 0.98
+    assert tm.cost_two < 2.0 * n * k < tm.cost_one
+
+
+def test_two_models_refuses_residuals_and_jacobians_that_disagree():
+    """Residuals, Jacobian rows and row indices of different lengths are a ValueError naming them."""
+    with pytest.raises(ValueError, match="r \\(m,\\), J \\(m, p\\) and row"):
+        two_models(np.zeros(6), np.zeros((5, 2)), np.zeros(6, int), 2)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rows_of_two_robots_mixed_are_split_and_named(seed, tmp_path):
+    """Rows of two robots as built (a drawn chain, share and order): the split finds the two groups (>= 95 % of the
+    rows with their own robot), each fitted to within 3x the noise, and names two robots, not a joint or a frame."""
+    ds, is_b, s = _split(tmp_path, 10 + seed, "robot")
+    assert s.found and s.kind == "robots", s
+    assert max(s.rms_two_mm) <= 3 * NOISE_MM < s.rms_one_mm / 5
+    assert C.split_agreement(s.groups, ds.pose_id, is_b) >= 0.95
+    assert "two robots" in s.text
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_one_robots_backlash_is_not_called_two_robots(seed, tmp_path):
+    """One robot with backlash on a drawn joint: its rows differ by that joint's flank, so the split, where found,
+    names one parameter, never two robots."""
+    ds, _, s = _split(tmp_path, 20 + seed, "backlash")
+    assert s.kind != "robots", s.text
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_knocked_instrument_is_named_a_second_frame(seed, tmp_path):
+    """One robot seen from two instrument places interleaved (a drawn knock): found and named the measurement frame."""
+    ds, is_b, s = _split(tmp_path, 30 + seed, "frame")
+    assert s.found and s.kind == "frames", s
+    assert C.split_agreement(s.groups, ds.pose_id, is_b) >= 0.95
+
+
+def test_one_robot_within_its_noise_is_not_split(tmp_path):
+    """A campaign of one robot as built: no split is reported (two models cannot do better than the noise)."""
+    rng = np.random.default_rng(5)
+    nom = N.make_robot(rng, "dh", 6)
+    q = N.sample_joints(nom, rng, 150)
+    s = N.measure(N.perturbed(nom, rng), q, N.random_frame(rng), rng, markers=C.MIXED_MARKERS, noise_mm=NOISE_MM)
+    mp = N.write_campaign(tmp_path / "c", nom, [("meas.csv", s, {})], N.Dialect(), noise_mm=NOISE_MM)
+    assert C.twin(["import", "--map", mp, "--out", tmp_path / "ds"]).code == 0
+    ds = read_dataset(tmp_path / "ds")
+    assert not split_rows(calibrate(ds), ds).found
+
+
+def test_split_rows_refuses_a_noise_that_is_not_a_positive_number(tmp_path):
+    """noise_m of zero is a ValueError naming noise_m and its value."""
+    ds, _ = C.mixed_campaign(tmp_path, 40, second="robot")
+    with pytest.raises(ValueError, match="noise_m must be a positive number \\[m\\], got 0.0"):
+        split_rows(None, ds, noise_m=0.0)
+
+
+def test_calibrate_and_diagnose_say_the_rows_are_two_robots(tmp_path):
+    """`twin calibrate` and `twin diagnose` on rows of two robots mixed: each prints the split with its groups'
+    pose_ids and writes it (calibration.json's details.beyond_geometry.two_groups, diagnosis.json's unexplained)."""
+    C.mixed_campaign(tmp_path, 50, second="robot")
+    cal = C.twin(["calibrate", tmp_path / "ds", "--out", tmp_path / "cal"])
+    assert cal.code == 0, cal.err
+    assert "two robots (or two tools) mixed" in cal.out
+    beyond = json.loads((tmp_path / "cal" / "calibration.json").read_text())["details"]["beyond_geometry"]
+    assert beyond["two_groups"]["found"] and beyond["two_groups"]["kind"] == "robots"
+    dg = C.twin(["diagnose", tmp_path / "ds", "--out", tmp_path / "diag", "--no-plots", "--no-recording"])
+    assert dg.code == 0, dg.err
+    assert "two robots (or two tools) mixed" in dg.out
+    un = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["unexplained"]
+    assert un["two_groups"]["found"]
