@@ -411,12 +411,13 @@ MIXED_MARKERS = np.array([[0.05, 0.0, 0.02], [-0.03, 0.04, 0.02], [-0.02, -0.05,
 MIXED_NOISE_MM = 0.005
 
 
-def mixed_campaign(folder, seed: int, *, second: str) -> tuple[object, np.ndarray]:
+def mixed_campaign(folder, seed: int, *, second: str, blocks: bool = False) -> tuple[object, np.ndarray]:
     """A campaign of one nominal robot drawn at random (kind, joints) whose rows come from two robots as built
     (``second="robot"``), from one robot seen from two instrument places (``"frame"``: a tripod knocked by ~1 mm and
     ~0.1 deg) or from one robot with backlash on a drawn joint (``"backlash"``: the flank each row approaches from),
-    the two kinds of rows interleaved at random in a drawn share; imported with `twin import`. Returns the dataset
-    and whether each row (in pose_id order) is of the second kind."""
+    the two kinds of rows interleaved at random in a drawn share (``blocks``: the second kind's rows after the first
+    kind's, a file appended to another); imported with `twin import`. Returns the dataset and whether each row (in
+    pose_id order) is of the second kind."""
     if second not in ("robot", "frame", "backlash"):
         raise ValueError(f"second must be 'robot', 'frame' or 'backlash', got {second!r}")
     rng = np.random.default_rng(seed)
@@ -425,6 +426,8 @@ def mixed_campaign(folder, seed: int, *, second: str) -> tuple[object, np.ndarra
     n = int(rng.integers(160, 240))
     share = rng.uniform(0.25, 0.75)
     is_b = rng.random(n) < share
+    if blocks:
+        is_b = np.sort(is_b)
     q = N.sample_joints(nom, rng, n)
     frame = N.random_frame(rng)
     if second == "backlash":

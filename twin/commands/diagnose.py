@@ -129,12 +129,11 @@ def run(args: argparse.Namespace) -> int:
     res = diagnose(ds, calibration=cal, alpha=args.alpha, holdout=args.holdout, seed=args.seed,
                    max_effects=args.max_effects, generic=not args.catalogue_only,
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
-    un = res.unexplained
-    if un is not None and not res.structured and un["whitened_rms"] >= SPLIT_MIN_SCALE:
-        # scatter far beyond the floor that nothing predicts: rows of two robots mixed fit two models to the floor
+    left = res.test_after if res.model_in_use == "extended" and res.test_after is not None else res.test_before
+    if left is not None and left.whitened_rms >= SPLIT_MIN_SCALE:
+        # the model in use leaves 10x the floor or more: rows of two robots mixed fit two models to the floor
         split = split_rows(res.calibration_geometric, ds, noise_m=res.noise.sigma)
-        res = replace(res, unexplained={**un, "two_groups": split.summary()},
-                      notes=tuple(res.notes) + ((split.text,) if split.found else ()))
+        res = replace(res, two_groups=split.summary(), notes=tuple(res.notes) + ((split.text,) if split.found else ()))
     few = too_few_rows(res.calibrations_blocked.get("geometric", res.calibration_geometric), ds.n)
     if few and not args.force:
         raise ValueError(f"{args.dataset}: {few}; nothing written (--force writes it, marked as not meaningful)")

@@ -130,7 +130,9 @@ class DiagnosisResult:
     last rows) are the last of ``atoms``
     (and of ``changes`` for a change), with ``found``; they are in ``calibration`` (then ``model_in_use`` is
     ``"extended"``); ``calibrations_blocked["extended"]`` holds those found on the rows before the report block (the
-    state the report rows read), the kept terms at their calibration rows' values."""
+    state the report rows read), the kept terms at their calibration rows' values. ``two_groups``: set by `twin
+    diagnose` where the model in use leaves 10x the floor or more on the confirmation rows: the rows' split between
+    two geometric models (:func:`twin.estimator.mixture.split_rows`, its ``summary``), else None."""
 
     structured: bool
     p_value: float
@@ -158,6 +160,7 @@ class DiagnosisResult:
     test_report: dict[str, StructureTest | None] = field(default_factory=dict)
     model_in_use: str = "geometric"
     adoption: dict[str, Any] | None = None
+    two_groups: dict[str, Any] | None = None
     candidate_terms: tuple[dict, ...] = ()
     calibration_candidate: Calibration | None = None
     calibrations_blocked: dict[str, Calibration] = field(default_factory=dict)

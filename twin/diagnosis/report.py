@@ -109,6 +109,7 @@ def diagnosis_dict(res: DiagnosisResult, calibration: str = "calibration.json",
         "sampling": res.sampling,  # [configurations]
         "rows": res.rows,
         "unexplained": res.unexplained,
+        "two_groups": res.two_groups,
         "candidates": [
             {
                 "round": s.round,

@@ -53,8 +53,8 @@ class TwoModels:
     """The best split of ``n`` rows between two linear models.
 
     ``second`` ``(n,)`` bool: the rows of the second model; ``cost_one`` / ``cost_two``: the sums of squared
-    residuals of one model (``x`` itself: ``|r|^2``) and of the two; ``trace``: the best ``cost_two`` after each
-    start, in order."""
+    residuals of one model refitted on every row (``min_c |r - J c|^2``: the point the residuals were taken at need
+    not be these rows' best) and of the two; ``trace``: the best ``cost_two`` after each start, in order."""
 
     second: np.ndarray
     cost_one: float
@@ -85,7 +85,8 @@ def two_models(r: np.ndarray, J: np.ndarray, row: np.ndarray, n: int, *, starts:
     norm = np.linalg.norm(J, axis=0)
     Jn = J[:, norm > 0] / norm[norm > 0]
     rng = np.random.default_rng(seed)
-    cost_one = float(r @ r)
+    e_one = r - Jn @ np.linalg.lstsq(Jn, r, rcond=None)[0]
+    cost_one = float(e_one @ e_one)
 
     def fit(rows_mask: np.ndarray) -> np.ndarray:
         sel = rows_mask[row]
@@ -155,8 +156,13 @@ class RowSplit:
     trace: tuple[float, ...] = ()
 
     def summary(self) -> dict[str, Any]:
+        """A JSON-able dict; a figure not measured (no split to judge) is None."""
+        def num(v):
+            return None if v is None or not np.isfinite(v) else float(v)
+
         return {"found": self.found, "kind": self.kind, "groups": [list(g) for g in self.groups],
-                "rms_one_mm": self.rms_one_mm, "rms_two_mm": list(self.rms_two_mm), "noise_mm": self.noise_mm,
+                "rms_one_mm": num(self.rms_one_mm), "rms_two_mm": [num(v) for v in self.rms_two_mm],
+                "noise_mm": num(self.noise_mm),
                 "parameter": self.parameter, "text": self.text,
                 "rule": (f"two groups of calibration rows each calibrated on its own: found when each leaves at most "
                          f"{SPLIT_MAX_SCALE:g}x the noise and at most a fifth of the one model's residual per "
@@ -227,7 +233,12 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
     if not (tm.second.any() and (~tm.second).any()):
         return none
     groups = (obs.pose_id[~tm.second], obs.pose_id[tm.second])
-    rms_one = _position_rms(cal, sub, kind)
+    # the one model refitted on these rows (linear, at the calibration's parameters): its position residuals
+    norm = np.linalg.norm(J, axis=0)
+    Jn = J[:, norm > 0] / norm[norm > 0]
+    e_one = res.r - Jn @ np.linalg.lstsq(Jn, res.r, rcond=None)[0]
+    pos = res.block == 0
+    rms_one = float(np.sqrt(np.mean(e_one[pos] ** 2))) * sigma_p
     rms_two = []
     for g in groups:
         part = replace(sub.subset(np.isin(sub.pose_id, g)), set=None)
@@ -255,8 +266,11 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
         tool_cols = [k for k, n in enumerate(names) if n.startswith("tool_")]
         if shares[k1] >= _RESTRICTED_SHARE and k1 not in base_cols + tool_cols:
             kind, name = "parameter", names[k1]
-            cause = (f"they differ by {name} alone: that offset on some rows and not on others (a joint's backlash, "
-                     "the side each row approached from, or a zero step)")
+            if name.startswith("theta") or name.endswith(".offset"):
+                cause = (f"they differ by {name} alone: that joint's zero on some rows and not on others (its backlash, "
+                         "the side each row approached from, or a zero step)")
+            else:
+                cause = f"they differ by {name} alone: that parameter on some rows and not on others"
         elif share(base_cols) >= _RESTRICTED_SHARE:
             kind = "frames"
             cause = ("they differ by the measurement frame alone: rows of two stations without their `station` "
