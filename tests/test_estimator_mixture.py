@@ -113,10 +113,10 @@ def test_calibrate_and_diagnose_say_the_rows_are_two_robots(tmp_path):
     C.mixed_campaign(tmp_path, 50, second="robot")
     cal = C.twin(["calibrate", tmp_path / "ds", "--out", tmp_path / "cal"])
     assert cal.code == 0, cal.err
-    assert "two robots (or two tools) mixed" in cal.out
+    assert "two robots mixed in one campaign" in cal.out
     beyond = json.loads((tmp_path / "cal" / "calibration.json").read_text())["details"]["beyond_geometry"]
     assert beyond["two_groups"]["found"] and beyond["two_groups"]["kind"] == "robots"
     dg = C.twin(["diagnose", tmp_path / "ds", "--out", tmp_path / "diag", "--no-plots", "--no-recording"])
     assert dg.code == 0, dg.err
-    assert "two robots (or two tools) mixed" in dg.out
+    assert "two robots mixed in one campaign" in dg.out
     assert json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["two_groups"]["found"]

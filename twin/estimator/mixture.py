@@ -66,6 +66,17 @@ def _row_cost(e: np.ndarray, row: np.ndarray, n: int) -> np.ndarray:
     return np.bincount(row, weights=e * e, minlength=n)
 
 
+def _normalised(J: np.ndarray) -> np.ndarray:
+    """``J``'s non-zero columns scaled to unit norm (the least squares below are then well conditioned)."""
+    norm = np.linalg.norm(J, axis=0)
+    return J[:, norm > 0] / norm[norm > 0]
+
+
+def _one_model_residual(r: np.ndarray, Jn: np.ndarray) -> np.ndarray:
+    """``r - J c`` at the best ``c``: one model refitted on every row."""
+    return r - Jn @ np.linalg.lstsq(Jn, r, rcond=None)[0]
+
+
 def two_models(r: np.ndarray, J: np.ndarray, row: np.ndarray, n: int, *, starts: int = 12, seed: int = 0,
                max_iter: int = 50, min_rows: int = 1) -> TwoModels:
     """Split rows between two linear models (module docstring).
@@ -82,10 +93,9 @@ def two_models(r: np.ndarray, J: np.ndarray, row: np.ndarray, n: int, *, starts:
         raise ValueError(f"row must index n = {n} rows (n >= 2)")
     if starts < 1 or min_rows < 1:
         raise ValueError(f"starts and min_rows must be positive, got {starts}, {min_rows}")
-    norm = np.linalg.norm(J, axis=0)
-    Jn = J[:, norm > 0] / norm[norm > 0]
+    Jn = _normalised(J)
     rng = np.random.default_rng(seed)
-    e_one = r - Jn @ np.linalg.lstsq(Jn, r, rcond=None)[0]
+    e_one = _one_model_residual(r, Jn)
     cost_one = float(e_one @ e_one)
 
     def fit(rows_mask: np.ndarray) -> np.ndarray:
@@ -157,6 +167,7 @@ class RowSplit:
 
     def summary(self) -> dict[str, Any]:
         """A JSON-able dict; a figure not measured (no split to judge) is None."""
+
         def num(v):
             return None if v is None or not np.isfinite(v) else float(v)
 
@@ -169,11 +180,11 @@ class RowSplit:
                          "coordinate")}
 
 
-def _position_rms(cal, ds: Dataset, kind: str) -> float:
+def _position_rms(cal, ds: Dataset, meas: str) -> float:
     """The RMS per coordinate [m] of ``cal``'s position residuals on every row of ``ds``: its marker points
-    (``kind`` ``"spheres"``), or its poses' positions (``"pose"``)."""
+    (``meas`` ``"spheres"``), or its poses' positions (``"pose"``)."""
     pred = cal.predict(ds.q, None if ds.station is None else ds.station_ids)
-    if kind == "pose":
+    if meas == "pose":
         e = ds.pose[:, :3, 3] - pred.pose[:, :3, 3]
     else:
         e = (ds.spheres - pred.spheres)[ds.sphere_seen]
@@ -210,10 +221,10 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
     if noise_m is None and (cal.noise or {}).get("position_source") == "given":
         noise_m = sigma_p
     sub = replace(ds.subset(sel), set=None)
-    # the calibration's kind where the dataset has it (a diagnosis fits a pose's virtual points: its poses then)
-    kind = cal.measurement if (ds.has_spheres if cal.measurement == "spheres" else ds.has_poses) else (
+    # the calibration's measurement where the dataset has it (a diagnosis fits a pose's virtual points: its poses then)
+    meas = cal.measurement if (ds.has_spheres if cal.measurement == "spheres" else ds.has_poses) else (
         "pose" if ds.has_poses else "spheres")
-    obs, _, _ = observations_from_dataset(sub, measurement=kind, sigma_position=sigma_p,
+    obs, _, _ = observations_from_dataset(sub, measurement=meas, sigma_position=sigma_p,
                                           sigma_orientation=None if sigma_o is None else float(sigma_o))
     sp = cal.space
     if any(s not in sp.stations for s in obs.station_names):
@@ -234,20 +245,17 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
         return none
     groups = (obs.pose_id[~tm.second], obs.pose_id[tm.second])
     # the one model refitted on these rows (linear, at the calibration's parameters): its position residuals
-    norm = np.linalg.norm(J, axis=0)
-    Jn = J[:, norm > 0] / norm[norm > 0]
-    e_one = res.r - Jn @ np.linalg.lstsq(Jn, res.r, rcond=None)[0]
-    pos = res.block == 0
-    rms_one = float(np.sqrt(np.mean(e_one[pos] ** 2))) * sigma_p
+    e_one = _one_model_residual(res.r, _normalised(J))
+    rms_one = float(np.sqrt(np.mean(e_one[res.block == 0] ** 2))) * sigma_p
     rms_two = []
     for g in groups:
         part = replace(sub.subset(np.isin(sub.pose_id, g)), set=None)
         try:
-            cg = calibrate(part, measurement=kind, noise_position=sigma_p,
+            cg = calibrate(part, measurement=meas, noise_position=sigma_p,
                            noise_orientation=None if sigma_o is None else float(sigma_o), validation_fraction=0.0)
         except ValueError:  # a group too small or too alike to calibrate: no split to report
             return none
-        rms_two.append(_position_rms(cg, part, kind))
+        rms_two.append(_position_rms(cg, part, meas))
     worst = max(rms_two)
     found = bool(np.isfinite(worst) and worst <= rms_one / 5.0
                  and (noise_m is None or worst <= SPLIT_MAX_SCALE * noise_m))
@@ -281,9 +289,8 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
                      "some rows (backlash), which moves the rows alike?")
         else:
             kind = "robots"
-            cause = ("they differ in the robot's own geometry, not in one joint's offset or the measurement frame "
-                     "alone: rows of two robots (or two tools) mixed in one campaign? Calibrate each one's rows on "
-                     "their own")
+            cause = ("they differ in the robot's own geometry, not in one joint's offset, the measurement frame or the "
+                     "tool alone: rows of two robots mixed in one campaign? Calibrate each one's rows on their own")
         text = (f"the calibration rows split into two groups that each fit a geometric model of their own to "
                 f"{rms_two[0] * MM_PER_M:.3g} and {rms_two[1] * MM_PER_M:.3g} mm per coordinate (one model: "
                 f"{rms_one * MM_PER_M:.3g} mm): {groups[0].size} rows (pose_id {_ids(groups[0])}) and {groups[1].size} "
