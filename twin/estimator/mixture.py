@@ -33,6 +33,7 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..units import MM_PER_M
+from .methods import calibrate
 from .problem import absolute_residuals, observations_from_dataset
 
 __all__ = ["TwoModels", "two_models", "RowSplit", "split_rows", "SPLIT_MIN_SCALE", "SPLIT_MIN_REJECTED",
@@ -202,8 +203,6 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
     ``cal``: a geometric :class:`~twin.estimator.Calibration` of ``ds``; ``noise_m``: the noise per coordinate
     [m] the groups' fits are judged against (default: the calibration's stated position noise; without one the
     split must still take the residual to a fifth). Returns a :class:`RowSplit`."""
-    from .methods import calibrate
-
     if not isinstance(ds, Dataset):
         raise ValueError(f"ds must be a twin.dataset.Dataset, got {type(ds).__name__}")
     if noise_m is not None and not (np.isfinite(noise_m) and noise_m > 0):
