@@ -92,8 +92,8 @@ def two_models(r: np.ndarray, J: np.ndarray, row: np.ndarray, n: int, *, starts:
         raise ValueError(f"r (m,), J (m, p) and row (m,) must agree, got {r.shape}, {J.shape}, {row.shape}")
     if n < 2 or row.min(initial=0) < 0 or row.max(initial=0) >= n:
         raise ValueError(f"row must index n = {n} rows (n >= 2)")
-    if starts < 1 or min_rows < 1:
-        raise ValueError(f"starts and min_rows must be positive, got {starts}, {min_rows}")
+    if starts < 1 or min_rows < 1 or max_iter < 1:
+        raise ValueError(f"starts, min_rows and max_iter must be positive, got {starts}, {min_rows}, {max_iter}")
     Jn = _normalised(J)
     rng = np.random.default_rng(seed)
     e_one = _one_model_residual(r, Jn)
@@ -118,7 +118,6 @@ def two_models(r: np.ndarray, J: np.ndarray, row: np.ndarray, n: int, *, starts:
     inits = [np.arange(n) >= n // 2]
     for _ in range(starts - 1):
         d = rng.normal(size=Jn.shape[1])
-        s = np.ones(n)
         for _ in range(20):
             s = np.sign(np.bincount(row, weights=r * (Jn @ d), minlength=n))
             s[s == 0] = 1.0
@@ -232,6 +231,8 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
                   station_names=sp.stations)
     if obs.kind == "spheres":
         obs = replace(obs, spheres_tool=cal.spheres_tool)
+    if obs.n < 16:  # rows without a usable measurement left out: too few for two groups of 8
+        return none
     res = absolute_residuals(sp, cal.x, obs)
     free = np.flatnonzero(np.array(cal.status) == "identified")
     J = res.J[:, free]
