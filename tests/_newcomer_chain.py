@@ -411,13 +411,14 @@ MIXED_MARKERS = np.array([[0.05, 0.0, 0.02], [-0.03, 0.04, 0.02], [-0.02, -0.05,
 MIXED_NOISE_MM = 0.005
 
 
-def mixed_campaign(folder, seed: int, *, second: str, blocks: bool = False) -> tuple[object, np.ndarray]:
+def mixed_campaign(folder, seed: int, *, second: str, blocks: bool = False,
+                   share: tuple[float, float] = (0.25, 0.75)) -> tuple[object, np.ndarray]:
     """A campaign of one nominal robot drawn at random (kind, joints) whose rows come from two robots as built
     (``second="robot"``), from one robot seen from two instrument places (``"frame"``: a tripod knocked by ~1 mm and
     ~0.1 deg), from one robot with backlash on a drawn joint (``"backlash"``: the flank each row approaches from) or
     from one robot alone (``"none"``: the labels mark nothing),
-    the two kinds of rows interleaved at random in a drawn share (``blocks``: the second kind's rows after the first
-    kind's, a file appended to another); imported with `twin import`. Returns the dataset and whether each row (in
+    the two kinds of rows interleaved at random in a share drawn uniformly in ``share`` (``blocks``: the second kind's
+    rows after the first kind's, a file appended to another); imported with `twin import`. Returns the dataset and whether each row (in
     pose_id order) is of the second kind."""
     if second not in ("robot", "frame", "backlash", "none"):
         raise ValueError(f"second must be 'robot', 'frame', 'backlash' or 'none', got {second!r}")
@@ -425,7 +426,7 @@ def mixed_campaign(folder, seed: int, *, second: str, blocks: bool = False) -> t
     kind = rng.choice(["dh", "mdh", "urdf"])
     nom = N.make_robot(rng, kind, int(rng.integers(5, 8)))
     n = int(rng.integers(160, 240))
-    share = rng.uniform(0.25, 0.75)
+    share = rng.uniform(*share)
     is_b = rng.random(n) < share
     if blocks:
         is_b = np.sort(is_b)

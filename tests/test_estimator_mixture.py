@@ -114,3 +114,26 @@ def test_calibrate_and_diagnose_say_the_rows_are_two_robots(tmp_path):
     assert dg.code == 0, dg.err
     assert "two robots mixed in one campaign" in dg.out
     assert json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["two_groups"]["found"]
+
+
+@pytest.mark.parametrize("seed", [60, 61])
+def test_diagnose_splits_a_second_robots_rows_appended_after_the_rows_it_fits(seed, tmp_path):
+    """A second robot's file appended to the first's, its rows (a drawn 10-22 %) all after the rows the diagnosis
+    fits its geometric model on: `twin diagnose` still finds the two robots and puts >= 95 % of every row with its
+    own robot (the split looks at every row, not only the calibration rows)."""
+    ds, is_b = C.mixed_campaign(tmp_path, seed, second="robot", blocks=True, share=(0.1, 0.22))
+    dg = C.twin(["diagnose", tmp_path / "ds", "--out", tmp_path / "diag", "--no-plots", "--no-recording"])
+    assert dg.code == 0, dg.err
+    rows = json.loads((tmp_path / "diag" / "calibration_geometric.json").read_text())["rows"]
+    fitted = set(rows["calibration_used"]) | {r["pose_id"] for r in rows.get("calibration_rejected", [])}
+    assert not fitted & set(ds.pose_id[is_b].tolist()), "the case needs the second robot outside the fitted rows"
+    g = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["two_groups"]
+    assert g["found"] and g["kind"] == "robots", g
+    assert C.split_agreement(g["groups"], ds.pose_id, is_b) >= 0.95
+
+
+def test_split_rows_refuses_pose_ids_the_dataset_lacks(tmp_path):
+    """pose_ids naming a row the dataset does not hold is a ValueError naming pose_ids and the row."""
+    ds, _ = C.mixed_campaign(tmp_path, 41, second="robot")
+    with pytest.raises(ValueError, match=r"pose_ids: 1 not in the dataset \(first \[999999\]\)"):
+        split_rows(None, ds, pose_ids=[int(ds.pose_id[0]), 999999])

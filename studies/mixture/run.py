@@ -67,6 +67,8 @@ def one(job: tuple[str, int]) -> dict:
             diag.update({"structured": dj["structured"], "terms": [a["label"] for a in dj["atoms"]],
                          "explained_fraction": dj.get("explained_fraction"), "split_looked_for": bool(g),
                          "found": bool(g.get("found")), "named": g.get("kind", "")})
+            if g.get("found"):
+                diag["agreement"] = C.split_agreement(tuple(tuple(x) for x in g["groups"]), ds.pose_id, is_b)
     agree = C.split_agreement(s.groups, ds.pose_id, is_b) if s.groups[0] else None
     two = s.found and s.kind == "robots" and agree is not None and agree >= 0.95
     ok = {"robot": two, "robot_blocks": two,
@@ -102,7 +104,9 @@ def main(argv: list[str] | None = None) -> int:
                    "diagnose_named": {n: sum(r["kind"] == k and r["diagnose"].get("found", False)
                                              and r["diagnose"].get("named") == n for r in rows)
                                       for n in sorted({r["diagnose"].get("named", "") for r in rows
-                                                       if r["kind"] == k and r["diagnose"].get("found")})}}
+                                                       if r["kind"] == k and r["diagnose"].get("found")})},
+                   "diagnose_min_agreement": min((r["diagnose"]["agreement"] for r in rows
+                                                  if r["kind"] == k and "agreement" in r["diagnose"]), default=None)}
                for k in KINDS}
     out = {"command": f"python -m studies.mixture.run --seeds {a.seeds} --workers {a.workers}",
            "summary": summary, "instances": rows, "wall_s": round(time.time() - t0, 1), "provenance": provenance()}

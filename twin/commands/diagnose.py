@@ -131,8 +131,9 @@ def run(args: argparse.Namespace) -> int:
                    geometry=None if args.selection is None else {"selection": args.selection}, threads=threads)
     left = res.test_after if res.model_in_use == "extended" and res.test_after is not None else res.test_before
     if left is not None and left.whitened_rms >= SPLIT_MIN_SCALE:
-        # the model in use leaves 10x the floor or more: rows of two robots mixed fit two models to the floor
-        split = split_rows(res.calibration_geometric, ds, noise_m=res.noise.sigma)
+        # the model in use leaves 10x the floor or more: rows of two robots mixed fit two models to the floor; every
+        # row is split (the rows the model misses may all be confirmation rows: a second robot's file appended)
+        split = split_rows(res.calibration_geometric, ds, noise_m=res.noise.sigma, pose_ids=ds.pose_id)
         res = replace(res, two_groups=split.summary(), notes=tuple(res.notes) + ((split.text,) if split.found else ()))
     few = too_few_rows(res.calibrations_blocked.get("geometric", res.calibration_geometric), ds.n)
     if few and not args.force:

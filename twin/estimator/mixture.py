@@ -1,4 +1,4 @@
-"""Rows of two robots mixed in one campaign: a split of the calibration rows between two geometric models.
+"""Rows of two robots mixed in one campaign: a split of a campaign's rows between two geometric models.
 
 A campaign whose rows come from two robots of one model (two cells logging to one file, a file appended to the
 wrong one) fits one geometric model badly everywhere: each robot's rows sit on their own robot, the model sits
@@ -14,7 +14,8 @@ fitted on its own robot's rows, take it to the noise. This module looks for that
   group calibrated again on its own (the full non-linear fit, the same noise) and the split judged on those fits:
   found when the two models leave at most :data:`SPLIT_MAX_SCALE` times the noise on their rows and at most a
   fifth of the one model's residual per coordinate. The rows are the calibration's, used and rejected as outliers
-  (a minority robot's rows are what a robust fit rejects). What tells the groups apart is named, by the share of
+  (a minority robot's rows are what a robust fit rejects), or every row of the dataset (a diagnosis: its
+  geometric model is fitted on its calibration rows, and a second robot's rows may all come after them). What tells the groups apart is named, by the share of
   the one model's excess a difference in a few parameters alone takes (90 %): one parameter of the chain (a
   joint's offset on some rows: backlash or a zero step), the measurement frame (two
   stations without their ``station`` column, or the first joint's backlash), the tool's frame (two tools, or the
@@ -175,7 +176,7 @@ class RowSplit:
                 "rms_one_mm": num(self.rms_one_mm), "rms_two_mm": [num(v) for v in self.rms_two_mm],
                 "noise_mm": num(self.noise_mm),
                 "parameter": self.parameter, "text": self.text,
-                "rule": (f"two groups of calibration rows each calibrated on its own: found when each leaves at most "
+                "rule": (f"two groups of rows each calibrated on its own: found when each leaves at most "
                          f"{SPLIT_MAX_SCALE:g}x the noise and at most a fifth of the one model's residual per "
                          "coordinate")}
 
@@ -196,19 +197,29 @@ def _ids(pose_id: np.ndarray) -> str:
     return ", ".join(str(p) for p in ids[:8]) + (", ..." if len(ids) > 8 else "")
 
 
-def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 12, seed: int = 0) -> RowSplit:
-    """Look for two groups of ``cal``'s calibration rows in ``ds`` that each fit a geometric model of their own.
+def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, pose_ids=None, starts: int = 12,
+               seed: int = 0) -> RowSplit:
+    """Look for two groups of rows in ``ds`` that each fit a geometric model of their own.
 
     ``cal``: a geometric :class:`~twin.estimator.Calibration` of ``ds``; ``noise_m``: the noise per coordinate
     [m] the groups' fits are judged against (default: the calibration's stated position noise; without one the
-    split must still take the residual to a fifth). Returns a :class:`RowSplit`."""
+    split must still take the residual to a fifth); ``pose_ids``: the rows to split, by pose_id ``(m,)`` (default:
+    ``cal``'s calibration rows, used and rejected; a diagnosis passes every row, since the rows its model misses
+    may all lie after the rows it was fitted on). Returns a :class:`RowSplit`."""
     if not isinstance(ds, Dataset):
         raise ValueError(f"ds must be a twin.dataset.Dataset, got {type(ds).__name__}")
     if noise_m is not None and not (np.isfinite(noise_m) and noise_m > 0):
         raise ValueError(f"noise_m must be a positive number [m], got {noise_m!r}")
-    rows = cal.rows or {}
-    ids = [int(p) for p in rows.get("calibration_used", [])]
-    ids += [int(r["pose_id"]) for r in rows.get("calibration_rejected", []) if isinstance(r, dict) and "pose_id" in r]
+    if pose_ids is None:
+        rows = cal.rows or {}
+        ids = [int(p) for p in rows.get("calibration_used", [])]
+        ids += [int(r["pose_id"]) for r in rows.get("calibration_rejected", [])
+                if isinstance(r, dict) and "pose_id" in r]
+    else:
+        ids = np.asarray(pose_ids).ravel()
+        unknown = np.setdiff1d(ids, ds.pose_id)
+        if unknown.size:
+            raise ValueError(f"pose_ids: {unknown.size} not in the dataset (first {unknown[:5].tolist()})")
     sel = np.flatnonzero(np.isin(ds.pose_id, ids))
     none = RowSplit(False, "", ((), ()), float("nan"), (float("nan"), float("nan")), None)
     if sel.size < 8:
@@ -291,7 +302,7 @@ def split_rows(cal, ds: Dataset, *, noise_m: float | None = None, starts: int = 
             kind = "robots"
             cause = ("they differ in the robot's own geometry, not in one joint's offset, the measurement frame or the "
                      "tool alone: rows of two robots mixed in one campaign? Calibrate each one's rows on their own")
-        text = (f"the calibration rows split into two groups that each fit a geometric model of their own to "
+        text = (f"the rows split into two groups that each fit a geometric model of their own to "
                 f"{rms_two[0] * MM_PER_M:.3g} and {rms_two[1] * MM_PER_M:.3g} mm per coordinate (one model: "
                 f"{rms_one * MM_PER_M:.3g} mm): {groups[0].size} rows (pose_id {_ids(groups[0])}) and {groups[1].size} "
                 f"rows (pose_id {_ids(groups[1])}); {cause}")
