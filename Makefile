@@ -110,7 +110,7 @@ results: install
 	$(PY) experiments/bench_diagnosis.py
 	$(PY) experiments/bench_diagnosis_scale.py
 	$(PY) experiments/bench_configurations.py
-	$(PY) experiments/bench_suite.py --runs 1
+	$(PY) experiments/bench_suite.py --runs 1 --reference fa0dd40
 
 clean:
 	rm -rf $(VENV) $(TOOLS) .pytest_cache
