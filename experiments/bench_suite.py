@@ -85,8 +85,10 @@ def _pytest_run(tree: Path, jobs: int, env: dict) -> dict:
 
 def _recorded_run(rev: str) -> dict:
     """The first suite run that commit ``rev``'s own ``results/benchmark.json`` records, with its date."""
-    text = subprocess.run(["git", "show", f"{rev}:results/benchmark.json"], cwd=ROOT, check=True, capture_output=True,
-                          text=True).stdout
+    got = subprocess.run(["git", "show", f"{rev}:results/benchmark.json"], cwd=ROOT, capture_output=True, text=True)
+    if got.returncode != 0:
+        raise SystemExit(f"--reference {rev}: no results/benchmark.json at that commit ({got.stderr.strip()})")
+    text = got.stdout
     suite = json.loads(text).get("suite")
     if not suite or not suite.get("runs"):
         raise SystemExit(f"--reference {rev}: its results/benchmark.json records no suite run")
@@ -105,6 +107,7 @@ def main() -> int:
     a = ap.parse_args()
     if a.runs < 1:
         raise SystemExit(f"--runs must be >= 1, got {a.runs}")
+    recorded = None if a.reference is None else _recorded_run(a.reference)
     env = {**os.environ, "MUJOCO_GL": "egl", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
     t = time.perf_counter()
     subprocess.run(["make", "install"], cwd=ROOT, check=True, capture_output=True, env=env)
@@ -116,7 +119,6 @@ def main() -> int:
             runs.append(_pytest_run(ROOT, a.jobs, env))
             print({k: v for k, v in runs[-1].items() if k != "slowest"}, flush=True)
     else:
-        recorded = _recorded_run(a.reference)
         sha, _, both = alternate_with_commit(a.reference, a.runs, lambda tree, _scratch: _pytest_run(tree, a.jobs, env),
                                              ROOT)
         runs = [{k: v for k, v in r.items() if k != "code"} for r in both if r["code"] == "current"]

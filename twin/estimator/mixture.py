@@ -15,11 +15,11 @@ fitted on its own robot's rows, take it to the noise. This module looks for that
   found when the two models leave at most :data:`SPLIT_MAX_SCALE` times the noise on their rows and at most a
   fifth of the one model's residual per coordinate. The rows are the calibration's, used and rejected as outliers
   (a minority robot's rows are what a robust fit rejects), or every row of the dataset (a diagnosis: its
-  geometric model is fitted on its calibration rows, and a second robot's rows may all come after them). What tells the groups apart is named, by the share of
-  the one model's excess a difference in a few parameters alone takes (90 %): one parameter of the chain (a
-  joint's offset on some rows: backlash or a zero step), the measurement frame (two
-  stations without their ``station`` column, or the first joint's backlash), the tool's frame (two tools, or the
-  last joint's backlash), or many parameters (two robots).
+  geometric model is fitted on its calibration rows, and a second robot's rows may all come after them). What
+  tells the groups apart is named, by the share of the one model's excess a difference in a few parameters alone
+  takes (90 %): one parameter of the chain (a joint's offset on some rows: backlash or a zero step), the
+  measurement frame (two stations without their ``station`` column, or the first joint's backlash), the tool's
+  frame (two tools, or the last joint's backlash), or many parameters (two robots).
 
 Nothing here reads truth; it never refuses data (a robot with errors beyond the geometric model is not wrong
 input): it says what the rows look like.
