@@ -68,7 +68,7 @@ def one(job: tuple[str, int]) -> dict:
                          "explained_fraction": dj.get("explained_fraction"), "split_looked_for": bool(g),
                          "found": bool(g.get("found")), "named": g.get("kind", "")})
             if g.get("found"):
-                diag["agreement"] = C.split_agreement(tuple(tuple(x) for x in g["groups"]), ds.pose_id, is_b)
+                diag["agreement"] = C.split_agreement(g["groups"], ds.pose_id, is_b)
     agree = C.split_agreement(s.groups, ds.pose_id, is_b) if s.groups[0] else None
     two = s.found and s.kind == "robots" and agree is not None and agree >= 0.95
     ok = {"robot": two, "robot_blocks": two,
