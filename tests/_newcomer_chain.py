@@ -18,6 +18,8 @@ import csv
 import io
 import itertools
 import json
+import math
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +51,13 @@ REGISTER_ROWS = 12
 NOISE_MM = 0.005
 NOISE_RAD = 2e-5
 BACKLASH_DEG = 0.04
+# the matrix's accuracy on an effect-free robot [mm]: the noise is 0.005 mm per coordinate and the injected errors
+# move the tool by 1-10 mm, so these are a fifth to a hundredth of the error calibration takes away
+ACCURACY_MM = 0.03
+# [mm] what a calibration leaves on validation rows at best: the noise's RMS per point (0.005 mm per coordinate,
+# 0.0087 mm per point) and a half again for the parameters' own error; a robot whose injected error was small is
+# calibrated when it reaches this, not 5 % of that error
+FLOOR_MM = 1.5 * np.sqrt(3.0) * NOISE_MM
 
 
 @dataclass(frozen=True)
@@ -104,6 +113,17 @@ def covering_cases(seed: int = 36, candidates: int = 60) -> list[Case]:
         cases.append(Case(**{k: (v.item() if hasattr(v, "item") else v) for k, v in best.items()},
                           seed=int(rng.integers(1 << 30))))
     return cases
+
+
+def drawn_case(seed: int) -> Case:
+    """One case drawn at random (every axis uniform over its values, redrawn until :func:`allowed`) from ``seed``:
+    the cases a covering design leaves out (the benchmark ``experiments/bench_newcomer.py`` runs hundreds)."""
+    rng = np.random.default_rng(seed)
+    while True:
+        c = {a: vals[rng.integers(len(vals))] for a, vals in AXES.items()}
+        if allowed(c):
+            break
+    return Case(**{k: (v.item() if hasattr(v, "item") else v) for k, v in c.items()}, seed=int(rng.integers(1 << 30)))
 
 
 def _any() -> dict:
@@ -395,6 +415,76 @@ def _compensation_error(case: Case, w: World, folder: Path, cal_path: Path) -> d
     err = np.linalg.norm(got - want, axis=1) * MM_PER_M
     miss = np.array([float(r["miss_mm"]) for r in rows])
     return {"compensate_mm": float(np.sqrt(np.mean(err**2))), "compensate_miss_mm": float(miss.max())}
+
+
+def _columns(path: Path) -> list[str]:
+    with open(path, newline="") as f:
+        return next(csv.reader(f))
+
+
+def refusal_allowed(case: Case, step: str, message: str) -> bool:
+    """The named refusals a case may meet: no noise floor (no [noise], too few repeats, fewer than three markers);
+    too few coordinates for a diagnosis (one point per row: its three coordinates on the rows that fit, fewer than
+    two per parameter of the geometric model, as the message counts them); the compensation of a backlash whose
+    commands follow each other too closely (its rows named, its last step of the backlash's size)."""
+    if step == "diagnose" and not case.noise and "needs the measurement noise floor" in message:
+        return True
+    if step == "diagnose" and case.measurement == "points1":
+        m = re.search(r"their (\d+) coordinates fit its (\d+) parameters", message)
+        if message.startswith("twin diagnose: error: ") and "too few rows for a diagnosis" in message and m:
+            return int(m.group(1)) < 2 * int(m.group(2))
+    if step == "compensate" and case.effect == "backlash":
+        # a command's direction turning over moves its joint by about its correction: the last step is of the
+        # backlash's size (a smaller one is a fixed point that has not converged, not a refusal to name)
+        m = re.search(r"did not settle in \d+ rounds \(last step ([0-9.e+-]+) rad; still moving: row", message)
+        return bool(m) and float(m.group(1)) >= 0.1 * BACKLASH_DEG * RAD_PER_DEG
+    return False
+
+
+def check(o: Outcome, folder: Path) -> None:
+    """The matrix's checks on a case's outcome (``folder``: where :func:`run_case` wrote it); AssertionError naming
+    what failed. Each step exits 0 with its documented files or refuses with a named error its case explains
+    (:func:`refusal_allowed`); the figures are finite; an effect-free robot (or one whose effect the diagnosis took
+    in) is calibrated (below ``ACCURACY_MM`` and 5 % of the error before, or the noise: ``FLOOR_MM``), predicted in
+    the new session and compensated to ``ACCURACY_MM`` of the oracle's truth."""
+    case = o.case
+    for name, s in o.steps.items():
+        if s.code != 0:
+            last = s.err.strip().splitlines()[-1]
+            assert s.code == 2 and last.startswith(f"twin {s.argv[0]}: error: "), (name, s.err)
+            assert refusal_allowed(case, name, last), f"{name} refused: {last}"
+    assert list(o.steps) == ["import", "calibrate", "diagnose", "import_b", "register", "predict", "compensate",
+                             "export", "export_model"]
+    # the documented outputs
+    cols = _columns(folder / "ds_a" / "poses.csv")
+    assert ("set" in cols) == (case.layout in ("interleaved", "val_end", "val_only"))  # a set given, or none
+    b_cols = _columns(folder / "ds_b" / "poses.csv")
+    if case.layout == "val_only":
+        with open(folder / "ds_b" / "poses.csv", newline="") as f:
+            assert {r["set"] for r in csv.DictReader(f)} == {"validation"}
+    else:
+        assert "set" not in b_cols
+    if o.steps["diagnose"].code == 0:
+        assert {p.name for p in (folder / "diag").iterdir()} >= {"diagnosis.json", "calibration.json",
+                                                                 "calibration_geometric.json"}
+    if o.steps["compensate"].code == 0:
+        assert _columns(folder / "corrected.csv")[-2:] == ["miss_mm", "miss_deg"]
+        assert o.figures["compensate_miss_mm"] < 1e-3
+    for name in ("export", "export_model"):
+        assert {p.name for p in (folder / f"robot_{name}").iterdir()} == {"parameters.csv", "parameters.md",
+                                                                          "robot.urdf", "robot.xml"}
+    f = o.figures
+    assert all(math.isfinite(v) for v in f.values())
+    if "diagnose_after_mm" in f:
+        assert f["diagnose_after_mm"] <= f["diagnose_before_mm"] * 1.001
+    # the oracle: an effect-free robot (or one whose effect the diagnosis took in) is known to the noise
+    clean = case.effect == "none" or (f.get("diagnose_after_mm", 1.0) < ACCURACY_MM and "backlash" in o.notes[0])
+    if case.effect == "none" and "calibrate_after_mm" in f:
+        assert f["calibrate_after_mm"] < min(ACCURACY_MM, max(0.05 * f["calibrate_before_mm"], FLOOR_MM)), f
+    if clean:
+        assert f["predict_mm"] < ACCURACY_MM, f
+        if "compensate_mm" in f:
+            assert f["compensate_mm"] < ACCURACY_MM, f
 
 
 def summary(o: Outcome) -> str:

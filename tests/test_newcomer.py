@@ -3,7 +3,6 @@
 its documented outputs or refuses with a named error, and the outputs meet the generator's own forward kinematics."""
 
 import csv
-import math
 import sys
 import warnings
 
@@ -15,19 +14,7 @@ import _newcomer_chain as C
 from twin.units import M_PER_MM, MM_PER_M, RAD_PER_DEG
 
 CASES = C.covering_cases()
-# the matrix's accuracy on an effect-free robot [mm]: the noise is 0.005 mm per coordinate and the injected errors
-# move the tool by 1-10 mm, so these are a fifth to a hundredth of the error calibration takes away
-ACCURACY_MM = 0.03
-
-
-def _refusal_allowed(case: C.Case, step: str, message: str) -> bool:
-    """The named refusals a case may meet: no noise floor (no [noise], too few repeats, fewer than three markers);
-    the compensation of a backlash whose commands follow each other too closely (its rows named)."""
-    if step == "diagnose" and not case.noise:
-        return "needs the measurement noise floor" in message
-    if step == "compensate" and case.effect == "backlash":
-        return "did not settle" in message and "still moving: row" in message
-    return False
+ACCURACY_MM = C.ACCURACY_MM
 
 
 def _columns(path) -> list[str]:
@@ -72,44 +59,25 @@ def test_newcomer_case_runs_the_readme_chain(case, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         o = C.run_case(case, tmp_path)
-    for name, s in o.steps.items():
-        if s.code != 0:
-            last = s.err.strip().splitlines()[-1]
-            assert s.code == 2 and last.startswith(f"twin {s.argv[0]}: error: "), (name, s.err)
-            assert _refusal_allowed(case, name, last), f"{name} refused: {last}"
-    assert list(o.steps) == ["import", "calibrate", "diagnose", "import_b", "register", "predict", "compensate",
-                             "export", "export_model"]
-    # the documented outputs
-    cols = _columns(tmp_path / "ds_a" / "poses.csv")
-    assert ("set" in cols) == (case.layout in ("interleaved", "val_end", "val_only"))  # a set given, or none
-    b_cols = _columns(tmp_path / "ds_b" / "poses.csv")
-    if case.layout == "val_only":
-        with open(tmp_path / "ds_b" / "poses.csv", newline="") as f:
-            assert {r["set"] for r in csv.DictReader(f)} == {"validation"}
-    else:
-        assert "set" not in b_cols
-    if o.steps["diagnose"].code == 0:
-        assert {p.name for p in (tmp_path / "diag").iterdir()} >= {"diagnosis.json", "calibration.json",
-                                                                    "calibration_geometric.json"}
-    if o.steps["compensate"].code == 0:
-        assert _columns(tmp_path / "corrected.csv")[-2:] == ["miss_mm", "miss_deg"]
-        assert o.figures["compensate_miss_mm"] < 1e-3
-    for name in ("export", "export_model"):
-        assert {p.name for p in (tmp_path / f"robot_{name}").iterdir()} == {"parameters.csv", "parameters.md",
-                                                                             "robot.urdf", "robot.xml"}
-    f = o.figures
-    assert all(math.isfinite(v) for v in f.values())
-    if "diagnose_after_mm" in f:
-        assert f["diagnose_after_mm"] <= f["diagnose_before_mm"] * 1.001
-    # the oracle: an effect-free robot (or one whose effect the diagnosis took in) is known to the noise
-    clean = case.effect == "none" or (f.get("diagnose_after_mm", 1.0) < ACCURACY_MM and "backlash" in o.notes[0])
-    if case.effect == "none" and "calibrate_after_mm" in f:
-        assert f["calibrate_after_mm"] < min(ACCURACY_MM, 0.05 * f["calibrate_before_mm"]), f
-    if clean:
-        assert f["predict_mm"] < ACCURACY_MM, f
-        if "compensate_mm" in f:
-            assert f["compensate_mm"] < ACCURACY_MM, f
+    C.check(o, tmp_path)
     print(C.summary(o), *o.notes, file=sys.stderr)
+
+
+# drawn cases (experiments/bench_newcomer.py) the chain once refused or missed: a 3-joint arm whose position the
+# orientation stages led into a singular configuration (0.275 mm left) or slowly towards it (26 nm, refused at 10 nm);
+# a 5-joint arm whose target holds a joint at its limit, crossed by a hair by the pose's last Newton step; a 6-joint
+# arm with a backlash whose compensation met its targets to 1e-12 mm but was refused, its last step at 3e-7 rad
+DRAWN_SEEDS = (900046, 900060, 900158, 900373)
+
+
+@pytest.mark.parametrize("seed", DRAWN_SEEDS)
+def test_drawn_newcomer_case_runs_the_readme_chain(seed, tmp_path):
+    """Cases drawn outside the covering design that the chain once failed meet the same checks as the matrix."""
+    case = C.drawn_case(seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        o = C.run_case(case, tmp_path)
+    C.check(o, tmp_path)
 
 
 # ---- the chain's contracts ---------------------------------------------------------------------------------------

@@ -103,6 +103,10 @@ def history_unknown_rows(cal: Calibration, ctx: RowContext) -> np.ndarray:
 
 
 STATE_BLOCKS = ("report_rows", "rows_after_the_campaign", "new_session")
+# [m] (an orientation weighted by its m/rad) the extended model's miss at which the commands' fixed point has settled,
+# whatever its last step: a step along a direction a position-first least squares weighs little may stay near 1e-7
+# rad, the floor of its numbers, while the targets are met to far below any instrument
+SETTLED_MISS = 1e-12
 
 
 def _stateful(f):
@@ -333,8 +337,9 @@ def compensate_extended(
     2. Fixed point on the commands: ``q_cmd <- q_cmd + J_q^+ e`` with ``e`` the pose error of the extended
        model at ``q_cmd`` (joint atoms evaluated at the commands themselves, so backlash follows the order
        and directions of the commands; robot-side length and parameter atoms to first order), until the
-       commands move by less than ``tol`` [rad]. Measurement-side atoms (base frame, scale) do not change
-       where the robot goes and are ignored here.
+       commands move by less than ``tol`` [rad] or the extended model at them misses the targets by at most
+       ``SETTLED_MISS`` (the orientation weighted by ``weight_rotation``). Measurement-side atoms (base frame,
+       scale) do not change where the robot goes and are ignored here.
     ``ctx`` gives the rows' channels (``temp_c``, ``t_s``) and ``q_start``; its ``q`` is ignored.
     ``weight_rotation`` [m/rad] weighs the orientation against the position in the least squares of a step (a
     position target of a chain of fewer than six joints: small, the position first).
@@ -374,6 +379,10 @@ def compensate_extended(
         R = U @ Vt
         e_p = T[:, :3, 3] - o
         e_r = matrix_to_rotvec(T[:, :3, :3] @ np.swapaxes(R, 1, 2))
+        if (np.linalg.norm(e_p, axis=1).max(initial=0.0) <= SETTLED_MISS
+                and weight_rotation * np.linalg.norm(e_r, axis=1).max(initial=0.0) <= SETTLED_MISS):
+            step = 0.0  # the extended model at these commands, their own directions included, lands on the targets
+            break
         # joint Jacobian of the tool origin and orientation: the theta columns of the parameter Jacobian
         Jq = Jk[theta] * signs[:, None, None, None]
         Jp = Jq[:, 0]  # (N, 3, n)

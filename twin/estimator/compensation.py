@@ -66,6 +66,9 @@ def compensation(
        ``tol_rotation`` [rad]; on a chain without the closed form, the rows it leaves are solved again by damped
        least squares from the start, then from the reference joints (near a singular configuration Newton's
        steps overshoot).
+    3. A command outside the joint limits (a target that holds a joint at its limit, which Newton's last step
+       crossed by a hair): the command clipped to the limits, else damped least squares within them from the start
+       and from the reference joints, kept where the pose is still met within 10 x the tolerances.
 
     Raises :class:`~twin.kinematics.UnreachableError` naming the targets the nominal 6R model cannot reach
     within the limits, that the iteration does not bring within tolerance, or whose corrected command leaves
@@ -120,11 +123,42 @@ def compensation(
         )
     out = np.flatnonzero(~robot.within_limits(q, tol=1e-9))
     if out.size:
+        q, ep, er = q.copy(), ep.copy(), er.copy()
+        out = _within_limits(robot, T, q, ep, er, out, (q0, np.clip(q_ref, nominal.q_min, nominal.q_max)),
+                             tol_position, tol_rotation, max_iter)
+    if out.size:
         raise UnreachableError(f"targets {out[:10].tolist()}: the corrected joint command leaves the joint limits")
     return CompensationResult(
         q=q, q_nominal=q0, position_error=ep, rotation_error=er,
         iterations=ik.iterations, trace=ik.trace,
     )
+
+
+def _within_limits(robot: RobotModel, T: np.ndarray, q: np.ndarray, ep: np.ndarray, er: np.ndarray,
+                   out: np.ndarray, starts: tuple[np.ndarray, ...], tol_position: float, tol_rotation: float,
+                   max_iter: int) -> np.ndarray:
+    """The rows ``out`` whose command ``q`` ``(n, N)`` leaves the joint limits, answered within them where the
+    identified model reaches the target ``T`` there: the command clipped to the limits (a joint the target holds at
+    its limit, which Newton's last step crossed by a hair in a direction the pose barely sees), else damped least
+    squares within the limits from each of ``starts`` ``(n, N)``; accepted where the pose error stays within 10 x
+    the tolerances. Updates ``q``, ``ep``, ``er`` in place; returns the rows still outside."""
+    m = robot.with_frames(base2meas=np.eye(4))
+    q_clip = np.clip(q[out], robot.q_min, robot.q_max)
+    e = pose_error(T[out], tool2base(m, q_clip))
+    tries = [lambda rows, qc=q_clip, e=e: (qc[rows], np.linalg.norm(e[rows, :3], axis=1),
+                                          np.linalg.norm(e[rows, 3:], axis=1))]
+    tries += [lambda rows, s=s: _levenberg_marquardt(robot, T[out[rows]], s[out[rows]], max_iter=max_iter)[:3]
+              for s in starts]
+    left = np.arange(out.size)  # positions in ``out`` still outside
+    for attempt in tries:
+        q_c, ep_c, er_c = attempt(left)
+        ok = (ep_c <= 10 * tol_position) & (er_c <= 10 * tol_rotation) & robot.within_limits(q_c, tol=1e-9)
+        rows = out[left[ok]]
+        q[rows], ep[rows], er[rows] = q_c[ok], ep_c[ok], er_c[ok]
+        left = left[~ok]
+        if not left.size:
+            break
+    return out[left]
 
 
 def compensate(calibration: Calibration, targets_tool2base: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
@@ -238,7 +272,10 @@ def compensation_position(
     Math (:func:`_position_first`): damped least squares ``min |e_p|^2 + w^2 |e_r|^2`` (``w`` = 0.1 m/rad, then
     1e-4 m/rad), then ``min |e_p|^2`` alone from there, from ``q_ref`` (clipped to the joint limits), first on the
     nominal model (``q_nominal``: an uncalibrated controller's answer), then from there on the identified one;
-    ``e_p`` is the point's position error, ``e_r`` the rotation vector of ``R_hold R^T``. ``position_error`` [m] is
+    ``e_p`` is the point's position error, ``e_r`` the rotation vector of ``R_hold R^T``. Targets left beyond 10 x
+    ``tol_position``: ``min |e_p|^2`` alone again from where the stages stopped (a slow approach near a singular
+    configuration), from the nominal answer and from ``q_ref`` (a chain that cannot hold the orientation is led
+    away from the position by the stages), the nearest answer kept. ``position_error`` [m] is
     what remains of the position on the identified model, ``rotation_error`` [rad] the orientation's departure from
     the held one.
 
@@ -260,6 +297,23 @@ def compensation_position(
     R_hold = tool2base(robot.with_frames(base2meas=np.eye(4)), start)[:, :3, :3]
     q0, _, _, _ = _position_first(nom, p, R_hold, start, max_iter=max_iter)
     q, ep, er, it = _position_first(robot, p, R_hold, q0, max_iter=max_iter)
+    bad = np.flatnonzero(~(ep <= 10 * tol_position))
+    if bad.size:
+        # the position alone, on: further from where the stages stopped (a slow approach to a point near a singular
+        # configuration), then from the nominal answer and from the reference joints (holding the orientation led
+        # a chain that cannot hold it away from the position); the nearest answer per target kept
+        q, ep, er = q.copy(), ep.copy(), er.copy()
+        T_bad = make_transform(R_hold[bad], p[bad])
+        for q_start in (q, q0, start):
+            q_lm, ep_lm, er_lm, k = _levenberg_marquardt(robot, T_bad, q_start[bad], position_only=True,
+                                                         max_iter=max_iter)
+            it += k
+            better = ep_lm < ep[bad]
+            q[bad[better]], ep[bad[better]], er[bad[better]] = q_lm[better], ep_lm[better], er_lm[better]
+            keep = ~(ep[bad] <= 10 * tol_position)
+            bad, T_bad = bad[keep], T_bad[keep]
+            if not bad.size:
+                break
     if nominal.is_prismatic.any():
         q = np.where(nominal.is_prismatic, q, start + wrap_angle(q - start))
     else:
