@@ -106,7 +106,7 @@ results: install
 	$(PY) studies/ur10_laser_tracker/run.py
 	$(PY) studies/ur10_laser_tracker/transfer.py
 	$(PY) -m studies.mixture.run --seeds 1000-1029 --workers 2
-	$(PY) experiments/bench_newcomer.py --cases 400 --workers 2
+	$(PY) experiments/bench_newcomer.py --cases 400 --corrupted 400 --workers 2
 	$(PY) experiments/bench_diagnosis_rates.py --jobs 2
 	$(PY) experiments/bench_diagnosis.py
 	$(PY) experiments/bench_diagnosis_scale.py

@@ -14,9 +14,16 @@ matrix's own checks (``check``). Each case ends as one of:
 * ``not_drawable``: the generator could not write the case (a constant tool orientation over a cube of positions
   that the drawn robot cannot hold).
 
-The target: no case failed. Also recorded: the named refusals met, per step and message.
+The target: no case failed. Also recorded: the named refusals met, per step and message. Then ``--corrupted``
+drawn cases whose first CSV is corrupted one way (``corrupt_csv``: a cell nan, inf, a word or 1e308, a column
+dropped, the file cut, a byte-order mark, CRLF, a header doubled or swapped, rows shuffled, bytes that are no
+UTF-8, ...) or whose column map is (``corrupt_map``: a key dropped or twice, a value of another type, a unit unknown,
+a name beyond ASCII, broken TOML, ...) go through ``twin import`` and, where it imports, ``twin calibrate``
+(``run_corrupted``): each is
+imported, refused with an error naming the file, or a defect (a traceback, another exit code, a refusal naming no
+file, a dataset written that does not read back); the target: no defect.
 
-    python experiments/bench_newcomer.py [--cases 400] [--workers 2] [--no-write]
+    python experiments/bench_newcomer.py [--cases 400] [--corrupted 400] [--workers 2] [--no-write]
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ set_process_defaults()  # MUJOCO_GL=egl and one BLAS thread before numpy or mujo
 from twin.benchio import update_benchmark_section  # noqa: E402
 
 SEED0 = 900000  # case k draws from seed SEED0 + k
+SEED_CORRUPT = 910000  # corrupted case k: seed SEED_CORRUPT + k, the (k mod 40)th corruption (20 of a CSV, 20 of the map)
 
 
 def _class(message: str, folder: str) -> str:
@@ -87,9 +95,21 @@ def one(seed: int) -> dict:
     return out
 
 
+def one_corrupted(k: int) -> dict:
+    """Corrupt one drawn case's first CSV and import it (a job of the pool)."""
+    import _newcomer_chain as C
+
+    kinds = C.CORRUPTIONS + C.MAP_CORRUPTIONS
+    kind = kinds[k % len(kinds)]
+    with tempfile.TemporaryDirectory() as d, warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return C.run_corrupted(SEED_CORRUPT + k, kind, Path(d))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=400, help="cases drawn (seeds SEED0 .. SEED0 + cases - 1)")
+    ap.add_argument("--corrupted", type=int, default=400, help="drawn cases with a corrupted CSV (0: none)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-write", action="store_true", help="print only; leave results/benchmark.json alone")
     args = ap.parse_args()
@@ -100,15 +120,18 @@ def main() -> int:
     load0 = list(os.getloadavg())
     t0 = time.perf_counter()
     seeds = [SEED0 + k for k in range(args.cases)]
+    if args.corrupted < 0:
+        raise SystemExit(f"--corrupted must be at least 0, got {args.corrupted}")
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, seeds))
+        bad = list(ex.map(one_corrupted, range(args.corrupted)))
     wall = time.perf_counter() - t0
     counts = collections.Counter(r["outcome"] for r in rows)
     refusals = collections.Counter(f"{step}: {msg}" for r in rows for step, msg in r.get("refused", {}).items())
     failed = [{k: r[k] for k in ("seed", "case", "message", "figures") if k in r} for r in rows
               if r["outcome"] == "failed"]
     data = {
-        "command": f"python experiments/bench_newcomer.py --cases {args.cases}",
+        "command": f"python experiments/bench_newcomer.py --cases {args.cases} --corrupted {args.corrupted}",
         "cases": args.cases,
         "seeds": [seeds[0], seeds[-1]],
         "draw": "tests/_newcomer_chain.py drawn_case: every axis uniform over its values (AXES), redrawn until allowed",
@@ -117,14 +140,30 @@ def main() -> int:
         "counts": {k: counts.get(k, 0) for k in ("passed", "failed", "not_drawable")},
         "failed": failed,
         "refusals_met": dict(sorted(refusals.items(), key=lambda kv: -kv[1])),
-        "target": "no case failed",
-        "meets_target": not failed,
+        "corrupted": {
+            "cases": args.corrupted,
+            "seeds": [SEED_CORRUPT, SEED_CORRUPT + args.corrupted - 1] if args.corrupted else [],
+            "how": "tests/_newcomer_chain.py run_corrupted: the drawn case's first CSV (corrupt_csv) or its column map "
+                   "(corrupt_map) corrupted one way, each of CORRUPTIONS + MAP_CORRUPTIONS in turn, then twin import "
+                   "and, where it imports, twin calibrate",
+            "counts": {k: sum(r["outcome"] == k for r in bad) for k in ("imported", "refused", "defect", "not_drawable")},
+            "per_kind": {kind: dict(collections.Counter(r["outcome"] for r in bad if r["kind"] == kind))
+                         for kind in dict.fromkeys(r["kind"] for r in bad)},
+            "defects": [{k: r.get(k) for k in ("seed", "kind", "case", "corruption", "message")}
+                        for r in bad if r["outcome"] == "defect"],
+        },
+        "target": "no case failed; no corrupted case a defect (a traceback, an exit code other than 0 or 2, a refusal "
+                  "that names no file, a dataset written that does not read back)",
+        "meets_target": not failed and not any(r["outcome"] == "defect" for r in bad),
         "wall_s": round(wall, 1),
         "cpu_s_cases": round(sum(r.get("cpu_s", 0.0) for r in rows), 1),
         "workers": args.workers,
         "load_average_1_5_15": load0,
     }
-    print(f"{args.cases} drawn cases: {data['counts']} in {wall:.0f} s")
+    print(f"{args.cases} drawn cases: {data['counts']}; {args.corrupted} corrupted: {data['corrupted']['counts']}; "
+          f"{wall:.0f} s")
+    for r in data["corrupted"]["defects"]:
+        print(f"  defect {r['seed']} {r['kind']} {r['case']}: {r['message']}")
     for f in failed:
         print(f"  failed {f['seed']} {f['case']}: {f['message']}")
     if not args.no_write:

@@ -3,12 +3,15 @@
 A case is one draw of the axes below: a robot (its form, joint count and kinds), what the instrument measures, how
 the campaign is laid out in files and sets, its time, the lab's CSV dialect, and whether the robot carries an effect
 the geometric model lacks. :func:`covering_cases` draws them with a seeded rng so that every value of every axis
-appears and every pair of values of the axes in :data:`PAIRS` too (a covering design, not the cross product).
+appears and every pair of values of the axes in :data:`PAIRS` too (a covering design, not the cross product);
+:func:`drawn_case` draws one case at random, every axis uniform (``experiments/bench_newcomer.py`` runs hundreds).
 
 :func:`run_case` writes the files of a case as a user from another lab would (``tests/_newcomer.py``), runs ``twin
 import --map`` -> ``calibrate`` -> ``diagnose`` -> ``import`` of a second session -> ``register`` -> ``predict`` ->
 ``compensate`` -> ``export`` in-process through :func:`twin.cli.main`, and measures the outputs against the
-generator's own forward kinematics (the oracle).
+generator's own forward kinematics (the oracle); :func:`check` applies the matrix's checks to its outcome.
+:func:`run_corrupted` corrupts a case's CSV or column map one way (:func:`corrupt_csv`, :func:`corrupt_map`) and
+asks that import and calibrate either work or refuse naming the file.
 """
 
 from __future__ import annotations
@@ -485,6 +488,202 @@ def check(o: Outcome, folder: Path) -> None:
         assert f["predict_mm"] < ACCURACY_MM, f
         if "compensate_mm" in f:
             assert f["compensate_mm"] < ACCURACY_MM, f
+
+
+# ------------------------------------------------------------------------------------------------
+# Files corrupted as files get corrupted: every outcome is an import or a refusal that names the cause
+# ------------------------------------------------------------------------------------------------
+
+CORRUPTIONS = ("cell_empty", "cell_nan", "cell_inf", "cell_text", "cell_huge", "cell_comma", "cell_space",
+               "drop_column", "dup_row", "truncate", "header_only", "empty", "bom", "crlf", "dup_header",
+               "blank_line", "extra_sep", "swap_header", "shuffle_rows", "bad_bytes")
+
+
+def corrupt_csv(path: Path, kind: str, rng: np.random.Generator, dialect) -> str:
+    """Corrupt the CSV ``path`` (written in ``dialect``) one way, ``kind`` of :data:`CORRUPTIONS`: a cell emptied or
+    replaced (nan, inf, a word, 1e308, a cell holding the separator, spaces around a number), a column dropped, a
+    row doubled, the file cut mid-row or to its header or to nothing, a byte-order mark, CRLF line ends, a header
+    name doubled or two swapped, a blank line, a separator closing every line, the rows shuffled, bytes that are no
+    UTF-8. Returns what was done, in words."""
+    sep, h = dialect.separator, dialect.title_lines
+    lines = path.read_text(encoding="utf-8").split("\n")
+    if lines and lines[-1] == "":
+        lines = lines[:-1]
+    body = list(range(h + 1, len(lines)))
+
+    def set_cell(value: str) -> str:
+        i = int(rng.choice(body))
+        c = lines[i].split(sep)
+        j = int(rng.integers(len(c)))
+        old, c[j] = c[j], value
+        lines[i] = sep.join(c)
+        return f"line {i + 1}, cell {j + 1}: {old!r} -> {value!r}"
+
+    cells = {"cell_empty": "", "cell_nan": "nan", "cell_inf": "inf", "cell_text": "abc", "cell_huge": "1e308",
+             "cell_comma": "1;2" if sep == "," else "1,2,3", "cell_space": " 12.5 "}
+    what = kind
+    if kind in cells:
+        what = set_cell(cells[kind])
+    elif kind == "drop_column":
+        j = int(rng.integers(len(lines[h].split(sep))))
+        for i in range(h, len(lines)):
+            c = lines[i].split(sep)
+            lines[i] = sep.join(c[:j] + c[j + 1:])
+        what = f"column {j + 1} dropped"
+    elif kind == "dup_row":
+        i = int(rng.choice(body))
+        lines.insert(i, lines[i])
+    elif kind == "truncate":
+        i = int(rng.choice(body))
+        lines = lines[:i] + [lines[i][: len(lines[i]) // 2]]
+    elif kind == "header_only":
+        lines = lines[: h + 1]
+    elif kind == "empty":
+        lines = []
+    elif kind == "bom":
+        lines[0] = "\ufeff" + lines[0]
+    elif kind == "crlf":
+        lines = [ln + "\r" for ln in lines]
+    elif kind == "dup_header":
+        c = lines[h].split(sep)
+        j = int(rng.integers(1, len(c)))
+        c[j] = c[j - 1]
+        lines[h] = sep.join(c)
+    elif kind == "blank_line":
+        lines.insert(int(rng.choice(body)), "")
+    elif kind == "extra_sep":
+        lines = [ln + sep for ln in lines]
+    elif kind == "swap_header":
+        c = lines[h].split(sep)
+        a, b = rng.choice(len(c), 2, replace=False)
+        c[a], c[b] = c[b], c[a]
+        lines[h] = sep.join(c)
+    elif kind == "shuffle_rows":
+        rows = [lines[i] for i in body]
+        rng.shuffle(rows)
+        lines = lines[: h + 1] + rows
+    elif kind == "bad_bytes":
+        raw = ("\n".join(lines) + "\n").encode("utf-8")
+        path.write_bytes(raw[: len(raw) // 2] + b"\xff\xfe" + raw[len(raw) // 2:])
+        return "two bytes that are no UTF-8 in the middle"
+    else:
+        raise ValueError(f"kind must be one of {CORRUPTIONS}, got {kind!r}")
+    path.write_text("\n".join(lines) + ("\n" if lines else ""), encoding="utf-8")
+    return what
+
+
+MAP_CORRUPTIONS = ("map_key_dropped", "map_number_to_word", "map_word_to_number", "map_unit_unknown",
+                   "map_header_row_0", "map_header_row_far", "map_separator_empty", "map_decimal_other",
+                   "map_joint_column_dropped", "map_file_missing", "map_noise_negative", "map_key_twice",
+                   "map_syntax", "map_list_to_number", "map_value_to_list", "map_empty", "map_number_to_bool",
+                   "map_word_beyond_ascii", "map_number_huge", "map_noise_zero")
+
+
+def corrupt_map(path: Path, kind: str, rng: np.random.Generator) -> str:
+    """Corrupt the column map ``path`` one way, ``kind`` of :data:`MAP_CORRUPTIONS`: a key dropped or written twice,
+    a number made a word or a list or a boolean or 1e308, a word made a number or non-ASCII, a list made a number, a
+    unit unknown, the header row 0 or far, the separator empty, the decimal mark another, a joint column dropped, a
+    file that does not exist, the noise negative or zero, broken TOML, nothing at all. Returns what was done, or
+    ``"-"`` where the map has no line to corrupt that way."""
+    lines = path.read_text().split("\n")
+    keys = [i for i, ln in enumerate(lines) if re.match(r"^\s*[\w.\"-]+\s*=", ln)]
+
+    def edit(pred, new) -> str:
+        cand = [i for i in keys if pred(lines[i])]
+        if not cand:
+            return "-"
+        i = int(rng.choice(cand))
+        old = lines[i]
+        lines[i] = new(old)
+        return f"{old!r} -> {lines[i]!r}"
+
+    def value(v):
+        return lambda ln: re.sub(r"=\s*.*$", f"= {v}", ln)
+
+    number = lambda ln: re.search(r"=\s*-?\d", ln) is not None  # noqa: E731
+    key = lambda name: (lambda ln: ln.strip().startswith(name))  # noqa: E731
+    if kind == "map_key_dropped":
+        i = int(rng.choice(keys))
+        what = f"{lines.pop(i)!r} dropped"
+    elif kind == "map_key_twice":
+        i = int(rng.choice(keys))
+        lines.insert(i, lines[i])
+        what = f"{lines[i]!r} twice"
+    elif kind == "map_syntax":
+        what = edit(lambda ln: True, lambda ln: ln + " ]]")
+    elif kind == "map_empty":
+        lines, what = [], "nothing"
+    else:
+        what = {
+            "map_number_to_word": lambda: edit(number, value('"abc"')),
+            "map_word_to_number": lambda: edit(lambda ln: re.search(r'=\s*"', ln) is not None, value("3")),
+            "map_unit_unknown": lambda: edit(lambda ln: "unit" in ln.split("=")[0], value('"furlong"')),
+            "map_header_row_0": lambda: edit(key("header_row"), value("0")),
+            "map_header_row_far": lambda: edit(key("header_row"), value("100000")),
+            "map_separator_empty": lambda: edit(key("separator"), value('""')),
+            "map_decimal_other": lambda: edit(key("decimal"), value('";"')),
+            "map_joint_column_dropped": lambda: edit(lambda ln: ln.startswith("columns") and "[" in ln,
+                                                     lambda ln: re.sub(r',\s*"[^"]*"\s*\]', "]", ln)),
+            "map_file_missing": lambda: edit(key("path"), value('"nowhere.csv"')),
+            "map_noise_negative": lambda: edit(key("position_mm"), value("-0.01")),
+            "map_noise_zero": lambda: edit(key("position_mm"), value("0.0")),
+            "map_list_to_number": lambda: edit(lambda ln: "= [" in ln, lambda ln: re.sub(r"=\s*\[.*$", "= 5", ln)),
+            "map_value_to_list": lambda: edit(lambda ln: re.search(r'=\s*[-\d"]', ln) is not None,
+                                              lambda ln: re.sub(r"=\s*(.*)$", r"= [\1, \1]", ln)),
+            "map_number_to_bool": lambda: edit(number, value("true")),
+            "map_word_beyond_ascii": lambda: edit(lambda ln: '"' in ln, lambda ln: ln.replace('"', '"\u00e9\u53f0', 1)),
+            "map_number_huge": lambda: edit(number, value("1e308")),
+        }.get(kind, lambda: None)()
+        if what is None:
+            raise ValueError(f"kind must be one of {MAP_CORRUPTIONS}, got {kind!r}")
+    path.write_text("\n".join(lines))
+    return what
+
+
+def run_corrupted(seed: int, kind: str, folder: Path) -> dict:
+    """A drawn case's campaign (:func:`drawn_case`) with its first CSV (:func:`corrupt_csv`) or its column map
+    (:func:`corrupt_map`, ``kind`` in :data:`MAP_CORRUPTIONS`) corrupted, through
+    ``twin import`` and, when it imports, ``twin calibrate``: ``outcome`` ``"imported"`` (the dataset reads back and
+    calibrate exits 0 or refuses naming the cause), ``"refused"`` (import exits 2 with its error naming the file) or
+    ``"defect"`` (another exit code, a traceback, a dataset written that does not read back), with the words of
+    each; ``"not_drawable"`` where the generator cannot write the case."""
+    case = drawn_case(seed)
+    out = {"seed": seed, "kind": kind, "case": case.name}
+    try:
+        w = make_world(case)
+    except RuntimeError as exc:
+        return {**out, "outcome": "not_drawable", "message": str(exc)}
+    map_a, _, _ = write_files(case, w, folder)
+    rng = np.random.default_rng(seed)
+    if kind in MAP_CORRUPTIONS:
+        out["corruption"] = corrupt_map(map_a, kind, rng)
+    else:
+        out["corruption"] = corrupt_csv(sorted((folder / "lab").glob("campaign_*.csv"))[0], kind, rng,
+                                        N.DIALECTS[case.dialect])
+    try:
+        imp = twin(["import", "--map", map_a, "--out", folder / "ds"])
+    except Exception as exc:  # out of the command's own handling: a traceback for its user
+        return {**out, "outcome": "defect", "message": f"import raised {type(exc).__name__}: {exc}"}
+    last = imp.err.strip().splitlines()[-1] if imp.err.strip() else ""
+    out["import"] = last.replace(str(folder), "CASE")
+    if imp.code == 2 and last.startswith("twin import: error: ") and "Traceback" not in imp.err \
+            and "CASE/lab/" in out["import"]:  # a refusal names the file it read (and in it the row, the key)
+        return {**out, "outcome": "refused"}
+    if imp.code != 0 or "Traceback" in imp.err:
+        return {**out, "outcome": "defect", "message": f"import exit {imp.code}: {out['import']}"}
+    try:
+        read_dataset(folder / "ds")
+    except Exception as exc:  # a dataset written that does not read back
+        return {**out, "outcome": "defect", "message": f"imported, not read back: {exc}".replace(str(folder), "CASE")}
+    try:
+        cal = twin(["calibrate", folder / "ds", "--out", folder / "cal", "--quiet"])
+    except Exception as exc:
+        return {**out, "outcome": "defect", "message": f"calibrate raised {type(exc).__name__}: {exc}"}
+    last = cal.err.strip().splitlines()[-1] if cal.err.strip() else ""
+    out["calibrate"] = last.replace(str(folder), "CASE")
+    if cal.code == 0 or (cal.code == 2 and last.startswith("twin calibrate: error: ") and "Traceback" not in cal.err):
+        return {**out, "outcome": "imported"}
+    return {**out, "outcome": "defect", "message": f"calibrate exit {cal.code}: {out['calibrate']}"}
 
 
 def summary(o: Outcome) -> str:

@@ -83,6 +83,30 @@ def test_non_numeric_joint_names_file_row_and_column(tmp_path):
         read_dataset(tmp_path)
 
 
+@pytest.mark.parametrize("cell,column", [(2, "q2"), (8, "p0_y")])
+def test_a_reading_beyond_any_robot_or_instrument_names_file_row_and_column(tmp_path, cell, column):
+    """A joint or a coordinate of 1e308 (a typing or export error) is refused with the file, the row, the pose_id, the
+    column and the value, not met as an overflow in a fit."""
+    _write_small(tmp_path, np.random.default_rng(2))
+    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[cell] = "1e308"
+    lines[3] = ",".join(cells)
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=rf"poses.csv: row 3 \(pose_id 2\), column '{column}': 1e\+308 is beyond any"):
+        read_dataset(tmp_path)
+
+
+def test_a_pose_id_beyond_the_ids_a_dataset_holds_is_named(tmp_path):
+    """A pose_id of 20 digits (beyond a 64-bit id) is refused naming the row and the value, not an overflow."""
+    _write_small(tmp_path, np.random.default_rng(2))
+    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    lines[3] = "12345678901234567890" + lines[3][lines[3].index(","):]
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"row 3, column 'pose_id': '12345678901234567890' is beyond the ids"):
+        read_dataset(tmp_path)
+
+
 def test_missing_column_and_unknown_robot_are_refused(tmp_path):
     """A missing q column and an unknown robot name each give an error naming them."""
     _write_small(tmp_path, np.random.default_rng(3))
@@ -144,6 +168,20 @@ def test_joints_csv_round_trip(tmp_path):
     assert np.allclose(r.q, j.q) and np.allclose(r.temp_c, j.temp_c)
 
 
+def test_a_joints_csv_joint_beyond_any_robot_is_named(tmp_path):
+    """JOINTS.csv with a joint of 1e308 deg: DatasetError naming the row, the pose_id, the column and the value."""
+    j = Joints(np.array([3, 1, 2]), np.deg2rad([[1, 2, 3, 4, 5, 6], [0] * 6, [-10] * 6]))
+    write_joints_csv(tmp_path / "J.csv", j)
+    p = tmp_path / "J.csv"
+    lines = p.read_text().splitlines()
+    cells = lines[2].split(",")
+    cells[3] = "1e308"
+    lines[2] = ",".join(cells)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"row 2 \(pose_id 1\), column '\w+': 1e\+308 is beyond any reading"):
+        read_joints_csv(p)
+
+
 def test_noise_table_reads_si_and_refuses_bad_entries(tmp_path):
     """[noise] gives (m, rad) or None per key; an unknown key or a value that is not positive is refused, named."""
     assert read_noise_table({"position_mm": 0.02, "orientation_rad": 1e-4}, "x") == (0.02 * M_PER_MM, 1e-4)
@@ -153,6 +191,14 @@ def test_noise_table_reads_si_and_refuses_bad_entries(tmp_path):
     for bad in (0, -1.0, float("nan"), "0.02", True):
         with pytest.raises(DatasetError, match=r"^d.toml: noise.position_mm: must be a positive number"):
             read_noise_table({"position_mm": bad}, "d.toml")
+
+
+def test_a_noise_beyond_any_instrument_is_refused_naming_the_key():
+    """[noise] of 1e308 rad or 2 m (a unit or typing error, whose weights would vanish) is refused, named."""
+    with pytest.raises(DatasetError, match=r"^m.toml: noise.orientation_rad: 1e\+308 is beyond any instrument's noise"):
+        read_noise_table({"orientation_rad": 1e308}, "m.toml")
+    with pytest.raises(DatasetError, match=r"^m.toml: noise.position_mm: 2000.0 is beyond"):
+        read_noise_table({"position_mm": 2000.0}, "m.toml")
 
 
 def test_dataset_refuses_a_bad_noise_value_naming_the_file(tmp_path):

@@ -370,6 +370,42 @@ def test_what_cannot_be_read_is_named(tmp_path, edit, match):
         import_columns(_pose_map(tmp_path / "m.toml", "a.csv"), tmp_path / "ds")
 
 
+@pytest.mark.parametrize("col,name", [(1, "j1"), (8, "mx"), (13, "mrz"), (7, "temp")])
+def test_a_reading_beyond_any_robot_or_instrument_is_named(tmp_path, col, name):
+    """A cell of 1e308 in a joint, a position, an angle or the temperature column (a typing or export error):
+    DatasetError naming the row, the line, the column and the value, not an overflow or a failed fit later."""
+    _pose_csv(tmp_path / "a.csv")
+    p = tmp_path / "a.csv"
+    p.write_text(_set_cell(p.read_text(), 5, col, "1e308"))
+    with pytest.raises(DatasetError, match=rf"row 4 \(line 5\), column '{name}': 1e\+308 is beyond any reading"):
+        import_columns(_pose_map(tmp_path / "m.toml", "a.csv"), tmp_path / "ds")
+
+
+@pytest.mark.parametrize("old,new,key", [('unit = "rad"', 'unit = [["rad"], "rad", "rad", "rad", "rad", "rad"]',
+                                          "joints.unit"),
+                                         ('unit = "mm"', 'unit = ["mm"]', "measurement.unit"),
+                                         ('rotation_unit = "deg"', 'rotation_unit = ["deg"]', "measurement.rotation_unit")])
+def test_a_unit_given_as_a_list_is_named(tmp_path, old, new, key):
+    """A map whose unit is a list where one name is expected: DatasetError naming the key and the value (it was a
+    TypeError out of a dictionary lookup)."""
+    _pose_csv(tmp_path / "a.csv")
+    m = _pose_map(tmp_path / "m.toml", "a.csv")
+    m.write_text(m.read_text().replace(old, new, 1))
+    with pytest.raises(DatasetError, match=re.escape(key)):
+        import_columns(m, tmp_path / "ds")
+
+
+def test_a_station_named_beyond_ascii_is_written_as_a_quoted_key_and_read_back(tmp_path):
+    """A station name of non-ASCII letters (a bare TOML key must be ASCII) is written quoted in dataset.toml and the
+    dataset reads back with it."""
+    _pose_csv(tmp_path / "a.csv")
+    m = _pose_map(tmp_path / "m.toml", "a.csv")
+    m.write_text(m.read_text().replace('set = { validation_last_fraction = 0.25 }',
+                                       'set = { validation_last_fraction = 0.25 }\nstation = "Tr\u00e4ger-\u53f0"', 1))
+    import_columns(m, tmp_path / "ds")
+    assert set(read_dataset(tmp_path / "ds").station_ids) == {"Tr\u00e4ger-\u53f0"}
+
+
 def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_path):
     """A FIGAROH-style CSV whose row has a cell beyond the header, or whose header names a joint twice: DatasetError
     naming the file and the row or the column (not a traceback, not a shifted or overwritten read)."""
@@ -384,6 +420,16 @@ def test_a_mocap_row_wider_than_its_header_or_a_joint_column_twice_is_named(tmp_
     (tmp_path / "b.csv").write_text(f"{head},q2\n0,1,2,3,4,5,0.1,0.2,0.3,9\n")
     with pytest.raises(DatasetError, match=r"b.csv: columns \['q2'\] appear more than once in the header"):
         read_mocap_csv(tmp_path / "b.csv", r)
+
+
+def test_a_mocap_reading_beyond_any_robot_or_instrument_is_named(tmp_path):
+    """A FIGAROH-style CSV with a marker coordinate of 1e308: DatasetError naming the file, the row, the column and
+    the value."""
+    from twin.importers.mocap import read_mocap_csv
+
+    (tmp_path / "a.csv").write_text("q1,q2,q3,q4,q5,q6,x1,y1,z1\n0,1,2,3,4,5,0.1,0.2,0.3\n0,1,2,3,4,5,0.1,1e308,0.3\n")
+    with pytest.raises(DatasetError, match=r"a.csv: row 2, column 'y1': 1e\+308 is beyond any reading"):
+        read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
 
 
 def test_a_semicolon_mocap_file_with_decimal_commas_is_named_as_semicolon_separated(tmp_path):

@@ -80,6 +80,20 @@ def test_drawn_newcomer_case_runs_the_readme_chain(seed, tmp_path):
     C.check(o, tmp_path)
 
 
+@pytest.mark.parametrize("kind", C.CORRUPTIONS + C.MAP_CORRUPTIONS)
+def test_a_corrupted_campaign_file_imports_or_is_refused_naming_the_cause(kind, tmp_path):
+    """A drawn campaign's CSV corrupted one way (a cell nan, inf, a word or 1e308, a column dropped, the file cut,
+    a BOM, CRLF, a header doubled or swapped, rows shuffled, bytes that are no UTF-8...) or its column map (a key
+    dropped or twice, a value of another type, a unit unknown, a name beyond ASCII, broken TOML...): import and
+    calibrate exit 0 or refuse with an error naming the file; never a traceback nor a dataset that does not read
+    back."""
+    seed = 910000 + (C.CORRUPTIONS + C.MAP_CORRUPTIONS).index(kind)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        r = C.run_corrupted(seed, kind, tmp_path)
+    assert r["outcome"] in ("imported", "refused", "not_drawable"), r
+
+
 # ---- the chain's contracts ---------------------------------------------------------------------------------------
 
 

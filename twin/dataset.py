@@ -20,14 +20,15 @@ import csv
 import io
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import (check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite, read_toml,
-                    separator_hint)
+from .files import (beyond_reading, beyond_words, check_row_width, columns_beyond_joints, duplicate_names, open_text,
+                    parse_finite, read_toml, separator_hint)
 from .dataset_types import (JOINT_COLUMNS, LENGTH_UNITS, OPTIONAL_COLUMNS, POSE_COLUMNS, SCHEMA_VERSION, SETS,
                             SPHERE_COLUMNS, Dataset, DatasetError, Plate, default_plate, joint_columns, marker_columns,
                             robot_from_spec)
@@ -85,13 +86,16 @@ def _parse_float(text: str, file: str, row: int, pid: str, col: str) -> float:
 
 
 NOISE_KEYS = ("position_mm", "orientation_rad")  # the keys of a [noise] table (dataset.toml, a column map)
+# the largest noise a [noise] table may state, per key: 1 m and 1 rad, far beyond any instrument a calibration can use
+# (a value beyond is a unit or typing error: its weights would vanish)
+NOISE_MAX = {"position_mm": 1000.0, "orientation_rad": 1.0}
 
 
 def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None]:
     """The instrument's 1-sigma noise stated by a ``[noise]`` table (``dataset.toml``, a column map):
     ``(position [m], orientation [rad])`` from ``position_mm`` and ``orientation_rad``, None where the table does not
     state it (``table`` None or empty: neither). ``DatasetError`` naming ``where`` and the key for a key of another
-    name or a value that is not a positive finite number."""
+    name, a value that is not a positive finite number, or one beyond ``NOISE_MAX``."""
     if table is None:
         return None, None
     if not isinstance(table, dict):
@@ -102,6 +106,9 @@ def read_noise_table(table: Any, where: str) -> tuple[float | None, float | None
     for k, v in table.items():
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
             raise DatasetError(f"{where}: noise.{k}: must be a positive number, got {v!r}")
+        if v > NOISE_MAX[k]:
+            raise DatasetError(f"{where}: noise.{k}: {v!r} is beyond any instrument's noise (at most {NOISE_MAX[k]:g}): "
+                               "a unit or typing error?")
     position = float(table["position_mm"]) * M_PER_MM if "position_mm" in table else None
     orientation = float(table["orientation_rad"]) if "orientation_rad" in table else None
     return position, orientation
@@ -343,6 +350,7 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
     whole pose (a row without any says why in ``status``); lengths in [m] by ``to_m``, joints in [rad] / [m]."""
     file, K, mcols = cols.file, cols.n_points, cols.markers
     n = len(rows)
+    pose6 = np.full((n, 6), np.nan)  # the poses' x, y, z [m] and rotation vector [rad], for the readings' check
     out = _Rows(pose_id=np.zeros(n, dtype=np.int64), q=np.zeros((n, n_joints)), spheres=np.full((n, K, 3), np.nan),
                 seen=np.zeros((n, K), dtype=bool), pose=np.full((n, 4, 4), np.nan), pose_seen=np.zeros(n, dtype=bool),
                 optional={c: [] for c in cols.optional}, extra={c: [] for c in cols.extra})
@@ -355,6 +363,9 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
             pid = int(pid_txt)
         except ValueError:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': not an integer: {pid_txt!r}") from None
+        if abs(pid) >= 2**62:
+            raise DatasetError(f"{file}: row {rown}, column 'pose_id': {pid_txt!r} is beyond the ids a dataset holds "
+                               "(|id| < 2**62)")
         if pid in seen_ids:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
         seen_ids[pid] = rown
@@ -382,7 +393,8 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
                     empty = [c for c, t in zip(POSE_COLUMNS, texts) if t == ""]
                     raise DatasetError(f"{file}: row {rown} (pose_id {pid}), columns {empty}: pose is partly empty")
                 v = [_parse_float(t, file, rown, str(pid), c) for t, c in zip(texts, POSE_COLUMNS)]
-                out.pose[k] = pose6_to_transform(np.array([v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]))
+                pose6[k] = [v[0] * to_m, v[1] * to_m, v[2] * to_m, v[3], v[4], v[5]]
+                out.pose[k] = pose6_to_transform(pose6[k])
                 out.pose_seen[k] = True
         for c in opt:
             opt[c].append(cols.cell(r, c))
@@ -392,6 +404,15 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
             raise DatasetError(
                 f"{file}: row {rown} (pose_id {pid}): no measurement and no 'status' saying why"
             )
+    # a reading beyond any robot or instrument (after every row's own checks): the row, the column and the value
+    for arr, column, scale in ((out.q, lambda j: cols.joints[j], lambda j: cols.joint_scale[j]),
+                               (out.spheres, lambda s, a: mcols[3 * s + a], lambda s, a: to_m),
+                               (pose6, lambda j: POSE_COLUMNS[j], lambda j: to_m if j < 3 else 1.0)):
+        at = beyond_reading(arr)
+        if at is not None:
+            k = at[0]
+            raise DatasetError(f"{file}: row {k + 1} (pose_id {int(out.pose_id[k])}), column {column(*at[1:])!r}: "
+                               + beyond_words(f"{arr[at] / scale(*at[1:]):.6g}"))
     return out
 
 
@@ -532,8 +553,9 @@ def write_dataset_toml(
 
 
 def _toml_key(k: str) -> str:
+    """``k`` as a TOML key: bare where TOML allows it (ASCII letters, digits, ``_`` and ``-``), else quoted."""
     k = str(k)
-    return k if k.replace("_", "").replace("-", "").isalnum() else _toml_value(k)
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_value(k)
 
 
 @dataclass
@@ -780,12 +802,16 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     for k, r in enumerate(rows):
         try:
             pid[k] = int(r["pose_id"])
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': not an integer: {r['pose_id']!r}") from None
         for j, c in enumerate(jcols):
             q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * jscale[j]
         for c in chans:
             chans[c].append((r[c] or "").strip())
+    at = beyond_reading(q)  # a joint beyond any robot: the row, the column and the value
+    if at is not None:
+        raise DatasetError(f"{path}: row {at[0] + 1} (pose_id {int(pid[at[0]])}), column {jcols[at[1]]!r}: "
+                           + beyond_words(f"{q[at] / jscale[at[1]]:.6g}"))
     if len(set(pid.tolist())) != n:
         ids, counts = np.unique(pid, return_counts=True)
         dup = ids[counts > 1]

@@ -63,6 +63,27 @@ def read_json(path: str | os.PathLike, error: type[ValueError] = ValueError, *, 
         raise error(f"{path}: not valid JSON: {exc}") from None
 
 
+# [m, rad, degC] the largest reading of a joint, a coordinate, an angle or a temperature a cell may give once in SI
+# units: 10 km, 10000 rad (1600 turns); far beyond any robot or instrument, well below where a unit's conversion or a
+# fit's squares overflow (a cell of 1e308 is a typing or export error, named where it is read, not met as inf later)
+READING_MAX_SI = 1e4
+
+
+def beyond_reading(values_si) -> tuple[int, ...] | None:
+    """The index of the first entry of ``values_si`` (any shape, SI units, NaN for a cell not given) whose magnitude
+    exceeds :data:`READING_MAX_SI`, or None. A reader checks its arrays with it after every row was read (a row's
+    own width check, which says more of a shifted row, comes first) and names the row, the column and the value."""
+    import numpy as np
+
+    bad = np.argwhere(np.abs(np.nan_to_num(np.asarray(values_si, float), nan=0.0)) > READING_MAX_SI)
+    return tuple(int(i) for i in bad[0]) if len(bad) else None
+
+
+def beyond_words(text: str) -> str:
+    """The words of a refused reading ``text`` (see :data:`READING_MAX_SI`)."""
+    return f"{text} is beyond any reading (more than {READING_MAX_SI:g} in SI units): a typing or export error?"
+
+
 def parse_finite(text: str, where: str, error: type[ValueError] = ValueError, *, decimal: str = ".") -> float:
     """The text of a cell or an argument as a finite float, read with the decimal mark ``decimal`` (``"."`` or
     ``","``). ``error`` ``"<where>: not a number: '<text>'"`` or ``"<where>: not a finite number: '<text>'"``

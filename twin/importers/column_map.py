@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from ..dataset import DatasetError, read_noise_table, robot_from_spec
-from ..files import check_row_width, duplicate_names, parse_finite, read_text, read_toml, separator_hint
+from ..files import (beyond_reading, beyond_words, check_row_width, duplicate_names, parse_finite, read_text,
+                     read_toml, separator_hint)
 from ..kinematics import RobotModel
 from ..transforms import invert_transform, make_transform, pose6_to_transform, quat_wxyz_to_matrix
 from ..units import M_PER_MM, RAD_PER_DEG
@@ -225,7 +226,7 @@ def read_frame_file(path: str | os.PathLike, *, unit: str = "mm", where: str = "
     no 4x4 rigid transform (a last row other than ``0 0 0 1``, a rotation not orthonormal to 1e-5); the rotation
     is re-orthonormalised (SVD) so that later conversions are exact."""
     path = Path(path)
-    if unit not in _LENGTH:
+    if not isinstance(unit, str) or unit not in _LENGTH:
         raise _err(where or str(path), f"unit must be one of {sorted(_LENGTH)}, got {unit!r}")
     try:
         text = path.read_text()
@@ -319,7 +320,7 @@ def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: s
     scale = []
     for k, (u, pris) in enumerate(zip(units, robot.is_prismatic)):
         ok = _LENGTH if pris else _ANGLE
-        if u not in ok:
+        if not isinstance(u, str) or u not in ok:
             raise _err(f"{where}: joints.unit", f"joint {k + 1} ({robot.joint_names[k]}, "
                                                 f"{'prismatic' if pris else 'revolute'}) must be in {sorted(ok)}, got {u!r}")
         scale.append(ok[u])
@@ -329,7 +330,7 @@ def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: s
         raise _err(where, "missing table [measurement] (kind = \"points\" or \"pose\")")
     kind = m.get("kind")
     lu = m.get("unit", "mm")
-    if lu not in _LENGTH:
+    if not isinstance(lu, str) or lu not in _LENGTH:
         raise _err(f"{where}: measurement.unit", f"must be \"mm\" or \"m\", got {lu!r}")
     kw: dict[str, Any] = {}
     if kind == "points":
@@ -357,7 +358,7 @@ def _file_map(raw: dict, over: dict, map_path: Path, robot: RobotModel, where: s
                 raise _err(f"{where}: measurement.rotation", "must be the three Euler-angle columns (or a "
                            f"quaternion's four with quaternion = \"xyzw\" or \"wxyz\"), got {rot!r}")
             ru = m.get("rotation_unit", "deg")
-            if ru not in _ANGLE:
+            if not isinstance(ru, str) or ru not in _ANGLE:
                 raise _err(f"{where}: measurement.rotation_unit", f"must be \"deg\" or \"rad\", got {ru!r}")
             eu = m.get("euler")
             if not (isinstance(eu, str) and len(eu) == 3 and (set(eu) <= set("xyz") or set(eu) <= set("XYZ"))
@@ -645,7 +646,7 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
                        else num(k, line, r, fm.temperature))
         if pid is not None:
             v = num(k, line, r, fm.pose_id)
-            if v != int(v):
+            if v != int(v) or abs(v) >= 2**62:
                 raise DatasetError(f"{path}: row {k + 1} (line {line}), column {fm.pose_id!r}: not an integer: "
                                    f"{cell(r, fm.pose_id)!r}")
             pid[k] = int(v)
@@ -653,6 +654,20 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
             num(k, line, r, c)
             keep_text[c].append(cell(r, c).strip().replace(",", "."))
     P *= fm.length_scale
+    # a reading beyond any robot or instrument (after every row's own checks): the row, the column and the value
+    checks = [(q, lambda j: fm.joint_columns[j], lambda k, j: q[k, j] / fm.joint_scale[j]),
+              (P, lambda i, a: " + ".join(c for _, c in (fm.points[i] if fm.kind == "points" else fm.position)[a]),
+               lambda k, i, a: P[k, i, a] / fm.length_scale)]
+    if fm.kind == "pose" and not fm.quaternion:
+        checks.append((eul * fm.rotation_scale, lambda j: fm.rotation[j], lambda k, j: eul[k, j]))
+    if temp is not None:
+        checks.append((temp, lambda: fm.temperature, lambda k: temp[k]))
+    for arr, column, value in checks:
+        at = beyond_reading(arr)
+        if at is not None:
+            k = at[0]
+            raise DatasetError(f"{path}: row {k + 1} (line {data[k][0]}), column {column(*at[1:])!r}: "
+                               + beyond_words(f"{value(*at):.6g}"))
     rot = None
     if fm.kind == "pose":
         from scipy.spatial.transform import Rotation
