@@ -89,6 +89,19 @@ def test_predict_on_plausible_joints_warns_of_nothing(cal, tmp_path, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_predict_names_a_station_the_calibration_does_not_know(cal, tmp_path, capsys):
+    """predict: a JOINTS.csv row whose station the calibration does not know (a typing error) is predicted in the
+    robot base frame, and stderr says which station, on how many rows, and which stations the calibration knows."""
+    q = random_configurations(get_robot("irb1200"), 4, np.random.default_rng(3))
+    j = tmp_path / "j.csv"
+    write_joints_csv(j, Joints(pose_id=np.arange(4), q=q, station=np.array(["0", "0", "O", "0"], dtype=object)))
+    assert _run("predict", cal[0], j, "--out", tmp_path / "p.csv") == 0
+    err = capsys.readouterr().err
+    assert "station(s) the calibration does not know ('O': 1 row(s); it knows '0')" in err
+    with open(tmp_path / "p.csv", newline="") as f:
+        assert [r["frame"] for r in csv.DictReader(f)] == ["measurement", "measurement", "base", "measurement"]
+
+
 def test_predict_warns_of_a_forced_calibration(cal, tmp_path, capsys):
     """predict with a calibration written by `calibrate --force`: the file is written, the reason is warned."""
     j = _joints(tmp_path / "j.csv", random_configurations(get_robot("irb1200"), 5, np.random.default_rng(3)))

@@ -17,6 +17,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    import sys
+
+    import numpy as np
+
     from ..dataset import read_joints_csv
     from ..estimator import Calibration
     from ..estimator.files import write_pred_csv
@@ -51,6 +55,15 @@ def run(args) -> int:
                   + (" ..." if lack.size > 20 else ""))
     else:
         pred = cal.predict(j.q, j.station)
+    if j.station is not None:  # a station the calibration does not know (a typing error?): its rows in the base frame
+        st = np.asarray(j.station, dtype=object).astype(str)
+        unknown = sorted(set(st.tolist()) - set(cal.stations))
+        if unknown:
+            counts = ", ".join(f"{s or '(empty)'!r}: {int(np.sum(st == s))} row(s)" for s in unknown[:5])
+            more = " ..." if len(unknown) > 5 else ""
+            print(f"warning: {args.joints}: station(s) the calibration does not know ({counts}{more}; it knows "
+                  f"{', '.join(map(repr, cal.stations))}): those rows are predicted in the robot base frame",
+                  file=sys.stderr)
     write_pred_csv(args.out, j.pose_id, pred, station=j.station)
     frames = sorted(set(pred.frame.tolist()))
     print(f"predicted {len(j.pose_id)} rows in the {' and '.join(frames)} frame(s); wrote {args.out}")
