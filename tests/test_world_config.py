@@ -71,6 +71,21 @@ def test_bad_values_name_the_field():
         WorldConfig.from_dict({"stations": [{"name": "x"}]})
 
 
+@pytest.mark.parametrize("rig,station,match", [
+    ({"baseline_mm": True}, {}, r"world.rig.baseline_mm must be a number, got True"),
+    ({"baseline_mm": 1e308}, {}, r"world.rig.baseline_mm must be within 1e\+09"),
+    ({}, {"azimuth_deg": True}, r"world.stations\[0\].azimuth_deg must be a number, got True"),
+    ({}, {"elevation_deg": 1e308}, r"world.stations\[0\].elevation_deg must be within 1e\+09"),
+    ({}, {"target_mm": [500, True, 550]}, r"world.stations\[0\].target_mm must be 3 numbers"),
+    ({}, {"name": ["left", "left"]}, r"world.stations\[0\].name must be a non-empty string"),
+])
+def test_a_setting_of_another_type_or_beyond_any_rig_is_refused_naming_it(rig, station, match):
+    """TOML's true where a number is due (Python would read 1), 1e308 (a typing error: a meaningless angle or an
+    overflow in a render later), a list for a station's name: ValueError naming the field."""
+    with pytest.raises(ValueError, match=match):
+        WorldConfig.from_dict({"rig": rig, "stations": [{"name": "x", "target_mm": [500, 0, 550], **station}]})
+
+
 def test_missing_file_is_a_value_error(tmp_path):
     """A missing config file is reported as such."""
     with pytest.raises(ValueError, match="not found"):

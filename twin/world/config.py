@@ -8,6 +8,7 @@ takes the ``[world]`` table (or a whole config holding one).
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,27 +52,43 @@ def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
         raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
 
 
+# the largest magnitude of a setting in a config's own units (mm, deg, px, K, kg, s): far beyond any cell or rig, so
+# that 1e308 (a typing error) is named here rather than met as a meaningless angle or an overflow in a render
+SETTING_MAX = 1e9
+
+
 def table_number(table: Mapping[str, Any], key: str, default: float, where: str, *, positive=False, nonneg=False) -> float:
-    """``table[key]`` (``default`` when absent) as a finite float; ``ValueError`` naming ``where.key`` otherwise."""
+    """``table[key]`` (``default`` when absent) as a finite float within ``SETTING_MAX``; ``ValueError`` naming
+    ``where.key`` otherwise (a boolean or a string is not a number: TOML's ``true`` is not 1)."""
     v = table.get(key, default)
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}.{key} must be a number, got {v!r}") from None
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+        raise ValueError(f"{where}.{key} must be a number, got {v!r}")
+    x = float(v)
     if not math.isfinite(x) or (positive and x <= 0) or (nonneg and x < 0):
         what = "positive" if positive else "non-negative" if nonneg else "finite"
         raise ValueError(f"{where}.{key} must be a {what} number, got {v!r}")
+    if abs(x) > SETTING_MAX:
+        raise ValueError(f"{where}.{key} must be within {SETTING_MAX:g} in its unit, got {v!r}")
     return x
+
+
+def _station_name(v: Any, where: str) -> str:
+    """A station's name: a non-empty string (an integer index when not given)."""
+    if isinstance(v, bool) or not isinstance(v, (str, int)) or (isinstance(v, str) and not v.strip()):
+        raise ValueError(f"{where}.name must be a non-empty string, got {v!r}")
+    return str(v)
 
 
 def table_vector(v: Any, n: int, where: str) -> np.ndarray:
     """``v`` as ``n`` finite floats; ``ValueError`` naming ``where`` otherwise."""
+    if isinstance(v, (list, tuple)) and any(isinstance(x, (bool, np.bool_, str)) for x in v):
+        raise ValueError(f"{where} must be {n} numbers, got {v!r}")
     try:
         a = np.asarray(v, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise ValueError(f"{where} must be {n} numbers, got {v!r}") from None
-    if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{where} must be {n} finite numbers, got {v!r}")
+    if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(np.abs(a) > SETTING_MAX):
+        raise ValueError(f"{where} must be {n} finite numbers within {SETTING_MAX:g}, got {v!r}")
     return a
 
 
@@ -101,7 +118,7 @@ class StationConfig:
         if "standoff_mm" in d:
             standoff = table_number(d, "standoff_mm", 0, where, positive=True) * M_PER_MM
         return cls(
-            name=str(d.get("name", index)),
+            name=_station_name(d.get("name", index), where),
             target=table_vector(d["target_mm"], 3, f"{where}.target_mm") * M_PER_MM,
             azimuth=table_number(d, "azimuth_deg", 0.0, where) * RAD_PER_DEG,
             elevation=table_number(d, "elevation_deg", 0.0, where) * RAD_PER_DEG,
