@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import _newcomer_chain as C
 from twin.runner.config import load_campaign_config, parse_campaign_config
 from twin.runner.plan import make_plan, pose_seed
 from twin.kinematics import flange2base
@@ -151,3 +152,17 @@ def test_matched_config_is_the_paper_protocol_with_local_motions():
     assert sorted(set(np.round(np.array(g["distance"].distances) * 1e3, 6))) == [50, 60, 80, 100]
     assert g["calibration"].sampling.turn is not None and g["distance"].sampling.distance_turn[1] > 0
     assert set(c.methods) == {"distance", "full_pose", "separation", "separation_paper", "default"}
+
+
+@pytest.mark.parametrize("kind", [k for k in C.MAP_CORRUPTIONS if k != "map_file_missing"])
+@pytest.mark.parametrize("quick", [False, True])
+def test_a_corrupted_campaign_config_loads_or_is_refused_naming_the_key(kind, quick, tmp_path):
+    """experiments/separation.toml corrupted one way (a key dropped or twice, a value of another type, 1e308, a
+    name beyond ASCII, broken TOML...): it loads, or ValueError naming the file; never another exception."""
+    p = tmp_path / "separation.toml"
+    p.write_text(SEPARATION.read_text())
+    C.corrupt_map(p, kind, np.random.default_rng(940000 + C.MAP_CORRUPTIONS.index(kind)))
+    try:
+        load_campaign_config(p, quick=quick)
+    except ValueError as exc:
+        assert str(p) in str(exc) or "separation.toml" in str(exc), exc
