@@ -27,8 +27,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import (beyond_reading, beyond_words, check_row_width, columns_beyond_joints, duplicate_names, open_text,
-                    parse_finite, read_toml, separator_hint)
+from .files import (check_readings, check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite,
+                    read_toml, separator_hint)
 from .dataset_types import (JOINT_COLUMNS, LENGTH_UNITS, OPTIONAL_COLUMNS, POSE_COLUMNS, SCHEMA_VERSION, SETS,
                             SPHERE_COLUMNS, Dataset, DatasetError, Plate, default_plate, joint_columns, marker_columns,
                             robot_from_spec)
@@ -404,15 +404,10 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
             raise DatasetError(
                 f"{file}: row {rown} (pose_id {pid}): no measurement and no 'status' saying why"
             )
-    # a reading beyond any robot or instrument (after every row's own checks): the row, the column and the value
-    for arr, column, scale in ((out.q, lambda j: cols.joints[j], lambda j: cols.joint_scale[j]),
-                               (out.spheres, lambda s, a: mcols[3 * s + a], lambda s, a: to_m),
-                               (pose6, lambda j: POSE_COLUMNS[j], lambda j: to_m if j < 3 else 1.0)):
-        at = beyond_reading(arr)
-        if at is not None:
-            k = at[0]
-            raise DatasetError(f"{file}: row {k + 1} (pose_id {int(out.pose_id[k])}), column {column(*at[1:])!r}: "
-                               + beyond_words(f"{arr[at] / scale(*at[1:]):.6g}"))
+    check_readings(((out.q, lambda j: cols.joints[j], lambda j: cols.joint_scale[j]),
+                     (out.spheres, lambda s, a: mcols[3 * s + a], lambda s, a: to_m),
+                     (pose6, lambda j: POSE_COLUMNS[j], lambda j: to_m if j < 3 else 1.0)),
+                   lambda k: f"{file}: row {k + 1} (pose_id {int(out.pose_id[k])})", DatasetError)
     return out
 
 
@@ -808,10 +803,8 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
             q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * jscale[j]
         for c in chans:
             chans[c].append((r[c] or "").strip())
-    at = beyond_reading(q)  # a joint beyond any robot: the row, the column and the value
-    if at is not None:
-        raise DatasetError(f"{path}: row {at[0] + 1} (pose_id {int(pid[at[0]])}), column {jcols[at[1]]!r}: "
-                           + beyond_words(f"{q[at] / jscale[at[1]]:.6g}"))
+    check_readings(((q, lambda j: jcols[j], lambda j: jscale[j]),),
+                   lambda k: f"{path}: row {k + 1} (pose_id {int(pid[k])})", DatasetError)
     if len(set(pid.tolist())) != n:
         ids, counts = np.unique(pid, return_counts=True)
         dup = ids[counts > 1]

@@ -69,19 +69,21 @@ def read_json(path: str | os.PathLike, error: type[ValueError] = ValueError, *, 
 READING_MAX_SI = 1e4
 
 
-def beyond_reading(values_si) -> tuple[int, ...] | None:
-    """The index of the first entry of ``values_si`` (any shape, SI units, NaN for a cell not given) whose magnitude
-    exceeds :data:`READING_MAX_SI`, or None. A reader checks its arrays with it after every row was read (a row's
-    own width check, which says more of a shifted row, comes first) and names the row, the column and the value."""
+def check_readings(readings, row_words, error: type[ValueError] = ValueError) -> None:
+    """Refuse the first entry beyond :data:`READING_MAX_SI` of a reader's arrays, once every row was read (a row's
+    own width check, which says more of a shifted row, comes first). ``readings``: ``(values_si, column, unit)``
+    triples, ``values_si`` ``(n, ...)`` in SI units (NaN for a cell not given), ``column(*index)`` the name of the
+    column of an entry's trailing index, ``unit(*index)`` the SI size of the file's unit there; ``row_words(k)``: the
+    words naming row ``k``. ``error`` names the row, the column and the value in the file's unit."""
     import numpy as np
 
-    bad = np.argwhere(np.abs(np.nan_to_num(np.asarray(values_si, float), nan=0.0)) > READING_MAX_SI)
-    return tuple(int(i) for i in bad[0]) if len(bad) else None
-
-
-def beyond_words(text: str) -> str:
-    """The words of a refused reading ``text`` (see :data:`READING_MAX_SI`)."""
-    return f"{text} is beyond any reading (more than {READING_MAX_SI:g} in SI units): a typing or export error?"
+    for values, column, unit in readings:
+        values = np.asarray(values, float)
+        bad = np.argwhere(np.abs(np.nan_to_num(values, nan=0.0)) > READING_MAX_SI)
+        if len(bad):
+            at = tuple(int(i) for i in bad[0])
+            raise error(f"{row_words(at[0])}, column {column(*at[1:])!r}: {values[at] / unit(*at[1:]):.6g} is beyond "
+                        f"any reading (more than {READING_MAX_SI:g} in SI units): a typing or export error?")
 
 
 def parse_finite(text: str, where: str, error: type[ValueError] = ValueError, *, decimal: str = ".") -> float:

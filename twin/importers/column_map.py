@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from ..dataset import DatasetError, read_noise_table, robot_from_spec
-from ..files import (beyond_reading, beyond_words, check_row_width, duplicate_names, parse_finite, read_text,
-                     read_toml, separator_hint)
+from ..files import (check_readings, check_row_width, duplicate_names, parse_finite, read_text, read_toml,
+                     separator_hint)
 from ..kinematics import RobotModel
 from ..transforms import invert_transform, make_transform, pose6_to_transform, quat_wxyz_to_matrix
 from ..units import M_PER_MM, RAD_PER_DEG
@@ -654,20 +654,14 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
             num(k, line, r, c)
             keep_text[c].append(cell(r, c).strip().replace(",", "."))
     P *= fm.length_scale
-    # a reading beyond any robot or instrument (after every row's own checks): the row, the column and the value
-    checks = [(q, lambda j: fm.joint_columns[j], lambda k, j: q[k, j] / fm.joint_scale[j]),
-              (P, lambda i, a: " + ".join(c for _, c in (fm.points[i] if fm.kind == "points" else fm.position)[a]),
-               lambda k, i, a: P[k, i, a] / fm.length_scale)]
+    readings = [(q, lambda j: fm.joint_columns[j], lambda j: fm.joint_scale[j]),
+                (P, lambda i, a: " + ".join(c for _, c in (fm.points[i] if fm.kind == "points" else fm.position)[a]),
+                 lambda i, a: fm.length_scale)]
     if fm.kind == "pose" and not fm.quaternion:
-        checks.append((eul * fm.rotation_scale, lambda j: fm.rotation[j], lambda k, j: eul[k, j]))
+        readings.append((eul * fm.rotation_scale, lambda j: fm.rotation[j], lambda j: fm.rotation_scale))
     if temp is not None:
-        checks.append((temp, lambda: fm.temperature, lambda k: temp[k]))
-    for arr, column, value in checks:
-        at = beyond_reading(arr)
-        if at is not None:
-            k = at[0]
-            raise DatasetError(f"{path}: row {k + 1} (line {data[k][0]}), column {column(*at[1:])!r}: "
-                               + beyond_words(f"{value(*at):.6g}"))
+        readings.append((temp, lambda: fm.temperature, lambda: 1.0))
+    check_readings(readings, lambda k: f"{path}: row {k + 1} (line {data[k][0]})", DatasetError)
     rot = None
     if fm.kind == "pose":
         from scipy.spatial.transform import Rotation

@@ -38,8 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from ..dataset import Dataset, DatasetError, Plate, write_dataset
-from ..files import (beyond_reading, beyond_words, check_row_width, duplicate_names, open_text, parse_finite,
-                     separator_hint)
+from ..files import check_readings, check_row_width, duplicate_names, open_text, parse_finite, separator_hint
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 from ..units import M_PER_MM, MM_PER_M
@@ -126,13 +125,9 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
             seen = any(r.get(c, "").lower() not in ("", "nan") for c in cells)
             P[k, i] = [num(r, k, c) for c in cells] if seen else np.nan
     P *= LENGTH_UNITS[marker_unit]
-    # a reading beyond any robot or instrument: the row, the column and the value
-    for arr, column, scale in ((q, lambda j: robot.joint_names[j], lambda j: 1.0),
-                               (P, lambda i, a: f"{'xyz'[a]}{i + 1}", lambda i, a: LENGTH_UNITS[marker_unit])):
-        at = beyond_reading(arr)
-        if at is not None:
-            raise DatasetError(f"{path}: row {at[0] + 1}, column {column(*at[1:])!r}: "
-                               + beyond_words(f"{arr[at] / scale(*at[1:]):.6g}"))
+    check_readings(((q, lambda j: robot.joint_names[j], lambda j: 1.0),
+                    (P, lambda i, a: f"{'xyz'[a]}{i + 1}", lambda i, a: LENGTH_UNITS[marker_unit])),
+                   lambda k: f"{path}: row {k + 1}", DatasetError)
     known = set(robot.joint_names) | {f"{c}{i + 1}" for i in range(K) for c in "xyz"}
     extra = {h: [r.get(h, "") for r in rows] for h in header if h not in known}
     return MocapRows(path=path, q=q, points=P, extra=extra, sha256=file_sha256(path))
