@@ -12,8 +12,8 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS,
-                    PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash, sign_backlash)
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, MIN_ROWS,
+                    MIN_SIDE, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash, sign_backlash, started_at)
 from .extend import error_stats, reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
@@ -463,17 +463,31 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
 
 def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
-    neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
-    f0 = next(f for f in s.atom.features if isinstance(f, Step))
+    neighbours that explains most: the step's time is a parameter of the effect, not of the grid. Only times that
+    leave the change scan's ``max(MIN_ROWS, MIN_SIDE n)`` fitting rows (weight > 0) on each side are tried (a state
+    a handful of rows hold at an end is no state); a change keeps its label's time with it
+    (:func:`~twin.diagnosis.atoms.started_at`); steps at several times (one at every session start) stay."""
+    steps = [f for f in s.atom.features if isinstance(f, Step)]
+    f0 = steps[0]
+    if any(f.at != f0.at or f.ch != f0.ch for f in steps):
+        return s
     ch = f0.ch
     values = np.unique(feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx,
                                       prob.prep.nominal)[:, 0])
     grid = np.quantile(values, np.linspace(0, 1, 11))
     k = int(np.argmin(np.abs(grid - f0.at)))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    cands = [v for v in values if lo < v < hi and v != f0.at]
+    fitting = feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx, prob.prep.nominal)[prob.rows_cal, 0]
+    fitting = np.sort(fitting[prob.w_cal > 0])
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(fitting))))
+    before = np.searchsorted(fitting, values, side="left")  # fitting rows before each candidate time
+    cands = [v for v, nb in zip(values, before)
+             if lo < v < hi and v != f0.at and nb >= side and len(fitting) - nb >= side]
     trial = []
     for v in cands:
+        if s.atom.family == "change":
+            trial.append(started_at(s.atom, float(v)))
+            continue
         feats = tuple(replace_atom(f, at=float(v)) if isinstance(f, Step) else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
         trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))
