@@ -166,3 +166,18 @@ def test_a_corrupted_campaign_config_loads_or_is_refused_naming_the_key(kind, qu
         load_campaign_config(p, quick=quick)
     except ValueError as exc:
         assert str(p) in str(exc) or "separation.toml" in str(exc), exc
+
+
+@pytest.mark.parametrize("bad", ["scale = \"half\"", "scale = -0.5", "scale = true"])
+def test_a_fault_in_the_quick_table_is_named_without_quick(bad, tmp_path):
+    """A value of the [quick] table that the quick run would refuse is refused on every load, --quick or not, naming
+    the file, the key and the [quick] variant."""
+    p = tmp_path / "separation.toml"
+    text = SEPARATION.read_text()
+    assert "world = { render = { scale = 0.5 } }" in text
+    p.write_text(text.replace("world = { render = { scale = 0.5 } }", f"world = {{ render = {{ {bad} }} }}"))
+    for quick in (False, True):
+        with pytest.raises(ValueError) as err:
+            load_campaign_config(p, quick=quick)
+        assert str(p) in str(err.value) and "scale" in str(err.value), err.value
+    assert "[quick] variant" in str(pytest.raises(ValueError, load_campaign_config, p).value)

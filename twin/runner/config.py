@@ -7,7 +7,8 @@ the world's (scene, effects, image formation) and is passed through unchanged; i
 the world.
 
 ``--quick`` deep-merges the file's ``[quick]`` table over the rest before validation, so a quick variant is
-the same campaign with a few values replaced (half resolution, fewer poses).
+the same campaign with a few values replaced (half resolution, fewer poses). That variant is validated on every
+load, with ``--quick`` or without.
 """
 
 from __future__ import annotations
@@ -343,6 +344,12 @@ def parse_campaign_config(
     quick_table = raw.pop("quick", {})
     if not isinstance(quick_table, dict):
         raise ValueError(f"{path}: [quick] must be a table")
+    if quick_table and not (quick or _quick_applied):
+        # the [quick] variant is checked on every load, so that a fault in it is named before a --quick run meets it
+        try:
+            parse_campaign_config({**raw, "quick": quick_table}, source=source, quick=True)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (in the [quick] variant: the file's [quick] table merged over the rest)") from None
     try:
         merged = _deep_merge(raw, quick_table) if quick else raw
     except ValueError as exc:
