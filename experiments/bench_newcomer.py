@@ -21,9 +21,11 @@ UTF-8, ...) or whose column map is (``corrupt_map``: a key dropped or twice, a v
 a name beyond ASCII, broken TOML, ...) go through ``twin import`` and, where it imports, ``twin calibrate``
 (``run_corrupted``): each is
 imported, refused with an error naming the file, or a defect (a traceback, another exit code, a refusal naming no
-file, a dataset written that does not read back); the target: no defect.
+file, a dataset written that does not read back); the target: no defect. Last, data/'s three real campaigns (other
+labs' files: TIAGo's through the FIGAROH path, the UR5's and the UR10's through their column maps), each corrupted
+every way it can be, once (``run_real_corrupted``), with the same outcomes and target (``--no-real``: not them).
 
-    python experiments/bench_newcomer.py [--cases 400] [--corrupted 400] [--workers 2] [--no-write]
+    python experiments/bench_newcomer.py [--cases 400] [--corrupted 400] [--no-real] [--workers 2] [--no-write]
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from twin.benchio import update_benchmark_section  # noqa: E402
 
 SEED0 = 900000  # case k draws from seed SEED0 + k
 SEED_CORRUPT = 910000  # corrupted case k: seed SEED_CORRUPT + k, the (k mod 40)th corruption (20 of a CSV, 20 of the map)
+SEED_REAL = 920000  # data/'s real campaigns: the k-th corruption a campaign takes (real_kinds) draws from SEED_REAL + k
 
 
 def _class(message: str, folder: str) -> str:
@@ -106,10 +109,22 @@ def one_corrupted(k: int) -> dict:
         return C.run_corrupted(SEED_CORRUPT + k, kind, Path(d))
 
 
+def one_real(job: tuple[str, int]) -> dict:
+    """Corrupt one of data/'s real campaigns one way and import it (a job of the pool)."""
+    import _newcomer_chain as C
+
+    name, k = job
+    with tempfile.TemporaryDirectory() as d, warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return C.run_real_corrupted(name, C.real_kinds(name)[k], SEED_REAL + k, Path(d))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=400, help="cases drawn (seeds SEED0 .. SEED0 + cases - 1)")
     ap.add_argument("--corrupted", type=int, default=400, help="drawn cases with a corrupted CSV (0: none)")
+    ap.add_argument("--real", action=argparse.BooleanOptionalAction, default=True,
+                    help="also data/'s three real campaigns, each corrupted every way it can be (default on)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-write", action="store_true", help="print only; leave results/benchmark.json alone")
     args = ap.parse_args()
@@ -125,13 +140,18 @@ def main() -> int:
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, seeds))
         bad = list(ex.map(one_corrupted, range(args.corrupted)))
+        import _newcomer_chain as C
+
+        jobs = [(name, k) for name in C.REAL_CAMPAIGNS for k in range(len(C.real_kinds(name)))] if args.real else []
+        real = list(ex.map(one_real, jobs))
     wall = time.perf_counter() - t0
     counts = collections.Counter(r["outcome"] for r in rows)
     refusals = collections.Counter(f"{step}: {msg}" for r in rows for step, msg in r.get("refused", {}).items())
     failed = [{k: r[k] for k in ("seed", "case", "message", "figures") if k in r} for r in rows
               if r["outcome"] == "failed"]
     data = {
-        "command": f"python experiments/bench_newcomer.py --cases {args.cases} --corrupted {args.corrupted}",
+        "command": f"python experiments/bench_newcomer.py --cases {args.cases} --corrupted {args.corrupted}"
+                   + ("" if args.real else " --no-real"),
         "cases": args.cases,
         "seeds": [seeds[0], seeds[-1]],
         "draw": "tests/_newcomer_chain.py drawn_case: every axis uniform over its values (AXES), redrawn until allowed",
@@ -152,9 +172,21 @@ def main() -> int:
             "defects": [{k: r.get(k) for k in ("seed", "kind", "case", "corruption", "message")}
                         for r in bad if r["outcome"] == "defect"],
         },
+        "real": {
+            "cases": len(real),
+            "how": "tests/_newcomer_chain.py run_real_corrupted: each of data/'s real campaigns (REAL_CAMPAIGNS: TIAGo's "
+                   "two mocap files through the FIGAROH path, the UR5 and the UR10 laser-tracker files through their "
+                   "column maps) copied, its CSV or its column map corrupted each way it can be (real_kinds), once, "
+                   "then imported as its README says and, where it imports, calibrated",
+            "counts": {k: sum(r["outcome"] == k for r in real) for k in ("imported", "refused", "defect")},
+            "per_campaign": {name: dict(collections.Counter(r["outcome"] for r in real if r["case"] == name))
+                             for name in dict.fromkeys(r["case"] for r in real)},
+            "defects": [{k: r.get(k) for k in ("seed", "kind", "case", "corruption", "message")}
+                        for r in real if r["outcome"] == "defect"],
+        },
         "target": "no case failed; no corrupted case a defect (a traceback, an exit code other than 0 or 2, a refusal "
                   "that names no file, a dataset written that does not read back)",
-        "meets_target": not failed and not any(r["outcome"] == "defect" for r in bad),
+        "meets_target": not failed and not any(r["outcome"] == "defect" for r in bad + real),
         "wall_s": round(wall, 1),
         "cpu_s_cases": round(sum(r.get("cpu_s", 0.0) for r in rows), 1),
         "workers": args.workers,
@@ -162,7 +194,9 @@ def main() -> int:
     }
     print(f"{args.cases} drawn cases: {data['counts']}; {args.corrupted} corrupted: {data['corrupted']['counts']}; "
           f"{wall:.0f} s")
-    for r in data["corrupted"]["defects"]:
+    if real:
+        print(f"{len(real)} corrupted real campaigns: {data['real']['counts']}")
+    for r in data["corrupted"]["defects"] + data["real"]["defects"]:
         print(f"  defect {r['seed']} {r['kind']} {r['case']}: {r['message']}")
     for f in failed:
         print(f"  failed {f['seed']} {f['case']}: {f['message']}")

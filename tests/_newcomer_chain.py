@@ -23,6 +23,7 @@ import itertools
 import json
 import math
 import re
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -660,10 +661,18 @@ def run_corrupted(seed: int, kind: str, folder: Path) -> dict:
     else:
         out["corruption"] = corrupt_csv(sorted((folder / "lab").glob("campaign_*.csv"))[0], kind, rng,
                                         N.DIALECTS[case.dialect])
+    return {**out, **_import_and_calibrate(["import", "--map", map_a, "--out", folder / "ds"], folder)}
+
+
+def _import_and_calibrate(argv: list, folder: Path) -> dict:
+    """``twin ARGV`` (an import writing ``folder/ds`` from files under ``folder/lab``) and, when it imports, ``twin
+    calibrate``: ``outcome`` ``"imported"``, ``"refused"`` or ``"defect"`` as :func:`run_corrupted` says, with the
+    last line each command wrote (``folder`` written ``CASE``)."""
+    out: dict = {}
     try:
-        imp = twin(["import", "--map", map_a, "--out", folder / "ds"])
+        imp = twin(argv)
     except Exception as exc:  # out of the command's own handling: a traceback for its user
-        return {**out, "outcome": "defect", "message": f"import raised {type(exc).__name__}: {exc}"}
+        return {"outcome": "defect", "message": f"import raised {type(exc).__name__}: {exc}"}
     last = imp.err.strip().splitlines()[-1] if imp.err.strip() else ""
     out["import"] = last.replace(str(folder), "CASE")
     if imp.code == 2 and last.startswith("twin import: error: ") and "Traceback" not in imp.err \
@@ -684,6 +693,45 @@ def run_corrupted(seed: int, kind: str, folder: Path) -> dict:
     if cal.code == 0 or (cal.code == 2 and last.startswith("twin calibrate: error: ") and "Traceback" not in cal.err):
         return {**out, "outcome": "imported"}
     return {**out, "outcome": "defect", "message": f"calibrate exit {cal.code}: {out['calibrate']}"}
+
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+# data/'s real campaigns: their folder, the CSV a corruption of a file takes, the column map (None: the FIGAROH CSV
+# path, `twin import TRAIN.csv --validation VAL.csv --urdf ...`, as data/tiago_mocap/README.md runs it), the separator
+REAL_CAMPAIGNS = {
+    "tiago_mocap": ("tiago_mocap", "qualisys_2021-11-30_static_postures.csv", None, ","),
+    "ur5_laser_tracker": ("ur5_laser_tracker", "3D_UR5_uncalibrated_grid_cleaned.csv", "ur5_grid.toml", ","),
+    "ur10_laser_tracker": ("ur10_laser_tracker", "series_A/measurements_grid.csv", "series_A.toml", ";"),
+}
+
+
+def real_kinds(name: str) -> tuple[str, ...]:
+    """The corruptions a real campaign of :data:`REAL_CAMPAIGNS` takes: every CSV one, and every map one where it
+    is imported through a column map."""
+    return CORRUPTIONS + (MAP_CORRUPTIONS if REAL_CAMPAIGNS[name][2] else ())
+
+
+def run_real_corrupted(name: str, kind: str, seed: int, folder: Path) -> dict:
+    """One of data/'s real campaigns (``name`` of :data:`REAL_CAMPAIGNS`, copied under ``folder/lab``) with its CSV
+    (:func:`corrupt_csv`) or its column map (:func:`corrupt_map`) corrupted one way, imported as its README says
+    and, where it imports, calibrated: the outcomes of :func:`run_corrupted`."""
+    sub, csv_rel, map_rel, sep = REAL_CAMPAIGNS[name]
+    if kind not in real_kinds(name):
+        raise ValueError(f"kind must be one of {real_kinds(name)} for {name}, got {kind!r}")
+    lab = folder / "lab"
+    shutil.copytree(DATA / sub, lab)
+    rng = np.random.default_rng(seed)
+    out = {"seed": seed, "kind": kind, "case": name}
+    if kind in MAP_CORRUPTIONS:
+        out["corruption"] = corrupt_map(lab / map_rel, kind, rng)
+    else:
+        out["corruption"] = corrupt_csv(lab / csv_rel, kind, rng, N.Dialect(separator=sep))
+    if map_rel is not None:
+        argv = ["import", "--map", lab / map_rel]
+    else:
+        argv = ["import", lab / csv_rel, "--validation", lab / "qualisys_2021-11-26_static_postures.csv",
+                "--urdf", lab / "tiago_48_schunk.urdf", "--root", "base_link", "--end", "wrist_ft_tool_link"]
+    return {**out, **_import_and_calibrate(argv + ["--out", folder / "ds"], folder)}
 
 
 def summary(o: Outcome) -> str:

@@ -432,6 +432,35 @@ def test_a_mocap_reading_beyond_any_robot_or_instrument_is_named(tmp_path):
         read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
 
 
+def test_a_mocap_column_kept_beside_the_dataset_twice_in_the_header_is_named(tmp_path):
+    """A FIGAROH-style CSV whose header names a column the import keeps (the time windows, marker_std_mm) twice,
+    where one of the two would be kept unsaid: DatasetError naming the file and the column."""
+    from twin.importers.mocap import read_mocap_csv
+
+    (tmp_path / "a.csv").write_text("q1,q2,q3,q4,q5,q6,x1,y1,z1,t_start_robot,t_end_robot,t_end_robot\n"
+                                    "0,1,2,3,4,5,0.1,0.2,0.3,10,11,0.2\n")
+    with pytest.raises(DatasetError, match=r"a.csv: columns \['t_end_robot'\] appear more than once in the header"):
+        read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
+
+
+@pytest.mark.parametrize("column,cell", [("marker_std_mm", "inf"), ("marker_std_mm", "-0.1"),
+                                         ("marker_std_mm", ""), ("t_start_robot", "abc"), ("t_end_robot", "nan")])
+def test_a_mocap_noise_or_time_cell_that_is_no_reading_is_named(column, cell, tmp_path):
+    """A FIGAROH-style CSV whose marker_std_mm (of a row with points) is not a finite number >= 0, or whose time
+    window cell is not a finite number (the whole campaign's time would be dropped): DatasetError naming the file,
+    the row and the column."""
+    from twin.importers.mocap import read_mocap_csv
+
+    cols = ["t_start_robot", "t_end_robot", "marker_std_mm"]
+    good = {"t_start_robot": "10", "t_end_robot": "11", "marker_std_mm": "0.2"}
+    rows = [dict(good), {**good, column: cell}]
+    text = "q1,q2,q3,q4,q5,q6,x1,y1,z1," + ",".join(cols) + "\n" + "".join(
+        "0,1,2,3,4,5,0.1,0.2,0.3," + ",".join(r[c] for c in cols) + "\n" for r in rows)
+    (tmp_path / "a.csv").write_text(text)
+    with pytest.raises(DatasetError, match=rf"a.csv: row 2, column '{column}'"):
+        read_mocap_csv(tmp_path / "a.csv", robot_from_spec("irb1200"))
+
+
 def test_a_semicolon_mocap_file_with_decimal_commas_is_named_as_semicolon_separated(tmp_path):
     """A FIGAROH-style CSV written with ';' separators and ',' decimals: DatasetError naming the file as
     ';'-separated (not a ',' decimal mark in a ','-separated file, which its rows also look like)."""

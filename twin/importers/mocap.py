@@ -46,6 +46,9 @@ from ..units import M_PER_MM, MM_PER_M
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
 _TIME_COLUMNS = ("t_start_robot", "t_end_robot")
+# the instrument's per-row marker noise [mm] (a finite number >= 0 where the row has points): the column the
+# diagnosis' noise floor reads (twin.diagnosis.floor.MARKER_STD_COLUMN)
+MARKER_STD_COLUMN = "marker_std_mm"
 # hand_eye: the relative rotations turn about one axis when their second singular value is below this share of the
 # largest rotation (axes within about a degree: a planar arm, whose small errors tilt them apart)
 _ONE_AXIS = 0.02
@@ -77,8 +80,10 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
 
     ``marker_unit``: the unit of the ``x1..zK`` columns (``"m"`` as FIGAROH writes them, or ``"mm"``).
     :class:`~twin.dataset.DatasetError` naming the file, the row and the column: missing file, missing joint
-    columns, no marker columns, empty or non-numeric joint cells, a point with some of its cells empty. A point whose
-    three cells are all empty (or NaN) was not seen in that row (an occluded marker): NaN in ``points``."""
+    columns, no marker columns, empty or non-numeric joint cells, a point with some of its cells empty, a column name
+    twice in the header, a time cell (``t_start_robot``, ``t_end_robot``) that is no finite number, a
+    ``marker_std_mm`` cell of a row with points that is no finite number >= 0. A point whose three cells are all
+    empty (or NaN) was not seen in that row (an occluded marker): NaN in ``points``."""
     from ..dataset import LENGTH_UNITS
 
     path = Path(path)
@@ -93,7 +98,8 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
         for k, r in enumerate(reader):
             check_row_width(header, header + r.pop(None, []), f"{path}: row {k + 1}", DatasetError)
             rows.append({(c or "").strip(): (v or "").strip() for c, v in r.items()})
-    dup = [h for h in duplicate_names(header) if h in robot.joint_names or re.fullmatch(r"[xyz]\d+", h)]
+    # every column is kept (the others in the dataset's poses.csv): a name twice would keep one of them, unsaid
+    dup = [h for h in duplicate_names(header) if h]
     if dup:
         raise DatasetError(f"{path}: columns {dup} appear more than once in the header")
     missing = [c for c in robot.joint_names if c not in header]
@@ -130,6 +136,16 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
                    lambda k: f"{path}: row {k + 1}", DatasetError)
     known = set(robot.joint_names) | {f"{c}{i + 1}" for i in range(K) for c in "xyz"}
     extra = {h: [r.get(h, "") for r in rows] for h in header if h not in known}
+    for c in _TIME_COLUMNS if all(c in extra for c in _TIME_COLUMNS) else ():
+        # the robot's clock: the rows' time (t_s) is the middle of each row's window
+        for k, v in enumerate(extra[c]):
+            parse_finite(v, f"{path}: row {k + 1}, column {c!r}", DatasetError)
+    for k in np.flatnonzero(np.isfinite(P).any(axis=(1, 2))) if MARKER_STD_COLUMN in extra else ():
+        # the instrument's noise of a row with points: the diagnosis' noise floor reads it
+        v = parse_finite(extra[MARKER_STD_COLUMN][k], f"{path}: row {k + 1}, column {MARKER_STD_COLUMN!r}", DatasetError)
+        if v < 0:
+            raise DatasetError(f"{path}: row {k + 1}, column {MARKER_STD_COLUMN!r}: {v!r} is below zero (a standard "
+                               "deviation [mm])")
     return MocapRows(path=path, q=q, points=P, extra=extra, sha256=file_sha256(path))
 
 
