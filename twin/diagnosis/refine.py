@@ -154,12 +154,12 @@ def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: d
     if not others:
         return [] if before else None
     best = max((step, size), key=lambda s: s.dchi2)
-    gross = (prob.w_cal, prob.keep_val)
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)
     try:
         with_best = refit_with(prob, fit, list(fit.chosen) + [(best.atom, best.basis)])
         got = score_atoms(prob, with_best, others, pool_sizes, exact_top=len(others))
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     bar = dists.chi2_isf(0.01 / len(others), 1) * prob.evidence_scale
     more = [g for g in got if g.dchi2 >= bar]
     return more if more or before else None
@@ -168,12 +168,12 @@ def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: d
 @memo_on_fit
 def _beyond(prob: Problem, fit: Fit, size: Scored, others: list[Scored], pool_sizes: dict[str, int]) -> float:
     """The evidence ``size`` adds to ``fit`` refitted with ``others``."""
-    gross = (prob.w_cal, prob.keep_val)
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)
     try:
         with_others = refit_with(prob, fit, list(fit.chosen) + [(o.atom, o.basis) for o in others])
         got = score_atoms(prob, with_others, [size.atom], pool_sizes, exact_top=1)
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     return got[0].dchi2 if got else 0.0
 
 
@@ -184,13 +184,13 @@ def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, poo
     better than the model with ``sign`` (inf without a sign backlash)."""
     if sign is None:
         return np.inf
-    gross = (prob.w_cal, prob.keep_val)  # each reading's own gross rows, for this comparison only
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)  # each reading's own gross rows, for this comparison only
     try:
         with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
         got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
         with_size = refit_with(prob, fit, list(fit.chosen) + [(size.atom, size.basis)])
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     held = [error_stats(f.model_val, f.z, gross[1])["position_mm"]["rms"] for f in (with_size, with_sign)]
     return got[0].dchi2 if got and held[0] < held[1] else 0.0
 
