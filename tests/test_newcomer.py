@@ -96,6 +96,17 @@ def test_a_corrupted_campaign_file_imports_or_is_refused_naming_the_cause(kind, 
     assert r["outcome"] in ("imported", "refused", "not_drawable"), r
 
 
+@pytest.mark.parametrize("name,kind", [("tiago_mocap", "dup_header"), ("tiago_mocap", "cell_inf"),
+                                       ("ur5_laser_tracker", "map_unit_unknown"), ("ur10_laser_tracker", "cell_inf")])
+def test_a_corrupted_real_campaign_is_refused_naming_its_file(name, kind, tmp_path):
+    """One of data/'s real campaigns with its file corrupted one way the import once let through (a header name
+    twice in TIAGo's FIGAROH CSV, its marker_std_mm inf) or refuses fast (the UR5's map with an unknown unit, a UR10
+    reading inf): refused naming the file (experiments/bench_newcomer.py corrupts each every way it can be)."""
+    k = C.real_kinds(name).index(kind)
+    r = C.run_real_corrupted(name, kind, 920000 + k, tmp_path)
+    assert r["outcome"] == "refused", r
+
+
 # ---- the chain's contracts ---------------------------------------------------------------------------------------
 
 
