@@ -137,12 +137,12 @@ def main() -> int:
     seeds = [SEED0 + k for k in range(args.cases)]
     if args.corrupted < 0:
         raise SystemExit(f"--corrupted must be at least 0, got {args.corrupted}")
+    import _newcomer_chain as C
+
+    jobs = [(name, k) for name in C.REAL_CAMPAIGNS for k in range(len(C.real_kinds(name)))] if args.real else []
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, seeds))
         bad = list(ex.map(one_corrupted, range(args.corrupted)))
-        import _newcomer_chain as C
-
-        jobs = [(name, k) for name in C.REAL_CAMPAIGNS for k in range(len(C.real_kinds(name)))] if args.real else []
         real = list(ex.map(one_real, jobs))
     wall = time.perf_counter() - t0
     counts = collections.Counter(r["outcome"] for r in rows)

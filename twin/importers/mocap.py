@@ -29,7 +29,6 @@ from __future__ import annotations
 import csv
 import hashlib
 import os
-import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,7 +135,8 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
                    lambda k: f"{path}: row {k + 1}", DatasetError)
     known = set(robot.joint_names) | {f"{c}{i + 1}" for i in range(K) for c in "xyz"}
     extra = {h: [r.get(h, "") for r in rows] for h in header if h not in known}
-    for c in _TIME_COLUMNS if all(c in extra for c in _TIME_COLUMNS) else ():
+    timed = all(c in extra for c in _TIME_COLUMNS)
+    for c in _TIME_COLUMNS if timed else ():
         # the robot's clock: the rows' time (t_s) is the middle of each row's window
         for k, v in enumerate(extra[c]):
             parse_finite(v, f"{path}: row {k + 1}, column {c!r}", DatasetError)
