@@ -107,6 +107,7 @@ def test_joints_csv_group_takes_poses_from_a_plan_file(tmp_path):
     q = make_plan(c).q[:4]
     write_joints_csv(tmp_path / "plan.csv", Joints(np.arange(4), q, station=np.array(["front"] * 4, dtype=object)))
     raw = _raw()
+    raw.pop("quick")  # its [[poses]] replaced below: the [quick] table that addresses the old ones goes with them
     raw["poses"] = [{"name": "planned", "set": "calibration", "kind": "joints_csv", "path": str(tmp_path / "plan.csv")},
                     {"name": "check", "set": "validation", "kind": "joints_csv", "path": str(tmp_path / "plan.csv"),
                      "pairing": "consecutive", "evaluate": ["angle"]}]
