@@ -182,6 +182,17 @@ def test_a_joints_csv_joint_beyond_any_robot_is_named(tmp_path):
         read_joints_csv(p)
 
 
+def test_a_joints_csv_pose_id_of_twenty_digits_is_named_beyond_the_ids(tmp_path):
+    """JOINTS.csv with a pose_id of 20 digits: DatasetError naming the row, the column and the cell as beyond the ids
+    a dataset holds (the same words as poses.csv's reader), not an overflow."""
+    write_joints_csv(tmp_path / "J.csv", Joints(np.array([3, 1, 2]), np.zeros((3, 6))))
+    lines = (tmp_path / "J.csv").read_text().splitlines()
+    lines[2] = "12345678901234567890" + lines[2][lines[2].index(","):]
+    (tmp_path / "J.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"J.csv: row 2, column 'pose_id': '12345678901234567890' is beyond the ids"):
+        read_joints_csv(tmp_path / "J.csv")
+
+
 def test_noise_table_reads_si_and_refuses_bad_entries(tmp_path):
     """[noise] gives (m, rad) or None per key; an unknown key or a value that is not positive is refused, named."""
     assert read_noise_table({"position_mm": 0.02, "orientation_rad": 1e-4}, "x") == (0.02 * M_PER_MM, 1e-4)

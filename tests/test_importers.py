@@ -135,6 +135,19 @@ set = {{ validation_last_fraction = 0.25 }}
 """
 
 
+def test_a_pose_id_of_twenty_digits_in_a_mapped_csv_is_named_beyond_the_ids(tmp_path):
+    """A mapped CSV whose pose_id column holds an integer of 20 digits (an export error): DatasetError naming the
+    file, the row, the column and the cell as beyond the ids a dataset holds (it is an integer, not a malformed one)."""
+    _points_csv(tmp_path / "grid.csv")
+    lines = (tmp_path / "grid.csv").read_text().splitlines()
+    lines[5] = "12345678901234567890" + lines[5][lines[5].index(","):]
+    (tmp_path / "grid.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "m.toml").write_text(POINTS_MAP)
+    with pytest.raises(DatasetError, match=r"grid.csv: row 5 \(line 6\), column 'step_order': '12345678901234567890' "
+                                           r"is beyond the ids"):
+        import_columns(tmp_path / "m.toml", tmp_path / "ds")
+
+
 def test_points_as_differences_of_columns_with_the_last_quarter_held_out(tmp_path):
     """measured = target - dif in millimetres, joints in degrees: the dataset's points equal the true ones to the
     file's precision, the last 25 % of the rows are validation, pose_id from step_order, no t_s (row order)."""

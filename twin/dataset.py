@@ -27,7 +27,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .files import (check_readings, check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite,
+from .files import (check_pose_id, check_readings, check_row_width, columns_beyond_joints, duplicate_names, open_text, parse_finite,
                     read_toml, separator_hint)
 from .dataset_types import (JOINT_COLUMNS, LENGTH_UNITS, OPTIONAL_COLUMNS, POSE_COLUMNS, SCHEMA_VERSION, SETS,
                             SPHERE_COLUMNS, Dataset, DatasetError, Plate, default_plate, joint_columns, marker_columns,
@@ -363,9 +363,7 @@ def _read_rows(cols: _Columns, rows: list[list[str]], to_m: float, n_joints: int
             pid = int(pid_txt)
         except ValueError:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': not an integer: {pid_txt!r}") from None
-        if abs(pid) >= 2**62:
-            raise DatasetError(f"{file}: row {rown}, column 'pose_id': {pid_txt!r} is beyond the ids a dataset holds "
-                               "(|id| < 2**62)")
+        check_pose_id(pid, pid_txt, f"{file}: row {rown}, column 'pose_id'", DatasetError)
         if pid in seen_ids:
             raise DatasetError(f"{file}: row {rown}, column 'pose_id': duplicate id {pid} (first in row {seen_ids[pid]})")
         seen_ids[pid] = rown
@@ -796,9 +794,10 @@ def read_joints_csv(path: str | os.PathLike, robot: RobotModel | None = None) ->
     chans: dict[str, list] = {c: [] for c in JOINTS_OPTIONAL if c in header}
     for k, r in enumerate(rows):
         try:
-            pid[k] = int(r["pose_id"])
-        except (TypeError, ValueError, OverflowError):
+            v = int(r["pose_id"])
+        except (TypeError, ValueError):
             raise DatasetError(f"{path}: row {k + 1}, column 'pose_id': not an integer: {r['pose_id']!r}") from None
+        pid[k] = check_pose_id(v, r["pose_id"], f"{path}: row {k + 1}, column 'pose_id'", DatasetError)
         for j, c in enumerate(jcols):
             q[k, j] = _parse_float((r[c] or "").strip(), str(path), k + 1, str(pid[k]), c) * jscale[j]
         for c in chans:

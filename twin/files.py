@@ -16,8 +16,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite", "check_row_width", "separator_hint",
-           "duplicate_names", "columns_beyond_joints"]
+__all__ = ["read_text", "open_text", "read_toml", "read_json", "parse_finite", "check_pose_id", "POSE_ID_MAX",
+           "parse_marker_std", "MARKER_STD_COLUMN", "check_readings", "READING_MAX_SI", "check_row_width",
+           "separator_hint", "duplicate_names", "columns_beyond_joints"]
 
 
 def read_text(path: str | os.PathLike, error: type[ValueError] = ValueError) -> str:
@@ -84,6 +85,29 @@ def check_readings(readings, row_words, error: type[ValueError] = ValueError) ->
             at = tuple(int(i) for i in bad[0])
             raise error(f"{row_words(at[0])}, column {column(*at[1:])!r}: {values[at] / unit(*at[1:]):.6g} is beyond "
                         f"any reading (more than {READING_MAX_SI:g} in SI units): a typing or export error?")
+
+
+POSE_ID_MAX = 2**62  # a pose id's magnitude stays below this (ids are stored as 64-bit integers)
+
+
+def check_pose_id(value: int, text: str, where: str, error: type[ValueError] = ValueError) -> int:
+    """``value`` (the integer a ``pose_id`` cell ``text`` gives) when within :data:`POSE_ID_MAX`; ``error`` naming
+    ``where`` and the cell otherwise (an id of 20 digits is a typing or export error, not an overflow later)."""
+    if abs(value) >= POSE_ID_MAX:
+        raise error(f"{where}: {text!r} is beyond the ids a dataset holds (|id| < 2**62)")
+    return int(value)
+
+
+MARKER_STD_COLUMN = "marker_std_mm"  # optional poses.csv column: the instrument's marker noise of the row [mm]
+
+
+def parse_marker_std(text: str, where: str, error: type[ValueError] = ValueError) -> float:
+    """A ``marker_std_mm`` cell (a standard deviation [mm]) as a finite number >= 0; ``error`` naming ``where``
+    otherwise."""
+    v = parse_finite(text, where, error)
+    if v < 0:
+        raise error(f"{where} has {text!r}, expected a finite number >= 0 [mm]")
+    return v
 
 
 def parse_finite(text: str, where: str, error: type[ValueError] = ValueError, *, decimal: str = ".") -> float:

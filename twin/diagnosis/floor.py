@@ -30,7 +30,7 @@ from ..dataset import Dataset, Joints
 from ..estimator.distributions import f_sf
 from ..kinematics import link_frames
 from ..transforms import kabsch
-from ..files import parse_finite
+from ..files import MARKER_STD_COLUMN, parse_marker_std
 from ..units import M_PER_MM
 from .candidates import GRAVITY, RowContext
 from .features import Field
@@ -308,7 +308,6 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True,
     return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
 
 
-MARKER_STD_COLUMN = "marker_std_mm"  # optional poses.csv column: the instrument's marker noise of the row [mm]
 
 
 def marker_noise(ds: Dataset) -> tuple[float, int] | None:
@@ -324,11 +323,7 @@ def marker_noise(ds: Dataset) -> tuple[float, int] | None:
     vals = []
     for k in np.flatnonzero(rows):
         where = f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]})"
-        v = parse_finite(str(raw[k]).strip(), where)
-        if v < 0:
-            raise ValueError(f"{MARKER_STD_COLUMN}: row {k + 1} (pose_id {ds.pose_id[k]}) has {str(raw[k])!r}, expected a "
-                             "finite number >= 0 [mm]")
-        vals.append(v)
+        vals.append(parse_marker_std(str(raw[k]).strip(), where))
     if not vals:
         return None
     return float(np.sqrt(np.mean(np.square(vals)))) * M_PER_MM, len(vals)

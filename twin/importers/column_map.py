@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..dataset import DatasetError, read_noise_table, robot_from_spec
-from ..files import (check_readings, check_row_width, duplicate_names, parse_finite, read_text, read_toml,
+from ..files import (check_pose_id, check_readings, check_row_width, duplicate_names, parse_finite, read_text, read_toml,
                      separator_hint)
 from ..kinematics import RobotModel
 from ..transforms import invert_transform, make_transform, pose6_to_transform, quat_wxyz_to_matrix
@@ -646,10 +646,10 @@ def read_mapped_csv(spec: FileSpec) -> MappedRows:
                        else num(k, line, r, fm.temperature))
         if pid is not None:
             v = num(k, line, r, fm.pose_id)
-            if v != int(v) or abs(v) >= 2**62:
-                raise DatasetError(f"{path}: row {k + 1} (line {line}), column {fm.pose_id!r}: not an integer: "
-                                   f"{cell(r, fm.pose_id)!r}")
-            pid[k] = int(v)
+            where = f"{path}: row {k + 1} (line {line}), column {fm.pose_id!r}"
+            if v != int(v):
+                raise DatasetError(f"{where}: not an integer: {cell(r, fm.pose_id)!r}")
+            pid[k] = check_pose_id(int(v), cell(r, fm.pose_id), where, DatasetError)
         for c in fm.keep:  # numbers: checked, written with '.' decimals as the file gives their digits
             num(k, line, r, c)
             keep_text[c].append(cell(r, c).strip().replace(",", "."))

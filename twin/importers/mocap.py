@@ -37,7 +37,8 @@ from typing import Sequence
 import numpy as np
 
 from ..dataset import Dataset, DatasetError, Plate, write_dataset
-from ..files import check_readings, check_row_width, duplicate_names, open_text, parse_finite, separator_hint
+from ..files import (MARKER_STD_COLUMN, check_readings, check_row_width, duplicate_names, open_text, parse_finite,
+                     parse_marker_std, separator_hint)
 from ..kinematics import RobotModel, flange2base
 from ..transforms import invert_transform, kabsch, make_transform, matrix_to_rotvec
 from ..units import M_PER_MM, MM_PER_M
@@ -45,9 +46,6 @@ from ..units import M_PER_MM, MM_PER_M
 __all__ = ["MocapRows", "read_mocap_csv", "marker_geometry", "hand_eye", "import_mocap", "file_sha256"]
 
 _TIME_COLUMNS = ("t_start_robot", "t_end_robot")
-# the instrument's per-row marker noise [mm] (a finite number >= 0 where the row has points): the column the
-# diagnosis' noise floor reads (twin.diagnosis.floor.MARKER_STD_COLUMN)
-MARKER_STD_COLUMN = "marker_std_mm"
 # hand_eye: the relative rotations turn about one axis when their second singular value is below this share of the
 # largest rotation (axes within about a degree: a planar arm, whose small errors tilt them apart)
 _ONE_AXIS = 0.02
@@ -142,10 +140,7 @@ def read_mocap_csv(path: str | os.PathLike, robot: RobotModel, *, marker_unit: s
             parse_finite(v, f"{path}: row {k + 1}, column {c!r}", DatasetError)
     for k in np.flatnonzero(np.isfinite(P).any(axis=(1, 2))) if MARKER_STD_COLUMN in extra else ():
         # the instrument's noise of a row with points: the diagnosis' noise floor reads it
-        v = parse_finite(extra[MARKER_STD_COLUMN][k], f"{path}: row {k + 1}, column {MARKER_STD_COLUMN!r}", DatasetError)
-        if v < 0:
-            raise DatasetError(f"{path}: row {k + 1}, column {MARKER_STD_COLUMN!r}: {v!r} is below zero (a standard "
-                               "deviation [mm])")
+        parse_marker_std(extra[MARKER_STD_COLUMN][k], f"{path}: row {k + 1}, column {MARKER_STD_COLUMN!r}", DatasetError)
     return MocapRows(path=path, q=q, points=P, extra=extra, sha256=file_sha256(path))
 
 
