@@ -86,6 +86,23 @@ def test_unknown_first_approach_does_not_veto_backlash():
     H.tally(out, named=(9, SEEDS), flagged=(SEEDS, SEEDS), clearance=(9, SEEDS))
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_rows_before_a_backlash_joint_first_moves_are_left_out_and_read_as_no_change(seed):
+    """A short campaign (36-48 poses, its first pose measured twice) on a robot with a backlash of a drawn joint, size
+    and start: the rows before that joint first moves are left out of the fit (they carry the whole backlash
+    unexplained), backlash is named and no change of a frame or a joint is read from them."""
+    rng = np.random.default_rng(4400 + seed)
+    mask = np.zeros(6)
+    mask[int(rng.integers(1, 6))] = 1.0
+    b = rng.uniform(0.02, 0.06) * DEG
+    start = rng.uniform(-2.0, 2.0, 6)
+    ds, _ = _dataset(lambda q, m: q + b * _own_approach(q, start) * mask, seed=seed, n=4 * int(rng.integers(9, 13)))
+    res = diagnose(ds)
+    assert {0, 1} <= set(res.rows["left_out_history"]), res.rows
+    assert "backlash" in res.effects and not [c["label"] for c in res.changes if not c["minor"]], \
+        (res.effects, [c["label"] for c in res.changes])
+
+
 @pytest.mark.slow
 def test_single_harmonic_on_one_joint_is_one_atom_near_the_oracle():
     """One harmonic on one joint: the one non-minor term is that joint and order with its amplitude within 10 %

@@ -798,3 +798,21 @@ def test_the_selection_scans_short_windows_only_where_the_grid_is_fine():
     small = _short_pairs(200, MIN_ROWS)
     assert int(np.max(small[1] - small[0])) <= 2 * WINDOW_MIN_ROWS - 1
     assert len(_short_pairs(12000, MIN_ROWS)[0]) > 1000 * len(small[0])
+
+
+def test_rows_left_out_for_their_history_are_no_run_of_gross_rows():
+    """gross_runs (the glitch scan's runs of gross rows, read again) counts the calibration rows at weight 0 as
+    gross, and not those a kept term lacks the history of (update_gross leaves them out of every fit)."""
+    from twin.diagnosis.diagnose import prepare_diagnosis
+    from twin.diagnosis.late import gross_runs
+
+    ds, _, _, _ = _joint_step(0)
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    first = np.argsort(ds.t_s[prob.rows_cal], kind="stable")[:4]
+    prob.w_cal = np.ones(prob.obs_cal.n)
+    prob.w_cal[first] = 0.0
+    assert gross_runs(setup, prob)[first].tolist() == [1.0] * 4
+    prob.history_out = np.zeros(prob.obs_cal.n, bool)
+    prob.history_out[first] = True
+    assert not gross_runs(setup, prob).any()

@@ -14,7 +14,7 @@ from scipy import sparse
 
 import _diagnosis_helpers as H
 from twin.diagnosis import grams, scoring
-from twin.diagnosis.problem import MODELS_KEPT, ColumnStore
+from twin.diagnosis.problem import MODELS_KEPT, ColumnStore, short_runs
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 from twin.diagnosis.extend import AtomTerm, ExtendedModel, _times_weights, param_weights
@@ -328,3 +328,24 @@ def test_a_kept_model_is_the_model_of_the_same_atoms_and_bases(problem):
     for k in range(MODELS_KEPT):
         prob.model([(a, (k + 3.0) * B)], "cal")
     assert prob.model([(a, B)], "cal") is not m
+
+
+def test_short_runs_keeps_exactly_the_runs_no_longer_than_asked():
+    """short_runs keeps each run of consecutive True at most ``most`` long and drops the longer ones (against a
+    row-by-row count, on random flags with a seeded rng)."""
+    rng = np.random.default_rng(31)
+    for _ in range(200):
+        flag = rng.random(int(rng.integers(0, 40))) < rng.uniform(0.1, 0.9)
+        most = int(rng.integers(0, 6))
+        want = np.zeros_like(flag)
+        k = 0
+        while k < len(flag):
+            if flag[k]:
+                e = k
+                while e < len(flag) and flag[e]:
+                    e += 1
+                want[k:e] = e - k <= most
+                k = e
+            else:
+                k += 1
+        assert np.array_equal(short_runs(flag, most), want), (flag.astype(int), most)

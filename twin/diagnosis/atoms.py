@@ -39,15 +39,19 @@ evaluates the same regressor on new rows. Nothing here reads truth.
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass, field
 
 from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
-from .features import Const, Feature, Gated, Hinge, Play, Sign, feature_from_dict
+from .features import Const, Feature, Gated, Hinge, Play, Sign, Step, Window, feature_from_dict
 
 __all__ = ["Atom", "is_load_change", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS",
            "BACKLASH_MOVE_REFINED_LAWS", "HINGE_POINTS", "sign_backlash", "play_backlash", "hinge_atom", "joint_words",
-           "tilt_axis", "tilt_coefficient"]
+           "tilt_axis", "tilt_coefficient", "MIN_ROWS", "MIN_SIDE", "started_at", "change_from"]
+
+MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
+MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
 
 
 PLAY_HALF_DEG = (0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)  # half clearances tried for a kept backlash (then refined)
@@ -186,3 +190,21 @@ def is_load_change(atom: Atom) -> bool:
     on or taken off)."""
     return atom.family == "change" and atom.place == "joint" and bool(atom.features) \
         and isinstance(atom.features[0], Gated)
+
+
+def started_at(atom: Atom, at: float) -> Atom:
+    """The step ``atom`` (:func:`~twin.diagnosis.changes.is_step`) from ``at`` (its time channel's value) on instead."""
+    return change_from(atom, float(at), atom.pool)
+
+
+def change_from(atom: Atom, at: float, pool: str) -> Atom:
+    """The change ``atom``'s features from ``at`` on without an end (a step, or a gated shape), its label to match,
+    in ``pool``."""
+    ch = atom.features[0].ch
+    if isinstance(atom.features[0], (Step, Window)):
+        feats = tuple(Step(ch=f.ch, at=at) for f in atom.features)
+    else:
+        feats = tuple(Gated(f=f.f, ch=f.ch, at=at) for f in atom.features)
+    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
+    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, pool, atom.joints,
+                dict(atom.meta))

@@ -36,7 +36,7 @@ import numpy as np
 from ..estimator.distributions import f_sf
 from ..runtime import thread_map
 from ..units import MM_PER_M, rad_to_deg
-from .atoms import Atom, joint_words
+from .atoms import MIN_ROWS, MIN_SIDE, Atom, change_from, joint_words, started_at
 from .candidates import RowContext, gravity_torque_regressor
 from .confirm import row_blocks
 from .features import Const, Gated, Step, Window, feature_from_dict
@@ -49,8 +49,6 @@ __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_pla
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
            "same_event", "started_at", "change_at", "place_scatter", "window_logp", "selection_short"]
 
-MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
-MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
 WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 60  # most boundary positions the window scan takes (every k-th row beyond, then refined)
@@ -126,25 +124,7 @@ def as_window(atom: Atom, until: float) -> Atom:
 
 def as_step(atom: Atom) -> Atom:
     """The change ``atom`` (a step or a window) from its start on, without an end: a step, in the step pool."""
-    return _step(atom, float(atom.features[0].at), "change")
-
-
-def started_at(atom: Atom, at: float) -> Atom:
-    """The step ``atom`` (:func:`is_step`) from ``at`` (its time channel's value) on instead."""
-    return _step(atom, float(at), atom.pool)
-
-
-def _step(atom: Atom, at: float, pool: str) -> Atom:
-    """The change ``atom``'s features from ``at`` on without an end (a step, or a gated shape), its label to match,
-    in ``pool``."""
-    ch = atom.features[0].ch
-    if isinstance(atom.features[0], (Step, Window)):
-        feats = tuple(Step(ch=f.ch, at=at) for f in atom.features)
-    else:
-        feats = tuple(Gated(f=f.f, ch=f.ch, at=at) for f in atom.features)
-    label = re.sub(r"from \S+ \S+ (on|until \S+)$", f"from {ch} {at:.6g} on", atom.label)
-    return Atom(atom.family, atom.place, atom.target, feats, f"change({ch} >= {at:.6g})", label, pool, atom.joints,
-                dict(atom.meta))
+    return change_from(atom, float(atom.features[0].at), "change")
 
 
 def row_times(ctx: RowContext) -> tuple[str, np.ndarray]:

@@ -869,7 +869,7 @@ def virtual_spheres(ds: Dataset) -> tuple[Dataset, str, AssumedNoise | None]:
 def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
     pid = setup.dataset.pose_id
     prep = setup.prep
-    gc = prep.rows[prep.cal][prob.w_cal == 0]
+    gc = prep.rows[prep.cal][(prob.w_cal == 0) & ~prob.history_out]
     gv = prob.rows_val[~prob.keep_val]
     reset = np.flatnonzero(approach_unknown(prob.ctx))
     rep = [] if prob.rows_rep is None else [int(pid[i]) for i in prob.rows_rep]
@@ -877,6 +877,9 @@ def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
             "unknown_history": [int(pid[i]) for i in reset],
             "unknown_history_rule": "rows where a joint that moves has not moved since the start, a gap in t_s or "
                                     "a recorded restart: history-dependent terms read 0 there",
+            "left_out_history": [int(pid[i]) for i in prep.rows[prep.cal][prob.history_out]],
+            "left_out_history_rule": "calibration rows whose history a kept term needs and lacks: left out of the fit "
+                                     "(the term reads 0 there, so they would carry its whole size unexplained)",
             "rule": "per-row misfit beyond the floor's 1e-6/n quantile and median + 8 MAD (at most 2 % of rows)",
             "confirmation": [int(pid[i]) for i in prob.rows_val], "report": rep,
             "held_out_rule": setup.held_out.rule}

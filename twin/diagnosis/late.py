@@ -196,7 +196,7 @@ def end_change(setup, prob_all: Problem, use_all: Fit, places: list[ChangePlace]
     sizes = {"change": factor, "change_window": factor}
     w0 = prob_all.w_cal
     tail = tv[prob_all.rows_cal] >= t_rows[n - need + 1]
-    w_tail = np.maximum(w0, tail.astype(float))
+    w_tail = np.maximum(w0, (tail & ~prob_all.history_out).astype(float))  # not the rows a term lacks the history of
     prob_all.w_cal = w_tail
     result = use_all, None, ""
     try:
@@ -480,7 +480,7 @@ def end_term(setup, prob_all: Problem, use_all: Fit, templates: list, *, alpha: 
     t_cal = tv[prob_all.rows_cal]
     after = t_cal >= start
     w0 = prob_all.w_cal
-    w_tail = np.maximum(w0, (t_cal > t_before).astype(float))
+    w_tail = np.maximum(w0, ((t_cal > t_before) & ~prob_all.history_out).astype(float))
     prob_all.w_cal = w_tail
     sizes = {a.pool: 1 for a in templates}
     best, factor, kept = None, 1, False
@@ -745,11 +745,11 @@ def _load_or_zero(prob: Problem, fit: Fit, load: Scored, places: list[ChangePlac
 
 
 def gross_runs(setup, prob: Problem) -> np.ndarray:
-    """``(n,)`` 1 on the calibration rows at weight 0 (gross) that are ``MIN_ROWS`` or more in a row in time order
-    (a glitch's shortest window), else 0."""
+    """``(n,)`` 1 on the calibration rows at weight 0 as gross (not those a kept term lacks the history of) that are
+    ``MIN_ROWS`` or more in a row in time order (a glitch's shortest window), else 0."""
     _, tv = row_times(setup.ctx)
     order = np.argsort(tv[prob.rows_cal], kind="stable")
-    g = (prob.w_cal[order] == 0).astype(int)
+    g = ((prob.w_cal == 0) & ~prob.history_out)[order].astype(int)
     out = np.zeros(len(g))
     k = 0
     while k < len(g):

@@ -13,13 +13,13 @@ import numpy as np
 from ..estimator.core import Prepared
 from ..estimator.memo import KeptResults, array_key
 from ..estimator.solvers import gauss_newton
-from .atoms import Atom
+from .atoms import MIN_ROWS, MIN_SIDE, Atom
 from .candidates import RowContext
 from .extend import AtomTerm, ExtendedModel, error_stats
 from .floor import NoiseFloor
 from .grams import block_stats, single_step
 from .structure import StructureTest, fit_block_test, gross_rows, structure_test
-from .values import feature_channel, feature_values
+from .values import feature_channel, feature_values, history_unknown
 
 __all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "MODELS_KEPT", "Problem", "ColumnStore", "covariance", "update_gross",
            "refit_with", "psi_init", "held_out_rms", "common_chi2"]
@@ -82,6 +82,8 @@ class Problem:
         self._cache: dict = {}
         self._models = KeptResults(MODELS_KEPT, 0)  # the latest models, by block and (atom, basis) (Problem.model)
         self.w_cal = np.ones(self.obs_cal.n)
+        # calibration rows at weight 0 because a kept term lacks their history (update_gross), not as gross
+        self.history_out = np.zeros(self.obs_cal.n, dtype=bool)
         self.keep_val = np.ones(self.obs_val.n, dtype=bool)
         # the evidence of a term is its Delta chi2 over this: 1 when the floor is the scatter a correct model leaves;
         # the geometric fit's residual variance per degree of freedom when the floor is only a lower bound of it
@@ -281,11 +283,31 @@ def covariance(J: np.ndarray) -> np.ndarray:
 
 def update_gross(prob: Problem, fit: Fit) -> None:
     """The problem's gross rows set from ``fit``: calibration rows at weight 0 (``w_cal``) and confirmation rows left
-    out of the tests (``keep_val``), by :func:`~twin.diagnosis.structure.gross_rows` of each block's residuals."""
+    out of the tests (``keep_val``), by :func:`~twin.diagnosis.structure.gross_rows` of each block's residuals.
+
+    Calibration rows whose history a term of ``fit`` needs and lacks (:func:`~twin.diagnosis.values.history_unknown`:
+    a backlash's side before its joint first moves) are at weight 0 too (``history_out``): the term reads 0 there,
+    so those rows carry its whole size unexplained, which the geometry's frames or a change would otherwise absorb.
+    Only runs of such rows as short as a change's side (``max(MIN_ROWS, MIN_SIDE n)``: the first rows, a restart's):
+    a joint held still for a long stretch holds one unknown side there, which its zero takes up."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
-    prob.w_cal = (~gross_rows(rc.r, rc.row, fit.model_cal.obs.n)).astype(float)
+    out = short_runs(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal],
+                     max(MIN_ROWS, int(np.ceil(MIN_SIDE * prob.obs_cal.n))))
+    prob.history_out = out
+    prob.w_cal = (~(gross_rows(rc.r[~out[rc.row]], rc.row[~out[rc.row]], fit.model_cal.obs.n) | out)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
+
+
+def short_runs(flag: np.ndarray, most: int) -> np.ndarray:
+    """``flag`` ``(n,)`` bool with only its runs of consecutive ``True`` at most ``most`` long kept."""
+    flag = np.asarray(flag, bool)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], flag.astype(np.int8), [0]))))
+    out = np.zeros_like(flag)
+    for a, b in zip(edges[::2], edges[1::2]):
+        if b - a <= most:
+            out[a:b] = True
+    return out
 
 
 def common_chi2(a: Fit, b: Fit) -> float:

@@ -12,8 +12,8 @@ import numpy as np
 
 from ..estimator import distributions as dists
 from ..units import MM_PER_M, deg_to_rad, rad_to_deg
-from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS,
-                    PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash, sign_backlash)
+from .atoms import (BACKLASH_MOVE_LAWS, BACKLASH_MOVE_REFINED_LAWS, BACKLASH_MOVE_WIDTHS_DEG, HINGE_POINTS, MIN_ROWS,
+                    MIN_SIDE, PLAY_HALF_DEG, Atom, hinge_atom, joint_words, play_backlash, sign_backlash, started_at)
 from .extend import error_stats, reduced_basis
 from .features import Exp, Feature, Heat, Lag, Pow, Step, StepIn
 from .problem import Fit, Problem, refit_with
@@ -154,12 +154,12 @@ def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: d
     if not others:
         return [] if before else None
     best = max((step, size), key=lambda s: s.dchi2)
-    gross = (prob.w_cal, prob.keep_val)
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)
     try:
         with_best = refit_with(prob, fit, list(fit.chosen) + [(best.atom, best.basis)])
         got = score_atoms(prob, with_best, others, pool_sizes, exact_top=len(others))
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     bar = dists.chi2_isf(0.01 / len(others), 1) * prob.evidence_scale
     more = [g for g in got if g.dchi2 >= bar]
     return more if more or before else None
@@ -168,12 +168,12 @@ def _settling(prob: Problem, fit: Fit, step: Scored, size: Scored, pool_sizes: d
 @memo_on_fit
 def _beyond(prob: Problem, fit: Fit, size: Scored, others: list[Scored], pool_sizes: dict[str, int]) -> float:
     """The evidence ``size`` adds to ``fit`` refitted with ``others``."""
-    gross = (prob.w_cal, prob.keep_val)
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)
     try:
         with_others = refit_with(prob, fit, list(fit.chosen) + [(o.atom, o.basis) for o in others])
         got = score_atoms(prob, with_others, [size.atom], pool_sizes, exact_top=1)
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     return got[0].dchi2 if got else 0.0
 
 
@@ -184,13 +184,13 @@ def _beyond_sign(prob: Problem, fit: Fit, size: Scored, sign: Scored | None, poo
     better than the model with ``sign`` (inf without a sign backlash)."""
     if sign is None:
         return np.inf
-    gross = (prob.w_cal, prob.keep_val)  # each reading's own gross rows, for this comparison only
+    gross = (prob.w_cal, prob.keep_val, prob.history_out)  # each reading's own gross rows, for this comparison only
     try:
         with_sign = refit_with(prob, fit, list(fit.chosen) + [(sign.atom, sign.basis)])
         got = score_atoms(prob, with_sign, [size.atom], pool_sizes, exact_top=1)
         with_size = refit_with(prob, fit, list(fit.chosen) + [(size.atom, size.basis)])
     finally:
-        prob.w_cal, prob.keep_val = gross
+        prob.w_cal, prob.keep_val, prob.history_out = gross
     held = [error_stats(f.model_val, f.z, gross[1])["position_mm"]["rms"] for f in (with_size, with_sign)]
     return got[0].dchi2 if got and held[0] < held[1] else 0.0
 
@@ -463,17 +463,31 @@ def _refine_hinge(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]
 
 def _refine_step(prob: Problem, fit: Fit, s: Scored, pool_sizes: dict[str, int]) -> Scored:
     """A change point found on the coarse grid (deciles of the channel) moved to the row time between its grid
-    neighbours that explains most: the step's time is a parameter of the effect, not of the grid."""
-    f0 = next(f for f in s.atom.features if isinstance(f, Step))
+    neighbours that explains most: the step's time is a parameter of the effect, not of the grid. Only times that
+    leave the change scan's ``max(MIN_ROWS, MIN_SIDE n)`` fitting rows (weight > 0) on each side are tried (a state
+    a handful of rows hold at an end is no state); a change keeps its label's time with it
+    (:func:`~twin.diagnosis.atoms.started_at`); steps at several times (one at every session start) stay."""
+    steps = [f for f in s.atom.features if isinstance(f, Step)]
+    f0 = steps[0]
+    if any(f.at != f0.at or f.ch != f0.ch for f in steps):
+        return s
     ch = f0.ch
     values = np.unique(feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx,
                                       prob.prep.nominal)[:, 0])
     grid = np.quantile(values, np.linspace(0, 1, 11))
     k = int(np.argmin(np.abs(grid - f0.at)))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    cands = [v for v in values if lo < v < hi and v != f0.at]
+    fitting = feature_values((Pow(ch=ch, p=1, c=0.0, h=1.0),), prob.ctx, prob.prep.nominal)[prob.rows_cal, 0]
+    fitting = np.sort(fitting[prob.w_cal > 0])
+    side = max(MIN_ROWS, int(np.ceil(MIN_SIDE * len(fitting))))
+    before = np.searchsorted(fitting, values, side="left")  # fitting rows before each candidate time
+    cands = [v for v, nb in zip(values, before)
+             if lo < v < hi and v != f0.at and nb >= side and len(fitting) - nb >= side]
     trial = []
     for v in cands:
+        if s.atom.family == "change":
+            trial.append(started_at(s.atom, float(v)))
+            continue
         feats = tuple(replace_atom(f, at=float(v)) if isinstance(f, Step) else f for f in s.atom.features)
         label = s.atom.label.replace(s.atom.channel, f"step({ch} >= {v:.6g})")
         trial.append(replace_atom(s.atom, features=feats, channel=f"step({ch} >= {v:.6g})", label=label))

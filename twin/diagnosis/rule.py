@@ -281,7 +281,8 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                                                            load) if a.key not in have]
         if any(isinstance(f, Play) for f in accepted.atom.features):
             # a clearance is placed on the whole model refitted (the linearised evidence is biased by its size),
-            # under the gross rows of that model (the first rows, whose side of the clearance is unknown)
+            # under the gross rows of that model (the rows before its joint first moves, whose side of the clearance
+            # is unknown, are left out of the fit: update_gross)
             fit = polish_in_fit(prob, fit, len(chosen) - 1, "h")
             chosen = list(fit.chosen)
             update_gross(prob, fit)
