@@ -330,13 +330,13 @@ def test_a_kept_model_is_the_model_of_the_same_atoms_and_bases(problem):
     assert prob.model([(a, B)], "cal") is not m
 
 
-def test_short_runs_keeps_exactly_the_runs_no_longer_than_asked():
-    """short_runs keeps each run of consecutive True at most ``most`` long and drops the longer ones (against a
-    row-by-row count, on random flags with a seeded rng)."""
+def test_short_runs_keeps_exactly_the_runs_as_long_as_asked():
+    """short_runs keeps each run of consecutive True from ``least`` to ``most`` long and drops the shorter and the
+    longer ones (against a row-by-row count, on random flags with a seeded rng)."""
     rng = np.random.default_rng(31)
     for _ in range(200):
         flag = rng.random(int(rng.integers(0, 40))) < rng.uniform(0.1, 0.9)
-        most = int(rng.integers(0, 6))
+        least, most = int(rng.integers(0, 3)), int(rng.integers(0, 6))
         want = np.zeros_like(flag)
         k = 0
         while k < len(flag):
@@ -344,8 +344,8 @@ def test_short_runs_keeps_exactly_the_runs_no_longer_than_asked():
                 e = k
                 while e < len(flag) and flag[e]:
                     e += 1
-                want[k:e] = e - k <= most
+                want[k:e] = least <= e - k <= most
                 k = e
             else:
                 k += 1
-        assert np.array_equal(short_runs(flag, most), want), (flag.astype(int), most)
+        assert np.array_equal(short_runs(flag, least, most), want), (flag.astype(int), least, most)

@@ -878,8 +878,9 @@ def _rows_report(prob: Problem, setup: Setup) -> dict[str, Any]:
             "unknown_history_rule": "rows where a joint that moves has not moved since the start, a gap in t_s or "
                                     "a recorded restart: history-dependent terms read 0 there",
             "left_out_history": [int(pid[i]) for i in prep.rows[prep.cal][prob.history_out]],
-            "left_out_history_rule": "calibration rows whose history a kept term needs and lacks: left out of the fit "
-                                     "(the term reads 0 there, so they would carry its whole size unexplained)",
+            "left_out_history_rule": "calibration rows whose history a kept term needs and lacks, in runs of 2 rows "
+                                     "up to a change's side: left out of the fit (the term reads 0 there, so they "
+                                     "would carry its whole size unexplained); a lone such row stays in",
             "rule": "per-row misfit beyond the floor's 1e-6/n quantile and median + 8 MAD (at most 2 % of rows)",
             "confirmation": [int(pid[i]) for i in prob.rows_val], "report": rep,
             "held_out_rule": setup.held_out.rule}

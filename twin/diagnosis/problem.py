@@ -288,10 +288,11 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     Calibration rows whose history a term of ``fit`` needs and lacks (:func:`~twin.diagnosis.values.history_unknown`:
     a backlash's side before its joint first moves) are at weight 0 too (``history_out``): the term reads 0 there,
     so those rows carry its whole size unexplained, which the geometry's frames or a change would otherwise absorb.
-    Only runs of such rows as short as a change's side (``max(MIN_ROWS, MIN_SIDE n)``: the first rows, a restart's):
-    a joint held still for a long stretch holds one unknown side there, which its zero takes up."""
+    Only runs of such rows of 2 up to a change's side (``max(MIN_ROWS, MIN_SIDE n)``: the first rows, a restart's):
+    a joint held still for a long stretch holds one unknown side there, which its zero takes up; a lone row's unknown
+    side is a misfit no change can read as a state (a change needs ``MIN_ROWS`` a side), while its geometry counts."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
-    out = short_runs(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal],
+    out = short_runs(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal], 2,
                      max(MIN_ROWS, int(np.ceil(MIN_SIDE * prob.obs_cal.n))))
     prob.history_out = out
     prob.w_cal = (~(gross_rows(rc.r[~out[rc.row]], rc.row[~out[rc.row]], fit.model_cal.obs.n) | out)).astype(float)
@@ -299,13 +300,13 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
 
 
-def short_runs(flag: np.ndarray, most: int) -> np.ndarray:
-    """``flag`` ``(n,)`` bool with only its runs of consecutive ``True`` at most ``most`` long kept."""
+def short_runs(flag: np.ndarray, least: int, most: int) -> np.ndarray:
+    """``flag`` ``(n,)`` bool with only its runs of consecutive ``True`` from ``least`` to ``most`` long kept."""
     flag = np.asarray(flag, bool)
     edges = np.flatnonzero(np.diff(np.concatenate(([0], flag.astype(np.int8), [0]))))
     out = np.zeros_like(flag)
     for a, b in zip(edges[::2], edges[1::2]):
-        if b - a <= most:
+        if least <= b - a <= most:
             out[a:b] = True
     return out
 
