@@ -47,8 +47,8 @@ from .values import feature_values
 __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque_shapes", "payload_shapes",
            "carried_shapes", "load_atoms", "load_sign_feature", "refine_load_sign", "reads_its_load",
            "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID",
-           "STIFFENING_LAWS", "STATED_SPREAD", "law_atom", "stiffening_atoms", "fitted_load", "own_link_atom",
-           "link_tilt_atom", "stated_load_mix"]
+           "STIFFENING_LAWS", "STATED_SPREAD", "FLANK_SEEN", "law_atom", "stiffening_atoms", "fitted_load",
+           "own_link_atom", "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -106,6 +106,8 @@ REFINE_SHAPES = 5  # a joint's leading torque shapes the direction of a kept loa
 # load crosses zero, within the joint's friction, a fraction of its load)
 STIFFENING_WIDTH = 1.0 / 3.0
 STATED_SPREAD = 0.1  # the stated masses' error, as a share of the generic prior's spread of the torque shapes
+# a smooth flank is seen by the rows whose law differs from the load's sign by more than a tenth of the offset
+FLANK_SEEN = 0.9
 SIMPLEX_STEP = 0.1  # the refinement's first steps along each direction (each of unit RMS over the rows)
 
 
@@ -251,9 +253,10 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
     ``tanh(load / w)``, not the load's sign, and the sign alone misplaces every row near the flank's change. The
     smooth flank (its width from ``FLANK_WIDTHS`` of the load's RMS, then refined on its log with the direction)
     replaces the sign when it explains significantly more: beyond ``chi2_1`` at 1 % / the number of widths tried,
-    with at least 3 calibration rows inside the flank (``|tanh| < 0.5``). A compliance stiffening with its load is
-    refined so under each of its laws (``STIFFENING_LAWS``: smooth, or two stiffnesses changing at the width), the one
-    that explains most kept. Returns the scored atom."""
+    with at least 3 calibration rows that see the flank (``|tanh| < FLANK_SEEN``: its law differs there from the sign
+    by more than a tenth of the offset; a narrow flank shows in the rows beside its middle). A compliance stiffening
+    with its load is refined so under each of its laws (``STIFFENING_LAWS``: smooth, or two stiffnesses changing at
+    the width), the one that explains most kept. Returns the scored atom."""
     from scipy.optimize import minimize
 
     f0 = s.atom.features[0]
@@ -339,10 +342,10 @@ def refine_load_sign(prob, fit, s, pool_sizes: dict):
             dists.chi2_isf(0.01 / len(FLANK_WIDTHS), 1):
         fo = smooth.atom.features[0]
         v = feature_values((fo.f,), prob.ctx, model)[rows, 0]
-        if int(np.sum(np.abs(np.tanh(v / fo.width)) < 0.5)) >= 3:
+        if int(np.sum(np.abs(np.tanh(v / fo.width)) < FLANK_SEEN)) >= 3:
             return smooth
-        # a flank with fewer than 3 rows inside it is a sharp one (its width fits the rows near zero load the
-        # direction put on the wrong side)
+        # a flank seen by fewer than 3 rows is a sharp one (its width fits the rows near zero load the direction put
+        # on the wrong side)
     sharp = sharp if sharp.dchi2 >= s.dchi2 else s
     read = _flank_read(prob, fit, sharp, i, stated, pool_sizes)
     if read is not None:
