@@ -41,7 +41,7 @@ from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, chang
                       is_step, is_window, place_scatter, row_times, same_event, scan_changes, started_at)
 from .atoms import Atom, is_load_change
 from .features import Gated, Heat, Lag, Window
-from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, update_gross
+from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, short_runs, update_gross
 from .confirm import confirm
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
 from .scoring import Scored, score_atoms
@@ -749,19 +749,9 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
     ``MIN_ROWS`` or more in a row in time order (a glitch's shortest window), else 0."""
     _, tv = row_times(setup.ctx)
     order = np.argsort(tv[prob.rows_cal], kind="stable")
-    g = ((prob.w_cal == 0) & ~prob.history_out)[order].astype(int)
+    g = ((prob.w_cal == 0) & ~prob.history_out)[order]
     out = np.zeros(len(g))
-    k = 0
-    while k < len(g):
-        if g[k]:
-            e = k
-            while e < len(g) and g[e]:
-                e += 1
-            if e - k >= MIN_ROWS:
-                out[order[k:e]] = 1.0
-            k = e
-        else:
-            k += 1
+    out[order] = short_runs(g, MIN_ROWS, len(g))
     return out
 
 
