@@ -14,7 +14,7 @@ from scipy import sparse
 
 import _diagnosis_helpers as H
 from twin.diagnosis import grams, scoring
-from twin.diagnosis.problem import MODELS_KEPT, ColumnStore, short_runs
+from twin.diagnosis.problem import MODELS_KEPT, ColumnStore, runs_of_length
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 from twin.diagnosis.extend import AtomTerm, ExtendedModel, _times_weights, param_weights
@@ -330,8 +330,8 @@ def test_a_kept_model_is_the_model_of_the_same_atoms_and_bases(problem):
     assert prob.model([(a, B)], "cal") is not m
 
 
-def test_short_runs_keeps_exactly_the_runs_as_long_as_asked():
-    """short_runs keeps each run of consecutive True from ``least`` to ``most`` long and drops the shorter and the
+def test_runs_of_length_keeps_exactly_the_runs_as_long_as_asked():
+    """runs_of_length keeps each run of consecutive True from ``least`` to ``most`` long and drops the shorter and the
     longer ones (against a row-by-row count, on random flags with a seeded rng)."""
     rng = np.random.default_rng(31)
     for _ in range(200):
@@ -348,4 +348,4 @@ def test_short_runs_keeps_exactly_the_runs_as_long_as_asked():
                 k = e
             else:
                 k += 1
-        assert np.array_equal(short_runs(flag, least, most), want), (flag.astype(int), least, most)
+        assert np.array_equal(runs_of_length(flag, least, most), want), (flag.astype(int), least, most)

@@ -41,7 +41,8 @@ from .changes import (MIN_ROWS, MIN_SIDE, ChangePlace, as_step, as_window, chang
                       is_step, is_window, place_scatter, row_times, same_event, scan_changes, started_at)
 from .atoms import Atom, is_load_change
 from .features import Gated, Heat, Lag, Window
-from .problem import Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, short_runs, update_gross
+from .problem import (Fit, Problem, common_chi2, held_out_rms, psi_init, refit_with, runs_of_length,
+                      update_gross)
 from .confirm import confirm
 from .refine import ONSET_POINTS, ONSET_RAMPS, ONSET_TAUS, is_onset, onset_lag, refine, refine_onset
 from .scoring import Scored, score_atoms
@@ -751,7 +752,7 @@ def gross_runs(setup, prob: Problem) -> np.ndarray:
     order = np.argsort(tv[prob.rows_cal], kind="stable")
     g = ((prob.w_cal == 0) & ~prob.history_out)[order]
     out = np.zeros(len(g))
-    out[order] = short_runs(g, MIN_ROWS, len(g))
+    out[order] = runs_of_length(g, MIN_ROWS, len(g))
     return out
 
 

@@ -22,7 +22,7 @@ from .structure import StructureTest, fit_block_test, gross_rows, structure_test
 from .values import feature_channel, feature_values, history_unknown
 
 __all__ = ["Fit", "FIT_FTOL", "THREADS_MIN_ROWS", "MODELS_KEPT", "Problem", "ColumnStore", "covariance", "update_gross",
-           "refit_with", "psi_init", "held_out_rms", "common_chi2"]
+           "refit_with", "psi_init", "held_out_rms", "common_chi2", "runs_of_length"]
 
 
 @dataclass
@@ -292,7 +292,7 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     a joint held still for a long stretch holds one unknown side there, which its zero takes up; a lone row's unknown
     side is a misfit no change can read as a state (a change needs ``MIN_ROWS`` a side), while its geometry counts."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
-    out = short_runs(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal], 2,
+    out = runs_of_length(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal], 2,
                      max(MIN_ROWS, int(np.ceil(MIN_SIDE * prob.obs_cal.n))))
     prob.history_out = out
     prob.w_cal = (~(gross_rows(rc.r[~out[rc.row]], rc.row[~out[rc.row]], fit.model_cal.obs.n) | out)).astype(float)
@@ -300,7 +300,7 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     prob.keep_val = ~gross_rows(rv.r, rv.row, fit.model_val.obs.n)
 
 
-def short_runs(flag: np.ndarray, least: int, most: int) -> np.ndarray:
+def runs_of_length(flag: np.ndarray, least: int, most: int) -> np.ndarray:
     """``flag`` ``(n,)`` bool with only its runs of consecutive ``True`` from ``least`` to ``most`` long kept."""
     flag = np.asarray(flag, bool)
     edges = np.flatnonzero(np.diff(np.concatenate(([0], flag.astype(np.int8), [0]))))
