@@ -94,7 +94,7 @@ def check_pose_id(value: int, text: str, where: str, error: type[ValueError] = V
     """``value`` (the integer a ``pose_id`` cell ``text`` gives) when within :data:`POSE_ID_MAX`; ``error`` naming
     ``where`` and the cell otherwise (an id of 20 digits is a typing or export error, not an overflow later)."""
     if abs(value) >= POSE_ID_MAX:
-        raise error(f"{where}: {text!r} is beyond the ids a dataset holds (|id| < 2**62)")
+        raise error(f"{where}: {text!r} is beyond the ids a dataset holds (|id| < 2**{POSE_ID_MAX.bit_length() - 1})")
     return int(value)
 
 

@@ -308,8 +308,6 @@ def noise_floor(ds: Dataset, *, stated_ok: bool = True, plate: bool = True,
     return NoiseFloor(sigma, nu, source, groups, components, axis_sigma=axis, lower_bound=setters == ["marker_std"])
 
 
-
-
 def marker_noise(ds: Dataset) -> tuple[float, int] | None:
     """The noise per point coordinate [m] a motion-capture system reports per row (column ``marker_std_mm``: the
     standard deviation of the markers over the row's averaging window), as the RMS over the rows with points,
