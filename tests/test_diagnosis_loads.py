@@ -9,9 +9,9 @@ import numpy as np
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext, gravity_torques
 from twin.diagnosis.features import BaseMoment, GravMix, LoadSign, Moment, Torque
-from twin.diagnosis.loads import (STIFFENING_WIDTH, _max_margin, carried_shapes, fitted_load, law_atom, link_tilt_atom,
-                                  load_atoms, own_link_atom, stated_load_mix, stiffening_atoms, tilt_angles,
-                                  torque_shapes)
+from twin.diagnosis.loads import (OWN_LINK_DIRECTIONS, STIFFENING_GRID, STIFFENING_LAWS, STIFFENING_WIDTH, _max_margin,
+                                  carried_shapes, fitted_load, law_atom, link_tilt_atom, load_atoms, own_link_atom,
+                                  own_link_stiffening, stated_load_mix, stiffening_atoms, tilt_angles, torque_shapes)
 from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
 from twin.urdf import read_urdf_chain
@@ -97,6 +97,33 @@ def test_the_weight_of_its_own_link_kept_alone_is_the_load_a_stiffening_law_foll
     assert isinstance(load, GravMix) and load.i == 2
     v = feature_values((load,), RowContext(q=q), model)[:, 0]
     np.testing.assert_allclose(v, F @ psi, atol=1e-12 * np.max(np.abs(F @ psi)) + 1e-18)
+
+
+def test_a_link_weights_stiffening_is_offered_along_every_direction_of_its_plane():
+    """Without masses, the stiffening of the weight of the link joint 2 moves is offered along directions of that
+    weight's plane only, one of them within half a grid step of any direction in it (random directions, seeded): the
+    load's zero a stiffening bends about is the link's, wherever a fit placed it."""
+    model = irb1200()
+    q = _rows(model)
+    ctx = RowContext(q=q)
+    atoms = own_link_stiffening(model, ctx, 2)
+    assert len(atoms) == OWN_LINK_DIRECTIONS * len(STIFFENING_LAWS) * len(STIFFENING_GRID)
+    assert {a.family for a in atoms} == {"compliance"} and {a.target for a in atoms} == {"theta2"}
+    F = feature_values(own_link_atom(model, q, 2).features, ctx, model)
+    loads = np.column_stack([feature_values((a.features[1],), ctx, model)[:, 0] for a in atoms])
+    assert np.allclose(F @ np.linalg.lstsq(F, loads, rcond=None)[0], loads, atol=1e-9 * np.max(np.abs(loads)))
+    unit = loads / np.linalg.norm(loads, axis=0)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        v = F @ rng.normal(size=F.shape[1])
+        assert np.max(np.abs(unit.T @ v)) / np.linalg.norm(v) >= np.cos(np.pi / (2 * OWN_LINK_DIRECTIONS)) - 1e-9
+
+
+def test_a_link_weights_stiffening_is_not_offered_beside_stated_masses():
+    """With the chain's masses the stated load's stiffening is in the pool: no directions of a link's weight."""
+    model = read_urdf_chain(DATA / "tiago_48_schunk.urdf", "base_link", "wrist_ft_tool_link")
+    q = _rows(model, 40)
+    assert own_link_stiffening(model, RowContext(q=q), 2) == []
 
 
 def test_stiffening_atoms_are_compliances_of_both_laws_on_a_grid_of_widths():

@@ -1,6 +1,7 @@
-"""The drawn families' tables, made from the sets' results.json: studies/drawn/README.md's table (per family and
+"""The drawn families' tables, made from the sets' results.json: studies/drawn/README.md's tables (per family and
 set: named / report rows within the goal / named with the later rows within 1.2x; the later rows' after/oracle,
-median and worst over every set) and docs/diagnosis.md's coverage table (per family and set: named with the later
+median and worst over every set; per set of the current code its totals, the rows of an earlier code's run kept) and
+docs/diagnosis.md's coverage table (per family and set: named with the later
 rows within 1.2x, of 20). The tables' other columns (goal, size, what each family covers and misses) are written by
 hand and kept.
 
@@ -27,6 +28,9 @@ SETS = (("results", "0-19"), ("results_fresh", "100-119"), ("results_held", "200
         ("results_700", "700-719"), ("results_800", "800-819"), ("results_900", "900-919"),
         ("results_1000", "1000-1019"), ("results_1100", "1100-1119"))
 _ROW = re.compile(r"\| ([a-z_]+)( \(no alarm\))? \| ")
+# a row of the README's totals table: its label (the seeds, then what code ran them) and its first count
+_TOTALS = re.compile(r"\| ((\d+-\d+)(?: [^|]*)?) \| \d+/\d+ \| ")
+_EARLIER = re.compile(r"older code|code before")  # a row of an earlier code's run (its _before folder), kept
 
 
 def _readme(text: str, res: dict, fams: list[str]) -> str:
@@ -38,8 +42,20 @@ def _readme(text: str, res: dict, fams: list[str]) -> str:
              if i["family"] == f and i.get("test")]
         return f"{statistics.median(v):.2f} / {max(v):.2f}"
 
+    by_seeds = dict((s, d) for d, s in SETS)
+
+    def totals_row(label: str, t: dict) -> str:
+        return (f"| {label} | {t['named']}/{t['effect_instances']} | {t['report_within_goal']}/{t['effect_instances']} | "
+                f"{t['test_within_goal']}/{t['effect_instances']} | {t['named_and_test_within_1.2']}/"
+                f"{t['effect_instances']} | {t['families_at_9_of_10']}/{t['effect_families']} | "
+                f"{t['clean_false_alarms']}/{t['clean_instances']} |")
+
     out = []
     for ln in text.split("\n"):
+        tot = _TOTALS.match(ln)
+        if tot and tot.group(2) in by_seeds and not _EARLIER.search(tot.group(1)):
+            out.append(totals_row(tot.group(1), res[by_seeds[tot.group(2)]]["totals"]))
+            continue
         if ln.startswith("| family | goal | size |"):
             ln = ("| family | goal | size | " + " | ".join(s for _, s in SETS)
                   + f" | later rows after/oracle, median / worst ({20 * len(SETS)}) |")

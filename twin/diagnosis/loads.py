@@ -48,7 +48,8 @@ __all__ = ["TILT_RANK", "COM_PRIOR_M", "LOAD_SHAPES", "LOAD_DIRECTIONS", "torque
            "carried_shapes", "load_atoms", "load_sign_feature", "refine_load_sign", "reads_its_load",
            "load_alternatives", "tilt_angles", "FLANK_WIDTHS", "REFINE_SHAPES", "STIFFENING_WIDTH", "STIFFENING_GRID",
            "STIFFENING_LAWS", "STATED_SPREAD", "FLANK_SEEN", "law_atom", "stiffening_atoms", "fitted_load",
-           "own_link_atom", "link_tilt_atom", "stated_load_mix"]
+           "own_link_atom", "own_link_channel", "own_link_stiffening", "along_link_weight", "load_candidates",
+           "OWN_LINK_DIRECTIONS", "link_tilt_atom", "stated_load_mix"]
 
 TILT_RANK = 3  # principal shapes of the base's gravity moment kept (each turns the base about both axes)
 COM_PRIOR_M = 0.1  # [m] the torque shapes' prior: a link's centre of mass ~0.1 m off its frame
@@ -109,6 +110,9 @@ STATED_SPREAD = 0.1  # the stated masses' error, as a share of the generic prior
 # a smooth flank is seen by the rows whose law differs from the load's sign by more than a tenth of the offset
 FLANK_SEEN = 0.9
 SIMPLEX_STEP = 0.1  # the refinement's first steps along each direction (each of unit RMS over the rows)
+# directions over a half turn in the plane of a link's own first mass moment whose stiffening is tried on a chain
+# without masses (a direction and its opposite give the same odd law up to its coefficient)
+OWN_LINK_DIRECTIONS = 12
 
 
 def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
@@ -137,19 +141,78 @@ def law_atom(model: RobotModel, atom: Atom, f: LoadSign, rms: float) -> Atom:
                               f"{law})")
 
 
-def stiffening_atoms(model: RobotModel, ctx: RowContext, j: int, load) -> list[Atom]:
+def stiffening_atoms(model: RobotModel, ctx: RowContext, j: int, load, *, u: tuple | None = None) -> list[Atom]:
     """Joint ``j``'s compliance stiffening with its gravity load ``load`` (a :class:`Torque` of the stated masses, or a
     :class:`GravMix` combination of its torque shapes: a linear compliance's fitted torque): ``tanh(load / w)`` for
     ``w`` in ``STIFFENING_GRID`` of the load's RMS over the rows, and ``clip(load / w, -1, 1)`` (two stiffnesses, the
     change at ``w``), refined when kept (:func:`refine_load_sign`). Softer near zero load than under a large one: a
-    harmonic drive's first stiffness, a gear's teeth coming into contact."""
+    harmonic drive's first stiffness, a gear's teeth coming into contact. ``u``: the load's coordinates in the shapes
+    it was combined from, carried by its features (:func:`own_link_stiffening`)."""
     v = feature_values((load,), ctx, model)[:, 0]
     rms = float(np.sqrt(np.mean(v ** 2)))
     if not rms > 0:
         return []
     base = Atom("compliance", "joint", f"theta{j}", (), "", "", "catalogue", (j,))
-    return [law_atom(model, base, LoadSign(f=load, width=float(fr * rms), law=law), rms)
+    return [law_atom(model, base, LoadSign(f=load, u=u, width=float(fr * rms), law=law), rms)
             for law in STIFFENING_LAWS for fr in STIFFENING_GRID]
+
+
+def load_candidates(prob, fit, pool: list[Atom], targets: set[str], have: set[str]) -> list[Atom]:
+    """The load family's terms of the joints ``targets`` not in ``have``: the pool's compliances of those joints, the
+    compliance under the weight of the link each moves, the stiffening of each linear compliance ``fit`` holds, and,
+    where ``fit`` holds the weight of the link a joint moves and the chain states no masses, that weight's stiffening
+    along the directions of its plane (:func:`own_link_stiffening`: the fitted torque places the load's zero only up
+    to what the joint's zero takes). The candidates of ``twin.diagnosis.rule``'s family swaps (``prob`` a
+    :class:`twin.diagnosis.problem.Problem`, ``fit`` its :class:`Fit`)."""
+    model = prob.prep.nominal
+    out = [c for c in pool if c.family == "compliance" and c.place == "joint" and c.target in targets
+           and c.pool == "catalogue" and c.key not in have]
+    for t in sorted(targets):
+        own = own_link_atom(model, prob.ctx.q, int(t[5:]))
+        if own is not None and own.key not in have:
+            out.append(own)
+    for t in sorted(targets):
+        load = fitted_load(fit, int(t[5:]))
+        if load is not None:
+            out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
+        if any(c.channel == own_link_channel(int(t[5:])) for c, _ in fit.chosen):
+            out += [c for c in own_link_stiffening(model, prob.ctx, int(t[5:])) if c.key not in have]
+    return out
+
+
+def own_link_channel(j: int) -> str:
+    """The channel of joint ``j``'s compliance under the weight of the link it moves (:func:`own_link_atom`)."""
+    return f"gravity torque of link {j} on joint {j}"
+
+
+def own_link_stiffening(model: RobotModel, ctx: RowContext, j: int) -> list[Atom]:
+    """Joint ``j``'s compliance stiffening with the weight of the link it moves, on a chain without mass properties:
+    :func:`stiffening_atoms` of the load along each of ``OWN_LINK_DIRECTIONS`` directions over a half turn of the plane
+    its own first mass moment spans (:func:`own_link_atom`'s two shapes, each of unit RMS over the rows). A stiffening
+    bends the load about its zero, and a linear compliance's fitted torque places that zero only up to the part of
+    the load the joint's zero takes: where the load keeps one sign over most rows, its fitted combination is near a
+    constant and its law a line (:func:`fitted_load`). The link's weight places the zero where its own moment
+    vanishes. Empty with masses (the stated load's law is in the pool) or where the link carries no such plane."""
+    if has_masses(model):
+        return []
+    own = own_link_atom(model, ctx.q, j)
+    if own is None or len(own.features) != 2:
+        return []
+    f1, f2 = own.features
+    out: list[Atom] = []
+    for a in np.pi * np.arange(OWN_LINK_DIRECTIONS) / OWN_LINK_DIRECTIONS:
+        u = (float(np.cos(a)), float(np.sin(a)))
+        w = u[0] * np.asarray(f1.w, float) / f1.h + u[1] * np.asarray(f2.w, float) / f2.h
+        out += stiffening_atoms(model, ctx, j, GravMix(i=j, cols=f1.cols, w=tuple(w.tolist()), h=1.0), u=u)
+    return out
+
+
+def along_link_weight(atom: Atom) -> bool:
+    """Whether ``atom`` is a stiffening along a direction of its link's weight's plane (:func:`own_link_stiffening`:
+    its load's ``u`` the direction's two coordinates in the plane's unit shapes)."""
+    f = atom.features[0] if atom.features else None
+    return (atom.family == "compliance" and isinstance(f, LoadSign) and isinstance(f.f, GravMix)
+            and f.u is not None and len(f.u) == 2 and len(atom.features) == 2)
 
 
 def own_link_atom(model: RobotModel, q: np.ndarray, j: int) -> Atom | None:
@@ -165,7 +228,7 @@ def own_link_atom(model: RobotModel, q: np.ndarray, j: int) -> Atom | None:
     _, sv, Vt = np.linalg.svd(M, full_matrices=False)
     rk = int(np.sum(sv > 1e-6 * sv[0]))
     feats = tuple(GravMix(i=j, cols=cols, w=tuple(Vt[k].tolist()), h=float(sv[k] / np.sqrt(len(M)))) for k in range(rk))
-    return Atom("compliance", "joint", f"theta{j}", feats, f"gravity torque of link {j} on joint {j}",
+    return Atom("compliance", "joint", f"theta{j}", feats, own_link_channel(j),
                 f"joint {joint_words(model, j)} compliance under gravity, the weight of the link it moves", "catalogue",
                 (j,))
 
@@ -204,7 +267,7 @@ def fitted_load(fit, j: int) -> GravMix | None:
             and a.features and all(isinstance(f, GravMix) for f in a.features)]
     # the leading shapes; without them the weight of the link the joint moves (its own first mass moment) is the load
     lead = ([a for _, a, _ in kept if a.channel == main]
-            or [a for _, a, _ in kept if a.channel == f"gravity torque of link {j} on joint {j}"])
+            or [a for _, a, _ in kept if a.channel == own_link_channel(j)])
     if not lead:
         return None
     cols = lead[0].features[0].cols

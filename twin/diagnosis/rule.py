@@ -25,8 +25,8 @@ from .atoms import Atom, is_load_change
 from .changes import (change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
                       selection_short, window_logp)
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
-from .loads import (fitted_load, link_tilt_atom, load_alternatives, own_link_atom, reads_its_load, refine_load_sign,
-                    stiffening_atoms, tilt_angles)
+from .loads import (along_link_weight, fitted_load, link_tilt_atom, load_alternatives, load_candidates, own_link_atom,
+                    reads_its_load, refine_load_sign, stiffening_atoms, tilt_angles)
 from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
 from .extend import error_stats
 from .harmonics import with_second_order
@@ -462,14 +462,14 @@ def _swap_term(prob: Problem, fit: Fit, a: Atom, cands: list[Atom], sizes: dict,
 def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[str], sizes: dict,
                alpha_select: float, z_min: float, *, bare: bool = False) -> tuple[Fit, float, float] | None:
     """The model ``fit`` with its term ``a`` replaced by the load family of the joints ``targets``
-    (:func:`_load_candidates`), grown by the forward pass' rules, at most two terms (a support tilts about two
-    axes), its linear terms first (:func:`_grow_own`), and through the backward pass: ``(alternative, e_alt, e_now)`` with the confirmation rows'
-    position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters, unless ``bare``
+    (:func:`twin.diagnosis.loads.load_candidates`), grown by the forward pass' rules, at most two terms (a support
+    tilts about two axes), its linear terms first (:func:`_grow_own`), and through the backward pass: ``(alternative,
+    e_alt, e_now)`` with the confirmation rows' position RMS [mm] of the alternative and of ``fit``; None when no term of the family enters, unless ``bare``
     (then the alternative is ``fit`` without ``a``: the family's terms it holds read the load alone)."""
     P = prob.prep.space.size
     keep = [(c, B) for c, B in fit.chosen if c is not a]
     base = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
-    cur = _grow_own(prob, base, lambda f, have: _load_candidates(prob, f, pool, targets, have), sizes, alpha_select,
+    cur = _grow_own(prob, base, lambda f, have: load_candidates(prob, f, pool, targets, have), sizes, alpha_select,
                     z_min, 2, linear_first=True)
     if len(cur.chosen) == len(keep) and not bare:
         return None
@@ -602,23 +602,6 @@ def _load_term(a: Atom) -> bool:
             or (a.family == "backlash" and bool(a.features) and isinstance(a.features[0], LoadSign)))
 
 
-def _load_candidates(prob: Problem, fit: Fit, pool: list[Atom], targets: set[str], have: set[str]) -> list[Atom]:
-    """The load family's terms of the joints ``targets`` not in ``have``: the pool's compliances of those joints, the
-    compliance under the weight of the link each moves, and the stiffening of each linear compliance ``fit`` holds."""
-    model = prob.prep.nominal
-    out = [c for c in pool if c.family == "compliance" and c.place == "joint" and c.target in targets
-           and c.pool == "catalogue" and c.key not in have]
-    for t in sorted(targets):
-        own = own_link_atom(model, prob.ctx.q, int(t[5:]))
-        if own is not None and own.key not in have:
-            out.append(own)
-    for t in sorted(targets):
-        load = fitted_load(fit, int(t[5:]))
-        if load is not None:
-            out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
-    return out
-
-
 def _places(prob: Problem, a: Atom) -> set[str]:
     """The joints (``theta<j>``) and supports (``tilt<i>``) a kept term acts at: a joint term its joint; a support's
     tilt the support and the joints about whose axes it turns (the base's: the shoulder's and the elbow's, whose
@@ -636,8 +619,8 @@ def _own_candidates(prob: Problem, fit: Fit, pool: list[Atom], a: Atom, targets:
                     have: set[str]) -> list[Atom]:
     """The family of the kept term ``a``'s own terms at ``targets`` not in ``have``, its richer shapes first in
     line: for a joint's load (a compliance, a backlash signed by the load) the joints' compliance shapes, the weight
-    of the link each moves and the stiffening of each linear compliance ``fit`` holds (:func:`_load_candidates`); for
-    a support's tilt its own atoms and (the base's) the weight of the shoulder's and the elbow's links; for any other
+    of the link each moves and the stiffening of each linear compliance ``fit`` holds
+    (:func:`twin.diagnosis.loads.load_candidates`); for a support's tilt its own atoms and (the base's) the weight of the shoulder's and the elbow's links; for any other
     family the pool's terms of that family at those joints (a backlash's other laws, a harmonic's other orders)."""
     if a.family == "tilt":
         cands = [c for c in pool if c.family == "tilt" and c.target == a.target and c.key not in have]
@@ -646,7 +629,7 @@ def _own_candidates(prob: Problem, fit: Fit, pool: list[Atom], a: Atom, targets:
                       if c is not None and c.key not in have]
         return cands
     if _load_term(a):
-        return _load_candidates(prob, fit, pool, targets, have)
+        return load_candidates(prob, fit, pool, targets, have)
     return [c for c in pool if c.pool != "generic" and c.family == a.family and c.place == "joint"
             and c.target in targets and c.key not in have and not is_change(c)]
 
@@ -717,7 +700,10 @@ def _grow_own(prob: Problem, cur: Fit, candidates: Callable[[Fit, set[str]], lis
     rules (:func:`_first_admitted`: the strongest of the first three admitted, a law refined within its family), at
     most ``rounds`` of them. ``linear_first``: a joint's linear load terms (its torque shapes, the weight of the link
     it moves) enter before any law read on their fitted sum (a stiffening): the law bends the joint's whole torque,
-    not the part of it placed first."""
+    not the part of it placed first. A law along a direction of a link's weight
+    (:func:`twin.diagnosis.loads.along_link_weight`) is tried only where no law of the fitted torque is admitted: the
+    fitted torque is the rows' own reading of the load, the directions the reading where its zero is lost to the
+    joint's."""
     P = prob.prep.space.size
     for _ in range(rounds):
         have = {c.key for c, _ in cur.chosen}
@@ -733,10 +719,10 @@ def _grow_own(prob: Problem, cur: Fit, candidates: Callable[[Fit, set[str]], lis
 
         linear = [c for c in cands if not any(isinstance(f, LoadSign) for f in c.features)] if linear_first else []
         best = _first_admitted(prob, cur, linear, sizes, alpha_select, z_min, top=3) if linear else None
-        if best is None:
-            rest = [c for c in cands if c not in linear]
-            best = _first_admitted(prob, cur, rest, sizes, alpha_select, z_min, top=3, reshape=own_shape) \
-                if rest else None
+        rest = [c for c in cands if c not in linear]
+        for tier in ([c for c in rest if not along_link_weight(c)], [c for c in rest if along_link_weight(c)]):
+            if best is None and tier:
+                best = _first_admitted(prob, cur, tier, sizes, alpha_select, z_min, top=3, reshape=own_shape)
         if best is None:
             break
         chosen = list(cur.chosen) + [(best.atom, best.basis)]
@@ -872,8 +858,8 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
                         z_min: float) -> tuple[Fit, list[str], list[dict]]:
     """A joint's load read in place of several harmonics. Where the arm's weight loads a joint, no load term is kept
     there, and harmonics of its own angle are kept there with further terms of that joint (other orders, unnamed
-    functions), the joint's load family is tried in their place (:func:`_load_candidates`: its torque shapes, the
-    weight of the link it moves, the stiffening of its fitted torque), each term held to the forward pass' rules, and
+    functions), the joint's load family is tried in their place (:func:`twin.diagnosis.loads.load_candidates`: its
+    torque shapes, the weight of the link it moves, the stiffening of its fitted torque), each term held to the forward pass' rules, and
     the terms taken out added back only where they predict the confirmation rows beyond it (:func:`_nested`). A
     joint whose axis lies level turns its own link's first mass moment into exactly a first harmonic of its angle, and
     a stiffening of that torque into its odd harmonics: one cause read as several. The load is kept when it replaces
@@ -900,7 +886,7 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
             continue
         keep = [(c, B) for c, B in fit.chosen if c not in others]
         cur = prob.fit(fit.z[:P], keep, psi_init(fit, keep))
-        cur = _grow_own(prob, cur, lambda f, have, t=t: _load_candidates(prob, f, pool, {t}, have), sizes,
+        cur = _grow_own(prob, cur, lambda f, have, t=t: load_candidates(prob, f, pool, {t}, have), sizes,
                         alpha_select, z_min, len(others) + 1, linear_first=True)
         alt, _ = backward(prob, cur, alpha_select, sizes)
         if not any(c.family == "compliance" and c.target == t for c, _ in alt.chosen):
