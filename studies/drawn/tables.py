@@ -1,9 +1,8 @@
 """The drawn families' tables, made from the sets' results.json: studies/drawn/README.md's tables (per family and
 set: named / report rows within the goal / named with the later rows within 1.2x; the later rows' after/oracle,
 median and worst over every set; per set of the current code its totals, the rows of an earlier code's run kept) and
-docs/diagnosis.md's coverage table (per family and set: named with the later
-rows within 1.2x, of 20). The tables' other columns (goal, size, what each family covers and misses) are written by
-hand and kept.
+docs/diagnosis.md's coverage table (per family and set: named with the later rows within 1.2x, of 20). The tables'
+other columns (goal, size, what each family covers and misses) are written by hand and kept.
 
     python -m studies.drawn.tables            # rewrite both tables
     python -m studies.drawn.tables --check    # print what would change; exit 1 when anything would

@@ -167,16 +167,14 @@ def load_candidates(prob, fit, pool: list[Atom], targets: set[str], have: set[st
     model = prob.prep.nominal
     out = [c for c in pool if c.family == "compliance" and c.place == "joint" and c.target in targets
            and c.pool == "catalogue" and c.key not in have]
-    for t in sorted(targets):
-        own = own_link_atom(model, prob.ctx.q, int(t[5:]))
-        if own is not None and own.key not in have:
-            out.append(own)
+    own = {t: own_link_atom(model, prob.ctx.q, int(t[5:])) for t in sorted(targets)}
+    out += [a for a in own.values() if a is not None and a.key not in have]
     for t in sorted(targets):
         load = fitted_load(fit, int(t[5:]))
         if load is not None:
             out += [c for c in stiffening_atoms(model, prob.ctx, int(t[5:]), load) if c.key not in have]
         if any(c.channel == own_link_channel(int(t[5:])) for c, _ in fit.chosen):
-            out += [c for c in own_link_stiffening(model, prob.ctx, int(t[5:])) if c.key not in have]
+            out += [c for c in own_link_stiffening(model, prob.ctx, int(t[5:]), own=own[t]) if c.key not in have]
     return out
 
 
@@ -185,17 +183,18 @@ def own_link_channel(j: int) -> str:
     return f"gravity torque of link {j} on joint {j}"
 
 
-def own_link_stiffening(model: RobotModel, ctx: RowContext, j: int) -> list[Atom]:
+def own_link_stiffening(model: RobotModel, ctx: RowContext, j: int, *, own: Atom | None = None) -> list[Atom]:
     """Joint ``j``'s compliance stiffening with the weight of the link it moves, on a chain without mass properties:
     :func:`stiffening_atoms` of the load along each of ``OWN_LINK_DIRECTIONS`` directions over a half turn of the plane
     its own first mass moment spans (:func:`own_link_atom`'s two shapes, each of unit RMS over the rows). A stiffening
     bends the load about its zero, and a linear compliance's fitted torque places that zero only up to the part of
     the load the joint's zero takes: where the load keeps one sign over most rows, its fitted combination is near a
     constant and its law a line (:func:`fitted_load`). The link's weight places the zero where its own moment
-    vanishes. Empty with masses (the stated load's law is in the pool) or where the link carries no such plane."""
+    vanishes. Empty with masses (the stated load's law is in the pool) or where the link carries no such plane.
+    ``own``: :func:`own_link_atom` of ``j`` on ``ctx``'s rows when the caller has it."""
     if has_masses(model):
         return []
-    own = own_link_atom(model, ctx.q, j)
+    own = own if own is not None else own_link_atom(model, ctx.q, j)
     if own is None or len(own.features) != 2:
         return []
     f1, f2 = own.features

@@ -293,7 +293,7 @@ def update_gross(prob: Problem, fit: Fit) -> None:
     side is a misfit no change can read as a state (a change needs ``MIN_ROWS`` a side), while its geometry counts."""
     rc = fit.model_cal.residuals(fit.z, jacobian=False)
     out = runs_of_length(history_unknown([a.features for a, _ in fit.chosen], prob.ctx)[prob.rows_cal], 2,
-                     max(MIN_ROWS, int(np.ceil(MIN_SIDE * prob.obs_cal.n))))
+                         max(MIN_ROWS, int(np.ceil(MIN_SIDE * prob.obs_cal.n))))
     prob.history_out = out
     prob.w_cal = (~(gross_rows(rc.r[~out[rc.row]], rc.row[~out[rc.row]], fit.model_cal.obs.n) | out)).astype(float)
     rv = fit.model_val.residuals(fit.z, jacobian=False)
