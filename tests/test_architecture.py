@@ -36,7 +36,8 @@ DIAGNOSIS_ORDER = (
     "extend", "floor", "blocks",  # the extended model, the noise floor and sessions, the held-out blocks
     "structure", "configurations", "grams", "problem", "scoring", "ordering", "confirm", "harmonics", "refine",  # the selection's steps
     "loads", "pools", "changes",  # the load terms, the two pools, the change scan
-    "describe", "late", "rule", "after", "diagnose", "effect_fit",  # the procedure; a given model fitted without it
+    "describe", "late", "pairs", "rule", "verdict", "after", "diagnose", "effect_fit",  # the procedure; a given model
+    # fitted without it
     "apply", "report",  # using an extended calibration; diagnosis.json and the plots
 )
 DIAGNOSIS_MAX_LINES = 1000

@@ -44,11 +44,12 @@ from dataclasses import dataclass, field
 
 from ..kinematics import RobotModel
 from ..units import MM_PER_M, rad_to_deg
-from .features import Const, Feature, Gated, Hinge, Play, Sign, Step, Window, feature_from_dict
+from .features import Const, Feature, Gated, Hinge, LoadSign, Play, Sign, Step, Window, feature_from_dict
 
-__all__ = ["Atom", "is_load_change", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG", "BACKLASH_MOVE_LAWS",
-           "BACKLASH_MOVE_REFINED_LAWS", "HINGE_POINTS", "sign_backlash", "play_backlash", "hinge_atom", "joint_words",
-           "tilt_axis", "tilt_coefficient", "MIN_ROWS", "MIN_SIDE", "started_at", "change_from"]
+__all__ = ["Atom", "is_load_change", "is_load_term", "PLACES", "PLAY_HALF_DEG", "BACKLASH_MOVE_WIDTHS_DEG",
+           "BACKLASH_MOVE_LAWS", "BACKLASH_MOVE_REFINED_LAWS", "HINGE_POINTS", "sign_backlash", "play_backlash",
+           "hinge_atom", "joint_words", "tilt_axis", "tilt_coefficient", "MIN_ROWS", "MIN_SIDE", "started_at",
+           "change_from"]
 
 MIN_ROWS = 3  # rows on each side of a step (and of a window), at least
 MIN_SIDE = 0.05  # ... and this share of the rows: a state held by a handful of rows at an end is no state
@@ -190,6 +191,13 @@ def is_load_change(atom: Atom) -> bool:
     on or taken off)."""
     return atom.family == "change" and atom.place == "joint" and bool(atom.features) \
         and isinstance(atom.features[0], Gated)
+
+
+def is_load_term(a: Atom) -> bool:
+    """Whether ``a`` is a term of the arm's own load: a joint's compliance (linear or stiffening), a backlash signed
+    by the load, a support's tilt."""
+    return ((a.family == "compliance" and a.place == "joint") or a.family == "tilt"
+            or (a.family == "backlash" and bool(a.features) and isinstance(a.features[0], LoadSign)))
 
 
 def started_at(atom: Atom, at: float) -> Atom:

@@ -60,8 +60,8 @@ from .problem import Fit, Problem, refit_with, update_gross
 from .refine import bend_unseen, retimeable
 from .structure import StructureTest, gross_rows, row_rms
 from .after import AfterBlocks, after_blocks
-from .rule import (CandidateScore, Selection, adopt, decide, implausible_size, retime,
-                   select_terms, selection_round)
+from .rule import CandidateScore, Selection, implausible_size, retime, select_terms, selection_round
+from .verdict import adopt, decide
 from .describe import describe_terms, name_effects, place_unit, term_values
 
 __all__ = [

@@ -7,37 +7,40 @@ block (a block of time after every calibration row, or another session); :func:`
 then swaps a term for a named alternative that explains as much (:func:`_swap_term`, :func:`_named_shapes`),
 keeps fewer families where they do as well (:func:`_fewer_families`), keeps no term of another family beside a
 named one unless it predicts the confirmation block beyond the family's own shapes (:func:`_no_extra_family`) and
-refuses terms of implausible size (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``).
-:func:`decide` states the verdict and :func:`adopt` whether the extended model is the model to use. The procedure
-around it is :mod:`twin.diagnosis.diagnose`; the steps it calls are in :mod:`twin.diagnosis.scoring`,
-:mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and :mod:`~twin.diagnosis.refine`."""
+refuses terms of implausible size (:func:`implausible_size`: ``JOINT_MAX``, ``LOAD_MAX``, ``THERMAL_MAX``); where
+every candidate of a round fails on the held-out rows, the first term of the arm's load among them is kept with the
+change of a joint's compliance its rows hold when each is confirmed given the other
+(:func:`twin.diagnosis.pairs.with_change`). :mod:`twin.diagnosis.verdict` states the verdict and whether the
+extended model is the model to use. The procedure around it is :mod:`twin.diagnosis.diagnose`; the steps it calls are
+in :mod:`twin.diagnosis.scoring`, :mod:`~twin.diagnosis.ordering`, :mod:`~twin.diagnosis.confirm` and
+:mod:`~twin.diagnosis.refine`."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from ..estimator.distributions import chi2_isf
-from ..units import M_PER_MM, RAD_PER_DEG
-from .atoms import Atom, is_load_change
+from ..units import RAD_PER_DEG
+from .atoms import Atom, is_load_change, is_load_term
 from .changes import (change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
                       selection_short, window_logp)
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (along_link_weight, fitted_load, link_tilt_atom, load_alternatives, load_candidates, own_link_atom,
                     reads_its_load, refine_load_sign, stiffening_atoms, tilt_angles)
-from .confirm import confirm, confirm_configurations, smooth_confirm, time_only
-from .extend import error_stats
+from .confirm import confirm, confirm_configurations, time_only
 from .harmonics import with_second_order
 from .late import as_event
+from .pairs import HELD_OUT_FAILURES, with_change
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, common_chi2, covariance, held_out_rms, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
 from .refine import (ONSET_TAUS, bend_unseen, follows_the_air, is_onset, polish_in_fit, prefer_heat, prefer_play,
                      prefer_sign, recorded_lag, refine, refine_gap, refine_time, retimeable, widen)
 from .scoring import Scored, score_atoms
-from .structure import StructureTest, chi2_logsf, signed_rank_z
+from .structure import chi2_logsf, signed_rank_z
 
 __all__ = [
     "CandidateScore",
@@ -45,8 +48,6 @@ __all__ = [
     "Round",
     "selection_round",
     "select_terms",
-    "decide",
-    "adopt",
     "implausible_size",
     "backward",
     "retime",
@@ -217,8 +218,11 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                  callback: Callable[[CandidateScore], None] | None = None) -> Selection:
     """Step 4: forward rounds (:func:`selection_round`) from the geometric ``fit``: an accepted atom is refined
     (its continuous constant), widened (its further directions when they add evidence), added and the model
-    refitted; then the backward pass, the catalogue's shapes of one joint variable (:func:`_named_shapes`), fewer
-    families (:func:`_fewer_families`) and no extra term beside a named family (:func:`_no_extra_family`)."""
+    refitted; a round whose every try failed on the held-out rows keeps the first term of the arm's load among them
+    with the change of a joint's compliance its rows hold where each is confirmed given the other
+    (:func:`twin.diagnosis.pairs.with_change`; the change is the next round's); then the backward pass, the
+    catalogue's shapes of one joint variable (:func:`_named_shapes`), fewer families (:func:`_fewer_families`) and no
+    extra term beside a named family (:func:`_no_extra_family`)."""
     sel = Selection(fit)
     chosen: list = []
     rejected: set[str] = set()
@@ -227,11 +231,19 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
     P = prob.prep.space.size
     places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"], prob.ctx.q) \
         if "change" in sizes else []
+    pending: Atom | None = None  # a change kept with the last round's term (pairs.with_change), added this round
     while kept < max_effects and rnd < 4 * max_effects:
         rnd += 1
         remaining = [a for a in pool if a.key not in rejected and slot(a) not in taken]
         lead: dict[str, Atom] = {}
-        if places:
+        forced = None
+        if pending is not None:
+            got = score_atoms(prob, fit, [pending], sizes)
+            forced = Round(got[0] if got else None, [CandidateScore(
+                rnd, g.atom.label, g.basis.shape[1], g.dchi2, float(np.exp(g.logp_adj)), float("nan"),
+                "kept with the term before it (each confirmed given the other)") for g in got], got, [], False)
+            pending = None
+        elif places:
             # the best row of every place for a change, against the current fit (changes.scan_changes; windows from
             # MIN_ROWS rows where the grid is fine, changes.selection_short: a glitch of a few rows read by a window
             # of more takes a load's shapes to fit the extra row)
@@ -243,14 +255,28 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
                     if c.key not in rejected and slot(c) not in taken}
             have = {a.key for a in remaining}
             remaining += [c for k, c in lead.items() if k not in have]
-        r = selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
-                            lead=frozenset(lead), callback=callback)
+        r = forced or selection_round(prob, fit, remaining, sizes, rnd, alpha_select=alpha_select, z_min=z_min,
+                                      lead=frozenset(lead), callback=callback)
         sel.scores += r.scores
         rejected.update(r.rejected)
+        if r.accepted is None and r.unphysical:
+            continue  # named atoms of an unphysical size are out: the next round scores the rest
         if r.accepted is None:
-            if r.unphysical:
-                continue  # named atoms of an unphysical size are out: the next round scores the rest
-            break
+            # every try failed on the held-out rows: a load term of them with the load's change (pairs)
+            tried = {s.atom.label: s for s in r.scored}
+            failed = [tried[c.name] for c in r.scores if c.decision in HELD_OUT_FAILURES and c.name in tried]
+            pair = with_change(prob, fit, failed, places, sizes, alpha_select=alpha_select, z_min=z_min,
+                               admit=lambda a: a.key not in rejected and slot(a) not in taken) if places else None
+            if pair is None:
+                break
+            term = pair.term
+            sc = CandidateScore(rnd, term.atom.label, term.basis.shape[1], term.dchi2, float(np.exp(term.logp_adj)),
+                                pair.z_term, f"kept with a change its rows hold (each confirmed given the other, z "
+                                             f"{pair.z_term:.2f} and {pair.z_change:.2f})")
+            sel.scores.append(sc)
+            if callback:
+                callback(sc)
+            r, pending = replace(r, accepted=term), pair.change
         accepted = r.accepted
         if places and accepted.atom.place == "joint" and is_step(accepted.atom) and not is_load_change(accepted.atom):
             # a step of a joint's zero where a payload's change at that joint (with the same change at every loaded
@@ -332,54 +358,6 @@ def backward(prob: Problem, fit: Fit, alpha_select: float, sizes: dict) -> tuple
             fit = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
             changed = True
     return fit, dropped
-
-
-def decide(prob: Problem, base: Fit, ext: Fit | None, test0: StructureTest, excess: bool,
-           z_min: float) -> tuple[bool, dict | None, list[str]]:
-    """Step 5: ``structured`` when the test fired (``excess``) and something in the residual is predictable on the
-    confirmation rows: a confirmed term (``ext``), or, without one, the nearest calibration rows in joint space or
-    in time (:func:`twin.diagnosis.confirm.smooth_confirm`). An excess that nothing predicts is scatter that
-    changes from visit to visit (the robot's repeatability, a per-pose instrument error), however large:
-    reported (``unexplained``), not called structure. Returns ``(structured, unexplained, notes)``."""
-    notes: list[str] = []
-    confirmed = ext is not None
-    unexplained = None
-    if excess and not confirmed:
-        smooth = smooth_confirm(prob, base, z_min)
-        w = test0.whitened_rms
-        unexplained = {"whitened_rms": w, "excess_sigma_mm": prob.floor.sigma * np.sqrt(max(w * w - 1.0, 0.0)) / M_PER_MM,
-                       "predictable": smooth["confirmed"], "by": smooth["by"] if smooth["confirmed"] else None,
-                       "smoothers": smooth["smoothers"]}
-    structured = bool(excess and (confirmed or unexplained["predictable"]))
-    if excess and not structured:
-        notes.append(f"the held-out scatter is {test0.whitened_rms:.2f}x the floor (p = {test0.p_value:.2g}), an extra "
-                     f"{unexplained['excess_sigma_mm']:.5f} mm per coordinate, but nothing in it is predictable on held-out "
-                     f"rows, neither by a term nor from the nearest rows in joint space or time (z = "
-                     f"{unexplained['smoothers']['joints']['z']:.2f}, {unexplained['smoothers']['time']['z']:.2f}): random "
-                     "scatter beyond the instrument's floor (the robot's repeatability, or an error that changes from visit "
-                     "to visit or too finely for these rows); no structure is claimed")
-    if structured and not confirmed:
-        by = "joint space" if unexplained["by"] == "joints" else "time"
-        notes.append(f"the residual is predictable from the nearest rows in {by} (z = "
-                     f"{unexplained['smoothers'][unexplained['by']]['z']:.2f} on held-out rows) and no term of the "
-                     "catalogue or the dictionary explains it")
-    return structured, unexplained, notes
-
-
-def adopt(prob: Problem, base: Fit, ext: Fit) -> dict[str, Any]:
-    """Step 5b: does the extended model replace the geometric one? Only where it predicts the confirmation block (a
-    block of time after every row that fitted it, or another session) better: a lower position RMS there, over every
-    confirmation row (no row set aside as gross: a posture the extended model mispredicts, one outside the ranges it
-    was fitted on, is a posture of the next session too; a glitch of the instrument costs both models alike).
-    Otherwise the geometric model stays the one to use and the terms are reported as candidates. Returns
-    ``{adopted, confirmation_rms_mm: {geometric, extended}, note}``."""
-    gb = error_stats(base.model_val, base.z)["position_mm"]["rms"]
-    ge = error_stats(ext.model_val, ext.z)["position_mm"]["rms"]
-    adopted = bool(ge < gb)
-    note = ("" if adopted else
-            f"the extended model does not predict the confirmation block better than the geometric model ({ge:.4g} "
-            f"against {gb:.4g} mm RMS): the geometric model is the one to use; its terms are reported as candidates")
-    return {"adopted": adopted, "confirmation_rms_mm": {"geometric": gb, "extended": ge}, "note": note}
 
 
 def implausible_size(prob: Problem, atom: Atom, phi: np.ndarray) -> str | None:
@@ -595,13 +573,6 @@ def _fewer_families(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alph
     return fit, notes, alts
 
 
-def _load_term(a: Atom) -> bool:
-    """Whether a kept term is one of the arm's own load: a joint's compliance (linear or stiffening), a backlash
-    signed by the load, a support's tilt."""
-    return ((a.family == "compliance" and a.place == "joint") or a.family == "tilt"
-            or (a.family == "backlash" and bool(a.features) and isinstance(a.features[0], LoadSign)))
-
-
 def _places(prob: Problem, a: Atom) -> set[str]:
     """The joints (``theta<j>``) and supports (``tilt<i>``) a kept term acts at: a joint term its joint; a support's
     tilt the support and the joints about whose axes it turns (the base's: the shoulder's and the elbow's, whose
@@ -628,7 +599,7 @@ def _own_candidates(prob: Problem, fit: Fit, pool: list[Atom], a: Atom, targets:
             cands += [c for c in (link_tilt_atom(prob.prep.nominal, prob.ctx.q, k) for k in (2, 3))
                       if c is not None and c.key not in have]
         return cands
-    if _load_term(a):
+    if is_load_term(a):
         return load_candidates(prob, fit, pool, targets, have)
     return [c for c in pool if c.pool != "generic" and c.family == a.family and c.place == "joint"
             and c.target in targets and c.key not in have and not is_change(c)]
@@ -770,8 +741,8 @@ def _no_extra_family(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, alp
         # _named_shapes)
         others = [c for c, _ in fit.chosen if c is not a and not is_change(c) and c.family != a.family
                   and (_places(prob, c) & places)
-                  and ((c.pool == "generic" and _load_term(a)) or c.family in ("cyclic", "gear_ratio")
-                       or (_load_term(c) and _load_term(a)))]
+                  and ((c.pool == "generic" and is_load_term(a)) or c.family in ("cyclic", "gear_ratio")
+                       or (is_load_term(c) and is_load_term(a)))]
         tag = (a.key, frozenset(c.key for c in others))
         if not others or tag in done:
             continue
@@ -873,7 +844,7 @@ def _load_for_harmonics(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict, 
     model = prob.prep.nominal
     loaded = sorted({c.target for c in pool if c.family == "compliance" and c.place == "joint" and c.pool != "generic"})
     for t in loaded:
-        if any(_load_term(c) and t in _places(prob, c) for c, _ in fit.chosen):
+        if any(is_load_term(c) and t in _places(prob, c) for c, _ in fit.chosen):
             continue
         if own_link_atom(model, prob.ctx.q, int(t[5:])) is None:
             continue
