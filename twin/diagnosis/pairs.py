@@ -1,4 +1,4 @@
-"""A term and the change its rows hold, judged together.
+"""A term of the arm's load and the change its rows hold, judged together.
 
 A forward round tries its strongest candidates one at a time, each confirmed on the confirmation rows
 (:func:`twin.diagnosis.confirm.confirm`). Where the calibration rows hold two load states of the arm (a payload taken
