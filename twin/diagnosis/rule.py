@@ -112,13 +112,15 @@ def _recorded_reading(atom: Atom, scored: list[Scored]) -> list[Atom]:
 @dataclass
 class Round:
     """One forward round: the accepted candidate (or None), the candidates tried with their decisions, every
-    atom scored, the keys rejected, and whether a named atom was rejected for an unphysical size."""
+    atom scored, the keys rejected, whether a named atom was rejected for an unphysical size, and the tries that
+    failed on the held-out rows (each as tried: atoms of one label, a load-signed backlash's directions, differ)."""
 
     accepted: Scored | None
     scores: list[CandidateScore]
     scored: list[Scored]
     rejected: list[str]
     unphysical: bool
+    failed: list[Scored] = field(default_factory=list)
 
 
 def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[str, int], rnd: int, *,
@@ -203,6 +205,8 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                                                "not a term of time)" if c.local else implausible),
                             float("nan") if cc is None else cc.z)
         out.scores.append(sc)
+        if sc.decision in HELD_OUT_FAILURES:
+            out.failed.append(s)
         if callback:
             callback(sc)
         if ok:
@@ -263,9 +267,7 @@ def select_terms(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict[str, int
             continue  # named atoms of an unphysical size are out: the next round scores the rest
         if r.accepted is None:
             # every try failed on the held-out rows: a load term of them with the load's change (pairs)
-            tried = {s.atom.label: s for s in r.scored}
-            failed = [tried[c.name] for c in r.scores if c.decision in HELD_OUT_FAILURES and c.name in tried]
-            pair = with_change(prob, fit, failed, places, sizes, alpha_select=alpha_select, z_min=z_min,
+            pair = with_change(prob, fit, r.failed, places, sizes, alpha_select=alpha_select, z_min=z_min,
                                admit=lambda a: a.key not in rejected and slot(a) not in taken) if places else None
             if pair is None:
                 break
