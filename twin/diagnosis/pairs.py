@@ -33,11 +33,9 @@ from .confirm import confirm
 from .problem import Fit, Problem, psi_init
 from .scoring import Scored, score_atoms
 
-__all__ = ["PAIR_TRIES", "HELD_OUT_FAILURES", "Pair", "with_change"]
+__all__ = ["PAIR_TRIES", "Pair", "with_change"]
 
 PAIR_TRIES = 3  # candidates that failed on the held-out rows tried with a change, and changes tried with each
-# the decisions of a candidate significant on the calibration rows whose held-out check failed
-HELD_OUT_FAILURES = ("not confirmed on held-out rows", "held-out gain rests on one row", "held-out error not reduced")
 
 
 @dataclass(frozen=True)

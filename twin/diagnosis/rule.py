@@ -33,7 +33,7 @@ from .loads import (along_link_weight, fitted_load, link_tilt_atom, load_alterna
 from .confirm import confirm, confirm_configurations, time_only
 from .harmonics import with_second_order
 from .late import as_event
-from .pairs import HELD_OUT_FAILURES, with_change
+from .pairs import with_change
 from .ordering import alternatives, distinct_terms, order_candidates, payload_rivals, rival_readings, slot
 from .problem import Fit, Problem, common_chi2, covariance, held_out_rms, psi_init, refit_with, update_gross
 from .pools import heat_alternatives
@@ -196,16 +196,18 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         # [configurations] a term of joint angles also holds between the sampled values (folds of them left out)
         cc = confirm_configurations(prob, fit, s, scored, sizes) if ok else None
         held_in_time, ok = ok, ok and (cc is None or cc.passed)
+        # failed on the held-out rows: z, z without the best row, or the error there (not a wander, not its size)
+        held_out_failed = not (c.z > z_min and c.z_without_best_row > z_min and c.better)
         sc = CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)), c.z,
                             "kept" if ok else cc.decision if held_in_time else
                             ("not confirmed on held-out rows" if not (c.z > z_min) else
-                                               "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
-                                               "held-out error not reduced" if not c.better else
-                                               "the nearest rows in time predict the held-out rows as well (a wander, "
-                                               "not a term of time)" if c.local else implausible),
+                             "held-out gain rests on one row" if not (c.z_without_best_row > z_min) else
+                             "held-out error not reduced" if held_out_failed else
+                             "the nearest rows in time predict the held-out rows as well (a wander, "
+                             "not a term of time)" if c.local else implausible),
                             float("nan") if cc is None else cc.z)
         out.scores.append(sc)
-        if sc.decision in HELD_OUT_FAILURES:
+        if held_out_failed:
             out.failed.append(s)
         if callback:
             callback(sc)
