@@ -484,6 +484,27 @@ def test_window_gains_from_per_index_grams_equal_those_of_each_window(p):
     assert np.allclose(gain, want, rtol=1e-10, atol=0)
 
 
+def test_the_residual_after_shared_columns_projected_off_first_is_that_of_one_least_squares():
+    """The whiteness test's residual after ``[X, Y]`` (``Y``: what every change of a scan shares, projected off once,
+    rank-deficient here) is the residual of one least squares on every column, to rounding."""
+    from twin.diagnosis.changes import _off, _orthonormal
+
+    rng = np.random.default_rng(7)
+    m = 300
+    Y = rng.normal(size=(m, 6))
+    Y[:, 5] = Y[:, 0] - 2 * Y[:, 3]  # a dependent column
+    X = np.hstack([rng.normal(size=(m, 3)), Y[:, :1] + 0.5 * rng.normal(size=(m, 1))])
+    r = rng.normal(size=m)
+    U = _orthonormal(Y)
+    assert U.shape[1] == 5 and np.allclose(U.T @ U, np.eye(5), atol=1e-12)
+    X1, r1 = _off(U, X), _off(U, r)
+    two_stage = r1 - X1 @ np.linalg.lstsq(X1, r1, rcond=None)[0]
+    A = np.hstack([X, Y])
+    one = r - A @ np.linalg.lstsq(A, r, rcond=None)[0]
+    assert np.allclose(two_stage, one, rtol=0, atol=1e-12 * np.linalg.norm(r))
+    assert np.linalg.norm(one) > 0.5 * np.linalg.norm(r)  # most of r is left: the comparison is not of two zeros
+
+
 def test_the_scan_on_two_threads_finds_what_it_finds_on_one():
     """The change scan with its places on two threads returns the same candidates, in the same order, as on one."""
     from twin.diagnosis.changes import change_places, scan_changes

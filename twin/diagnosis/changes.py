@@ -29,6 +29,7 @@ read the state after it (:func:`twin.diagnosis.values.feature_values`, ``step`` 
 from __future__ import annotations
 
 import re
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -505,8 +506,9 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
             if best is not None:
                 _, s, e = best
                 out.append((best[0], _atom(pl, ch, 0.5 * (ts[s - 1] + ts[s]), 0.5 * (ts[e - 1] + ts[e]))))
-    return [a for _, a in sorted(out, key=lambda t: t[0])
-            if _white_after(prob, fit, a, sizes, order, _payload_companions(a, places))]
+    cands = [a for _, a in sorted(out, key=lambda t: t[0])]
+    white = _WhiteTest(prob, fit, sizes, order, places)
+    return [a for a, ok in zip(cands, thread_map(white, cands, prob.threads)) if ok]
 
 
 def same_event(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
@@ -519,71 +521,127 @@ def same_event(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
     return [_atom(pl, f0.ch, f0.at, f0.until) for pl in places if pl.payload and pl.target != atom.target]
 
 
-def _payload_companions(atom: Atom, places: list[ChangePlace]) -> list[Atom]:
+def _payload_companions(atom: Atom, places: list[ChangePlace]) -> tuple[list[Atom], list[Atom]]:
     """When ``atom`` is a change of a joint's compliance (a payload put on or taken off): the same change (its rows)
     at every other joint's compliance of ``places``, and each of those joints' compliance under its gravity-torque
-    shapes and under the payload's shapes on every row. A payload hangs at the flange and gravity loads every joint
-    below it at once (the torque shapes at each of them change together), on top of the arm's own weight, which the
-    joints carry on every row (``q_j += c_j (tau_j,arm + L_i tau_j,payload)``); a payload taken off was carried on
-    every row before (``L_i = 1`` there): its shapes on every row hold that loaded state, the change its removal.
-    Else none."""
+    shapes and under the payload's shapes on every row (the second list: the same for every change of ``places``).
+    A payload hangs at the flange and gravity loads every joint below it at once (the torque shapes at each of them
+    change together), on top of the arm's own weight, which the joints carry on every row (``q_j += c_j
+    (tau_j,arm + L_i tau_j,payload)``); a payload taken off was carried on every row before (``L_i = 1`` there): its
+    shapes on every row hold that loaded state, the change its removal. Else two empty lists."""
     f0 = atom.features[0]
     if not isinstance(f0, Gated) or atom.place != "joint":
-        return []
+        return [], []
     loads = [pl for pl in places if pl.inner is not None and pl.place == "joint"]
     same = [_atom(pl, f0.ch, f0.at, f0.until) for pl in loads if pl.target != atom.target]
-    return same + [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
-                        "change", pl.joints) for pl in loads]
+    return same, [Atom("compliance", pl.place, pl.target, pl.inner, f"gravity torque of {pl.target}", pl.words,
+                       "change", pl.joints) for pl in loads]
 
 
-def _white_after(prob, fit, atom: Atom, sizes: dict, order: np.ndarray, companions: list[Atom] = ()) -> bool:
-    """Whether the residual the change leaves is white in time: the lag-1 correlation of consecutive rows' whitened
-    residual vectors (time order, rows of the same commanded joints not paired: a repeat shares its visit's error),
-    ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2 sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change
-    leaves the rows independent; scatter that wanders over a few rows stays correlated after any change fitted to
-    a stretch of it, whose evidence against the (white) floor then says nothing. ``companions``: changes of the same
-    rows fitted with it for this test (:func:`_payload_companions`: a payload changes every joint's load at once,
-    and one joint's change alone leaves the others' steps in the rows). A residual still correlated is tested once
-    more with every identifiable direction of the model's columns refitted beside the change (:func:`_geometry_span`,
-    when the geometric parameter selection left some out), when those directions alone leave it correlated: a
-    selection chosen on rows the change dominated leaves a misfit that follows the configurations along the
-    campaign's path, which the left-out parameters take and a wander does not."""
-    got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
-    if not got:
-        return False
-    sb = scoring_basis(prob, fit)
-    e = np.zeros(len(sb.keep))
-    more = []
-    if companions:
-        more = score_atoms(prob, fit, list(companions), sizes, exact_top=len(companions))
-        Ep = np.hstack([got[0].Ep] + [m.Ep for m in more])
-        psi = np.linalg.lstsq(Ep, got[0].r, rcond=None)[0]
-        e[sb.keep] = got[0].r - Ep @ psi
-    else:
-        fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
-        e[sb.keep] = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
-    q = np.round(prob.ctx.q[prob.rows_cal][order], 9)
-    pair = ~np.all(q[1:] == q[:-1], axis=1) & (prob.w_cal[order][1:] > 0) & (prob.w_cal[order][:-1] > 0)
-    z = _lag1_z(fit, e, order, pair)
-    if z is None or z <= WHITE_Z:
-        return True
-    U = _geometry_span(sb, fit)
-    if U.shape[1] <= sb.Q.shape[1]:
-        return False
-    # the correlation left may be the geometry the selection left out (a parameter set chosen on rows the change
-    # dominated): the change still leaves the rows white when every identifiable geometric direction refits with it,
-    # and that geometry alone leaves them correlated (else the change takes nothing the geometry would not)
-    r = (sb.rc.r * sb.sw)[sb.keep]
-    e = np.zeros(len(sb.keep))
-    e[sb.keep] = r - U @ (U.T @ r)
-    z = _lag1_z(fit, e, order, pair)
-    if z is None or z <= WHITE_Z:
-        return False
-    cols = np.hstack([U, got[0].E] + [m.Ep for m in more])
-    e = np.zeros(len(sb.keep))
-    e[sb.keep] = r - cols @ np.linalg.lstsq(cols, r, rcond=None)[0]
-    z = _lag1_z(fit, e, order, pair)
-    return z is None or z <= WHITE_Z
+def _orthonormal(X: np.ndarray) -> np.ndarray:
+    """An orthonormal basis ``(m, k)`` of the columns of ``X`` ``(m, c)``: its left singular vectors whose singular
+    value is above ``eps max(m, c)`` times the largest (the rank least squares takes, ``numpy.linalg.lstsq``)."""
+    if X.shape[1] == 0:
+        return X
+    U, S, _ = np.linalg.svd(X, full_matrices=False)
+    return U[:, S > S[0] * np.finfo(float).eps * max(X.shape)] if S[0] > 0 else U[:, :0]
+
+
+def _off(U: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``X - U U^T X``: ``X`` ``(m,)`` or ``(m, c)`` projected off the orthonormal columns ``U`` ``(m, k)``."""
+    return X - U @ (U.T @ X) if U.shape[1] else X
+
+
+class _WhiteTest:
+    """Whether the residual a change leaves is white in time (:meth:`__call__`), for the changes of one scan against
+    one fit: the lag-1 correlation of consecutive rows' whitened residual vectors (time order, rows of the same
+    commanded joints not paired: a repeat shares its visit's error), ``rho = sum r_i . r_{i+1} / sqrt(sum |r_i|^2
+    sum |r_{i+1}|^2)``, not beyond ``WHITE_Z / sqrt(pairs)``. A change leaves the rows independent; scatter that
+    wanders over a few rows stays correlated after any change fitted to a stretch of it, whose evidence against the
+    (white) floor then says nothing. A payload's change (:func:`_payload_companions`) is fitted with its companions
+    for this test: a payload changes every joint's load at once, and one joint's change alone leaves the others'
+    steps in the rows. A residual still correlated is tested once more with every identifiable direction of the
+    model's columns refitted beside the change (:func:`_geometry_span`, when the geometric parameter selection left
+    some out), when those directions alone leave it correlated: a selection chosen on rows the change dominated
+    leaves a misfit that follows the configurations along the campaign's path, which the left-out parameters take
+    and a wander does not.
+
+    The residual after columns ``[X, Y]`` is the residual after ``X - P_Y X`` of ``r - P_Y r`` (``P_Y``: the
+    projection on ``Y``'s span), so what every change of the scan shares (the time order's pairs, the companions on
+    every row, the geometry's span and the residual beyond it) is projected off once."""
+
+    def __init__(self, prob, fit, sizes: dict, order: np.ndarray, places: list[ChangePlace]):
+        self.prob, self.fit, self.sizes, self.order, self.places = prob, fit, sizes, order, places
+        self.sb = scoring_basis(prob, fit)
+        q = np.round(prob.ctx.q[prob.rows_cal][order], 9)
+        self.pair = ~np.all(q[1:] == q[:-1], axis=1) & (prob.w_cal[order][1:] > 0) & (prob.w_cal[order][:-1] > 0)
+        self._shared: dict = {}
+        self._lock = threading.RLock()  # the shared parts are computed once, whichever thread asks first
+
+    def _z(self, e_kept: np.ndarray) -> float | None:
+        e = np.zeros(len(self.sb.keep))
+        e[self.sb.keep] = e_kept
+        return _lag1_z(self.fit, e, self.order, self.pair)
+
+    def _once(self, key: tuple, make):
+        """``make()`` computed once per scan under ``key``, whichever thread asks first."""
+        with self._lock:
+            if key not in self._shared:
+                self._shared[key] = make()
+            return self._shared[key]
+
+    def _every_row(self, every_row: list[Atom]) -> np.ndarray:
+        """The reduced columns ``Ep`` ``(m_kept, k)`` of the companions on every row."""
+        def make() -> np.ndarray:
+            more = score_atoms(self.prob, self.fit, every_row, self.sizes, exact_top=len(every_row)) if every_row \
+                else []
+            return np.hstack([m.Ep for m in more]) if more else np.zeros((len(self.sb.r), 0))
+        return self._once(("rows", tuple(a.key for a in every_row)), make)
+
+    def _rows_basis(self, every_row: list[Atom]) -> tuple[np.ndarray, np.ndarray]:
+        """An orthonormal basis of the companions on every row and the residual ``r`` beyond it."""
+        def make() -> tuple[np.ndarray, np.ndarray]:
+            U1 = _orthonormal(self._every_row(every_row))
+            return U1, _off(U1, self.sb.r)
+        return self._once(("rows_basis", tuple(a.key for a in every_row)), make)
+
+    def _geometry(self, every_row: list[Atom]) -> tuple[np.ndarray, np.ndarray, float | None, np.ndarray]:
+        """The geometry's span ``U``, the raw residual beyond it, its normal score and the companions on every row
+        projected off it."""
+        def make() -> tuple:
+            U = _geometry_span(self.sb, self.fit)
+            rU = _off(U, (self.sb.rc.r * self.sb.sw)[self.sb.keep])
+            return U, rU, self._z(rU), _off(U, self._every_row(every_row))
+        return self._once(("geometry", tuple(a.key for a in every_row)), make)
+
+    def __call__(self, atom: Atom) -> bool:
+        prob, fit, sizes, sb = self.prob, self.fit, self.sizes, self.sb
+        got = score_atoms(prob, fit, [atom], sizes, exact_top=1)
+        if not got:
+            return False
+        same, every_row = _payload_companions(atom, self.places)
+        more = score_atoms(prob, fit, same, sizes, exact_top=len(same)) if same else []
+        if same or every_row:
+            U1, r1 = self._rows_basis(every_row)
+            X = _off(U1, np.hstack([got[0].Ep] + [m.Ep for m in more]))
+            e = r1 - X @ np.linalg.lstsq(X, r1, rcond=None)[0]
+        else:
+            fitted = got[0].E @ got[0].psi  # Scored.fitted, projected off Q as a vector
+            e = got[0].r - (fitted - sb.Q @ (sb.Q.T @ fitted))
+        z = self._z(e)
+        if z is None or z <= WHITE_Z:
+            return True
+        U, rU, z_geometry, rows_U = self._geometry(every_row)
+        if U.shape[1] <= sb.Q.shape[1]:
+            return False
+        # the correlation left may be the geometry the selection left out (a parameter set chosen on rows the change
+        # dominated): the change still leaves the rows white when every identifiable geometric direction refits with
+        # it, and that geometry alone leaves them correlated (else the change takes nothing the geometry would not)
+        if z_geometry is None or z_geometry <= WHITE_Z:
+            return False
+        X = np.hstack([_off(U, np.hstack([got[0].E] + [m.Ep for m in more])), rows_U])
+        z = self._z(rU - X @ np.linalg.lstsq(X, rU, rcond=None)[0])
+        return z is None or z <= WHITE_Z
 
 
 def _lag1_z(fit, e: np.ndarray, order: np.ndarray, pair: np.ndarray) -> float | None:
