@@ -74,6 +74,26 @@ def too_few_rows(geo, n_rows: int) -> str:
             f"fit (about {math.ceil(min_fit * n_rows / n_fit)} rows in all with this split) of varied configurations")
 
 
+def alternative_evidence(d: dict) -> str:
+    """What tells an alternative reading ``d`` (an entry of ``diagnosis.json`` ``alternatives``) from the kept term, in
+    words: the calibration evidence ``Delta chi2`` of each where both were scored on the same fit, else the
+    confirmation rows' RMS of the model with either (``held_out_rms_mm``: the alternative's, the kept model's), and
+    ``Delta chi2`` of the alternative alone where only it has one. Never a number that is not one."""
+    def finite(v) -> bool:
+        return isinstance(v, (int, float)) and math.isfinite(v)
+
+    alt, kept = d.get("delta_chi2"), d.get("delta_chi2_chosen")
+    if finite(alt) and finite(kept):
+        return f"delta chi2 {alt:.0f} vs {kept:.0f}"
+    words = []
+    rms = d.get("held_out_rms_mm")
+    if isinstance(rms, (list, tuple)) and len(rms) == 2 and all(finite(v) for v in rms):
+        words.append(f"confirmation rows {rms[0]:.4g} mm RMS with it vs {rms[1]:.4g} mm as kept")
+    if finite(alt):
+        words.append(f"delta chi2 {alt:.0f} against the model without the kept term")
+    return "; ".join(words) or "no evidence recorded"
+
+
 def without_temperature_gaps(ds):
     """The dataset ``ds`` without its rows whose ``temp_c`` is empty (the diagnosis reads every row's temperature)
     and the note naming them (empty, and ``ds`` itself, when no row lacks one). A ``temp_c`` column empty in every
@@ -170,8 +190,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"model to use: {res.model_in_use} (confirmation block, a later block of time or another session: "
               f"geometric {c['geometric']:.4g} mm, extended {c['extended']:.4g} mm RMS)", file=out)
     for d in res.alternatives:
-        print(f"  alternative to '{d['of']}': {d['alternative']} (delta chi2 {d['delta_chi2']:.0f} vs "
-              f"{d['delta_chi2_chosen']:.0f}; the data cannot tell them apart)", file=out)
+        print(f"  alternative to '{d['of']}': {d['alternative']} ({alternative_evidence(d)}; the data cannot tell "
+              f"them apart)", file=out)
     for n in res.notes:
         print(f"note: {n}", file=out)
     geo = res.calibrations_blocked.get("geometric", res.calibration_geometric)
