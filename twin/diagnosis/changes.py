@@ -605,14 +605,18 @@ class _WhiteTest:
             return U1, _off(U1, self.sb.r)
         return self._once(("rows_basis", tuple(a.key for a in every_row)), make)
 
-    def _geometry(self, every_row: list[Atom]) -> tuple[np.ndarray, np.ndarray, float | None, np.ndarray]:
-        """The geometry's span ``U``, the raw residual beyond it, its normal score and the companions on every row
-        projected off it."""
+    def _geometry(self) -> tuple[np.ndarray, np.ndarray, float | None]:
+        """The geometry's span ``U``, the raw residual beyond it and that residual's normal score."""
         def make() -> tuple:
             U = _geometry_span(self.sb, self.fit)
             rU = _off(U, (self.sb.rc.r * self.sb.sw)[self.sb.keep])
-            return U, rU, self._z(rU), _off(U, self._every_row(every_row))
-        return self._once(("geometry", tuple(a.key for a in every_row)), make)
+            return U, rU, self._z(rU)
+        return self._once(("geometry",), make)
+
+    def _every_row_off_geometry(self, every_row: list[Atom]) -> np.ndarray:
+        """The companions on every row (:meth:`_every_row`) projected off the geometry's span."""
+        return self._once(("rows_off_geometry", tuple(a.key for a in every_row)),
+                          lambda: _off(self._geometry()[0], self._every_row(every_row)))
 
     def __call__(self, atom: Atom) -> bool:
         prob, fit, sizes, sb = self.prob, self.fit, self.sizes, self.sb
@@ -631,7 +635,7 @@ class _WhiteTest:
         z = self._z(e)
         if z is None or z <= WHITE_Z:
             return True
-        U, rU, z_geometry, rows_U = self._geometry(every_row)
+        U, rU, z_geometry = self._geometry()
         if U.shape[1] <= sb.Q.shape[1]:
             return False
         # the correlation left may be the geometry the selection left out (a parameter set chosen on rows the change
@@ -639,7 +643,7 @@ class _WhiteTest:
         # it, and that geometry alone leaves them correlated (else the change takes nothing the geometry would not)
         if z_geometry is None or z_geometry <= WHITE_Z:
             return False
-        X = np.hstack([_off(U, np.hstack([got[0].E] + [m.Ep for m in more])), rows_U])
+        X = np.hstack([_off(U, np.hstack([got[0].E] + [m.Ep for m in more])), self._every_row_off_geometry(every_row)])
         z = self._z(rU - X @ np.linalg.lstsq(X, rU, rcond=None)[0])
         return z is None or z <= WHITE_Z
 
