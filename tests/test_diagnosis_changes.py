@@ -811,14 +811,79 @@ def test_a_step_that_ends_a_payload_hung_on_within_the_rows_is_read_as_its_windo
 
 def test_the_selection_scans_short_windows_only_where_the_grid_is_fine():
     """The selection's short windows (from MIN_ROWS rows at every row) are scanned on a campaign of a few hundred
-    calibration rows and left to the glitch scan on one of thousands (their count grows with the square of the rows)."""
+    calibration rows and left to the glitch scan on one of thousands (their count grows faster than the rows)."""
     from twin.diagnosis.changes import MIN_ROWS, WINDOW_MIN_ROWS, _short_pairs, selection_short
 
     assert selection_short(200) == MIN_ROWS
     assert selection_short(12000) is None
     small = _short_pairs(200, MIN_ROWS)
     assert int(np.max(small[1] - small[0])) <= 2 * WINDOW_MIN_ROWS - 1
-    assert len(_short_pairs(12000, MIN_ROWS)[0]) > 1000 * len(small[0])
+    assert len(_short_pairs(12000, MIN_ROWS)[0]) > 100 * len(small[0])
+
+
+@pytest.mark.parametrize("n", [200, 533, 534, 1000, 3000])
+def test_a_short_window_is_tried_from_every_row_up_to_533_rows_and_every_few_beyond(n, monkeypatch):
+    """Every short window (from MIN_ROWS rows to two grid strides) is tried on a scan of up to 533 rows; beyond, a
+    window of w rows is tried from every max(1, w // 8)-th row, so each one not tried has a tried one of its width
+    starting fewer than w // 8 rows before it."""
+    from twin.diagnosis import changes as C
+
+    share = C.SHORT_START_SHARE
+    sub = set(zip(*(x.tolist() for x in C._short_pairs(n, C.MIN_ROWS))))
+    monkeypatch.setattr(C, "SHORT_START_SHARE", 10**9)
+    every = set(zip(*(x.tolist() for x in C._short_pairs(n, C.MIN_ROWS))))
+    assert sub <= every
+    if n <= 533:
+        assert sub == every
+        return
+    assert len(sub) < len(every)
+    for a, b in every - sub:
+        w = b - a
+        assert any((a - k, b - k) in sub for k in range(1, max(1, w // share))), (a, b)
+
+
+def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows():
+    """Joint 3's zero off by 0.03 deg on 20 rows of 750 calibration rows, from a row no 20-row short window starts at
+    (they start every second row there): the scan's window takes exactly the glitch's rows, as the scan trying every
+    row does."""
+    from twin.diagnosis import changes as C
+    from twin.diagnosis.changes import MIN_ROWS, change_places, is_window, scan_changes
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+
+    n_poses, lo, hi = 1000, 301, 321
+
+    def eff(q, model):
+        out = q.copy()
+        out[lo:hi, 2] += 0.03 * DEG
+        return out
+
+    t = np.cumsum(np.random.default_rng(11).uniform(8, 12, n_poses + n_poses // 4))
+    ds, _ = H.make_dataset(seed=11, n=n_poses, effect=eff, t_s=t)
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    n = prob.obs_cal.n
+    assert n > 533 and np.array_equal(prob.rows_cal[:hi + 1], np.arange(hi + 1))
+    a, b = C._short_pairs(n, MIN_ROWS)
+    assert not np.any((a == lo) & (b == hi))  # the glitch's own window is not among those tried
+    base = fit_geometry(prob, setup.x0)
+    pool, _ = atom_pool(setup)
+    places = [p for p in change_places(prob.prep.nominal, [x for x in pool if x.pool == "catalogue"])
+              if p.target == "theta3" and p.inner is None]
+    t_cal = np.sort(ds.t_s[prob.rows_cal])
+
+    def window_rows(found):
+        w = [x for x in found if is_window(x)]
+        assert len(w) == 1, [x.label for x in found]
+        f0 = w[0].features[0]
+        return int(np.searchsorted(t_cal, f0.at)), int(np.searchsorted(t_cal, f0.until))
+
+    sub = window_rows(scan_changes(prob, base, places, windows=True, short=MIN_ROWS))
+    C.SHORT_START_SHARE, share = 10**9, C.SHORT_START_SHARE
+    try:
+        every = window_rows(scan_changes.__wrapped__(prob, base, places, windows=True, short=MIN_ROWS))
+    finally:
+        C.SHORT_START_SHARE = share
+    assert sub == every == (lo, hi)
 
 
 def test_rows_left_out_for_their_history_are_no_run_of_gross_rows():

@@ -154,16 +154,23 @@ def _pairs(g: np.ndarray, min_rows: int = WINDOW_MIN_ROWS) -> tuple[np.ndarray, 
 
 
 def _short_pairs(n: int, min_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Windows shorter than two of the grid's strides at every row (a glitch of a few rows falls between the grid's
-    boundaries): every start of :func:`_steps` with ``min_rows`` to ``2 stride - 1`` rows."""
+    """Windows shorter than two of the grid's strides (a glitch of a few rows falls between the grid's boundaries):
+    ``min_rows`` to ``2 stride - 1`` rows, a window of ``w`` rows from every ``max(1, w // SHORT_START_SHARE)``-th
+    start of :func:`_steps` (every start while ``w < 2 SHORT_START_SHARE``: every campaign up to 533 rows). A longer
+    short window tried only every few rows is one whose ends the scan's refinement (``stride`` rows around the best
+    pair, :func:`scan_changes`) moves to the rows; tried at every row their count grows with the square of the rows
+    (3.8 million per place on 12,000 rows, 0.43 million so)."""
     s = _steps(n)
     stride = max(1, int(np.ceil(len(s) / WINDOW_GRID)))
     if len(s) == 0 or 2 * stride <= min_rows:
         return np.zeros(0, int), np.zeros(0, int)
     a, w = np.meshgrid(s, np.arange(min_rows, 2 * stride), indexing="ij")
     b = a + w
-    ok = b <= s[-1]
+    ok = (b <= s[-1]) & ((a - s[0]) % np.maximum(1, w // SHORT_START_SHARE) == 0)
     return a[ok], b[ok]
+
+
+SHORT_START_SHARE = 8  # a short window of w rows is tried from every max(1, w // this)-th row
 
 
 def selection_short(n_cal: int) -> int | None:
@@ -179,7 +186,7 @@ def selection_short(n_cal: int) -> int | None:
 
 def change_pool_sizes(n_cal: int, places: list[ChangePlace], *, short: int | None = None) -> dict[str, int]:
     """The Bonferroni factor of each change pool: places times row positions (steps) or pairs of them (windows; with
-    ``short``, also the short windows of at least that many rows at every row, :func:`scan_changes`)."""
+    ``short``, also the short windows of at least that many rows, :func:`_short_pairs`, :func:`scan_changes`)."""
     n_short = len(_short_pairs(n_cal, short)[0]) if short else 0
     return {"change": max(1, len(places) * len(_steps(n_cal))),
             "change_window": max(1, len(places) * (len(_pairs(_grid(n_cal), short or WINDOW_MIN_ROWS)[0]) + n_short))}
@@ -375,7 +382,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`). ``short``: windows
     of at least this many rows (default ``WINDOW_MIN_ROWS``), and those shorter than two of the grid's strides tried
-    at every row (a glitch of a few rows). ``last``: steps only, with ``last[0]`` to ``last[1]`` rows after them
+    from every row, the longer of them from every few rows (a glitch of a few rows, :func:`_short_pairs`). ``last``: steps only, with ``last[0]`` to ``last[1]`` rows after them
     (a change in the campaign's last rows, :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`'
     positions. ``sizes``: the Bonferroni factors the scan's own rules apply (default :func:`change_pool_sizes`)."""
     if last is not None and windows:
@@ -463,7 +470,7 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
         lo_, hi_ = int(_steps(n)[0]), int(_steps(n)[-1])
         for _ in range(REFINE_ROUNDS if stride > 1 else 0):
             # the best pair refined to the rows around it, again around the pair it moved to while it moves (a short
-            # window's ends, tried at every row, may lie a stride or more inside a longer window's)
+            # window's ends, tried from every row or every few, may lie a stride or more inside a longer window's)
             sa = np.arange(max(best[1] - stride, lo_), min(best[1] + stride, hi_) + 1)
             sb2 = np.arange(max(best[2] - stride, lo_), min(best[2] + stride, hi_) + 1)
             A2, B2 = np.meshgrid(sa, sb2, indexing="ij")
