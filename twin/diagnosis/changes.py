@@ -156,7 +156,7 @@ def _pairs(g: np.ndarray, min_rows: int = WINDOW_MIN_ROWS) -> tuple[np.ndarray, 
 def _short_pairs(n: int, min_rows: int) -> tuple[np.ndarray, np.ndarray]:
     """Windows shorter than two of the grid's strides (a glitch of a few rows falls between the grid's boundaries):
     ``min_rows`` to ``2 stride - 1`` rows, a window of ``w`` rows from every ``max(1, w // SHORT_START_SHARE)``-th
-    start of :func:`_steps` (every start while ``w < 2 SHORT_START_SHARE``: every campaign up to 533 rows). A longer
+    start of :func:`_steps` (every start while ``w < 2 SHORT_START_SHARE``: every scan of up to 533 rows). A longer
     short window tried only every few rows is one whose ends the scan's refinement (``stride`` rows around the best
     pair, :func:`scan_changes`) moves to the rows; tried at every row their count grows with the square of the rows
     (3.8 million per place on 12,000 rows, 0.43 million so)."""
@@ -382,9 +382,9 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     calibration rows in time order) among the positions whose rows the change fits uniformly (:func:`_uniform`): one
     candidate atom each (the selection applies the Bonferroni factor, :func:`change_pool_sizes`). ``short``: windows
     of at least this many rows (default ``WINDOW_MIN_ROWS``), and those shorter than two of the grid's strides tried
-    from every row, the longer of them from every few rows (a glitch of a few rows, :func:`_short_pairs`). ``last``: steps only, with ``last[0]`` to ``last[1]`` rows after them
-    (a change in the campaign's last rows, :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`'
-    positions. ``sizes``: the Bonferroni factors the scan's own rules apply (default :func:`change_pool_sizes`)."""
+    from every row, the longer of them from every few rows (a glitch of a few rows, :func:`_short_pairs`). ``last``:
+    steps only, with ``last[0]`` to ``last[1]`` rows after them (a change in the campaign's last rows,
+    :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`' positions. ``sizes``: the Bonferroni factors the scan's own rules apply (default :func:`change_pool_sizes`)."""
     if last is not None and windows:
         raise ValueError(f"last={last!r} scans steps only: windows must be False")
     min_rows = short or WINDOW_MIN_ROWS
