@@ -842,7 +842,7 @@ def test_a_short_window_is_tried_from_every_row_up_to_533_rows_and_every_few_bey
         assert any((a - k, b - k) in sub for k in range(1, max(1, w // share))), (a, b)
 
 
-def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows():
+def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows(monkeypatch):
     """Joint 3's zero off by 0.03 deg on 20 rows of 750 calibration rows, from a row no 20-row short window starts at
     (they start every second row there): the scan's window takes exactly the glitch's rows, as the scan trying every
     row does."""
@@ -878,11 +878,8 @@ def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows():
         return int(np.searchsorted(t_cal, f0.at)), int(np.searchsorted(t_cal, f0.until))
 
     sub = window_rows(scan_changes(prob, base, places, windows=True, short=MIN_ROWS))
-    C.SHORT_START_SHARE, share = 10**9, C.SHORT_START_SHARE
-    try:
-        every = window_rows(scan_changes.__wrapped__(prob, base, places, windows=True, short=MIN_ROWS))
-    finally:
-        C.SHORT_START_SHARE = share
+    monkeypatch.setattr(C, "SHORT_START_SHARE", 10**9)  # every short window from every row
+    every = window_rows(scan_changes.__wrapped__(prob, base, places, windows=True, short=MIN_ROWS))
     assert sub == every == (lo, hi)
 
 
