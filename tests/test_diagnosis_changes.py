@@ -842,45 +842,55 @@ def test_a_short_window_is_tried_from_every_row_up_to_533_rows_and_every_few_bey
         assert any((a - k, b - k) in sub for k in range(1, max(1, w // share))), (a, b)
 
 
-def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows(monkeypatch):
-    """Joint 3's zero off by 0.03 deg on 20 rows of 750 calibration rows, from a row no 20-row short window starts at
-    (they start every second row there): the scan's window takes exactly the glitch's rows, as the scan trying every
-    row does."""
+@pytest.mark.parametrize("seed", range(4))
+def test_a_glitch_off_the_short_windows_start_rows_is_found_at_its_rows(seed, monkeypatch):
+    """A joint's zero off on 16 to two grid strides of rows of 750 calibration rows (joint, width, start and size
+    drawn per seed), from a row no window of that width is tried from: the scan's window takes exactly the glitch's
+    rows, as the scan trying every row does."""
     from twin.diagnosis import changes as C
-    from twin.diagnosis.changes import MIN_ROWS, change_places, is_window, scan_changes
+    from twin.diagnosis.changes import MIN_ROWS, WINDOW_GRID, _steps, change_places, is_window, scan_changes
     from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 
-    n_poses, lo, hi = 1000, 301, 321
+    rng = np.random.default_rng(4000 + seed)
+    n_poses, n_cal = 1000, 750
+    steps = _steps(n_cal)
+    stride = int(np.ceil(len(steps) / WINDOW_GRID))
+    joint = int(rng.integers(1, 7))
+    w = int(rng.integers(2 * C.SHORT_START_SHARE, 2 * stride))
+    lo = int(rng.integers(100, 600))
+    while (lo - steps[0]) % max(1, w // C.SHORT_START_SHARE) == 0:
+        lo += 1
+    hi = lo + w
+    size_deg = rng.uniform(0.03, 0.08) * (3 if joint >= 4 else 1)  # a wrist joint's zero moves the plate less
 
     def eff(q, model):
         out = q.copy()
-        out[lo:hi, 2] += 0.03 * DEG
+        out[lo:hi, joint - 1] += size_deg * DEG
         return out
 
-    t = np.cumsum(np.random.default_rng(11).uniform(8, 12, n_poses + n_poses // 4))
-    ds, _ = H.make_dataset(seed=11, n=n_poses, effect=eff, t_s=t)
+    t = np.cumsum(rng.uniform(8, 12, n_poses + n_poses // 4))
+    ds, _ = H.make_dataset(seed=seed, n=n_poses, effect=eff, t_s=t)
     setup = prepare_diagnosis(ds)
     prob = setup.problem
-    n = prob.obs_cal.n
-    assert n > 533 and np.array_equal(prob.rows_cal[:hi + 1], np.arange(hi + 1))
-    a, b = C._short_pairs(n, MIN_ROWS)
+    assert prob.obs_cal.n == n_cal and np.array_equal(prob.rows_cal[:hi + 1], np.arange(hi + 1))
+    a, b = C._short_pairs(n_cal, MIN_ROWS)
     assert not np.any((a == lo) & (b == hi))  # the glitch's own window is not among those tried
     base = fit_geometry(prob, setup.x0)
     pool, _ = atom_pool(setup)
     places = [p for p in change_places(prob.prep.nominal, [x for x in pool if x.pool == "catalogue"])
-              if p.target == "theta3" and p.inner is None]
+              if p.target == f"theta{joint}" and p.inner is None]
     t_cal = np.sort(ds.t_s[prob.rows_cal])
 
     def window_rows(found):
-        w = [x for x in found if is_window(x)]
-        assert len(w) == 1, [x.label for x in found]
-        f0 = w[0].features[0]
+        win = [x for x in found if is_window(x)]
+        assert len(win) == 1, [x.label for x in found]
+        f0 = win[0].features[0]
         return int(np.searchsorted(t_cal, f0.at)), int(np.searchsorted(t_cal, f0.until))
 
     sub = window_rows(scan_changes(prob, base, places, windows=True, short=MIN_ROWS))
     monkeypatch.setattr(C, "SHORT_START_SHARE", 10**9)  # every short window from every row
     every = window_rows(scan_changes.__wrapped__(prob, base, places, windows=True, short=MIN_ROWS))
-    assert sub == every == (lo, hi)
+    assert sub == every == (lo, hi), (joint, w, lo, size_deg)
 
 
 def test_rows_left_out_for_their_history_are_no_run_of_gross_rows():

@@ -53,6 +53,7 @@ __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_pla
 WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
 WINDOW_GRID = 60  # most boundary positions the window scan takes (every k-th row beyond, then refined)
+SHORT_START_SHARE = 8  # a short window of w rows is tried from every max(1, w // this)-th row
 CHANGE_POOLS = ("change", "change_window")
 
 
@@ -168,9 +169,6 @@ def _short_pairs(n: int, min_rows: int) -> tuple[np.ndarray, np.ndarray]:
     b = a + w
     ok = (b <= s[-1]) & ((a - s[0]) % np.maximum(1, w // SHORT_START_SHARE) == 0)
     return a[ok], b[ok]
-
-
-SHORT_START_SHARE = 8  # a short window of w rows is tried from every max(1, w // this)-th row
 
 
 def selection_short(n_cal: int) -> int | None:
@@ -384,7 +382,8 @@ def scan_changes(prob, fit, places: list[ChangePlace], *, windows: bool = True, 
     of at least this many rows (default ``WINDOW_MIN_ROWS``), and those shorter than two of the grid's strides tried
     from every row, the longer of them from every few rows (a glitch of a few rows, :func:`_short_pairs`). ``last``:
     steps only, with ``last[0]`` to ``last[1]`` rows after them (a change in the campaign's last rows,
-    :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`' positions. ``sizes``: the Bonferroni factors the scan's own rules apply (default :func:`change_pool_sizes`)."""
+    :func:`twin.diagnosis.late.end_change`) instead of :func:`_steps`' positions. ``sizes``: the Bonferroni factors
+    the scan's own rules apply (default :func:`change_pool_sizes`)."""
     if last is not None and windows:
         raise ValueError(f"last={last!r} scans steps only: windows must be False")
     min_rows = short or WINDOW_MIN_ROWS
