@@ -4,6 +4,7 @@ row-by-row comparison of two models on the confirmation rows (the nested test of
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext
@@ -81,3 +82,43 @@ def test_a_harmonic_is_read_as_the_family_term_whose_columns_span_it_over_the_ro
     assert _spanning(prob, [first], [own3, own2]) == [(first, own2)]
     assert _spanning(prob, [second], [own2]) == []
     assert _spanning(prob, [elbow], [own3]) == []
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_window_turned_down_as_a_wander_takes_no_try_and_the_next_change_is_kept(seed, monkeypatch):
+    """A change and back that the wander test turns down (its evidence no larger than the scatter the rows outside it
+    show) is not the round's first try: with every window so turned down and ranked first, the round still keeps a
+    joint zero's step at its row (a drawn joint, size and row in the rows that fit)."""
+    import _diagnosis_helpers as H
+    from twin.diagnosis import ordering, rule
+    from twin.diagnosis.changes import change_places, is_step, is_window, row_times, scan_changes, selection_short
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+
+    rng = np.random.default_rng(40 + seed)
+    n_poses = 120
+    m = n_poses + n_poses // 4
+    joint = int(rng.integers(1, 7))
+    row = int(rng.integers(int(0.25 * m), int(0.5 * m)))
+    size_deg = rng.uniform(0.02, 0.05) * (3 if joint >= 4 else 1)  # a wrist joint's zero moves the plate less
+
+    def eff(q, model):
+        out = q.copy()
+        out[row:, joint - 1] += np.deg2rad(size_deg)
+        return out
+
+    ds, _ = H.make_dataset(seed=seed, n=n_poses, effect=eff, t_s=np.cumsum(rng.uniform(8, 12, m)))
+    setup = prepare_diagnosis(ds)
+    prob = setup.problem
+    fit = fit_geometry(prob, setup.x0)
+    pool, sizes = atom_pool(setup)
+    places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"], prob.ctx.q)
+    found = scan_changes(prob, fit, places, short=selection_short(prob.obs_cal.n))
+    assert any(is_window(a) for a in found) and any(is_step(a) for a in found)
+    monkeypatch.setattr(rule, "window_logp", lambda *a, **k: 0.0)  # every window read as a wander
+    order = ordering.order_candidates
+    monkeypatch.setattr(rule, "order_candidates", lambda s: sorted(order(s), key=lambda c: not is_window(c.atom)))
+    r = rule.selection_round(prob, fit, found, sizes, 1, alpha_select=0.01, z_min=3.0)
+    assert r.accepted is not None and is_step(r.accepted.atom), [c.decision for c in r.scores]
+    t = row_times(prob.ctx)[1]
+    assert r.accepted.atom.target == f"theta{joint}"
+    assert t[row - 1] < r.accepted.atom.features[0].at <= t[row], (r.accepted.atom.label, t[row])

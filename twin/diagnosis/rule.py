@@ -129,7 +129,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted; then the strongest of each pool none of those came from.
+    confirmation rows and of a physical size is accepted (a window the wander test turns down,
+    :func:`twin.diagnosis.changes.window_logp`, takes no try: the next significant one takes its place); then the
+    strongest of each pool none of those came from.
     The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first;
     where every try failed, a payload's change at the joints the tries did not change (:func:`payload_rivals`)."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
@@ -150,6 +152,7 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             seen.add(c.atom.pool)
             more.append(c)
     queue = first + more
+    n_first = len(first)
     for k, s in enumerate(queue):
         if k == len(queue) - 1:
             # every try failed so far: the payload's change at the joints none of them changes (ordering.payload_rivals)
@@ -162,7 +165,19 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
-            if k < len(first):
+            if s.logp_adj < np.log(alpha_select):
+                # a window the wander test turned down takes no try: the next significant candidate in the order
+                # takes its place among the first tries
+                if k < n_first:
+                    nxt = next((c for c in order if c not in queue[:n_first] and c.logp_adj < np.log(alpha_select)),
+                               None)
+                    if nxt is not None:
+                        if nxt in queue:
+                            queue.remove(nxt)
+                        queue.insert(n_first, nxt)
+                        n_first += 1
+                continue
+            if k < n_first:
                 break
             continue
         if retimeable(s.atom):
