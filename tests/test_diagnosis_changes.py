@@ -909,3 +909,46 @@ def test_rows_left_out_for_their_history_are_no_run_of_gross_rows():
     prob.history_out = np.zeros(prob.obs_cal.n, bool)
     prob.history_out[first] = True
     assert not gross_runs(setup, prob).any()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rows_outside_a_window_that_hold_a_change_are_structured_and_white_rows_are_not(seed):
+    """window_wander: a window of a joint's zero begun at a wrong row (the zero was off from the first row to the
+    window's end; joint, size and rows drawn) leaves rows outside it that hold the change (their mean square evidence
+    beyond STRUCTURED_OUTSIDE), so it is turned down as no wander; the same window on a campaign without the change
+    has rows outside it at the floor."""
+    from twin.diagnosis.changes import (STRUCTURED_OUTSIDE, _scatter_parts, as_window, change_at, change_places,
+                                        row_times, window_wander)
+    from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
+    from twin.diagnosis.problem import psi_init
+    from twin.diagnosis.scoring import score_atoms
+
+    rng = np.random.default_rng(70 + seed)
+    m = N_POSES + N_POSES // 4
+    joint = int(rng.integers(1, 7))
+    end = int(rng.integers(int(0.35 * m), int(0.55 * m)))
+    start = int(rng.integers(end // 3, 2 * end // 3))
+    size_deg = rng.uniform(0.02, 0.05) * (3 if joint >= 4 else 1)
+
+    def eff(q, model):
+        out = q.copy()
+        out[:end, joint - 1] += size_deg * DEG
+        return out
+
+    got = []
+    for effect in (eff, None):
+        ds, _ = _dataset(effect, seed=seed)
+        setup = prepare_diagnosis(ds)
+        prob = setup.problem
+        fit = fit_geometry(prob, setup.x0)
+        _, sizes = atom_pool(setup)
+        pl = next(p for p in change_places(prob.prep.nominal, []) if p.target == f"theta{joint}" and p.inner is None)
+        ch, t = row_times(prob.ctx)
+        win = as_window(change_at(pl, ch, 0.5 * (t[start - 1] + t[start])), 0.5 * (t[end - 1] + t[end]))
+        s = score_atoms(prob, fit, [win], sizes)[0]
+        chosen = list(fit.chosen) + [(s.atom, s.basis)]
+        with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
+        got.append((window_wander(prob, fit, s, sizes)[1], max(q for q, _ in _scatter_parts(prob, with_it, win, False))))
+    (structured, s2), (clean, s2_clean) = got
+    assert structured and s2 > STRUCTURED_OUTSIDE, (joint, start, end, size_deg, s2)
+    assert not clean and s2_clean < 3.0, s2_clean

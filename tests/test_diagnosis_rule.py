@@ -84,14 +84,11 @@ def test_a_harmonic_is_read_as_the_family_term_whose_columns_span_it_over_the_ro
     assert _spanning(prob, [elbow], [own3]) == []
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_a_window_turned_down_as_a_wander_takes_no_try_and_the_next_change_is_kept(seed, monkeypatch):
-    """A change and back that the wander test turns down (its evidence no larger than the scatter the rows outside it
-    show) is not the round's first try: with every window so turned down and ranked first, the round still keeps a
-    joint zero's step at its row (a drawn joint, size and row in the rows that fit)."""
+def _zero_step_round(seed: int):
+    """A joint zero's step (joint, size and row drawn per seed, in the rows that fit) at its geometric fit: the
+    problem, the fit, the change scan's candidates and the pool sizes; the joint and the step's row."""
     import _diagnosis_helpers as H
-    from twin.diagnosis import ordering, rule
-    from twin.diagnosis.changes import change_places, is_step, is_window, row_times, scan_changes, selection_short
+    from twin.diagnosis.changes import change_places, scan_changes, selection_short
     from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
 
     rng = np.random.default_rng(40 + seed)
@@ -113,12 +110,46 @@ def test_a_window_turned_down_as_a_wander_takes_no_try_and_the_next_change_is_ke
     pool, sizes = atom_pool(setup)
     places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"], prob.ctx.q)
     found = scan_changes(prob, fit, places, short=selection_short(prob.obs_cal.n))
-    assert any(is_window(a) for a in found) and any(is_step(a) for a in found)
-    monkeypatch.setattr(rule, "window_logp", lambda *a, **k: 0.0)  # every window read as a wander
+    return prob, fit, found, sizes, joint, row
+
+
+def _windows_first(monkeypatch, structured: bool):
+    """Every window turned down by the wander test (against rows outside it that are ``structured``, or a wander)
+    and ranked before every other candidate."""
+    from twin.diagnosis import ordering, rule
+    from twin.diagnosis.changes import is_window
+
+    monkeypatch.setattr(rule, "window_wander", lambda *a, **k: (0.0, structured))
     order = ordering.order_candidates
     monkeypatch.setattr(rule, "order_candidates", lambda s: sorted(order(s), key=lambda c: not is_window(c.atom)))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_window_turned_down_against_a_change_outside_it_takes_no_try(seed, monkeypatch):
+    """A change and back turned down by the wander test where the rows outside it hold a change the model lacks is
+    not one of the round's tries: with every window so turned down and ranked first, the round keeps the joint zero's
+    step at its row (joint, size and row drawn)."""
+    from twin.diagnosis import rule
+    from twin.diagnosis.changes import is_step, is_window, row_times
+
+    prob, fit, found, sizes, joint, row = _zero_step_round(seed)
+    assert any(is_window(a) for a in found) and any(is_step(a) for a in found)
+    _windows_first(monkeypatch, structured=True)
     r = rule.selection_round(prob, fit, found, sizes, 1, alpha_select=0.01, z_min=3.0)
     assert r.accepted is not None and is_step(r.accepted.atom), [c.decision for c in r.scores]
     t = row_times(prob.ctx)[1]
     assert r.accepted.atom.target == f"theta{joint}"
     assert t[row - 1] < r.accepted.atom.features[0].at <= t[row], (r.accepted.atom.label, t[row])
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_window_turned_down_against_a_wander_ends_the_round(seed, monkeypatch):
+    """A change and back turned down by the wander test against rows outside it that only wander ends the round as
+    a candidate not significant does: ranked first, nothing is kept, though the step behind it would be."""
+    from twin.diagnosis import rule
+
+    prob, fit, found, sizes, _, _ = _zero_step_round(seed)
+    _windows_first(monkeypatch, structured=False)
+    r = rule.selection_round(prob, fit, found, sizes, 1, alpha_select=0.01, z_min=3.0)
+    assert r.accepted is None
+    assert r.scores and all(c.decision == "not significant on the calibration rows" for c in r.scores)

@@ -48,7 +48,7 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "selection_short"]
+           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "window_wander", "STRUCTURED_OUTSIDE", "selection_short"]
 
 WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
@@ -694,25 +694,33 @@ def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> flo
     says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor).
     ``g_i`` is the place's first column (a joint's offset, the direction a compliance's change turns it); with
     ``every_column``, each of the place's columns (a frame's six directions, per station), the largest figure."""
+    return max([1.0] + [max(1.0, s2) * (1.0 + rho) / (1.0 - rho)
+                        for s2, rho in _scatter_parts(prob, fit, window, every_column)])
+
+
+def _scatter_parts(prob, fit, window: Atom, every_column: bool) -> list[tuple[float, float]]:
+    """Per column of the ``window``'s place (:func:`place_scatter`), the rows outside it: the mean square ``s^2`` of
+    their evidence for an offset of the place (in the floor's units) and its correlation ``rho`` from one row to the
+    next in time (clipped to [0, 0.9]); a column with fewer than 10 such rows gives none."""
     sb = scoring_basis(prob, fit)
     W, QB, Br = row_aggregates(prob, fit, sb, window)
     inside = prob.features(window)[prob.rows_cal, 0] != 0
     _, tv = row_times(prob.ctx)
     order = np.argsort(tv[prob.rows_cal], kind="stable")
-    out = 1.0
+    out = []
     for j in range(W.shape[1] if every_column else 1):
         den = W[:, j, j] - np.einsum("np,np->n", QB[:, :, j], QB[:, :, j])
         ok = (~inside) & (den > 1e-12 * max(float(np.max(W[:, j, j])), 1e-300)) & (prob.w_cal > 0)
         if np.sum(ok) < 10:
             continue
         z = np.where(ok, Br[:, j] / np.sqrt(np.where(ok, den, 1.0)), 0.0) / np.sqrt(prob.evidence_scale)
-        s2 = max(1.0, float(np.mean(z[ok] ** 2)))
+        s2 = float(np.mean(z[ok] ** 2))
         zo, oko = z[order], ok[order]
         pair = oko[1:] & oko[:-1]
         a, b = zo[:-1][pair], zo[1:][pair]
         den2 = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
         rho = float(np.clip(np.sum(a * b) / den2, 0.0, 0.9)) if den2 > 0 else 0.0
-        out = max(out, s2 * (1.0 + rho) / (1.0 - rho))
+        out.append((s2, rho))
     return out
 
 
@@ -726,12 +734,29 @@ def window_logp(prob, fit, s, sizes: dict) -> float:
     it the rows inside pull the fit (the joint's offset, the load's shapes) and the rows outside carry that pull, a
     structure of their own (read so, a 40-row window of joint 2's zero was not kept on one seed of two of
     ``tests/test_diagnosis_changes.py``)."""
+    return window_wander(prob, fit, s, sizes)[0]
+
+
+# the mean square evidence along a window's place of the rows outside it (the floor's units) beyond which they hold a
+# change the model lacks, not a wander of the cell: the drawn clean campaigns' wanders (0.25-0.6x the noise, rho up
+# to 0.85) give 1.2-2.9; the rows outside a window of payload_905's change begun at a wrong row give 66
+STRUCTURED_OUTSIDE = 10.0
+
+
+@memo_on_fit
+def window_wander(prob, fit, s, sizes: dict) -> tuple[float, bool]:
+    """:func:`window_logp` of the scored window ``s``, and whether the rows outside it are structured along its place
+    beyond a wander of the cell (the mean square of their evidence above ``STRUCTURED_OUTSIDE`` on a column): a
+    window turned down against such a scatter says that a change the model lacks lies outside it, not that the rows
+    wander."""
     frame = s.atom.place == "param" and s.atom.target in ("tool", "base")
     chosen = list(fit.chosen) + [(s.atom, s.basis)]
     # fitted under the problem's gross rows as they are (the scored atom's columns are of those rows)
     with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
-    s2 = place_scatter(prob, with_it, s.atom, every_column=frame)
-    return chi2_logsf(s.dchi2 / prob.evidence_scale / s2, s.basis.shape[1]) + np.log(sizes[s.atom.pool])
+    parts = _scatter_parts(prob, with_it, s.atom, frame)
+    s2 = max([1.0] + [max(1.0, q) * (1.0 + rho) / (1.0 - rho) for q, rho in parts])
+    logp = chi2_logsf(s.dchi2 / prob.evidence_scale / s2, s.basis.shape[1]) + np.log(sizes[s.atom.pool])
+    return logp, any(q > STRUCTURED_OUTSIDE for q, _ in parts)
 
 
 def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:

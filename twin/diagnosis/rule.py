@@ -26,7 +26,7 @@ from ..estimator.distributions import chi2_isf
 from ..units import RAD_PER_DEG
 from .atoms import Atom, is_load_change, is_load_term
 from .changes import (change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
-                      selection_short, window_logp)
+                      selection_short, window_wander)
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (along_link_weight, fitted_load, link_tilt_atom, load_alternatives, load_candidates, own_link_atom,
                     reads_its_load, refine_load_sign, stiffening_atoms, tilt_angles)
@@ -129,9 +129,10 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
     """One forward round: score the remaining atoms against ``fit`` (a sign backlash competing as the play
     operator when that explains significantly more), order them (:func:`order_candidates`), and try up to
     ``tries`` in that order: the first that is significant on the calibration rows, confirmed on the
-    confirmation rows and of a physical size is accepted (a window the wander test turns down,
-    :func:`twin.diagnosis.changes.window_logp`, takes no try: the next significant one takes its place); then the
-    strongest of each pool none of those came from.
+    confirmation rows and of a physical size is accepted (a window the wander test turns down where the rows
+    outside it hold a change the model lacks, :func:`twin.diagnosis.changes.window_wander`, sends the round on to
+    the next ``tries`` significant changes and no other term; one turned down against a wander of the cell ends the
+    round as any candidate not significant does); then the strongest of each pool none of those came from.
     The significant atoms whose keys are in ``lead`` (the same payload's change at another joint) are tried first;
     where every try failed, a payload's change at the joints the tries did not change (:func:`payload_rivals`)."""
     scored = prefer_sign(prob, fit, prefer_play(prob, fit, score_atoms(prob, fit, remaining, sizes), sizes), sizes)
@@ -159,23 +160,23 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
             queue += payload_rivals(order, queue, np.log(alpha_select))
         alike = same.get(s.atom.key, [])
         logp_adj = s.logp_adj
+        structured_outside = False
         if is_window(s.atom) and logp_adj < np.log(alpha_select):
             # a change and back measured against the scatter the rows outside it show along its place (a wander)
-            logp_adj = min(0.0, max(logp_adj, window_logp(prob, fit, s, sizes)))
+            logp_w, structured_outside = window_wander(prob, fit, s, sizes)
+            logp_adj = min(0.0, max(logp_adj, logp_w))
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
-            if s.logp_adj < np.log(alpha_select):
-                # a window the wander test turned down takes no try: the next significant candidate in the order
-                # takes its place among the first tries
-                if k < n_first:
-                    nxt = next((c for c in order if c not in queue[:n_first] and c.logp_adj < np.log(alpha_select)),
-                               None)
-                    if nxt is not None:
-                        if nxt in queue:
-                            queue.remove(nxt)
-                        queue.insert(n_first, nxt)
-                        n_first += 1
+            if structured_outside:
+                # a window turned down against rows outside it that hold a change the model lacks (not a wander):
+                # the round goes on to that change, the significant changes in the order not yet tried (as its
+                # first tries), and to no other term
+                tried = queue[:k + 1]
+                del queue[k + 1:]
+                queue += [c for c in order if is_change(c.atom) and c not in tried
+                          and c.logp_adj < np.log(alpha_select)][:tries]
+                n_first = len(queue)
                 continue
             if k < n_first:
                 break
