@@ -948,7 +948,8 @@ def test_rows_outside_a_window_that_hold_a_change_are_structured_and_white_rows_
         s = score_atoms(prob, fit, [win], sizes)[0]
         chosen = list(fit.chosen) + [(s.atom, s.basis)]
         with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
-        got.append((window_wander(prob, fit, s, sizes)[1], max(q for q, _ in _scatter_parts(prob, with_it, win, False))))
+        s2 = max(q for q, _ in _scatter_parts(prob, with_it, win, False))
+        got.append((window_wander(prob, fit, s, sizes)[1], s2))
     (structured, s2), (clean, s2_clean) = got
     assert structured and s2 > STRUCTURED_OUTSIDE, (joint, start, end, size_deg, s2)
     assert not clean and s2_clean < 3.0, s2_clean

@@ -48,7 +48,8 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "window_wander", "STRUCTURED_OUTSIDE", "selection_short"]
+           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "window_wander",
+           "STRUCTURED_OUTSIDE", "selection_short"]
 
 WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
 UNIFORM_P = 1e-3  # the rows a change acts on may not keep a scatter larger than the others' beyond this p
