@@ -86,7 +86,7 @@ def test_a_harmonic_is_read_as_the_family_term_whose_columns_span_it_over_the_ro
 
 def _zero_step_round(seed: int):
     """A joint zero's step (joint, size and row drawn per seed, in the rows that fit) at its geometric fit: the
-    problem, the fit, the change scan's candidates and the pool sizes; the joint and the step's row."""
+    problem, the fit, the change scan's candidates and the pool sizes; the joint and the step's row; the atom pool."""
     import _diagnosis_helpers as H
     from twin.diagnosis.changes import change_places, scan_changes, selection_short
     from twin.diagnosis.diagnose import atom_pool, fit_geometry, prepare_diagnosis
@@ -110,16 +110,17 @@ def _zero_step_round(seed: int):
     pool, sizes = atom_pool(setup)
     places = change_places(prob.prep.nominal, [a for a in pool if a.pool == "catalogue"], prob.ctx.q)
     found = scan_changes(prob, fit, places, short=selection_short(prob.obs_cal.n))
-    return prob, fit, found, sizes, joint, row
+    return prob, fit, found, sizes, joint, row, pool
 
 
 def _windows_first(monkeypatch, structured: bool):
     """Every window turned down by the wander test (against rows outside it that are ``structured``, or a wander)
     and ranked before every other candidate."""
     from twin.diagnosis import ordering, rule
-    from twin.diagnosis.changes import is_window
+    from twin.diagnosis.changes import STRUCTURED_OUTSIDE, is_window
 
-    monkeypatch.setattr(rule, "window_wander", lambda *a, **k: (0.0, structured))
+    outside_ms = 2.0 * STRUCTURED_OUTSIDE if structured else 1.0
+    monkeypatch.setattr(rule, "window_wander", lambda *a, **k: (0.0, outside_ms))
     order = ordering.order_candidates
     monkeypatch.setattr(rule, "order_candidates", lambda s: sorted(order(s), key=lambda c: not is_window(c.atom)))
 
@@ -132,7 +133,7 @@ def test_a_window_turned_down_against_a_change_outside_it_takes_no_try(seed, mon
     from twin.diagnosis import rule
     from twin.diagnosis.changes import is_step, is_window, row_times
 
-    prob, fit, found, sizes, joint, row = _zero_step_round(seed)
+    prob, fit, found, sizes, joint, row, _ = _zero_step_round(seed)
     assert any(is_window(a) for a in found) and any(is_step(a) for a in found)
     _windows_first(monkeypatch, structured=True)
     r = rule.selection_round(prob, fit, found, sizes, 1, alpha_select=0.01, z_min=3.0)
@@ -148,8 +149,27 @@ def test_a_window_turned_down_against_a_wander_ends_the_round(seed, monkeypatch)
     a candidate not significant does: ranked first, nothing is kept, though the step behind it would be."""
     from twin.diagnosis import rule
 
-    prob, fit, found, sizes, _, _ = _zero_step_round(seed)
+    prob, fit, found, sizes, _, _, _ = _zero_step_round(seed)
     _windows_first(monkeypatch, structured=False)
     r = rule.selection_round(prob, fit, found, sizes, 1, alpha_select=0.01, z_min=3.0)
     assert r.accepted is None
     assert r.scores and all(c.decision == "not significant on the calibration rows" for c in r.scores)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_after_a_window_turned_down_against_a_change_outside_it_only_changes_are_tried(seed, monkeypatch):
+    """A window turned down where the rows outside it hold a change sends the round on to changes only: with the
+    scan's windows ranked first and so turned down, and the catalogue's terms (some significant) the only other
+    candidates, the round tries no catalogue term and keeps nothing."""
+    from twin.diagnosis import rule
+    from twin.diagnosis.changes import is_window
+    from twin.diagnosis.scoring import score_atoms
+
+    prob, fit, found, sizes, _, _, pool = _zero_step_round(seed)
+    windows = [a for a in found if is_window(a)]
+    catalogue = [a for a in pool if a.pool == "catalogue"]
+    assert windows and any(s.logp_adj < np.log(0.01) for s in score_atoms(prob, fit, catalogue, sizes))
+    _windows_first(monkeypatch, structured=True)
+    r = rule.selection_round(prob, fit, windows + catalogue, sizes, 1, alpha_select=0.01, z_min=3.0)
+    assert r.accepted is None
+    assert {c.name for c in r.scores} <= {a.label for a in windows}, [c.name for c in r.scores]

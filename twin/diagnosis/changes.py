@@ -48,7 +48,7 @@ from .structure import chi2_logsf
 
 __all__ = ["CHANGE_POOLS", "MIN_ROWS", "WINDOW_GRID", "ChangePlace", "change_places", "change_pool_sizes",
            "scan_changes", "describe_changes", "is_change", "is_step", "is_window", "as_window", "as_step", "row_times",
-           "same_event", "started_at", "change_at", "place_scatter", "window_logp", "window_wander",
+           "same_event", "started_at", "change_at", "place_scatter", "window_wander",
            "STRUCTURED_OUTSIDE", "selection_short"]
 
 WINDOW_MIN_ROWS = 5  # rows inside a window by default (the selection and the glitch scan take MIN_ROWS, short=)
@@ -695,8 +695,13 @@ def place_scatter(prob, fit, window: Atom, *, every_column: bool = False) -> flo
     says and holds over a few rows; a window's evidence is measured against it (1 for white rows at the floor).
     ``g_i`` is the place's first column (a joint's offset, the direction a compliance's change turns it); with
     ``every_column``, each of the place's columns (a frame's six directions, per station), the largest figure."""
-    return max([1.0] + [max(1.0, s2) * (1.0 + rho) / (1.0 - rho)
-                        for s2, rho in _scatter_parts(prob, fit, window, every_column)])
+    return _scatter_figure(_scatter_parts(prob, fit, window, every_column))
+
+
+def _scatter_figure(parts: list[tuple[float, float]]) -> float:
+    """:func:`place_scatter`'s figure from :func:`_scatter_parts`: the largest ``max(1, s^2) (1 + rho) / (1 - rho)``,
+    at least 1."""
+    return max([1.0] + [max(1.0, s2) * (1.0 + rho) / (1.0 - rho) for s2, rho in parts])
 
 
 def _scatter_parts(prob, fit, window: Atom, every_column: bool) -> list[tuple[float, float]]:
@@ -725,19 +730,6 @@ def _scatter_parts(prob, fit, window: Atom, every_column: bool) -> list[tuple[fl
     return out
 
 
-@memo_on_fit
-def window_logp(prob, fit, s, sizes: dict) -> float:
-    """The pool-adjusted log p-value of a scored window ``s`` (a change and back) with its evidence measured against
-    the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the
-    long-run variance of an AR(1) where the noise wanders over a few rows): a window fitted to a stretch of a wander
-    gains the wander's excursion there, which the rows outside show as often. A frame's window is read on each of its
-    columns (a wander moves the cell along any of them). The scatter is read on the model with the window: without
-    it the rows inside pull the fit (the joint's offset, the load's shapes) and the rows outside carry that pull, a
-    structure of their own (read so, a 40-row window of joint 2's zero was not kept on one seed of two of
-    ``tests/test_diagnosis_changes.py``)."""
-    return window_wander(prob, fit, s, sizes)[0]
-
-
 # the mean square evidence along a window's place of the rows outside it (the floor's units) beyond which they hold a
 # change the model lacks, not a wander of the cell: the drawn clean campaigns' wanders (0.25-0.6x the noise, rho up
 # to 0.85) give 1.2-2.9; the rows outside a window of payload_905's change begun at a wrong row give 66
@@ -745,19 +737,25 @@ STRUCTURED_OUTSIDE = 10.0
 
 
 @memo_on_fit
-def window_wander(prob, fit, s, sizes: dict) -> tuple[float, bool]:
-    """:func:`window_logp` of the scored window ``s``, and whether the rows outside it are structured along its place
-    beyond a wander of the cell (the mean square of their evidence above ``STRUCTURED_OUTSIDE`` on a column): a
-    window turned down against such a scatter says that a change the model lacks lies outside it, not that the rows
-    wander."""
+def window_wander(prob, fit, s, sizes: dict) -> tuple[float, float]:
+    """The pool-adjusted log p-value of a scored window ``s`` (a change and back) with its evidence measured against
+    the scatter the rows outside it show along its place (:func:`place_scatter`: 1 for white rows at the floor, the
+    long-run variance of an AR(1) where the noise wanders over a few rows), and the largest mean square of those rows'
+    evidence on a column of the place (the floor's units). A window fitted to a stretch of a wander gains the wander's
+    excursion there, which the rows outside show as often. A frame's window is read on each of its columns (a wander
+    moves the cell along any of them). The scatter is read on the model with the window: without it the rows inside
+    pull the fit (the joint's offset, the load's shapes) and the rows outside carry that pull, a structure of their
+    own (read so, a 40-row window of joint 2's zero was not kept on one seed of two of
+    ``tests/test_diagnosis_changes.py``). A mean square beyond ``STRUCTURED_OUTSIDE`` says that the rows outside
+    hold a change the model lacks, not that they wander."""
     frame = s.atom.place == "param" and s.atom.target in ("tool", "base")
     chosen = list(fit.chosen) + [(s.atom, s.basis)]
     # fitted under the problem's gross rows as they are (the scored atom's columns are of those rows)
     with_it = prob.fit(fit.z[: prob.prep.space.size], chosen, psi_init(fit, chosen))
     parts = _scatter_parts(prob, with_it, s.atom, frame)
-    s2 = max([1.0] + [max(1.0, q) * (1.0 + rho) / (1.0 - rho) for q, rho in parts])
-    logp = chi2_logsf(s.dchi2 / prob.evidence_scale / s2, s.basis.shape[1]) + np.log(sizes[s.atom.pool])
-    return logp, any(q > STRUCTURED_OUTSIDE for q, _ in parts)
+    logp = chi2_logsf(s.dchi2 / prob.evidence_scale / _scatter_figure(parts), s.basis.shape[1]) + \
+        np.log(sizes[s.atom.pool])
+    return logp, max([0.0] + [q for q, _ in parts])
 
 
 def describe_changes(atoms_json: list[dict], ctx: RowContext, pose_id: np.ndarray) -> list[dict]:

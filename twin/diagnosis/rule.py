@@ -25,8 +25,8 @@ import numpy as np
 from ..estimator.distributions import chi2_isf
 from ..units import RAD_PER_DEG
 from .atoms import Atom, is_load_change, is_load_term
-from .changes import (change_places, is_change, is_step, is_window, row_times, same_event, scan_changes,
-                      selection_short, window_wander)
+from .changes import (STRUCTURED_OUTSIDE, change_places, is_change, is_step, is_window, row_times, same_event,
+                      scan_changes, selection_short, window_wander)
 from .features import BaseMoment, Cos, Heat, Lag, LoadSign, Moment, Play, Pow, Sin, Torque
 from .loads import (along_link_weight, fitted_load, link_tilt_atom, load_alternatives, load_candidates, own_link_atom,
                     reads_its_load, refine_load_sign, stiffening_atoms, tilt_angles)
@@ -163,8 +163,9 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
         structured_outside = False
         if is_window(s.atom) and logp_adj < np.log(alpha_select):
             # a change and back measured against the scatter the rows outside it show along its place (a wander)
-            logp_w, structured_outside = window_wander(prob, fit, s, sizes)
+            logp_w, outside_ms = window_wander(prob, fit, s, sizes)
             logp_adj = min(0.0, max(logp_adj, logp_w))
+            structured_outside = outside_ms > STRUCTURED_OUTSIDE
         if logp_adj >= np.log(alpha_select):
             out.scores.append(CandidateScore(rnd, s.atom.label, s.basis.shape[1], s.dchi2, float(np.exp(logp_adj)),
                                              float("nan"), "not significant on the calibration rows"))
