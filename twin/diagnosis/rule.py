@@ -173,9 +173,8 @@ def selection_round(prob: Problem, fit: Fit, remaining: list[Atom], sizes: dict[
                 # a window turned down against rows outside it that hold a change the model lacks (not a wander):
                 # the round goes on to that change, the significant changes in the order not yet tried (as its
                 # first tries), and to no other term
-                tried = queue[:k + 1]
                 del queue[k + 1:]
-                queue += [c for c in order if is_change(c.atom) and c not in tried
+                queue += [c for c in order if is_change(c.atom) and c not in queue
                           and c.logp_adj < np.log(alpha_select)][:tries]
                 n_first = len(queue)
                 continue
