@@ -97,6 +97,7 @@ results: install
 	for s in $(DRAWN_SETS); do \
 	  $(PY) -m studies.drawn.run --seeds $${s%%:*} --workers 2 --out studies/drawn/$${s##*:} || exit 1; \
 	done
+	$(PY) -m studies.drawn.run --families mixed --seeds 0-199 --workers 2 --out studies/drawn/results_mixed
 	$(PY) studies/blind/run.py --workers 2 --only a b c d e f
 	$(PY) studies/close_loop/close_loop.py studies/close_loop/close_loop.toml --out studies/close_loop/results/close_loop
 	$(PY) studies/close_loop/close_loop.py studies/close_loop/close_loop_clean.toml --out studies/close_loop/results/close_loop_clean

@@ -11,6 +11,12 @@ least-squares fit of every geometric parameter, every station's base2meas and th
 over the RMS of the noise's displacement per point. The family's ``scale`` is set to reach it (the effect is linear
 in it to first order); an instance whose size would be physically implausible (``families.Family.check``) is drawn
 again (joint, shape, timing and ratio), at most ``MAX_TRIES`` times.
+
+**Several effects at once** (``MIXED``, not one of ``FAMILY_ORDER``): two or three families from distinct slots of
+``MIXED_SLOTS`` (at most one family that names compliance, one backlash, one thermal growth, one change outside the
+catalogue, ...), drawn on the effect's stream in slot order; each instance drawn, sized (its own ratio to the noise,
+as above, alone) and checked as when it is the campaign's only effect, then composed (:func:`compose`). Its streams
+are those of family index ``MIXED_INDEX``.
 """
 
 from __future__ import annotations
@@ -28,13 +34,20 @@ from .families import FAMILIES, Ctx, Effect, Redraw, air_profile
 from .robots import ROBOTS, params_from_record, params_record, robot_toml, true_params
 
 __all__ = [
-    "SEED_BASE", "FAMILY_ORDER", "RATIO", "ROWS", "LATER_ROWS", "ROBOT_WEIGHTS", "Instance", "NoInstance", "streams",
-    "build", "write", "read_context", "recompute_effect", "chain_points", "geometric_jacobian", "column_basis",
+    "SEED_BASE", "FAMILY_ORDER", "MIXED", "MIXED_INDEX", "MIXED_SLOTS", "RATIO", "ROWS", "LATER_ROWS", "ROBOT_WEIGHTS", "Instance", "NoInstance", "streams",
+    "build", "compose", "write", "read_context", "recompute_effect", "chain_points", "geometric_jacobian", "column_basis",
     "visible_part", "rms_norm"
 ]
 
 SEED_BASE = 20261201
 FAMILY_ORDER = tuple(FAMILIES)
+MIXED = "mixed"  # several families' effects in one campaign (module docstring)
+MIXED_INDEX = 100  # the family index of its random streams (beyond FAMILY_ORDER's)
+MIXED_SLOTS = {  # at most one family of each slot in a campaign of several effects
+    "compliance": ("compliance", "payload"), "backlash": ("backlash_motion", "backlash_load", "backlash_size"),
+    "tilt": ("tilt",), "thermal": ("thermal", "motion_heat"), "cyclic": ("cyclic",), "gear_ratio": ("gear_ratio",),
+    "coupling": ("coupling",), "change": ("zero_step", "zero_glitch", "frame_change")}
+MIXED_COUNT = (2, 3)  # families per campaign, drawn uniformly
 RATIO = (1.0, 20.0)  # the effect's visible RMS over the noise's RMS, log-uniform
 ROBOT_WEIGHTS = {"irb1200": 0.5, "ur5": 0.25, "ur10": 0.25}
 ROWS = (180, 320)  # dataset rows
@@ -46,7 +59,7 @@ XYZ = "xyz"
 
 def streams(family: str, seed: int, attempt: int = 0):
     """The instance's random streams (module docstring); ``attempt`` > 0: the campaign drawn again."""
-    f = FAMILY_ORDER.index(family)
+    f = MIXED_INDEX if family == MIXED else FAMILY_ORDER.index(family)
     return [np.random.default_rng([SEED_BASE, f, int(seed), k] + ([attempt] if attempt else [])) for k in range(1, 7)]
 
 
@@ -78,8 +91,8 @@ class Instance:
     temp_written: bool
     masses_stated: tuple | None
     noise_stated_mm: float | None
-    effect_params: dict | None
-    effect_key: dict | None
+    effect_params: dict | None  # a list of them, one per family, for MIXED
+    effect_key: dict | None  # a list of them, one per family, for MIXED
     drawn: dict = field(default_factory=dict)
 
     @property
@@ -89,6 +102,29 @@ class Instance:
     @property
     def E(self) -> np.ndarray:
         return self.P - self.P0
+
+    @property
+    def effect_keys(self) -> list[dict]:
+        """The key's entry of every effect (none for a clean campaign)."""
+        if not self.effect_key:
+            return []
+        return list(self.effect_key) if isinstance(self.effect_key, list) else [self.effect_key]
+
+
+def compose(effects: list[Effect]) -> Effect:
+    """One effect acting as all of ``effects``: joint offsets added, length scales multiplied, the tool, measurement
+    and base transforms multiplied in the list's order."""
+    out = Effect()
+    for e in effects:
+        if e.dq is not None:
+            out.dq = e.dq if out.dq is None else out.dq + e.dq
+        if e.length_scale is not None:
+            out.length_scale = e.length_scale if out.length_scale is None else out.length_scale * e.length_scale
+        for name in ("tool", "meas", "base"):
+            a, b = getattr(e, name), getattr(out, name)
+            if a is not None:
+                setattr(out, name, a if b is None else b @ a)
+    return out
 
 
 def chain_points(robot, params, Q, effect: Effect | None, base2meas_rows, tool2flange, points_tool) -> np.ndarray:
@@ -199,8 +235,8 @@ def build(family: str, seed: int, rows: tuple[int, int] = ROWS, later_rows: tupl
     rows and of the rows after the campaign (another range draws another instance). A campaign on which the family
     has no plausible instance of a visible size is drawn again (at most ``CAMPAIGN_TRIES`` times; ``drawn``
     records how often)."""
-    if family not in FAMILIES:
-        raise ValueError(f"family must be one of {FAMILY_ORDER}, got {family!r}")
+    if family not in FAMILIES and family != MIXED:
+        raise ValueError(f"family must be one of {FAMILY_ORDER + (MIXED,)}, got {family!r}")
     if not (10 <= rows[0] <= rows[1] and 1 <= later_rows[0] <= later_rows[1]):
         raise ValueError(f"rows must be >= 10 and later_rows >= 1 (low <= high), got {rows}, {later_rows}")
     why = []
@@ -217,7 +253,7 @@ def build(family: str, seed: int, rows: tuple[int, int] = ROWS, later_rows: tupl
 
 def _build(family: str, seed: int, rows: tuple[int, int], later_rows: tuple[int, int], attempt: int) -> Instance:
     r_setup, r_plan, r_time, r_eff, r_noise, r_size = streams(family, seed, attempt)
-    fam = FAMILIES[family]
+    fam = FAMILIES.get(family)
     robot, inst, stations, params, tool2flange, bodies, masses = _draw_setup(r_setup, family)
     n_data = int(r_plan.integers(rows[0], rows[1] + 1))
     n_later = int(r_plan.integers(later_rows[0], later_rows[1] + 1))
@@ -241,46 +277,29 @@ def _build(family: str, seed: int, rows: tuple[int, int], later_rows: tuple[int,
              "box_deg": np.round(box * DEG_PER_RAD, 1).tolist(), **timing,
              "noise_rms_mm": round(noise_rms * MM_PER_M, 5)}
     p_eff, key, P = None, None, P0
-    if fam.draw is not None:
+    if family == MIXED or fam.draw is not None:
         J = column_basis(geometric_jacobian(robot, params, Q[:n_data], B_rows[:n_data], st[:n_data], tool2flange,
                                             inst.points_tool))
-        why = []
-        for attempt in range(MAX_TRIES):
-            try:
-                p = fam.draw(r_eff, ctx)
-            except Redraw as exc:
-                why.append(str(exc))
-                continue
-            ratio = float(np.exp(r_size.uniform(np.log(RATIO[0]), np.log(RATIO[1]))))
-            e1 = chain_points(robot, params, Q, fam.apply(p, ctx), B_rows, tool2flange, inst.points_tool) - P0
-            v1 = rms_norm(visible_part(J, e1[:n_data]))
-            if v1 <= 0:
-                why.append("an effect the geometry takes whole")
-                continue
-            p["scale"] = float(p["scale"] * ratio * noise_rms / v1)
-            eff = fam.apply(p, ctx)
-            bad = fam.check(p, ctx, eff)
-            if bad:
-                why.append(bad)
-                continue
-            P = chain_points(robot, params, Q, eff, B_rows, tool2flange, inst.points_tool)
-            vis = rms_norm(visible_part(J, (P - P0)[:n_data]))
-            p_eff = p
-            drawn.update({"ratio_drawn": round(ratio, 4), "ratio_visible": round(vis / noise_rms, 4),
-                          "effect_rms_mm": round(rms_norm((P - P0)[:n_data]) * MM_PER_M, 5),
-                          "redraws": attempt, "redraw_reasons": sorted(set(why))})
-            break
+        chain = (robot, params, Q, B_rows, tool2flange, inst.points_tool)
+        names = _mixed_families(r_eff) if family == MIXED else [family]
+        parts = [(name, *_draw_effect(FAMILIES[name], r_eff, r_size, ctx, chain, J, P0, noise_rms, n_data))
+                 for name in names]
+        keys = []
+        for name, p, eff, info, P1 in parts:
+            if name == "thermal":
+                air = air + air_profile(p, t, float(t[0]), float(t[n_data - 1] - t[0]))
+                temp_written = bool(p["temp_column"])
+            keys.append(_effect_key(name, p, ctx, P1 - P0, n_data, t))
+        if family == MIXED:
+            P = chain_points(*chain[:3], compose([part[2] for part in parts]), *chain[3:])
+            p_eff, key = [part[1] for part in parts], keys
+            drawn.update({"families": names, "components": [part[3] for part in parts],
+                          "ratio_visible": round(rms_norm(visible_part(J, (P - P0)[:n_data])) / noise_rms, 4),
+                          "effect_rms_mm": round(rms_norm((P - P0)[:n_data]) * MM_PER_M, 5)})
         else:
-            raise NoInstance(f"no plausible instance in {MAX_TRIES} draws ({sorted(set(why))[:3]}...)")
-        if family == "thermal":
-            air = air + air_profile(p_eff, t, float(t[0]), float(t[n_data - 1] - t[0]))
-            temp_written = bool(p_eff["temp_column"])
-        key = {"family": family, **fam.words(p_eff, ctx), "params": _jsonable(p_eff)}
-        E = P - P0
-        nrm = np.linalg.norm(E, axis=-1)
-        key["rms_mm"] = round(float(np.sqrt(np.mean(nrm[:n_data] ** 2))) * MM_PER_M, 6)
-        key["test_rms_mm"] = round(float(np.sqrt(np.mean(nrm[n_data:] ** 2))) * MM_PER_M, 6)
-        key["changes"] = _changes(family, p_eff, t)
+            (_, p_eff, _, info, P), = parts
+            key = keys[0]
+            drawn.update(info)
     air = air + r_time.normal(0, 0.02, len(t))  # the probe's noise (written to 0.01 K)
     M = P + noise
     stated = None
@@ -294,6 +313,58 @@ def _build(family: str, seed: int, rows: tuple[int, int], later_rows: tuple[int,
     drawn["temp_written"] = temp_written
     return Instance(family, int(seed), robot, inst, stations, params, tool2flange, bodies, Q, t, st, n_data, P, P0, M,
                     air, wander, temp_written, masses, stated, p_eff, key, drawn)
+
+
+def _mixed_families(rng) -> list[str]:
+    """The families of a campaign of several effects: ``MIXED_COUNT`` distinct slots, one family in each."""
+    slots = list(MIXED_SLOTS)
+    k = int(rng.integers(MIXED_COUNT[0], MIXED_COUNT[1] + 1))
+    pick = sorted(int(i) for i in rng.choice(len(slots), k, replace=False))
+    return [MIXED_SLOTS[slots[i]][int(rng.integers(len(MIXED_SLOTS[slots[i]])))] for i in pick]
+
+
+def _draw_effect(fam, r_eff, r_size, ctx: Ctx, chain: tuple, J: np.ndarray, P0: np.ndarray, noise_rms: float,
+                 n_data: int) -> tuple[dict, Effect, dict, np.ndarray]:
+    """One family's instance on the campaign: drawn, sized to its drawn ratio to the noise, checked (module
+    docstring); its parameters, its effect, what was drawn and the true points with it ``(N, K, 3)`` [m]. ``chain``: ``(robot, params, Q, base2meas rows,
+    tool2flange, points_tool)``."""
+    why = []
+    for attempt in range(MAX_TRIES):
+        try:
+            p = fam.draw(r_eff, ctx)
+        except Redraw as exc:
+            why.append(str(exc))
+            continue
+        ratio = float(np.exp(r_size.uniform(np.log(RATIO[0]), np.log(RATIO[1]))))
+        e1 = chain_points(*chain[:3], fam.apply(p, ctx), *chain[3:]) - P0
+        v1 = rms_norm(visible_part(J, e1[:n_data]))
+        if v1 <= 0:
+            why.append("an effect the geometry takes whole")
+            continue
+        p["scale"] = float(p["scale"] * ratio * noise_rms / v1)
+        eff = fam.apply(p, ctx)
+        bad = fam.check(p, ctx, eff)
+        if bad:
+            why.append(bad)
+            continue
+        P = chain_points(*chain[:3], eff, *chain[3:])
+        vis = rms_norm(visible_part(J, (P - P0)[:n_data]))
+        info = {"ratio_drawn": round(ratio, 4), "ratio_visible": round(vis / noise_rms, 4),
+                "effect_rms_mm": round(rms_norm((P - P0)[:n_data]) * MM_PER_M, 5),
+                "redraws": attempt, "redraw_reasons": sorted(set(why))}
+        return p, eff, info, P
+    raise NoInstance(f"{fam.name}: no plausible instance in {MAX_TRIES} draws ({sorted(set(why))[:3]}...)")
+
+
+def _effect_key(family: str, p: dict, ctx: Ctx, E: np.ndarray, n_data: int, t: np.ndarray) -> dict:
+    """The key's entry of one effect (its words, parameters, size and changes) from its displacement ``E`` ``(N, K,
+    3)`` [m]."""
+    key = {"family": family, **FAMILIES[family].words(p, ctx), "params": _jsonable(p)}
+    nrm = np.linalg.norm(E, axis=-1)
+    key["rms_mm"] = round(float(np.sqrt(np.mean(nrm[:n_data] ** 2))) * MM_PER_M, 6)
+    key["test_rms_mm"] = round(float(np.sqrt(np.mean(nrm[n_data:] ** 2))) * MM_PER_M, 6)
+    key["changes"] = _changes(family, p, t)
+    return key
 
 
 def _changes(family: str, p: dict, t: np.ndarray) -> list[dict]:
@@ -425,12 +496,16 @@ def write(inst: Instance, folder: str | Path) -> Path:
         lines.append(",".join(row))
     (folder / "key" / "sequence.csv").write_text("\n".join(lines) + "\n")
 
-    fam = FAMILIES[inst.family]
-    key = {"schema_version": 1, "name": inst.name, "category": fam.category, "expected_names": list(fam.expected),
-           "effects": [inst.effect_key] if inst.effect_key else [],
+    if inst.family == MIXED:
+        category = "mixed"
+        expected = sorted({n for k in inst.effect_keys for n in FAMILIES[k["family"]].expected})
+    else:
+        category, expected = FAMILIES[inst.family].category, list(FAMILIES[inst.family].expected)
+    key = {"schema_version": 1, "name": inst.name, "category": category, "expected_names": expected,
+           "effects": inst.effect_keys,
            "noise": {"instrument": inst.instrument.kind, **inst.instrument.noise,
                      "rms_per_point_mm": inst.drawn["noise_rms_mm"], "stated_mm": inst.noise_stated_mm},
-           "seed": [SEED_BASE, FAMILY_ORDER.index(inst.family), inst.seed], "drawn": _jsonable(inst.drawn),
+           "seed": [SEED_BASE, MIXED_INDEX if inst.family == MIXED else FAMILY_ORDER.index(inst.family), inst.seed], "drawn": _jsonable(inst.drawn),
            "notes": "drawn by studies/drawn/generator (it imports no part of the diagnosis)"}
     (folder / "key" / "key.json").write_text(json.dumps(key, indent=1) + "\n")
     truth = {"robot": inst.robot.name, "convention": inst.robot.convention,
@@ -474,6 +549,5 @@ def recompute_effect(folder: str | Path) -> np.ndarray:
     P0 = chain_points(ctx.robot, ctx.params, ctx.Q, None, B_rows, T, ctx.points_tool)
     if not key["effects"]:
         return np.zeros_like(P0)
-    e = key["effects"][0]
-    eff = FAMILIES[e["family"]].apply(e["params"], ctx)
+    eff = compose([FAMILIES[e["family"]].apply(e["params"], ctx) for e in key["effects"]])
     return chain_points(ctx.robot, ctx.params, ctx.Q, eff, B_rows, T, ctx.points_tool) - P0

@@ -10,7 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .campaign import FAMILY_ORDER, build, write
+from .campaign import FAMILY_ORDER, MIXED, build, write
 
 __all__ = ["main", "parse_seeds", "parse_families"]
 
@@ -33,10 +33,12 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def parse_families(text: str) -> list[str]:
+    """The families of ``text`` (comma-separated; ``all``: every family of ``FAMILY_ORDER``; ``mixed``, several
+    effects at once, only when named)."""
     fams = list(FAMILY_ORDER) if text == "all" else [f.strip() for f in text.split(",") if f.strip()]
-    bad = [f for f in fams if f not in FAMILY_ORDER]
+    bad = [f for f in fams if f not in FAMILY_ORDER and f != MIXED]
     if bad:
-        raise ValueError(f"unknown families {bad}; known: {list(FAMILY_ORDER)}")
+        raise ValueError(f"unknown families {bad}; known: {list(FAMILY_ORDER) + [MIXED]}")
     return fams
 
 
