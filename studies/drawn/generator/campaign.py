@@ -34,9 +34,9 @@ from .families import FAMILIES, Ctx, Effect, Redraw, air_profile
 from .robots import ROBOTS, params_from_record, params_record, robot_toml, true_params
 
 __all__ = [
-    "SEED_BASE", "FAMILY_ORDER", "MIXED", "MIXED_INDEX", "MIXED_SLOTS", "RATIO", "ROWS", "LATER_ROWS", "ROBOT_WEIGHTS", "Instance", "NoInstance", "streams",
-    "build", "compose", "write", "read_context", "recompute_effect", "chain_points", "geometric_jacobian", "column_basis",
-    "visible_part", "rms_norm"
+    "SEED_BASE", "FAMILY_ORDER", "MIXED", "MIXED_INDEX", "MIXED_SLOTS", "RATIO", "ROWS", "LATER_ROWS", "ROBOT_WEIGHTS",
+    "Instance", "NoInstance", "streams", "build", "compose", "write", "read_context", "recompute_effect",
+    "chain_points", "geometric_jacobian", "column_basis", "visible_part", "rms_norm"
 ]
 
 SEED_BASE = 20261201
@@ -91,8 +91,8 @@ class Instance:
     temp_written: bool
     masses_stated: tuple | None
     noise_stated_mm: float | None
-    effect_params: dict | None  # a list of them, one per family, for MIXED
-    effect_key: dict | None  # a list of them, one per family, for MIXED
+    effect_params: dict | list[dict] | None  # one per family (a list) for MIXED
+    effect_key: dict | list[dict] | None  # one per family (a list) for MIXED
     drawn: dict = field(default_factory=dict)
 
     @property
@@ -326,8 +326,8 @@ def _mixed_families(rng) -> list[str]:
 def _draw_effect(fam, r_eff, r_size, ctx: Ctx, chain: tuple, J: np.ndarray, P0: np.ndarray, noise_rms: float,
                  n_data: int) -> tuple[dict, Effect, dict, np.ndarray]:
     """One family's instance on the campaign: drawn, sized to its drawn ratio to the noise, checked (module
-    docstring); its parameters, its effect, what was drawn and the true points with it ``(N, K, 3)`` [m]. ``chain``: ``(robot, params, Q, base2meas rows,
-    tool2flange, points_tool)``."""
+    docstring); its parameters, its effect, what was drawn and the true points with it ``(N, K, 3)`` [m].
+    ``chain``: ``(robot, params, Q, base2meas rows, tool2flange, points_tool)``."""
     why = []
     for attempt in range(MAX_TRIES):
         try:
@@ -505,7 +505,8 @@ def write(inst: Instance, folder: str | Path) -> Path:
            "effects": inst.effect_keys,
            "noise": {"instrument": inst.instrument.kind, **inst.instrument.noise,
                      "rms_per_point_mm": inst.drawn["noise_rms_mm"], "stated_mm": inst.noise_stated_mm},
-           "seed": [SEED_BASE, MIXED_INDEX if inst.family == MIXED else FAMILY_ORDER.index(inst.family), inst.seed], "drawn": _jsonable(inst.drawn),
+           "seed": [SEED_BASE, MIXED_INDEX if inst.family == MIXED else FAMILY_ORDER.index(inst.family), inst.seed],
+           "drawn": _jsonable(inst.drawn),
            "notes": "drawn by studies/drawn/generator (it imports no part of the diagnosis)"}
     (folder / "key" / "key.json").write_text(json.dumps(key, indent=1) + "\n")
     truth = {"robot": inst.robot.name, "convention": inst.robot.convention,
