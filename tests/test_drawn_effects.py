@@ -71,26 +71,27 @@ def test_a_drawn_key_reproduces_the_data_it_describes(tmp_path, family):
 
 
 def test_a_campaign_of_several_effects_reproduces_each_of_them(tmp_path):
-    """A campaign of several effects (``mixed``): two or three families from distinct slots; the written effect is
-    the composition of the key's effects recomputed from their parameters, the key names the union of their
-    catalogue names, and each effect alone is of its own drawn size."""
-    inst = C.build(C.MIXED, 7, **SMALL)
-    fams = inst.drawn["families"]
-    slots = [next(k for k, v in C.MIXED_SLOTS.items() if f in v) for f in fams]
-    assert 2 <= len(fams) <= 3 and len(set(slots)) == len(slots), fams
-    folder = C.write(inst, tmp_path / inst.name)
-    seq = _sequence(folder)
-    np.testing.assert_allclose(C.recompute_effect(folder) * MM_PER_M, seq["e"], atol=2e-6)
-    key = json.loads((folder / "key" / "key.json").read_text())
-    assert key["category"] == "mixed" and [e["family"] for e in key["effects"]] == fams
-    assert key["expected_names"] == sorted({n for f in fams for n in Fam.FAMILIES[f].expected})
-    assert [c["ratio_visible"] for c in inst.drawn["components"]] == pytest.approx(
-        [c["ratio_drawn"] for c in inst.drawn["components"]], rel=0.01)
+    """Campaigns of several effects (``mixed``, three seeds): two or three families from distinct slots; the written
+    effect is the composition of the key's effects recomputed from their parameters, the key names the union of
+    their catalogue names, and each effect alone is of its own drawn size."""
+    for seed in (7, 8, 9):
+        inst = C.build(C.MIXED, seed, **SMALL)
+        fams = inst.drawn["families"]
+        slots = [next(k for k, v in C.MIXED_SLOTS.items() if f in v) for f in fams]
+        assert 2 <= len(fams) <= 3 and len(set(slots)) == len(slots), fams
+        folder = C.write(inst, tmp_path / inst.name)
+        seq = _sequence(folder)
+        np.testing.assert_allclose(C.recompute_effect(folder) * MM_PER_M, seq["e"], atol=2e-6)
+        key = json.loads((folder / "key" / "key.json").read_text())
+        assert key["category"] == "mixed" and [e["family"] for e in key["effects"]] == fams
+        assert key["expected_names"] == sorted({n for f in fams for n in Fam.FAMILIES[f].expected})
+        assert [c["ratio_visible"] for c in inst.drawn["components"]] == pytest.approx(
+            [c["ratio_drawn"] for c in inst.drawn["components"]], rel=0.01)
 
 
 def test_campaigns_of_several_effects_draw_every_family():
     """Over 60 campaigns of several effects, every family is drawn, with two and with three effects, never two of a
-    slot; drawing them leaves every single family's campaign as it was (their own streams)."""
+    slot; their random streams are their own, none of a single family's."""
     seen, counts = set(), set()
     for seed in range(60):
         fams = C._mixed_families(C.streams(C.MIXED, seed)[3])
@@ -99,7 +100,8 @@ def test_campaigns_of_several_effects_draw_every_family():
         seen.update(fams)
         counts.add(len(fams))
     assert seen == set(C.FAMILY_ORDER) - {"clean"} and counts == {2, 3}
-    assert C.streams(C.MIXED, 3)[0].uniform() != C.streams("tilt", 3)[0].uniform()
+    for fam in C.FAMILY_ORDER:
+        assert C.streams(C.MIXED, 3)[3].uniform() != C.streams(fam, 3)[3].uniform(), fam
 
 
 _MIXED_KEY = {"category": "mixed", "expected_names": ["compliance", "tilt"], "effects": [
