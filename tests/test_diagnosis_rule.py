@@ -8,9 +8,9 @@ import pytest
 
 from twin.diagnosis.atoms import Atom
 from twin.diagnosis.candidates import RowContext
-from twin.diagnosis.features import Cos, Sin
+from twin.diagnosis.features import Cos, Pow, Prod, Sin, Torque
 from twin.diagnosis.loads import own_link_atom
-from twin.diagnosis.rule import _better_rows, _places, _spanning
+from twin.diagnosis.rule import _better_rows, _own_variables, _places, _spanning
 from twin.diagnosis.values import feature_values
 from twin.robots import irb1200
 
@@ -173,3 +173,17 @@ def test_after_a_window_turned_down_against_a_change_outside_it_only_changes_are
     r = rule.selection_round(prob, fit, windows + catalogue, sizes, 1, alpha_select=0.01, z_min=3.0)
     assert r.accepted is None
     assert {c.name for c in r.scores} <= {a.label for a in windows}, [c.name for c in r.scores]
+
+
+def test_a_term_of_a_joint_angle_names_its_joint_variables_when_its_own_is_among_them():
+    """A term of joint 4's angle in q4*q5 or q4^2 gives its joint variables (the catalogue's shapes of each are
+    tried in its place); one in q2*q3, one of a torque or a term of a frame give none."""
+    def term(target, *features, place="joint"):
+        return Atom("generic", place, target, features, "", "x", "generic")
+
+    prod = Prod(ch=("q4", "q5"), c=(0.0, 0.0), h=(1.0, 1.0))
+    assert _own_variables(term("theta4", prod)) == {"q4", "q5"}
+    assert _own_variables(term("theta4", Pow(ch="q4", p=2, c=0.0, h=1.0))) == {"q4"}
+    assert _own_variables(term("theta4", Prod(ch=("q2", "q3"), c=(0.0, 0.0), h=(1.0, 1.0)))) == set()
+    assert _own_variables(term("theta4", Torque(j=4))) == set()
+    assert _own_variables(term("base", prod, place="param")) == set()

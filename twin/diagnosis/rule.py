@@ -477,6 +477,13 @@ def _swap_load(prob: Problem, fit: Fit, a: Atom, pool: list[Atom], targets: set[
     return alt, e_alt, e_now
 
 
+def _own_variables(a: Atom) -> set[str]:
+    """The joint variables of an unnamed term of a joint's angle in joint variables only, its own among them."""
+    chans = {c for f in a.features for c in np.atleast_1d(getattr(f, "ch", None)).tolist()}
+    ok = a.place == "joint" and all(isinstance(c, str) and c.startswith("q") for c in chans)
+    return chans if ok and "q" + a.target[5:] in chans else set()
+
+
 def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
                   alpha_select: float) -> tuple[Fit, list[str], list[dict]]:
     """Where the greedy forward pass built a function of one joint variable at a joint from an unnamed term and
@@ -485,31 +492,35 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
     they predict the confirmation rows as well (within 2 %) with no more parameters at that joint than the unnamed
     shape and the named terms kept with it, the named explanation is kept, and the unnamed shape it
     replaced is reported as the alternative the data cannot tell from it (over a joint's range a few harmonics
-    follow any smooth shape: the name is the simpler reading, not a proof). Returns the fit, notes and those
-    alternatives."""
+    follow any smooth shape: the name is the simpler reading, not a proof). An unnamed term of a joint's angle in
+    its own variable (with another joint's, or alone) and no named one beside it: the gear ratio and the wrist
+    couplings of those variables at that joint, on the same terms (a ratio error beside another effect is read by a
+    product that takes a little of both). Returns the fit, notes and those alternatives."""
     notes: list[str] = []
     alts: list[dict] = []
     for a, _ in list(fit.chosen):
         var = _single_joint_variable(a)
-        if a.pool != "generic" or var is None or a not in [c for c, _ in fit.chosen]:
+        if a.pool != "generic" or a not in [c for c, _ in fit.chosen]:
             continue
         target = a.target
         named_here = [c for c, _ in fit.chosen if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
-        if not named_here:
+        own = _own_variables(a) if var is None or not named_here else set()
+        if var is None and not own or var is not None and not named_here and not own:
             continue
+        scope = {var} if not own else own
         have = {c.key for c, _ in fit.chosen if c is not a}
-        cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) == var
-                 and c.key not in have]
+        cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) in scope
+                 and c.key not in have and (not own or c.family in ("gear_ratio", "coupling"))]
         swap = _swap_term(prob, fit, a, cands, sizes, alpha_select)
         if swap is None:
             continue
         alt, e_alt, e_now = swap
         # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
         # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
-        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and _single_joint_variable(c) == var)
-        n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) == var)
+        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and (_single_joint_variable(c) in scope or c is a))
+        n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) in scope)
         if e_alt <= 1.02 * e_now and n_alt <= n_now:
-            notes.append(f"'{a.label}' replaced by the catalogue's shapes of {var} on joint {target[5:]} "
+            notes.append(f"'{a.label}' replaced by the catalogue's shapes of {', '.join(sorted(scope))} on joint {target[5:]} "
                          f"({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they predict the "
                          f"held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
             for c, _ in alt.chosen:
