@@ -503,7 +503,8 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
         if a.pool != "generic" or a not in [c for c, _ in fit.chosen]:
             continue
         target = a.target
-        named_here = [c for c, _ in fit.chosen if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
+        named_here = [c for c, _ in fit.chosen
+                      if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
         own = _own_variables(a) if var is None or not named_here else set()
         if var is None and not own or var is not None and not named_here and not own:
             continue
@@ -517,12 +518,13 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
         alt, e_alt, e_now = swap
         # no more parameters at that joint than the unnamed shape and the named ones kept with it (a one-sided
         # pull past an angle is a quadratic; three harmonics follow it as well with twice the parameters)
-        n_now = sum(B.shape[1] for c, B in fit.chosen if c.target == target and (_single_joint_variable(c) in scope or c is a))
+        n_now = sum(B.shape[1] for c, B in fit.chosen
+                    if c.target == target and (_single_joint_variable(c) in scope or c is a))
         n_alt = sum(B.shape[1] for c, B in alt.chosen if c.target == target and _single_joint_variable(c) in scope)
         if e_alt <= 1.02 * e_now and n_alt <= n_now:
-            notes.append(f"'{a.label}' replaced by the catalogue's shapes of {', '.join(sorted(scope))} on joint {target[5:]} "
-                         f"({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they predict the "
-                         f"held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
+            notes.append(f"'{a.label}' replaced by the catalogue's shapes of {', '.join(sorted(scope))} on joint "
+                         f"{target[5:]} ({'; '.join(c.label for c, _ in alt.chosen if c.target == target)}): they "
+                         f"predict the held-out rows as well ({e_alt:.5f} vs {e_now:.5f} mm RMS)")
             for c, _ in alt.chosen:
                 if c.target == target and c.pool != "generic":
                     alts.append({"of": c.label, "alternative": f"{a.label} (with the named terms it was kept with)",
