@@ -100,7 +100,8 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=20, help="instances per family: seeds 0..draws-1")
     ap.add_argument("--seeds", default=None, help="the seeds instead, e.g. 0-2 or 3,7")
     ap.add_argument("--families", default="all",
-                    help=f"comma-separated subset of {','.join(FAMILY_ORDER)}, or mixed (several effects at once; not in all)")
+                    help=f"comma-separated subset of {','.join(FAMILY_ORDER)}, "
+                         "or mixed (several effects at once; not in all)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--keep", type=Path, default=None, help="keep the campaigns and work folders here")

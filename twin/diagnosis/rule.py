@@ -503,12 +503,14 @@ def _named_shapes(prob: Problem, fit: Fit, pool: list[Atom], sizes: dict,
         if a.pool != "generic" or a not in [c for c, _ in fit.chosen]:
             continue
         target = a.target
-        named_here = [c for c, _ in fit.chosen
-                      if c.pool != "generic" and c.target == target and _single_joint_variable(c) == var]
-        own = _own_variables(a) if var is None or not named_here else set()
-        if var is None and not own or var is not None and not named_here and not own:
+        named_here = var is not None and any(
+            c.pool != "generic" and c.target == target and _single_joint_variable(c) == var for c, _ in fit.chosen)
+        # a shape of one variable beside a named term of it: every catalogue shape of that variable; otherwise a term
+        # in its own joint's variable: the ratio and the couplings of its variables
+        own = set() if named_here else _own_variables(a)
+        if not named_here and not own:
             continue
-        scope = {var} if not own else own
+        scope = own or {var}
         have = {c.key for c, _ in fit.chosen if c is not a}
         cands = [c for c in pool if c.pool == "catalogue" and c.target == target and _single_joint_variable(c) in scope
                  and c.key not in have and (not own or c.family in ("gear_ratio", "coupling"))]
