@@ -89,3 +89,11 @@ def test_a_negative_tolerance_is_refused(committed):
     """ratio_tol below zero is a ValueError naming the argument."""
     with pytest.raises(ValueError, match="ratio_tol"):
         compare(committed, committed, ratio_tol=-0.1)
+
+
+def test_the_same_families_in_another_order_are_not_a_move(committed):
+    """An instance whose named families are listed in another order has not moved."""
+    name = next(i["name"] for i in committed["instances"] if len(i.get("effects") or []) >= 2)
+    new = copy.deepcopy(committed)
+    _find(new, name)["effects"] = list(reversed(_find(new, name)["effects"]))
+    assert compare(committed, new).moved == ()

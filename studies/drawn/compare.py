@@ -8,9 +8,9 @@ after the campaign or named families changed, and each set's totals before and a
 An instance *holds* as the tables count it (``studies/drawn/tables.py``): a family's instance named right with its rows
 after the campaign within 1.2x the oracle (a clean one: no alarm, and its later rows within 1.2x); a campaign of several
 effects named right with its later rows within its goal. An instance moved when it holds on one side only, when its
-later rows' after/oracle changed by more than ``--ratio-tol`` (relative, default 2 %), or when its named families
-changed. A change to what the diagnosis computes is judged on every set with this list: which instances moved, which
-way, and the net.
+later rows' after/oracle changed by more than ``--ratio-tol`` (relative, default 2 %), or when the families it names
+changed (not their order). A change to what the diagnosis computes is judged on every set with this list: which
+instances moved, which way, and the net.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ class Moved:
     def line(self) -> str:
         def r(x):
             return "-" if x is None else f"{x:.2f}x"
-        fam = "" if self.effects_before == self.effects_after else \
+        fam = "" if sorted(self.effects_before) == sorted(self.effects_after) else \
             f"  named {list(self.effects_before)} -> {list(self.effects_after)}"
         return (f"{self.name:24s} holds {str(self.held_before):5s} -> {str(self.held_after):5s}  later rows "
                 f"{r(self.later_before)} -> {r(self.later_after)}{fam}")
@@ -100,7 +100,7 @@ def compare(old: dict, new: dict, *, ratio_tol: float = 0.02) -> SetComparison:
         ratio_moved = (ro is None) != (rn is None) or (
             ro is not None and rn is not None and abs(rn - ro) > ratio_tol * max(abs(ro), 1e-12))
         eo, en = tuple(o.get("effects") or ()), tuple(n.get("effects") or ())
-        if holds(o) != holds(n) or ratio_moved or eo != en:
+        if holds(o) != holds(n) or ratio_moved or sorted(eo) != sorted(en):
             moved.append(Moved(k, holds(o), holds(n), ro, rn, eo, en))
 
     effect = [k for k in both if b[k].get("category") != "clean"]
