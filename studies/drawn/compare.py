@@ -149,10 +149,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for folder in args.new:
             c = compare(_read_old(folder, args.old, args.against), _read_new(folder), ratio_tol=args.ratio_tol)
-            print(f"{folder}: {c.n} instances; of the {c.n_effect} with an effect holding {c.held_before} -> "
-                  f"{c.held_after}; clean alarms "
-                  f"{c.alarms_before} -> {c.alarms_after}" + (f", in one run only: {', '.join(c.only_one_side)}"
-                                                              if c.only_one_side else ""))
+            one = c.only_one_side
+            print(f"{folder}: {c.n} instances in both runs; of the {c.n_effect} with an effect holding "
+                  f"{c.held_before} -> {c.held_after}; clean alarms {c.alarms_before} -> {c.alarms_after}"
+                  + (f"; in one run only: {len(one)}" + (f" ({', '.join(one)})" if len(one) <= 10 else "")
+                     if one else ""))
             for m in c.moved:
                 print("  " + m.line())
             n, ne, hb, ha = n + c.n, ne + c.n_effect, hb + c.held_before, ha + c.held_after
