@@ -97,3 +97,17 @@ def test_the_same_families_in_another_order_are_not_a_move(committed):
     new = copy.deepcopy(committed)
     _find(new, name)["effects"] = list(reversed(_find(new, name)["effects"]))
     assert compare(committed, new).moved == ()
+
+
+def test_a_file_that_is_not_json_is_an_error_naming_it(tmp_path, capsys, committed):
+    """A results.json that is not JSON, or an instance without a name, is an error naming the file or the entry
+    (exit 2), not a traceback."""
+    (tmp_path / "old").mkdir()
+    (tmp_path / "new").mkdir()
+    (tmp_path / "old" / "results.json").write_text(json.dumps(committed))
+    (tmp_path / "new" / "results.json").write_text("{not json")
+    assert main([str(tmp_path / "new"), "--old", str(tmp_path / "old")]) == 2
+    assert "results.json" in capsys.readouterr().err
+    (tmp_path / "new" / "results.json").write_text(json.dumps({"instances": [{"family": "clean"}]}))
+    assert main([str(tmp_path / "new"), "--old", str(tmp_path / "old")]) == 2
+    assert "instances[0]" in capsys.readouterr().err

@@ -82,7 +82,17 @@ class SetComparison:
 def _instances(results: dict, what: str) -> dict[str, dict]:
     if not isinstance(results, dict) or not isinstance(results.get("instances"), list):
         raise ValueError(f"{what}: not a drawn set's results.json (no 'instances' list)")
+    bad = next((k for k, i in enumerate(results["instances"]) if not isinstance(i, dict) or "name" not in i), None)
+    if bad is not None:
+        raise ValueError(f"{what}: instances[{bad}] has no 'name'")
     return {i["name"]: i for i in results["instances"]}
+
+
+def _parse(text: str, what: str) -> dict:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{what}: not JSON ({exc})") from None
 
 
 def compare(old: dict, new: dict, *, ratio_tol: float = 0.02) -> SetComparison:
@@ -116,7 +126,7 @@ def _read_new(folder: Path) -> dict:
     p = folder / "results.json"
     if not p.is_file():
         raise ValueError(f"new run {folder}: no results.json there")
-    return json.loads(p.read_text())
+    return _parse(p.read_text(), str(p))
 
 
 def _read_old(folder: Path, old: Path | None, against: str) -> dict:
@@ -124,15 +134,18 @@ def _read_old(folder: Path, old: Path | None, against: str) -> dict:
         p = old / "results.json"
         if not p.is_file():
             raise ValueError(f"--old {old}: no results.json there")
-        return json.loads(p.read_text())
+        return _parse(p.read_text(), str(p))
     rel = (folder.resolve() / "results.json").relative_to(ROOT).as_posix() \
         if folder.resolve().is_relative_to(ROOT) else None
     if rel is None:
         raise ValueError(f"new run {folder}: outside the repository; name the other run with --old")
-    got = subprocess.run(["git", "show", f"{against}:{rel}"], cwd=ROOT, capture_output=True, text=True)
+    try:
+        got = subprocess.run(["git", "show", f"{against}:{rel}"], cwd=ROOT, capture_output=True, text=True)
+    except OSError as exc:
+        raise ValueError(f"--against {against}: git cannot be run here ({exc}); name the other run with --old") from None
     if got.returncode != 0:
         raise ValueError(f"--against {against}: no {rel} in that commit ({got.stderr.strip()})")
-    return json.loads(got.stdout)
+    return _parse(got.stdout, f"{against}:{rel}")
 
 
 def main(argv: list[str] | None = None) -> int:
