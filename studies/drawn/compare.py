@@ -142,7 +142,8 @@ def _read_old(folder: Path, old: Path | None, against: str) -> dict:
     try:
         got = subprocess.run(["git", "show", f"{against}:{rel}"], cwd=ROOT, capture_output=True, text=True)
     except OSError as exc:
-        raise ValueError(f"--against {against}: git cannot be run here ({exc}); name the other run with --old") from None
+        raise ValueError(f"--against {against}: git cannot be run here ({exc}); name the other run with --old") \
+            from None
     if got.returncode != 0:
         raise ValueError(f"--against {against}: no {rel} in that commit ({got.stderr.strip()})")
     return _parse(got.stdout, f"{against}:{rel}")
